@@ -1,0 +1,51 @@
+"""Named errors. Each message says what is wrong and what to do about it."""
+
+from __future__ import annotations
+
+
+class PalpateError(Exception):
+    """Base class of every error palpate raises on purpose."""
+
+
+# --- messages -------------------------------------------------------------------------------------
+class MessageError(PalpateError):
+    """A message could not be decoded or does not match its schema."""
+
+
+class MalformedMessageError(MessageError):
+    """The bytes are not a palpate envelope, or a field is missing, extra or of the wrong type."""
+
+
+class UnknownMessageTypeError(MessageError):
+    """The envelope names a message type this build does not know."""
+
+
+class SchemaVersionError(MessageError):
+    """The envelope's schema version differs from the version this build speaks."""
+
+
+class NonFiniteError(MessageError):
+    """A field that must be finite holds NaN or infinity."""
+
+
+# --- configuration and launch ---------------------------------------------------------------------
+class ConfigError(PalpateError):
+    """A node's parameters are missing, unknown or of the wrong type."""
+
+
+class LaunchError(PalpateError):
+    """A launch file is invalid or a launched graph failed."""
+
+
+# --- simulation and geometry ----------------------------------------------------------------------
+class MeshError(PalpateError):
+    """A mesh file is missing, unreadable, degenerate or at an absurd scale."""
+
+
+class SimulationDivergedError(PalpateError):
+    """The physics produced non-finite state, usually because the time step is too large."""
+
+
+# --- estimation -----------------------------------------------------------------------------------
+class EstimationError(PalpateError):
+    """An estimator was given input it cannot use (for example a zero-length normal)."""

@@ -1,0 +1,31 @@
+"""Path settings. Data locations come from the environment, with repository-relative defaults."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+#: Environment variable that points at the YCB mesh folder (binary STL files in metres).
+YCB_DIR_ENV = "PALPATE_YCB_DIR"
+#: Environment variable for the on-disk cache (convex decompositions, ...).
+CACHE_DIR_ENV = "PALPATE_CACHE_DIR"
+
+
+def ycb_dir() -> Path | None:
+    """The YCB mesh folder: ``$PALPATE_YCB_DIR``, else ``../shared/data/ycb`` beside the repository.
+
+    Returns None when the folder does not exist, so that callers can skip with a reason.
+    """
+    configured = os.environ.get(YCB_DIR_ENV)
+    candidate = Path(configured) if configured else REPO_ROOT.parent / "shared" / "data" / "ycb"
+    return candidate if candidate.is_dir() else None
+
+
+def cache_dir() -> Path:
+    """Directory for derived data that is expensive to compute: ``$PALPATE_CACHE_DIR`` or ~/.cache/palpate."""
+    configured = os.environ.get(CACHE_DIR_ENV)
+    path = Path(configured) if configured else Path.home() / ".cache" / "palpate"
+    path.mkdir(parents=True, exist_ok=True)
+    return path
