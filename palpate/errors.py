@@ -49,3 +49,8 @@ class SimulationDivergedError(PalpateError):
 # --- estimation -----------------------------------------------------------------------------------
 class EstimationError(PalpateError):
     """An estimator was given input it cannot use (for example a zero-length normal)."""
+
+
+# --- exploration planning and control -------------------------------------------------------------
+class PlanningError(PalpateError):
+    """The planner or trajectory controller cannot act (no candidate target, degenerate inputs)."""
