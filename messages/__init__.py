@@ -1,0 +1,50 @@
+"""Message schemas, topics and the codec (installed as `palpate.messages`)."""
+
+from palpate.messages.base import REGISTRY, FieldSpec, Message
+from palpate.messages.codec import decode, encode, message_type, validate
+from palpate.messages.schemas import (
+    CartesianVelocityCommand,
+    Clock,
+    ContactSet,
+    JointCommand,
+    JointState,
+    LockstepAck,
+    NodeStatus,
+    ObjectTruth,
+    OccupancyGrid,
+    ParticleSetSummary,
+    Pose,
+    RunControl,
+    SurfaceMesh,
+    SurfaceRequest,
+    TouchEvent,
+    TouchTarget,
+    Trajectory,
+)
+
+__all__ = [
+    "REGISTRY",
+    "CartesianVelocityCommand",
+    "Clock",
+    "ContactSet",
+    "FieldSpec",
+    "JointCommand",
+    "JointState",
+    "LockstepAck",
+    "Message",
+    "NodeStatus",
+    "ObjectTruth",
+    "OccupancyGrid",
+    "ParticleSetSummary",
+    "Pose",
+    "RunControl",
+    "SurfaceMesh",
+    "SurfaceRequest",
+    "TouchEvent",
+    "TouchTarget",
+    "Trajectory",
+    "decode",
+    "encode",
+    "message_type",
+    "validate",
+]

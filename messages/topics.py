@@ -1,0 +1,37 @@
+"""Topic names. Nodes use these constants (or their remapped names from the launch file), never literals.
+
+Topics under `truth/` carry ground truth from the simulator; the launch validator refuses to wire them
+into a node unless the launch file marks that node as an evaluator.
+"""
+
+CLOCK = "clock"
+LOCKSTEP_ACK = "lockstep/ack"
+NODE_STATUS = "status"
+
+JOINT_STATES = "sensors/joint_states"
+JOINT_COMMANDS = "commands/joints"
+EFFECTOR_POSE = "sensors/effector_pose"
+VELOCITY_COMMANDS = "commands/velocity"
+CONTACTS = "sensors/contacts"
+
+NOISY_JOINT_STATES = "sensors/joint_states_noisy"
+NOISY_CONTACTS = "sensors/contacts_noisy"
+
+TRUTH_PREFIX = "truth/"
+TRUTH_JOINT_STATES = "truth/joint_states"
+TRUTH_OBJECT = "truth/object"
+
+OCCUPANCY_GRID = "map/occupancy"
+PARTICLES = "map/particles"
+POSE_ESTIMATE = "map/pose_estimate"
+
+SURFACE_MESH = "surface/mesh"
+SURFACE_REQUEST = "surface/request"
+TOUCH_TARGET = "planner/target"
+TRAJECTORY = "controller/trajectory"
+EXPLORATION_EVENT = "controller/events"
+
+
+def is_truth(topic: str) -> bool:
+    """True for ground-truth topics, which only evaluator nodes may subscribe to."""
+    return topic.lstrip("/").startswith(TRUTH_PREFIX)
