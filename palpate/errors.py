@@ -54,3 +54,8 @@ class EstimationError(PalpateError):
 # --- exploration planning and control -------------------------------------------------------------
 class PlanningError(PalpateError):
     """The planner or trajectory controller cannot act (no candidate target, degenerate inputs)."""
+
+
+# --- warnings -------------------------------------------------------------------------------------
+class MeshWarning(UserWarning):
+    """A mesh loads but some results on it are unreliable (for example it is not watertight)."""

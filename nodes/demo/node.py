@@ -1,0 +1,99 @@
+"""Node wrappers of the minimal demo graph (`launch/demo_minimal.yaml`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from palpate.messages.schemas import ContactSet
+from palpate.nodes.demo.core import ContactStatistics, sample_cube_contacts
+from palpate.runtime.spec import NodeSpec, Port
+
+
+@dataclass(frozen=True, kw_only=True)
+class CubeContactsConfig:
+    edge_m: float = 0.05
+    contacts_per_tick: int = 4
+    period_s: float = 0.01
+    duration_s: float = 1.0
+
+
+class CubeContacts:
+    """Clock source: each tick publishes contacts sampled on a cube."""
+
+    def __init__(self, config: CubeContactsConfig, ctx: Any):
+        self.config, self.ctx = config, ctx
+        self.period_ns = round(config.period_s * 1e9)
+        self.ticks = round(config.duration_s / config.period_s)
+        self.tick = 0
+
+    def step(self) -> int | None:
+        if self.tick >= self.ticks:
+            return None
+        stamp = self.tick * self.period_ns
+        positions, normals = sample_cube_contacts(self.config.edge_m, self.config.contacts_per_tick, self.ctx.rng)
+        n = len(positions)
+        self.ctx.publish(
+            "contacts",
+            ContactSet(
+                stamp_ns=stamp,
+                positions_m=positions,
+                local_positions_m=np.zeros((n, 3)),
+                normals=normals,
+                forces_n=np.ones(n),
+                links=["probe"] * n,
+            ),
+        )
+        self.tick += 1
+        return stamp
+
+    def on_tick(self, stamp_ns: int) -> None:
+        """A clock source has nothing to do after its own tick."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ContactStatsConfig:
+    report: bool = True
+
+
+class ContactStats:
+    """Consumes contact sets and prints a summary when the run ends."""
+
+    def __init__(self, config: ContactStatsConfig, ctx: Any):
+        self.config, self.ctx = config, ctx
+        self.stats = ContactStatistics()
+
+    def on_contacts(self, message: ContactSet) -> None:
+        self.stats.add(message.positions_m)
+        self.ctx.metrics["contacts"] = float(self.stats.contacts)
+
+    def on_tick(self, stamp_ns: int) -> None:
+        """Statistics are updated per message; nothing to do per tick."""
+
+    def close(self) -> None:
+        if self.config.report:
+            extent = ", ".join(f"{1000 * e:.1f}" for e in self.stats.extent_m())
+            print(
+                f"summary: {self.stats.messages} contact sets, {self.stats.contacts} contacts, "
+                f"bounding box {extent} mm, decode errors {self.ctx.counters['decode_errors']}",
+                flush=True,
+            )
+
+
+CUBE_CONTACTS = NodeSpec(
+    name="cube_contacts",
+    config=CubeContactsConfig,
+    factory=CubeContacts,
+    outputs={"contacts": Port(ContactSet)},
+    clock_source=True,
+    doc="Clock source publishing contacts sampled on a generated cube.",
+)
+CONTACT_STATS = NodeSpec(
+    name="contact_stats",
+    config=ContactStatsConfig,
+    factory=ContactStats,
+    inputs={"contacts": Port(ContactSet)},
+    doc="Counts contacts and prints a summary at the end of the run.",
+)

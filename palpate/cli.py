@@ -1,0 +1,53 @@
+"""The `palpate` command. Each sub-command lives in `palpate.commands.<name>` and registers itself."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from palpate.errors import PalpateError
+
+#: Sub-command modules, each with `register(subparsers)` that sets `func` on its parser.
+COMMAND_MODULES = [
+    "palpate.commands.launch",
+    "palpate.commands.docs",
+    "palpate.commands.introspect",
+    "palpate.commands.bag",
+    "palpate.commands.bench",
+    "palpate.commands.evaluate",
+    "palpate.commands.view",
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="palpate", description="Learn the shape of unknown objects by touch.")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:  # a command not built yet
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except PalpateError as exc:
+        print(f"palpate {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,318 @@
+"""Validate a launch file and resolve it into a graph: topics, types, wiring and lockstep roles.
+
+Everything is checked before any process starts: node types, parameters (unknown, missing,
+mistyped), subscriptions without a publisher, publisher/subscriber type mismatches, ground-truth
+topics wired into non-evaluator nodes. Each error names the file, the line and the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from palpate.errors import ConfigError, LaunchError
+from palpate.launch.loader import LaunchFile, NodeEntry, Where
+from palpate.messages import topics
+from palpate.runtime import bus
+from palpate.runtime.registry import load_node_spec
+from palpate.runtime.spec import NodeProcessSpec, NodeSpec, build_config, coerce
+
+_SHARED_TOPICS = {topics.NODE_STATUS, topics.GRAPH_CONTROL}
+
+
+@dataclass
+class GraphNode:
+    """A node of the resolved graph."""
+
+    name: str
+    type: str
+    spec: NodeSpec[Any]
+    params: dict[str, Any]
+    publishes: dict[str, str]  # port -> topic
+    subscribes: dict[str, str]
+    where: Where
+    entry: NodeEntry
+    external: bool = False
+    evaluator: bool = False
+    respawn: bool = False
+    max_restarts: int = 0
+    sigterm_timeout_s: float = 5.0
+    endpoint: str = ""
+    curve: dict[str, str] = field(default_factory=dict)
+    rank: int = 0
+
+
+@dataclass
+class Graph:
+    """The whole resolved graph of a launch file."""
+
+    source: LaunchFile
+    nodes: list[GraphNode]
+    bus_dir: Path
+    mode: str
+    seed: int
+    record_all: bool = False
+
+    @property
+    def by_name(self) -> dict[str, GraphNode]:
+        return {n.name: n for n in self.nodes}
+
+    def publishers(self, topic: str) -> list[GraphNode]:
+        return [n for n in self.nodes if topic in n.publishes.values()]
+
+    def topic_types(self) -> dict[str, str]:
+        types: dict[str, str] = {}
+        for node in self.nodes:
+            for port, topic in node.publishes.items():
+                types[topic] = node.spec.outputs[port].message.TYPE
+        return types
+
+    @property
+    def clock_source(self) -> GraphNode | None:
+        sources = [n for n in self.nodes if n.spec.clock_source]
+        return sources[0] if sources else None
+
+    def process_specs(self, *, extra_subscribers: int = 0) -> list[NodeProcessSpec]:
+        """What each node process gets; `extra_subscribers` counts a recorder connected to every node."""
+        return [self._process_spec(n, extra_subscribers) for n in self.nodes]
+
+    def upstream(self, node: GraphNode) -> list[GraphNode]:
+        topics_in = set(node.subscribes.values())
+        return [n for n in self.nodes if n is not node and topics_in & set(n.publishes.values())]
+
+    def _connections(self, node: GraphNode) -> list[GraphNode]:
+        """Publishers `node` connects to: those of its inputs, plus the clock source (and, for the
+        clock source, every node, for acknowledgements and stop requests)."""
+        clock = self.clock_source
+        if node is clock:
+            return [n for n in self.nodes if n is not node]
+        peers = self.upstream(node)
+        if clock is not None and clock not in peers and clock is not node:
+            peers.append(clock)
+        return peers
+
+    def _process_spec(self, node: GraphNode, extra_subscribers: int) -> NodeProcessSpec:
+        lockstep = self.mode == "lockstep"
+        connectors = [n for n in self.nodes if node in self._connections(n)]
+        expected: dict[str, int] = {}
+        for topic in set(node.publishes.values()):
+            count = sum(1 for n in connectors if topic in n.subscribes.values()) + extra_subscribers
+            if count:
+                expected[topic] = count
+        wiring_topic = topics.LOCKSTEP_ACK if lockstep else topics.GRAPH_CONTROL
+        expected[wiring_topic] = len(connectors) + extra_subscribers
+        if not expected[wiring_topic]:
+            del expected[wiring_topic]
+        upstream = self.upstream(node)
+        clock = self.clock_source
+        return NodeProcessSpec(
+            name=node.name,
+            type=node.type,
+            params=node.params,
+            bus_dir=str(self.bus_dir),
+            endpoint=node.endpoint,
+            publishes=dict(node.publishes),
+            subscribes=dict(node.subscribes),
+            connect=[n.endpoint for n in self._connections(node)],
+            mode=self.mode,
+            seed=self.seed + _stable_hash(node.name) if "seed" not in node.params else int(node.params["seed"]),
+            clock_source=node is clock,
+            expected_subscribers=expected,
+            forward_upstream=[n.name for n in upstream if n.rank < node.rank and n is not clock],
+            backward_upstream=[n.name for n in upstream if n.rank > node.rank],
+            lockstep_nodes=[n.name for n in self.nodes if n is not node] if node is clock else [],
+            topic_order={t: p.rank for p in self.nodes for t in p.publishes.values()},
+            curve=node.curve,
+        )
+
+
+def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
+    """Validate `launch` and resolve its graph, or raise LaunchError naming file, line and key."""
+    bus_dir = bus_dir or bus.default_bus_dir()
+    names: dict[str, Where] = {}
+    nodes = []
+    for index, entry in enumerate(launch.nodes):
+        node = _resolve_node(entry, index, bus_dir)
+        if node.name in names:
+            raise LaunchError(f"{entry.at('name')}: node name {node.name!r} is already used at {names[node.name]}")
+        names[node.name] = entry.at("name")
+        nodes.append(node)
+    graph = Graph(source=launch, nodes=nodes, bus_dir=bus_dir, mode=launch.mode, seed=launch.seed)
+    _check_wiring(graph)
+    _rank(graph)
+    return graph
+
+
+def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
+    f = entry.fields
+    name, node_type = f["name"], f["type"]
+    for key, kind in (("name", str), ("type", str), ("namespace", str), ("host", str)):
+        if key in f and not isinstance(f[key], kind):
+            raise LaunchError(f"{entry.at(key)}: {key} must be a string, got {f[key]!r}")
+    try:
+        spec = load_node_spec(node_type).with_params(f.get("params") or {})
+    except LaunchError as exc:
+        raise LaunchError(f"{entry.at('type')}: {exc}") from exc
+    params = f.get("params") or {}
+    if not isinstance(params, dict):
+        raise LaunchError(f"{entry.at('params')}: params must be a mapping")
+    _check_params(entry, spec, params)
+    remaps = f.get("remaps") or {}
+    if not isinstance(remaps, dict):
+        raise LaunchError(f"{entry.at('remaps')}: remaps must be a mapping port: topic")
+    ports = {**spec.inputs, **spec.outputs}
+    for port in remaps:
+        if port not in ports:
+            raise LaunchError(
+                f"{entry.remap_lines.get(port, entry.at('remaps'))}: node {name!r} ({node_type}) has no port {port!r}; "
+                f"ports: {sorted(ports)}"
+            )
+    namespace = str(f.get("namespace", "")).strip("/")
+
+    def topic_of(port: str) -> str:
+        topic = str(remaps.get(port, ports[port].default_topic))
+        if topic.startswith("/") or not namespace:
+            return topic.lstrip("/")
+        return f"{namespace}/{topic}"
+
+    host = f.get("host")
+    port_number = f.get("port", 5600 + index)
+    endpoint = f"tcp://{host}:{port_number}" if host else bus.ipc_endpoint(bus_dir, name)
+    node = GraphNode(
+        name=name,
+        type=node_type,
+        spec=spec,
+        params=params,
+        publishes={p: topic_of(p) for p in spec.outputs},
+        subscribes={p: topic_of(p) for p in spec.inputs},
+        where=entry.where,
+        entry=entry,
+        external=_flag(entry, "external"),
+        evaluator=_flag(entry, "evaluator"),
+        respawn=_flag(entry, "respawn"),
+        max_restarts=_number(entry, "max_restarts", 3 if _flag(entry, "respawn") else 0, int),
+        sigterm_timeout_s=_number(entry, "sigterm_timeout_s", 5.0, float),
+        endpoint=endpoint,
+        curve=_curve(entry),
+    )
+    return node
+
+
+def _check_params(entry: NodeEntry, spec: NodeSpec[Any], params: dict[str, Any]) -> None:
+    hints = typing.get_type_hints(spec.config)
+    fields = {f.name: f for f in dataclasses.fields(spec.config) if f.init}
+    node = entry.fields["name"]
+    for key, value in params.items():
+        where = entry.param_lines.get(key, entry.at("params"))
+        if key not in fields:
+            raise LaunchError(f"{where}: node {node!r}: unknown parameter {key!r}; known: {', '.join(sorted(fields))}")
+        try:
+            coerce(hints[key], value, f"params.{key}")
+        except ConfigError as exc:
+            raise LaunchError(f"{where}: node {node!r}: {exc}") from exc
+    try:
+        build_config(spec.config, params, "params")
+    except ConfigError as exc:
+        raise LaunchError(f"{entry.at('params')}: node {node!r}: {exc}") from exc
+
+
+def _check_wiring(graph: Graph) -> None:
+    types = graph.topic_types()
+    for node in graph.nodes:
+        for port, topic in node.subscribes.items():
+            where = node.entry.remap_lines.get(port, node.where)
+            wanted = node.spec.inputs[port].message.TYPE
+            if topics.is_truth(topic) and not node.evaluator:
+                raise LaunchError(
+                    f"{where}: node {node.name!r} reads ground truth {topic!r} on port {port!r}; only evaluators may "
+                    "(add 'evaluator: true' to the node if it only evaluates)"
+                )
+            if topic not in types:
+                raise LaunchError(
+                    f"{where}: node {node.name!r} subscribes to {topic!r} (port {port!r}, {wanted}) but no node "
+                    "publishes it; add a publisher, remap the port, or mark a hardware driver 'external: true'"
+                )
+            if types[topic] != wanted:
+                pubs = ", ".join(p.name for p in graph.publishers(topic))
+                raise LaunchError(
+                    f"{where}: type mismatch on {topic!r}: {pubs} publishes {types[topic]}, "
+                    f"but node {node.name!r} port {port!r} expects {wanted}"
+                )
+    for topic in types:
+        publishers = graph.publishers(topic)
+        if len(publishers) > 1 and topic not in _SHARED_TOPICS:
+            first, second = publishers[0], publishers[1]
+            raise LaunchError(
+                f"{second.where}: topic {topic!r} has two publishers ({first.name} and {second.name}); remap one"
+            )
+    sources = [n for n in graph.nodes if n.spec.clock_source]
+    if len(sources) > 1:
+        raise LaunchError(f"{sources[1].where}: two clock sources ({sources[0].name}, {sources[1].name}); keep one")
+    if graph.mode == "lockstep" and not sources:
+        raise LaunchError(f"{graph.source.path}: a lockstep graph needs a clock source (a sim, replay or driver node)")
+
+
+def _rank(graph: Graph) -> None:
+    """Order nodes: the clock source first, then depth-first along publisher -> subscriber edges."""
+    order: list[GraphNode] = []
+    seen: set[str] = set()
+
+    def visit(node: GraphNode) -> None:
+        if node.name in seen:
+            return
+        seen.add(node.name)
+        order.append(node)
+        for topic in node.publishes.values():
+            for sub in graph.nodes:
+                if topic in sub.subscribes.values():
+                    visit(sub)
+
+    clock = graph.clock_source
+    if clock is not None:
+        visit(clock)
+    for node in graph.nodes:
+        visit(node)
+    for rank, node in enumerate(order):
+        node.rank = rank
+
+
+def _flag(entry: NodeEntry, key: str) -> bool:
+    value = entry.fields.get(key, False)
+    if not isinstance(value, bool):
+        raise LaunchError(f"{entry.at(key)}: {key} must be true or false, got {value!r}")
+    return value
+
+
+def _number(entry: NodeEntry, key: str, default: Any, kind: type) -> Any:
+    value = entry.fields.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int | float) or (kind is int and not isinstance(value, int)):
+        raise LaunchError(f"{entry.at(key)}: {key} must be a{'n integer' if kind is int else ' number'}, got {value!r}")
+    if value < 0:
+        raise LaunchError(f"{entry.at(key)}: {key} must not be negative, got {value!r}")
+    return kind(value)
+
+
+def _curve(entry: NodeEntry) -> dict[str, str]:
+    path = entry.fields.get("curve_keys")
+    if path is None:
+        return {}
+    try:
+        keys = json.loads(Path(str(path)).expanduser().read_text())
+    except (OSError, ValueError) as exc:
+        raise LaunchError(f"{entry.at('curve_keys')}: cannot read CurveZMQ key file {path!r}: {exc}") from exc
+    missing = {"public", "secret", "server_public"} - set(keys)
+    if missing:
+        raise LaunchError(f"{entry.at('curve_keys')}: key file {path!r} lacks {sorted(missing)}")
+    return {k: str(keys[k]) for k in ("public", "secret", "server_public")}
+
+
+def _stable_hash(text: str) -> int:
+    """A small deterministic per-node seed offset (Python's hash() is salted per process)."""
+    value = 0
+    for ch in text.encode():
+        value = (value * 131 + ch) % 1_000_003
+    return value

@@ -1,0 +1,220 @@
+"""Reading launch files: YAML with line numbers, arguments (`${name}`, `name:=value`) and includes.
+
+Every value keeps the file and line it came from, so that validation errors can name them.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from palpate.errors import LaunchError
+
+_CONSTRUCTOR = yaml.constructor.SafeConstructor()
+_ARG = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
+
+TOP_KEYS = {"args", "mode", "seed", "include", "nodes", "description"}
+NODE_KEYS = {
+    "name",
+    "type",
+    "params",
+    "remaps",
+    "namespace",
+    "respawn",
+    "max_restarts",
+    "sigterm_timeout_s",
+    "external",
+    "evaluator",
+    "host",
+    "port",
+    "curve_keys",
+}
+INCLUDE_KEYS = {"file", "args"}
+
+
+@dataclass(frozen=True)
+class Where:
+    """A place in a launch file."""
+
+    file: str
+    line: int
+
+    def __str__(self) -> str:
+        return f"{self.file}:{self.line}"
+
+
+@dataclass
+class NodeEntry:
+    """One node of a launch file, with the place of each of its keys."""
+
+    fields: dict[str, Any]
+    where: Where
+    key_lines: dict[str, Where] = field(default_factory=dict)
+    param_lines: dict[str, Where] = field(default_factory=dict)
+    remap_lines: dict[str, Where] = field(default_factory=dict)
+
+    def at(self, key: str) -> Where:
+        return self.key_lines.get(key, self.where)
+
+
+@dataclass
+class LaunchFile:
+    """A launch file after arguments and includes are resolved."""
+
+    path: Path
+    mode: str
+    seed: int
+    args: dict[str, Any]
+    nodes: list[NodeEntry]
+    description: str = ""
+
+
+def parse_cli_args(items: list[str]) -> dict[str, Any]:
+    """`name:=value` pairs from the command line; values are parsed as YAML scalars."""
+    out: dict[str, Any] = {}
+    for item in items:
+        name, sep, value = item.partition(":=")
+        if not sep or not name:
+            raise LaunchError(f"launch argument {item!r} must look like name:=value")
+        out[name] = yaml.safe_load(value) if value else ""
+    return out
+
+
+def load_launch(path: str | Path, overrides: Mapping[str, Any] | None = None) -> LaunchFile:
+    """Read a launch file, substitute arguments, and expand includes (depth-first, in order)."""
+    return _load(Path(path), dict(overrides or {}), stack=())
+
+
+def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> LaunchFile:
+    path = path.resolve()
+    if path in stack:
+        raise LaunchError(f"{path}: include cycle: {' -> '.join(str(p) for p in (*stack, path))}")
+    name = _display(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise LaunchError(f"{name}: cannot read launch file: {exc.strerror}") from exc
+    try:
+        root = yaml.compose(text)
+    except yaml.YAMLError as exc:
+        raise LaunchError(f"{name}: invalid YAML: {exc}") from exc
+    if root is None:
+        raise LaunchError(f"{name}:1: empty launch file: it needs at least a 'nodes' list")
+    if not isinstance(root, yaml.MappingNode):
+        raise LaunchError(f"{name}:{root.start_mark.line + 1}: a launch file is a mapping with keys {sorted(TOP_KEYS)}")
+    top = _mapping_items(root, name)
+    for key, (knode, _) in top.items():
+        if key not in TOP_KEYS:
+            raise LaunchError(f"{name}:{knode.start_mark.line + 1}: unknown key {key!r}; allowed: {sorted(TOP_KEYS)}")
+    declared = _plain(top["args"][1], name, {}) if "args" in top else {}
+    if not isinstance(declared, dict):
+        raise LaunchError(f"{name}:{top['args'][1].start_mark.line + 1}: 'args' must be a mapping name: default")
+    args = {**declared, **{k: v for k, v in overrides.items()}}
+    unknown_args = [k for k in overrides if k not in declared]
+    if unknown_args and not stack:
+        raise LaunchError(f"{name}: unknown launch argument {unknown_args[0]!r}; declared: {sorted(declared)}")
+
+    def value(key: str, default: Any) -> Any:
+        return _plain(top[key][1], name, args) if key in top else default
+
+    mode = value("mode", "lockstep")
+    if mode not in ("lockstep", "realtime"):
+        raise LaunchError(
+            f"{name}:{top['mode'][1].start_mark.line + 1}: mode must be 'lockstep' or 'realtime', got {mode!r}"
+        )
+    seed = value("seed", 0)
+    if not isinstance(seed, int) or isinstance(seed, bool):
+        raise LaunchError(f"{name}:{top['seed'][1].start_mark.line + 1}: seed must be an integer, got {seed!r}")
+    nodes: list[NodeEntry] = []
+    for include in _sequence(top, "include", name):
+        items = _mapping_items(include, name)
+        for key, (knode, _) in items.items():
+            if key not in INCLUDE_KEYS:
+                raise LaunchError(
+                    f"{name}:{knode.start_mark.line + 1}: unknown include key {key!r}; allowed: {sorted(INCLUDE_KEYS)}"
+                )
+        if "file" not in items:
+            raise LaunchError(f"{name}:{include.start_mark.line + 1}: include needs a 'file'")
+        target = path.parent / str(_plain(items["file"][1], name, args))
+        include_args = _plain(items["args"][1], name, args) if "args" in items else {}
+        nodes.extend(_load(target, dict(include_args), (*stack, path)).nodes)
+    for entry in _sequence(top, "nodes", name):
+        nodes.append(_node_entry(entry, name, args))
+    return LaunchFile(
+        path=path, mode=mode, seed=seed, args=args, nodes=nodes, description=str(value("description", ""))
+    )
+
+
+def _node_entry(node: yaml.Node, name: str, args: dict[str, Any]) -> NodeEntry:
+    where = Where(name, node.start_mark.line + 1)
+    items = _mapping_items(node, name)
+    entry = NodeEntry(fields={}, where=where)
+    for key, (knode, vnode) in items.items():
+        line = Where(name, knode.start_mark.line + 1)
+        if key not in NODE_KEYS:
+            raise LaunchError(f"{line}: unknown node key {key!r}; allowed: {sorted(NODE_KEYS)}")
+        entry.key_lines[key] = line
+        entry.fields[key] = _plain(vnode, name, args)
+        if key in ("params", "remaps") and isinstance(vnode, yaml.MappingNode):
+            lines = entry.param_lines if key == "params" else entry.remap_lines
+            for sub_key, (sub_knode, _) in _mapping_items(vnode, name).items():
+                lines[sub_key] = Where(name, sub_knode.start_mark.line + 1)
+    for required in ("name", "type"):
+        if required not in entry.fields:
+            raise LaunchError(f"{where}: node needs a {required!r}")
+    return entry
+
+
+def _mapping_items(node: yaml.Node, name: str) -> dict[str, tuple[yaml.Node, yaml.Node]]:
+    if not isinstance(node, yaml.MappingNode):
+        raise LaunchError(f"{name}:{node.start_mark.line + 1}: expected a mapping")
+    items: dict[str, tuple[yaml.Node, yaml.Node]] = {}
+    for knode, vnode in node.value:
+        key = str(knode.value)
+        if key in items:
+            raise LaunchError(f"{name}:{knode.start_mark.line + 1}: duplicate key {key!r}")
+        items[key] = (knode, vnode)
+    return items
+
+
+def _sequence(top: dict[str, tuple[yaml.Node, yaml.Node]], key: str, name: str) -> list[yaml.Node]:
+    if key not in top:
+        return []
+    node = top[key][1]
+    if not isinstance(node, yaml.SequenceNode):
+        raise LaunchError(f"{name}:{node.start_mark.line + 1}: {key!r} must be a list")
+    return list(node.value)
+
+
+def _plain(node: yaml.Node, name: str, args: Mapping[str, Any]) -> Any:
+    """Construct Python data from a YAML node, substituting `${arg}` in strings."""
+    if isinstance(node, yaml.MappingNode):
+        return {str(k.value): _plain(v, name, args) for k, v in node.value}
+    if isinstance(node, yaml.SequenceNode):
+        return [_plain(v, name, args) for v in node.value]
+    value = _CONSTRUCTOR.construct_object(node)
+    if isinstance(value, str) and "${" in value:
+        return _substitute(value, Where(name, node.start_mark.line + 1), args)
+    return value
+
+
+def _substitute(text: str, where: Where, args: Mapping[str, Any]) -> Any:
+    whole = _ARG.fullmatch(text)
+    for match in _ARG.finditer(text):
+        if match.group(1) not in args:
+            raise LaunchError(f"{where}: unknown argument ${{{match.group(1)}}}; declared: {sorted(args)}")
+    if whole:
+        return args[whole.group(1)]
+    return _ARG.sub(lambda m: str(args[m.group(1)]), text)
+
+
+def _display(path: Path) -> str:
+    try:
+        return str(path.relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)

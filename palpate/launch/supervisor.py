@@ -1,0 +1,184 @@
+"""Start, watch and stop the processes of a resolved graph.
+
+Children are started with a parent-death signal, so none outlives the launcher even if it is killed.
+Ctrl-C or SIGTERM sends SIGTERM to every child, waits up to its `sigterm_timeout_s`, then SIGKILLs.
+A child that dies is reported with its exit code and last log lines; the launch then stops and
+exits non-zero unless the node is set to respawn (up to `max_restarts`).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import FrameType
+from typing import IO
+
+from palpate.launch.graph import Graph, GraphNode
+from palpate.runtime.spec import NodeProcessSpec
+
+_PR_SET_PDEATHSIG = 1
+_TAIL_LINES = 20
+
+
+def _die_with_parent() -> None:
+    """Run in the child before exec: receive SIGTERM when the launcher dies."""
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:
+        pass
+
+
+@dataclass
+class Child:
+    """A running node process and what we keep of its output."""
+
+    node: GraphNode
+    spec_path: Path
+    proc: subprocess.Popen[bytes] | None = None
+    restarts: int = 0
+    tail: deque[str] = field(default_factory=lambda: deque(maxlen=_TAIL_LINES))
+    pumps: list[threading.Thread] = field(default_factory=list)
+
+
+class Supervisor:
+    """Runs the graph's node processes and reports how they ended."""
+
+    def __init__(self, graph: Graph, process_specs: list[NodeProcessSpec], *, out: IO[str] | None = None):
+        self.graph = graph
+        self.out = out or sys.stdout
+        self.run_dir = Path(tempfile.mkdtemp(prefix="palpate-run-"))
+        self.children: list[Child] = []
+        self.lock = threading.Lock()
+        self.stop_signal = 0
+        for spec in process_specs:
+            node = graph.by_name[spec.name]
+            if node.external:
+                continue
+            path = self.run_dir / f"{spec.name}.json"
+            path.write_text(spec.to_json())
+            self.children.append(Child(node=node, spec_path=path))
+
+    def _start(self, child: Child) -> None:
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        child.proc = subprocess.Popen(
+            [sys.executable, "-m", "palpate.runtime.node", str(child.spec_path)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            preexec_fn=_die_with_parent,
+            env=env,
+        )
+        pump = threading.Thread(target=self._pump, args=(child, child.proc), daemon=True)
+        pump.start()
+        child.pumps.append(pump)
+
+    def _pump(self, child: Child, proc: subprocess.Popen[bytes]) -> None:
+        assert proc.stdout is not None
+        for raw in proc.stdout:
+            line = raw.decode(errors="replace").rstrip("\n")
+            child.tail.append(line)
+            with self.lock:
+                print(line if line.startswith("[") else f"[{child.node.name}] {line}", file=self.out, flush=True)
+
+    def run(self, *, on_started: Callable[[], None] | None = None) -> int:
+        """Start every child, supervise until the run ends, and return the launch's exit code."""
+        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            for child in self.children:
+                self._start(child)
+            if on_started is not None:
+                on_started()
+            return self._supervise()
+        finally:
+            self.shutdown()
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        self.stop_signal = signum
+
+    def _supervise(self) -> int:
+        clock = self.graph.clock_source
+        while True:
+            if self.stop_signal:
+                self._say(f"received {signal.Signals(self.stop_signal).name}: stopping every node")
+                return 128 + self.stop_signal
+            running = 0
+            for child in self.children:
+                assert child.proc is not None
+                code = child.proc.poll()
+                if code is None:
+                    running += 1
+                    continue
+                if code == 0:
+                    continue
+                if child.node.respawn and child.restarts < child.node.max_restarts:
+                    child.restarts += 1
+                    self._report(child, code, f"respawning ({child.restarts}/{child.node.max_restarts})")
+                    self._start(child)
+                    running += 1
+                    continue
+                self._report(child, code, "stopping the launch")
+                return 1
+            if running == 0:
+                return 0
+            clock_done = clock is not None and any(
+                c.node is clock and c.proc is not None and c.proc.poll() == 0 for c in self.children
+            )
+            if clock_done:
+                return self._drain()
+            time.sleep(0.05)
+
+    def _drain(self, timeout_s: float = 30.0) -> int:
+        """The clock source finished: give the others time to handle the stop and exit."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            codes = [c.proc.poll() for c in self.children if c.proc is not None]
+            if all(code is not None for code in codes):
+                failed = [c for c in self.children if c.proc is not None and c.proc.returncode not in (0, None)]
+                for child in failed:
+                    self._report(child, child.proc.returncode if child.proc else -1, "failed at shutdown")
+                return 1 if failed else 0
+            time.sleep(0.05)
+        late = [c.node.name for c in self.children if c.proc is not None and c.proc.poll() is None]
+        self._say(f"nodes still running {timeout_s:.0f} s after the clock source finished: {late}; terminating")
+        return 1
+
+    def _report(self, child: Child, code: int, action: str) -> None:
+        for pump in child.pumps:
+            pump.join(timeout=1.0)
+        reason = f"signal {signal.Signals(-code).name}" if code < 0 else f"exit code {code}"
+        lines = "\n".join(f"    {line}" for line in child.tail) or "    (no output)"
+        self._say(f"node {child.node.name!r} ({child.node.type}) died with {reason}; {action}. Last lines:\n{lines}")
+
+    def _say(self, text: str) -> None:
+        with self.lock:
+            print(f"[launch] {text}", file=self.out, flush=True)
+
+    def shutdown(self) -> None:
+        """SIGTERM every live child, wait its timeout, SIGKILL what is left, reap all."""
+        live = [c for c in self.children if c.proc is not None and c.proc.poll() is None]
+        for child in live:
+            assert child.proc is not None
+            child.proc.send_signal(signal.SIGTERM)
+        for child in live:
+            assert child.proc is not None
+            try:
+                child.proc.wait(timeout=child.node.sigterm_timeout_s)
+            except subprocess.TimeoutExpired:
+                self._say(f"node {child.node.name!r} ignored SIGTERM for {child.node.sigterm_timeout_s} s: killing it")
+                child.proc.kill()
+                child.proc.wait()
+        for child in self.children:
+            for pump in child.pumps:
+                pump.join(timeout=1.0)

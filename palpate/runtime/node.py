@@ -1,0 +1,393 @@
+"""The node process wrapper: sockets, the lockstep protocol, error counting and shutdown.
+
+A node object (built by its NodeSpec factory) only sees a NodeContext: it publishes messages on its
+output ports and receives decoded messages in `on_<port>` methods. Everything about transport lives
+here, written once for every node.
+
+Lockstep protocol (deterministic, independent of CPU speed):
+1. Start-up: each node waits until every declared subscriber of its topics is connected (XPUB
+   subscription counting), then acknowledges tick -1. The clock source starts tick 0 only when
+   every node has.
+2. The clock source publishes tick t's data, then `Clock(t)`, then waits for `LockstepAck(t)` from
+   every node. Only then does it handle the commands it received and step again.
+3. A node handles tick t when it has `Clock(t)`, `LockstepAck(t)` from every upstream node before it
+   in the graph order and `LockstepAck(t-1)` from every upstream node after it (feedback edges).
+   Because each publisher-subscriber pair is one ordered connection, every message of tick t from a
+   node arrives before that node's acknowledgement. Buffered inputs are dispatched in a canonical
+   order (publisher rank, then arrival), the node's `on_tick` runs, its outputs go out and it
+   acknowledges tick t.
+In real-time mode nothing waits: inputs are dispatched as they arrive, and for state topics only
+the latest message of a burst is kept.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import sys
+import time
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+import numpy as np
+import zmq
+
+from palpate.errors import MessageError, PalpateError
+from palpate.messages import codec, topics
+from palpate.messages.base import Message
+from palpate.messages.schemas import Clock, LockstepAck, NodeStatus, RunControl
+from palpate.runtime import bus
+from palpate.runtime.spec import NodeProcessSpec, NodeSpec, build_config
+
+STOP_TOPIC = topics.GRAPH_CONTROL
+_INTERNAL = (topics.CLOCK, topics.LOCKSTEP_ACK, STOP_TOPIC)
+_LOG_FIRST_ERRORS = 10
+
+log = logging.getLogger("palpate.node")
+
+
+class NodeContext:
+    """The node object's view of the graph: publishing, time, randomness and counters."""
+
+    def __init__(self, name: str, seed: int, send: Callable[[str, Message], None], outputs: dict[str, str]):
+        self.name = name
+        self.seed = seed
+        self.rng = np.random.default_rng(seed)
+        self.stamp_ns = 0
+        self.tick = -1
+        self.outputs = outputs
+        self.counters: dict[str, int] = {
+            "messages_in": 0,
+            "messages_out": 0,
+            "decode_errors": 0,
+            "input_errors": 0,
+        }
+        self.metrics: dict[str, float] = {}
+        self.stop_requested = ""
+        self._send = send
+        self.log = logging.getLogger(f"palpate.{name}")
+
+    def publish(self, port: str, message: Message) -> None:
+        """Validate and send `message` on the topic wired to output `port`."""
+        if port not in self.outputs:
+            raise KeyError(f"node {self.name!r} has no output port {port!r}; ports: {sorted(self.outputs)}")
+        codec.validate(message)
+        self._send(self.outputs[port], message)
+
+    def request_stop(self, reason: str) -> None:
+        """Ask the graph to end the run after this tick."""
+        self.stop_requested = reason
+
+    def count(self, name: str, n: int = 1) -> None:
+        self.counters[name] = self.counters.get(name, 0) + n
+
+
+class NodeRunner:
+    """Runs one node object on the bus, in lockstep or real-time mode."""
+
+    def __init__(self, spec: NodeSpec[Any], process: NodeProcessSpec, *, start_timeout_s: float = 60.0):
+        self.spec = spec
+        self.process = process
+        self.lockstep = process.mode == "lockstep"
+        self.start_timeout_s = start_timeout_s
+        self.ack_timeout_s = 120.0
+        self.zmq: zmq.Context[Any] = zmq.Context.instance()
+        self.pub = bus.make_publisher(self.zmq, process.endpoint, lockstep=self.lockstep, curve=process.curve)
+        wanted = sorted({*process.subscribes.values(), *_INTERNAL})
+        self.sub = bus.make_subscriber(self.zmq, process.connect, wanted, lockstep=self.lockstep, curve=process.curve)
+        self.counter = bus.SubscriptionCounter()
+        self.poller = zmq.Poller()
+        self.poller.register(self.sub, zmq.POLLIN)
+        self.poller.register(self.pub, zmq.POLLIN)
+        self.port_of_topic = {topic: port for port, topic in process.subscribes.items()}
+        self.input_types = {topic: spec.inputs[port].message for port, topic in process.subscribes.items()}
+        self.ctx = NodeContext(process.name, process.seed, self._send, dict(process.publishes))
+        config: Any = build_config(spec.config, process.params, f"node {process.name!r} params")
+        self.node = spec.factory(config, self.ctx)
+        self.buffer: list[tuple[int, int, str, bytes]] = []
+        self.seq = 0
+        self.acks: dict[str, int] = {}
+        self.clock_ticks: deque[Clock] = deque()
+        self.stopping = False
+        self.interrupted = False
+        manifest = bus.Manifest(
+            node=process.name,
+            endpoint=process.endpoint,
+            pid=_pid(),
+            publishes={t: spec.outputs[p].message.TYPE for p, t in process.publishes.items()},
+            subscribes={t: self.input_types[t].TYPE for t in self.input_types},
+        )
+        self.manifest_path = manifest.write(process.bus_dir)
+
+    # --- sending -------------------------------------------------------------------------------------
+    def _send(self, topic: str, message: Message) -> None:
+        self.pub.send_multipart([topic.encode(), codec.encode(message)], copy=False)
+        self.ctx.counters["messages_out"] += 1
+
+    def _send_internal(self, topic: str, message: Message) -> None:
+        self.pub.send_multipart([topic.encode(), codec.encode(message)])
+
+    def publish_status(self, state: str, message: str = "") -> None:
+        names = sorted(self.ctx.counters)
+        metric_names = sorted(self.ctx.metrics)
+        status = NodeStatus(
+            stamp_ns=self.ctx.stamp_ns,
+            node=self.process.name,
+            state=state,
+            message=message,
+            counter_names=names,
+            counter_values=np.array([self.ctx.counters[n] for n in names], dtype=np.int64),
+            metric_names=metric_names,
+            metric_values=np.array([self.ctx.metrics[n] for n in metric_names], dtype=np.float64),
+        )
+        self._send_internal(topics.NODE_STATUS, status)
+
+    # --- receiving -----------------------------------------------------------------------------------
+    def _receive(self, timeout_ms: int) -> bool:
+        """Take everything waiting on the sockets; True when something arrived."""
+        events = dict(self.poller.poll(timeout_ms))
+        got = False
+        if self.pub in events:
+            while self.pub.poll(0):
+                self.counter.feed(self.pub.recv())
+        if self.sub in events:
+            while self.sub.poll(0):
+                frames = self.sub.recv_multipart(copy=False)
+                self._on_frames(frames)
+                got = True
+        return got
+
+    def _on_frames(self, frames: list[Any]) -> None:
+        if len(frames) != 2:
+            self._bad_input("?", f"expected 2 frames [topic, payload], got {len(frames)}")
+            return
+        topic = bytes(frames[0].buffer).decode(errors="replace")
+        payload = frames[1].buffer
+        if topic == topics.CLOCK:
+            clock = self._decode_internal(topic, payload, Clock)
+            if clock is not None:
+                self.clock_ticks.append(clock)
+        elif topic == topics.LOCKSTEP_ACK:
+            ack = self._decode_internal(topic, payload, LockstepAck)
+            if ack is not None:
+                self.acks[ack.node] = max(ack.tick, self.acks.get(ack.node, -2))
+        elif topic == STOP_TOPIC:
+            if self._decode_internal(topic, payload, RunControl) is not None:
+                self.stopping = True
+        elif topic in self.input_types:
+            self.seq += 1
+            rank = self.process.topic_order.get(topic, 1 << 30)
+            self.buffer.append((rank, self.seq, topic, payload))
+        # anything else is a prefix match of another topic: not ours.
+
+    def _decode_internal(self, topic: str, payload: Any, cls: type[Message]) -> Any:
+        try:
+            return codec.decode(payload, cls)
+        except MessageError as exc:
+            self._bad_input(topic, str(exc))
+            return None
+
+    def _bad_input(self, topic: str, reason: str) -> None:
+        self.ctx.counters["decode_errors"] += 1
+        n = self.ctx.counters["decode_errors"]
+        if n <= _LOG_FIRST_ERRORS or n % 100 == 0:
+            log.warning("node %s, topic %s: rejected message (%d so far): %s", self.process.name, topic, n, reason)
+
+    def dispatch(self, latest_only: bool = False) -> None:
+        """Decode and hand buffered inputs to the node in canonical order."""
+        batch = sorted(self.buffer) if self.lockstep else self.buffer
+        self.buffer = []
+        if latest_only:
+            batch = _latest_state_messages(batch, self.input_types)
+        for _, _, topic, payload in batch:
+            try:
+                message = codec.decode(payload, self.input_types[topic])
+            except MessageError as exc:
+                self._bad_input(topic, str(exc))
+                continue
+            self.ctx.counters["messages_in"] += 1
+            handler = getattr(self.node, f"on_{self.port_of_topic[topic]}")
+            try:
+                handler(message)
+            except PalpateError as exc:  # bad input the node detected (zero normal, NaN angle, ...)
+                self.ctx.counters["input_errors"] += 1
+                log.warning("node %s, topic %s: input rejected: %s", self.process.name, topic, exc)
+
+    # --- main loops ----------------------------------------------------------------------------------
+    def run(self) -> int:
+        """Run until the graph stops or a signal arrives; returns the process exit code."""
+        _install_signal_handlers(self)
+        try:
+            self._start_up()
+            if self.spec.clock_source:
+                self._run_clock_source()
+            else:
+                self._run_follower()
+            self.publish_status("finished", self.ctx.stop_requested)
+            return 0
+        except TimeoutError as exc:
+            log.error("node %s: %s", self.process.name, exc)
+            self.publish_status("error", str(exc))
+            return 3
+        except PalpateError as exc:
+            log.error("node %s stopped: %s", self.process.name, exc)
+            self.publish_status("error", str(exc))
+            return 2
+        finally:
+            close = getattr(self.node, "close", None)
+            if close is not None:
+                close()
+            self.manifest_path.unlink(missing_ok=True)
+            time.sleep(0.05)  # let the last status leave
+            self.pub.close(linger=1000)
+            self.sub.close()
+
+    def _start_up(self) -> None:
+        deadline = time.monotonic() + self.start_timeout_s
+        expected = self.process.expected_subscribers
+        while not self.counter.satisfied(expected):
+            if self.interrupted:
+                return
+            if time.monotonic() > deadline:
+                missing = self.counter.missing(expected)
+                raise TimeoutError(f"subscribers never connected within {self.start_timeout_s:.0f} s: {missing}")
+            self._receive(50)
+        if self.lockstep:
+            self._send_internal(topics.LOCKSTEP_ACK, LockstepAck(stamp_ns=0, node=self.process.name, tick=-1))
+
+    def _wait_for_acks(self, nodes: list[str], tick: int) -> None:
+        deadline = time.monotonic() + self.ack_timeout_s
+        while not self.interrupted and any(self.acks.get(n, -2) < tick for n in nodes):
+            if time.monotonic() > deadline:
+                late = [n for n in nodes if self.acks.get(n, -2) < tick]
+                raise TimeoutError(f"no acknowledgement of tick {tick} from {late} in {self.ack_timeout_s:.0f} s")
+            self._receive(100)
+
+    def _run_clock_source(self) -> None:
+        step: Callable[[], int | None] = self.node.step
+        period_ns = int(getattr(self.node, "period_ns", 0))
+        if self.lockstep:
+            self._wait_for_acks(self.process.lockstep_nodes, -1)
+        start = time.monotonic()
+        tick = 0
+        while not self.interrupted:
+            self.ctx.tick = tick
+            stamp = step()
+            if stamp is None:
+                break
+            self.ctx.stamp_ns = stamp
+            self._send_internal(
+                topics.CLOCK, Clock(stamp_ns=stamp, tick=tick, period_ns=period_ns, lockstep=self.lockstep)
+            )
+            if self.lockstep:
+                self._wait_for_acks(self.process.lockstep_nodes, tick)
+                self.dispatch()
+            else:
+                wake = start + (tick + 1) * period_ns * 1e-9
+                while (left := wake - time.monotonic()) > 0 and not self.interrupted:
+                    self._receive(int(left * 1000) + 1)
+                self._receive(0)
+                self.dispatch(latest_only=True)
+            if self.stopping or self.ctx.stop_requested:
+                break
+            tick += 1
+        reason = self.ctx.stop_requested or "clock source finished"
+        self._send_internal(STOP_TOPIC, RunControl(stamp_ns=self.ctx.stamp_ns, command="stop", reason=reason))
+
+    def _run_follower(self) -> None:
+        tick = 0
+        while not self.interrupted:
+            if self.lockstep:
+                if not self._ready(tick):
+                    if self.stopping and not self.clock_ticks:
+                        break
+                    self._receive(100)
+                    continue
+                clock = self.clock_ticks.popleft()
+                self.ctx.stamp_ns, self.ctx.tick = clock.stamp_ns, clock.tick
+                self.dispatch()
+                self.node.on_tick(clock.stamp_ns)
+                self._after_tick()
+                self._send_internal(
+                    topics.LOCKSTEP_ACK,
+                    LockstepAck(stamp_ns=clock.stamp_ns, node=self.process.name, tick=tick),
+                )
+                tick += 1
+            else:
+                self._receive(100)
+                self.dispatch(latest_only=True)
+                while self.clock_ticks:
+                    clock = self.clock_ticks.popleft()
+                    self.ctx.stamp_ns, self.ctx.tick = clock.stamp_ns, clock.tick
+                    self.node.on_tick(clock.stamp_ns)
+                    self._after_tick()
+                if self.stopping:
+                    break
+
+    def _ready(self, tick: int) -> bool:
+        if not self.clock_ticks or self.clock_ticks[0].tick != tick:
+            return False
+        forward = all(self.acks.get(n, -2) >= tick for n in self.process.forward_upstream)
+        backward = all(self.acks.get(n, -2) >= tick - 1 for n in self.process.backward_upstream)
+        return forward and backward
+
+    def _after_tick(self) -> None:
+        if self.ctx.stop_requested:
+            self._send_internal(
+                STOP_TOPIC,
+                RunControl(stamp_ns=self.ctx.stamp_ns, command="stop", reason=self.ctx.stop_requested),
+            )
+            self.ctx.stop_requested = ""
+        status_every = 100
+        if self.ctx.tick % status_every == 0:
+            self.publish_status("running")
+
+
+def _latest_state_messages(
+    batch: list[tuple[int, int, str, bytes]], types: dict[str, type[Message]]
+) -> list[tuple[int, int, str, bytes]]:
+    """Keep, for topics of state messages, only the newest entry of the batch."""
+    latest: dict[str, int] = {}
+    for i, (_, _, topic, _) in enumerate(batch):
+        if getattr(types[topic], "STATE", False):
+            latest[topic] = i
+    return [item for i, item in enumerate(batch) if not getattr(types[item[2]], "STATE", False) or latest[item[2]] == i]
+
+
+def _pid() -> int:
+    return os.getpid()
+
+
+def _install_signal_handlers(runner: NodeRunner) -> None:
+    def handle(signum: int, frame: FrameType | None) -> None:
+        runner.interrupted = True
+
+    signal.signal(signal.SIGTERM, handle)
+    signal.signal(signal.SIGINT, handle)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of a node process: ``python -m palpate.runtime.node SPEC.json``."""
+    from palpate.runtime.registry import load_node_spec
+
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        print("usage: python -m palpate.runtime.node NODE_SPEC.json", file=sys.stderr)
+        return 64
+    process = NodeProcessSpec.from_json(Path(args[0]).read_text())
+    logging.basicConfig(level=logging.INFO, format=f"[{process.name}] %(levelname)s %(message)s", stream=sys.stderr)
+    try:
+        spec = load_node_spec(process.type).with_params(process.params)
+        runner = NodeRunner(spec, process)
+    except PalpateError as exc:
+        log.error("node %s could not start: %s", process.name, exc)
+        return 2
+    return runner.run()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,178 @@
+"""What a node declares (NodeSpec) and what the launcher hands a node process (NodeProcessSpec)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import types
+import typing
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Generic, Protocol, TypeVar
+
+from palpate.errors import ConfigError
+from palpate.messages.base import Message
+
+C = TypeVar("C")
+
+
+@dataclass(frozen=True)
+class Port:
+    """A named input or output of a node, carrying one message type on a (remappable) topic."""
+
+    message: type[Message]
+    topic: str = ""  # empty: the message type's default topic
+    doc: str = ""
+
+    @property
+    def default_topic(self) -> str:
+        return self.topic or self.message.TOPIC
+
+
+class NodeLike(Protocol):
+    """What the runtime calls on a node object. Handlers are methods named `on_<input port>`."""
+
+    def on_tick(self, stamp_ns: int) -> None: ...
+
+
+@dataclass(frozen=True)
+class NodeSpec(Generic[C]):
+    """A node type: its config dataclass, its ports and how to build it.
+
+    `factory(config, ctx)` returns the node object; for each input port `p` the object has a method
+    `on_p(message)`; `on_tick(stamp_ns)` runs once per clock tick after the tick's inputs.
+    A clock source (the simulator, a replayed log, a hardware driver) also has `step() -> bool`,
+    which publishes one tick's data and returns False when the run is over.
+    """
+
+    name: str
+    config: type[C]
+    factory: Callable[[C, Any], Any]
+    inputs: Mapping[str, Port] = field(default_factory=dict)
+    outputs: Mapping[str, Port] = field(default_factory=dict)
+    clock_source: bool = False
+    doc: str = ""
+    #: For nodes whose ports depend on their parameters (a replayed log): params -> (inputs, outputs).
+    ports_from_params: Callable[[Mapping[str, Any]], tuple[Mapping[str, Port], Mapping[str, Port]]] | None = None
+
+    def with_params(self, params: Mapping[str, Any]) -> NodeSpec[C]:
+        """This spec with its ports resolved for `params` (itself when its ports are fixed)."""
+        if self.ports_from_params is None:
+            return self
+        inputs, outputs = self.ports_from_params(params)
+        return dataclasses.replace(self, inputs=inputs, outputs=outputs, ports_from_params=None)
+
+
+@dataclass(frozen=True, kw_only=True)
+class NodeProcessSpec:
+    """Everything a node process needs, resolved by the launcher (serialised as JSON)."""
+
+    name: str
+    type: str
+    params: dict[str, Any]
+    bus_dir: str
+    endpoint: str  # where this node's publisher binds
+    publishes: dict[str, str]  # output port -> topic
+    subscribes: dict[str, str]  # input port -> topic
+    connect: list[str]  # publisher endpoints this node subscribes to
+    mode: str = "lockstep"  # or "realtime"
+    seed: int = 0
+    clock_source: bool = False
+    expected_subscribers: dict[str, int] = field(default_factory=dict)
+    # lockstep: acknowledgements to wait for before handling tick t (forward) or t+1 (backward).
+    forward_upstream: list[str] = field(default_factory=list)
+    backward_upstream: list[str] = field(default_factory=list)
+    lockstep_nodes: list[str] = field(default_factory=list)  # clock source: every node that acknowledges
+    topic_order: dict[str, int] = field(default_factory=dict)  # topic -> publisher rank, for dispatch order
+    curve: dict[str, str] = field(default_factory=dict)  # CurveZMQ keys (z85): public, secret, server_public
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> NodeProcessSpec:
+        return cls(**json.loads(text))
+
+
+# --- configuration dataclasses from YAML params ------------------------------------------------------
+
+
+def build_config(cls: type[C], params: Mapping[str, Any], where: str = "params") -> C:
+    """Fill a config dataclass from a mapping, rejecting unknown keys and mistyped values.
+
+    `where` prefixes every error, for example ``launch/demo.yaml:12: nodes.sim.params``.
+    """
+    if not dataclasses.is_dataclass(cls):
+        raise TypeError(f"{cls!r} is not a dataclass")
+    if not isinstance(params, Mapping):
+        raise ConfigError(f"{where}: expected a mapping of parameters, got {type(params).__name__}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(params) - set(fields))
+    if unknown:
+        raise ConfigError(f"{where}: unknown parameter {unknown[0]!r}; known parameters: {', '.join(sorted(fields))}")
+    values: dict[str, Any] = {}
+    for name, f in fields.items():
+        if name not in params:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise ConfigError(f"{where}: missing required parameter {name!r} ({_type_name(hints[name])})")
+            continue
+        values[name] = coerce(hints[name], params[name], f"{where}.{name}")
+    try:
+        return cls(**values)
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{where}: {exc}") from exc
+
+
+def coerce(annotation: Any, value: Any, where: str) -> Any:
+    """Check `value` against a type annotation, converting lists to tuples and ints to floats."""
+    origin = typing.get_origin(annotation)
+    args = typing.get_args(annotation)
+    if annotation is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        errors = []
+        for option in args:
+            try:
+                return coerce(option, value, where)
+            except ConfigError as exc:
+                errors.append(str(exc))
+        raise ConfigError(f"{where}: expected {_type_name(annotation)}, got {value!r}")
+    if annotation is type(None):
+        if value is None:
+            return None
+        raise ConfigError(f"{where}: expected null, got {value!r}")
+    if origin is typing.Literal:
+        if value in args:
+            return value
+        raise ConfigError(f"{where}: expected one of {list(args)}, got {value!r}")
+    if annotation is float:
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+        raise ConfigError(f"{where}: expected a number, got {value!r}")
+    if annotation in (int, str, bool):
+        if isinstance(value, annotation) and not (annotation is int and isinstance(value, bool)):
+            return value
+        raise ConfigError(f"{where}: expected {annotation.__name__}, got {value!r}")
+    if origin in (tuple, list):
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        if origin is tuple and args and args[-1] is not Ellipsis:
+            if len(value) != len(args):
+                raise ConfigError(f"{where}: expected {len(args)} items, got {len(value)} ({value!r})")
+            return tuple(coerce(a, v, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value, strict=True)))
+        item = args[0] if args else Any
+        items = [coerce(item, v, f"{where}[{i}]") for i, v in enumerate(value)]
+        return tuple(items) if origin is tuple else items
+    if origin is dict:
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{where}: expected a mapping, got {value!r}")
+        key_type, value_type = args if args else (Any, Any)
+        return {coerce(key_type, k, where): coerce(value_type, v, f"{where}.{k}") for k, v in value.items()}
+    if dataclasses.is_dataclass(annotation) and isinstance(annotation, type):
+        return build_config(annotation, value, where)
+    raise ConfigError(f"{where}: unsupported parameter type {annotation!r}")
+
+
+def _type_name(annotation: Any) -> str:
+    return getattr(annotation, "__name__", None) or str(annotation).replace("typing.", "")
