@@ -257,26 +257,28 @@ def _check_wiring(graph: Graph) -> None:
 
 
 def _rank(graph: Graph) -> None:
-    """Order nodes: the clock source first, then depth-first along publisher -> subscriber edges."""
-    order: list[GraphNode] = []
+    """Order nodes topologically: reverse post-order of a depth-first search from the clock source.
+
+    With this order, an edge from a later to an earlier node is always a feedback edge (its target is
+    an ancestor of its source), which is what the lockstep protocol needs to stay deterministic.
+    """
+    postorder: list[GraphNode] = []
     seen: set[str] = set()
 
     def visit(node: GraphNode) -> None:
-        if node.name in seen:
-            return
         seen.add(node.name)
-        order.append(node)
         for topic in node.publishes.values():
             for sub in graph.nodes:
-                if topic in sub.subscribes.values():
+                if sub.name not in seen and topic in sub.subscribes.values():
                     visit(sub)
+        postorder.append(node)
 
     clock = graph.clock_source
-    if clock is not None:
-        visit(clock)
-    for node in graph.nodes:
-        visit(node)
-    for rank, node in enumerate(order):
+    roots = ([clock] if clock is not None else []) + graph.nodes
+    for root in reversed(roots):
+        if root.name not in seen:
+            visit(root)
+    for rank, node in enumerate(reversed(postorder)):
         node.rank = rank
 
 
