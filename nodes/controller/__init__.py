@@ -1,0 +1,1 @@
+"""Controller node: follows cubic Bezier trajectories to touch targets (paper 002, Algorithm 1)."""

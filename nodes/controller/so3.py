@@ -1,0 +1,105 @@
+"""Small rotation helpers (SO(3) as 3x3 matrices) for the trajectory controller.
+
+Convention used throughout the exploration code: the fingertip's local z axis, ``R[:, 2]`` in world
+coordinates, is the direction the fingertip pokes. Facing a surface with outward normal n means
+``R[:, 2] = -n``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+FloatArray = NDArray[np.float64]
+_I3 = np.eye(3)
+_I3.setflags(write=False)
+
+
+def _hat(w: FloatArray) -> FloatArray:
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def exp_so3(w: ArrayLike) -> FloatArray:
+    """Rotation matrix of the rotation vector w (axis * angle, radians), Rodrigues. (3,) -> (3, 3)."""
+    w_ = np.asarray(w, dtype=np.float64)
+    theta = math.sqrt(float(w_ @ w_))
+    K = _hat(w_)
+    if theta < 1e-8:
+        return _I3 + K + 0.5 * (K @ K)
+    # R = I + sin(theta)/theta K + (1 - cos(theta))/theta^2 K^2
+    return _I3 + (math.sin(theta) / theta) * K + ((1.0 - math.cos(theta)) / theta**2) * (K @ K)
+
+
+def log_so3(R: ArrayLike) -> FloatArray:
+    """Rotation vector (axis * angle, angle in [0, pi]) of the rotation matrix R. (3, 3) -> (3,)."""
+    R_ = np.asarray(R, dtype=np.float64)
+    theta = rotation_angle_3x3(R_)
+    vee = 0.5 * np.array([R_[2, 1] - R_[1, 2], R_[0, 2] - R_[2, 0], R_[1, 0] - R_[0, 1]])  # sin(theta) axis
+    if theta < 1e-6:
+        return vee
+    if theta > np.pi - 1e-3:  # sin(theta) ~ 0: the axis comes from the symmetric part instead
+        return np.asarray(Rotation.from_matrix(R_).as_rotvec(), dtype=np.float64)
+    return (theta / math.sin(theta)) * vee
+
+
+def rotation_angle_3x3(R: FloatArray) -> float:
+    """Angle in [0, pi] of one rotation matrix (3, 3), radians (scalar fast path of rotation_angle)."""
+    (a, b, c), (d, e, f), (g, h, i) = R.tolist()
+    cos = 0.5 * (a + e + i - 1.0)
+    sin = 0.5 * math.sqrt((h - f) ** 2 + (c - g) ** 2 + (d - b) ** 2)
+    return math.atan2(sin, cos)
+
+
+def rotation_angle(R: ArrayLike) -> FloatArray:
+    """Angle in [0, pi] of rotation matrices, robust near 0 and pi. (..., 3, 3) -> (...) radians."""
+    R = np.asarray(R, dtype=np.float64)
+    cos = 0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0)
+    skew = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
+    sin = 0.5 * np.linalg.norm(skew, axis=-1)
+    return np.asarray(np.arctan2(sin, cos), dtype=np.float64)
+
+
+def align_axis(a: ArrayLike, b: ArrayLike, hint: ArrayLike | None = None) -> FloatArray:
+    """The smallest rotation taking vector a onto vector b (world frame). -> (3, 3).
+
+    For antiparallel vectors (no unique smallest rotation) it turns by pi about the part of ``hint``
+    perpendicular to a (default: the coordinate axis least aligned with a).
+    """
+    a_ = np.asarray(a, dtype=np.float64)
+    b_ = np.asarray(b, dtype=np.float64)
+    a_ = a_ / np.linalg.norm(a_)
+    b_ = b_ / np.linalg.norm(b_)
+    axis = np.cross(a_, b_)
+    s = float(np.linalg.norm(axis))
+    c = float(np.clip(a_ @ b_, -1.0, 1.0))
+    if s < 1e-12:
+        if c > 0.0:
+            return np.eye(3)
+        perp = np.zeros(3)
+        if hint is not None:
+            h = np.asarray(hint, dtype=np.float64)
+            perp = h - (h @ a_) * a_
+        if float(np.linalg.norm(perp)) < 1e-9:
+            perp = np.cross(a_, np.eye(3)[int(np.argmin(np.abs(a_)))])
+        return exp_so3(np.pi * perp / np.linalg.norm(perp))
+    return exp_so3(axis / s * np.arctan2(s, c))
+
+
+def get_rotation(R0: ArrayLike, n: ArrayLike) -> FloatArray:
+    """getRotation(R0, n) of Algorithm 1: R0 turned minimally so that its z axis pokes along -n.
+
+    n: outward surface normal (3,). The result faces the surface: ``R1[:, 2] = -n``. A half turn
+    (z already along +n) is made about the fingertip's own x axis, so it does not depend on rounding.
+    """
+    R0_ = np.asarray(R0, dtype=np.float64)
+    return align_axis(R0_[:, 2], -np.asarray(n, dtype=np.float64), hint=R0_[:, 0]) @ R0_
+
+
+def slerp(R0: ArrayLike, R1: ArrayLike, tau: float) -> FloatArray:
+    """T_R(tau): geodesic interpolation R0 exp(tau log(R0^T R1)), tau in [0, 1] ("lerp" of Alg. 1)."""
+    R0_ = np.asarray(R0, dtype=np.float64)
+    w = log_so3(R0_.T @ np.asarray(R1, dtype=np.float64))
+    return R0_ @ exp_so3(float(np.clip(tau, 0.0, 1.0)) * w)

@@ -1,0 +1,306 @@
+"""Next-best-touch selection (paper 002, Sections 2.3-2.4, Eqs. 7-12, Algorithm 2).
+
+The planner sees the estimated surface only as arrays: candidate points on the surface mesh, their
+outward unit normals and the GP variance there. ``sample_candidates`` thins the mesh near the last
+contact; ``Planner.select`` rates the candidates with the configured strategy and picks one.
+
+Conventions: metres; the fingertip's local z axis ``R_z`` is the direction it pokes (it faces a surface
+with outward normal n when ``R_z = -n``); ``v_n`` is the unit velocity just before the last contact.
+
+Choices where the paper disagrees with itself (both configurable):
+- Psi2 measures the Eq. 15 curve, beta = |r - s| / 3 (``psi2_control_scale = 1/3``). Algorithm 2
+  line 4 writes the control points without the 1/3, but Eq. 8 defines Psi2 as the length of "the
+  planned path", and the path the controller actually follows is Eq. 15. With scale 1 the control
+  points sit three times further out, the curve loops, and Psi2 no longer measures the executed cost.
+- Psi4 = exp(-2 sin^2(alpha/2) / sigma_alpha^2) (Eq. 11), decreasing in the rotation alpha the
+  fingertip needs to face the target, as goal (4) of Section 2.4 asks ("minimize the rotation").
+  Algorithm 2 line 5 writes 1 - exp(...), which would reward rotation. alpha is the angle between
+  the poking axis R_z and the inward target normal -s_n, so 2 sin^2(alpha/2) = 1 - cos(alpha)
+  = 1 + R_z . s_n. (Read with the paper's R_z "aligned with the surface normal", i.e. pointing out,
+  Eq. 11's arccos(R_z . s_n) is the same angle.)
+- Psi2 = 1 / max(Len, min_path_m): a target at the fingertip (closer than its radius) has a path of
+  length ~0 and would otherwise score infinity.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal, get_args
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.distance import cdist
+
+from palpate.errors import ConfigError, PlanningError
+from palpate.nodes.controller.bezier import approach_curve, bezier_length
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+Strategy = Literal["igef", "gpv", "random"]
+STRATEGIES: tuple[str, ...] = get_args(Strategy)
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlannerConfig:
+    """Planner parameters; defaults are the paper's YCB settings (Section 2.4 and 2.6)."""
+
+    strategy: Strategy = "igef"
+    sigma1_m: float = 0.02  # sigma_1 of Eq. 7
+    mu3_m: float = 0.02  # mu_3 of Eq. 10
+    sigma3_m: float = 0.02  # sigma_3 of Eq. 10
+    sigma_alpha: float = 1.0  # sigma_alpha of Eq. 11
+    #: Candidate sampling on the estimated surface: step 0.5 cm, up to 5 cm from the last contact.
+    candidate_step_m: float = 0.005
+    candidate_radius_m: float = 0.05
+    #: GP-V's maximum target distance from the last contact (Section 2.6: 6 cm).
+    gpv_radius_m: float = 0.06
+    #: beta = scale * |r - s| in the Psi2 path (1/3 = Eq. 15; 1 = Algorithm 2 line 4 literally).
+    psi2_control_scale: float = 1.0 / 3.0
+    #: Floor on the Psi2 path length, metres (targets closer than the fingertip radius).
+    min_path_m: float = 1e-3
+
+    def __post_init__(self) -> None:
+        if self.strategy not in STRATEGIES:
+            raise ConfigError(f"PlannerConfig.strategy must be one of {STRATEGIES}, got {self.strategy!r}")
+        for name in (
+            "sigma1_m",
+            "sigma3_m",
+            "sigma_alpha",
+            "candidate_step_m",
+            "candidate_radius_m",
+            "gpv_radius_m",
+            "psi2_control_scale",
+            "min_path_m",
+        ):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0.0):
+                raise ConfigError(f"PlannerConfig.{name} must be finite and > 0, got {value!r}")
+        if not (np.isfinite(self.mu3_m) and self.mu3_m >= 0.0):
+            raise ConfigError(f"PlannerConfig.mu3_m must be finite and >= 0, got {self.mu3_m!r}")
+
+    @property
+    def radius_m(self) -> float:
+        """Largest target distance from the last contact for the configured strategy."""
+        return self.gpv_radius_m if self.strategy == "gpv" else self.candidate_radius_m
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """Thinned surface points: positions (m, 3) metres, unit normals (m, 3), variance (m,), and the
+    row of each in the arrays they were sampled from (m,)."""
+
+    points_m: FloatArray
+    normals: FloatArray
+    variance: FloatArray
+    indices: IntArray
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The chosen touch target.
+
+    index: row in the candidate arrays; target_m, normal: t_p (m) and outward unit t_n; predicted
+    contact: where the estimated surface says the touch lands (the target itself); score: its rating;
+    scores: every candidate's rating (m,), 0 outside the strategy's radius; psi: IGEF's factors
+    Psi1..Psi4 per candidate (m, 4), or None for the other strategies.
+    """
+
+    index: int
+    target_m: FloatArray
+    normal: FloatArray
+    predicted_contact_m: FloatArray
+    score: float
+    scores: FloatArray
+    psi: FloatArray | None = None
+
+
+def _points(name: str, value: ArrayLike) -> FloatArray:
+    a = np.asarray(value, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise PlanningError(f"{name} must have shape (m, 3), got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise PlanningError(f"{name} holds NaN or infinity in {int((~np.isfinite(a)).any(1).sum())} rows")
+    return a
+
+
+def _vector(name: str, value: ArrayLike) -> FloatArray:
+    a = np.asarray(value, dtype=np.float64)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise PlanningError(f"{name} must be a finite 3-vector, got {value!r}")
+    return a
+
+
+def _unit_rows(name: str, value: ArrayLike) -> FloatArray:
+    a = _points(name, value)
+    norm = np.linalg.norm(a, axis=1, keepdims=True)
+    bad = norm[:, 0] < 1e-12
+    if np.any(bad):
+        raise PlanningError(
+            f"{name}: {int(bad.sum())} normals have zero length (first at row {int(np.argmax(bad))}); "
+            "the surface estimate must give a unit normal for every candidate"
+        )
+    return a / norm
+
+
+def sample_candidates(
+    vertices: ArrayLike,
+    normals: ArrayLike,
+    variance: ArrayLike,
+    last_contact: ArrayLike,
+    step_m: float = 0.005,
+    radius_m: float = 0.05,
+) -> Candidates:
+    """Thin surface points to about ``step_m`` spacing within ``radius_m`` of the last contact.
+
+    Section 2.4: "the estimated surface S is sampled, starting from the last contact position" with
+    a 0.5 cm step up to 5 cm. A voxel grid of edge ``step_m`` centred on the last contact keeps, per
+    occupied voxel, the surface point nearest the voxel centre (a real mesh point, so its normal and
+    variance stay exact). vertices, normals: (k, 3); variance: (k,); last_contact: (3,).
+    Returns possibly zero candidates (the caller decides what an empty surface means).
+    """
+    V = _points("vertices", vertices)
+    N = np.asarray(normals, dtype=np.float64)
+    Q = np.asarray(variance, dtype=np.float64)
+    c = _vector("last_contact", last_contact)
+    if N.shape != V.shape or Q.shape != (V.shape[0],):
+        raise PlanningError(f"normals {N.shape} and variance {Q.shape} must match vertices {V.shape}")
+    if not (step_m > 0.0 and radius_m > 0.0):
+        raise PlanningError(f"step_m and radius_m must be > 0, got {step_m!r}, {radius_m!r}")
+    rel = V - c
+    inside = np.flatnonzero(np.einsum("ij,ij->i", rel, rel) <= radius_m**2)
+    grid = rel[inside] / step_m
+    key3 = np.floor(grid + 0.5).astype(np.int64)  # voxel of each point; the contact sits at a centre
+    off = grid - key3
+    dist2 = np.einsum("ij,ij->i", off, off)
+    K = int(np.ceil(radius_m / step_m)) + 1
+    side = 2 * K + 1
+    key = ((key3[:, 0] + K) * side + (key3[:, 1] + K)) * side + (key3[:, 2] + K)
+    order = np.lexsort((dist2, key))  # by voxel, nearest-to-centre first
+    first = np.ones(order.size, dtype=bool)
+    first[1:] = key[order][1:] != key[order][:-1]
+    keep = np.sort(inside[order[first]])
+    return Candidates(
+        points_m=V[keep].copy(),
+        normals=N[keep].copy(),
+        variance=Q[keep].copy(),
+        indices=keep.astype(np.int64),
+    )
+
+
+def igef_terms(
+    candidates_m: FloatArray,
+    normals: FloatArray,
+    contacts_m: FloatArray,
+    r: FloatArray,
+    v_n: FloatArray,
+    R_z: FloatArray,
+    config: PlannerConfig,
+) -> FloatArray:
+    """IGEF factors Psi1..Psi4 for every candidate (Algorithm 2), shape (m, 4).
+
+    candidates_m, normals (unit): (m, 3); contacts_m: (n, 3), n >= 1; r: fingertip position (3,);
+    v_n: unit velocity before the last contact (3,); R_z: unit poking axis of the fingertip (3,).
+    """
+    d = cdist(candidates_m, contacts_m)  # |s_p - c_p|, (m, n)
+    # Eq. 7, Alg. 2 line 2: Psi1(s) = min_c 1 - exp(-|s_p - c_p|^2 / sigma1^2) (monotone in |s - c|)
+    psi1 = 1.0 - np.exp(-(d.min(axis=1) ** 2) / config.sigma1_m**2)
+    # Eqs. 8-9, Alg. 2 line 4: Psi2(s) = 1 / Len(bezier(r, r - beta v_n, s_p + beta s_n, s_p))
+    curves = approach_curve(r, v_n, candidates_m, normals, scale=config.psi2_control_scale)
+    psi2 = 1.0 / np.maximum(bezier_length(curves), config.min_path_m)
+    # Eq. 10, Alg. 2 line 3: Psi3(s) = sum_c exp(-(|s - c| - mu3)^2 / sigma3^2), in place on d (m x n)
+    d -= config.mu3_m
+    d *= 1.0 / config.sigma3_m
+    np.square(d, out=d)
+    np.negative(d, out=d)
+    np.exp(d, out=d)
+    psi3 = d.sum(axis=1)
+    # Eq. 11: Psi4(s) = exp(-2 sin^2(alpha/2) / sigma_alpha^2), 2 sin^2(alpha/2) = 1 - cos(alpha),
+    # alpha = angle(R_z, -s_n)  =>  1 - cos(alpha) = 1 + R_z . s_n
+    psi4 = np.exp(-(1.0 + normals @ R_z) / config.sigma_alpha**2)
+    return np.stack([psi1, psi2, psi3, psi4], axis=1)
+
+
+class Planner:
+    """Chooses the next touch target among candidate surface points (Alg. 1 lines 13-18)."""
+
+    def __init__(self, config: PlannerConfig | None = None) -> None:
+        self.config = config or PlannerConfig()
+
+    def sample(
+        self, vertices: ArrayLike, normals: ArrayLike, variance: ArrayLike, last_contact: ArrayLike
+    ) -> Candidates:
+        """``sample_candidates`` with this strategy's step and radius (6 cm for GP-V, else 5 cm)."""
+        cfg = self.config
+        return sample_candidates(
+            vertices, normals, variance, last_contact, step_m=cfg.candidate_step_m, radius_m=cfg.radius_m
+        )
+
+    def select(
+        self,
+        candidates_m: ArrayLike,
+        normals: ArrayLike,
+        variance: ArrayLike,
+        contacts_m: ArrayLike,
+        r: ArrayLike,
+        v_n: ArrayLike,
+        R_z: ArrayLike,
+        rng: np.random.Generator,
+    ) -> Selection:
+        """Rate the candidates and pick the best (igef, gpv) or a uniform one (random).
+
+        candidates_m, normals: (m, 3); variance: (m,) GP variance; contacts_m: (n, 3), the last row is
+        the last contact; r: fingertip position (3,); v_n: velocity direction before the last contact
+        (3,, normalised here, zero allowed); R_z: fingertip poking axis (3,). Candidates further than
+        the strategy's radius from the last contact are ignored (score 0).
+        Raises PlanningError when no candidate lies within that radius.
+        """
+        cfg = self.config
+        S = _points("candidates_m", candidates_m)
+        Nrm = _unit_rows("normals", normals) if S.shape[0] else np.zeros((0, 3))
+        Q = np.asarray(variance, dtype=np.float64)
+        C = _points("contacts_m", contacts_m)
+        r_ = _vector("r", r)
+        v = _vector("v_n", v_n)
+        z = _vector("R_z", R_z)
+        if Nrm.shape != S.shape or Q.shape != (S.shape[0],):
+            raise PlanningError(f"normals {Nrm.shape} and variance {Q.shape} must match candidates {S.shape}")
+        if C.shape[0] == 0:
+            raise PlanningError("select needs at least one contact (the last contact centres the search)")
+        v_norm = float(np.linalg.norm(v))
+        v = v / v_norm if v_norm > 1e-12 else np.zeros(3)
+        z_norm = float(np.linalg.norm(z))
+        if z_norm < 1e-12:
+            raise PlanningError("R_z has zero length; pass the fingertip's poking axis R[:, 2]")
+        z = z / z_norm
+
+        rel = S - C[-1]
+        valid = np.flatnonzero(np.einsum("ij,ij->i", rel, rel) <= cfg.radius_m**2)
+        if valid.size == 0:
+            raise PlanningError(
+                f"no candidate target within {cfg.radius_m} m of the last contact {C[-1].tolist()} "
+                f"({S.shape[0]} candidates given); mesh the estimated surface around the last contact"
+            )
+        scores = np.zeros(S.shape[0])
+        psi: FloatArray | None = None
+        if cfg.strategy == "igef":
+            psi = np.zeros((S.shape[0], 4))
+            psi[valid] = igef_terms(S[valid], Nrm[valid], C, r_, v, z, cfg)
+            scores[valid] = psi[valid].prod(axis=1)  # Eq. 12: Psi = prod Psi_n
+            index = int(valid[np.argmax(scores[valid])])
+        elif cfg.strategy == "gpv":
+            if not np.all(np.isfinite(Q[valid])):
+                raise PlanningError("variance holds NaN or infinity; the GP variance must be finite")
+            scores[valid] = Q[valid]  # Alg. 1 line 14: I(s) = GP variance(s)
+            index = int(valid[np.argmax(scores[valid])])
+        else:
+            scores[valid] = 1.0 / valid.size
+            index = int(valid[rng.integers(valid.size)])
+        return Selection(
+            index=index,
+            target_m=S[index].copy(),
+            normal=Nrm[index].copy(),
+            predicted_contact_m=S[index].copy(),
+            score=float(scores[index]),
+            scores=scores,
+            psi=psi,
+        )

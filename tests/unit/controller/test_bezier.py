@@ -1,0 +1,160 @@
+"""Cubic Bezier kernels against finite differences, fine polylines and brute force."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from palpate.nodes.controller.bezier import (
+    Cubic,
+    approach_curve,
+    bezier_derivative,
+    bezier_length,
+    bezier_point,
+    bezier_second_derivative,
+    closest_tau,
+    extended_point,
+    recovery_curve,
+)
+
+
+def polyline_length(P: np.ndarray, tau0: float = 0.0, tau1: float = 1.0, n: int = 200_001) -> float:
+    pts = bezier_point(P, np.linspace(tau0, tau1, n))
+    return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+
+
+@pytest.fixture
+def curves() -> np.ndarray:
+    return np.random.default_rng(1).normal(scale=0.05, size=(6, 4, 3))
+
+
+def test_endpoints_and_end_tangents(curves: np.ndarray) -> None:
+    pts = bezier_point(curves, [0.0, 1.0])
+    np.testing.assert_allclose(pts[:, 0], curves[:, 0], atol=1e-15)
+    np.testing.assert_allclose(pts[:, 1], curves[:, 3], atol=1e-15)
+    d = bezier_derivative(curves, [0.0, 1.0])
+    np.testing.assert_allclose(d[:, 0], 3 * (curves[:, 1] - curves[:, 0]), atol=1e-15)
+    np.testing.assert_allclose(d[:, 1], 3 * (curves[:, 3] - curves[:, 2]), atol=1e-15)
+
+
+def test_derivatives_match_finite_differences(curves: np.ndarray) -> None:
+    tau = np.linspace(0.05, 0.95, 19)
+    h = 1e-6
+    fd1 = (bezier_point(curves, tau + h) - bezier_point(curves, tau - h)) / (2 * h)
+    np.testing.assert_allclose(bezier_derivative(curves, tau), fd1, rtol=1e-6, atol=1e-9)
+    fd2 = (bezier_derivative(curves, tau + h) - bezier_derivative(curves, tau - h)) / (2 * h)
+    np.testing.assert_allclose(bezier_second_derivative(curves, tau), fd2, rtol=1e-6, atol=1e-8)
+
+
+def test_length_matches_fine_polyline(curves: np.ndarray) -> None:
+    lengths = bezier_length(curves)
+    assert lengths.shape == (6,)
+    reference = [polyline_length(P) for P in curves]
+    np.testing.assert_allclose(lengths, reference, rtol=1e-6)
+
+
+def test_length_broadcasts_over_leading_dims(curves: np.ndarray) -> None:
+    grid = curves.reshape(2, 3, 4, 3)
+    np.testing.assert_allclose(bezier_length(grid), bezier_length(curves).reshape(2, 3), rtol=1e-14)
+
+
+def test_length_of_a_straight_curve_is_the_chord() -> None:
+    a, b = np.array([0.01, -0.02, 0.03]), np.array([0.05, 0.02, -0.01])
+    P = np.stack([a, a + (b - a) / 3, a + 2 * (b - a) / 3, b])
+    np.testing.assert_allclose(bezier_length(P), np.linalg.norm(b - a), rtol=1e-13)
+
+
+def test_partial_lengths_add_up(curves: np.ndarray) -> None:
+    P = curves[0]
+    np.testing.assert_allclose(bezier_length(P, 0.0, 0.37) + bezier_length(P, 0.37, 1.0), bezier_length(P), rtol=1e-6)
+    np.testing.assert_allclose(bezier_length(P, 0.2, 0.6), polyline_length(P, 0.2, 0.6), rtol=1e-6)
+
+
+def test_length_near_an_exact_cusp() -> None:
+    # T'(0.3) = 0: choose p2 - p1 so that 0.49 a + 0.42 b + 0.09 c = 0
+    a, c = np.array([1.0, 0.0, 0.0]), np.array([1.0, 1.0, 0.0])
+    b = -(0.49 * a + 0.09 * c) / 0.42
+    P = 0.01 * np.cumsum(np.stack([np.zeros(3), a, b, c]), axis=0)
+    np.testing.assert_allclose(bezier_length(P), polyline_length(P, n=400_001), rtol=1e-3)
+
+
+def test_closest_tau_matches_brute_force(curves: np.ndarray) -> None:
+    rng = np.random.default_rng(2)
+    dense = np.linspace(0.0, 1.0, 200_001)
+    for P in curves:
+        pts = bezier_point(P, dense)
+        for _ in range(5):
+            r = P.mean(axis=0) + rng.normal(scale=0.04, size=3)
+            for tau_min in (0.0, 0.4):
+                tau = closest_tau(P, r, tau_min, 1.0)
+                assert tau_min <= tau <= 1.0
+                window = dense >= tau_min
+                brute = np.min(np.linalg.norm(pts[window] - r, axis=1))
+                found = np.linalg.norm(bezier_point(P, [tau])[0] - r)
+                assert found <= brute + 1e-12
+
+
+def test_closest_tau_respects_the_lower_bound() -> None:
+    P = np.array([[0.0, 0, 0], [0.01, 0, 0], [0.02, 0, 0], [0.03, 0, 0]])
+    assert closest_tau(P, np.array([0.0, 0.001, 0.0]), 0.5) == pytest.approx(0.5)
+    assert closest_tau(P, np.array([0.012, 0.001, 0.0])) == pytest.approx(0.4, abs=1e-12)
+
+
+def test_closest_tau_on_the_straight_continuation() -> None:
+    P = np.array([[0.0, 0, 0], [0.01, 0, 0], [0.02, 0, 0], [0.03, 0, 0]])  # |T'(1)| = 0.03
+    r = np.array([0.036, 0.002, 0.0])  # 6 mm past the end
+    assert closest_tau(P, r, 0.0, 1.5) == pytest.approx(1.2, abs=1e-12)
+    np.testing.assert_allclose(extended_point(P, [1.2])[0], [0.036, 0, 0], atol=1e-15)
+    assert closest_tau(P, r, 0.0, 1.0) == pytest.approx(1.0)
+
+
+def test_cubic_agrees_with_vectorised_functions(curves: np.ndarray) -> None:
+    cubic = Cubic(curves[3])
+    for t in (0.0, 0.3, 0.77, 1.0):
+        np.testing.assert_allclose(cubic.point(t), bezier_point(curves[3], [t])[0], atol=1e-15)
+        np.testing.assert_allclose(cubic.derivative(t), bezier_derivative(curves[3], [t])[0], atol=1e-15)
+    np.testing.assert_allclose(cubic.point(1.3), extended_point(curves[3], [1.3])[0], atol=1e-15)
+
+
+def test_approach_curve_is_eq15() -> None:
+    r = np.array([0.0, 0.0, 0.0])
+    v_n = np.array([0.0, 0.0, -1.0])  # was moving down into the surface
+    t_p = np.array([0.03, 0.0, 0.0])
+    t_n = np.array([0.0, 0.0, 1.0])
+    P = approach_curve(r, v_n, t_p, t_n)
+    d = np.linalg.norm(r - t_p)
+    np.testing.assert_allclose(P, [r, r - v_n * d / 3, t_p + t_n * d / 3, t_p], atol=1e-15)
+    tangents = bezier_derivative(P, [0.0, 1.0])
+    np.testing.assert_allclose(tangents[0], -v_n * d, atol=1e-15)  # Eq. 14: retract along -v_n
+    np.testing.assert_allclose(tangents[1], -t_n * d, atol=1e-15)  # arrive against the normal
+
+
+def test_recovery_curve_is_eq17() -> None:
+    r = np.array([0.03, 0.0, -0.01])
+    v_n = np.array([0.0, 0.0, -1.0])
+    t_p = np.zeros(3)
+    t_n = np.array([0.0, 0.0, 1.0])
+    P = recovery_curve(r, v_n, t_p, t_n)
+    d = np.linalg.norm(r - t_p)
+    np.testing.assert_allclose(P, [r, r + v_n * d / 3, t_p - t_n * d / 3, t_p], atol=1e-15)
+    tangents = bezier_derivative(P, [0.0, 1.0])
+    np.testing.assert_allclose(tangents[0], v_n * d, atol=1e-15)  # Eq. 16: velocity continuous
+    np.testing.assert_allclose(tangents[1], t_n * d, atol=1e-15)
+
+
+def test_curves_broadcast_over_candidates() -> None:
+    rng = np.random.default_rng(3)
+    targets = rng.normal(scale=0.03, size=(7, 3))
+    normals = rng.normal(size=(7, 3))
+    P = approach_curve(np.zeros(3), np.array([0, 0, -1.0]), targets, normals)
+    assert P.shape == (7, 4, 3)
+    for i in range(7):
+        np.testing.assert_allclose(P[i], approach_curve(np.zeros(3), np.array([0, 0, -1.0]), targets[i], normals[i]))
+
+
+def test_min_chord_keeps_a_curve_to_its_own_start() -> None:
+    r = np.array([0.01, 0.02, 0.03])
+    P = approach_curve(r, np.array([0, 0, -1.0]), r, np.array([0, 0, 1.0]), min_chord_m=1e-3)
+    length = float(bezier_length(P))
+    assert np.isfinite(length) and length > 1e-4
+    assert float(bezier_length(approach_curve(r, np.array([0, 0, -1.0]), r, np.array([0, 0, 1.0])))) == 0.0

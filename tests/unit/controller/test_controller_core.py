@@ -1,0 +1,189 @@
+"""TrajectoryController driven by a fake kinematic fingertip integrated here (no MuJoCo)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+from palpate.errors import ConfigError, PlanningError
+from palpate.nodes.controller import so3
+from palpate.nodes.controller.bezier import bezier_length, bezier_point
+from palpate.nodes.controller.core import ControllerConfig, ControllerState, TrajectoryController
+
+Inside = Callable[[np.ndarray], bool]
+DT_S = 1e-3
+
+
+@dataclass
+class Run:
+    r: np.ndarray
+    R: np.ndarray
+    trail: list[np.ndarray] = field(default_factory=list)
+    states: list[ControllerState] = field(default_factory=list)
+    contact_state: ControllerState | None = None
+
+
+def drive(
+    ctrl: TrajectoryController,
+    r: np.ndarray,
+    R: np.ndarray,
+    inside: Inside,
+    *,
+    max_steps: int = 10_000,
+    arm_after_m: float = 1e-3,
+) -> Run:
+    """Integrate r += v dt, R = exp(w dt) R until contact (``inside``), IDLE or FAILED.
+
+    Contact detection is armed once the fingertip has moved ``arm_after_m`` (it starts on the surface).
+    """
+    run = Run(r=r.copy(), R=R.copy(), trail=[r.copy()])
+    moved = 0.0
+    for _ in range(max_steps):
+        v, w = ctrl.command(run.r, run.R)
+        run.states.append(ctrl.state)
+        if ctrl.state in (ControllerState.IDLE, ControllerState.FAILED):
+            break
+        run.r = run.r + v * DT_S
+        run.R = so3.exp_so3(w * DT_S) @ run.R
+        moved += float(np.linalg.norm(v)) * DT_S
+        run.trail.append(run.r.copy())
+        if moved > arm_after_m and inside(run.r):
+            run.contact_state = ctrl.state
+            ctrl.on_contact(run.r, run.R)  # the last step still belongs to this motion
+            break
+    return run
+
+
+def below_plane(p: np.ndarray) -> bool:
+    return bool(p[2] <= 0.0)
+
+
+def box_with_edge_at_1cm(p: np.ndarray) -> bool:
+    """Object filling x < 0.01 m, z < 0: its top face ends at an edge x = 0.01 m."""
+    return bool(p[0] < 0.01 and p[2] <= 0.0)
+
+
+def nothing(p: np.ndarray) -> bool:
+    return False
+
+
+R_DOWN = so3.get_rotation(np.eye(3), np.array([0.0, 0.0, 1.0]))  # poking down onto a z-up surface
+V_DOWN = np.array([0.0, 0.0, -1.0])
+
+
+def test_reaches_a_target_on_a_plane_along_the_curve() -> None:
+    ctrl = TrajectoryController()
+    t_p = np.array([0.03, 0.01, 0.0])
+    t_n = np.array([0.3, 0.0, 1.0]) / np.linalg.norm([0.3, 0.0, 1.0])
+    P = ctrl.start(np.zeros(3), V_DOWN, R_DOWN, t_p, t_n)
+    run = drive(ctrl, np.zeros(3), R_DOWN, below_plane)
+    assert run.contact_state is ControllerState.APPROACH
+    assert ctrl.state is ControllerState.IDLE
+    assert np.linalg.norm(run.r - t_p) < 1e-3
+    # The trail follows the curve: every position within 0.2 mm of the curve.
+    curve = bezier_point(P, np.linspace(0, 1, 5001))
+    gaps = np.min(np.linalg.norm(np.array(run.trail)[:, None] - curve[None], axis=2), axis=1)
+    assert gaps.max() < 2e-4
+    # Travelled distance = arc length of the curve (up to one step at the end).
+    assert ctrl.travelled_m == pytest.approx(float(bezier_length(P)), abs=2 * ctrl.config.v0_m_s * DT_S)
+    assert ctrl.initial_travelled_m == 0.0
+    # The fingertip faces the target normal at contact, and turned by the minimal angle.
+    angle = np.degrees(np.arccos(np.clip(run.R[:, 2] @ -t_n, -1, 1)))
+    assert angle < 1.0
+    expected_turn = np.degrees(np.arccos(np.clip(R_DOWN[:, 2] @ -t_n, -1, 1)))
+    assert ctrl.rotation_deg == pytest.approx(expected_turn, abs=1.0)
+
+
+def test_missed_prediction_starts_the_recovery_curve() -> None:
+    cfg = ControllerConfig()
+    ctrl = TrajectoryController(cfg)
+    t_p = np.array([0.03, 0.0, 0.0])  # predicted surface beyond the real edge at x = 0.01
+    ctrl.start(np.zeros(3), V_DOWN, R_DOWN, t_p, np.array([0.0, 0.0, 1.0]))
+    run = drive(ctrl, np.zeros(3), R_DOWN, box_with_edge_at_1cm)
+    assert ctrl.recoveries == 1
+    assert run.contact_state is ControllerState.RECOVERY
+    # The switch happened once the fingertip was Delta_m past T(1).
+    switch = run.states.index(ControllerState.RECOVERY)
+    at_switch = run.trail[switch]
+    assert np.linalg.norm(at_switch - t_p) == pytest.approx(cfg.miss_distance_m, abs=2 * cfg.v0_m_s * DT_S)
+    # The recovery curve ends at the last contact, so it re-touches the object: here its side face.
+    np.testing.assert_allclose(ctrl.target[0], np.zeros(3))
+    assert run.r[0] == pytest.approx(0.01, abs=1e-4)
+    assert run.r[2] < 0.0
+
+
+def test_fails_when_even_the_recovery_finds_nothing() -> None:
+    ctrl = TrajectoryController()
+    ctrl.start(np.zeros(3), V_DOWN, R_DOWN, np.array([0.03, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]))
+    run = drive(ctrl, np.zeros(3), R_DOWN, nothing)
+    assert ctrl.state is ControllerState.FAILED
+    assert ctrl.recoveries == 1
+    v, w = ctrl.command(run.r, run.R)
+    assert not v.any() and not w.any()
+
+
+def test_initial_approach_is_a_straight_line() -> None:
+    ctrl = TrajectoryController()
+    start = np.array([0.02, -0.01, 0.05])
+    target = np.array([0.0, 0.0, -0.01])  # inside the object below z = 0
+    ctrl.initial_approach(start, target)
+    v, w = ctrl.command(start, R_DOWN)
+    np.testing.assert_allclose(v, ctrl.config.v0_m_s * (target - start) / np.linalg.norm(target - start))
+    assert not w.any()
+    run = drive(ctrl, start, R_DOWN, below_plane, arm_after_m=0.0)
+    assert run.contact_state is ControllerState.DIRECT
+    # Contact where the segment crosses z = 0, within one step.
+    hit = start + (target - start) * (start[2] / (start[2] - target[2]))
+    assert np.linalg.norm(run.r - hit) < 2 * ctrl.config.v0_m_s * DT_S
+    assert ctrl.initial_travelled_m == pytest.approx(np.linalg.norm(hit - start), abs=1e-4)
+    assert ctrl.travelled_m == 0.0
+
+
+def test_initial_approach_fails_past_the_target() -> None:
+    ctrl = TrajectoryController()
+    ctrl.initial_approach(np.array([0.0, 0.0, 0.02]), np.zeros(3))
+    drive(ctrl, np.array([0.0, 0.0, 0.02]), R_DOWN, nothing, arm_after_m=0.0)
+    assert ctrl.state is ControllerState.FAILED
+
+
+def test_stopped_after_contact() -> None:
+    ctrl = TrajectoryController()
+    ctrl.start(np.zeros(3), V_DOWN, R_DOWN, np.array([0.02, 0, 0]), np.array([0, 0, 1.0]))
+    ctrl.on_contact()
+    v, w = ctrl.command(np.zeros(3), R_DOWN)
+    assert ctrl.state is ControllerState.IDLE and not v.any() and not w.any()
+
+
+def test_odometry_integrates_poses() -> None:
+    ctrl = TrajectoryController()
+    ctrl.on_contact()  # exploring: counts into travelled_m / rotation_deg
+    for k in range(91):  # 1 mm steps along x while turning 1 degree per step about z
+        ctrl.observe(np.array([0.001 * k, 0.0, 0.0]), so3.exp_so3(np.radians(k) * np.array([0, 0, 1.0])))
+    assert ctrl.travelled_m == pytest.approx(0.090, abs=1e-12)
+    assert ctrl.rotation_deg == pytest.approx(90.0, abs=1e-9)
+
+
+def test_target_at_the_start_point_still_moves() -> None:
+    ctrl = TrajectoryController()
+    P = ctrl.start(np.zeros(3), V_DOWN, R_DOWN, np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    assert float(bezier_length(P)) > 0.0
+    v, _ = ctrl.command(np.zeros(3), R_DOWN)
+    assert np.all(np.isfinite(v)) and np.linalg.norm(v) == pytest.approx(ctrl.config.v0_m_s)
+    run = drive(ctrl, np.zeros(3), R_DOWN, below_plane, arm_after_m=1e-5)
+    assert run.contact_state is ControllerState.APPROACH
+    assert np.linalg.norm(run.r) < 1e-3
+
+
+def test_rejects_bad_inputs() -> None:
+    ctrl = TrajectoryController()
+    with pytest.raises(PlanningError, match="zero length"):
+        ctrl.start(np.zeros(3), V_DOWN, R_DOWN, np.array([0.02, 0, 0]), np.zeros(3))
+    with pytest.raises(PlanningError, match="rotation"):
+        ctrl.start(np.zeros(3), V_DOWN, 2 * np.eye(3), np.array([0.02, 0, 0]), np.array([0, 0, 1.0]))
+    with pytest.raises(PlanningError, match="finite"):
+        ctrl.start(np.array([np.nan, 0, 0]), V_DOWN, R_DOWN, np.array([0.02, 0, 0]), np.array([0, 0, 1.0]))
+    with pytest.raises(ConfigError, match="v0_m_s"):
+        ControllerConfig(v0_m_s=0.0)
