@@ -14,10 +14,13 @@ Choices where the paper disagrees with itself (both configurable):
   points sit three times further out, the curve loops, and Psi2 no longer measures the executed cost.
 - Psi4 = exp(-2 sin^2(alpha/2) / sigma_alpha^2) (Eq. 11), decreasing in the rotation alpha the
   fingertip needs to face the target, as goal (4) of Section 2.4 asks ("minimize the rotation").
-  Algorithm 2 line 5 writes 1 - exp(...), which would reward rotation. alpha is the angle between
-  the poking axis R_z and the inward target normal -s_n, so 2 sin^2(alpha/2) = 1 - cos(alpha)
-  = 1 + R_z . s_n. (Read with the paper's R_z "aligned with the surface normal", i.e. pointing out,
-  Eq. 11's arccos(R_z . s_n) is the same angle.)
+  Here alpha is the rotation itself: the angle between the poking axis R_z and the inward target
+  normal -s_n, so 2 sin^2(alpha/2) = 1 - cos(alpha) = 1 + R_z . s_n (Eq. 11's arccos(R_z, s_n)
+  is this angle when R_z points out of the fingertip, "aligned with the surface normal").
+  Algorithm 2 line 5 writes 1 - exp(...): with alpha the rotation that rewards turning. It only
+  penalises rotation if alpha is measured to the opposite axis (alpha = pi - rotation), and even
+  then it is another function (1 - e^-2 = 0.86 for no turn, 0 for a half turn, against Eq. 11's
+  1 and e^-2), so Eq. 11 is taken as the definition.
 - Psi2 = 1 / max(Len, min_path_m): a target at the fingertip (closer than its radius) has a path of
   length ~0 and would otherwise score infinity.
 """
@@ -245,14 +248,18 @@ class Planner:
         v_n: ArrayLike,
         R_z: ArrayLike,
         rng: np.random.Generator,
+        admissible: ArrayLike | None = None,
     ) -> Selection:
         """Rate the candidates and pick the best (igef, gpv) or a uniform one (random).
 
         candidates_m, normals: (m, 3); variance: (m,) GP variance; contacts_m: (n, 3), the last row is
         the last contact; r: fingertip position (3,); v_n: velocity direction before the last contact
         (3,, normalised here, zero allowed); R_z: fingertip poking axis (3,). Candidates further than
-        the strategy's radius from the last contact are ignored (score 0).
-        Raises PlanningError when no candidate lies within that radius.
+        the strategy's radius from the last contact are ignored (score 0), and so are those where the
+        optional boolean mask ``admissible`` (m,) is False: not in the paper, a hook for the caller to
+        drop targets whose Eq. 15 curve runs through the estimated object (GP-V picks the far side of
+        small objects, and the straight-through curve touches again next to the start).
+        Raises PlanningError when no candidate is left.
         """
         cfg = self.config
         S = _points("candidates_m", candidates_m)
@@ -274,11 +281,19 @@ class Planner:
         z = z / z_norm
 
         rel = S - C[-1]
-        valid = np.flatnonzero(np.einsum("ij,ij->i", rel, rel) <= cfg.radius_m**2)
+        keep = np.einsum("ij,ij->i", rel, rel) <= cfg.radius_m**2
+        if admissible is not None:
+            mask = np.asarray(admissible)
+            if mask.shape != (S.shape[0],) or mask.dtype != np.bool_:
+                raise PlanningError(f"admissible must be a boolean mask of shape ({S.shape[0]},), got {mask.shape}")
+            keep &= mask
+        valid = np.flatnonzero(keep)
         if valid.size == 0:
+            excluded = 0 if admissible is None else int((~np.asarray(admissible)).sum())
             raise PlanningError(
                 f"no candidate target within {cfg.radius_m} m of the last contact {C[-1].tolist()} "
-                f"({S.shape[0]} candidates given); mesh the estimated surface around the last contact"
+                f"({S.shape[0]} candidates given, {excluded} not admissible); mesh the estimated surface "
+                "around the last contact"
             )
         scores = np.zeros(S.shape[0])
         psi: FloatArray | None = None

@@ -166,10 +166,21 @@ class CoverageTracker:
 
 
 def covering_bound_contacts(area_m2: float, fraction: float = 0.8, radius_m: float = 0.006) -> float:
-    """Fewest contacts that can mark ``fraction`` of a surface of area A explored with discs of
-    radius r: COVERING_DENSITY * fraction * A / (pi r^2) (the densest covering of the plane by discs,
-    density 2 pi / sqrt(27) ~ 1.21; exact for flat surfaces, a good estimate for gently curved ones)."""
+    """The issue's contact estimate: COVERING_DENSITY * fraction * A / (pi r^2), with the density
+    2 pi / sqrt(27) ~ 1.21 of the thinnest covering of the plane by discs of radius r.
+
+    This is the fewest discs for covering ALL of a flat surface, scaled by ``fraction``. For a partial
+    coverage it is not a strict lower bound: up to 90.7 % of a plane can be covered by disjoint discs,
+    so ``packing_bound_contacts`` is the strict one (a real exploration needs more than either)."""
     return float(COVERING_DENSITY * fraction * area_m2 / (np.pi * radius_m**2))
+
+
+def packing_bound_contacts(area_m2: float, fraction: float = 0.8, radius_m: float = 0.006) -> float:
+    """Strict lower bound on the contacts that explore ``fraction`` of a surface of area A:
+    fraction * A / (pi r^2), since one contact explores at most pi r^2 of a surface that is flat or
+    convexly curved at the scale r (exactly pi r^2 on a sphere). Thin walls (both sides within r),
+    concave corners and gaps can beat it."""
+    return float(fraction * area_m2 / (np.pi * radius_m**2))
 
 
 @dataclass(frozen=True)

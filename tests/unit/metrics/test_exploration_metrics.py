@@ -16,6 +16,7 @@ from palpate.metrics.exploration import (
     angle_to_normal_deg,
     covering_bound_contacts,
     mesh_area,
+    packing_bound_contacts,
     prediction_miss_m,
     sample_surface,
     surface_rmse,
@@ -62,6 +63,24 @@ def test_covering_bound() -> None:
     assert bound == pytest.approx(COVERING_DENSITY * 0.8 * area / (np.pi * 0.006**2), rel=1e-12)
     assert 32 <= bound <= 34  # the issue's "about 32 contacts" for a 1-inch cube
     assert covering_bound_contacts(area, fraction=0.5) == pytest.approx(bound * 5 / 8)
+    assert packing_bound_contacts(area) == pytest.approx(bound / COVERING_DENSITY)
+
+
+def test_disjoint_contacts_reach_the_packing_bound(sphere: trimesh.Trimesh) -> None:
+    """Contacts 2 r apart on a sphere never overlap: each explores exactly pi r^2 (Archimedes)."""
+    r = 0.006
+    z = np.array([-0.03, 0.0, 0.03])  # rings far apart; points within a ring 2 r + 1 mm apart
+    contacts = []
+    for zi in z:
+        ring = np.sqrt(0.05**2 - zi**2)
+        k = int(2 * np.pi * ring // (2 * r + 0.001))
+        a = 2 * np.pi * np.arange(k) / k
+        contacts.append(np.column_stack([ring * np.cos(a), ring * np.sin(a), np.full(k, zi)]))
+    C = np.vstack(contacts)
+    tracker = CoverageTracker(sphere, radius_m=r, samples=100_000, rng=np.random.default_rng(12))
+    coverage = tracker.add_contacts(C)
+    # coverage = n pi r^2 / A, i.e. exactly the packing bound's count for that coverage
+    assert packing_bound_contacts(tracker.area_m2, coverage, r) == pytest.approx(len(C), rel=0.03)
 
 
 def test_coverage_of_one_contact_on_a_sphere(sphere: trimesh.Trimesh) -> None:
