@@ -1,0 +1,377 @@
+"""Gaussian process implicit surface from contact positions and normals (paper 002, Sec. 2.3, Eq. 2-6).
+
+The implicit function f: R^3 -> R is a GP with a prior mean m(x) and an isotropic kernel k (see
+``kernels``). Each contact (c_p, c_n) is four observations: f(c_p) = 0 (one value row) and
+grad f(c_p) = c_n (three gradient rows, c_n the outward unit normal), with noise variances
+value_noise_m^2 and gradient_noise^2. Sign convention: f < 0 inside the object, f > 0 outside, and
+grad f points outwards. The prior that fixes this sign far from the contacts is a sphere,
+
+    m(x) = prior_scale (|x - c| - r0),
+
+with r0 = prior_radius_m and centre c either given or, by default, placed at the first contact as
+c = c_p - r0 c_n (the sphere touches the first contact with the measured normal). The GP models the
+residual f - m, so with Eq. 2 and 6 (K~ = K + noise):
+
+    mean(x)     = m(x) + k_*(x)^T K~^{-1} (y - m_obs)          (Eq. 2)
+    variance(x) = k(x, x) - k_*(x)^T K~^{-1} k_*(x)            (Eq. 6, clamped at 0)
+
+Factorisation: K~ = L L^T grows by a block Cholesky update per contact (or per batch), O(n^2):
+
+    [L11   0 ]      L11 X = K12,   L22 = chol(K22 - X^T X),
+    [X^T  L22]
+
+never a refit from scratch. z = L^{-1} (y - m_obs) grows with it (z2 = L22^{-1} (y2 - X^T z1)), and
+alpha = L^{-T} z is recomputed lazily (one triangular solve) when a mean or gradient is asked for.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import ArrayLike, NDArray
+
+from palpate.errors import ConfigError, EstimationError
+from palpate.nodes.gpis.kernels import ROWS_PER_POINT, GaussianKernel, IsotropicKernel, ThinPlateKernel
+
+FloatArray = NDArray[np.float64]
+
+KERNELS = ("thin_plate", "gaussian")
+PRIORS = ("sphere", "zero")
+
+#: Object size (m) that the default config is tuned for (YCB objects are at most 0.23 m across).
+REFERENCE_SIZE_M = 0.2
+
+# A normal shorter than this is treated as missing rather than normalised.
+_MIN_NORMAL_NORM = 1e-9
+# Kernel entries per chunk when evaluating many query points (bounds temporaries to ~ a few MB).
+_CHUNK_ENTRIES = 1 << 18
+# Entries of k_* per chunk in variance(): large, so the triangular solve sees many right-hand sides.
+_VARIANCE_CHUNK_ENTRIES = 1 << 22
+
+
+@dataclass(frozen=True, kw_only=True)
+class GPISConfig:
+    """GPIS parameters. Defaults suit objects up to ~0.4 m across (YCB); see ``for_object_size``.
+
+    kernel: "thin_plate" (paper 002 Sec. 3.2) or "gaussian" (Eq. 5).
+    R_m: thin-plate R; must be >= every contact-contact and query-contact distance, and >= 1.25 x
+        the object's diameter for the covariance with gradients to stay positive definite.
+    thin_plate_scale: amplitude a of the thin-plate kernel (1 = the paper's kernel). Var f = a R^3 and
+        Var grad f = 6 a R while the noise is fixed in m and in normal units, so the fit depends on
+        the object's scale unless a ~ 1 / R; ``for_object_size`` sets it that way.
+    length_scale_m: Gaussian sigma in exp(-r^2 / sigma^2).
+    gaussian_variance_m2: Gaussian amplitude; None gives length_scale_m^2 / 2 (unit prior variance of
+        each gradient component, matching unit normals).
+    value_noise_m, gradient_noise: standard deviations of the value rows (m) and of the normal rows.
+    jitter: added to the diagonal as a fraction of the prior variances (only matters with zero noise).
+    prior: "sphere" (m(x) = prior_scale (|x - c| - prior_radius_m)) or "zero". The sphere should lie
+        inside the object: give GPIS(prior_centre_m=...) the initial target of Algorithm 1 when known.
+        The thin-plate fit barely depends on it (box test: same error for r0 = 1, 2, 5 cm); the
+        Gaussian kernel reverts to the prior within a few length scales of the contacts, so there a
+        sphere that bulges out of the object leaves spurious surface (measured: 3 cm errors).
+    """
+
+    kernel: str = "thin_plate"
+    R_m: float = 0.5
+    thin_plate_scale: float = 1.0
+    length_scale_m: float = 0.03
+    gaussian_variance_m2: float | None = None
+    value_noise_m: float = 1e-4
+    gradient_noise: float = 0.1
+    jitter: float = 1e-10
+    prior: str = "sphere"
+    prior_radius_m: float = 0.02
+    prior_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.kernel not in KERNELS:
+            raise ConfigError(f"GPISConfig.kernel must be one of {KERNELS}, got {self.kernel!r}")
+        if self.prior not in PRIORS:
+            raise ConfigError(f"GPISConfig.prior must be one of {PRIORS}, got {self.prior!r}")
+        for name in ("R_m", "thin_plate_scale", "length_scale_m", "prior_radius_m", "prior_scale"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+                raise ConfigError(f"GPISConfig.{name} must be a positive finite number, got {value!r}")
+        for name in ("value_noise_m", "gradient_noise", "jitter"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and np.isfinite(value) and value >= 0):
+                raise ConfigError(f"GPISConfig.{name} must be a finite number >= 0, got {value!r}")
+        if self.value_noise_m == 0 and self.gradient_noise == 0 and self.jitter == 0:
+            raise ConfigError(
+                "GPISConfig: value_noise_m, gradient_noise and jitter are all 0; duplicate contacts would "
+                "make the covariance singular. Set jitter > 0 (e.g. 1e-10)"
+            )
+        v = self.gaussian_variance_m2
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise ConfigError(f"GPISConfig.gaussian_variance_m2 must be None or positive, got {v!r}")
+
+    @classmethod
+    def for_object_size(cls, size_m: float, **overrides: object) -> GPISConfig:
+        """The defaults with every length scaled by s = size_m / REFERENCE_SIZE_M (0.2 m).
+
+        R_m, length_scale_m, value_noise_m and prior_radius_m scale by s, thin_plate_scale by 1 / s;
+        gradient_noise (on unit normals) and jitter do not change. Then K + noise transforms as
+        D (K + noise) D with D = diag(s, 1, 1, 1) per contact, and the posterior mean of the scaled
+        object is exactly s times the reference one (variance s^2 times). Overrides apply last.
+        """
+        if not (np.isfinite(size_m) and size_m > 0):
+            raise ConfigError(f"object size must be a positive distance in metres, got {size_m!r}")
+        base = cls()
+        s = size_m / REFERENCE_SIZE_M
+        scaled = cls(
+            R_m=base.R_m * s,
+            thin_plate_scale=base.thin_plate_scale / s,
+            length_scale_m=base.length_scale_m * s,
+            value_noise_m=base.value_noise_m * s,
+            prior_radius_m=base.prior_radius_m * s,
+        )
+        return dataclasses.replace(scaled, **overrides)  # type: ignore[arg-type]
+
+    def make_kernel(self) -> IsotropicKernel:
+        """The configured covariance function."""
+        if self.kernel == "thin_plate":
+            return ThinPlateKernel(self.R_m, self.thin_plate_scale)
+        variance = self.gaussian_variance_m2
+        if variance is None:
+            variance = self.length_scale_m**2 / 2.0  # -g1(0) = 2 s2 / sigma^2 = 1
+        return GaussianKernel(self.length_scale_m, variance)
+
+
+def _points(x: ArrayLike, name: str) -> FloatArray:
+    a = np.asarray(x, dtype=np.float64)
+    if a.ndim == 1 and a.shape == (3,):
+        a = a[None, :]
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise EstimationError(f"{name} must have shape (m, 3), got {np.shape(x)}")
+    if not np.all(np.isfinite(a)):
+        bad = int(np.argwhere(~np.isfinite(a))[0, 0])
+        raise EstimationError(f"{name} row {bad} is not finite: {a[bad]}")
+    return a
+
+
+def _unit_normals(normals: ArrayLike, count: int) -> FloatArray:
+    """Validate contact normals (count, 3) and normalise them; reject NaN, inf and zero length."""
+    n = np.asarray(normals, dtype=np.float64)
+    if n.ndim == 1 and n.shape == (3,):
+        n = n[None, :]
+    if n.shape != (count, 3):
+        raise EstimationError(f"contact normals must have shape ({count}, 3), got {np.shape(normals)}")
+    for i, row in enumerate(n):
+        if not np.all(np.isfinite(row)):
+            raise EstimationError(
+                f"contact normal {i} is not finite ({row}); the sensor must report a measured outward "
+                "normal with every contact (drop the contact instead)"
+            )
+    norms = np.linalg.norm(n, axis=1)
+    short = np.flatnonzero(norms < _MIN_NORMAL_NORM)
+    if short.size:
+        i = int(short[0])
+        raise EstimationError(
+            f"contact normal {i} has zero length ({n[i]}, |n| = {norms[i]:.3g}); a zero vector has no "
+            "direction and is not normalised silently: drop the contact or supply the measured normal"
+        )
+    return n / norms[:, None]
+
+
+class GPIS:
+    """Incrementally factorised GPIS. Positions in metres; normals are outward unit vectors.
+
+    Not thread-safe. ``add_contact``/``add_contacts`` are atomic: on error the state is unchanged.
+    """
+
+    def __init__(self, config: GPISConfig | None = None, *, prior_centre_m: ArrayLike | None = None) -> None:
+        self.config = config if config is not None else GPISConfig()
+        self.kernel: IsotropicKernel = self.config.make_kernel()
+        self._centre: FloatArray | None = None
+        if prior_centre_m is not None:
+            self._centre = _points(prior_centre_m, "prior_centre_m")[0].copy()
+        self._P = np.zeros((0, 3))
+        self._N = np.zeros((0, 3))
+        self._L = np.zeros((0, 0))  # lower Cholesky factor of K + noise, (4n, 4n), C-contiguous
+        self._z = np.zeros(0)  # L^{-1} (y - m_obs), (4n,)
+        self._alpha: FloatArray | None = None  # K~^{-1} (y - m_obs) as (n, 4), computed lazily
+        cfg, kern = self.config, self.kernel
+        # Diagonal added per contact: noise variances plus jitter relative to the prior variances.
+        self._diag = np.array(
+            [cfg.value_noise_m**2 + cfg.jitter * kern.value_variance]
+            + [cfg.gradient_noise**2 + cfg.jitter * kern.gradient_variance] * 3
+        )
+
+    # --- state -------------------------------------------------------------------------------------
+    @property
+    def n_contacts(self) -> int:
+        return len(self._P)
+
+    @property
+    def positions_m(self) -> FloatArray:
+        """Contact positions (n, 3), a copy."""
+        return self._P.copy()
+
+    @property
+    def normals(self) -> FloatArray:
+        """Contact unit normals (n, 3), a copy."""
+        return self._N.copy()
+
+    @property
+    def prior_centre_m(self) -> FloatArray | None:
+        """Centre c of the sphere prior (3,), or None before the first contact when not given."""
+        return None if self._centre is None else self._centre.copy()
+
+    @property
+    def observation_noise(self) -> FloatArray:
+        """Variances (4,) added to the diagonal per contact: value row, then the three gradient rows."""
+        return self._diag.copy()
+
+    def cholesky_factor(self) -> FloatArray:
+        """The incrementally grown lower factor L (4n, 4n) of K + noise, a copy."""
+        return self._L.copy()
+
+    def observation_covariance(self) -> FloatArray:
+        """K + noise (4n, 4n) recomputed from scratch (for checks; the GP itself never does this)."""
+        K = self.kernel.observation_cov(self._P, self._P)
+        K[np.diag_indices_from(K)] += np.tile(self._diag, self.n_contacts)
+        return K
+
+    # --- updates -----------------------------------------------------------------------------------
+    def add_contact(self, position_m: ArrayLike, normal: ArrayLike) -> None:
+        """Add one contact: position (3,) in metres and outward normal (3,) (normalised here)."""
+        p = np.asarray(position_m, dtype=np.float64)
+        if p.shape != (3,):
+            raise EstimationError(f"contact position must have shape (3,), got {p.shape}")
+        n = np.asarray(normal, dtype=np.float64)
+        if n.shape != (3,):
+            raise EstimationError(f"contact normal must have shape (3,), got {n.shape}")
+        self.add_contacts(p[None, :], n[None, :])
+
+    def add_contacts(self, positions_m: ArrayLike, normals: ArrayLike) -> None:
+        """Add b contacts (b, 3) with one block Cholesky update, O(n^2 b + n b^2 + b^3)."""
+        P = _points(positions_m, "contact positions")
+        N = _unit_normals(normals, len(P))
+        if len(P) == 0:
+            return
+        centre = self._centre
+        if centre is None and self.config.prior == "sphere":
+            centre = P[0] - self.config.prior_radius_m * N[0]
+        n_old, b = self.n_contacts, len(P)
+        m_old, m_add = ROWS_PER_POINT * n_old, ROWS_PER_POINT * b
+
+        # Residual targets y - m_obs: value rows 0 - m(c_p), gradient rows c_n - grad m(c_p).
+        targets = np.empty((b, ROWS_PER_POINT))
+        targets[:, 0] = -self._prior_mean(P, centre)
+        targets[:, 1:] = N - self._prior_gradient(P, centre)
+        y2 = targets.ravel()
+
+        K22 = self.kernel.observation_cov(P, P)
+        K22[np.diag_indices_from(K22)] += np.tile(self._diag, b)
+        if n_old:
+            K12 = self.kernel.observation_cov(self._P, P)  # (4 n_old, 4 b)
+            X = scipy.linalg.solve_triangular(self._L, K12, lower=True, check_finite=False)  # L11 X = K12
+            S = K22 - X.T @ X  # Schur complement K22 - K21 K11^{-1} K12
+        else:
+            X = np.zeros((0, m_add))
+            S = K22
+        S = 0.5 * (S + S.T)
+        try:
+            L22 = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError as exc:
+            raise EstimationError(
+                f"GPIS covariance is not positive definite after adding {b} contact(s) to {n_old}: "
+                + (
+                    f"the contacts probably span more than about 0.8 R_m = {0.8 * self.config.R_m:.3g} m "
+                    "(raise GPISConfig.R_m to >= 1.25 x the object's diameter)"
+                    if self.config.kernel == "thin_plate"
+                    else "increase value_noise_m, gradient_noise or jitter"
+                )
+            ) from exc
+        z2 = scipy.linalg.solve_triangular(L22, y2 - X.T @ self._z, lower=True, check_finite=False)
+
+        L = np.empty((m_old + m_add, m_old + m_add))
+        L[:m_old, :m_old] = self._L
+        L[:m_old, m_old:] = 0.0
+        L[m_old:, :m_old] = X.T
+        L[m_old:, m_old:] = L22
+        # Commit (nothing above mutated self).
+        self._centre = centre
+        self._L = L
+        self._z = np.concatenate([self._z, z2])
+        self._P = np.vstack([self._P, P])
+        self._N = np.vstack([self._N, N])
+        self._alpha = None
+
+    # --- queries -----------------------------------------------------------------------------------
+    def mean(self, x: ArrayLike) -> FloatArray:
+        """Posterior mean f(x) (m,) for points x (m, 3), Eq. 2; negative inside, positive outside."""
+        x = _points(x, "query points")
+        out = self._prior_mean(x, self._require_centre())
+        if self.n_contacts:
+            w = self._weights()
+            for s in self._chunks(len(x), self.n_contacts):
+                out[s] += self.kernel.value_contract(x[s], self._P, w)
+        return out
+
+    def gradient(self, x: ArrayLike) -> FloatArray:
+        """Gradient of the posterior mean (m, 3) at x (m, 3); outward where f = 0."""
+        x = _points(x, "query points")
+        out = self._prior_gradient(x, self._require_centre())
+        if self.n_contacts:
+            w = self._weights()
+            for s in self._chunks(len(x), 3 * self.n_contacts):
+                out[s] += self.kernel.gradient_contract(x[s], self._P, w)
+        return out
+
+    def variance(self, x: ArrayLike) -> FloatArray:
+        """Posterior variance of f (m,) at x (m, 3), Eq. 6, in m^2 (clamped at 0)."""
+        x = _points(x, "query points")
+        out = np.full(len(x), self.kernel.value_variance)
+        if self.n_contacts:
+            for s in self._chunks(len(x), ROWS_PER_POINT * self.n_contacts, _VARIANCE_CHUNK_ENTRIES):
+                Ks = self.kernel.value_obs_cov(x[s], self._P)  # k_* rows (chunk, 4n)
+                V = scipy.linalg.solve_triangular(self._L, Ks.T, lower=True, check_finite=False)
+                out[s] -= np.einsum("ij,ij->j", V, V)
+        return np.maximum(out, 0.0, out=out)
+
+    def mean_and_variance(self, x: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """(mean (m,), variance (m,)) at x (m, 3)."""
+        return self.mean(x), self.variance(x)
+
+    def prior_mean(self, x: ArrayLike) -> FloatArray:
+        """m(x) (m,) of the configured prior."""
+        return self._prior_mean(_points(x, "query points"), self._require_centre())
+
+    # --- internals ---------------------------------------------------------------------------------
+    def _weights(self) -> FloatArray:
+        """alpha = K~^{-1} (y - m_obs) = L^{-T} z as (n, 4)."""
+        if self._alpha is None:
+            alpha = scipy.linalg.solve_triangular(self._L, self._z, lower=True, trans="T", check_finite=False)
+            self._alpha = alpha.reshape(self.n_contacts, ROWS_PER_POINT)
+        return self._alpha
+
+    def _require_centre(self) -> FloatArray | None:
+        if self.config.prior == "sphere" and self._centre is None:
+            raise EstimationError(
+                "the sphere prior has no centre yet: pass prior_centre_m to GPIS() or add a contact first"
+            )
+        return self._centre
+
+    def _prior_mean(self, x: FloatArray, centre: FloatArray | None) -> FloatArray:
+        if self.config.prior == "zero" or centre is None:
+            return np.zeros(len(x))
+        cfg = self.config
+        return cfg.prior_scale * (np.linalg.norm(x - centre, axis=1) - cfg.prior_radius_m)
+
+    def _prior_gradient(self, x: FloatArray, centre: FloatArray | None) -> FloatArray:
+        if self.config.prior == "zero" or centre is None:
+            return np.zeros_like(x)
+        d = x - centre
+        r = np.linalg.norm(d, axis=1, keepdims=True)
+        out = np.zeros_like(d)
+        np.divide(d, r, out=out, where=r > 0)  # grad |x - c| (0 at the centre itself)
+        return self.config.prior_scale * out
+
+    @staticmethod
+    def _chunks(m: int, entries_per_row: int, budget: int = _CHUNK_ENTRIES) -> list[slice]:
+        step = max(1, budget // max(1, entries_per_row))
+        return [slice(s, min(s + step, m)) for s in range(0, m, step)]

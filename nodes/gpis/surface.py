@@ -1,0 +1,209 @@
+"""Triangulated estimate of the surface f = 0 (paper 002 Sec. 2.1: marching cubes near the latest contact).
+
+The GP mean is evaluated on a regular grid in vectorised batches (``GPIS.mean``), coarse to fine:
+first on every other node; then, exactly, only on the fine nodes of the coarse cells that the surface
+may enter (a corner with |f| < REFINE_BAND x coarse step, or corners of both signs); elsewhere the
+fine values are trilinear interpolations of same-signed coarse values, which cannot create a zero
+crossing. The band is safe while |grad f| < REFINE_BAND / (sqrt(3)/2) = 1.7 near the surface (the
+GP fits unit normals, so |grad f| ~ 1 there); ``refine=False`` evaluates every node. scikit-image's
+marching cubes extracts the zero level set, and the vertex normals and variances come from the GP
+itself (``GPIS.gradient``, ``GPIS.variance``) at the vertices only, not at every grid node. Faces
+are wound so that their right-hand normals point outwards (towards f > 0). A box without a zero
+crossing gives an empty mesh, not an exception.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from skimage.measure import marching_cubes
+
+from palpate.errors import EstimationError
+from palpate.nodes.gpis.core import GPIS
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int32]
+
+#: Default local patch: +-5 cm around the latest contact (the planner samples candidates up to 5 cm,
+#: GP-V up to 6 cm along the surface, which the box corners cover).
+LOCAL_HALF_EXTENT_M = 0.05
+#: Default grid step. Marching-cubes vertices then lie at most one step apart, so triangle centres
+#: (the planner's candidates) are spaced ~2-5 mm: the paper's 0.5 cm candidate step or finer.
+LOCAL_RESOLUTION_M = 0.005
+#: Coarse cells with a corner |f| below REFINE_BAND x coarse step are evaluated on the fine grid.
+REFINE_BAND = 1.5
+#: Largest grid accepted (nodes), to refuse a resolution that would exhaust memory or take minutes.
+MAX_GRID_NODES = 50_000_000
+
+
+@dataclass(frozen=True, kw_only=True)
+class SurfaceMeshArrays:
+    """A triangle mesh of the estimated surface (metres, world frame).
+
+    vertices (v, 3), faces (f, 3) int32 indices into vertices (counter-clockwise seen from outside),
+    vertex_normals (v, 3) outward unit normals from the GP gradient, vertex_variance (v,) GP variance
+    of f at each vertex in m^2 (Eq. 6).
+    """
+
+    vertices: FloatArray
+    faces: IntArray
+    vertex_normals: FloatArray
+    vertex_variance: FloatArray
+
+    @classmethod
+    def empty(cls) -> SurfaceMeshArrays:
+        """A mesh with no vertices and no faces."""
+        return cls(
+            vertices=np.zeros((0, 3)),
+            faces=np.zeros((0, 3), dtype=np.int32),
+            vertex_normals=np.zeros((0, 3)),
+            vertex_variance=np.zeros(0),
+        )
+
+    @property
+    def is_empty(self) -> bool:
+        return len(self.faces) == 0
+
+    def face_centres(self) -> FloatArray:
+        """Centroid of each triangle (f, 3): the candidate points of paper 002 Sec. 2.1."""
+        return self.vertices[self.faces].mean(axis=1)
+
+
+def grid_axes(bounds_min: ArrayLike, bounds_max: ArrayLike, resolution_m: float) -> list[FloatArray]:
+    """Per-axis node coordinates covering [bounds_min, bounds_max] with step resolution_m, centred.
+
+    Each axis gets an odd number >= 3 of nodes (ceil(extent / resolution) + 1, plus one if even), so
+    the grid covers the box and overhangs it by at most one step, split evenly between both sides;
+    every other node forms the coarse grid of ``sample_mean``.
+    """
+    lo = np.asarray(bounds_min, dtype=np.float64)
+    hi = np.asarray(bounds_max, dtype=np.float64)
+    if lo.shape != (3,) or hi.shape != (3,) or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise EstimationError(f"grid bounds must be finite 3-vectors, got {lo} and {hi}")
+    if np.any(hi < lo):
+        raise EstimationError(f"grid bounds_max {hi} is below bounds_min {lo}")
+    if not (np.isfinite(resolution_m) and resolution_m > 0):
+        raise EstimationError(f"grid resolution_m must be positive, got {resolution_m!r}")
+    counts = np.maximum(np.ceil((hi - lo) / resolution_m - 1e-9).astype(int) + 1, 3)
+    counts += 1 - counts % 2
+    if int(np.prod(counts)) > MAX_GRID_NODES:
+        raise EstimationError(
+            f"grid of {counts.tolist()} nodes at resolution {resolution_m} m exceeds {MAX_GRID_NODES} nodes; "
+            "use a coarser resolution_m or smaller bounds"
+        )
+    centre = 0.5 * (lo + hi)
+    return [centre[k] + (np.arange(counts[k]) - 0.5 * (counts[k] - 1)) * resolution_m for k in range(3)]
+
+
+# Corner offsets of a cell, and fine-node offsets (0, 1, 2 per axis) of a coarse cell.
+_CUBE = [(i, j, k) for i in (0, 1) for j in (0, 1) for k in (0, 1)]
+_CUBE3 = [(i, j, k) for i in (0, 1, 2) for j in (0, 1, 2) for k in (0, 1, 2)]
+
+
+def _grid_points(axes: list[FloatArray]) -> FloatArray:
+    X, Y, Z = np.meshgrid(*axes, indexing="ij")
+    return np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+
+
+def _upsample(v: FloatArray, axis: int) -> FloatArray:
+    """Insert midpoints along one axis: n nodes -> 2 n - 1 (linear interpolation)."""
+    v = np.moveaxis(v, axis, 0)
+    out = np.empty((2 * v.shape[0] - 1, *v.shape[1:]))
+    out[::2] = v
+    out[1::2] = 0.5 * (v[:-1] + v[1:])
+    return np.moveaxis(out, 0, axis)
+
+
+def sample_mean(gp: GPIS, axes: list[FloatArray], *, refine: bool = True) -> FloatArray:
+    """GP mean on the grid of the three node-coordinate axes (odd lengths): (nx, ny, nz).
+
+    refine=True evaluates the coarse grid (every other node) and then only the fine nodes of coarse
+    cells within REFINE_BAND coarse steps of a zero crossing; other nodes hold trilinear values.
+    """
+    shape = tuple(len(a) for a in axes)
+    if not refine or min(shape) < 5 or any(n % 2 == 0 for n in shape):
+        return gp.mean(_grid_points(axes)).reshape(shape)
+    coarse_axes = [a[::2] for a in axes]
+    fc = gp.mean(_grid_points(coarse_axes)).reshape(tuple(len(a) for a in coarse_axes))
+    band = REFINE_BAND * max(float(a[1] - a[0]) for a in coarse_axes)
+    corners = [fc[i : i + fc.shape[0] - 1, j : j + fc.shape[1] - 1, k : k + fc.shape[2] - 1] for i, j, k in _CUBE]
+    cmin = np.minimum.reduce(corners)
+    cmax = np.maximum.reduce(corners)
+    active = (cmin < band) & (cmax > -band)  # some corner has |f| < band, or the signs differ
+    volume = _upsample(_upsample(_upsample(fc, 0), 1), 2)
+    mask = np.zeros(shape, dtype=bool)
+    nc = active.shape
+    for a, b, c in _CUBE3:  # fine nodes 2i + a, a in {0, 1, 2}, of every active coarse cell i
+        mask[a : a + 2 * nc[0] : 2, b : b + 2 * nc[1] : 2, c : c + 2 * nc[2] : 2] |= active
+    mask[::2, ::2, ::2] = False  # coarse nodes are already exact
+    idx = np.nonzero(mask)
+    if idx[0].size:
+        pts = np.column_stack([axes[0][idx[0]], axes[1][idx[1]], axes[2][idx[2]]])
+        volume[idx] = gp.mean(pts)
+    return volume
+
+
+def mesh_from_grid(
+    gp: GPIS, axes: list[FloatArray], *, with_variance: bool = True, refine: bool = True
+) -> SurfaceMeshArrays:
+    """Marching cubes of the GP mean sampled on the grid given by three node-coordinate axes.
+
+    with_variance=False skips Eq. 6 at the vertices (fills zeros), for callers that only need shape;
+    refine=False evaluates the mean at every grid node (reference for the coarse-to-fine sampling).
+    """
+    volume = sample_mean(gp, axes, refine=refine)
+    if not np.all(np.isfinite(volume)):
+        raise EstimationError("the GP mean is not finite on the surface grid; check the contacts and config")
+    if not (volume.min() < 0.0 < volume.max()):
+        return SurfaceMeshArrays.empty()
+    spacing = tuple(float(a[1] - a[0]) for a in axes)
+    # f increases outwards; skimage's "descent" winds faces so their normals point towards increasing f
+    # (checked by test_faces_are_wound_outwards).
+    verts, faces, _, _ = marching_cubes(volume, level=0.0, spacing=spacing, gradient_direction="descent")
+    vertices = np.asarray(verts, dtype=np.float64) + np.array([a[0] for a in axes])
+    grad = gp.gradient(vertices)
+    norm = np.linalg.norm(grad, axis=1, keepdims=True)
+    normals = np.zeros_like(grad)
+    np.divide(grad, norm, out=normals, where=norm > 0)
+    variance = gp.variance(vertices) if with_variance else np.zeros(len(vertices))
+    return SurfaceMeshArrays(
+        vertices=vertices,
+        faces=np.ascontiguousarray(faces, dtype=np.int32),
+        vertex_normals=normals,
+        vertex_variance=variance,
+    )
+
+
+def local_surface(
+    gp: GPIS,
+    centre_m: ArrayLike,
+    half_extent_m: float = LOCAL_HALF_EXTENT_M,
+    resolution_m: float = LOCAL_RESOLUTION_M,
+    *,
+    with_variance: bool = True,
+    refine: bool = True,
+) -> SurfaceMeshArrays:
+    """Surface mesh in the cube centre_m +- half_extent_m (normally around the latest contact)."""
+    c = np.asarray(centre_m, dtype=np.float64)
+    if c.shape != (3,):
+        raise EstimationError(f"local surface centre must have shape (3,), got {c.shape}")
+    if not (np.isfinite(half_extent_m) and half_extent_m > 0):
+        raise EstimationError(f"local surface half_extent_m must be positive, got {half_extent_m!r}")
+    axes = grid_axes(c - half_extent_m, c + half_extent_m, resolution_m)
+    return mesh_from_grid(gp, axes, with_variance=with_variance, refine=refine)
+
+
+def global_surface(
+    gp: GPIS,
+    bounds_min: ArrayLike,
+    bounds_max: ArrayLike,
+    resolution_m: float,
+    *,
+    with_variance: bool = True,
+    refine: bool = True,
+) -> SurfaceMeshArrays:
+    """Surface mesh over the box [bounds_min, bounds_max] (the whole object, on request)."""
+    axes = grid_axes(bounds_min, bounds_max, resolution_m)
+    return mesh_from_grid(gp, axes, with_variance=with_variance, refine=refine)

@@ -1,0 +1,199 @@
+"""Marching-cubes surfaces of the GPIS: reconstruction accuracy, orientation, empty boxes, grids."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from palpate.errors import EstimationError
+from palpate.nodes.gpis.bench import benchmark_update
+from palpate.nodes.gpis.core import GPIS, GPISConfig
+from palpate.nodes.gpis.surface import (
+    SurfaceMeshArrays,
+    global_surface,
+    grid_axes,
+    local_surface,
+    sample_mean,
+)
+
+CENTRE = np.array([0.02, -0.01, 0.1])
+HALF = np.array([0.03, 0.02, 0.015])  # box half sizes (m)
+
+
+def sphere_contacts(n: int, rng: np.random.Generator, radius: float, centre: np.ndarray = CENTRE) -> tuple:
+    u = rng.standard_normal((n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return centre + radius * u, u
+
+
+def box_contacts(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """n points uniform by area on the box CENTRE +- HALF, with outward face normals."""
+    areas = np.array([HALF[1] * HALF[2], HALF[0] * HALF[2], HALF[0] * HALF[1]] * 2)
+    face = rng.choice(6, n, p=areas / areas.sum())
+    axis, sign = face % 3, np.where(face < 3, 1.0, -1.0)
+    p = rng.uniform(-1, 1, (n, 3)) * HALF
+    p[np.arange(n), axis] = sign * HALF[axis]
+    normal = np.zeros((n, 3))
+    normal[np.arange(n), axis] = sign
+    return CENTRE + p, normal
+
+
+def box_distance(x: np.ndarray) -> np.ndarray:
+    """Unsigned distance from points (m, 3) to the surface of the box CENTRE +- HALF."""
+    q = np.abs(x - CENTRE) - HALF
+    return np.abs(np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0))
+
+
+def _check_mesh_arrays(mesh: SurfaceMeshArrays) -> None:
+    v = len(mesh.vertices)
+    assert mesh.vertices.shape == (v, 3) and mesh.vertex_normals.shape == (v, 3)
+    assert mesh.vertex_variance.shape == (v,) and mesh.faces.dtype == np.int32
+    assert mesh.faces.min() >= 0 and mesh.faces.max() < v
+    np.testing.assert_allclose(np.linalg.norm(mesh.vertex_normals, axis=1), 1.0, atol=1e-12)
+    assert np.all(mesh.vertex_variance >= 0)
+
+
+def _face_normals(mesh: SurfaceMeshArrays) -> np.ndarray:
+    a, b, c = (mesh.vertices[mesh.faces[:, k]] for k in range(3))
+    return np.cross(b - a, c - a)
+
+
+def test_sphere_is_reconstructed_within_tolerance() -> None:
+    rng = np.random.default_rng(0)
+    radius = 0.04
+    P, N = sphere_contacts(100, rng, radius)
+    gp = GPIS()
+    gp.add_contacts(P, N)
+    mesh = global_surface(gp, CENTRE - 0.06, CENTRE + 0.06, 0.004)
+    _check_mesh_arrays(mesh)
+    rel = mesh.vertices - CENTRE
+    dist = np.linalg.norm(rel, axis=1)
+    assert np.abs(dist - radius).max() < 3e-4  # measured 5e-5 m
+    assert (np.einsum("ij,ij->i", mesh.vertex_normals, rel) / dist).min() > 0.999
+    # Two-sided: every point of the true sphere is near the mesh (no holes).
+    truth, _ = sphere_contacts(2000, rng, radius)
+    assert cKDTree(mesh.vertices).query(truth)[0].max() < 0.004
+
+
+def test_box_is_reconstructed_within_tolerance() -> None:
+    rng = np.random.default_rng(1)
+    P, N = box_contacts(100, rng)
+    gp = GPIS()
+    gp.add_contacts(P, N)
+    mesh = global_surface(gp, CENTRE - HALF - 0.02, CENTRE + HALF + 0.02, 0.003, with_variance=False)
+    d = box_distance(mesh.vertices)
+    # A smooth GP rounds the edges and corners: measured mean 0.4 mm, p90 1.2-1.5 mm, max 5-6 mm.
+    assert d.mean() < 1e-3
+    assert np.quantile(d, 0.9) < 2.5e-3
+    assert d.max() < 8e-3
+    truth, _ = box_contacts(2000, rng)
+    assert np.quantile(cKDTree(mesh.vertices).query(truth)[0], 0.99) < 4e-3
+
+
+@pytest.mark.parametrize("size_m", [0.005, 1.0])
+def test_tiny_and_huge_spheres_mesh_at_their_scale(size_m: float) -> None:
+    rng = np.random.default_rng(2)
+    radius, centre = 0.4 * size_m, np.array([0.5, 0.2, -0.3])
+    P, N = sphere_contacts(60, rng, radius, centre)
+    gp = GPIS(GPISConfig.for_object_size(size_m))
+    gp.add_contacts(P, N)
+    mesh = global_surface(gp, centre - 0.6 * size_m, centre + 0.6 * size_m, size_m / 25)
+    _check_mesh_arrays(mesh)
+    dist = np.linalg.norm(mesh.vertices - centre, axis=1)
+    assert np.abs(dist - radius).max() < 0.04 * radius  # measured 2.8 % at both scales (60 contacts)
+
+
+def test_local_surface_around_a_contact() -> None:
+    rng = np.random.default_rng(3)
+    P, N = sphere_contacts(40, rng, 0.05)
+    gp = GPIS()
+    gp.add_contacts(P, N)
+    mesh = local_surface(gp, P[-1], 0.03, 0.004)
+    _check_mesh_arrays(mesh)
+    assert not mesh.is_empty
+    assert np.all(np.abs(mesh.vertices - P[-1]) <= 0.03 + 0.004)
+    near = np.argmin(np.linalg.norm(mesh.vertices - P[-1], axis=1))
+    assert np.linalg.norm(mesh.vertices[near] - P[-1]) < 0.004
+    np.testing.assert_allclose(mesh.vertex_variance, gp.variance(mesh.vertices), rtol=1e-12, atol=0)
+    assert mesh.vertex_variance[near] < np.median(mesh.vertex_variance)
+    np.testing.assert_allclose(mesh.face_centres(), mesh.vertices[mesh.faces].mean(axis=1))
+    bare = local_surface(gp, P[-1], 0.03, 0.004, with_variance=False)
+    np.testing.assert_array_equal(bare.vertices, mesh.vertices)
+    assert np.all(bare.vertex_variance == 0)
+
+
+def test_faces_are_wound_outwards() -> None:
+    rng = np.random.default_rng(4)
+    P, N = box_contacts(60, rng)
+    gp = GPIS()
+    gp.add_contacts(P, N)
+    mesh = global_surface(gp, CENTRE - HALF - 0.01, CENTRE + HALF + 0.01, 0.004, with_variance=False)
+    fn = _face_normals(mesh)
+    vn = mesh.vertex_normals[mesh.faces].sum(axis=1)
+    assert np.all(np.einsum("ij,ij->i", fn, vn) > 0)
+    # The enclosed volume of an outward-wound closed mesh is positive (divergence theorem).
+    a, b, c = (mesh.vertices[mesh.faces[:, k]] - CENTRE for k in range(3))
+    volume = np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6
+    assert volume == pytest.approx(8 * HALF.prod(), rel=0.1)
+
+
+def test_box_without_a_zero_crossing_gives_an_empty_mesh() -> None:
+    rng = np.random.default_rng(5)
+    P, N = sphere_contacts(30, rng, 0.05)
+    gp = GPIS()
+    gp.add_contacts(P, N)
+    inside = local_surface(gp, CENTRE, 0.01, 0.004)
+    outside = local_surface(gp, CENTRE + np.array([0.15, 0.0, 0.0]), 0.02, 0.004)
+    for mesh in (inside, outside):
+        assert mesh.is_empty and mesh.vertices.shape == (0, 3) and mesh.faces.shape == (0, 3)
+        assert mesh.faces.dtype == np.int32 and mesh.vertex_variance.shape == (0,)
+        assert mesh.face_centres().shape == (0, 3)
+
+
+@pytest.mark.parametrize("kernel", ["thin_plate", "gaussian"])
+def test_coarse_to_fine_sampling_gives_the_full_grid_mesh(kernel: str) -> None:
+    rng = np.random.default_rng(6)
+    P, N = box_contacts(80, rng)
+    gp = GPIS(GPISConfig(kernel=kernel), prior_centre_m=CENTRE)
+    gp.add_contacts(P, N)
+    for centre in P[:6]:
+        axes = grid_axes(centre - 0.05, centre + 0.05, 0.005)
+        fast, full = sample_mean(gp, axes), sample_mean(gp, axes, refine=False)
+        assert np.array_equal(np.sign(fast), np.sign(full))
+        crossing = np.zeros(fast.shape, dtype=bool)  # nodes on an edge with a sign change are exact
+        for ax in range(3):
+            sl0 = [slice(None)] * 3
+            sl1 = [slice(None)] * 3
+            sl0[ax], sl1[ax] = slice(None, -1), slice(1, None)
+            change = np.sign(full[tuple(sl0)]) != np.sign(full[tuple(sl1)])
+            crossing[tuple(sl0)] |= change
+            crossing[tuple(sl1)] |= change
+        np.testing.assert_array_equal(fast[crossing], full[crossing])
+        a = local_surface(gp, centre, 0.05, 0.005, with_variance=False)
+        b = local_surface(gp, centre, 0.05, 0.005, with_variance=False, refine=False)
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+        np.testing.assert_array_equal(a.faces, b.faces)
+
+
+def test_grid_axes_cover_the_box_with_odd_counts() -> None:
+    axes = grid_axes([0.0, 0.0, 0.0], [0.1, 0.013, 0.0], 0.005)
+    for a, extent in zip(axes, [0.1, 0.013, 0.0], strict=True):
+        assert len(a) % 2 == 1 and len(a) >= 3
+        np.testing.assert_allclose(np.diff(a), 0.005, rtol=1e-12)
+        assert a[0] <= 1e-12 and a[-1] >= extent - 1e-12
+        assert (a[-1] - a[0]) - extent < 2 * 0.005 + 1e-12
+    with pytest.raises(EstimationError, match="resolution"):
+        grid_axes([0, 0, 0], [1, 1, 1], 0.0)
+    with pytest.raises(EstimationError, match="below"):
+        grid_axes([0, 0, 0], [1, -1, 1], 0.1)
+    with pytest.raises(EstimationError, match="nodes"):
+        grid_axes([0, 0, 0], [1, 1, 1], 1e-4)
+
+
+def test_benchmark_reports_positive_timings() -> None:
+    result = benchmark_update(30, resolution_m=0.01, repeats=2)
+    for key in ("add_contact_ms", "local_surface_ms", "total_ms", "cpu_total_ms", "vertex_variance_ms"):
+        assert np.isfinite(result[key]) and result[key] > 0
+    assert result["total_ms"] == pytest.approx(result["add_contact_ms"] + result["local_surface_ms"])
+    assert result["n_vertices"] > 0 and result["n_faces"] > 0
