@@ -1,0 +1,552 @@
+"""The simulation core: steps MuJoCo, takes joint or velocity commands, reports pose and contacts.
+
+Pure: no sockets, no messages. The sim node wraps a :class:`Simulation` and publishes what its
+accessors return; every accessor returns finite float64 arrays or raises.
+
+Contacts follow the TRUE surface, not MuJoCo's convex hull of a mesh:
+- **probe** (every object): MuJoCo never collides the probe. After each step the probe centre c is
+  checked against the object mesh with :class:`ExactContactSensor`; if its signed distance d < r
+  the probe is projected back to distance r along the contact normal and its inward velocity is
+  zeroed (a rigid, frictionless surface). A contact is reported when d <= r + tolerance, at the
+  closest surface point. The normal force is the velocity controller's push against the surface,
+  ``force_gain * max(0, -v_cmd . n)``. A probe in the hole of a torus or inside a cup touches
+  nothing and reports nothing. Far from the object (by a 1-Lipschitz bound on the signed distance)
+  steps are batched into one ``mj_step`` call without queries.
+- **hand / finger on convex primitives** (box, cube, sphere, cylinder): MuJoCo's native contacts,
+  which are exact for these geoms. The reported point is moved from MuJoCo's mid-penetration point
+  onto the object's surface; the force is the constraint solver's normal force.
+- **hand / finger on meshes and the torus**: MuJoCo collision between effector and object is off;
+  each capsule is covered by spheres along its axis (spacing radius / 2, so the covered surface
+  deviates from the capsule by at most 3 % of the radius, 0.25 mm at 8 mm) and each sphere within
+  reach of the surface gets a spring-damper penalty force ``k (r - d) - b v_n`` (clipped at 0) along
+  the exact-mesh normal, applied at the surface point through ``xfrc_applied``. This reuses the exact
+  sensor instead of a CoACD decomposition, so there is no decomposition to compute or cache (CoACD
+  takes seconds to a minute per mesh and its parts still bulge by its concavity threshold). Cost:
+  one closest-point query per capsule sphere that is near the surface (a 1-Lipschitz bound on the
+  signed distance skips the others), about 10 to 30 spheres per finger; reported contacts are
+  one per touching run of spheres along a capsule, at the deepest sphere, with the run's summed
+  force.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from palpate.errors import ConfigError, SimulationDivergedError
+from palpate.nodes.sim.contacts import ExactContactSensor
+from palpate.nodes.sim.effectors import FingerConfig, HandConfig
+from palpate.nodes.sim.objects import ObjectModel, load_object
+from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model, uses_exact_contacts
+
+#: MuJoCo warnings that mean the integration blew up (MuJoCo then resets the state silently).
+_INSTABILITY_WARNINGS = (
+    (mujoco.mjtWarning.mjWARN_BADQACC, "bad acceleration"),
+    (mujoco.mjtWarning.mjWARN_BADQVEL, "bad velocity"),
+    (mujoco.mjtWarning.mjWARN_BADQPOS, "bad position"),
+)
+
+
+@dataclass(frozen=True)
+class Contacts:
+    """Contacts between the effector and the object at one instant (n may be 0).
+
+    positions_m (n, 3): points on the object's surface, world frame, metres.
+    local_positions_m (n, 3): the same points in the frame of the touching effector body.
+    normals (n, 3): unit, outward from the object's surface.
+    forces_n (n,): normal force, >= 0, newtons.
+    links: names of the touching effector bodies, length n.
+    """
+
+    positions_m: np.ndarray
+    local_positions_m: np.ndarray
+    normals: np.ndarray
+    forces_n: np.ndarray
+    links: list[str]
+
+    @staticmethod
+    def empty() -> Contacts:
+        """No contact."""
+        return Contacts(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), [])
+
+    def __len__(self) -> int:
+        return len(self.links)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (n, 3) arrays (np.cross is slow on small arrays)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+def _quat_to_mat(q: np.ndarray) -> np.ndarray:
+    R = np.zeros(9)
+    mujoco.mju_quat2Mat(R, np.asarray(q, dtype=np.float64))
+    return R.reshape(3, 3)
+
+
+def _mat_to_quat(R: np.ndarray) -> np.ndarray:
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, np.asarray(R, dtype=np.float64).reshape(9))
+    return q
+
+
+def capsule_spheres(
+    model: mujoco.MjModel, body_mask: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int]]]:
+    """Spheres covering every capsule geom of the bodies in ``body_mask`` (nbody,) bool.
+
+    Centres lie on the capsule axis at spacing radius / 2 (the union deviates from the capsule by at
+    most 1 - sqrt(15/16) = 3 % of the radius). Returns geom ids (K,), offsets in the geom frame
+    (K, 3), radii (K,) and per capsule the (start, stop) index range of its spheres.
+    """
+    gids: list[int] = []
+    offsets: list[tuple[float, float, float]] = []
+    radii: list[float] = []
+    runs: list[tuple[int, int]] = []
+    for g in range(model.ngeom):
+        if not body_mask[model.geom_bodyid[g]] or model.geom_type[g] != mujoco.mjtGeom.mjGEOM_CAPSULE:
+            continue
+        r, half = float(model.geom_size[g, 0]), float(model.geom_size[g, 1])
+        count = int(np.ceil(2 * half / (0.5 * r))) + 1
+        start = len(gids)
+        for s in np.linspace(-half, half, count):  # a capsule's axis is its geom frame's z
+            gids.append(g)
+            offsets.append((0.0, 0.0, float(s)))
+            radii.append(r)
+        runs.append((start, len(gids)))
+    return np.array(gids, dtype=np.int64), np.array(offsets).reshape(-1, 3), np.array(radii), runs
+
+
+def sphere_centres(data: mujoco.MjData, geoms: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """World centres (K, 3) of spheres given by geom ids (K,) and geom-frame offsets (K, 3)."""
+    xmat = data.geom_xmat[geoms].reshape(-1, 3, 3)
+    return data.geom_xpos[geoms] + np.einsum("kij,kj->ki", xmat, offsets)
+
+
+class Simulation:
+    """One scene in MuJoCo: commands in, joint state, effector pose and contacts out."""
+
+    def __init__(self, scene: SceneConfig, obj: ObjectModel | None = None) -> None:
+        self.scene = scene
+        self.object = load_object(scene.object) if obj is None else obj
+        self.model = build_model(scene, self.object)
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        self._dt = float(m.opt.timestep)
+        self._steps = 0
+        self._warnings_seen = {w: 0 for w, _ in _INSTABILITY_WARNINGS}
+        self._exact = uses_exact_contacts(scene, self.object)
+        self._sensor = ExactContactSensor(self.object.mesh) if self._exact else None
+        self._tol = float(scene.contact_tolerance_m)
+        object_body = m.body(OBJECT_BODY).id
+        self._is_object_geom = m.geom_bodyid == object_body
+        self._is_effector_body = np.ones(m.nbody, dtype=bool)
+        self._is_effector_body[[0, object_body]] = False
+        self._body_names = [m.body(i).name for i in range(m.nbody)]
+        self._fresh = False
+
+        if scene.effector == "probe":
+            self._probe_body = m.body("probe").id
+            self._probe_radius = float(scene.probe.radius_m)
+            self._cmd_lin = np.zeros(3)
+            self._cmd_ang = np.zeros(3)
+            self.joint_names: list[str] = []
+            self._ranges = np.zeros((0, 2))
+            self._probe_cache_p = np.zeros(3)
+            self._probe_cache_d = -np.inf  # no query yet: the bound never skips
+            self._probe_cache_hit: tuple[np.ndarray, float, np.ndarray] | None = None
+        else:
+            cfg = scene.effector_config()
+            assert isinstance(cfg, HandConfig | FingerConfig)
+            self.joint_names = [m.joint(i).name for i in range(m.njnt)]
+            self._ranges = np.array(m.jnt_range, dtype=np.float64)
+            # actuator k drives joint k (built in the same order); keep the map explicit anyway
+            self._actuator_of_joint = np.argsort(m.actuator_trnid[:, 0])
+            tip = cfg.pose_finger if isinstance(cfg, HandConfig) else cfg.finger
+            self._tip_site = m.site(f"{tip}_tip").id
+            self.set_joint_targets(np.zeros(len(self.joint_names)))
+            if self._exact:
+                self._setup_capsule_spheres()
+        mujoco.mj_forward(m, self.data)
+        self._fresh = True
+
+    # --- commands ----------------------------------------------------------------------------------
+    @property
+    def time_s(self) -> float:
+        """Simulated time since the start, seconds."""
+        return self._steps * self._dt
+
+    @property
+    def timestep_s(self) -> float:
+        """The physics time step, seconds."""
+        return self._dt
+
+    @property
+    def joint_limits_rad(self) -> np.ndarray:
+        """Joint limits (J, 2), radians, in ``joint_names`` order."""
+        return self._ranges.copy()
+
+    def set_joint_targets(self, q_rad: np.ndarray) -> None:
+        """Position-actuator targets (J,) in radians, clipped to the joint limits (hand, finger)."""
+        if self.scene.effector == "probe":
+            raise ConfigError(
+                "set_joint_targets needs a hand or finger scene; this scene's effector is 'probe': "
+                "command it with set_velocity"
+            )
+        q = np.asarray(q_rad, dtype=np.float64)
+        if q.shape != (len(self.joint_names),):
+            raise ValueError(f"joint targets have shape {q.shape}; expected ({len(self.joint_names)},)")
+        if not np.all(np.isfinite(q)):
+            raise ValueError(f"joint targets must be finite, got {q!r}")
+        clipped = np.clip(q, self._ranges[:, 0], self._ranges[:, 1])
+        self.data.ctrl[self._actuator_of_joint] = clipped
+
+    def set_velocity(self, linear_m_s: np.ndarray, angular_rad_s: np.ndarray) -> None:
+        """Probe twist in the world frame: linear (3,) m/s of its centre, angular (3,) rad/s."""
+        if self.scene.effector != "probe":
+            raise ConfigError(
+                f"set_velocity needs a probe scene; this scene's effector is {self.scene.effector!r}: "
+                "command it with set_joint_targets"
+            )
+        v = np.asarray(linear_m_s, dtype=np.float64)
+        w = np.asarray(angular_rad_s, dtype=np.float64)
+        if v.shape != (3,) or w.shape != (3,):
+            raise ValueError(f"velocities have shapes {v.shape} and {w.shape}; expected (3,) and (3,)")
+        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
+            raise ValueError(f"velocities must be finite, got linear {v!r}, angular {w!r}")
+        self._cmd_lin = v.copy()
+        self._cmd_ang = w.copy()
+
+    # --- stepping ----------------------------------------------------------------------------------
+    def step(self, n: int = 1) -> None:
+        """Advance ``n`` time steps; SimulationDivergedError if the state blows up."""
+        if n < 0:
+            raise ValueError(f"step count must be >= 0, got {n}")
+        if n == 0:
+            return
+        t0 = self.time_s
+        m, d = self.model, self.data
+        if self.scene.effector == "probe":
+            self._probe_advance(n)
+        elif self._exact:
+            for _ in range(n):
+                mujoco.mj_step1(m, d)  # kinematics and velocities of the current state
+                self._apply_penalty_forces()
+                mujoco.mj_step2(m, d)  # forces, acceleration, integration
+                self._steps += 1
+                if not np.all(np.isfinite(d.qpos)):
+                    self._check_diverged(t0, force=True)
+        else:
+            mujoco.mj_step(m, d, nstep=n)
+            self._steps += n
+        self._fresh = False
+        self._check_diverged(t0)
+
+    def _check_diverged(self, t0: float, force: bool = False) -> None:
+        d = self.data
+        problems = []
+        counts = d.warning.number  # one array read; indexing d.warning[i] costs microseconds each
+        for warning, what in _INSTABILITY_WARNINGS:
+            count = int(counts[int(warning)])
+            if count > self._warnings_seen[warning]:
+                problems.append(what)
+                self._warnings_seen[warning] = count
+        if force or not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))):
+            problems.append("non-finite state")
+        if problems:
+            dt = self._dt
+            raise SimulationDivergedError(
+                f"MuJoCo diverged between t = {t0:.6g} s and t = {self.time_s:.6g} s "
+                f"({', '.join(problems)}) with time step {dt:g} s; the time step is too large for the "
+                f"scene's stiffness: use a smaller one, e.g. timestep_s: {dt / 2:g}"
+            )
+
+    def _refresh(self) -> None:
+        """Recompute kinematics and contacts for the current state (once per step batch)."""
+        if not self._fresh:
+            mujoco.mj_forward(self.model, self.data)
+            self._fresh = True
+
+    # --- probe -------------------------------------------------------------------------------------
+    def _probe_advance(self, n: int) -> None:
+        """``n`` probe steps. Stretches that surely stay clear of the object (by the 1-Lipschitz bound
+        on the signed distance) run as one ``mj_step`` call; the others are checked step by step."""
+        m, d = self.model, self.data
+        speed_per_step = float(np.linalg.norm(self._cmd_lin)) * self._dt
+        remaining = n
+        while remaining > 0:
+            R = _quat_to_mat(d.qpos[3:7])
+            d.qvel[0:3] = self._cmd_lin  # free joint: linear velocity in the world frame
+            # angular velocity in the body frame; constant during a batch since the probe's inertia
+            # is isotropic (a sphere) and it rotates about a fixed axis
+            d.qvel[3:6] = R.T @ self._cmd_ang
+            bound = self._probe_cache_d - float(np.linalg.norm(d.qpos[0:3] - self._probe_cache_p))
+            margin = bound - self._probe_radius - self._tol
+            free = 0
+            if math.isfinite(margin) and margin > 0:
+                free = remaining if speed_per_step == 0 else min(remaining, int(margin / speed_per_step))
+            if free > 0:
+                mujoco.mj_step(m, d, nstep=free)
+                self._steps += free
+                remaining -= free
+                continue
+            mujoco.mj_step(m, d)
+            self._steps += 1
+            remaining -= 1
+            if np.all(np.isfinite(d.qpos)):
+                self._probe_project()
+
+    def _probe_project(self) -> None:
+        """Push the probe out of the surface along the contact normal and drop its inward velocity.
+
+        One projection per step: in a concave corner a second surface may still be penetrated by at
+        most one step of motion, which the next step corrects.
+        """
+        d = self.data
+        hit = self._probe_closest()
+        r = self._probe_radius
+        if hit is None or hit[1] >= r:
+            return
+        point, _, normal = hit
+        d.qpos[0:3] = point + r * normal
+        inward = float(d.qvel[0:3] @ normal)
+        if inward < 0.0:
+            d.qvel[0:3] -= inward * normal
+
+    def _probe_closest(self) -> tuple[np.ndarray, float, np.ndarray] | None:
+        """Closest surface point, signed centre distance and contact normal; None if surely apart."""
+        assert self._sensor is not None
+        p = np.array(self.data.qpos[0:3], dtype=np.float64)
+        if self._probe_cache_hit is not None and np.array_equal(p, self._probe_cache_p):
+            return self._probe_cache_hit
+        # The signed distance is 1-Lipschitz: skip the query while it cannot be within reach.
+        bound = self._probe_cache_d - float(np.linalg.norm(p - self._probe_cache_p))
+        if bound > self._probe_radius + self._tol:
+            return None
+        hit = self._sensor.closest(p[None, :])
+        point = np.asarray(hit.points_m, dtype=np.float64)[0]
+        dist = float(np.asarray(hit.distance_m)[0])
+        # Contact normal of a sphere: from the surface point to the centre (equals the surface normal
+        # on faces, and is the true contact normal on edges and vertices); inside, the mesh normal.
+        normal = np.asarray(hit.normals, dtype=np.float64)[0]
+        offset = p - point
+        length = float(np.linalg.norm(offset))
+        if dist > 0 and length > 1e-9:
+            normal = offset / length
+        result = (point, dist, normal / np.linalg.norm(normal))
+        self._probe_cache_p, self._probe_cache_d, self._probe_cache_hit = p, dist, result
+        return result
+
+    def _probe_contacts(self) -> Contacts:
+        hit = self._probe_closest()
+        if hit is None or hit[1] > self._probe_radius + self._tol:
+            return Contacts.empty()
+        point, _, normal = hit
+        q = self.data.qpos
+        R = _quat_to_mat(q[3:7])
+        local = R.T @ (point - q[0:3])
+        force = self.scene.probe.force_gain_n_s_per_m * max(0.0, -float(self._cmd_lin @ normal))
+        return Contacts(point[None, :], local[None, :], normal[None, :], np.array([force]), ["probe"])
+
+    # --- hand / finger on non-convex objects: exact-mesh penalty contacts ---------------------------
+    def _setup_capsule_spheres(self) -> None:
+        spheres = capsule_spheres(self.model, self._is_effector_body)
+        self._sph_geom, self._sph_offset, self._sph_radius, self._sph_runs = spheres
+        self._sph_body = self.model.geom_bodyid[self._sph_geom]
+        self._sph_cache_p = np.zeros((len(self._sph_geom), 3))
+        self._sph_cache_d = np.full(len(self._sph_geom), -np.inf)  # no query yet: the bound never skips
+
+    def _sphere_centres(self) -> np.ndarray:
+        return sphere_centres(self.data, self._sph_geom, self._sph_offset)
+
+    def _sphere_hits(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Touching spheres: indices (t,), centres (t, 3), surface points (t, 3), distances (t,),
+        normals (t, 3), using the current kinematics."""
+        assert self._sensor is not None
+        P = self._sphere_centres()
+        bound = self._sph_cache_d - np.linalg.norm(P - self._sph_cache_p, axis=1)
+        near = np.flatnonzero(bound <= self._sph_radius + self._tol)
+        if len(near) == 0:
+            empty = np.zeros((0, 3))
+            return np.zeros(0, dtype=np.int64), empty, empty, np.zeros(0), empty
+        hit = self._sensor.closest(P[near])
+        dist = np.asarray(hit.distance_m, dtype=np.float64)
+        self._sph_cache_p[near] = P[near]
+        self._sph_cache_d[near] = dist
+        touching = dist <= self._sph_radius[near] + self._tol
+        idx = near[touching]
+        return (
+            idx,
+            P[idx],
+            np.asarray(hit.points_m, dtype=np.float64)[touching],
+            dist[touching],
+            np.asarray(hit.normals, dtype=np.float64)[touching],
+        )
+
+    def _sphere_forces(self, idx: np.ndarray, points: np.ndarray, dist: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """Penalty normal force (t,) >= 0 of touching spheres: k (r - d) - b v_n."""
+        d = self.data
+        k = self.scene.mesh_contact_stiffness_n_per_m
+        b = self.scene.mesh_contact_damping_n_s_per_m
+        bodies = self._sph_body[idx]
+        # cvel is (angular, linear) at the subtree centre of mass of the body's root, world frame
+        cvel = d.cvel[bodies]
+        origin = d.subtree_com[self.model.body_rootid[bodies]]
+        v_point = cvel[:, 3:] + _cross(cvel[:, :3], points - origin)
+        v_n = np.einsum("ij,ij->i", v_point, normals)
+        return np.maximum(0.0, k * (self._sph_radius[idx] - dist) - b * v_n)
+
+    def _apply_penalty_forces(self) -> None:
+        """Set xfrc_applied from the current kinematics (call between mj_step1 and mj_step2)."""
+        d = self.data
+        d.xfrc_applied[:] = 0.0
+        idx, _, points, dist, normals = self._sphere_hits()
+        if len(idx) == 0:
+            return
+        if np.any(dist < 0.0):
+            dt = self._dt
+            raise SimulationDivergedError(
+                f"at t = {self.time_s:.6g} s a finger segment's axis is inside the object (penetration "
+                f"{1000 * (self._sph_radius[idx] - dist).max():.3g} mm, more than the segment radius): the "
+                f"penalty contact (stiffness {self.scene.mesh_contact_stiffness_n_per_m:g} N/m) was "
+                f"overrun with time step {dt:g} s; use a smaller time step, e.g. timestep_s: {dt / 2:g} "
+                "(or check that the effector does not start inside the object)"
+            )
+        f = self._sphere_forces(idx, points, dist, normals)[:, None] * normals
+        bodies = self._sph_body[idx]
+        torque = _cross(points - d.xipos[bodies], f)  # xfrc_applied acts at the body's centre of mass
+        wrench = np.zeros((self.model.nbody, 6))
+        np.add.at(wrench, bodies, np.concatenate([f, torque], axis=1))
+        d.xfrc_applied[:] = wrench
+
+    def _penalty_contacts(self) -> Contacts:
+        idx, _, points, dist, normals = self._sphere_hits()
+        if len(idx) == 0:
+            return Contacts.empty()
+        forces = self._sphere_forces(idx, points, dist, normals)
+        order = {int(k): j for j, k in enumerate(idx)}
+        rows: list[int] = []
+        sums: list[float] = []
+        for start, stop in self._sph_runs:
+            j_run: list[int] = []
+            for k in [*range(start, stop), -1]:
+                if k in order:
+                    j_run.append(order[k])
+                    continue
+                if j_run:  # a run of touching spheres ends: report its deepest sphere
+                    deepest = min(j_run, key=lambda j: dist[j] - self._sph_radius[idx[j]])
+                    rows.append(deepest)
+                    sums.append(float(forces[j_run].sum()))
+                    j_run = []
+        sel = np.array(rows, dtype=np.int64)
+        bodies = self._sph_body[idx[sel]]
+        return self._make_contacts(points[sel], normals[sel], np.array(sums), bodies)
+
+    # --- hand / finger on convex primitives: MuJoCo's native contacts -------------------------------
+    def _native_contacts(self) -> Contacts:
+        m, d = self.model, self.data
+        n = int(d.ncon)
+        if n == 0:
+            return Contacts.empty()
+        con = d.contact
+        g1 = np.asarray(con.geom1[:n])
+        g2 = np.asarray(con.geom2[:n])
+        obj1, obj2 = self._is_object_geom[g1], self._is_object_geom[g2]
+        keep = np.flatnonzero(obj1 ^ obj2)
+        if len(keep) == 0:
+            return Contacts.empty()
+        frame_normal = np.asarray(con.frame[:n, :3])[keep]  # from geom1 towards geom2
+        sign = np.where(obj1[keep], 1.0, -1.0)  # outward from the object
+        normals = frame_normal * sign[:, None]
+        # MuJoCo's point is mid-penetration; the object's surface is half the (signed) depth back.
+        points = np.asarray(con.pos[:n])[keep] - normals * (0.5 * np.asarray(con.dist[:n])[keep])[:, None]
+        forces = np.zeros(len(keep))
+        wrench = np.zeros(6)
+        for j, i in enumerate(keep):
+            mujoco.mj_contactForce(m, d, int(i), wrench)
+            forces[j] = max(0.0, wrench[0])
+        effector_geom = np.where(obj1[keep], g2[keep], g1[keep])
+        return self._make_contacts(points, normals, forces, m.geom_bodyid[effector_geom])
+
+    def _make_contacts(
+        self, points: np.ndarray, normals: np.ndarray, forces: np.ndarray, bodies: np.ndarray
+    ) -> Contacts:
+        d = self.data
+        normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+        R = d.xmat[bodies].reshape(-1, 3, 3)
+        local = np.einsum("kji,kj->ki", R, points - d.xpos[bodies])  # R^T (p - x)
+        return Contacts(
+            np.ascontiguousarray(points, dtype=np.float64),
+            np.ascontiguousarray(local, dtype=np.float64),
+            np.ascontiguousarray(normals, dtype=np.float64),
+            np.ascontiguousarray(forces, dtype=np.float64),
+            [self._body_names[b] for b in bodies],
+        )
+
+    # --- accessors ---------------------------------------------------------------------------------
+    def joint_positions(self) -> np.ndarray:
+        """Joint angles (J,) in radians, ``joint_names`` order (empty for the probe)."""
+        if self.scene.effector == "probe":
+            return np.zeros(0)
+        q = np.array(self.data.qpos[: len(self.joint_names)], dtype=np.float64)
+        return self._finite(q, "joint positions")
+
+    def effector_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """Fingertip site (hand, finger) or probe centre: position (3,) m and quaternion (w, x, y, z)."""
+        d = self.data
+        if self.scene.effector == "probe":
+            pos = np.array(d.qpos[0:3], dtype=np.float64)
+            quat = np.array(d.qpos[3:7], dtype=np.float64)
+            quat /= np.linalg.norm(quat)
+        else:
+            self._refresh()
+            pos = np.array(d.site_xpos[self._tip_site], dtype=np.float64)
+            quat = _mat_to_quat(d.site_xmat[self._tip_site])
+        return self._finite(pos, "effector position"), self._finite(quat, "effector orientation")
+
+    def contacts(self) -> Contacts:
+        """Contacts with the object's true surface (see the module docstring for each path)."""
+        if self.scene.effector == "probe":
+            out = self._probe_contacts()
+        else:
+            self._refresh()
+            out = self._penalty_contacts() if self._exact else self._native_contacts()
+        for name, array in (
+            ("contact positions", out.positions_m),
+            ("contact local positions", out.local_positions_m),
+            ("contact normals", out.normals),
+            ("contact forces", out.forces_n),
+        ):
+            self._finite(array, name)
+        return out
+
+    def _finite(self, array: np.ndarray, what: str) -> np.ndarray:
+        if not np.all(np.isfinite(array)):
+            dt = self._dt
+            raise SimulationDivergedError(
+                f"{what} are not finite at t = {self.time_s:.6g} s with time step {dt:g} s; the simulation "
+                f"diverged: use a smaller time step, e.g. timestep_s: {dt / 2:g}"
+            )
+        return array
+
+
+def bare_step_rate(model: mujoco.MjModel, seconds: float = 1.0, batch: int = 100) -> float:
+    """Steps per second of a bare ``mj_step`` loop on ``model`` (fresh data, zero controls)."""
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    steps = 0
+    start = time.perf_counter()
+    elapsed = 0.0
+    while elapsed < seconds:
+        mujoco.mj_step(model, data, nstep=batch)
+        steps += batch
+        elapsed = time.perf_counter() - start
+    return steps / elapsed

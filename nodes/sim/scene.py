@@ -1,0 +1,264 @@
+"""A scene: one object and one effector, read from YAML and assembled into a MuJoCo model.
+
+Only the chosen effector is built (no hand when a fingertip will do). Gravity is off by default:
+the hand and finger are held by their position actuators and the probe by its velocity command,
+and the object is static, so gravity would only bias the joint tracking without adding anything
+to the touch experiments of papers 000 and 002.
+
+Placement: when the effector's base pose is not given, the exploring finger's MCP joint is put
+``finger_mcp_offset_m`` from the object's bounding box (x from its -x face, y from its centre, z
+from its top), fingers pointing +x and palm facing -z, so the fingertip can reach the top face and
+the face nearest the hand. The probe starts ``start_clearance_m`` above the object's top, facing
+down.
+"""
+
+from __future__ import annotations
+
+import math
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from palpate.errors import ConfigError
+from palpate.nodes.sim.effectors import (
+    LONG_FINGERS,
+    OBJECT_CONTYPE,
+    EffectorMjcf,
+    FingerConfig,
+    HandConfig,
+    ProbeConfig,
+    build_finger_mjcf,
+    build_hand_mjcf,
+    build_probe_mjcf,
+)
+from palpate.nodes.sim.objects import ObjectModel, ObjectSpec, load_object
+
+EFFECTORS: tuple[str, ...] = ("hand", "finger", "probe")
+#: Name of the static body that holds the object's geoms.
+OBJECT_BODY = "object"
+
+
+def _default_object() -> ObjectSpec:
+    return ObjectSpec(kind="rubiks_cube")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SceneConfig:
+    """Object, effector and physics options of one simulated scene (YAML: the sim node's section).
+
+    YAML keys: ``effector`` (hand | finger | probe), ``object`` (see ObjectSpec), an optional section
+    named after the effector (``hand:``, ``finger:`` or ``probe:``) with that effector's config, and
+    the scalar options below.
+    """
+
+    effector: str = "finger"
+    object: ObjectSpec = field(default_factory=_default_object)
+    hand: HandConfig = field(default_factory=HandConfig)
+    finger: FingerConfig = field(default_factory=FingerConfig)
+    probe: ProbeConfig = field(default_factory=ProbeConfig)
+    timestep_s: float = 0.002
+    #: Off by default (see the module docstring).
+    gravity_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: Exploring finger's MCP relative to the object's bounding box (-x face, y centre, top face).
+    finger_mcp_offset_m: tuple[float, float, float] = (0.0, 0.035, 0.05)
+    #: Exact-mesh contacts: a surface within radius + this distance counts as touched.
+    contact_tolerance_m: float = 2e-4
+    #: Penalty contact of hand/finger on non-convex objects (exact-mesh path), see core.Simulation.
+    mesh_contact_stiffness_n_per_m: float = 10000.0
+    mesh_contact_damping_n_s_per_m: float = 10.0
+
+    def __post_init__(self) -> None:
+        if self.effector not in EFFECTORS:
+            raise ConfigError(f"effector = {self.effector!r}: unknown effector; use one of {list(EFFECTORS)}")
+        if not (math.isfinite(self.timestep_s) and self.timestep_s > 0):
+            raise ConfigError(f"timestep_s = {self.timestep_s!r}: expected a positive time step in seconds")
+        if self.effector == "finger" and self.finger.finger not in LONG_FINGERS:
+            raise ConfigError(
+                f"finger.finger = {self.finger.finger!r}: use one of {list(LONG_FINGERS)} "
+                "(the single-finger effector has 4 joints; the thumb needs the hand)"
+            )
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], source: str = "<scene>") -> SceneConfig:
+        """Build from a YAML mapping; ConfigError naming the key and quoting the bad value."""
+        if not isinstance(d, Mapping):
+            raise ConfigError(f"{source}: the scene must be a mapping, got {d!r}")
+        allowed = {f.name for f in fields(cls)}
+        for key in d:
+            if key not in allowed:
+                raise ConfigError(
+                    f"{source}: unknown key {key!r} (value {d[key]!r}) in the scene; allowed keys are {sorted(allowed)}"
+                )
+        effector = d.get("effector", "finger")
+        kwargs: dict[str, Any] = {}
+        hints = typing.get_type_hints(cls)
+        for key, value in d.items():
+            if key == "object":
+                kwargs[key] = ObjectSpec.from_dict(value, source=source)
+            elif key in EFFECTORS:
+                if key != effector:
+                    raise ConfigError(
+                        f"{source}: section {key!r} (value {value!r}) is not used by effector {effector!r}; "
+                        f"remove it or set effector: {key}"
+                    )
+                kwargs[key] = _dataclass_from_dict(hints[key], value, f"{source}: {key}")
+            else:
+                kwargs[key] = _coerce(value, hints[key], f"{source}: {key}")
+        try:
+            return cls(**kwargs)
+        except ConfigError as error:
+            raise ConfigError(f"{source}: {error}") from None
+
+    def effector_config(self) -> HandConfig | FingerConfig | ProbeConfig:
+        """The config of the chosen effector."""
+        if self.effector == "hand":
+            return self.hand
+        return self.finger if self.effector == "finger" else self.probe
+
+
+def _dataclass_from_dict(cls: Any, d: Any, where: str) -> Any:
+    if not isinstance(d, Mapping):
+        raise ConfigError(f"{where} = {d!r}: expected a mapping of options")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in fields(cls)}
+    kwargs = {}
+    for key, value in d.items():
+        if key not in names:
+            raise ConfigError(f"{where}: unknown key {key!r} (value {value!r}); allowed keys are {sorted(names)}")
+        kwargs[key] = _coerce(value, hints[key], f"{where}.{key}")
+    try:
+        return cls(**kwargs)
+    except ConfigError as error:
+        raise ConfigError(f"{where}: {error}") from None
+
+
+def _coerce(value: Any, hint: Any, where: str) -> Any:
+    """Check ``value`` against a simple annotation (float, int, str, fixed tuples, Optional)."""
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        return _coerce(value, inner[0], where)
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise ConfigError(f"{where} = {value!r}: expected a finite number")
+        return float(value)
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where} = {value!r}: expected an integer")
+        return value
+    if hint is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where} = {value!r}: expected a string")
+        return value
+    if origin is tuple:
+        if isinstance(value, str) or not isinstance(value, list | tuple):
+            raise ConfigError(f"{where} = {value!r}: expected a list of {len(args)} numbers")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(v, args[0], where) for v in value)
+        if len(value) != len(args):
+            raise ConfigError(f"{where} = {value!r}: expected {len(args)} values, got {len(value)}")
+        return tuple(_coerce(v, a, where) for v, a in zip(value, args, strict=True))
+    raise ConfigError(f"{where} = {value!r}: cannot read a value of type {hint!r} from YAML")
+
+
+# --- placement -------------------------------------------------------------------------------------
+
+
+def _rotation(quaternion_wxyz: tuple[float, float, float, float]) -> np.ndarray:
+    q = np.asarray(quaternion_wxyz, dtype=np.float64)
+    R = np.zeros(9)
+    mujoco.mju_quat2Mat(R, q / np.linalg.norm(q))
+    return R.reshape(3, 3)
+
+
+def target_mcp_position(scene: SceneConfig, obj: ObjectModel) -> np.ndarray:
+    """World position (3,) where the exploring finger's MCP joint goes by default."""
+    lo, hi = np.asarray(obj.mesh.bounds, dtype=np.float64)
+    anchor = np.array([lo[0], 0.5 * (lo[1] + hi[1]), hi[2]])
+    return anchor + np.asarray(scene.finger_mcp_offset_m, dtype=np.float64)
+
+
+def effector_base_position(scene: SceneConfig, obj: ObjectModel) -> np.ndarray:
+    """World position (3,) of the effector's root body (palm, metacarpal base or probe centre)."""
+    if scene.effector == "probe":
+        cfg = scene.probe
+        if cfg.start_position_m is not None:
+            return np.asarray(cfg.start_position_m, dtype=np.float64)
+        lo, hi = np.asarray(obj.mesh.bounds, dtype=np.float64)
+        centre = 0.5 * (lo + hi)
+        return np.array([centre[0], centre[1], hi[2] + cfg.radius_m + cfg.start_clearance_m])
+    if scene.effector == "finger":
+        fcfg = scene.finger
+        if fcfg.base_position_m is not None:
+            return np.asarray(fcfg.base_position_m, dtype=np.float64)
+        meta = fcfg.lengths_m(fcfg.finger)[0]
+        R = _rotation(fcfg.base_quaternion_wxyz)
+        return target_mcp_position(scene, obj) - R @ np.array([meta, 0.0, 0.0])
+    hcfg = scene.hand
+    if hcfg.base_position_m is not None:
+        return np.asarray(hcfg.base_position_m, dtype=np.float64)
+    finger = hcfg.pose_finger if hcfg.pose_finger in LONG_FINGERS else "index"
+    R = _rotation(hcfg.base_quaternion_wxyz)
+    return target_mcp_position(scene, obj) - R @ hcfg.mcp_position_m(finger)
+
+
+def uses_exact_contacts(scene: SceneConfig, obj: ObjectModel) -> bool:
+    """True when MuJoCo must not collide effector and object (probe always; hand/finger on non-convex)."""
+    return scene.effector == "probe" or not obj.convex
+
+
+def effector_mjcf(scene: SceneConfig, obj: ObjectModel) -> EffectorMjcf:
+    """MJCF fragments of the scene's effector, placed for the object."""
+    base = effector_base_position(scene, obj)
+    collide = not uses_exact_contacts(scene, obj)
+    if scene.effector == "probe":
+        return build_probe_mjcf(scene.probe, base)
+    if scene.effector == "finger":
+        return build_finger_mjcf(scene.finger, base, collide_with_object=collide)
+    return build_hand_mjcf(scene.hand, base, collide_with_object=collide)
+
+
+def scene_mjcf(scene: SceneConfig, obj: ObjectModel) -> str:
+    """The whole scene as an MJCF document."""
+    assets, geoms = obj.mjcf_assets_and_geoms()
+    eff = effector_mjcf(scene, obj)
+    gravity = " ".join(f"{g:.9g}" for g in scene.gravity_m_s2)
+    return (
+        '<mujoco model="palpate_scene">'
+        '<compiler angle="radian" autolimits="true"/>'
+        f'<option timestep="{scene.timestep_s:.9g}" gravity="{gravity}" integrator="implicitfast"/>'
+        '<default><geom solref="0.01 1"/></default>'
+        f"<asset>{assets}</asset>"
+        "<worldbody>"
+        '<light pos="0 0 1" dir="0 0 -1" directional="true"/>'
+        f'<body name="{OBJECT_BODY}">{geoms}</body>'
+        f"{eff.worldbody}"
+        "</worldbody>"
+        f"<actuator>{eff.actuators}</actuator>"
+        "</mujoco>"
+    )
+
+
+def build_model(scene: SceneConfig, obj: ObjectModel | None = None) -> mujoco.MjModel:
+    """Compile the scene (object + effector). Pass ``obj`` to reuse an already loaded object."""
+    obj = load_object(scene.object) if obj is None else obj
+    xml = scene_mjcf(scene, obj)
+    try:
+        model = mujoco.MjModel.from_xml_string(xml)
+    except ValueError as error:
+        raise ConfigError(f"the scene does not compile in MuJoCo: {error}") from error
+    # The object's geoms collide with effector geoms only on the native path; set their bits here so
+    # the result does not depend on what the object's MJCF text says.
+    object_body = model.body(OBJECT_BODY).id
+    is_object = model.geom_bodyid == object_body
+    model.geom_contype[is_object] = OBJECT_CONTYPE
+    model.geom_conaffinity[is_object] = OBJECT_CONTYPE
+    return model

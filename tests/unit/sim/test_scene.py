@@ -1,0 +1,123 @@
+"""Scene config from YAML mappings, model assembly and effector placement."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from palpate.errors import ConfigError
+from palpate.nodes.sim.effectors import FingerConfig, ProbeConfig
+from palpate.nodes.sim.objects import KINDS, ObjectSpec, load_object
+from palpate.nodes.sim.scene import SceneConfig, build_model, target_mcp_position
+
+PRIMITIVES = {
+    "cube": {"kind": "cube", "size_m": [0.05]},
+    "rubiks_cube": {"kind": "rubiks_cube"},
+    "box": {"kind": "box", "size_m": [0.04, 0.06, 0.03]},
+    "sphere": {"kind": "sphere", "size_m": [0.03]},
+    "cylinder": {"kind": "cylinder", "size_m": [0.025, 0.06]},
+    "torus": {"kind": "torus", "size_m": [0.03, 0.01]},
+}
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PALPATE_CACHE_DIR", str(tmp_path / "cache"))
+
+
+def test_every_primitive_kind_is_covered() -> None:
+    assert set(PRIMITIVES) == set(KINDS) - {"mesh"}
+
+
+def test_from_dict_reads_every_section() -> None:
+    scene = SceneConfig.from_dict(
+        {
+            "effector": "finger",
+            "object": {"kind": "sphere", "size_m": [0.03], "position_m": [0.1, 0, 0]},
+            "finger": {"finger": "ring", "kp_nm_per_rad": 0.7, "mcp_flex_range_deg": [0, 80]},
+            "timestep_s": 0.001,
+            "gravity_m_s2": [0, 0, -9.81],
+        },
+        source="scene.yaml",
+    )
+    assert scene.finger == FingerConfig(finger="ring", kp_nm_per_rad=0.7, mcp_flex_range_deg=(0.0, 80.0))
+    assert scene.object.size_m == (0.03,)
+    model = build_model(scene)
+    assert model.opt.timestep == 0.001
+    np.testing.assert_allclose(model.opt.gravity, (0, 0, -9.81))
+    assert model.joint(0).name == "ring_mcp_abd"
+
+
+def test_defaults_have_no_gravity_and_a_2_ms_step() -> None:
+    model = build_model(SceneConfig())
+    assert model.opt.timestep == 0.002
+    np.testing.assert_array_equal(model.opt.gravity, (0, 0, 0))
+
+
+@pytest.mark.parametrize(
+    ("d", "fragment"),
+    [
+        ({"effector": "probe", "radius_m": 0.01}, "'radius_m' (value 0.01)"),
+        ({"effector": "probe", "probe": {"radius": 0.01}}, "'radius' (value 0.01)"),
+        ({"effector": "gripper"}, "'gripper'"),
+        ({"effector": "probe", "hand": {}}, "section 'hand'"),
+        ({"timestep_s": "fast"}, "timestep_s = 'fast'"),
+        ({"timestep_s": -0.001}, "timestep_s = -0.001"),
+        ({"effector": "finger", "finger": {"finger": "thumb"}}, "'thumb'"),
+        ({"effector": "finger", "finger": {"pip_range_deg": [0, 100, 5]}}, "pip_range_deg = [0, 100, 5]"),
+        ({"object": {"kind": "cube", "colour": "red"}}, "colour"),
+    ],
+)
+def test_from_dict_rejects_bad_keys_and_values_naming_them(d: dict[str, object], fragment: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        SceneConfig.from_dict(d, source="launch/x.yaml")
+    assert fragment in str(info.value)
+    assert "launch/x.yaml" in str(info.value)
+
+
+@pytest.mark.parametrize("effector", ["hand", "finger", "probe"])
+@pytest.mark.parametrize("kind", sorted(PRIMITIVES))
+def test_builds_every_effector_with_every_primitive(effector: str, kind: str) -> None:
+    scene = SceneConfig.from_dict({"effector": effector, "object": PRIMITIVES[kind]})
+    model = build_model(scene)
+    joints = {"hand": 21, "finger": 4, "probe": 1}[effector]
+    assert model.njnt == joints
+    names = {model.body(i).name for i in range(model.nbody)}
+    assert ("palm" in names) == (effector == "hand")
+    assert ("probe" in names) == (effector == "probe")
+    data = mujoco.MjData(model)
+    mujoco.mj_step(model, data, nstep=5)
+    assert np.all(np.isfinite(data.qpos))
+
+
+def test_finger_mcp_is_placed_at_the_offset_from_the_object() -> None:
+    scene = SceneConfig(effector="finger", object=ObjectSpec(kind="cube", size_m=(0.05,), position_m=(0.2, 0, 0)))
+    model = build_model(scene)
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    expected = np.array([0.2 - 0.025, 0.0, 0.025]) + np.array(scene.finger_mcp_offset_m)
+    np.testing.assert_allclose(data.body("index_proximal").xpos, expected, atol=1e-12)
+    np.testing.assert_allclose(target_mcp_position(scene, load_object(scene.object)), expected, atol=1e-12)
+
+
+def test_hand_places_its_index_mcp_like_the_finger() -> None:
+    finger, hand = SceneConfig(effector="finger"), SceneConfig(effector="hand")
+    positions = []
+    for scene in (finger, hand):
+        model = build_model(scene)
+        data = mujoco.MjData(model)
+        mujoco.mj_kinematics(model, data)
+        positions.append(data.body("index_proximal").xpos.copy())
+    np.testing.assert_allclose(positions[0], positions[1], atol=1e-12)
+
+
+def test_probe_starts_above_the_object_facing_down() -> None:
+    scene = SceneConfig(effector="probe", probe=ProbeConfig(start_clearance_m=0.02))
+    model = build_model(scene)
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    np.testing.assert_allclose(data.body("probe").xpos, (0, 0, 0.0285 + 0.008 + 0.02), atol=1e-12)
+    np.testing.assert_allclose(data.body("probe").xmat.reshape(3, 3)[:, 2], (0, 0, -1), atol=1e-12)
