@@ -13,6 +13,7 @@ from palpate.errors import PalpateError
 COMMAND_MODULES = [
     "palpate.commands.launch",
     "palpate.commands.docs",
+    "palpate.commands.keys",
     "palpate.commands.introspect",
     "palpate.commands.bag",
     "palpate.commands.bench",

@@ -143,6 +143,7 @@ def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
         nodes.append(node)
     graph = Graph(source=launch, nodes=nodes, bus_dir=bus_dir, mode=launch.mode, seed=launch.seed)
     _check_wiring(graph)
+    _check_curve(graph)
     _rank(graph)
     return graph
 
@@ -254,6 +255,23 @@ def _check_wiring(graph: Graph) -> None:
         raise LaunchError(f"{sources[1].where}: two clock sources ({sources[0].name}, {sources[1].name}); keep one")
     if graph.mode == "lockstep" and not sources:
         raise LaunchError(f"{graph.source.path}: a lockstep graph needs a clock source (a sim, replay or driver node)")
+
+
+def _check_curve(graph: Graph) -> None:
+    """A node's subscriber is one CurveZMQ client (or none) for all its links, so keys must agree."""
+    for node in graph.nodes:
+        for peer in graph._connections(node):
+            if node.curve and peer.curve.get("public") != node.curve["server_public"]:
+                has = "has no CurveZMQ keys" if not peer.curve else "publishes with another key"
+                raise LaunchError(
+                    f"{node.entry.at('curve_keys')}: node {node.name!r} connects to {peer.name!r}, which {has}; "
+                    "give the nodes of a graph one key file (palpate keys -o FILE)"
+                )
+            if peer.curve and not node.curve:
+                raise LaunchError(
+                    f"{peer.entry.at('curve_keys')}: node {peer.name!r} uses CurveZMQ keys but {node.name!r}, "
+                    "which connects to it, has none; give it the same curve_keys"
+                )
 
 
 def _rank(graph: Graph) -> None:

@@ -117,7 +117,10 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> Lau
     args = {**declared, **{k: v for k, v in overrides.items()}}
     unknown_args = [k for k in overrides if k not in declared]
     if unknown_args and not stack:
-        raise LaunchError(f"{name}: unknown launch argument {unknown_args[0]!r}; declared: {sorted(declared)}")
+        args_line = top["args"][0].start_mark.line + 1 if "args" in top else 1
+        raise LaunchError(
+            f"{name}:{args_line}: unknown launch argument {unknown_args[0]!r}; declared: {sorted(declared)}"
+        )
 
     def value(key: str, default: Any) -> Any:
         return _plain(top[key][1], name, args) if key in top else default
@@ -140,7 +143,13 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> Lau
                 )
         if "file" not in items:
             raise LaunchError(f"{name}:{include.start_mark.line + 1}: include needs a 'file'")
-        target = path.parent / str(_plain(items["file"][1], name, args))
+        site = f"{name}:{items['file'][1].start_mark.line + 1}"
+        target = (path.parent / str(_plain(items["file"][1], name, args))).resolve()
+        if target in (*stack, path):
+            chain = " -> ".join(_display(p) for p in (*stack, path, target))
+            raise LaunchError(f"{site}: include cycle: {chain}")
+        if not target.is_file():
+            raise LaunchError(f"{site}: included launch file {_display(target)} does not exist")
         include_args = _plain(items["args"][1], name, args) if "args" in items else {}
         nodes.extend(_load(target, dict(include_args), (*stack, path)).nodes)
     for entry in _sequence(top, "nodes", name):

@@ -52,6 +52,7 @@ class Manifest:
     subscribes: dict[str, str]
 
     def write(self, bus_dir: str | Path) -> Path:
+        Path(bus_dir).mkdir(parents=True, exist_ok=True)  # a graph of TCP nodes only has no ipc socket there
         path = Path(bus_dir) / f"{self.node}.json"
         tmp = path.with_suffix(".json.tmp")
         tmp.write_text(json.dumps(asdict(self), sort_keys=True))

@@ -1,0 +1,92 @@
+"""Tiny node types for runtime tests, referenced from launch files as `tests.integration.fake_nodes:NAME`.
+
+Node processes import this module by name, so tests start `palpate launch` with the repository root
+as working directory and on PYTHONPATH.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from palpate.messages.schemas import JointState
+from palpate.runtime.spec import NodeSpec, Port
+
+
+@dataclass(frozen=True, kw_only=True)
+class CrasherConfig:
+    after_ticks: int = 3
+    exit_code: int = 3
+
+
+class Crasher:
+    """Logs a line per tick and dies with `exit_code` (no clean-up) after `after_ticks` ticks."""
+
+    def __init__(self, config: CrasherConfig, ctx: Any):
+        self.config, self.ctx = config, ctx
+        self.ticks = 0
+        print(f"crasher: started as pid {os.getpid()}", flush=True)
+
+    def on_tick(self, stamp_ns: int) -> None:
+        self.ticks += 1
+        print(f"crasher: tick {self.ticks} at {stamp_ns} ns", flush=True)
+        if self.ticks >= self.config.after_ticks:
+            print(f"crasher: giving up with exit code {self.config.exit_code}", flush=True)
+            os._exit(self.config.exit_code)
+
+
+@dataclass(frozen=True, kw_only=True)
+class StubbornConfig:
+    hang_s: float = 60.0
+
+
+class Stubborn:
+    """Ignores SIGTERM and SIGINT and hangs in close(): only SIGKILL ends it."""
+
+    def __init__(self, config: StubbornConfig, ctx: Any):
+        self.config, self.ctx = config, ctx
+        self.armed = False
+
+    def on_tick(self, stamp_ns: int) -> None:
+        if not self.armed:  # the runner installs its own handlers before the first tick: replace them
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            self.armed = True
+            print("stubborn: ignoring SIGTERM and SIGINT", flush=True)
+
+    def close(self) -> None:
+        print("stubborn: hanging in close()", flush=True)
+        time.sleep(self.config.hang_s)
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointSinkConfig:
+    gain: float  # required: no default
+    label: str = "sink"
+
+
+class JointSink:
+    """Consumes joint states (a subscriber of another type than the demo's contacts)."""
+
+    def __init__(self, config: JointSinkConfig, ctx: Any):
+        self.config, self.ctx = config, ctx
+
+    def on_joints(self, message: JointState) -> None:
+        self.ctx.metrics["joints"] = float(len(message.names))
+
+    def on_tick(self, stamp_ns: int) -> None:
+        """Nothing to do per tick."""
+
+
+CRASHER = NodeSpec(name="crasher", config=CrasherConfig, factory=Crasher, doc="dies after a few ticks")
+STUBBORN = NodeSpec(name="stubborn", config=StubbornConfig, factory=Stubborn, doc="ignores SIGTERM")
+JOINT_SINK = NodeSpec(
+    name="joint_sink",
+    config=JointSinkConfig,
+    factory=JointSink,
+    inputs={"joints": Port(JointState)},
+    doc="reads joint states; has a required parameter",
+)

@@ -1,0 +1,196 @@
+"""A node fed garbage keeps running: 1000 random frames are 1000 counted decode errors, NaN is refused by name.
+
+The test plays the rest of the graph by hand: it binds the publisher the node subscribes to, acts as
+the clock source of a lockstep graph (so every buffered frame is decoded, none superseded), and
+reads the node's acknowledgements and NodeStatus from the node's own publisher.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import zmq
+
+from palpate.messages import codec, topics
+from palpate.messages.schemas import Clock, ContactSet, LockstepAck, NodeStatus, RunControl
+from palpate.paths import REPO_ROOT
+from palpate.runtime import bus
+from palpate.runtime.spec import NodeProcessSpec
+from tests.integration.launch_helpers import child_env, kill_session, text
+
+STATS_INPUT = "sensors/contacts"
+
+
+@dataclass
+class Harness:
+    """The node process and the test's two sockets around it."""
+
+    proc: subprocess.Popen[bytes]
+    log: Path
+    pub: zmq.Socket[Any]
+    sub: zmq.Socket[Any]
+    statuses: list[NodeStatus]
+
+    def send(self, topic: str, payload: bytes) -> None:
+        self.pub.send_multipart([topic.encode(), payload])
+
+    def receive_until_ack(self, tick: int, timeout_s: float = 10.0) -> None:
+        """Read the node's publisher until it acknowledges `tick` (collecting NodeStatus on the way)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.sub.poll(100):
+                topic, payload = self.sub.recv_multipart()
+                if topic == topics.NODE_STATUS.encode():
+                    self.statuses.append(codec.decode(payload, NodeStatus))
+                elif topic == topics.LOCKSTEP_ACK.encode() and codec.decode(payload, LockstepAck).tick >= tick:
+                    return
+            elif self.proc.poll() is not None:
+                break
+        raise AssertionError(f"no acknowledgement of tick {tick}; node output:\n{text(self.log)}")
+
+    def tick(self, tick: int) -> None:
+        self.send(
+            topics.CLOCK,
+            codec.encode(Clock(stamp_ns=tick * 10_000_000, tick=tick, period_ns=10_000_000, lockstep=True)),
+        )
+        self.receive_until_ack(tick)
+
+    def stop(self) -> int:
+        self.send(topics.GRAPH_CONTROL, codec.encode(RunControl(stamp_ns=0, command="stop", reason="test over")))
+        code = self.proc.wait(timeout=10)
+        while self.sub.poll(500):  # the final status goes out just before exit
+            topic, payload = self.sub.recv_multipart()
+            if topic == topics.NODE_STATUS.encode():
+                self.statuses.append(codec.decode(payload, NodeStatus))
+        return code
+
+
+@contextmanager
+def contact_stats_node(tmp_path: Path) -> Iterator[Harness]:
+    """A `contact_stats` node process in lockstep mode, wired to sockets owned by the test."""
+    ctx = zmq.Context()
+    feed = f"ipc://{tmp_path}/feeder.pub"
+    pub = bus.make_publisher(ctx, feed, lockstep=True)
+    counter = bus.SubscriptionCounter()
+    spec = NodeProcessSpec(
+        name="stats",
+        type="contact_stats",
+        params={"report": True},
+        bus_dir=str(tmp_path),
+        endpoint=f"ipc://{tmp_path}/stats.pub",
+        publishes={},
+        subscribes={"contacts": STATS_INPUT},
+        connect=[feed],
+        mode="lockstep",
+        expected_subscribers={topics.LOCKSTEP_ACK: 1},  # the test's subscriber
+    )
+    spec_path = tmp_path / "stats.json"
+    spec_path.write_text(spec.to_json())
+    log = tmp_path / "stats.log"
+    with log.open("wb") as out:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "palpate.runtime.node", str(spec_path)],
+            cwd=REPO_ROOT,
+            env=child_env(tmp_path),
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+    sub = bus.make_subscriber(ctx, [spec.endpoint], [topics.LOCKSTEP_ACK, topics.NODE_STATUS], lockstep=True)
+    harness = Harness(proc=proc, log=log, pub=pub, sub=sub, statuses=[])
+    try:
+        # no frame may be sent before the node has subscribed to it, or ZeroMQ drops it
+        bus.wait_for_subscribers(pub, counter, {STATS_INPUT: 1, topics.CLOCK: 1, topics.GRAPH_CONTROL: 1}, 20.0)
+        harness.receive_until_ack(-1, timeout_s=20.0)  # start-up done
+        yield harness
+    finally:
+        kill_session(proc)
+        pub.close(linger=0)
+        sub.close(linger=0)
+        ctx.term()
+
+
+def contacts(n: int = 3, nan: bool = False) -> ContactSet:
+    positions = np.arange(3.0 * n).reshape(n, 3) * 0.01
+    if nan:
+        positions[n - 1, 1] = np.nan
+    return ContactSet(
+        stamp_ns=0,
+        positions_m=positions,
+        local_positions_m=np.zeros((n, 3)),
+        normals=np.tile([0.0, 0.0, 1.0], (n, 1)),
+        forces_n=np.ones(n),
+        links=["tip"] * n,
+    )
+
+
+def counters(status: NodeStatus) -> dict[str, int]:
+    return dict(zip(status.counter_names, status.counter_values.tolist(), strict=True))
+
+
+def test_1000_random_frames_are_counted_and_the_node_keeps_running(tmp_path: Path) -> None:
+    rng = np.random.default_rng(1234)
+    with contact_stats_node(tmp_path) as node:
+        for _ in range(1000):
+            node.send(STATS_INPUT, rng.bytes(int(rng.integers(0, 300))))
+        node.tick(0)
+        assert node.proc.poll() is None, "the node died of garbage input"
+        node.send(STATS_INPUT, codec.encode(contacts(3)))  # and it still handles good input
+        node.tick(1)
+        assert node.stop() == 0
+    finished = node.statuses[-1]
+    assert (finished.node, finished.state) == ("stats", "finished")
+    assert counters(finished)["decode_errors"] == 1000
+    assert counters(finished)["messages_in"] == 1
+    assert finished.metric_names == ["contacts"] and finished.metric_values.tolist() == [3.0]
+    first = next(s for s in node.statuses if s.state == "running")  # published after tick 0
+    assert counters(first)["decode_errors"] == 1000
+    out = text(node.log)
+    assert "node stats, topic sensors/contacts: rejected message (1 so far): " in out
+    assert "(1000 so far)" in out  # the log is rate-limited: first 10, then every 100th
+    assert out.count("rejected message") == 10 + 10
+    assert "summary: 1 contact sets, 3 contacts" in out and "decode errors 1000" in out
+
+
+def test_nan_in_a_finite_field_is_rejected_with_the_field_name(tmp_path: Path) -> None:
+    with contact_stats_node(tmp_path) as node:
+        node.send(STATS_INPUT, codec.encode(contacts(2, nan=True)))  # encode() does not validate
+        node.send(STATS_INPUT, codec.encode(contacts(4)))
+        node.tick(0)
+        assert node.stop() == 0
+    assert counters(node.statuses[-1])["decode_errors"] == 1
+    assert counters(node.statuses[-1])["messages_in"] == 1
+    out = text(node.log)
+    assert (
+        "node stats, topic sensors/contacts: rejected message (1 so far): ContactSet.positions_m must be finite" in out
+    )
+    assert "summary: 1 contact sets, 4 contacts" in out
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        (
+            codec.encode(Clock(stamp_ns=0, tick=0, period_ns=1, lockstep=True)),
+            "expected a ContactSet message, got Clock",
+        ),
+        (b"\x92\x83\xa4type\xaaContactSet\xa7version\x02\xa6fields\x80\xc4\x00", "ContactSet has schema version 2"),
+    ],
+    ids=["wrong-type", "wrong-version"],
+)
+def test_wrong_type_or_version_on_a_topic_is_rejected(tmp_path: Path, payload: bytes, reason: str) -> None:
+    with contact_stats_node(tmp_path) as node:
+        node.send(STATS_INPUT, payload)
+        node.tick(0)
+        assert node.stop() == 0
+    assert counters(node.statuses[-1])["decode_errors"] == 1
+    assert reason in text(node.log)

@@ -1,0 +1,167 @@
+"""`palpate launch` as a process: normal runs, Ctrl-C/SIGTERM with no orphans, dying and respawning nodes."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from palpate.paths import REPO_ROOT
+from tests.integration.launch_helpers import alive, descendants, launched, node_pids, text, wait_for
+
+CRASHER = "tests.integration.fake_nodes:CRASHER"
+STUBBORN = "tests.integration.fake_nodes:STUBBORN"
+
+
+def write(tmp_path: Path, body: str, name: str = "graph.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(body)
+    return path
+
+
+def long_graph(mode: str, extra: str = "") -> str:
+    """A cube that would run for 1000 s (lockstep: 100k ticks) and a consumer, plus `extra` nodes."""
+    return f"""
+mode: {mode}
+nodes:
+  - name: cube
+    type: cube_contacts
+    params: {{duration_s: 1000.0}}
+  - name: stats
+    type: contact_stats
+{extra}"""
+
+
+def test_demo_minimal_runs_and_exits_zero(tmp_path: Path) -> None:
+    log = tmp_path / "launch.log"
+    with launched(REPO_ROOT / "launch" / "demo_minimal.yaml", tmp_path / "bus", log, "duration_s:=0.2") as proc:
+        assert proc.wait(timeout=30) == 0, text(log)
+    out = text(log)
+    assert "[stats] summary: 20 contact sets, 80 contacts" in out
+    assert "decode errors 0" in out
+    assert node_pids(tmp_path / "bus") == {}  # manifests are removed at exit
+    assert not list((tmp_path / "bus").glob("*.json"))
+
+
+@pytest.mark.parametrize(
+    ("mode", "signum", "to_group"),
+    [("realtime", signal.SIGINT, True), ("lockstep", signal.SIGTERM, False)],
+    ids=["ctrl-c-realtime", "sigterm-lockstep"],
+)
+def test_signal_ends_every_child_without_orphans(tmp_path: Path, mode: str, signum: int, to_group: bool) -> None:
+    bus_dir, log = tmp_path / "bus", tmp_path / "launch.log"
+    with launched(write(tmp_path, long_graph(mode)), bus_dir, log) as proc:
+        wait_for(lambda: set(node_pids(bus_dir)) == {"cube", "stats"}, 20, "both nodes to start", log)
+        time.sleep(0.5)  # let them get into their loops
+        pids = set(node_pids(bus_dir).values()) | set(descendants(proc.pid))
+        assert len(pids) >= 2 and all(alive(p) for p in pids)
+        start = time.monotonic()
+        if to_group:
+            os.killpg(proc.pid, signum)  # what a terminal's Ctrl-C does
+        else:
+            os.kill(proc.pid, signum)
+        code = proc.wait(timeout=15)
+        took = time.monotonic() - start
+    out = text(log)
+    assert code == 128 + signum, out
+    assert f"received {signal.Signals(signum).name}: stopping every node" in out
+    assert took < 5.0 + 2.0, f"shutdown took {took:.1f} s (sigterm_timeout_s is 5 s)"
+    assert [p for p in pids if alive(p)] == [], "orphan node processes"
+    assert not list(bus_dir.glob("*.json")), "a node did not remove its manifest (it did not exit cleanly)"
+
+
+def test_killed_launcher_takes_its_children_along(tmp_path: Path) -> None:
+    bus_dir, log = tmp_path / "bus", tmp_path / "launch.log"
+    with launched(write(tmp_path, long_graph("realtime")), bus_dir, log) as proc:
+        wait_for(lambda: set(node_pids(bus_dir)) == {"cube", "stats"}, 20, "both nodes to start", log)
+        pids = list(node_pids(bus_dir).values())
+        os.kill(proc.pid, signal.SIGKILL)  # no chance to clean up: the parent-death signal must do it
+        proc.wait(timeout=5)
+        wait_for(lambda: not any(alive(p) for p in pids), 10, "the orphaned nodes to exit", log)
+
+
+def test_node_ignoring_sigterm_is_killed_after_its_timeout(tmp_path: Path) -> None:
+    extra = f"""  - name: stubborn
+    type: {STUBBORN}
+    sigterm_timeout_s: 1.0
+"""
+    bus_dir, log = tmp_path / "bus", tmp_path / "launch.log"
+    with launched(write(tmp_path, long_graph("lockstep", extra)), bus_dir, log) as proc:
+        wait_for(lambda: "stubborn: ignoring SIGTERM" in text(log), 20, "the stubborn node to arm", log)
+        pids = set(node_pids(bus_dir).values()) | set(descendants(proc.pid))
+        start = time.monotonic()
+        os.kill(proc.pid, signal.SIGTERM)
+        code = proc.wait(timeout=15)
+        took = time.monotonic() - start
+    out = text(log)
+    assert code == 128 + signal.SIGTERM, out
+    assert "[launch] node 'stubborn' ignored SIGTERM for 1.0 s: killing it" in out
+    assert 1.0 <= took < 1.0 + 3.0, f"took {took:.1f} s"
+    assert [p for p in pids if alive(p)] == []
+
+
+def test_dying_node_is_reported_and_fails_the_launch(tmp_path: Path) -> None:
+    extra = f"""  - name: crasher
+    type: {CRASHER}
+    params: {{after_ticks: 5, exit_code: 3}}
+"""
+    bus_dir, log = tmp_path / "bus", tmp_path / "launch.log"
+    with launched(write(tmp_path, long_graph("lockstep", extra)), bus_dir, log) as proc:
+        wait_for(lambda: set(node_pids(bus_dir)) >= {"cube", "stats"}, 20, "the nodes to start", log)
+        pids = set(node_pids(bus_dir).values())
+        code = proc.wait(timeout=20)
+    out = text(log)
+    assert code == 1, out
+    report = out[out.index(f"[launch] node 'crasher' ({CRASHER}) died with exit code 3; stopping the launch.") :]
+    first, *rest = report.splitlines()
+    assert first.endswith("Last lines:")
+    tail = [line.strip() for line in rest[: next(i for i, x in enumerate(rest) if not x.startswith("    "))]]
+    # the node's last log lines, in order
+    assert tail[-2:] == ["crasher: tick 5 at 40000000 ns", "crasher: giving up with exit code 3"], report
+    assert [p for p in pids if alive(p)] == []
+
+
+def test_respawned_node_restarts_up_to_max_restarts_then_fails(tmp_path: Path) -> None:
+    extra = f"""  - name: crasher
+    type: {CRASHER}
+    params: {{after_ticks: 5, exit_code: 3}}
+    respawn: true
+    max_restarts: 2
+"""
+    bus_dir, log = tmp_path / "bus", tmp_path / "launch.log"
+    with launched(write(tmp_path, long_graph("realtime", extra)), bus_dir, log) as proc:
+        code = proc.wait(timeout=30)
+    out = text(log)
+    assert code == 1, out
+    deaths = re.findall(r"\[launch\] node 'crasher' \(.*\) died with exit code 3; (.*?)\. Last lines:", out)
+    assert deaths == ["respawning (1/2)", "respawning (2/2)", "stopping the launch"], out
+    started = re.findall(r"crasher: started as pid (\d+)", out)
+    assert len(set(started)) == 3, "three distinct processes: the first and two restarts"
+
+
+def test_dry_run_starts_no_process(tmp_path: Path) -> None:
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "palpate.cli",
+            "launch",
+            "--dry-run",
+            str(REPO_ROOT / "launch" / "demo_minimal.yaml"),
+            "--bus",
+            str(tmp_path),
+        ],
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "  sensors/contacts [ContactSet]: cube -> stats" in proc.stdout
+    assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,319 @@
+"""Launch files: every shipped file validates, every bad file fails before any process starts with
+`file:line: ... key`, and arguments, includes, namespaces and remaps resolve as documented."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from palpate.cli import main
+from palpate.errors import LaunchError
+from palpate.launch.graph import Graph, resolve
+from palpate.launch.loader import load_launch, parse_cli_args
+from palpate.paths import REPO_ROOT
+
+LAUNCH_FILES = sorted((REPO_ROOT / "launch").glob("*.yaml"))
+DATA = Path("tests/data/launch")  # relative: errors name files relative to the working directory
+MARKER = "# <- error"
+
+
+@pytest.fixture(autouse=True)
+def _in_repo_root(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(REPO_ROOT)
+
+
+def load(path: Path | str, bus: Path, overrides: list[str] | None = None) -> Graph:
+    return resolve(load_launch(path, parse_cli_args(overrides or [])), bus_dir=bus)
+
+
+def marked_line(name: str) -> str:
+    """`tests/data/launch/NAME:LINE` of the line that carries the error marker."""
+    lines = (REPO_ROOT / DATA / name).read_text().splitlines()
+    hits = [i + 1 for i, line in enumerate(lines) if MARKER in line]
+    assert len(hits) == 1, f"{name} needs exactly one '{MARKER}' line"
+    return f"{DATA / name}:{hits[0]}"
+
+
+# --- every shipped launch file ---------------------------------------------------------------------------
+
+
+def test_there_are_launch_files() -> None:
+    assert LAUNCH_FILES, "launch/ holds no *.yaml"
+
+
+@pytest.mark.parametrize("path", LAUNCH_FILES, ids=[p.name for p in LAUNCH_FILES])
+def test_dry_run_succeeds_on_every_launch_file(path: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["launch", "--dry-run", str(path), "--bus", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert f"launch {path}" in out and "\nnodes:\n" in out and "\ntopics:\n" in out
+    graph = load(path, tmp_path)
+    for node in graph.nodes:
+        assert f". {node.name} ({node.type})" in out
+    for topic, type_name in graph.topic_types().items():
+        assert f"  {topic} [{type_name}]: " in out
+    assert list(tmp_path.iterdir()) == []  # a dry run starts nothing and binds nothing
+
+
+# --- bad launch files ---------------------------------------------------------------------------------------
+
+BAD = [
+    ("unknown_top_key.yaml", [], "unknown key 'nodez'"),
+    ("unknown_node_key.yaml", [], "unknown node key 'respwan'"),
+    ("unknown_param.yaml", [], "node 'cube': unknown parameter 'edge_mm'"),
+    ("mistyped_param.yaml", [], "node 'cube': params.edge_m: expected a number, got 'big'"),
+    ("missing_param.yaml", [], "node 'sink': params: missing required parameter 'gain'"),
+    (
+        "no_publisher.yaml",
+        [],
+        "node 'stats' subscribes to 'sensors/contactz' (port 'contacts', ContactSet) but no node",
+    ),
+    (
+        "type_mismatch.yaml",
+        [],
+        "type mismatch on 'sensors/contacts': cube publishes ContactSet, "
+        "but node 'sink' port 'joints' expects JointState",
+    ),
+    ("truth_topic.yaml", [], "node 'stats' reads ground truth 'truth/contacts' on port 'contacts'; only evaluators"),
+    ("duplicate_name.yaml", [], "node name 'stats' is already used at tests/data/launch/duplicate_name.yaml:5"),
+    ("unknown_type.yaml", [], "unknown node type 'cube_contactz'"),
+    ("two_publishers.yaml", [], "topic 'sensors/contacts' has two publishers (cube and cube2)"),
+    ("bad_mode.yaml", [], "mode must be 'lockstep' or 'realtime', got 'fast'"),
+    ("bad_flag.yaml", [], "respawn must be true or false, got 'yes'"),
+    ("unknown_substitution.yaml", [], "unknown argument ${edge}"),
+    ("with_args.yaml", ["x:=1"], "unknown launch argument 'x'"),
+    ("include_missing.yaml", [], "included launch file tests/data/launch/does_not_exist.yaml does not exist"),
+    ("include_cycle_a.yaml", [], "include cycle: tests/data/launch/include_cycle_a.yaml -> "),
+]
+
+
+@pytest.mark.parametrize(("name", "overrides", "expected"), BAD, ids=[b[0] + "".join(b[1]) for b in BAD])
+def test_bad_launch_file_names_file_line_and_key(
+    name: str, overrides: list[str], expected: str, tmp_path: Path
+) -> None:
+    where = marked_line("include_cycle_b.yaml" if name == "include_cycle_a.yaml" else name)
+    with pytest.raises(LaunchError) as info:
+        load(DATA / name, tmp_path, overrides)
+    message = str(info.value)
+    assert message.startswith(f"{where}: "), message
+    assert expected in message, message
+
+
+def test_cli_reports_a_bad_file_and_starts_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    started: list[Any] = []
+
+    class NoSupervisor:
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            started.append(args)
+
+    monkeypatch.setattr("palpate.commands.launch.Supervisor", NoSupervisor)
+    monkeypatch.setattr("subprocess.Popen", lambda *a, **k: started.append(a))
+    code = main(["launch", str(DATA / "type_mismatch.yaml"), "--bus", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert f"palpate launch: {marked_line('type_mismatch.yaml')}: type mismatch on 'sensors/contacts'" in err
+    assert started == []
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_errors_in_an_included_file_name_the_included_file(tmp_path: Path) -> None:
+    child = tmp_path / "child.yaml"
+    child.write_text("nodes:\n  - name: a\n    type: cube_contacts\n    colour: red\n")
+    parent = tmp_path / "parent.yaml"
+    parent.write_text("include:\n  - file: child.yaml\n")
+    with pytest.raises(LaunchError, match=rf"^{child}:4: unknown node key 'colour'"):
+        load(parent, tmp_path)
+
+
+# --- arguments, includes, namespaces, remaps ------------------------------------------------------------
+
+
+def test_argument_defaults(tmp_path: Path) -> None:
+    graph = load(DATA / "with_args.yaml", tmp_path)
+    cube, stats = graph.by_name["cube"], graph.by_name["stats"]
+    assert cube.params == {"duration_s": 0.5, "edge_m": 0.05}
+    assert graph.seed == 3
+    assert stats.subscribes == {"contacts": "sensors/contacts"}  # an absolute remap ignores the namespace
+
+
+def test_argument_overrides_from_the_command_line(tmp_path: Path) -> None:
+    graph = load(DATA / "with_args.yaml", tmp_path, ["duration_s:=2.5", "seed:=9", "edge_m:=0.1"])
+    assert graph.by_name["cube"].params == {"duration_s": 2.5, "edge_m": 0.1}
+    assert graph.seed == 9
+    specs = {s.name: s for s in graph.process_specs()}
+    assert specs["cube"].params == {"duration_s": 2.5, "edge_m": 0.1}
+    # node seeds derive from the launch seed, differ between nodes and do not depend on the process
+    again = {s.name: s for s in load(DATA / "with_args.yaml", tmp_path, ["seed:=9"]).process_specs()}
+    assert specs["cube"].seed == again["cube"].seed != specs["stats"].seed
+    other = {s.name: s for s in load(DATA / "with_args.yaml", tmp_path, ["seed:=10"]).process_specs()}
+    assert other["cube"].seed != specs["cube"].seed
+
+
+def test_overridden_argument_values_are_validated(tmp_path: Path) -> None:
+    with pytest.raises(LaunchError, match=r"with_args.yaml:14: node 'cube': params.edge_m: expected a number"):
+        load(DATA / "with_args.yaml", tmp_path, ["edge_m:=wide"])
+
+
+def test_parse_cli_args() -> None:
+    assert parse_cli_args(["a:=1", "b:=0.5", "c:=text", "d:=true", "e:="]) == {
+        "a": 1,
+        "b": 0.5,
+        "c": "text",
+        "d": True,
+        "e": "",
+    }
+    with pytest.raises(LaunchError, match="must look like name:=value"):
+        parse_cli_args(["a=1"])
+
+
+def test_includes_bring_their_nodes_with_their_arguments(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    graph = load(DATA / "include_parent.yaml", tmp_path, ["duration_s:=0.3"])
+    assert [n.name for n in graph.nodes] == ["left_stats", "right_stats", "cube"]
+    assert graph.by_name["cube"].params == {"duration_s": 0.3}
+    assert graph.by_name["left_stats"].params == {"report": True}  # the child's default
+    assert graph.by_name["right_stats"].params == {"report": False}  # passed by the include
+    assert graph.by_name["left_stats"].where.file == str(DATA / "include_child.yaml")
+    assert graph.clock_source is graph.by_name["cube"]
+    assert graph.by_name["cube"].rank == 0
+    specs = {s.name: s for s in graph.process_specs()}
+    assert specs["cube"].expected_subscribers == {"sensors/contacts": 2, "lockstep/ack": 2}
+    assert sorted(specs["cube"].lockstep_nodes) == ["left_stats", "right_stats"]
+    recorded = {s.name: s for s in graph.process_specs(extra_subscribers=1)}
+    assert recorded["cube"].expected_subscribers == {"sensors/contacts": 3, "lockstep/ack": 3}
+    assert main(["launch", "--dry-run", str(DATA / "include_parent.yaml"), "--bus", str(tmp_path)]) == 0
+    assert "  sensors/contacts [ContactSet]: cube -> left_stats, right_stats" in capsys.readouterr().out
+
+
+def test_namespaces_and_remaps_resolve_topics(tmp_path: Path) -> None:
+    path = tmp_path / "ns.yaml"
+    path.write_text(
+        """
+nodes:
+  - name: cube
+    type: cube_contacts
+    namespace: /arm1/       # slashes around a namespace do not matter
+  - name: plain
+    type: contact_stats
+    namespace: arm1         # default topic, prefixed: arm1/sensors/contacts
+  - name: relative
+    type: contact_stats
+    namespace: arm1
+    remaps: {contacts: sensors/contacts}   # a relative remap is prefixed too
+  - name: absolute
+    type: contact_stats
+    namespace: other
+    remaps: {contacts: /arm1/sensors/contacts}  # an absolute remap is taken as is
+  - name: renamed
+    type: contact_stats
+    remaps: {contacts: arm1/sensors/contacts}   # no namespace: the remap is the topic
+"""
+    )
+    graph = load(path, tmp_path)
+    assert graph.by_name["cube"].publishes == {"contacts": "arm1/sensors/contacts"}
+    for name in ("plain", "relative", "absolute", "renamed"):
+        assert graph.by_name[name].subscribes == {"contacts": "arm1/sensors/contacts"}, name
+    assert graph.topic_types() == {"arm1/sensors/contacts": "ContactSet"}
+
+
+def test_remap_of_an_unknown_port(tmp_path: Path) -> None:
+    path = tmp_path / "port.yaml"
+    path.write_text("nodes:\n  - name: cube\n    type: cube_contacts\n    remaps:\n      contact: x\n")
+    with pytest.raises(LaunchError, match=rf"^{path}:5: node 'cube' \(cube_contacts\) has no port 'contact'"):
+        load(path, tmp_path)
+
+
+def test_evaluator_may_read_truth(tmp_path: Path) -> None:
+    text = (REPO_ROOT / DATA / "truth_topic.yaml").read_text().replace(MARKER, "")
+    path = tmp_path / "truth.yaml"
+    path.write_text(text.replace("    type: contact_stats\n", "    type: contact_stats\n    evaluator: true\n"))
+    assert load(path, tmp_path).by_name["stats"].evaluator
+
+
+def test_node_options(tmp_path: Path) -> None:
+    path = tmp_path / "options.yaml"
+    path.write_text(
+        """
+mode: realtime
+nodes:
+  - name: cube
+    type: cube_contacts
+    host: 127.0.0.1
+    port: 47123
+  - name: stats
+    type: contact_stats
+    respawn: true
+    sigterm_timeout_s: 0.5
+  - name: driver
+    type: contact_stats
+    external: true
+    respawn: true
+    max_restarts: 7
+"""
+    )
+    graph = load(path, tmp_path)
+    cube, stats, driver = (graph.by_name[n] for n in ("cube", "stats", "driver"))
+    assert cube.endpoint == "tcp://127.0.0.1:47123"
+    assert stats.endpoint == f"ipc://{tmp_path}/stats.pub"
+    assert (stats.respawn, stats.max_restarts, stats.sigterm_timeout_s) == (True, 3, 0.5)
+    assert (driver.external, driver.max_restarts) == (True, 7)
+    assert (cube.respawn, cube.max_restarts, cube.sigterm_timeout_s) == (False, 0, 5.0)
+    assert graph.mode == "realtime"
+    assert all(s.mode == "realtime" for s in graph.process_specs())
+
+
+@pytest.mark.parametrize(
+    ("line", "expected"),
+    [
+        ("max_restarts: -1", "max_restarts must not be negative"),
+        ("max_restarts: 1.5", "max_restarts must be an integer"),
+        ("sigterm_timeout_s: soon", "sigterm_timeout_s must be a number"),
+        ("host: 7", "host must be a string"),
+        ("curve_keys: /nonexistent/keys.json", "cannot read CurveZMQ key file"),
+    ],
+)
+def test_bad_node_option_values(line: str, expected: str, tmp_path: Path) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text(f"nodes:\n  - name: cube\n    type: cube_contacts\n    {line}\n")
+    with pytest.raises(LaunchError, match=rf"^{path}:4: {expected}"):
+        load(path, tmp_path)
+
+
+def test_lockstep_graph_needs_a_clock_source(tmp_path: Path) -> None:
+    path = tmp_path / "noclock.yaml"
+    path.write_text("nodes:\n  - name: sink\n    type: tests.integration.fake_nodes:CRASHER\n")
+    with pytest.raises(LaunchError, match="needs a clock source"):
+        load(path, tmp_path)
+    path.write_text("mode: realtime\n" + path.read_text())
+    assert load(path, tmp_path).clock_source is None
+
+
+def test_curve_keys_must_agree_across_links(tmp_path: Path) -> None:
+    from palpate.commands.keys import make_keys, write_keys
+
+    graph_key, other_key = tmp_path / "graph.key", tmp_path / "other.key"
+    write_keys(graph_key, make_keys())
+    write_keys(other_key, make_keys())
+
+    def graph(cube_keys: Path | None, stats_keys: Path | None) -> Path:
+        path = tmp_path / "curve.yaml"
+        cube = f"\n    curve_keys: {cube_keys}" if cube_keys else ""
+        stats = f"\n    curve_keys: {stats_keys}" if stats_keys else ""
+        path.write_text(
+            f"nodes:\n  - name: cube\n    type: cube_contacts\n    host: 127.0.0.1{cube}\n"
+            f"  - name: stats\n    type: contact_stats\n    host: 127.0.0.1{stats}\n"
+        )
+        return path
+
+    both = load(graph(graph_key, graph_key), tmp_path)
+    assert both.by_name["cube"].curve == both.by_name["stats"].curve != {}
+    with pytest.raises(LaunchError, match=r"curve.yaml:5: node 'cube' connects to 'stats', which has no CurveZMQ keys"):
+        load(graph(graph_key, None), tmp_path)  # (the clock source connects to every node, for acknowledgements)
+    with pytest.raises(LaunchError, match=r"curve.yaml:8: node 'stats' uses CurveZMQ keys but 'cube', which conn"):
+        load(graph(None, graph_key), tmp_path)
+    with pytest.raises(
+        LaunchError, match=r"curve.yaml:5: node 'cube' connects to 'stats', which publishes with another"
+    ):
+        load(graph(graph_key, other_key), tmp_path)
