@@ -1,8 +1,23 @@
 """Timing of one GPIS update plus the local surface (issue 5 goal: < 20 ms at 200 contacts).
 
-Run ``python -m palpate.nodes.gpis.bench`` for the resolution trade table (2, 3, 5 mm grids).
+Run ``OPENBLAS_NUM_THREADS=1 python -m palpate.nodes.gpis.bench`` for the resolution trade table.
 Contacts lie on an ellipsoid with semi-axes 6 x 4 x 3 cm (a YCB-sized object); the local surface is
 the paper's planning patch, +-5 cm around the newest contact.
+
+Measured at 200 contacts, thin-plate, single-threaded BLAS, CPU ms (median; the 2-core machine was
+shared with other jobs at load 5-7, so wall-clock was 2-4x higher and is not representative):
+
+    grid   add_contact   local surface   of which vertex variance   vertices
+    2 mm       1.7           196                 ~120                 3734
+    3 mm       1.4            86                  ~55                 1721
+    4 mm       1.5            49                  ~31                 1017
+    5 mm       1.4            28                  ~17                  619   (default)
+
+At 5 mm: update + surface without variance = 11.7 ms; with Eq. 6 only at the ~260 candidates the
+planner keeps (5 mm thinning) = 18 ms; with Eq. 6 at every vertex = 26-30 ms. The variance is a
+triangular solve with 4n rows per vertex (n^2 V flops, BLAS-bound at ~40 GFlop/s on one core).
+Multithreaded OpenBLAS on a busy 2-core machine stalls (surface 120 ms CPU instead of 28): run the
+GPIS process with OPENBLAS_NUM_THREADS=1.
 """
 
 from __future__ import annotations
