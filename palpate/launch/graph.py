@@ -232,6 +232,8 @@ def _check_wiring(graph: Graph) -> None:
                     f"{where}: node {node.name!r} reads ground truth {topic!r} on port {port!r}; only evaluators may "
                     "(add 'evaluator: true' to the node if it only evaluates)"
                 )
+            if topic not in types and node.spec.inputs[port].optional:
+                continue
             if topic not in types:
                 raise LaunchError(
                     f"{where}: node {node.name!r} subscribes to {topic!r} (port {port!r}, {wanted}) but no node "
@@ -250,6 +252,13 @@ def _check_wiring(graph: Graph) -> None:
             raise LaunchError(
                 f"{second.where}: topic {topic!r} has two publishers ({first.name} and {second.name}); remap one"
             )
+    if graph.mode == "lockstep":
+        for node in graph.nodes:
+            if node.respawn:
+                raise LaunchError(
+                    f"{node.entry.at('respawn')}: node {node.name!r}: respawn needs 'mode: realtime'; in lockstep a "
+                    "restarted node cannot rejoin the tick it died in, so the run would stall"
+                )
     sources = [n for n in graph.nodes if n.spec.clock_source]
     if len(sources) > 1:
         raise LaunchError(f"{sources[1].where}: two clock sources ({sources[0].name}, {sources[1].name}); keep one")

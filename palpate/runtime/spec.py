@@ -23,6 +23,8 @@ class Port:
     message: type[Message]
     topic: str = ""  # empty: the message type's default topic
     doc: str = ""
+    #: An optional input may have no publisher in a graph (a request topic, say).
+    optional: bool = False
 
     @property
     def default_topic(self) -> str:

@@ -1,0 +1,133 @@
+"""Controller node: Algorithm 1's loop around the pure TrajectoryController.
+
+Reads the fingertip pose and the (noisy) contacts, follows the curve to each planned target, stops
+on contact and announces it as a TouchEvent (the contact joins the set C), then waits for the next
+target. Publishes velocity commands every tick and the curve it follows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, Pose, TouchEvent, TouchTarget, Trajectory
+from palpate.nodes.controller.bezier import bezier_length
+from palpate.nodes.controller.core import ControllerConfig, ControllerState, TrajectoryController
+from palpate.runtime.spec import NodeSpec, Port
+
+
+@dataclass(frozen=True, kw_only=True)
+class ControllerNodeConfig:
+    """The controller's parameters plus the initial touch target (Alg. 1 line 2)."""
+
+    #: A point inside the object the first approach aims at (the object's position is enough).
+    initial_target_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    controller: ControllerConfig = field(default_factory=ControllerConfig)
+
+
+class ControllerNode:
+    """Thin wrapper: messages in, TrajectoryController calls, messages out."""
+
+    def __init__(self, config: ControllerNodeConfig, ctx: Any):
+        self.config, self.ctx = config, ctx
+        self.core = TrajectoryController(config.controller)
+        self.pose: Pose | None = None
+        self.contacts: ContactSet | None = None
+        self.started = False
+        self.armed = True  # contacts count only once the fingertip has left the last one
+        self.touches = 0
+        self.missed_before = 0
+        self.last_contact = np.zeros(3)
+        self.predicted = np.full(3, np.nan)
+
+    def on_pose(self, message: Pose) -> None:
+        self.pose = message
+
+    def on_contacts(self, message: ContactSet) -> None:
+        self.contacts = message
+
+    def on_target(self, message: TouchTarget) -> None:
+        if self.pose is None:
+            return
+        R = _rotation(self.pose)
+        P = self.core.start(self.last_contact, self.core.direction, R, message.position_m, message.normal)
+        self.predicted = np.array(message.predicted_contact_m)
+        self.armed = False
+        R1 = Rotation.from_matrix(R).as_quat(scalar_first=True)
+        self.ctx.publish(
+            "trajectory",
+            Trajectory(
+                stamp_ns=self.ctx.stamp_ns,
+                kind="approach",
+                control_points_m=P,
+                start_quaternion_wxyz=R1,
+                end_quaternion_wxyz=R1,
+                length_m=float(bezier_length(P)),
+            ),
+        )
+
+    def on_tick(self, stamp_ns: int) -> None:
+        if self.pose is None:
+            return
+        r, R = np.array(self.pose.position_m), _rotation(self.pose)
+        if not self.started:
+            self.core.initial_approach(r, np.array(self.config.initial_target_m))
+            self.started = True
+        touching = self.contacts is not None and len(self.contacts.forces_n) > 0
+        if not touching:
+            self.armed = True
+        moving = self.core.state in (ControllerState.DIRECT, ControllerState.APPROACH, ControllerState.RECOVERY)
+        if moving and touching and self.armed:
+            self._touch(r, R)  # Alg. 1 lines 6-10: contact, stop until the next trajectory
+            linear, angular = np.zeros(3), np.zeros(3)
+        else:
+            linear, angular = self.core.command(r, R)
+        if self.core.state is ControllerState.FAILED:
+            self.ctx.request_stop("controller: the fingertip found no surface (approach and recovery missed)")
+        self.ctx.publish(
+            "velocity", CartesianVelocityCommand(stamp_ns=stamp_ns, linear_m_s=linear, angular_rad_s=angular)
+        )
+        self.ctx.metrics["travelled_m"] = self.core.travelled_m
+        self.ctx.metrics["rotation_deg"] = self.core.rotation_deg
+
+    def _touch(self, r: np.ndarray, R: np.ndarray) -> None:
+        assert self.contacts is not None
+        strongest = int(np.argmax(self.contacts.forces_n))
+        direction = self.core.direction
+        self.core.on_contact(r, R)
+        self.last_contact = np.array(self.contacts.positions_m[strongest])
+        missed = self.core.recoveries > self.missed_before
+        self.missed_before = self.core.recoveries
+        self.ctx.publish(
+            "touches",
+            TouchEvent(
+                stamp_ns=self.ctx.stamp_ns,
+                index=self.touches,
+                position_m=self.last_contact,
+                normal=np.array(self.contacts.normals[strongest]),
+                approach_direction=direction,
+                predicted_contact_m=self.predicted,
+                missed=missed,
+                travelled_m=self.core.travelled_m,
+                rotation_deg=self.core.rotation_deg,
+            ),
+        )
+        self.touches += 1
+
+
+def _rotation(pose: Pose) -> np.ndarray:
+    """Rotation matrix (3, 3) of a pose's wxyz quaternion."""
+    return np.asarray(Rotation.from_quat(pose.quaternion_wxyz, scalar_first=True).as_matrix(), dtype=np.float64)
+
+
+SPEC = NodeSpec(
+    name="controller",
+    config=ControllerNodeConfig,
+    factory=ControllerNode,
+    inputs={"pose": Port(Pose), "contacts": Port(ContactSet), "target": Port(TouchTarget)},
+    outputs={"velocity": Port(CartesianVelocityCommand), "touches": Port(TouchEvent), "trajectory": Port(Trajectory)},
+    doc="Bezier trajectory controller of paper 002 (Algorithm 1): velocity commands and touch events.",
+)
