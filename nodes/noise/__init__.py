@@ -1,0 +1,1 @@
+"""Noise node: proprioceptive and contact-sensor noise added to simulated readings."""

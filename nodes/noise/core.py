@@ -1,0 +1,157 @@
+"""Proprioceptive and contact-sensor noise (pure core of the noise node).
+
+Joint angles: q_noisy = q + b + sigma * z, z ~ N(0, 1) per joint and reading (paper 000: Gaussian
+proprioceptive noise with sigma = 1.5 deg). Contacts (paper 002's fingertip sensor): isotropic
+Gaussian position noise, and normals rotated by a random tangent vector whose per-axis standard
+deviation is ``normal_sigma_deg`` (so the angle to the true normal is Rayleigh distributed with
+that scale). Zero sigma and zero bias pass values through unchanged, bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from palpate.errors import ConfigError
+
+
+def _finite(value: Any, key: str, non_negative: bool) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{key} = {value!r}: expected a number")
+    out = float(value)
+    if not math.isfinite(out) or (non_negative and out < 0):
+        raise ConfigError(f"{key} = {value!r}: expected a finite{' non-negative' if non_negative else ''} number")
+    return out
+
+
+def _check_keys(d: Mapping[str, Any], allowed: Sequence[str], source: str) -> None:
+    unknown = sorted(set(d) - set(allowed))
+    if unknown:
+        raise ConfigError(f"{source}: unknown key(s) {unknown}; allowed keys are {list(allowed)}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointNoiseConfig:
+    """Joint-angle noise. ``per_joint_sigma_deg`` overrides ``sigma_deg`` for the joints it names;
+    ``bias_deg`` is one constant for every joint or a mapping joint name -> bias (others 0)."""
+
+    sigma_deg: float = 1.5
+    per_joint_sigma_deg: Mapping[str, float] = field(default_factory=dict)
+    bias_deg: float | Mapping[str, float] = 0.0
+
+    def __post_init__(self) -> None:
+        _finite(self.sigma_deg, "sigma_deg", non_negative=True)
+        if not isinstance(self.per_joint_sigma_deg, Mapping):
+            raise ConfigError(f"per_joint_sigma_deg = {self.per_joint_sigma_deg!r}: expected joint name -> sigma")
+        for name, sigma in self.per_joint_sigma_deg.items():
+            _finite(sigma, f"per_joint_sigma_deg[{name!r}]", non_negative=True)
+        if isinstance(self.bias_deg, Mapping):
+            for name, bias in self.bias_deg.items():
+                _finite(bias, f"bias_deg[{name!r}]", non_negative=False)
+        else:
+            _finite(self.bias_deg, "bias_deg", non_negative=False)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], source: str = "<noise>") -> JointNoiseConfig:
+        """Build from a YAML mapping; ConfigError naming the key and value on anything wrong."""
+        _check_keys(d, ("sigma_deg", "per_joint_sigma_deg", "bias_deg"), source)
+        try:
+            return cls(**dict(d))
+        except ConfigError as error:
+            raise ConfigError(f"{source}: {error}") from None
+
+
+class JointNoise:
+    """Adds joint-angle noise to readings of the joints ``joint_names``, drawing from ``rng``."""
+
+    def __init__(self, config: JointNoiseConfig, joint_names: Sequence[str], rng: np.random.Generator) -> None:
+        names = list(joint_names)
+        known = set(names)
+        bias_map = config.bias_deg if isinstance(config.bias_deg, Mapping) else {}
+        for label, mapping in (("per_joint_sigma_deg", config.per_joint_sigma_deg), ("bias_deg", bias_map)):
+            unknown = sorted(set(mapping) - known)
+            if unknown:
+                raise ConfigError(f"{label} names unknown joint(s) {unknown}; the joints are {names}")
+        sigma_deg = np.array([config.per_joint_sigma_deg.get(n, config.sigma_deg) for n in names], float)
+        if isinstance(config.bias_deg, Mapping):
+            bias_deg = np.array([config.bias_deg.get(n, 0.0) for n in names], float)
+        else:
+            bias_deg = np.full(len(names), float(config.bias_deg))
+        self.joint_names = tuple(names)
+        self.sigma_rad = np.radians(sigma_deg)
+        self.bias_rad = np.radians(bias_deg)
+        self._noisy = (self.sigma_rad > 0) | (self.bias_rad != 0)
+        self._rng = rng
+
+    def apply(self, q_rad: np.ndarray) -> np.ndarray:
+        """Noisy copy of joint angles q_rad (..., J) in radians. Joints with sigma 0 and bias 0 keep
+        their values bit for bit; the generator is only drawn from when some joint is noisy."""
+        q = np.array(q_rad, dtype=np.float64)
+        if q.shape[-1:] != (len(self.joint_names),):
+            raise ValueError(f"expected joint angles of shape (..., {len(self.joint_names)}), got {q.shape}")
+        if not self._noisy.any():
+            return q
+        z = self._rng.standard_normal(q.shape)
+        return np.where(self._noisy, q + self.bias_rad + self.sigma_rad * z, q)  # q + b + sigma z
+
+
+@dataclass(frozen=True, kw_only=True)
+class ContactNoiseConfig:
+    """Contact-sensor noise: position sigma per axis (m), normal direction sigma per tangent axis (deg)."""
+
+    position_sigma_m: float = 0.0
+    normal_sigma_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        _finite(self.position_sigma_m, "position_sigma_m", non_negative=True)
+        _finite(self.normal_sigma_deg, "normal_sigma_deg", non_negative=True)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], source: str = "<noise>") -> ContactNoiseConfig:
+        """Build from a YAML mapping; ConfigError naming the key and value on anything wrong."""
+        _check_keys(d, ("position_sigma_m", "normal_sigma_deg"), source)
+        try:
+            return cls(**dict(d))
+        except ConfigError as error:
+            raise ConfigError(f"{source}: {error}") from None
+
+
+class ContactNoise:
+    """Adds noise to contact positions and outward normals, drawing from ``rng``."""
+
+    def __init__(self, config: ContactNoiseConfig, rng: np.random.Generator) -> None:
+        self.config = config
+        self._sigma_normal_rad = math.radians(config.normal_sigma_deg)
+        self._rng = rng
+
+    def apply(self, positions_m: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Noisy copies of positions (n, 3) m and unit normals (n, 3); the normals stay unit length."""
+        p = np.array(positions_m, dtype=np.float64)
+        n = np.array(normals, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
+            raise ValueError(f"positions and normals must both have shape (n, 3), got {p.shape} and {n.shape}")
+        if self.config.position_sigma_m > 0:
+            p = p + self.config.position_sigma_m * self._rng.standard_normal(p.shape)
+        if self._sigma_normal_rad > 0:
+            n = perturb_directions(n, self._sigma_normal_rad, self._rng)
+        return p, n
+
+
+def perturb_directions(normals: np.ndarray, sigma_rad: float, rng: np.random.Generator) -> np.ndarray:
+    """Rotate unit vectors (n, 3) by a tangent Gaussian step t (sigma per tangent axis, radians).
+
+    Exponential map on the sphere: n' = cos|t| n + sin|t| t/|t|, so angle(n, n') = |t| exactly and the
+    result is unit length.
+    """
+    n = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    z = sigma_rad * rng.standard_normal(n.shape)
+    t = z - np.einsum("ij,ij->i", z, n)[:, None] * n  # project onto the tangent plane
+    angle = np.linalg.norm(t, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        direction = np.where(angle > 0, t / angle, 0.0)
+    out = np.cos(angle) * n + np.sin(angle) * direction
+    return np.asarray(out / np.linalg.norm(out, axis=1, keepdims=True))

@@ -1,0 +1,1 @@
+"""Simulation node: MuJoCo scenes, objects, effectors and exact-mesh contacts."""

@@ -1,0 +1,505 @@
+"""Objects to touch: generated primitives and meshes from files, posed in the world frame.
+
+A scene's ``object`` section becomes an :class:`ObjectSpec`; :func:`load_object` turns it into an
+:class:`ObjectModel` holding the true surface (a ``trimesh.Trimesh`` in the world frame, metres) and
+the MJCF text that puts it into a MuJoCo model.
+
+Conventions:
+- Primitives are centred on their own origin: box, cube and Rubik's cube on their centre, the
+  sphere on its centre, the cylinder on its centre with its axis along z, the torus in the xy plane
+  around the z axis. Meshes keep the frame of their file (YCB: x = y = 0 at the bounding-box
+  centre, z = 0 the resting plane). ``position_m`` and ``quaternion_wxyz`` then place the object.
+- ``path`` may be ``ycb:<id>`` (for example ``ycb:011_banana``), resolved in
+  :func:`palpate.paths.ycb_dir`; other relative paths resolve against the current directory.
+- MuJoCo collides a mesh geom as its convex hull. ``convex`` says whether that is exact; for the
+  other objects the contacts come from :class:`palpate.nodes.sim.contacts.ExactContactSensor`,
+  and ``mjcf_assets_and_geoms(collision="decomposed")`` gives the physics a convex decomposition.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import tempfile
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import trimesh
+
+from palpate.errors import ConfigError, MeshError, MeshWarning
+from palpate.paths import YCB_DIR_ENV, cache_dir, ycb_dir
+
+#: Object kinds a scene may name.
+KINDS = ("cube", "rubiks_cube", "box", "sphere", "cylinder", "torus", "mesh")
+#: Kinds MuJoCo collides exactly with a native geom.
+CONVEX_PRIMITIVES = ("cube", "rubiks_cube", "box", "sphere", "cylinder")
+#: Number of values ``size_m`` takes per kind, and what they mean.
+SIZE_FIELDS: dict[str, tuple[str, ...]] = {
+    "cube": ("edge",),
+    "rubiks_cube": (),
+    "box": ("x", "y", "z"),
+    "sphere": ("radius",),
+    "cylinder": ("radius", "height"),
+    "torus": ("major_radius", "minor_radius"),
+    "mesh": (),
+}
+DEFAULT_CUBE_EDGE_M = 0.05
+#: A 3x3 speed cube is 57 mm on each side.
+RUBIKS_CUBE_EDGE_M = 0.057
+#: Objects outside this bounding-box size are taken as a unit mistake (mm vs m).
+MIN_EXTENT_M = 0.002
+MAX_EXTENT_M = 2.0
+#: Tessellation of the generated curved primitives: the icosphere deviates from the true sphere by
+#: at most 0.1 % of the radius, the 128-gon cylinder by 0.03 %, the 128 x 64 torus by 0.1 %.
+SPHERE_SUBDIVISIONS = 4
+CYLINDER_SECTIONS = 128
+TORUS_MAJOR_SECTIONS = 128
+TORUS_MINOR_SECTIONS = 64
+
+_SPEC_KEYS = ("kind", "size_m", "path", "scale", "position_m", "quaternion_wxyz")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ObjectSpec:
+    """The object of a scene, as written in the scene YAML section ``object``.
+
+    ``size_m`` per kind: cube ``(edge,)`` (default 0.05); rubiks_cube fixed 57 mm (leave empty);
+    box ``(x, y, z)``; sphere ``(radius,)``; cylinder ``(radius, height)``; torus ``(major, minor)``;
+    mesh: empty, give ``path`` (STL/OBJ/PLY/OFF/GLB in metres, ``ycb:<id>`` for a YCB mesh) and
+    optionally ``scale``. The quaternion is normalised; it must have a norm within 1e-3 of 1.
+    """
+
+    kind: str
+    size_m: tuple[float, ...] = ()
+    path: str | None = None
+    scale: float = 1.0
+    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        _validate_spec(self, "ObjectSpec")
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], source: str = "<scene>") -> ObjectSpec:
+        """Build from a YAML mapping; ConfigError naming the key and value on anything wrong."""
+        if not isinstance(d, Mapping):
+            raise ConfigError(f"{source}: object must be a mapping with a 'kind' key, got {d!r}")
+        unknown = sorted(set(d) - set(_SPEC_KEYS))
+        if unknown:
+            raise ConfigError(f"{source}: unknown key(s) {unknown} in object; allowed keys are {list(_SPEC_KEYS)}")
+        if "kind" not in d:
+            raise ConfigError(f"{source}: object needs 'kind', one of {list(KINDS)}")
+        kwargs: dict[str, Any] = {"kind": d["kind"]}
+        if "size_m" in d:
+            size = d["size_m"]
+            kwargs["size_m"] = (size,) if isinstance(size, int | float) else size
+        for key in ("path", "scale", "position_m", "quaternion_wxyz"):
+            if key in d:
+                kwargs[key] = d[key]
+        try:
+            return cls(**kwargs)
+        except ConfigError as error:
+            raise ConfigError(f"{source}: {error}") from None
+
+
+def _float_tuple(value: Any, key: str, length: int | None) -> tuple[float, ...]:
+    if isinstance(value, str) or not isinstance(value, Sequence | np.ndarray):
+        raise ConfigError(f"object.{key} = {value!r}: expected a list of numbers")
+    try:
+        out = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"object.{key} = {value!r}: expected a list of numbers") from None
+    if length is not None and len(out) != length:
+        raise ConfigError(f"object.{key} = {list(value)!r}: expected {length} numbers, got {len(out)}")
+    if not all(math.isfinite(v) for v in out):
+        raise ConfigError(f"object.{key} = {list(value)!r}: values must be finite")
+    return out
+
+
+def _validate_spec(spec: ObjectSpec, source: str) -> None:
+    """Check and normalise the fields of a (frozen) spec in place; ConfigError on bad values."""
+    if spec.kind not in KINDS:
+        raise ConfigError(f"object.kind = {spec.kind!r}: unknown kind; use one of {list(KINDS)}")
+    fields = SIZE_FIELDS[spec.kind]
+    size = _float_tuple(spec.size_m, "size_m", None)
+    if spec.kind == "cube" and not size:
+        size = (DEFAULT_CUBE_EDGE_M,)
+    if spec.kind in ("rubiks_cube", "mesh"):
+        if size:
+            hint = "its size is fixed at 57 mm" if spec.kind == "rubiks_cube" else "use 'scale' instead"
+            raise ConfigError(f"object.size_m = {list(size)!r}: kind {spec.kind!r} takes no size ({hint})")
+    elif len(size) != len(fields):
+        raise ConfigError(
+            f"object.size_m = {list(size)!r}: kind {spec.kind!r} needs {len(fields)} value(s) "
+            f"({', '.join(fields)}) in metres"
+        )
+    if any(v <= 0 for v in size):
+        raise ConfigError(f"object.size_m = {list(size)!r}: sizes must be positive (metres)")
+    if spec.kind == "torus" and size[1] >= size[0]:
+        raise ConfigError(
+            f"object.size_m = {list(size)!r}: a torus needs minor radius < major radius "
+            "(size_m: [major_radius, minor_radius])"
+        )
+    if size:
+        extent = max(size)
+        if spec.kind == "sphere":
+            extent = 2.0 * size[0]
+        elif spec.kind == "cylinder":
+            extent = max(2.0 * size[0], size[1])
+        elif spec.kind == "torus":
+            extent = 2.0 * (size[0] + size[1])
+        if not MIN_EXTENT_M <= extent <= MAX_EXTENT_M:
+            guess = [round(v * (0.001 if extent > MAX_EXTENT_M else 1000.0), 6) for v in size]
+            raise ConfigError(
+                f"object.size_m = {list(size)!r}: the {spec.kind} would be {extent:g} m across, outside "
+                f"{MIN_EXTENT_M * 1000:g} mm to {MAX_EXTENT_M:g} m; sizes are in metres "
+                f"(millimetres given as metres or the reverse?), e.g. size_m: {guess}"
+            )
+    if spec.kind == "mesh":
+        if not isinstance(spec.path, str | os.PathLike) or not str(spec.path):
+            raise ConfigError(
+                f"object.path = {spec.path!r}: kind 'mesh' needs a path to a mesh file in metres "
+                "(or ycb:<id>, e.g. ycb:011_banana)"
+            )
+    elif spec.path is not None:
+        raise ConfigError(f"object.path = {spec.path!r}: only kind 'mesh' takes a path (kind is {spec.kind!r})")
+    if isinstance(spec.scale, bool) or not isinstance(spec.scale, int | float):
+        raise ConfigError(f"object.scale = {spec.scale!r}: expected a positive number")
+    scale = float(spec.scale)
+    if not (math.isfinite(scale) and scale > 0):
+        raise ConfigError(f"object.scale = {spec.scale!r}: expected a positive finite number")
+    if scale != 1.0 and spec.kind != "mesh":
+        raise ConfigError(f"object.scale = {spec.scale!r}: only kind 'mesh' takes a scale; set size_m")
+    position = _float_tuple(spec.position_m, "position_m", 3)
+    quat = _float_tuple(spec.quaternion_wxyz, "quaternion_wxyz", 4)
+    norm = math.sqrt(sum(v * v for v in quat))
+    if abs(norm - 1.0) > 1e-3:
+        raise ConfigError(
+            f"object.quaternion_wxyz = {list(quat)!r}: norm {norm:.6g} is not 1; give a unit quaternion "
+            "(w, x, y, z), e.g. [1, 0, 0, 0] for no rotation"
+        )
+    object.__setattr__(spec, "size_m", size)
+    object.__setattr__(spec, "path", None if spec.path is None else str(spec.path))
+    object.__setattr__(spec, "scale", scale)
+    object.__setattr__(spec, "position_m", position)
+    object.__setattr__(spec, "quaternion_wxyz", tuple(v / norm for v in quat))
+
+
+def pose_matrix(position_m: Sequence[float], quaternion_wxyz: Sequence[float]) -> np.ndarray:
+    """Homogeneous transform (4, 4) from a position (m) and a unit quaternion (w, x, y, z)."""
+    T = trimesh.transformations.quaternion_matrix(np.asarray(quaternion_wxyz, dtype=np.float64))
+    T[:3, 3] = np.asarray(position_m, dtype=np.float64)
+    return np.asarray(T, dtype=np.float64)
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class ObjectModel:
+    """A loaded object: the true surface in the world frame and how MuJoCo should see it.
+
+    ``mesh``: vertices (V, 3) in metres, world frame, outward-wound faces (F, 3).
+    ``convex``: True when MuJoCo's collision with it is exact (native primitive or convex mesh).
+    """
+
+    name: str
+    mesh: trimesh.Trimesh
+    convex: bool
+    spec: ObjectSpec
+    source_path: Path | None = None
+    watertight: bool = True
+    _mesh_files: dict[str, Path] = field(default_factory=dict, init=False, repr=False)
+
+    def geom_names(self, collision: Literal["hull", "decomposed"] = "hull") -> tuple[str, ...]:
+        """Names of the MuJoCo geoms that :meth:`mjcf_assets_and_geoms` creates."""
+        if collision == "hull" or self.spec.kind in CONVEX_PRIMITIVES:
+            return ("object",)
+        parts = self._parts()
+        return tuple("object" if k == 0 else f"object_part{k}" for k in range(len(parts)))
+
+    def mjcf_assets_and_geoms(self, collision: Literal["hull", "decomposed"] = "hull") -> tuple[str, str]:
+        """MJCF text: the inner text of ``<asset>`` and the ``<geom>`` element(s) for ``<worldbody>``.
+
+        Primitives become native geoms (box, sphere, cylinder) at the object pose. The torus and meshes
+        become mesh assets, written once to the palpate cache as binary STL in the world frame.
+        ``collision="hull"`` (default): one static geom named ``object``; MuJoCo collides it as its
+        convex hull. ``collision="decomposed"``: one geom per CoACD convex part (``object``,
+        ``object_part1``, ...), cached on disk (first run: seconds for a torus, about a minute for a
+        YCB cup), so that the physics can enter holes and cups.
+        """
+        kind, size = self.spec.kind, self.spec.size_m
+        pose = _mjcf_pose(self.spec.position_m, self.spec.quaternion_wxyz)
+        if kind in ("cube", "rubiks_cube", "box"):
+            half = [v / 2 for v in self.mesh_extents_local()]
+            return "", f'<geom name="object" type="box" size="{_fmt(half)}"{pose}/>'
+        if kind == "sphere":
+            return "", f'<geom name="object" type="sphere" size="{_fmt([size[0]])}"{pose}/>'
+        if kind == "cylinder":
+            return "", f'<geom name="object" type="cylinder" size="{_fmt([size[0], size[1] / 2])}"{pose}/>'
+        if collision == "hull":
+            path = self._mesh_file("object_mesh", self.mesh)
+            return (
+                f'<mesh name="object_mesh" file="{path}"/>',
+                '<geom name="object" type="mesh" mesh="object_mesh"/>',
+            )
+        if collision != "decomposed":
+            raise ValueError(f"collision = {collision!r}: use 'hull' or 'decomposed'")
+        assets, geoms = [], []
+        for k, (part, geom_name) in enumerate(zip(self._parts(), self.geom_names(collision), strict=True)):
+            mesh_name = f"object_part{k}_mesh"
+            assets.append(f'<mesh name="{mesh_name}" file="{self._mesh_file(mesh_name, part)}"/>')
+            geoms.append(f'<geom name="{geom_name}" type="mesh" mesh="{mesh_name}"/>')
+        return "\n".join(assets), "\n".join(geoms)
+
+    def mesh_extents_local(self) -> tuple[float, float, float]:
+        """Edge lengths (m) of a box-like primitive in its own frame."""
+        if self.spec.kind == "cube":
+            return (self.spec.size_m[0],) * 3
+        if self.spec.kind == "rubiks_cube":
+            return (RUBIKS_CUBE_EDGE_M,) * 3
+        if self.spec.kind == "box":
+            x, y, z = self.spec.size_m
+            return (x, y, z)
+        raise ValueError(f"{self.spec.kind!r} is not a box")
+
+    def _parts(self) -> list[trimesh.Trimesh]:
+        from palpate.nodes.sim.decomposition import convex_decomposition
+
+        return convex_decomposition(self.mesh)
+
+    def _mesh_file(self, key: str, mesh: trimesh.Trimesh) -> Path:
+        if key not in self._mesh_files:
+            self._mesh_files[key] = write_cached_stl(mesh, self.name)
+        return self._mesh_files[key]
+
+
+def _fmt(values: Sequence[float]) -> str:
+    return " ".join(f"{float(v):.10g}" for v in values)
+
+
+def _mjcf_pose(position_m: Sequence[float], quaternion_wxyz: Sequence[float]) -> str:
+    return f' pos="{_fmt(position_m)}" quat="{_fmt(quaternion_wxyz)}"'
+
+
+def mesh_digest(mesh: trimesh.Trimesh) -> str:
+    """SHA-1 of the vertex and face arrays: identifies a mesh in the on-disk cache."""
+    h = hashlib.sha1()
+    h.update(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(mesh.faces, dtype=np.int64).tobytes())
+    return h.hexdigest()
+
+
+def write_cached_stl(mesh: trimesh.Trimesh, name: str) -> Path:
+    """Write ``mesh`` as binary STL into the palpate cache once (atomic rename) and return its path."""
+    folder = cache_dir() / "meshes"
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{_safe_name(name)}-{mesh_digest(mesh)[:16]}.stl"
+    if not path.exists():
+        data = mesh.export(file_type="stl")
+        assert isinstance(data, bytes)  # binary STL
+        with tempfile.NamedTemporaryFile(dir=folder, suffix=".tmp", delete=False) as handle:
+            handle.write(data)
+        os.replace(handle.name, path)
+    return path
+
+
+def _safe_name(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name) or "mesh"
+
+
+# --- loading ---------------------------------------------------------------------------------------
+def load_object(spec: ObjectSpec) -> ObjectModel:
+    """Generate or read the object's surface and pose it in the world frame.
+
+    Raises MeshError (file missing or unreadable, not a mesh, degenerate, absurd scale); warns with
+    MeshWarning when a mesh is not watertight.
+    """
+    if spec.kind == "mesh":
+        assert spec.path is not None  # guaranteed by ObjectSpec validation
+        path = resolve_mesh_path(spec.path)
+        local = read_mesh_file(path, spec.scale)
+        name, convex, source = path.stem, bool(local.is_convex), path
+    else:
+        local = primitive_mesh(spec.kind, spec.size_m)
+        name, convex, source = spec.kind, spec.kind in CONVEX_PRIMITIVES, None
+    world = local.copy()
+    world.apply_transform(pose_matrix(spec.position_m, spec.quaternion_wxyz))
+    return ObjectModel(
+        name=name,
+        mesh=world,
+        convex=convex,
+        spec=spec,
+        source_path=source,
+        watertight=bool(world.is_watertight),
+    )
+
+
+def primitive_mesh(kind: str, size_m: Sequence[float]) -> trimesh.Trimesh:
+    """Triangle mesh (object frame, metres) of a generated primitive."""
+    if kind == "cube":
+        mesh = trimesh.creation.box(extents=[size_m[0]] * 3)
+    elif kind == "rubiks_cube":
+        mesh = trimesh.creation.box(extents=[RUBIKS_CUBE_EDGE_M] * 3)
+    elif kind == "box":
+        mesh = trimesh.creation.box(extents=list(size_m))
+    elif kind == "sphere":
+        mesh = trimesh.creation.icosphere(subdivisions=SPHERE_SUBDIVISIONS, radius=size_m[0])
+    elif kind == "cylinder":
+        mesh = trimesh.creation.cylinder(radius=size_m[0], height=size_m[1], sections=CYLINDER_SECTIONS)
+    elif kind == "torus":
+        mesh = trimesh.creation.torus(
+            major_radius=size_m[0],
+            minor_radius=size_m[1],
+            major_sections=TORUS_MAJOR_SECTIONS,
+            minor_sections=TORUS_MINOR_SECTIONS,
+        )
+    else:
+        raise ValueError(f"{kind!r} is not a primitive; primitives are {KINDS[:-1]}")
+    return trimesh.Trimesh(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64))
+
+
+def resolve_mesh_path(path: str) -> Path:
+    """``ycb:<id>`` -> the YCB folder's ``<id>.stl``; ``~`` and ``$VARS`` expanded; others as given."""
+    if path.startswith("ycb:"):
+        folder = ycb_dir()
+        ident = path[len("ycb:") :]
+        if folder is None:
+            raise MeshError(
+                f"{path}: the YCB mesh folder was not found; set {YCB_DIR_ENV} to the folder holding "
+                f"{ident}.stl or give a file path"
+            )
+        return folder / (ident if ident.endswith(".stl") else f"{ident}.stl")
+    return Path(os.path.expandvars(os.path.expanduser(path)))
+
+
+def read_mesh_file(path: Path, scale: float = 1.0) -> trimesh.Trimesh:
+    """Read and check a mesh file (metres after ``scale``); MeshError naming the file on failure."""
+    if not path.exists():
+        raise MeshError(
+            f"{path}: mesh file not found (resolved from {Path.cwd()}); check object.path in the scene, "
+            "or use ycb:<id> for a YCB mesh"
+        )
+    if not path.is_file():
+        raise MeshError(f"{path}: cannot read the mesh: it is not a regular file; give the path of a mesh file")
+    try:
+        with path.open("rb") as handle:
+            handle.read(1)
+    except OSError as error:
+        raise MeshError(
+            f"{path}: cannot read the mesh file ({error.strerror or error}); check its permissions"
+        ) from error
+    ext = path.suffix.lower().lstrip(".")
+    formats = sorted(trimesh.available_formats())
+    if ext not in formats:
+        raise MeshError(
+            f"{path}: not a mesh file (extension {path.suffix!r} is not a mesh format); "
+            f"convert it to one of {formats} (STL, OBJ or PLY in metres)"
+        )
+    try:
+        loaded = trimesh.load(str(path), process=False)
+    except (ValueError, KeyError, IndexError, TypeError, NotImplementedError, UnicodeDecodeError) as error:
+        raise MeshError(
+            f"{path}: not a readable {ext.upper()} mesh ({type(error).__name__}: {error}); "
+            "re-export it as a triangle mesh (binary STL in metres works best)"
+        ) from error
+    if isinstance(loaded, trimesh.Scene):  # several meshes in one file (OBJ groups, GLB): one surface
+        parts = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh)]
+        loaded = trimesh.util.concatenate(parts) if parts else trimesh.Trimesh()
+    if isinstance(loaded, trimesh.PointCloud):
+        raise MeshError(
+            f"{path}: not a mesh: the {ext.upper()} file holds {len(loaded.vertices)} points but no triangles "
+            "(a point cloud); reconstruct and export a closed triangle mesh of the object"
+        )
+    if not isinstance(loaded, trimesh.Trimesh):
+        raise MeshError(f"{path}: not a mesh (loaded as {type(loaded).__name__}); re-export it as triangles")
+    vertices = np.asarray(loaded.vertices, dtype=np.float64)
+    faces = np.asarray(loaded.faces, dtype=np.int64)
+    if len(faces) == 0:
+        what = f"{len(vertices)} vertices but no triangles" if len(vertices) else "no vertices and no triangles"
+        raise MeshError(
+            f"{path}: not a mesh: the {ext.upper()} file holds {what} (empty, corrupt or not this format); "
+            "export a closed triangle mesh of the object"
+        )
+    if not np.all(np.isfinite(vertices)):
+        raise MeshError(f"{path}: degenerate mesh: some vertices are NaN or infinite; repair or re-export it")
+    mesh = trimesh.Trimesh(vertices * scale, faces, process=True)
+    mesh.update_faces(mesh.nondegenerate_faces())
+    mesh.remove_unreferenced_vertices()
+    _check_geometry(mesh, path, scale)
+    return mesh
+
+
+def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
+    """Degenerate, absurd-scale, inverted and non-watertight checks of a freshly read mesh."""
+    if len(mesh.faces) == 0 or mesh.area <= 0.0:
+        raise MeshError(
+            f"{path}: degenerate mesh: all triangles have zero area (no faces left); export the object's closed surface"
+        )
+    extents = np.asarray(mesh.extents, dtype=np.float64)
+    size = float(extents.max())
+    volume = float(mesh.volume) if mesh.is_watertight else 0.0
+    flat = float(extents.min()) <= 1e-9 * size
+    if flat or (mesh.is_watertight and abs(volume) <= 1e-6 * float(np.prod(extents))):
+        raise MeshError(
+            f"{path}: degenerate mesh: zero volume (bounding box {_mm(extents)} mm, volume {volume:.3g} m^3); "
+            "the surface is flat or collapsed, export the object's closed 3-D surface"
+        )
+    if size > MAX_EXTENT_M or size < MIN_EXTENT_M:
+        factor = 0.001 if size > MAX_EXTENT_M else 1000.0
+        limit = "over 2 m" if size > MAX_EXTENT_M else "under 2 mm"
+        raise MeshError(
+            f"{path}: absurd scale: the mesh is {size:.6g} m across after scale {scale:g} ({limit}); "
+            "millimetres given as metres or the reverse? "
+            f"Set object.scale: {scale * factor:g} in the scene (or convert the file to metres)"
+        )
+    if mesh.is_watertight and volume < 0:
+        warnings.warn(
+            f"{path}: faces are wound inward (volume {volume:.3g} m^3 < 0); inverted them so that normals "
+            "point out of the object. Re-export with outward normals to silence this warning.",
+            MeshWarning,
+            stacklevel=3,
+        )
+        mesh.invert()
+    if not mesh.is_watertight:
+        open_edges = len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1))
+        warnings.warn(
+            f"{path}: mesh is not watertight ({open_edges} open edges): inside/outside tests and signed "
+            "distance (contact penetration sign, occupancy ground truth) and volume-based metrics are "
+            "unreliable on it; contact points and normals are still exact. Close the holes (e.g. "
+            "trimesh.repair.fill_holes or MeshLab) for reliable results.",
+            MeshWarning,
+            stacklevel=3,
+        )
+
+
+def _mm(extents: np.ndarray) -> str:
+    return " x ".join(f"{1000 * v:.3g}" for v in extents)
+
+
+# --- sampling --------------------------------------------------------------------------------------
+def sample_surface_faces(
+    mesh: trimesh.Trimesh, count: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Uniform-by-area surface samples: points (count, 3) m, outward normals (count, 3), face ids (count,)."""
+    triangles = np.asarray(mesh.triangles, dtype=np.float64)
+    areas = np.asarray(mesh.area_faces, dtype=np.float64)
+    cumulative = np.cumsum(areas)
+    faces = np.searchsorted(cumulative, rng.random(count) * cumulative[-1], side="right")
+    faces = np.minimum(faces, len(areas) - 1)
+    # uniform barycentric coordinates: reflect the unit square's upper half onto the triangle
+    uv = rng.random((count, 2))
+    flip = uv.sum(axis=1) > 1.0
+    uv[flip] = 1.0 - uv[flip]
+    a, b, c = triangles[faces, 0], triangles[faces, 1], triangles[faces, 2]
+    points = a + uv[:, :1] * (b - a) + uv[:, 1:] * (c - a)
+    normals = np.asarray(mesh.face_normals, dtype=np.float64)[faces]
+    return points, normals, faces.astype(np.int64)
+
+
+def sample_surface(mesh: trimesh.Trimesh, count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform-by-area surface samples: points (count, 3) in metres and outward unit normals (count, 3)."""
+    points, normals, _ = sample_surface_faces(mesh, count, rng)
+    return points, normals

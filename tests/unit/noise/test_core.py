@@ -1,0 +1,168 @@
+"""Noise core: configured bias and sigma reproduced, sigma 0 exact, seeded streams reproducible."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from palpate.errors import ConfigError
+from palpate.nodes.noise.core import (
+    ContactNoise,
+    ContactNoiseConfig,
+    JointNoise,
+    JointNoiseConfig,
+    perturb_directions,
+)
+
+JOINTS = ("mcp_flex", "mcp_abd", "pip", "dip")
+N = 10_000
+
+
+def _readings(config: JointNoiseConfig, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    q = np.array([0.1, -0.2, 0.7, 0.3])
+    noise = JointNoise(config, JOINTS, np.random.default_rng(seed))
+    return q, np.stack([noise.apply(q) for _ in range(N)])
+
+
+def _assert_mean_std(samples: np.ndarray, mean: np.ndarray, std: np.ndarray) -> None:
+    """Sample mean within 3 standard errors (sigma / sqrt N) and sample std within 3 standard errors
+    of the standard deviation (sigma / sqrt(2 (N - 1)))."""
+    n = len(samples)
+    np.testing.assert_array_less(np.abs(samples.mean(axis=0) - mean), 3 * std / math.sqrt(n) + 1e-15)
+    np.testing.assert_array_less(np.abs(samples.std(axis=0, ddof=1) - std), 3 * std / math.sqrt(2 * (n - 1)))
+
+
+def test_default_is_paper_sigma_1_5_deg() -> None:
+    assert JointNoiseConfig().sigma_deg == 1.5
+    q, samples = _readings(JointNoiseConfig())
+    _assert_mean_std(samples, q, np.full(4, math.radians(1.5)))
+
+
+def test_bias_and_per_joint_sigma() -> None:
+    config = JointNoiseConfig(sigma_deg=2.0, per_joint_sigma_deg={"pip": 5.0}, bias_deg={"mcp_abd": -3.0})
+    q, samples = _readings(config, seed=1)
+    sigma = np.radians([2.0, 2.0, 5.0, 2.0])
+    bias = np.radians([0.0, -3.0, 0.0, 0.0])
+    _assert_mean_std(samples, q + bias, sigma)
+
+
+def test_constant_bias_for_every_joint() -> None:
+    q, samples = _readings(JointNoiseConfig(sigma_deg=1.0, bias_deg=4.0), seed=2)
+    _assert_mean_std(samples, q + math.radians(4.0), np.full(4, math.radians(1.0)))
+
+
+def test_wrong_bias_or_sigma_is_detected() -> None:
+    """The statistical check can fail: a 10 % wrong sigma or a 0.1-sigma bias are outside 3 SE."""
+    q, samples = _readings(JointNoiseConfig(sigma_deg=1.5), seed=3)
+    with pytest.raises(AssertionError):
+        _assert_mean_std(samples, q, np.full(4, math.radians(1.65)))
+    with pytest.raises(AssertionError):
+        _assert_mean_std(samples, q + math.radians(0.15), np.full(4, math.radians(1.5)))
+
+
+def test_sigma_zero_is_bit_exact_and_draws_nothing() -> None:
+    rng = np.random.default_rng(4)
+    state = rng.bit_generator.state
+    noise = JointNoise(JointNoiseConfig(sigma_deg=0.0), JOINTS, rng)
+    q = np.array([0.1, -0.0, np.nextafter(0.7, 1.0), 1e-300])
+    out = noise.apply(q)
+    assert out.tobytes() == q.tobytes()
+    assert out is not q
+    assert rng.bit_generator.state == state
+
+
+def test_zero_sigma_joint_is_exact_among_noisy_ones() -> None:
+    noise = JointNoise(
+        JointNoiseConfig(sigma_deg=1.5, per_joint_sigma_deg={"dip": 0.0}), JOINTS, np.random.default_rng(5)
+    )
+    q = np.array([0.1, 0.2, 0.3, -0.0])
+    out = noise.apply(np.tile(q, (100, 1)))
+    assert out[:, 3].tobytes() == np.full(100, -0.0).tobytes()
+    assert np.all(out[:, :3] != q[:3])
+
+
+def test_same_seed_same_stream() -> None:
+    q = np.array([0.1, 0.2, 0.3, 0.4])
+    a = JointNoise(JointNoiseConfig(), JOINTS, np.random.default_rng(42))
+    b = JointNoise(JointNoiseConfig(), JOINTS, np.random.default_rng(42))
+    c = JointNoise(JointNoiseConfig(), JOINTS, np.random.default_rng(43))
+    sa = np.stack([a.apply(q) for _ in range(50)])
+    sb = np.stack([b.apply(q) for _ in range(50)])
+    np.testing.assert_array_equal(sa, sb)
+    assert not np.array_equal(sa, np.stack([c.apply(q) for _ in range(50)]))
+
+
+def test_config_errors_name_the_key_and_value() -> None:
+    with pytest.raises(ConfigError, match=r"sigma_deg = -1.0: expected a finite non-negative number"):
+        JointNoiseConfig(sigma_deg=-1.0)
+    with pytest.raises(ConfigError, match=r"<launch>: unknown key\(s\) \['sigma'\]"):
+        JointNoiseConfig.from_dict({"sigma": 1.0}, source="<launch>")
+    with pytest.raises(ConfigError, match=r"per_joint_sigma_deg names unknown joint\(s\) \['thumb'\]"):
+        JointNoise(JointNoiseConfig(per_joint_sigma_deg={"thumb": 1.0}), JOINTS, np.random.default_rng(0))
+    with pytest.raises(ConfigError, match=r"bias_deg\['pip'\] = 'x': expected a number"):
+        JointNoiseConfig.from_dict({"bias_deg": {"pip": "x"}})
+    with pytest.raises(ValueError, match=r"shape \(\.\.\., 4\)"):
+        JointNoise(JointNoiseConfig(), JOINTS, np.random.default_rng(0)).apply(np.zeros(3))
+    assert JointNoiseConfig.from_dict({"sigma_deg": 0.5}).sigma_deg == 0.5
+
+
+# --- contacts --------------------------------------------------------------------------------------
+def _unit(rng: np.random.Generator, n: int) -> np.ndarray:
+    v = rng.normal(size=(n, 3))
+    return np.asarray(v / np.linalg.norm(v, axis=1, keepdims=True))
+
+
+def test_contact_noise_zero_is_exact() -> None:
+    rng = np.random.default_rng(6)
+    p, n = rng.normal(size=(20, 3)), _unit(rng, 20)
+    state = rng.bit_generator.state
+    out_p, out_n = ContactNoise(ContactNoiseConfig(), rng).apply(p, n)
+    assert out_p.tobytes() == p.tobytes() and out_n.tobytes() == n.tobytes()
+    assert rng.bit_generator.state == state
+
+
+def test_contact_position_noise_statistics() -> None:
+    sigma = 0.002
+    noise = ContactNoise(ContactNoiseConfig(position_sigma_m=sigma), np.random.default_rng(7))
+    p = np.tile([[0.1, 0.2, 0.3]], (N, 1))
+    out_p, out_n = noise.apply(p, np.tile([[0.0, 0.0, 1.0]], (N, 1)))
+    _assert_mean_std(out_p, p[0], np.full(3, sigma))
+    assert np.all(out_n == [0.0, 0.0, 1.0])
+
+
+def test_contact_normal_noise_is_rayleigh_and_unit() -> None:
+    sigma_deg = 4.0
+    rng = np.random.default_rng(8)
+    normals = _unit(rng, N)
+    _, out = ContactNoise(ContactNoiseConfig(normal_sigma_deg=sigma_deg), rng).apply(np.zeros((N, 3)), normals)
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-12)
+    angle = np.arccos(np.clip(np.einsum("ij,ij->i", out, normals), -1, 1))
+    s = math.radians(sigma_deg)
+    # Rayleigh(s): mean s sqrt(pi/2), std s sqrt((4 - pi)/2)
+    mean, std = s * math.sqrt(math.pi / 2), s * math.sqrt((4 - math.pi) / 2)
+    assert abs(angle.mean() - mean) < 3 * std / math.sqrt(N)
+    # the perturbation has no preferred tangent direction: its mean is along the normal
+    np.testing.assert_allclose(np.einsum("ij,ij->i", out - normals, normals).mean(), -(s**2), rtol=0.1)
+
+
+def test_perturb_directions_exact_angle_for_a_known_draw() -> None:
+    """n' = cos|t| n + sin|t| t/|t| with t the tangent part of the drawn z: compare to a direct formula."""
+    n = np.array([[0.0, 0.0, 1.0]])
+    out = perturb_directions(n, 0.1, np.random.default_rng(9))
+    z = 0.1 * np.random.default_rng(9).standard_normal((1, 3))
+    t = np.array([z[0, 0], z[0, 1], 0.0])
+    a = np.linalg.norm(t)
+    np.testing.assert_allclose(out[0], np.cos(a) * n[0] + np.sin(a) * t / a, atol=1e-15)
+
+
+def test_contact_noise_same_seed_same_stream() -> None:
+    config = ContactNoiseConfig(position_sigma_m=1e-3, normal_sigma_deg=2.0)
+    p, n = np.zeros((5, 3)), np.tile([[1.0, 0.0, 0.0]], (5, 1))
+    a = ContactNoise(config, np.random.default_rng(10)).apply(p, n)
+    b = ContactNoise(config, np.random.default_rng(10)).apply(p, n)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+    with pytest.raises(ConfigError, match="normal_sigma_deg = -2"):
+        ContactNoiseConfig(normal_sigma_deg=-2)

@@ -1,0 +1,314 @@
+"""Objects: scene specs, generated primitives, mesh files and their bad-input errors, MJCF text."""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+import trimesh
+
+from palpate.errors import ConfigError, MeshError, MeshWarning
+from palpate.nodes.sim.contacts import ExactContactSensor
+from palpate.nodes.sim.decomposition import convex_decomposition
+from palpate.nodes.sim.objects import (
+    RUBIKS_CUBE_EDGE_M,
+    ObjectSpec,
+    load_object,
+    sample_surface,
+    sample_surface_faces,
+)
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PALPATE_CACHE_DIR", str(tmp_path / "cache"))
+
+
+def _mesh_spec(path: Path, scale: float = 1.0) -> ObjectSpec:
+    return ObjectSpec(kind="mesh", path=str(path), scale=scale)
+
+
+def _model(assets: str, geoms: str, extra: str = "") -> mujoco.MjModel:
+    xml = f"<mujoco><asset>{assets}</asset><worldbody>{geoms}{extra}</worldbody></mujoco>"
+    return mujoco.MjModel.from_xml_string(xml)
+
+
+# --- specs -----------------------------------------------------------------------------------------
+def test_from_dict_fills_defaults_and_converts_lists() -> None:
+    spec = ObjectSpec.from_dict({"kind": "cube", "position_m": [0.1, 0, 0.2]})
+    assert spec.size_m == (0.05,)
+    assert spec.position_m == (0.1, 0.0, 0.2)
+    assert spec.quaternion_wxyz == (1.0, 0.0, 0.0, 0.0)
+    assert ObjectSpec.from_dict({"kind": "sphere", "size_m": 0.03}).size_m == (0.03,)
+    q = ObjectSpec.from_dict({"kind": "box", "size_m": [0.1, 0.05, 0.02], "quaternion_wxyz": [1, 0, 0, 1e-4]})
+    np.testing.assert_allclose(np.linalg.norm(q.quaternion_wxyz), 1.0, atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("d", "fragment"),
+    [
+        ({"kind": "cube", "colour": "red"}, "unknown key(s) ['colour']"),
+        ({"size_m": [0.1]}, "needs 'kind'"),
+        ({"kind": "pyramid"}, "object.kind = 'pyramid'"),
+        ({"kind": "box", "size_m": [0.1, 0.1]}, "needs 3 value(s) (x, y, z)"),
+        ({"kind": "sphere", "size_m": [-0.1]}, "must be positive"),
+        ({"kind": "cube", "size_m": [50]}, "millimetres given as metres"),
+        ({"kind": "torus", "size_m": [0.01, 0.02]}, "minor radius < major radius"),
+        ({"kind": "rubiks_cube", "size_m": [0.06]}, "fixed at 57 mm"),
+        ({"kind": "mesh"}, "needs a path"),
+        ({"kind": "cube", "path": "a.stl"}, "only kind 'mesh' takes a path"),
+        ({"kind": "mesh", "path": "a.stl", "scale": 0}, "object.scale = 0"),
+        ({"kind": "cube", "position_m": [0, 0]}, "object.position_m = [0, 0]: expected 3 numbers"),
+        ({"kind": "cube", "quaternion_wxyz": [0, 0, 0, 0]}, "give a unit quaternion"),
+        ({"kind": "cube", "position_m": "origin"}, "expected a list of numbers"),
+    ],
+)
+def test_from_dict_rejects_bad_input_naming_key_and_value(d: dict, fragment: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        ObjectSpec.from_dict(d, source="scenes/x.yaml")
+    assert "scenes/x.yaml" in str(info.value)
+    assert fragment in str(info.value)
+
+
+# --- primitives ------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("d", "volume", "extents"),
+    [
+        ({"kind": "cube"}, 0.05**3, (0.05, 0.05, 0.05)),
+        ({"kind": "rubiks_cube"}, RUBIKS_CUBE_EDGE_M**3, (0.057,) * 3),
+        ({"kind": "box", "size_m": [0.1, 0.06, 0.02]}, 0.1 * 0.06 * 0.02, (0.1, 0.06, 0.02)),
+        ({"kind": "sphere", "size_m": [0.03]}, 4 / 3 * math.pi * 0.03**3, (0.06,) * 3),
+        ({"kind": "cylinder", "size_m": [0.02, 0.08]}, math.pi * 0.02**2 * 0.08, (0.04, 0.04, 0.08)),
+        ({"kind": "torus", "size_m": [0.04, 0.012]}, 2 * math.pi**2 * 0.04 * 0.012**2, (0.104, 0.104, 0.024)),
+    ],
+)
+def test_primitives_are_watertight_with_the_right_size(d: dict, volume: float, extents: tuple) -> None:
+    model = load_object(ObjectSpec.from_dict(d))
+    assert model.watertight and model.mesh.is_watertight
+    assert model.name == d["kind"]
+    assert model.convex == (d["kind"] != "torus")
+    # tessellated curved surfaces lie inside the true one: volume within 1 %, extents within 0.2 %
+    np.testing.assert_allclose(model.mesh.volume, volume, rtol=1e-2)
+    np.testing.assert_allclose(np.sort(model.mesh.extents), np.sort(extents), rtol=2e-3)
+    np.testing.assert_allclose(model.mesh.bounds.mean(axis=0), 0.0, atol=1e-12)
+
+
+def test_torus_lies_in_the_xy_plane() -> None:
+    mesh = load_object(ObjectSpec(kind="torus", size_m=(0.04, 0.01))).mesh
+    np.testing.assert_allclose(mesh.extents, [0.1, 0.1, 0.02], rtol=1e-3)
+
+
+def test_pose_is_applied_in_the_world_frame() -> None:
+    half = math.sqrt(0.5)  # 90 deg about z
+    spec = ObjectSpec(
+        kind="box", size_m=(0.1, 0.04, 0.02), position_m=(0.3, -0.2, 0.1), quaternion_wxyz=(half, 0, 0, half)
+    )
+    mesh = load_object(spec).mesh
+    np.testing.assert_allclose(mesh.bounds.mean(axis=0), [0.3, -0.2, 0.1], atol=1e-12)
+    np.testing.assert_allclose(mesh.extents, [0.04, 0.1, 0.02], atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("d", "geom_type", "size"),
+    [
+        ({"kind": "cube", "size_m": [0.04]}, mujoco.mjtGeom.mjGEOM_BOX, [0.02, 0.02, 0.02]),
+        ({"kind": "rubiks_cube"}, mujoco.mjtGeom.mjGEOM_BOX, [0.0285] * 3),
+        ({"kind": "box", "size_m": [0.1, 0.06, 0.02]}, mujoco.mjtGeom.mjGEOM_BOX, [0.05, 0.03, 0.01]),
+        ({"kind": "sphere", "size_m": [0.03]}, mujoco.mjtGeom.mjGEOM_SPHERE, [0.03, 0, 0]),
+        ({"kind": "cylinder", "size_m": [0.02, 0.08]}, mujoco.mjtGeom.mjGEOM_CYLINDER, [0.02, 0.04, 0]),
+    ],
+)
+def test_primitive_mjcf_is_a_native_geom_at_the_pose(d: dict, geom_type: int, size: list) -> None:
+    d = {**d, "position_m": [0.1, 0.2, 0.3], "quaternion_wxyz": [0, 1, 0, 0]}
+    model = load_object(ObjectSpec.from_dict(d))
+    assets, geoms = model.mjcf_assets_and_geoms()
+    assert assets == ""
+    m = _model(assets, geoms)
+    g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "object")
+    assert m.geom_type[g] == geom_type
+    np.testing.assert_allclose(m.geom_size[g], size, atol=1e-12)
+    np.testing.assert_allclose(m.geom_pos[g], [0.1, 0.2, 0.3], atol=1e-12)
+    np.testing.assert_allclose(m.geom_quat[g], [0, 1, 0, 0], atol=1e-12)
+
+
+def test_torus_mjcf_mesh_matches_the_world_frame_mesh() -> None:
+    model = load_object(ObjectSpec(kind="torus", size_m=(0.04, 0.012), position_m=(0.2, 0.0, 0.05)))
+    assets, geoms = model.mjcf_assets_and_geoms()
+    assert model.geom_names() == ("object",)
+    m = _model(assets, geoms)
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "object")
+    vert = m.mesh_vert[: m.mesh_vertnum[0]] @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g]
+    # MuJoCo stores vertices in float32
+    np.testing.assert_allclose(vert.min(axis=0), model.mesh.bounds[0], atol=1e-6)
+    np.testing.assert_allclose(vert.max(axis=0), model.mesh.bounds[1], atol=1e-6)
+
+
+@pytest.mark.slow  # CoACD takes 2-6 s even on a coarse torus
+def test_decomposed_torus_lets_a_probe_sit_in_the_hole(monkeypatch: pytest.MonkeyPatch) -> None:
+    """MuJoCo's hull of a torus fills its hole; the CoACD parts do not."""
+    mesh = trimesh.creation.torus(0.04, 0.012, major_sections=24, minor_sections=12)
+    parts = convex_decomposition(mesh)
+    assert len(parts) >= 4
+    assert all(part.is_convex for part in parts)
+    np.testing.assert_allclose(convex_decomposition(mesh)[0].vertices, parts[0].vertices)  # from cache
+    probe = '<body pos="0 0 0"><freejoint/><geom type="sphere" size="0.008"/></body>'
+    model = load_object(ObjectSpec(kind="torus", size_m=(0.04, 0.012)))
+    # the coarse parts above stand in for those of the fine torus, to keep the test fast
+    monkeypatch.setattr("palpate.nodes.sim.decomposition.convex_decomposition", lambda mesh: parts)
+    counts: dict[str, int] = {}
+    for collision in ("hull", "decomposed"):
+        m = _model(*model.mjcf_assets_and_geoms(collision), extra=probe)
+        d = mujoco.MjData(m)
+        mujoco.mj_forward(m, d)
+        counts[collision] = d.ncon
+    assert counts == {"hull": 1, "decomposed": 0}
+    assert len(model.geom_names("decomposed")) == len(parts)
+
+
+# --- sampling --------------------------------------------------------------------------------------
+def test_sample_surface_is_uniform_by_area_and_on_the_surface() -> None:
+    mesh = load_object(ObjectSpec(kind="box", size_m=(0.1, 0.05, 0.02))).mesh
+    count = 20_000
+    points, normals = sample_surface(mesh, count, np.random.default_rng(1))
+    assert points.shape == normals.shape == (count, 3)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-12)
+    closest = ExactContactSensor(mesh).closest(points)
+    np.testing.assert_allclose(closest.distance_m, 0.0, atol=1e-12)
+    # fraction of samples on the +-x, +-y, +-z faces vs their area share, within 4 standard errors
+    axis = np.argmax(np.abs(normals), axis=1)
+    area = np.array([0.05 * 0.02, 0.1 * 0.02, 0.1 * 0.05])
+    share = area / area.sum()
+    observed = np.bincount(axis, minlength=3) / count
+    np.testing.assert_array_less(np.abs(observed - share), 4 * np.sqrt(share * (1 - share) / count))
+    # points are uniform inside faces: the mean of the +z face samples is its centre
+    top = points[normals[:, 2] > 0.5]
+    np.testing.assert_allclose(top[:, :2].mean(axis=0), 0.0, atol=4 * 0.1 / math.sqrt(12 * len(top)))
+
+
+def test_sample_surface_is_reproducible() -> None:
+    mesh = load_object(ObjectSpec(kind="sphere", size_m=(0.02,))).mesh
+    a = sample_surface_faces(mesh, 50, np.random.default_rng(5))
+    b = sample_surface_faces(mesh, 50, np.random.default_rng(5))
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+# --- mesh files and bad input -------------------------------------------------------------------
+@pytest.mark.ycb
+def test_ycb_mesh_loads_by_id(ycb: Path) -> None:
+    model = load_object(ObjectSpec.from_dict({"kind": "mesh", "path": "ycb:011_banana"}))
+    assert model.name == "011_banana"
+    assert model.watertight and not model.convex
+    assert model.source_path == ycb / "011_banana.stl"
+    np.testing.assert_allclose(model.mesh.extents, [0.10894, 0.17845, 0.03674], atol=2e-5)
+
+
+def test_mesh_file_in_metres_loads_with_scale(tmp_path: Path) -> None:
+    path = tmp_path / "box_mm.stl"
+    trimesh.creation.box(extents=[40.0, 30.0, 20.0]).export(path)
+    model = load_object(_mesh_spec(path, scale=0.001))
+    np.testing.assert_allclose(model.mesh.extents, [0.04, 0.03, 0.02], atol=1e-12)
+    assert model.convex and model.name == "box_mm"
+    assets, geoms = model.mjcf_assets_and_geoms()
+    assert 'type="mesh"' in geoms and ".stl" in assets
+    _model(assets, geoms)
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    path = tmp_path / "nope.stl"
+    with pytest.raises(MeshError, match=r"nope\.stl: mesh file not found .*check object\.path"):
+        load_object(_mesh_spec(path))
+
+
+def test_unreadable_path_is_a_directory(tmp_path: Path) -> None:
+    path = tmp_path / "dir.stl"
+    path.mkdir()
+    with pytest.raises(MeshError, match=r"dir\.stl: cannot read the mesh: it is not a regular file"):
+        load_object(_mesh_spec(path))
+
+
+@pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0, reason="root reads any file")
+def test_unreadable_file_permissions(tmp_path: Path) -> None:
+    path = tmp_path / "locked.stl"
+    trimesh.creation.box(extents=[0.1] * 3).export(path)
+    path.chmod(0)
+    with pytest.raises(MeshError, match=r"locked\.stl: cannot read the mesh file .*check its permissions"):
+        load_object(_mesh_spec(path))
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "fragment"),
+    [
+        ("notes.txt", b"hello", r"not a mesh file \(extension '\.txt' is not a mesh format\); convert it"),
+        ("garbage.stl", b"this is not an STL file at all", r"not a mesh: the STL file holds no vertices"),
+        ("garbage.ply", b"hello", r"not a readable PLY mesh .*re-export it as a triangle mesh"),
+        (
+            "cloud.ply",
+            b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+            b"property float z\nend_header\n0 0 0\n1 0 0\n0 1 0\n",
+            r"holds 3 points but no triangles \(a point cloud",
+        ),
+    ],
+)
+def test_file_that_is_not_a_mesh(tmp_path: Path, name: str, content: bytes, fragment: str) -> None:
+    path = tmp_path / name
+    path.write_bytes(content)
+    with pytest.raises(MeshError, match=fragment) as info:
+        load_object(_mesh_spec(path))
+    assert str(path) in str(info.value)
+
+
+def test_degenerate_flat_mesh(tmp_path: Path) -> None:
+    path = tmp_path / "flat.stl"
+    v = [[0, 0, 0], [0.1, 0, 0], [0.1, 0.1, 0], [0, 0.1, 0]]
+    trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3], [0, 2, 1], [0, 3, 2]], process=False).export(path)
+    with pytest.raises(MeshError, match=r"flat\.stl: degenerate mesh: zero volume .*export the object's closed"):
+        load_object(_mesh_spec(path))
+
+
+def test_degenerate_zero_area_mesh(tmp_path: Path) -> None:
+    path = tmp_path / "needles.obj"
+    path.write_text("v 0 0 0\nv 0.1 0 0\nv 0.2 0 0\nf 1 2 3\n")
+    with pytest.raises(MeshError, match=r"needles\.obj: degenerate mesh: all triangles have zero area"):
+        load_object(_mesh_spec(path))
+
+
+@pytest.mark.parametrize(
+    ("extent", "scale", "fragment"),
+    [
+        (150.0, 1.0, r"150 m across after scale 1 \(over 2 m\); millimetres given as metres .*scale: 0\.001"),
+        (0.1, 0.001, r"0\.0001 m across after scale 0\.001 \(under 2 mm\).*Set object\.scale: 1 "),
+    ],
+)
+def test_absurd_scale(tmp_path: Path, extent: float, scale: float, fragment: str) -> None:
+    path = tmp_path / "big.stl"
+    trimesh.creation.box(extents=[extent, extent / 2, extent / 3]).export(path)
+    with pytest.raises(MeshError, match=fragment) as info:
+        load_object(_mesh_spec(path, scale))
+    assert "big.stl: absurd scale" in str(info.value)
+
+
+def test_non_watertight_mesh_warns_what_it_affects(tmp_path: Path) -> None:
+    path = tmp_path / "open_box.stl"
+    box = trimesh.creation.box(extents=[0.1, 0.1, 0.1])
+    trimesh.Trimesh(box.vertices, box.faces[:-2]).export(path)  # drop the two triangles of one side
+    with pytest.warns(MeshWarning, match=r"open_box\.stl: mesh is not watertight \(4 open edges\)") as record:
+        model = load_object(_mesh_spec(path))
+    message = str(record[0].message)
+    assert "signed distance" in message and "inside/outside" in message and "volume-based metrics" in message
+    assert not model.watertight
+
+
+def test_inward_wound_mesh_is_inverted_with_a_warning(tmp_path: Path) -> None:
+    path = tmp_path / "inside_out.stl"
+    box = trimesh.creation.box(extents=[0.1, 0.1, 0.1])
+    trimesh.Trimesh(box.vertices, box.faces[:, ::-1]).export(path)
+    with pytest.warns(MeshWarning, match=r"inside_out\.stl: faces are wound inward"):
+        model = load_object(_mesh_spec(path))
+    assert model.mesh.volume > 0
