@@ -59,3 +59,8 @@ class PlanningError(PalpateError):
 # --- warnings -------------------------------------------------------------------------------------
 class MeshWarning(UserWarning):
     """A mesh loads but some results on it are unreliable (for example it is not watertight)."""
+
+
+# --- benchmarks -----------------------------------------------------------------------------------
+class BenchmarkError(PalpateError):
+    """A benchmark could not run to the end (a helper process died, timed out or lost messages)."""
