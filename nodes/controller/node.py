@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, Pose, TouchEvent, TouchTarget, Trajectory
 from palpate.nodes.controller.bezier import bezier_length
 from palpate.nodes.controller.core import ControllerConfig, ControllerState, TrajectoryController
+from palpate.nodes.controller.so3 import quat_to_matrix
 from palpate.runtime.spec import NodeSpec, Port
 
 
@@ -25,6 +26,9 @@ class ControllerNodeConfig:
 
     #: A point inside the object the first approach aims at (the object's position is enough).
     initial_target_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: Radius of the fingertip sphere: the curve guides its centre, which touches a surface point
+    #: t_p when it reaches t_p + radius t_n.
+    tip_radius_m: float = 0.008
     controller: ControllerConfig = field(default_factory=ControllerConfig)
 
 
@@ -53,7 +57,8 @@ class ControllerNode:
         if self.pose is None:
             return
         R = _rotation(self.pose)
-        P = self.core.start(self.last_contact, self.core.direction, R, message.position_m, message.normal)
+        centre_at_target = message.position_m + self.config.tip_radius_m * message.normal
+        P = self.core.start(self.pose.position_m, self.core.direction, R, centre_at_target, message.normal)
         self.predicted = np.array(message.predicted_contact_m)
         self.armed = False
         R1 = Rotation.from_matrix(R).as_quat(scalar_first=True)
@@ -120,7 +125,7 @@ class ControllerNode:
 
 def _rotation(pose: Pose) -> np.ndarray:
     """Rotation matrix (3, 3) of a pose's wxyz quaternion."""
-    return np.asarray(Rotation.from_quat(pose.quaternion_wxyz, scalar_first=True).as_matrix(), dtype=np.float64)
+    return quat_to_matrix(pose.quaternion_wxyz)
 
 
 SPEC = NodeSpec(

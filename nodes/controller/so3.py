@@ -103,3 +103,16 @@ def slerp(R0: ArrayLike, R1: ArrayLike, tau: float) -> FloatArray:
     R0_ = np.asarray(R0, dtype=np.float64)
     w = log_so3(R0_.T @ np.asarray(R1, dtype=np.float64))
     return R0_ @ exp_so3(float(np.clip(tau, 0.0, 1.0)) * w)
+
+
+def quat_to_matrix(q_wxyz: ArrayLike) -> FloatArray:
+    """Rotation matrix (3, 3) of a unit quaternion (w, x, y, z); normalised here. Scalar fast path."""
+    w, x, y, z = (float(v) for v in np.asarray(q_wxyz, dtype=np.float64).reshape(4))
+    s = 2.0 / (w * w + x * x + y * y + z * z)
+    return np.array(
+        [
+            [1.0 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y)],
+            [s * (x * y + w * z), 1.0 - s * (x * x + z * z), s * (y * z - w * x)],
+            [s * (x * z - w * y), s * (y * z + w * x), 1.0 - s * (x * x + y * y)],
+        ]
+    )

@@ -5,10 +5,10 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from palpate.errors import PlanningError
 from palpate.messages.schemas import Pose, SurfaceMesh, TouchEvent, TouchTarget
+from palpate.nodes.controller.so3 import quat_to_matrix
 from palpate.nodes.planner.core import Planner, PlannerConfig
 from palpate.runtime.spec import NodeSpec, Port
 
@@ -43,7 +43,7 @@ class PlannerNode:
             raise PlanningError("no fingertip pose received yet; the simulation or driver must publish one")
         last = self.contacts[-1]
         candidates = self.core.sample(message.vertices_m, message.vertex_normals, message.vertex_variance, last)
-        axis = Rotation.from_quat(self.pose.quaternion_wxyz, scalar_first=True).as_matrix()[:, 2]
+        axis = quat_to_matrix(self.pose.quaternion_wxyz)[:, 2]
         # Psi2 measures the curve the controller will run: it starts at the last contact (c_p).
         choice = self.core.select(
             candidates.points_m,

@@ -49,6 +49,14 @@ SIZE_FIELDS: dict[str, tuple[str, ...]] = {
     "mesh": (),
 }
 DEFAULT_CUBE_EDGE_M = 0.05
+#: Sizes used when ``size_m`` is not given: hand-sized objects a fingertip can explore.
+DEFAULT_SIZES_M: dict[str, tuple[float, ...]] = {
+    "cube": (DEFAULT_CUBE_EDGE_M,),
+    "box": (0.06, 0.04, 0.03),
+    "sphere": (0.03,),
+    "cylinder": (0.03, 0.08),
+    "torus": (0.04, 0.015),
+}
 #: A 3x3 speed cube is 57 mm on each side.
 RUBIKS_CUBE_EDGE_M = 0.057
 #: Objects outside this bounding-box size are taken as a unit mistake (mm vs m).
@@ -95,6 +103,8 @@ class ObjectSpec:
         if "kind" not in d:
             raise ConfigError(f"{source}: object needs 'kind', one of {list(KINDS)}")
         kwargs: dict[str, Any] = {"kind": d["kind"]}
+        # null, [] and "" mean "not given" (launch files pass every argument, empty when unused)
+        d = {k: v for k, v in d.items() if v is not None and not (isinstance(v, str | list | tuple) and len(v) == 0)}
         if "size_m" in d:
             size = d["size_m"]
             kwargs["size_m"] = (size,) if isinstance(size, int | float) else size
@@ -127,8 +137,8 @@ def _validate_spec(spec: ObjectSpec, source: str) -> None:
         raise ConfigError(f"object.kind = {spec.kind!r}: unknown kind; use one of {list(KINDS)}")
     fields = SIZE_FIELDS[spec.kind]
     size = _float_tuple(spec.size_m, "size_m", None)
-    if spec.kind == "cube" and not size:
-        size = (DEFAULT_CUBE_EDGE_M,)
+    if not size and spec.kind in DEFAULT_SIZES_M:
+        size = DEFAULT_SIZES_M[spec.kind]
     if spec.kind in ("rubiks_cube", "mesh"):
         if size:
             hint = "its size is fixed at 57 mm" if spec.kind == "rubiks_cube" else "use 'scale' instead"

@@ -123,7 +123,7 @@ class Graph:
             clock_source=node is clock,
             expected_subscribers=expected,
             forward_upstream=[n.name for n in upstream if n.rank < node.rank and n is not clock],
-            backward_upstream=[n.name for n in upstream if n.rank > node.rank],
+            backward_upstream=[n.name for n in upstream if n.rank > node.rank and n is not clock],
             lockstep_nodes=[n.name for n in self.nodes if n is not node] if node is clock else [],
             topic_order={t: p.rank for p in self.nodes for t in p.publishes.values()},
             curve=node.curve,
@@ -302,7 +302,7 @@ def _rank(graph: Graph) -> None:
 
     clock = graph.clock_source
     roots = ([clock] if clock is not None else []) + graph.nodes
-    for root in reversed(roots):
+    for root in roots:  # the clock first: everything it reaches ranks after it
         if root.name not in seen:
             visit(root)
     for rank, node in enumerate(reversed(postorder)):

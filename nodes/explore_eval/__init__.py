@@ -1,0 +1,1 @@
+"""Evaluator of an active exploration run: coverage, travel, rotation, RMSE, prediction miss."""

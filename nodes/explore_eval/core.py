@@ -1,0 +1,187 @@
+"""Metrics of one exploration run, as paper 002 defines them (Section 3.2), updated per touch.
+
+Coverage: the true surface sampled uniformly by area; a sample is explored once a contact lies within
+6 mm. A run is complete at 80 % coverage (figures also at 50 %); a run that cannot get there stops at a
+budget (contacts or travel) and is reported as incomplete with the coverage it reached.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from palpate.metrics.exploration import (
+    CoverageTracker,
+    SurfaceRmse,
+    angle_to_normal_deg,
+    covering_bound_contacts,
+    surface_rmse,
+)
+from palpate.nodes.sim.contacts import ExactContactSensor
+
+
+@dataclass(frozen=True, kw_only=True)
+class EvalConfig:
+    """Goal, milestones and budgets of a run."""
+
+    coverage_goal: float = 0.8
+    milestones: tuple[float, ...] = (0.5, 0.8)
+    radius_m: float = 0.006
+    coverage_samples: int = 20000
+    max_contacts: int = 400
+    max_travel_m: float = 20.0
+    rmse_samples: int = 20000
+
+
+@dataclass
+class Milestone:
+    """Figures when coverage first reached `fraction` (or at the end of an incomplete run)."""
+
+    fraction: float
+    reached: bool
+    contacts: int
+    travel_cm: float
+    rotation_deg: float
+    prediction_miss_mm: float
+    angle_deg: float
+    coverage: float
+    vertex_coverage: float
+    rmse_mm: float = math.nan
+    rmse_estimate_to_truth_mm: float = math.nan
+    rmse_truth_to_estimate_mm: float = math.nan
+
+
+@dataclass
+class TouchRecord:
+    """One touch as the evaluator saw it."""
+
+    index: int
+    position_m: list[float]
+    travel_cm: float
+    rotation_deg: float
+    coverage: float
+    vertex_coverage: float
+    prediction_miss_mm: float
+    angle_deg: float
+    missed: bool
+
+
+@dataclass
+class ExplorationEvaluator:
+    """Accumulates touches on a known true mesh and reports the paper's metrics."""
+
+    vertices_m: np.ndarray
+    faces: np.ndarray
+    config: EvalConfig = field(default_factory=EvalConfig)
+    rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+
+    def __post_init__(self) -> None:
+        mesh = (self.vertices_m, self.faces)
+        self.tracker = CoverageTracker(mesh, self.config.radius_m, self.config.coverage_samples, self.rng)
+        self.sensor = _sensor(self.vertices_m, self.faces)
+        self.touches: list[TouchRecord] = []
+        self.milestones: dict[float, Milestone] = {}
+        self.finished = ""
+
+    @property
+    def area_m2(self) -> float:
+        return self.tracker.area_m2
+
+    def add_touch(
+        self,
+        position_m: np.ndarray,
+        predicted_m: np.ndarray,
+        travel_m: float,
+        rotation_deg: float,
+        fingertip_axis: np.ndarray,
+        missed: bool = False,
+    ) -> list[float]:
+        """Fold in one touch; returns the milestones (fractions) this touch reached."""
+        self.tracker.add_contact(position_m)
+        true_normal = self.sensor.closest(np.asarray(position_m, dtype=np.float64)[None]).normals[0]
+        miss = float(np.linalg.norm(predicted_m - position_m)) if np.all(np.isfinite(predicted_m)) else math.nan
+        record = TouchRecord(
+            index=len(self.touches),
+            position_m=[float(v) for v in position_m],
+            travel_cm=100.0 * travel_m,
+            rotation_deg=float(rotation_deg),
+            coverage=self.tracker.coverage,
+            vertex_coverage=self.tracker.vertex_coverage,
+            prediction_miss_mm=1000.0 * miss,
+            angle_deg=float(angle_to_normal_deg(fingertip_axis, true_normal)[0]),
+            missed=missed,
+        )
+        self.touches.append(record)
+        reached = []
+        for fraction in self.config.milestones:
+            if fraction not in self.milestones and record.coverage >= fraction:
+                self.milestones[fraction] = self._milestone(fraction, reached=True)
+                reached.append(fraction)
+        if record.coverage >= self.config.coverage_goal:
+            self.finished = "goal"
+        elif len(self.touches) >= self.config.max_contacts:
+            self.finished = "contact budget"
+        elif travel_m >= self.config.max_travel_m:
+            self.finished = "travel budget"
+        return reached
+
+    def close_incomplete(self) -> None:
+        """Record the end of a run that stopped before a milestone, with what it reached."""
+        for fraction in self.config.milestones:
+            if fraction not in self.milestones:
+                self.milestones[fraction] = self._milestone(fraction, reached=False)
+
+    def _milestone(self, fraction: float, reached: bool) -> Milestone:
+        touches = self.touches
+        misses = [t.prediction_miss_mm for t in touches if math.isfinite(t.prediction_miss_mm)]
+        last = touches[-1] if touches else None
+        return Milestone(
+            fraction=fraction,
+            reached=reached,
+            contacts=len(touches),
+            travel_cm=last.travel_cm if last else 0.0,
+            rotation_deg=last.rotation_deg if last else 0.0,
+            prediction_miss_mm=float(np.mean(misses)) if misses else math.nan,
+            angle_deg=float(np.mean([t.angle_deg for t in touches])) if touches else math.nan,
+            coverage=self.tracker.coverage,
+            vertex_coverage=self.tracker.vertex_coverage,
+        )
+
+    def set_rmse(self, fraction: float, rmse: SurfaceRmse) -> None:
+        """Attach the surface RMSE of the estimate published when `fraction` was reached."""
+        m = self.milestones[fraction]
+        m.rmse_mm = 1000.0 * rmse.symmetric_m
+        m.rmse_estimate_to_truth_mm = 1000.0 * rmse.estimate_to_truth_m
+        m.rmse_truth_to_estimate_mm = 1000.0 * rmse.truth_to_estimate_m
+
+    def rmse(self, vertices_m: np.ndarray, faces: np.ndarray) -> SurfaceRmse:
+        """Surface RMSE between an estimated mesh and the true mesh (one-sided both ways and symmetric)."""
+        if len(faces) == 0:
+            nan = math.nan
+            return SurfaceRmse(estimate_to_truth_m=nan, truth_to_estimate_m=nan, symmetric_m=nan)
+        truth = (self.vertices_m, self.faces)
+        return surface_rmse((vertices_m, faces), truth, self.config.rmse_samples, np.random.default_rng(0))
+
+    def summary(self) -> dict[str, Any]:
+        """Everything about the run as plain data (JSON-ready)."""
+        goal = self.config.coverage_goal
+        return {
+            "complete": goal in self.milestones and self.milestones[goal].reached,
+            "finished": self.finished or "clock",
+            "contacts": len(self.touches),
+            "coverage": self.tracker.coverage,
+            "vertex_coverage": self.tracker.vertex_coverage,
+            "area_m2": self.area_m2,
+            "covering_bound_contacts": covering_bound_contacts(self.area_m2, goal, self.config.radius_m),
+            "milestones": {f"{int(100 * f)}": asdict(m) for f, m in sorted(self.milestones.items())},
+            "touches": [asdict(t) for t in self.touches],
+        }
+
+
+def _sensor(vertices_m: np.ndarray, faces: np.ndarray) -> ExactContactSensor:
+    import trimesh
+
+    return ExactContactSensor(trimesh.Trimesh(vertices_m, faces, process=False))

@@ -1,0 +1,130 @@
+"""Exploration evaluator node: reads ground truth (an evaluator), scores the run, stops it at the goal.
+
+It asks the GPIS node for the whole-object surface when coverage first reaches each milestone (50 %
+and 80 %) to measure the surface RMSE there, and ends the run at the coverage goal or a budget.
+At the end it prints one line `explore_result: {json}` and optionally writes JSON and a PNG.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
+from palpate.nodes.controller.so3 import quat_to_matrix
+from palpate.nodes.explore_eval.core import EvalConfig, ExplorationEvaluator
+from palpate.runtime.spec import NodeSpec, Port
+
+
+@dataclass(frozen=True, kw_only=True)
+class ExploreEvalNodeConfig:
+    """Evaluation settings and where to write the results."""
+
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    results_path: str = ""
+    plot_path: str = ""
+    #: Print the one-line JSON result when the run ends.
+    report: bool = True
+
+
+class ExploreEvalNode:
+    """Thin wrapper around ExplorationEvaluator."""
+
+    def __init__(self, config: ExploreEvalNodeConfig, ctx: Any):
+        self.config, self.ctx = config, ctx
+        self.evaluator: ExplorationEvaluator | None = None
+        self.pose: Pose | None = None
+        self.pending: list[float] = []  # milestones waiting for their whole-object surface
+        self.final_requested = False
+        self.last_estimate: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32))
+        self.result: dict[str, Any] = {}
+
+    def on_truth_object(self, message: ObjectTruth) -> None:
+        self.name = message.name
+        self.evaluator = ExplorationEvaluator(np.array(message.vertices_m), np.array(message.faces), self.config.eval)
+
+    def on_pose(self, message: Pose) -> None:
+        self.pose = message
+
+    def on_touches(self, message: TouchEvent) -> None:
+        if self.evaluator is None or self.final_requested:
+            return
+        reached = self.evaluator.add_touch(
+            np.array(message.position_m),
+            np.array(message.predicted_contact_m),
+            message.travelled_m,
+            message.rotation_deg,
+            quat_to_matrix(self.pose.quaternion_wxyz)[:, 2] if self.pose else np.array([0.0, 0.0, -1.0]),
+            message.missed,
+        )
+        self.ctx.metrics["coverage"] = self.evaluator.tracker.coverage
+        if reached or self.evaluator.finished:
+            self.pending.extend(reached)
+            self.final_requested = bool(self.evaluator.finished)
+            self.ctx.publish("request", SurfaceRequest(stamp_ns=self.ctx.stamp_ns, region="global"))
+
+    def on_surface(self, message: SurfaceMesh) -> None:
+        if message.region != "global" or self.evaluator is None:
+            return
+        self.last_estimate = (np.array(message.vertices_m), np.array(message.faces))
+        if self.pending:
+            rmse = self.evaluator.rmse(*self.last_estimate)
+            for fraction in self.pending:
+                self.evaluator.set_rmse(fraction, rmse)
+            self.pending = []
+        if self.final_requested:
+            self.ctx.request_stop(f"exploration finished: {self.evaluator.finished}")
+
+    def on_tick(self, stamp_ns: int) -> None:
+        """Work happens per touch and per surface."""
+
+    def close(self) -> None:
+        if self.evaluator is None:
+            return
+        self.evaluator.close_incomplete()
+        self.result = self.evaluator.summary()
+        self.result["object"] = self.name
+        if self.config.results_path:
+            Path(self.config.results_path).parent.mkdir(parents=True, exist_ok=True)
+            Path(self.config.results_path).write_text(json.dumps(self.result, indent=1))
+        if self.config.plot_path:
+            from palpate.nodes.explore_eval.plot import plot_run
+
+            contacts = np.array([t["position_m"] for t in self.result["touches"]]).reshape(-1, 3)
+            title = f"{self.name}: {len(contacts)} contacts, coverage {100 * self.result['coverage']:.0f} %"
+            plot_run(
+                Path(self.config.plot_path),
+                (self.evaluator.vertices_m, self.evaluator.faces),
+                self.last_estimate,
+                contacts,
+                title,
+            )
+        if self.config.report:
+            brief = {k: v for k, v in self.result.items() if k != "touches"}
+            print("explore_result: " + json.dumps(brief, default=_json_number), flush=True)
+
+
+def _json_number(value: Any) -> Any:
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    return value
+
+
+SPEC = NodeSpec(
+    name="explore_eval",
+    config=ExploreEvalNodeConfig,
+    factory=ExploreEvalNode,
+    inputs={
+        "touches": Port(TouchEvent),
+        "truth_object": Port(ObjectTruth),
+        "pose": Port(Pose),
+        "surface": Port(SurfaceMesh),
+    },
+    outputs={"request": Port(SurfaceRequest)},
+    doc="Scores an exploration run against the true mesh (evaluator: reads truth/ topics).",
+)

@@ -1,0 +1,104 @@
+"""Noise node: what a real proprioceptive (and tactile) sensor would report, on the same message types.
+
+Joint angles get Gaussian noise (sigma 1.5 deg by default, per-joint override, optional constant
+bias); for the probe, contact positions and normals may get noise too. Seeded from the launch file;
+sigma 0 passes values through bit for bit. A hardware driver that publishes these topics replaces
+sim + noise.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from palpate.messages import topics
+from palpate.messages.schemas import ContactSet, JointState
+from palpate.nodes.noise.core import ContactNoise, ContactNoiseConfig, JointNoise, JointNoiseConfig
+from palpate.runtime.spec import NodeSpec, Port
+
+
+@dataclass(frozen=True, kw_only=True)
+class NoiseNodeConfig:
+    """Which streams to corrupt and how."""
+
+    #: Add noise to joint states (hand and finger scenes).
+    joints: bool = True
+    sigma_deg: float = 1.5
+    per_joint_sigma_deg: dict[str, float] = field(default_factory=dict)
+    bias_deg: float | dict[str, float] = 0.0
+    #: Add noise to contact sets (probe scene).
+    contacts: bool = False
+    position_sigma_m: float = 0.0
+    normal_sigma_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        JointNoiseConfig(sigma_deg=self.sigma_deg, per_joint_sigma_deg=self.per_joint_sigma_deg, bias_deg=self.bias_deg)
+        ContactNoiseConfig(position_sigma_m=self.position_sigma_m, normal_sigma_deg=self.normal_sigma_deg)
+
+
+class NoiseNode:
+    """Thin wrapper around JointNoise and ContactNoise."""
+
+    def __init__(self, config: NoiseNodeConfig, ctx: Any):
+        self.config, self.ctx = config, ctx
+        self.joint_noise: JointNoise | None = None
+        self.contact_noise = ContactNoise(
+            ContactNoiseConfig(position_sigma_m=config.position_sigma_m, normal_sigma_deg=config.normal_sigma_deg),
+            ctx.rng,
+        )
+
+    def on_joint_states(self, message: JointState) -> None:
+        if self.joint_noise is None:  # joint names come with the first reading
+            cfg = self.config
+            noise_config = JointNoiseConfig(
+                sigma_deg=cfg.sigma_deg, per_joint_sigma_deg=cfg.per_joint_sigma_deg, bias_deg=cfg.bias_deg
+            )
+            self.joint_noise = JointNoise(noise_config, message.names, self.ctx.rng)
+        self.ctx.publish(
+            "noisy_joint_states",
+            JointState(
+                stamp_ns=message.stamp_ns,
+                names=message.names,
+                positions_rad=self.joint_noise.apply(message.positions_rad),
+                velocities_rad_s=message.velocities_rad_s,
+            ),
+        )
+
+    def on_contacts(self, message: ContactSet) -> None:
+        positions, normals = self.contact_noise.apply(message.positions_m, message.normals)
+        self.ctx.publish(
+            "noisy_contacts",
+            ContactSet(
+                stamp_ns=message.stamp_ns,
+                positions_m=positions,
+                local_positions_m=message.local_positions_m,
+                normals=normals,
+                forces_n=message.forces_n,
+                links=message.links,
+            ),
+        )
+
+    def on_tick(self, stamp_ns: int) -> None:
+        """Noise is applied per message."""
+
+
+def _ports(params: Mapping[str, Any]) -> tuple[dict[str, Port], dict[str, Port]]:
+    inputs: dict[str, Port] = {}
+    outputs: dict[str, Port] = {}
+    if params.get("joints", True):
+        inputs["joint_states"] = Port(JointState)
+        outputs["noisy_joint_states"] = Port(JointState, topic=topics.NOISY_JOINT_STATES)
+    if params.get("contacts", False):
+        inputs["contacts"] = Port(ContactSet)
+        outputs["noisy_contacts"] = Port(ContactSet, topic=topics.NOISY_CONTACTS)
+    return inputs, outputs
+
+
+SPEC = NodeSpec(
+    name="noise",
+    config=NoiseNodeConfig,
+    factory=NoiseNode,
+    ports_from_params=_ports,
+    doc="Proprioceptive noise on joint angles (and optionally contacts), seeded from the launch file.",
+)

@@ -1,0 +1,191 @@
+"""Simulation node: the clock source. Steps MuJoCo, applies commands, publishes sensors and truth.
+
+Ports follow the scene (only what the scene needs): a probe takes Cartesian velocity commands and
+publishes its pose and contacts; a hand or finger publishes joint states, fingertip pose and contacts,
+and either follows the scripted exploration motion or takes joint commands. Ground truth (true
+joint angles, the object and its mesh) goes on `truth/` topics, which only evaluators may read.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from palpate.errors import ConfigError
+from palpate.messages import topics
+from palpate.messages.schemas import (
+    CartesianVelocityCommand,
+    ContactSet,
+    JointCommand,
+    JointState,
+    ObjectTruth,
+    Pose,
+)
+from palpate.nodes.sim.scene import SceneConfig
+from palpate.runtime.spec import NodeSpec, Port
+
+
+def _default_scene() -> dict[str, Any]:
+    return {"effector": "probe", "object": {"kind": "torus"}}
+
+
+@dataclass(frozen=True, kw_only=True)
+class SimNodeConfig:
+    """The scene (see SceneConfig: effector, object, physics) and the graph timing."""
+
+    scene: dict[str, Any] = field(default_factory=_default_scene)
+    #: Simulated time between two graph ticks (messages are published once per tick).
+    tick_period_s: float = 0.01
+    #: The run ends after this much simulated time (or earlier, when a node asks to stop).
+    duration_s: float = 60.0
+    #: Hand and finger: follow the built-in scripted exploration (true) or take joint commands (false).
+    scripted_motion: bool = True
+
+    def __post_init__(self) -> None:
+        scene = SceneConfig.from_dict(self.scene, "scene")
+        steps = self.tick_period_s / scene.timestep_s
+        if self.tick_period_s <= 0 or abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
+            raise ConfigError(
+                f"tick_period_s = {self.tick_period_s!r} must be a positive multiple of the scene's time step "
+                f"{scene.timestep_s!r}"
+            )
+        if self.duration_s <= 0:
+            raise ConfigError(f"duration_s = {self.duration_s!r} must be positive")
+
+    @property
+    def scene_config(self) -> SceneConfig:
+        return SceneConfig.from_dict(self.scene, "scene")
+
+
+class SimNode:
+    """Thin wrapper around Simulation (and the scripted motion for hand and finger scenes)."""
+
+    def __init__(self, config: SimNodeConfig, ctx: Any):
+        from palpate.nodes.sim.core import Simulation  # MuJoCo and open3d load only in the process that simulates
+
+        self.config, self.ctx = config, ctx
+        scene = config.scene_config
+        self.sim = Simulation(scene)
+        self.probe = scene.effector == "probe"
+        self.motion = None
+        if not self.probe and config.scripted_motion:
+            from palpate.nodes.sim.motion import ExplorationMotion
+
+            self.motion = ExplorationMotion(scene, ctx.rng, obj=self.sim.object)
+        self.steps_per_tick = round(config.tick_period_s / scene.timestep_s)
+        self.period_ns = round(config.tick_period_s * 1e9)
+        self.ticks = round(config.duration_s / config.tick_period_s)
+        self.tick = 0
+        self.previous_pose: tuple[np.ndarray, np.ndarray] | None = None
+
+    def on_velocity(self, message: CartesianVelocityCommand) -> None:
+        self.sim.set_velocity(message.linear_m_s, message.angular_rad_s)
+
+    def on_joint_commands(self, message: JointCommand) -> None:
+        order = {name: i for i, name in enumerate(message.names)}
+        missing = [n for n in self.sim.joint_names if n not in order]
+        if missing:
+            raise ConfigError(f"joint command lacks joints {missing}; it must name every joint of the effector")
+        self.sim.set_joint_targets(np.array([message.positions_rad[order[n]] for n in self.sim.joint_names]))
+
+    def step(self) -> int | None:
+        if self.tick > self.ticks:
+            return None
+        if self.tick == 0:
+            self._publish_object()
+        else:
+            if self.motion is not None:
+                self.sim.set_joint_targets(self.motion.targets(self.sim.time_s))
+            self.sim.step(self.steps_per_tick)
+        stamp = self.tick * self.period_ns
+        self.ctx.stamp_ns = stamp
+        self._publish_state(stamp)
+        self.tick += 1
+        return stamp
+
+    def on_tick(self, stamp_ns: int) -> None:
+        """The clock source does its work in step()."""
+
+    def _publish_state(self, stamp: int) -> None:
+        position, quaternion = self.sim.effector_pose()
+        linear = angular = np.zeros(3)
+        if self.previous_pose is not None:
+            linear = (position - self.previous_pose[0]) / self.config.tick_period_s
+        self.previous_pose = (position, quaternion)
+        self.ctx.publish(
+            "pose",
+            Pose(
+                stamp_ns=stamp,
+                frame="fingertip",
+                position_m=position,
+                quaternion_wxyz=quaternion,
+                linear_velocity_m_s=linear,
+                angular_velocity_rad_s=angular,
+            ),
+        )
+        c = self.sim.contacts()
+        self.ctx.publish(
+            "contacts",
+            ContactSet(
+                stamp_ns=stamp,
+                positions_m=c.positions_m,
+                local_positions_m=c.local_positions_m,
+                normals=c.normals,
+                forces_n=c.forces_n,
+                links=list(c.links),
+            ),
+        )
+        self.ctx.metrics["sim_time_s"] = self.sim.time_s
+        if not self.probe:
+            q = self.sim.joint_positions()
+            state = JointState(
+                stamp_ns=stamp, names=list(self.sim.joint_names), positions_rad=q, velocities_rad_s=np.zeros_like(q)
+            )
+            self.ctx.publish("joint_states", state)
+            self.ctx.publish("truth_joint_states", state)
+
+    def _publish_object(self) -> None:
+        obj = self.sim.object
+        spec = obj.spec
+        self.ctx.publish(
+            "truth_object",
+            ObjectTruth(
+                stamp_ns=0,
+                name=obj.name,
+                source=str(obj.source_path) if obj.source_path else "primitive",
+                position_m=np.array(spec.position_m, dtype=np.float64),
+                quaternion_wxyz=np.array(spec.quaternion_wxyz, dtype=np.float64),
+                vertices_m=np.asarray(obj.mesh.vertices, dtype=np.float64),
+                faces=np.asarray(obj.mesh.faces, dtype=np.int32),
+            ),
+        )
+
+
+def _ports(params: Mapping[str, Any]) -> tuple[dict[str, Port], dict[str, Port]]:
+    """Ports for the scene in `params`: only what the effector needs."""
+    scene = params.get("scene") or _default_scene()
+    effector = scene.get("effector", "finger") if isinstance(scene, Mapping) else "finger"
+    outputs = {
+        "pose": Port(Pose),
+        "contacts": Port(ContactSet),
+        "truth_object": Port(ObjectTruth),
+    }
+    if effector == "probe":
+        return {"velocity": Port(CartesianVelocityCommand)}, outputs
+    outputs["joint_states"] = Port(JointState)
+    outputs["truth_joint_states"] = Port(JointState, topic=topics.TRUTH_JOINT_STATES)
+    inputs = {} if params.get("scripted_motion", True) else {"joint_commands": Port(JointCommand)}
+    return inputs, outputs
+
+
+SPEC = NodeSpec(
+    name="sim",
+    config=SimNodeConfig,
+    factory=SimNode,
+    clock_source=True,
+    ports_from_params=_ports,
+    doc="MuJoCo simulation (hand, finger or probe on a primitive or mesh): the graph's clock source.",
+)
