@@ -5,9 +5,10 @@ transports use the same socket pattern -- the pinger's XPUB to the echo's SUB an
 the pinger's SUB, over ipc, with the unlimited high-water marks of lockstep mode -- and carry the
 same float64 array of 64 B, 4 KB or 1 MB:
 
-- palpate: a `ParticleSetSummary` whose `weights` hold the array. A send runs `codec.validate` and
-  `codec.encode` (what `NodeContext.publish` does) and sends ``[topic, payload]`` with copy=False,
-  on sockets made by `palpate.runtime.bus`; a receipt runs `codec.decode` (arrays are zero-copy).
+- palpate: a `ParticleSetSummary` whose `weights` hold the array. A send runs `codec.encode` and
+  sends ``[topic, payload]`` with copy=False on sockets made by `palpate.runtime.bus`; a receipt runs
+  `codec.decode` (which checks types, shapes and finiteness; arrays are zero-copy). With
+  `--validate`, a send also runs `codec.validate` first, as `NodeContext.publish` does.
 - raw: pyzmq's `send_array` example: ``[topic, JSON {dtype, shape}, array bytes]`` with copy=False,
   rebuilt with `np.frombuffer`.
 
@@ -63,6 +64,7 @@ class BusBenchConfig:
     stream_messages: int = 400
     warmup_pings: int = 50
     timeout_s: float = 30.0
+    validate: bool = False  # palpate sends also run codec.validate, as NodeContext.publish does
 
     def pings(self, size_bytes: int) -> int:
         return self.pings_per_round if size_bytes <= _BIG_BYTES else max(2, self.pings_per_round // 8)
@@ -105,9 +107,12 @@ class SizeResult:
 
 # --- the two transports ------------------------------------------------------------------------------
 class _PalpateLink:
-    """palpate's bus: sockets from palpate.runtime.bus, validate + encode on send, decode on receipt."""
+    """palpate's bus: sockets from palpate.runtime.bus, encode on send, decode on receipt."""
 
-    def __init__(self, ctx: zmq.Context[Any], bind: str, connect: str, topics: tuple[bytes, ...]):
+    def __init__(
+        self, ctx: zmq.Context[Any], bind: str, connect: str, topics: tuple[bytes, ...], *, validate: bool = False
+    ):
+        self.validate = validate
         self.pub = bus.make_publisher(ctx, bind, lockstep=True)
         self.sub = bus.make_subscriber(ctx, [connect], [t.decode() for t in topics], lockstep=True)
 
@@ -135,7 +140,8 @@ class _PalpateLink:
         return item.num_particles
 
     def send(self, topic: bytes, message: ParticleSetSummary) -> None:
-        codec.validate(message)
+        if self.validate:
+            codec.validate(message)
         self.pub.send_multipart([topic, codec.encode(message)], copy=False)
 
     def recv(self) -> tuple[bytes, ParticleSetSummary]:
@@ -194,8 +200,12 @@ class _Link(Protocol):
     def recv(self) -> tuple[bytes, Any]: ...
 
 
-def _link(transport: str, ctx: zmq.Context[Any], bind: str, connect: str, topics: tuple[bytes, ...]) -> _Link:
-    return _PalpateLink(ctx, bind, connect, topics) if transport == "palpate" else _RawLink(ctx, bind, connect, topics)
+def _link(
+    transport: str, ctx: zmq.Context[Any], bind: str, connect: str, topics: tuple[bytes, ...], validate: bool
+) -> _Link:
+    if transport == "palpate":
+        return _PalpateLink(ctx, bind, connect, topics, validate=validate)
+    return _RawLink(ctx, bind, connect, topics)
 
 
 def _endpoints(workdir: Path, transport: str) -> tuple[str, str]:
@@ -208,11 +218,11 @@ def _wait_subscribed(pub: zmq.Socket[Any], topics: tuple[bytes, ...], timeout_s:
 
 
 # --- the echo process ------------------------------------------------------------------------------
-def echo(transport: str, workdir: Path, timeout_s: float = 30.0) -> None:
+def echo(transport: str, workdir: Path, timeout_s: float = 30.0, validate: bool = False) -> None:
     """Answer pings with the same content, count streamed messages, answer flushes with the count."""
     ctx: zmq.Context[Any] = zmq.Context()
     ping_endpoint, echo_endpoint = _endpoints(workdir, transport)
-    link = _link(transport, ctx, echo_endpoint, ping_endpoint, _ECHO_TOPICS)
+    link = _link(transport, ctx, echo_endpoint, ping_endpoint, _ECHO_TOPICS, validate)
     _wait_subscribed(link.pub, (PONG,), timeout_s)
     received = 0
     while True:
@@ -235,14 +245,15 @@ def echo(transport: str, workdir: Path, timeout_s: float = 30.0) -> None:
 class _Pinger:
     """This process's end of one transport, and its echo process."""
 
-    def __init__(self, transport: str, ctx: zmq.Context[Any], workdir: Path, timeout_s: float):
+    def __init__(self, transport: str, ctx: zmq.Context[Any], workdir: Path, timeout_s: float, validate: bool):
         self.transport = transport
         self.timeout_s = timeout_s
         ping_endpoint, echo_endpoint = _endpoints(workdir, transport)
-        self.link = _link(transport, ctx, ping_endpoint, echo_endpoint, (PONG,))
+        self.link = _link(transport, ctx, ping_endpoint, echo_endpoint, (PONG,), validate)
         self.link.sub.setsockopt(zmq.RCVTIMEO, int(timeout_s * 1000))
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "palpate.bench.bus", "echo", transport, str(workdir), str(timeout_s)],
+            [sys.executable, "-m", "palpate.bench.bus", "echo", transport, str(workdir), str(timeout_s)]
+            + (["validate"] if validate else []),
             stdin=subprocess.DEVNULL,
         )
 
@@ -308,7 +319,7 @@ def run(config: BusBenchConfig, progress: Callable[[str], None] | None = None) -
     pingers: dict[str, _Pinger] = {}
     try:
         for transport in TRANSPORTS:
-            pingers[transport] = _Pinger(transport, ctx, workdir, config.timeout_s)
+            pingers[transport] = _Pinger(transport, ctx, workdir, config.timeout_s, config.validate)
         for pinger in pingers.values():
             pinger.wait_ready()
         rng = np.random.default_rng(0)
@@ -378,6 +389,7 @@ def summary(results: list[SizeResult], config: BusBenchConfig, quick: bool) -> d
         "throughput_1mb_gbps": big.palpate_gbps,
         "raw_throughput_1mb_gbps": big.raw_gbps,
         "rounds": config.rounds,
+        "validate": config.validate,
         "load_average_1min": os.getloadavg()[0],
         "sizes": {},
     }
@@ -412,6 +424,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `palpate bench bus` beyond the shared --quick and --json."""
     parser.add_argument("--rounds", type=int, help="alternating rounds per size and transport")
     parser.add_argument("--pings", type=int, help="ping-pongs per round (sizes above 64 KB: an eighth)")
+    parser.add_argument("--validate", action="store_true", help="palpate sends also run codec.validate")
     parser.add_argument("--stream", type=int, help="messages streamed per throughput round (above 64 KB: a tenth)")
 
 
@@ -424,6 +437,8 @@ def config_from_args(args: argparse.Namespace) -> BusBenchConfig:
         config = replace(config, pings_per_round=args.pings, warmup_pings=min(config.warmup_pings, args.pings))
     if getattr(args, "stream", None):
         config = replace(config, stream_messages=args.stream)
+    if getattr(args, "validate", False):
+        config = replace(config, validate=True)
     return config
 
 
@@ -432,7 +447,8 @@ def main(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     print(
         f"palpate bench bus: {config.rounds} alternating rounds per size and transport, ipc, "
-        f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; one hop = round trip / 2",
+        f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; one hop = round trip / 2"
+        + ("; palpate sends run codec.validate" if config.validate else ""),
         flush=True,
     )
     results = run(config, progress=lambda text: print(text, file=sys.stderr, flush=True))
@@ -448,10 +464,10 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _echo_main(argv: list[str]) -> int:
-    if len(argv) != 4 or argv[0] != "echo" or argv[1] not in TRANSPORTS:
-        print("usage: python -m palpate.bench.bus echo {palpate|raw} WORKDIR TIMEOUT_S", file=sys.stderr)
+    if len(argv) not in (4, 5) or argv[0] != "echo" or argv[1] not in TRANSPORTS or argv[4:] not in ([], ["validate"]):
+        print("usage: python -m palpate.bench.bus echo {palpate|raw} WORKDIR TIMEOUT_S [validate]", file=sys.stderr)
         return 64
-    echo(argv[1], Path(argv[2]), float(argv[3]))
+    echo(argv[1], Path(argv[2]), float(argv[3]), validate=argv[4:] == ["validate"])
     return 0
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import re
 from typing import Any
 
@@ -191,3 +192,52 @@ def test_validate_names_shape_and_dimension_faults() -> None:
     object.__setattr__(nan_float, "effective_sample_size", float("nan"))
     with pytest.raises(NonFiniteError, match=re.escape("ParticleSetSummary.effective_sample_size must be finite")):
         codec.validate(nan_float)
+
+
+def test_small_payloads_split_in_one_call_and_wide_blob_headers_take_the_general_path() -> None:
+    message = ContactSet(
+        stamp_ns=5,
+        positions_m=np.ones((2, 3)),
+        local_positions_m=np.zeros((2, 3)),
+        normals=np.ones((2, 3)),
+        forces_n=np.ones(2),
+        links=["a", "b"],
+    )
+    payload = codec.encode(message)
+    header, blob = split(payload)
+    fast = codec._split_small(memoryview(payload))
+    assert fast is not None and fast[0] == header and bytes(fast[1]) == blob
+    wide = b"\x92" + msgpack.packb(header, use_bin_type=True) + b"\xc6" + len(blob).to_bytes(4, "big") + blob
+    assert codec._split_small(memoryview(wide)) is None  # bin 32 for a small blob: general path
+    assert codec.decode(wide, ContactSet) == message
+    with pytest.raises(MalformedMessageError, match="does not match the payload"):
+        codec.decode(payload + b"\0", ContactSet)
+
+
+@pytest.mark.parametrize("n", [1024, 1025, 1031, 4096, 20000])
+def test_big_blobs_start_8_aligned_and_small_payloads_stay_canonical(n: int) -> None:
+    rng = np.random.default_rng(n)
+    for names in range(8):  # the joint names shift the header length through every remainder
+        message = ParticleSetSummary(
+            stamp_ns=int(rng.integers(1 << 40)),
+            num_particles=n,
+            effective_sample_size=2.0,
+            best_index=1,
+            resampled=True,
+            joint_names=["j"] * names,
+            pose_mean_rad=np.zeros(names),
+            pose_best_rad=np.ones(names),
+            weights=rng.random(n),
+        )
+        payload = codec.encode(message)
+        header, blob = split(payload)
+        assert (len(payload) - len(blob)) % 8 == 0  # the blob (8 KiB or more) starts 8-aligned
+        assert (header["type"], header["version"]) == ("ParticleSetSummary", ParticleSetSummary.VERSION)
+        assert codec.decode(payload, ParticleSetSummary) == message
+        small = replace_weights(message, rng.random(3))
+        small_payload = codec.encode(small)
+        assert small_payload == msgpack.packb(list(split(small_payload)), use_bin_type=True)  # canonical
+
+
+def replace_weights(message: ParticleSetSummary, weights: np.ndarray) -> ParticleSetSummary:
+    return dataclasses.replace(message, num_particles=len(weights), weights=weights)
