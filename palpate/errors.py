@@ -64,3 +64,8 @@ class MeshWarning(UserWarning):
 # --- benchmarks -----------------------------------------------------------------------------------
 class BenchmarkError(PalpateError):
     """A benchmark could not run to the end (a helper process died, timed out or lost messages)."""
+
+
+# --- viewer ---------------------------------------------------------------------------------------
+class ViewerError(PalpateError):
+    """`palpate view` cannot run: the viewer extra is missing, there is no display, or the source is unusable."""

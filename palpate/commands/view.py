@@ -1,0 +1,99 @@
+"""`palpate view`: the exploration in the rerun viewer, live from the bus or from an MCAP log.
+
+Needs the optional viewer extra (rerun-sdk); without it the command stops with exit code 2 and says
+how to install it. With ``--save FILE.rrd`` it writes a recording instead of opening a window (for
+machines without a display; open the file later with ``rerun FILE.rrd``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from palpate.errors import ViewerError
+from palpate.runtime import bus
+from palpate.viewer import require_rerun
+from palpate.viewer.rerun_log import SHOWN_TYPES, SceneLogger
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    shown = ", ".join(cls.TYPE for cls in SHOWN_TYPES)
+    p = sub.add_parser(
+        "view",
+        help="show the exploration in the rerun viewer (needs the viewer extra)",
+        description=(
+            "Show true mesh, contacts and normals, the estimated surface coloured by GP variance, candidate "
+            "scores, the planned curve, the fingertip trail and occupancy grids, on a sim-time timeline, live "
+            f"from the bus or from an MCAP log. Shown types: {shown}. Needs: pip install 'palpate[viewer]'."
+        ),
+    )
+    p.add_argument("--log", type=Path, metavar="FILE.mcap", help="view a recorded log instead of the live bus")
+    p.add_argument("--bus", type=Path, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
+    p.add_argument("--save", type=Path, metavar="FILE.rrd", help="write a rerun recording file instead of a window")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="show only these topics (default: every shown type)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="live: stop after S s (0: at the graph's stop or Ctrl-C)",
+    )
+    p.set_defaults(func=run_view)
+
+
+def has_display() -> bool:
+    """Whether a viewer window can open: always on macOS and Windows, with X11 or Wayland elsewhere."""
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def run_view(args: argparse.Namespace) -> int:
+    if args.log is not None and args.bus is not None:
+        raise ViewerError("give --log FILE.mcap or --bus DIR, not both")
+    require_rerun()
+    if args.save is None and not has_display():
+        raise ViewerError(
+            "no display (DISPLAY and WAYLAND_DISPLAY are unset): write a recording with --save FILE.rrd "
+            "and open it with `rerun FILE.rrd` on a machine with a display"
+        )
+    from palpate.viewer.sink import open_recording  # imports rerun
+    from palpate.viewer.sources import BusSource, LogSource
+
+    scene = SceneLogger()
+    if args.log is not None:
+        log_source = LogSource(args.log, args.topics)  # checks the file before the recording is created
+        sink = open_recording(save=args.save)
+        try:
+            for topic, message in log_source:
+                scene.log_message(sink, topic, message)
+        finally:
+            sink.close()
+        stats, origin, code = log_source.stats, str(args.log), 0
+    else:
+        bus_dir = Path(args.bus) if args.bus else bus.default_bus_dir()
+        sink = open_recording(save=args.save)
+        bus_source = BusSource(bus_dir, args.topics)
+        print(f"palpate view: watching bus {bus_dir} (Ctrl-C to stop)", flush=True)
+        try:
+            for topic, message in bus_source.messages(args.duration):
+                scene.log_message(sink, topic, message)
+        finally:
+            bus_source.close()
+            sink.close()
+        stats, origin, code = bus_source.stats, f"bus {bus_dir}", 130 if bus_source.interrupted else 0
+    print(f"palpate view: {stats.shown} of {stats.received} messages shown from {origin}", flush=True)
+    if stats.shown == 0:
+        print(
+            f"palpate view: nothing to show; the viewer shows {', '.join(c.TYPE for c in SHOWN_TYPES)}", file=sys.stderr
+        )
+    if stats.undecodable:
+        print(
+            f"palpate view: {stats.undecodable} undecodable messages skipped, last: {stats.last_error}", file=sys.stderr
+        )
+    if args.save is not None:
+        size = args.save.stat().st_size if args.save.exists() else 0
+        print(f"palpate view: wrote {args.save} ({size / 1024:.1f} KiB); open it with `rerun {args.save}`")
+    return code

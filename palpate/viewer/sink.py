@@ -1,0 +1,104 @@
+"""The thin adapter from `rerun_log.Logger` calls to a rerun recording (rerun-sdk 0.41 API).
+
+`open_recording(save=FILE)` streams into an .rrd file (`RecordingStream.save`); `open_recording()`
+spawns a viewer window (`rerun.spawn`) and streams to it. The recording has one timeline, `sim_time`
+(a duration: the messages' `stamp_ns`); rerun's wall-clock `log_time` and `log_tick` are switched
+off so that a log viewed twice gives the same data.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import uuid
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from palpate.errors import ViewerError
+from palpate.viewer import require_rerun
+from palpate.viewer.rerun_log import KINDS, TIMELINE
+
+APPLICATION_ID = "palpate"
+#: How long closing waits for a spawned viewer to take the data still queued.
+VIEWER_FLUSH_TIMEOUT_S = 10.0
+
+
+class RerunLogger:
+    """A `rerun_log.Logger` that logs into a rerun RecordingStream."""
+
+    def __init__(self, recording: Any, rr: ModuleType, *, flush_timeout_s: float = 1e9):
+        self.recording = recording
+        self.rr = rr
+        self.flush_timeout_s = flush_timeout_s
+        self.calls = 0
+        self._time_ns: int | None = None  # time of the next timed log call
+        self._time_set_ns: int | None = None  # time the recording's cursor is at
+
+    def set_time_ns(self, stamp_ns: int) -> None:
+        # applied lazily: most messages (poses within a trail step) log nothing, and rerun's set_time costs ~25 us
+        self._time_ns = int(stamp_ns)
+
+    def log(self, path: str, kind: str, *, static: bool = False, **arrays: Any) -> None:
+        if kind not in KINDS:
+            raise ViewerError(f"unknown archetype {kind!r}; the viewer logs {', '.join(KINDS)}")
+        archetype = getattr(self.rr, kind)(**arrays)
+        if not static and self._time_ns is not None and self._time_ns != self._time_set_ns:
+            self.recording.set_time(TIMELINE, duration=np.timedelta64(self._time_ns, "ns"))
+            self._time_set_ns = self._time_ns
+        # strict: a malformed batch raises here instead of becoming a warning in the viewer
+        self.recording.log(path, archetype, static=static, strict=True)
+        self.calls += 1
+
+    def close(self) -> None:
+        """Flush everything logged and close the file or viewer connection.
+
+        Raises ViewerError when a viewer does not take the data within `flush_timeout_s`.
+        """
+        try:
+            self.recording.flush(timeout_sec=self.flush_timeout_s)
+        except RuntimeError as exc:  # rerun-sdk 0.41 raises RuntimeError("Flush timed out ...")
+            raise ViewerError(
+                f"the rerun viewer did not take the data within {self.flush_timeout_s:.0f} s ({exc}); "
+                "if no window opened, write a file with --save FILE.rrd"
+            ) from exc
+        finally:
+            self.recording.disconnect()
+
+
+def rerun_executable() -> str | None:
+    """The `rerun` viewer binary: on PATH, else beside the running Python (an unactivated venv)."""
+    found = shutil.which("rerun")
+    if found:
+        return found
+    beside = Path(sys.executable).parent / "rerun"
+    return str(beside) if beside.is_file() and os.access(beside, os.X_OK) else None
+
+
+def open_recording(*, save: Path | None = None) -> RerunLogger:
+    """A logger streaming into `save` (an .rrd file) or, without `save`, into a spawned viewer."""
+    rr = require_rerun()
+    recording = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
+    recording.set_log_time_enabled(False)
+    recording.set_log_tick_enabled(False)
+    if save is not None:
+        try:
+            recording.save(save)
+        except (OSError, ValueError, RuntimeError) as exc:
+            raise ViewerError(f"cannot write the recording {str(save)!r}: {exc}") from exc
+    else:
+        executable = rerun_executable()
+        if executable is None:
+            raise ViewerError(
+                "the rerun viewer binary was not found (it comes with rerun-sdk); "
+                "reinstall the extra (pip install 'palpate[viewer]') or write a file with --save FILE.rrd"
+            )
+        try:
+            rr.spawn(executable_path=executable, recording=recording)
+        except (OSError, RuntimeError) as exc:
+            raise ViewerError(f"cannot start the rerun viewer ({exc}); write a file with --save FILE.rrd") from exc
+    recording.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # MuJoCo's world is z-up
+    return RerunLogger(recording, rr, flush_timeout_s=1e9 if save is not None else VIEWER_FLUSH_TIMEOUT_S)

@@ -1,0 +1,177 @@
+"""Where `palpate view` gets messages: a palpate MCAP log, or the running bus.
+
+Both yield `(topic, message)` for the message types the viewer shows (`rerun_log.SHOWN_TYPE_NAMES`),
+skipping the others before decoding them, and count what they saw in `stats`.
+
+A palpate log has one channel per topic with message encoding ``msgpack``, the schema name is the
+message type and the message data is the palpate payload (see palpate/record/mcap_io.py).
+
+On the bus, the viewer finds publishers through the manifests in the bus directory (like
+`palpate topic echo`), looks for new ones every 0.5 s and subscribes to every topic with the empty
+prefix: publishers count subscriptions per topic name at start-up, and a viewer must not stand in
+for a node the graph waits for. It stops at the graph's RunControl "stop".
+"""
+
+from __future__ import annotations
+
+import signal
+import struct
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+import zmq
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+
+from palpate.errors import MessageError, ViewerError
+from palpate.messages import codec
+from palpate.messages.base import Message
+from palpate.messages.schemas import RunControl
+from palpate.runtime import bus
+from palpate.viewer.rerun_log import SHOWN_TYPE_NAMES
+
+MESSAGE_ENCODING = "msgpack"
+DISCOVERY_PERIOD_S = 0.1
+
+
+@dataclass
+class SourceStats:
+    """Messages seen, shown (decoded and of a shown type) and undecodable."""
+
+    received: int = 0
+    shown: int = 0
+    undecodable: int = 0
+    last_error: str = ""
+
+
+def _wanted(topic: str, wanted: frozenset[str] | None) -> bool:
+    return wanted is None or topic in wanted
+
+
+class LogSource:
+    """Messages of an MCAP log in file order (the recorder writes them in sim-time order)."""
+
+    def __init__(self, path: Path, wanted_topics: list[str] | None = None):
+        self.path = Path(path)
+        self.wanted = frozenset(wanted_topics) if wanted_topics else None
+        self.stats = SourceStats()
+        if not self.path.is_file():
+            raise ViewerError(f"no log file {str(self.path)!r}")
+
+    def __iter__(self) -> Iterator[tuple[str, Message]]:
+        with self.path.open("rb") as stream:
+            try:
+                reader = make_reader(stream)
+                records = reader.iter_messages(
+                    topics=sorted(self.wanted) if self.wanted else None, log_time_order=False
+                )
+                for schema, channel, record in records:
+                    self.stats.received += 1
+                    if channel.message_encoding != MESSAGE_ENCODING:
+                        continue
+                    if schema is None or schema.name not in SHOWN_TYPE_NAMES:
+                        continue
+                    try:
+                        message: Message = codec.decode(record.data)
+                    except MessageError as exc:
+                        self.stats.undecodable += 1
+                        self.stats.last_error = f"{channel.topic}: {exc}"
+                        continue
+                    self.stats.shown += 1
+                    yield channel.topic, message
+            except (McapError, struct.error, EOFError, ValueError, RuntimeError) as exc:
+                raise ViewerError(
+                    f"{self.path}: not a complete MCAP log ({type(exc).__name__}: {exc}); "
+                    f"if the recorder was killed, run `palpate bag recover {self.path}` and view the result"
+                ) from exc
+
+
+class BusSource:
+    """Messages from every publisher of the bus, found (and re-found every 0.5 s) through the manifests."""
+
+    def __init__(self, bus_dir: Path, wanted_topics: list[str] | None = None):
+        self.bus_dir = Path(bus_dir)
+        self.wanted = frozenset(wanted_topics) if wanted_topics else None
+        self.stats = SourceStats()
+        self.context: zmq.Context[Any] = zmq.Context()
+        self.sock = self.context.socket(zmq.SUB)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.setsockopt(zmq.SUBSCRIBE, b"")
+        self.endpoints: set[str] = set()
+        self.types: dict[str, str] = {}  # topic -> message type, from the manifests
+        self.last_discovery = -float("inf")
+        self.stopped = False  # the graph published RunControl "stop"
+        self.interrupted = False
+
+    def discover(self) -> None:
+        """Connect to publishers not yet connected and learn the types of their topics."""
+        for manifest in bus.read_manifests(self.bus_dir):
+            self.types.update(manifest.publishes)
+            if manifest.endpoint not in self.endpoints:
+                self.sock.connect(manifest.endpoint)
+                self.endpoints.add(manifest.endpoint)
+        self.last_discovery = time.monotonic()
+
+    def _shown(self, topic: str) -> bool:
+        type_name = self.types.get(topic)
+        return _wanted(topic, self.wanted) and (type_name is None or type_name in SHOWN_TYPE_NAMES)
+
+    def receive(self, timeout_s: float) -> list[tuple[str, Message]]:
+        """Shown messages that arrive within `timeout_s` (and all that are already queued)."""
+        if time.monotonic() - self.last_discovery >= DISCOVERY_PERIOD_S:
+            self.discover()
+        out: list[tuple[str, Message]] = []
+        if not self.sock.poll(int(timeout_s * 1000)):
+            return out
+        while self.sock.poll(0):
+            frames = self.sock.recv_multipart()
+            if len(frames) != 2:
+                continue
+            self.stats.received += 1
+            topic = frames[0].decode(errors="replace")
+            if topic == RunControl.TOPIC:  # graph/control: the end of the run
+                self._control(frames[1])
+                continue
+            if not self._shown(topic):
+                continue
+            try:
+                message: Message = codec.decode(frames[1])
+            except MessageError as exc:
+                self.stats.undecodable += 1
+                self.stats.last_error = f"{topic}: {exc}"
+                continue
+            if type(message).TYPE in SHOWN_TYPE_NAMES:
+                self.stats.shown += 1
+                out.append((topic, message))
+        return out
+
+    def _control(self, payload: bytes) -> None:
+        try:
+            control = codec.decode(payload, RunControl)
+        except MessageError:
+            return
+        if control.command == "stop":
+            self.stopped = True
+
+    def messages(self, duration_s: float = 0.0) -> Iterator[tuple[str, Message]]:
+        """Shown messages until the graph stops, SIGINT/SIGTERM, or `duration_s` (0: no limit)."""
+        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        deadline = time.monotonic() + duration_s if duration_s > 0 else None
+        try:
+            self.discover()
+            while not (self.stopped or self.interrupted) and (deadline is None or time.monotonic() < deadline):
+                yield from self.receive(0.1)
+        finally:
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+
+    def close(self) -> None:
+        self.sock.close()
+        self.context.term()
+
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        self.interrupted = True

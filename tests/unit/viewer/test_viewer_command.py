@@ -1,0 +1,118 @@
+"""`palpate view`: optional rerun, clear errors, and an .rrd written from a small MCAP log."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from viewer_messages import session, write_mcap
+
+from palpate import cli
+from palpate.viewer import EXTRA_HINT
+
+
+@pytest.fixture
+def log_file(tmp_path: Path) -> Path:
+    path = tmp_path / "run.mcap"
+    write_mcap(path, session())
+    return path
+
+
+def test_every_command_registers_without_rerun() -> None:
+    # a fresh interpreter where any `import rerun` raises ImportError, as in an install without the extra
+    code = (
+        "import sys; sys.modules['rerun'] = None\n"
+        "from palpate import cli\n"
+        "parser = cli.build_parser()\n"
+        "args = parser.parse_args(['view', '--log', 'x.mcap', '--save', 'x.rrd', '--topics', 'a', 'b'])\n"
+        "assert args.func.__module__ == 'palpate.commands.view' and args.topics == ['a', 'b']\n"
+        "assert 'rerun' not in {m.split('.')[0] for m, v in sys.modules.items() if v is not None}\n"
+        "print(sorted(parser._subparsers._group_actions[0].choices))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr
+    assert "'view'" in done.stdout and "'launch'" in done.stdout
+
+
+def test_view_without_rerun_names_the_extra(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], log_file: Path, tmp_path: Path
+) -> None:
+    monkeypatch.setitem(sys.modules, "rerun", None)
+    out = tmp_path / "out.rrd"
+    assert cli.main(["view", "--log", str(log_file), "--save", str(out)]) == 2
+    assert EXTRA_HINT in capsys.readouterr().err
+    assert EXTRA_HINT == "palpate view needs the viewer extra: pip install 'palpate[viewer]'"
+    assert not out.exists()
+
+
+def test_view_without_display_suggests_save(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], log_file: Path
+) -> None:
+    pytest.importorskip("rerun")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    assert cli.main(["view", "--log", str(log_file)]) == 2
+    assert "--save FILE.rrd" in capsys.readouterr().err
+
+
+def test_view_missing_log_and_conflicting_sources(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    pytest.importorskip("rerun")
+    out = tmp_path / "out.rrd"
+    assert cli.main(["view", "--log", str(tmp_path / "none.mcap"), "--save", str(out)]) == 2
+    assert "no log file" in capsys.readouterr().err
+    assert not out.exists()
+    assert cli.main(["view", "--log", "a.mcap", "--bus", str(tmp_path), "--save", str(out)]) == 2
+    assert "not both" in capsys.readouterr().err
+
+
+def test_view_damaged_log_says_recover(capsys: pytest.CaptureFixture[str], log_file: Path, tmp_path: Path) -> None:
+    pytest.importorskip("rerun")
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(log_file.read_bytes()[: log_file.stat().st_size // 2])
+    assert cli.main(["view", "--log", str(damaged), "--save", str(tmp_path / "out.rrd")]) == 2
+    assert "palpate bag recover" in capsys.readouterr().err
+
+
+def test_save_writes_an_rrd_with_the_scene(capsys: pytest.CaptureFixture[str], log_file: Path, tmp_path: Path) -> None:
+    pytest.importorskip("rerun")
+    from rerun.chunk import RrdReader
+
+    out = tmp_path / "run.rrd"
+    assert cli.main(["view", "--log", str(log_file), "--save", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "14 of 16 messages shown" in printed and str(out) in printed  # the two clocks are not shown
+    assert out.stat().st_size > 0
+    chunks = list(RrdReader(out).stream())
+    entities = {c.entity_path for c in chunks}
+    for expected in (
+        "/world/truth/object",
+        "/world/sensors/contacts/normals",
+        "/world/controller/events/contacts",
+        "/world/surface/mesh/local",
+        "/world/planner/target/candidates",
+        "/world/controller/trajectory/curve",
+        "/world/sensors/effector_pose/trail/00000",
+        "/world/map/occupancy/best",
+        "/metrics/controller/events/prediction_miss_mm",
+    ):
+        assert expected in entities
+    timed = [c for c in chunks if c.entity_path.startswith("/world/surface")]
+    assert timed and all(c.timeline_names == ["sim_time"] for c in timed)
+    tips = [c for c in chunks if c.entity_path == "/world/sensors/effector_pose/tip"]
+    stamps = [int(t.value) for c in tips for t in c.to_record_batch().column("sim_time")]
+    assert stamps == [k * 1_000_000 for k in range(6)]  # the sim-time timeline holds the poses' stamp_ns
+    assert all(c.is_static for c in chunks if c.entity_path == "/world/truth/object")
+
+
+def test_topics_filter(capsys: pytest.CaptureFixture[str], log_file: Path, tmp_path: Path) -> None:
+    pytest.importorskip("rerun")
+    from rerun.chunk import RrdReader
+
+    out = tmp_path / "surface.rrd"
+    assert cli.main(["view", "--log", str(log_file), "--save", str(out), "--topics", "surface/mesh"]) == 0
+    assert "1 of 1 messages shown" in capsys.readouterr().out
+    entities = {c.entity_path for c in RrdReader(out).stream()} - {"/__properties", "/world"}
+    assert entities == {"/world/surface/mesh/local"}
