@@ -62,7 +62,8 @@ class Message:
     TYPE: ClassVar[str] = ""
     VERSION: ClassVar[int] = 0
     TOPIC: ClassVar[str] = ""
-    DOC: ClassVar[str] = ""
+    #: True for state (the latest value supersedes older ones): real-time subscribers keep only the latest.
+    STATE: ClassVar[bool] = False
 
     stamp_ns: int = scalar("int", "simulated time of the data, nanoseconds since the start of the run", "ns")
 

@@ -43,7 +43,7 @@ class RunControl(Message):
 
     TYPE: ClassVar[str] = "RunControl"
     VERSION: ClassVar[int] = 1
-    TOPIC: ClassVar[str] = "control"
+    TOPIC: ClassVar[str] = topics.GRAPH_CONTROL
 
     command: str = scalar("str", "'stop' ends the run after the current tick")
     reason: str = scalar("str", "human-readable reason")
@@ -53,6 +53,7 @@ class JointState(Message):
     """Joint angles (and rates) of a hand or finger."""
 
     TYPE: ClassVar[str] = "JointState"
+    STATE: ClassVar[bool] = True
     VERSION: ClassVar[int] = 1
     TOPIC: ClassVar[str] = topics.JOINT_STATES
 
@@ -65,6 +66,7 @@ class JointCommand(Message):
     """Position targets for the joint actuators."""
 
     TYPE: ClassVar[str] = "JointCommand"
+    STATE: ClassVar[bool] = True
     VERSION: ClassVar[int] = 1
     TOPIC: ClassVar[str] = topics.JOINT_COMMANDS
 
@@ -76,6 +78,7 @@ class Pose(Message):
     """Pose and twist of the exploring end-effector (fingertip) in the world frame."""
 
     TYPE: ClassVar[str] = "Pose"
+    STATE: ClassVar[bool] = True
     VERSION: ClassVar[int] = 1
     TOPIC: ClassVar[str] = topics.EFFECTOR_POSE
 
@@ -90,6 +93,7 @@ class CartesianVelocityCommand(Message):
     """Linear and angular velocity command for a Cartesian-controlled effector (the probe)."""
 
     TYPE: ClassVar[str] = "CartesianVelocityCommand"
+    STATE: ClassVar[bool] = True
     VERSION: ClassVar[int] = 1
     TOPIC: ClassVar[str] = topics.VELOCITY_COMMANDS
 
@@ -101,6 +105,7 @@ class ContactSet(Message):
     """Contacts between the effector and the object at one instant (n may be 0)."""
 
     TYPE: ClassVar[str] = "ContactSet"
+    STATE: ClassVar[bool] = True
     VERSION: ClassVar[int] = 1
     TOPIC: ClassVar[str] = topics.CONTACTS
 
@@ -166,6 +171,7 @@ class SurfaceMesh(Message):
     """Triangulated estimated surface (marching cubes of the GPIS zero level set)."""
 
     TYPE: ClassVar[str] = "SurfaceMesh"
+    STATE: ClassVar[bool] = True
     VERSION: ClassVar[int] = 1
     TOPIC: ClassVar[str] = topics.SURFACE_MESH
 
@@ -193,6 +199,7 @@ class OccupancyGrid(Message):
     """Sparse 3D log-odds occupancy grid: only cells that were ever updated travel."""
 
     TYPE: ClassVar[str] = "OccupancyGrid"
+    STATE: ClassVar[bool] = True
     VERSION: ClassVar[int] = 1
     TOPIC: ClassVar[str] = topics.OCCUPANCY_GRID
 
@@ -208,6 +215,7 @@ class ParticleSetSummary(Message):
     """State of the FastSLAM particle filter after an update."""
 
     TYPE: ClassVar[str] = "ParticleSetSummary"
+    STATE: ClassVar[bool] = True
     VERSION: ClassVar[int] = 1
     TOPIC: ClassVar[str] = topics.PARTICLES
 
@@ -240,6 +248,7 @@ class NodeStatus(Message):
     """Health and counters of a node, published periodically and at exit."""
 
     TYPE: ClassVar[str] = "NodeStatus"
+    STATE: ClassVar[bool] = True
     VERSION: ClassVar[int] = 1
     TOPIC: ClassVar[str] = topics.NODE_STATUS
 

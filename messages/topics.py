@@ -7,6 +7,7 @@ into a node unless the launch file marks that node as an evaluator.
 CLOCK = "clock"
 LOCKSTEP_ACK = "lockstep/ack"
 NODE_STATUS = "status"
+GRAPH_CONTROL = "graph/control"
 
 JOINT_STATES = "sensors/joint_states"
 JOINT_COMMANDS = "commands/joints"
