@@ -66,6 +66,11 @@ class BenchmarkError(PalpateError):
     """A benchmark could not run to the end (a helper process died, timed out or lost messages)."""
 
 
+# --- message logs ---------------------------------------------------------------------------------
+class RecordError(PalpateError):
+    """A message log (MCAP) is missing, unreadable, truncated or holds no usable messages."""
+
+
 # --- viewer ---------------------------------------------------------------------------------------
 class ViewerError(PalpateError):
     """`palpate view` cannot run: the viewer extra is missing, there is no display, or the source is unusable."""

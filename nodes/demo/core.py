@@ -41,3 +41,35 @@ class ContactStatistics:
     def extent_m(self) -> np.ndarray:
         """Edge lengths of the bounding box of every contact so far, (3,); zeros before any contact."""
         return np.where(np.isfinite(self.upper_m), self.upper_m - self.lower_m, 0.0)
+
+
+def _box_faces() -> np.ndarray:
+    """The 12 triangles of a box whose corner i has bit 0, 1, 2 of i set for the upper x, y, z.
+
+    Each face's two triangles are wound counter-clockwise seen from outside (normal = outward).
+    """
+    faces = []
+    for axis in range(3):
+        u, v = (axis + 1) % 3, (axis + 2) % 3  # (u, v, axis) is a right-handed cycle
+        for upper in (0, 1):
+            quad = [
+                (upper << axis) | (a << u) | (b << v) for a, b in ((0, 0), (1, 0), (1, 1), (0, 1))
+            ]  # counter-clockwise around +axis
+            if not upper:
+                quad = quad[::-1]
+            faces += [[quad[0], quad[1], quad[2]], [quad[0], quad[2], quad[3]]]
+    return np.array(faces, dtype=np.int32)
+
+
+BOX_FACES = _box_faces()
+_CORNER_SIGNS = np.array([[1.0 if i >> k & 1 else -1.0 for k in range(3)] for i in range(8)])
+
+
+def box_mesh(lower_m: np.ndarray, upper_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Triangle mesh of the axis-aligned box [lower_m, upper_m] (both (3,), metres).
+
+    Returns vertices (8, 3) in metres, faces (12, 3) int32 wound counter-clockwise from outside, and
+    unit corner normals (8, 3) pointing away from the centre along the corner's diagonal.
+    """
+    vertices = np.where(_CORNER_SIGNS > 0, upper_m, lower_m)
+    return vertices, BOX_FACES.copy(), _CORNER_SIGNS / np.sqrt(3.0)

@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from palpate.messages.schemas import ContactSet
-from palpate.nodes.demo.core import ContactStatistics, sample_cube_contacts
+from palpate.messages.schemas import ContactSet, SurfaceMesh
+from palpate.nodes.demo.core import ContactStatistics, box_mesh, sample_cube_contacts
 from palpate.runtime.spec import NodeSpec, Port
 
 
@@ -82,6 +82,48 @@ class ContactStats:
             )
 
 
+@dataclass(frozen=True, kw_only=True)
+class BboxEstimatorConfig:
+    region: str = "global"
+
+
+class BboxEstimator:
+    """A toy estimator: after each tick with contacts, publishes the bounding box of all contacts so far.
+
+    Deterministic given its inputs, so re-running it on a recorded log (`palpate launch --replay`)
+    must reproduce its recorded meshes byte for byte. The per-vertex variance is that of a uniform
+    distribution over the longest box edge, divided by the number of contacts.
+    """
+
+    def __init__(self, config: BboxEstimatorConfig, ctx: Any):
+        self.config, self.ctx = config, ctx
+        self.stats = ContactStatistics()
+        self.updated = False
+
+    def on_contacts(self, message: ContactSet) -> None:
+        self.stats.add(message.positions_m)
+        self.updated = self.updated or len(message.positions_m) > 0
+
+    def on_tick(self, stamp_ns: int) -> None:
+        if not self.updated:
+            return
+        self.updated = False
+        vertices, faces, normals = box_mesh(self.stats.lower_m, self.stats.upper_m)
+        variance_m2 = float(self.stats.extent_m().max()) ** 2 / 12.0 / self.stats.contacts
+        self.ctx.publish(
+            "mesh",
+            SurfaceMesh(
+                stamp_ns=stamp_ns,
+                region=self.config.region,
+                num_contacts=self.stats.contacts,
+                vertices_m=vertices,
+                faces=faces,
+                vertex_normals=normals,
+                vertex_variance=np.full(len(vertices), variance_m2),
+            ),
+        )
+
+
 CUBE_CONTACTS = NodeSpec(
     name="cube_contacts",
     config=CubeContactsConfig,
@@ -96,4 +138,12 @@ CONTACT_STATS = NodeSpec(
     factory=ContactStats,
     inputs={"contacts": Port(ContactSet)},
     doc="Counts contacts and prints a summary at the end of the run.",
+)
+BBOX_ESTIMATOR = NodeSpec(
+    name="bbox_estimator",
+    config=BboxEstimatorConfig,
+    factory=BboxEstimator,
+    inputs={"contacts": Port(ContactSet)},
+    outputs={"mesh": Port(SurfaceMesh)},
+    doc="Toy estimator: the bounding box of every contact so far, as a SurfaceMesh, each tick with contacts.",
 )

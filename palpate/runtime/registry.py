@@ -19,6 +19,7 @@ NODE_TYPES: dict[str, str] = {
     "explore_eval": "palpate.nodes.explore_eval.node",
     "cube_contacts": "palpate.nodes.demo.node:CUBE_CONTACTS",
     "contact_stats": "palpate.nodes.demo.node:CONTACT_STATS",
+    "bbox_estimator": "palpate.nodes.demo.node:BBOX_ESTIMATOR",
     "replay": "palpate.record.replay_node:SPEC",
 }
 

@@ -1,0 +1,87 @@
+"""`palpate record`, `palpate replay` and `palpate bag info|recover|filter`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from palpate.errors import RecordError
+from palpate.record import mcap_io, recorder
+from palpate.record.bag import Player, PlayOptions, describe
+from palpate.runtime import bus
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    r = sub.add_parser("record", help="record bus topics into an MCAP log")
+    recorder.add_arguments(r)
+    r.set_defaults(func=recorder.run)
+
+    p = sub.add_parser("replay", help="publish a recorded log on the bus")
+    p.add_argument("file", type=Path, help="MCAP log")
+    p.add_argument("--rate", type=float, default=1.0, help="speed factor of the recorded sim-time pacing (0: --fast)")
+    p.add_argument("--fast", action="store_true", help="as fast as the subscribers take the messages")
+    p.add_argument("--loop", action="store_true", help="start again at the end, until Ctrl-C")
+    p.add_argument("--topics", nargs="+", default=[], metavar="TOPIC", help="replay only these topics")
+    p.add_argument("--start", type=float, default=0.0, metavar="S", help="skip the first S seconds of sim time")
+    p.add_argument("--bus", type=Path, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
+    p.add_argument("--name", default="replay", help="publisher name on the bus (manifest and ipc socket)")
+    p.add_argument("--subscribers", type=int, default=1, metavar="N", help="wait for N subscribers first (0: no)")
+    p.add_argument("--wait-timeout", type=float, default=30.0, metavar="S", help="give up waiting after S s (0: never)")
+    p.set_defaults(func=run_replay)
+
+    b = sub.add_parser("bag", help="inspect, repair and filter MCAP logs")
+    bsub = b.add_subparsers(dest="bag_command", required=True, metavar="BAG_COMMAND")
+    info = bsub.add_parser("info", help="per-topic counts, types and the time span of a log")
+    info.add_argument("file", type=Path)
+    info.add_argument("--json", action="store_true", help="one JSON line: topics, types, start_ns, end_ns, messages")
+    info.set_defaults(func=run_info)
+    rec = bsub.add_parser("recover", help="rewrite a truncated log (recorder killed) into a valid one")
+    rec.add_argument("file", type=Path)
+    rec.add_argument("-o", "--output", type=Path, help="output log (default FILE.recovered.mcap)")
+    rec.set_defaults(func=run_recover)
+    flt = bsub.add_parser("filter", help="copy a log keeping or dropping topics")
+    flt.add_argument("file", type=Path)
+    flt.add_argument("-o", "--output", type=Path, required=True)
+    flt.add_argument("--topics", nargs="+", metavar="TOPIC", help="keep only these topics")
+    flt.add_argument("--exclude", nargs="+", default=[], metavar="TOPIC", help="drop these topics")
+    flt.set_defaults(func=run_filter)
+
+
+def run_replay(args: argparse.Namespace) -> int:
+    options = PlayOptions(
+        rate=0.0 if args.fast else args.rate,
+        loop=args.loop,
+        topics=tuple(args.topics),
+        start_s=args.start,
+        name=args.name,
+        subscribers=args.subscribers,
+        wait_timeout_s=args.wait_timeout,
+    )
+    return Player(args.file, args.bus, options).run()
+
+
+def run_info(args: argparse.Namespace) -> int:
+    summary = mcap_io.summarize(args.file)
+    if args.json:
+        print(json.dumps(summary.as_json(), sort_keys=False))
+    else:
+        print(describe(summary, args.file))
+    return 0
+
+
+def run_recover(args: argparse.Namespace) -> int:
+    output = args.output or args.file.with_name(args.file.stem + ".recovered.mcap")
+    report = mcap_io.recover(args.file, output)
+    state = f"input truncated ({report.reason})" if report.truncated else "input was complete"
+    last = f", last stamp {report.last_log_time * 1e-9:.3f} s" if report.last_log_time is not None else ""
+    print(f"recovered {report.messages} messages from {report.chunks} chunks into {output}{last}; {state}")
+    if report.messages == 0:
+        raise RecordError(f"{args.file}: no complete chunk to recover")
+    return 0
+
+
+def run_filter(args: argparse.Namespace) -> int:
+    count = mcap_io.copy_log(args.file, args.output, include=args.topics, exclude=args.exclude)
+    print(f"wrote {count} messages to {args.output}")
+    return 0

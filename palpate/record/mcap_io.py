@@ -1,0 +1,524 @@
+"""MCAP files of palpate messages: writing, reading, summaries, recovery and tick grouping.
+
+Layout of a palpate log:
+- one channel per topic (per topic and message type, should a topic ever carry two types), message
+  encoding ``msgpack``: a message's data is exactly the palpate payload that travelled on the bus;
+- one schema per message type: name = the wire type (``ContactSet``), encoding ``jsonschema``, data =
+  a JSON Schema generated from the message's FieldSpecs, with the schema version, units and array
+  dtypes and shapes (``x-palpate-*`` keys);
+- log_time = publish_time = the message's ``stamp_ns`` (simulated time), sequence = publish order
+  within the message's publisher;
+- header profile ``palpate``, library ``palpate-<version> mcap-python-<version>``: nothing in a
+  file depends on wall-clock time, so the same run gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import zlib
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import IO, Any, NamedTuple
+
+import msgpack
+import zstandard
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Footer, Schema
+from mcap.records import Message as McapMessage
+from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.writer import CompressionType, IndexType, Writer
+
+import palpate
+from palpate.errors import MalformedMessageError, MessageError, RecordError
+from palpate.messages import codec, topics
+from palpate.messages.base import REGISTRY
+from palpate.messages.schemas import Clock, LockstepAck
+
+MESSAGE_ENCODING = "msgpack"
+SCHEMA_ENCODING = "jsonschema"
+PROFILE = "palpate"
+#: Topics the runtime itself uses; the recorder always keeps them, since they delimit ticks.
+INTERNAL_TOPICS = (topics.CLOCK, topics.LOCKSTEP_ACK, topics.GRAPH_CONTROL)
+COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+
+try:
+    _MCAP_VERSION = version("mcap")
+except PackageNotFoundError:  # pragma: no cover - the venv always has it
+    _MCAP_VERSION = "unknown"
+LIBRARY = f"palpate-{palpate.__version__} mcap-python-{_MCAP_VERSION}"
+
+# What a truncated or damaged file can raise while being read record by record.
+_READ_ERRORS = (McapError, struct.error, ValueError, RuntimeError, EOFError, zstandard.ZstdError, zlib.error)
+
+
+class PayloadInfo(NamedTuple):
+    """What the recorder needs from a payload's header: its type, schema version and stamp."""
+
+    type: str
+    version: int
+    stamp_ns: int
+
+
+def peek(payload: bytes | memoryview) -> PayloadInfo:
+    """Read type, version and ``stamp_ns`` from a payload's msgpack header, without decoding arrays.
+
+    Raises MalformedMessageError when the bytes are not a palpate envelope.
+    """
+    view = memoryview(payload)
+    size = 2048
+    while True:
+        unpacker = msgpack.Unpacker(raw=False, max_buffer_size=max(len(view), 1) + 16)
+        unpacker.feed(view[:size])
+        try:
+            if unpacker.read_array_header() != 2:
+                raise MalformedMessageError("payload is not a 2-item msgpack array [header, blob]")
+            header = unpacker.unpack()
+            break
+        except msgpack.OutOfData:
+            if size >= len(view):
+                raise MalformedMessageError("payload ends inside its header") from None
+            size *= 8
+        except MessageError:
+            raise
+        except (ValueError, TypeError, msgpack.UnpackException) as exc:
+            raise MalformedMessageError(f"payload is not msgpack: {exc}") from exc
+    if not isinstance(header, dict):
+        raise MalformedMessageError("payload header is not a map")
+    fields = header.get("fields")
+    type_name, schema_version = header.get("type"), header.get("version")
+    stamp = fields.get("stamp_ns") if isinstance(fields, dict) else None
+    if not isinstance(type_name, str) or not isinstance(schema_version, int) or not isinstance(stamp, int):
+        raise MalformedMessageError("payload header lacks a string 'type', an int 'version' or an int 'stamp_ns'")
+    if stamp < 0:
+        raise MalformedMessageError(f"negative stamp_ns {stamp} cannot be an MCAP log time")
+    return PayloadInfo(type_name, schema_version, stamp)
+
+
+def schema_document(type_name: str, schema_version: int) -> dict[str, Any]:
+    """A JSON Schema of a message type's fields (units, dtypes, shapes), generated from its FieldSpecs."""
+    doc: dict[str, Any] = {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": type_name,
+        "type": "object",
+        "x-palpate-type": type_name,
+        "x-palpate-version": schema_version,
+        "x-palpate-encoding": (
+            "msgpack [header {type, version, fields}, blob]; an array field is {dtype, shape, offset, nbytes} "
+            "into blob (C order, 8-byte aligned); see palpate/messages/codec.py"
+        ),
+    }
+    cls = REGISTRY.get(type_name)
+    if cls is None or schema_version != cls.VERSION:
+        doc["description"] = "message type unknown to the recording build"
+        return doc
+    doc["description"] = (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
+    json_types = {"int": "integer", "float": "number", "str": "string", "bool": "boolean"}
+    properties: dict[str, Any] = {}
+    for name, spec in cls.field_specs().items():
+        prop: dict[str, Any] = {"description": spec.doc}
+        if spec.unit:
+            prop["x-unit"] = spec.unit
+        if spec.kind == "array":
+            prop.update({"type": "object", "x-dtype": spec.dtype, "x-shape": list(spec.shape or ())})
+            prop["x-finite"] = spec.finite
+        elif spec.kind == "str_list":
+            prop.update({"type": "array", "items": {"type": "string"}})
+            if spec.shape:
+                prop["x-shape"] = list(spec.shape)
+        else:
+            prop["type"] = json_types[spec.kind]
+            if spec.kind == "float":
+                prop["x-finite"] = spec.finite
+        properties[name] = prop
+    doc["properties"] = properties
+    doc["required"] = list(properties)
+    return doc
+
+
+def schema_bytes(type_name: str, schema_version: int) -> bytes:
+    return json.dumps(schema_document(type_name, schema_version), sort_keys=True, separators=(",", ":")).encode()
+
+
+class LogWriter:
+    """Writes palpate payloads into an MCAP file, one channel per (topic, type).
+
+    Chunks close when they reach `chunk_size` bytes or when `flush()` is called; `flush()` also pushes
+    the bytes to the operating system, so a process killed afterwards loses nothing written before.
+    """
+
+    def __init__(self, path: str | Path, *, compression: str = "zstd", chunk_size: int = 1 << 20):
+        if compression not in COMPRESSIONS:
+            raise RecordError(f"unknown compression {compression!r}; choose one of {sorted(COMPRESSIONS)}")
+        self.path = Path(path)
+        self._file: IO[bytes] = self.path.open("wb")
+        self._writer = Writer(
+            self._file,
+            chunk_size=chunk_size,
+            compression=COMPRESSIONS[compression],
+            # per-message indexes cost more than they save with the recorder's small chunks
+            index_types=IndexType.CHUNK | IndexType.ATTACHMENT | IndexType.METADATA,
+        )
+        self._writer.start(profile=PROFILE, library=LIBRARY)
+        self._schemas: dict[tuple[str, str, bytes], int] = {}
+        self._channels: dict[tuple[str, str], int] = {}
+        self.messages = 0
+        self.closed = False
+
+    def channel(
+        self,
+        topic: str,
+        schema_name: str,
+        schema_data: bytes,
+        *,
+        encoding: str = SCHEMA_ENCODING,
+        message_encoding: str = MESSAGE_ENCODING,
+    ) -> int:
+        """The channel id of `topic` with the given schema, registering both on first use.
+
+        An empty `schema_name` means a channel without schema (schema id 0).
+        """
+        key = (topic, schema_name)
+        channel_id = self._channels.get(key)
+        if channel_id is None:
+            schema_id = 0
+            if schema_name:
+                schema_key = (schema_name, encoding, schema_data)
+                schema_id = self._schemas.get(schema_key, 0)
+                if not schema_id:
+                    schema_id = self._writer.register_schema(schema_name, encoding, schema_data)
+                    self._schemas[schema_key] = schema_id
+            channel_id = self._channels[key] = self._writer.register_channel(topic, message_encoding, schema_id)
+        return channel_id
+
+    def write(self, topic: str, payload: bytes, info: PayloadInfo, sequence: int = 0) -> None:
+        """Append one payload on `topic`; log and publish time are its stamp."""
+        channel_id = self._channels.get((topic, info.type))
+        if channel_id is None:
+            channel_id = self.channel(topic, info.type, schema_bytes(info.type, info.version))
+        self._writer.add_message(channel_id, info.stamp_ns, payload, info.stamp_ns, sequence & 0xFFFFFFFF)
+        self.messages += 1
+
+    def write_logged(
+        self, message: LoggedMessage, schema: Schema | None, message_encoding: str = MESSAGE_ENCODING
+    ) -> None:
+        """Append a message read from another log, keeping its schema, encoding, times and sequence."""
+        name, data, encoding = (schema.name, schema.data, schema.encoding) if schema is not None else ("", b"", "")
+        channel_id = self.channel(message.topic, name, data, encoding=encoding, message_encoding=message_encoding)
+        self._writer.add_message(channel_id, message.log_time, message.data, message.publish_time, message.sequence)
+        self.messages += 1
+
+    def flush(self) -> None:
+        """Close the chunk in progress (if it has messages) and push everything to the OS."""
+        self._writer.flush()
+
+    def close(self) -> None:
+        """Write the summary and footer, and close the file."""
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self._writer.finish()
+        finally:
+            self._file.close()
+
+    def __enter__(self) -> LogWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class LoggedMessage(NamedTuple):
+    """One message of a log: topic, message type (schema name), payload bytes, times and sequence."""
+
+    topic: str
+    type: str
+    data: bytes
+    log_time: int
+    publish_time: int
+    sequence: int
+
+
+def _open(path: str | Path) -> IO[bytes]:
+    try:
+        return Path(path).open("rb")
+    except OSError as exc:
+        raise RecordError(f"cannot open log {str(path)!r}: {exc.strerror}") from exc
+
+
+def read_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[LoggedMessage]:
+    """Messages of a finished log in file order (the recorder's canonical order), optionally of `topics`."""
+    wanted = None if topics is None else list(topics)
+    with _open(path) as stream:
+        try:
+            reader = make_reader(stream)
+            for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=False):
+                yield LoggedMessage(
+                    channel.topic,
+                    schema.name if schema is not None else "",
+                    message.data,
+                    message.log_time,
+                    message.publish_time,
+                    message.sequence,
+                )
+        except _READ_ERRORS as exc:
+            raise RecordError(
+                f"{path}: not a complete MCAP log ({exc}); if the recorder was killed, run `palpate bag recover {path}`"
+            ) from exc
+
+
+@dataclass
+class LogSummary:
+    """Per-topic counts and types, and the time span of a log."""
+
+    topics: dict[str, int] = field(default_factory=dict)
+    types: dict[str, str] = field(default_factory=dict)
+    start_ns: int = 0
+    end_ns: int = 0
+    messages: int = 0
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "topics": dict(sorted(self.topics.items())),
+            "types": dict(sorted(self.types.items())),
+            "start_ns": self.start_ns,
+            "end_ns": self.end_ns,
+            "messages": self.messages,
+        }
+
+
+def summarize(path: str | Path) -> LogSummary:
+    """Counts per topic, types and time span, from the log's summary section (no message is read)."""
+    with _open(path) as stream:
+        try:
+            summary = make_reader(stream).get_summary()
+        except _READ_ERRORS as exc:
+            raise RecordError(
+                f"{path}: not a complete MCAP log ({exc}); if the recorder was killed, run `palpate bag recover {path}`"
+            ) from exc
+    if summary is None or summary.statistics is None:
+        return _summarize_by_scan(path)
+    out = LogSummary()
+    stats = summary.statistics
+    for channel_id, channel in summary.channels.items():
+        count = stats.channel_message_counts.get(channel_id, 0)
+        out.topics[channel.topic] = out.topics.get(channel.topic, 0) + count
+        schema = summary.schemas.get(channel.schema_id)
+        name = schema.name if schema is not None else ""
+        previous = out.types.get(channel.topic)
+        out.types[channel.topic] = name if previous in (None, name) else f"{previous}|{name}"
+    out.messages = stats.message_count
+    out.start_ns, out.end_ns = (stats.message_start_time, stats.message_end_time) if stats.message_count else (0, 0)
+    return out
+
+
+def _summarize_by_scan(path: str | Path) -> LogSummary:
+    out = LogSummary()
+    for message in read_messages(path):
+        out.topics[message.topic] = out.topics.get(message.topic, 0) + 1
+        out.types.setdefault(message.topic, message.type)
+        out.start_ns = message.log_time if out.messages == 0 else min(out.start_ns, message.log_time)
+        out.end_ns = max(out.end_ns, message.log_time)
+        out.messages += 1
+    return out
+
+
+def topic_types(path: str | Path) -> dict[str, str]:
+    """Topic -> message type of every channel of a finished log."""
+    return summarize(path).types
+
+
+# --- recovery and copying ------------------------------------------------------------------------
+
+
+@dataclass
+class RecoverReport:
+    """What `recover` found: messages kept, whether the input ended early, and why."""
+
+    messages: int = 0
+    chunks: int = 0
+    truncated: bool = False
+    reason: str = ""
+    last_log_time: int | None = None
+
+
+def iter_records_tolerant(path: str | Path, report: RecoverReport) -> Iterator[Schema | Channel | McapMessage]:
+    """Schema, channel and message records of a possibly truncated log, read front to back.
+
+    Uses the library's streaming (non-seeking) reader; a chunk is used only when it is complete and
+    its CRC matches. Reading stops at the first damaged or missing byte, and `report` says why.
+    """
+    with _open(path) as stream:
+        records = StreamReader(stream, emit_chunks=True, validate_crcs=True).records
+        while True:
+            try:
+                record = next(records)
+                inner = breakup_chunk(record, validate_crc=True) if isinstance(record, Chunk) else [record]
+            except StopIteration:
+                return
+            except _READ_ERRORS as exc:
+                report.truncated = True
+                report.reason = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+                return
+            if isinstance(record, Chunk):
+                report.chunks += 1
+            for item in inner:
+                if isinstance(item, Schema | Channel | McapMessage):
+                    yield item
+            if isinstance(record, Footer):
+                return
+
+
+def copy_records(
+    records: Iterable[Schema | Channel | McapMessage],
+    out: LogWriter,
+    *,
+    keep: Any = None,
+    report: RecoverReport | None = None,
+) -> int:
+    """Copy messages (with their schemas and channels) into `out`; `keep(topic)` filters topics."""
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    count = 0
+    for record in records:
+        if isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            channels[record.id] = record
+        else:
+            channel = channels.get(record.channel_id)
+            if channel is None:
+                raise RecordError(f"message on unknown channel {record.channel_id}: the log is damaged")
+            if keep is not None and not keep(channel.topic):
+                continue
+            schema = schemas.get(channel.schema_id)
+            message = LoggedMessage(
+                channel.topic,
+                schema.name if schema else "",
+                record.data,
+                record.log_time,
+                record.publish_time,
+                record.sequence,
+            )
+            out.write_logged(message, schema, channel.message_encoding)
+            count += 1
+            if report is not None:
+                report.messages += 1
+                report.last_log_time = record.log_time
+    return count
+
+
+def recover(src: str | Path, dst: str | Path, *, compression: str = "zstd") -> RecoverReport:
+    """Write every readable message of a (possibly truncated) log `src` into a valid log `dst`."""
+    if Path(src).resolve() == Path(dst).resolve():
+        raise RecordError(f"recover would overwrite its input {src}; choose another output with -o")
+    report = RecoverReport()
+    with LogWriter(dst, compression=compression) as out:
+        copy_records(iter_records_tolerant(src, report), out, report=report)
+    if report.truncated and report.chunks == 0 and report.messages == 0 and "InvalidMagic" in report.reason:
+        raise RecordError(f"{src} is not an MCAP file ({report.reason})")
+    return report
+
+
+def copy_log(
+    src: str | Path,
+    dst: str | Path,
+    *,
+    include: Iterable[str] | None = None,
+    exclude: Iterable[str] = (),
+    compression: str = "zstd",
+) -> int:
+    """Copy a log, keeping the topics in `include` (all when None) minus those in `exclude`."""
+    included = None if include is None else set(include)
+    excluded = set(exclude)
+
+    def keep(topic: str) -> bool:
+        return (included is None or topic in included) and topic not in excluded
+
+    report = RecoverReport()
+    with LogWriter(dst, compression=compression) as out:
+        count = copy_records(iter_records_tolerant(src, report), out, keep=keep)
+    if report.truncated:
+        raise RecordError(f"{src} is truncated ({report.reason}); run `palpate bag recover` first")
+    return count
+
+
+# --- ticks ---------------------------------------------------------------------------------------
+
+
+@dataclass
+class LogTick:
+    """The messages of one recorded tick (markers excluded) and the tick's clock stamp.
+
+    `tick` is None for trailing messages after the last tick marker (final statuses, the stop);
+    `stamp_ns` is None for a tick the log holds no Clock of (such as the start-up tick -1).
+    """
+
+    tick: int | None
+    stamp_ns: int | None
+    period_ns: int = 0
+    messages: list[LoggedMessage] = field(default_factory=list)
+
+
+def iter_ticks(messages: Iterable[LoggedMessage]) -> Iterator[LogTick]:
+    """Group a log's messages (in file order) into recorded ticks.
+
+    The recorder writes each tick as one block, grouped by publisher, each publisher's messages
+    ending with its tick marker (its Clock or its LockstepAck). So a message belongs to the tick of
+    the next marker after it. A log without any marker (recorded without the clock) is grouped by
+    equal consecutive stamps instead.
+    """
+    pending: list[LoggedMessage] = []
+    open_ticks: dict[int, LogTick] = {}
+    seen_marker = False
+    for message in messages:
+        if message.topic in (topics.CLOCK, topics.LOCKSTEP_ACK):
+            marker = _decode_marker(message)
+            if marker is None:
+                continue
+            seen_marker = True
+            tick, clock = marker
+            for done in sorted(t for t in open_ticks if t < tick):
+                yield open_ticks.pop(done)
+            entry = open_ticks.setdefault(tick, LogTick(tick=tick, stamp_ns=None))
+            entry.messages.extend(pending)
+            pending = []
+            if clock is not None:
+                entry.stamp_ns, entry.period_ns = clock.stamp_ns, clock.period_ns
+        else:
+            pending.append(message)
+    for done in sorted(open_ticks):
+        yield open_ticks.pop(done)
+    if not seen_marker:
+        yield from _ticks_by_stamp(pending)
+    elif pending:
+        yield LogTick(tick=None, stamp_ns=None, messages=pending)
+
+
+def _decode_marker(message: LoggedMessage) -> tuple[int, Clock | None] | None:
+    try:
+        if message.topic == topics.CLOCK:
+            clock = codec.decode(message.data, Clock)
+            return clock.tick, clock
+        ack = codec.decode(message.data, LockstepAck)
+        return ack.tick, None
+    except MessageError:
+        return None
+
+
+def _ticks_by_stamp(messages: list[LoggedMessage]) -> Iterator[LogTick]:
+    current: LogTick | None = None
+    index = 0
+    for message in messages:
+        if current is None or message.log_time != current.stamp_ns:
+            if current is not None:
+                yield current
+            current = LogTick(tick=index, stamp_ns=message.log_time)
+            index += 1
+        current.messages.append(message)
+    if current is not None:
+        yield current

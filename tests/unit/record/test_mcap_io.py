@@ -1,0 +1,131 @@
+"""MCAP writing and reading: payload headers, round trips, summaries, recovery and tick grouping."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from palpate.errors import MalformedMessageError, RecordError
+from palpate.messages import codec, topics
+from palpate.messages.schemas import ContactSet
+from palpate.record import mcap_io
+from tests.unit.record.synthetic import PERIOD_NS, canonical_log, contacts, write_log
+
+
+def test_peek_reads_type_version_and_stamp_without_decoding() -> None:
+    payload = codec.encode(contacts(123))
+    assert mcap_io.peek(payload) == mcap_io.PayloadInfo("ContactSet", ContactSet.VERSION, 123)
+    # a header longer than the first read (many string entries) still parses
+    big = codec.encode(contacts(7, n=3000))
+    assert mcap_io.peek(big).stamp_ns == 7
+
+
+@pytest.mark.parametrize("payload", [b"", b"\x00\x01garbage", b"\x92\xa1x\xc4\x00", b"\x93\x01\x02\x03"])
+def test_peek_rejects_what_is_not_an_envelope(payload: bytes) -> None:
+    with pytest.raises(MalformedMessageError):
+        mcap_io.peek(payload)
+
+
+def test_round_trip_keeps_topics_bytes_order_and_stamps(tmp_path: Path) -> None:
+    items = canonical_log(5)
+    path = tmp_path / "log.mcap"
+    write_log(path, items)
+    read = list(mcap_io.read_messages(path))
+    assert [(m.topic, m.data) for m in read] == [(t, codec.encode(msg)) for t, msg in items]
+    assert [m.log_time for m in read] == [msg.stamp_ns for _, msg in items]  # type: ignore[attr-defined]
+    assert [m.sequence for m in read] == list(range(len(items)))
+    summary = mcap_io.summarize(path)
+    assert summary.topics[topics.CLOCK] == 5 and summary.topics[topics.LOCKSTEP_ACK] == 12
+    assert summary.types[topics.CONTACTS] == "ContactSet"
+    assert (summary.start_ns, summary.end_ns, summary.messages) == (0, 4 * PERIOD_NS, len(items))
+    assert json.loads(json.dumps(summary.as_json()))["topics"] == summary.topics
+
+
+def test_schema_describes_fields_units_and_version() -> None:
+    doc = json.loads(mcap_io.schema_bytes("ContactSet", ContactSet.VERSION))
+    assert doc["x-palpate-version"] == ContactSet.VERSION and doc["title"] == "ContactSet"
+    assert doc["properties"]["positions_m"]["x-shape"] == ["n", 3]
+    assert doc["properties"]["positions_m"]["x-unit"] == "m"
+    assert doc["properties"]["stamp_ns"]["type"] == "integer"
+    assert "unknown" in json.loads(mcap_io.schema_bytes("NoSuchType", 3))["description"]
+
+
+def test_the_same_messages_give_the_same_bytes(tmp_path: Path) -> None:
+    items = canonical_log(4)
+    write_log(tmp_path / "a.mcap", items, flush_each=True)
+    write_log(tmp_path / "b.mcap", items, flush_each=True)
+    data = (tmp_path / "a.mcap").read_bytes()
+    assert data == (tmp_path / "b.mcap").read_bytes()
+    assert b"palpate-" in data[:200]  # the library field names the writer, nothing names a time
+
+
+def test_recover_keeps_every_flushed_chunk_of_a_truncated_log(tmp_path: Path) -> None:
+    items = canonical_log(6)
+    full = tmp_path / "full.mcap"
+    sizes = write_log(full, items, flush_each=True)
+    data = full.read_bytes()
+    expected = [codec.encode(msg) for _, msg in items]
+    cuts = sorted({*sizes, *(s + 7 for s in sizes[:-1]), *(s - 1 for s in sizes[1:]), len(data) - 3})
+    for cut in cuts:
+        broken = tmp_path / "broken.mcap"
+        broken.write_bytes(data[:cut])
+        with pytest.raises(RecordError, match="bag recover"):
+            mcap_io.summarize(broken)
+        report = mcap_io.recover(broken, tmp_path / "fixed.mcap")
+        kept = sum(1 for size in sizes if size <= cut)
+        assert report.messages == kept, cut
+        assert report.truncated or cut > sizes[-1], cut  # a cut in the summary loses no message
+        recovered = [m.data for m in mcap_io.read_messages(tmp_path / "fixed.mcap")]
+        assert recovered == expected[:kept], cut
+    report = mcap_io.recover(full, tmp_path / "again.mcap")
+    assert not report.truncated and report.messages == len(items)
+
+
+def test_recover_refuses_a_file_that_is_not_mcap(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not an mcap file at all")
+    with pytest.raises(RecordError, match="not an MCAP"):
+        mcap_io.recover(bad, tmp_path / "out.mcap")
+
+
+def test_copy_log_keeps_or_drops_topics(tmp_path: Path) -> None:
+    src = tmp_path / "src.mcap"
+    write_log(src, canonical_log(3))
+    n = mcap_io.copy_log(src, tmp_path / "no_mesh.mcap", exclude=[topics.SURFACE_MESH])
+    kept = mcap_io.summarize(tmp_path / "no_mesh.mcap")
+    assert topics.SURFACE_MESH not in kept.topics and n == kept.messages
+    only = mcap_io.summarize(_copy(src, tmp_path / "only.mcap", [topics.CONTACTS]))
+    assert only.topics == {topics.CONTACTS: 3}
+
+
+def _copy(src: Path, dst: Path, include: list[str]) -> Path:
+    mcap_io.copy_log(src, dst, include=include)
+    return dst
+
+
+def test_ticks_are_delimited_by_each_publishers_marker(tmp_path: Path) -> None:
+    path = tmp_path / "log.mcap"
+    write_log(path, canonical_log(4))
+    ticks = list(mcap_io.iter_ticks(mcap_io.read_messages(path)))
+    assert [t.tick for t in ticks] == [-1, 0, 1, 2, 3, None]
+    assert [t.stamp_ns for t in ticks[1:-1]] == [0, PERIOD_NS, 2 * PERIOD_NS, 3 * PERIOD_NS]
+    assert ticks[0].stamp_ns is None and ticks[1].period_ns == PERIOD_NS
+    for tick in ticks[1:-1]:
+        assert [m.topic for m in tick.messages] == [topics.CONTACTS, topics.SURFACE_MESH]
+        assert {m.log_time for m in tick.messages} == {tick.stamp_ns}
+    assert [m.topic for m in ticks[-1].messages] == [topics.GRAPH_CONTROL] + [topics.NODE_STATUS] * 3
+
+
+def test_a_log_without_markers_is_grouped_by_stamp(tmp_path: Path) -> None:
+    path = tmp_path / "log.mcap"
+    items = [(topics.CONTACTS, contacts(s)) for s in (0, 0, 5, 9, 9, 9)]
+    write_log(path, items)
+    ticks = list(mcap_io.iter_ticks(mcap_io.read_messages(path)))
+    assert [(t.stamp_ns, len(t.messages)) for t in ticks] == [(0, 2), (5, 1), (9, 3)]
+
+
+def test_reading_a_missing_log_names_it(tmp_path: Path) -> None:
+    with pytest.raises(RecordError, match=r"cannot open log .*nothing\.mcap"):
+        mcap_io.summarize(tmp_path / "nothing.mcap")

@@ -1,0 +1,98 @@
+"""The replay node and `launch --replay`: ports from the log, one recorded tick per step, node replacement."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import pytest
+
+from palpate.errors import LaunchError
+from palpate.launch.graph import resolve
+from palpate.launch.loader import load_launch
+from palpate.messages import codec, topics
+from palpate.messages.base import Message
+from palpate.messages.schemas import ContactSet
+from palpate.paths import REPO_ROOT
+from palpate.record.launch_support import replace_publishers_with_log
+from palpate.record.replay_node import ReplayConfig, ReplayNode, ports_from_params
+from palpate.runtime.registry import load_node_spec
+from tests.unit.record.synthetic import PERIOD_NS, canonical_log, lockstep_streams, write_log
+
+DEMO = REPO_ROOT / "launch" / "demo_minimal.yaml"
+
+
+class FakeContext:
+    """What the replay node sees of the runtime: its outputs, publish, counters and a logger."""
+
+    def __init__(self, outputs: dict[str, str]):
+        self.outputs = outputs
+        self.sent: list[tuple[str, bytes]] = []
+        self.counters: dict[str, int] = {}
+        self.log = logging.getLogger("test.replay")
+
+    def publish(self, port: str, message: Message) -> None:
+        codec.validate(message)
+        self.sent.append((self.outputs[port], codec.encode(message)))
+
+    def count(self, name: str, n: int = 1) -> None:
+        self.counters[name] = self.counters.get(name, 0) + n
+
+
+@pytest.fixture
+def log_path(tmp_path: Path) -> Path:
+    path = tmp_path / "run.mcap"
+    write_log(path, canonical_log(4))
+    return path
+
+
+def test_ports_are_the_logs_data_topics(log_path: Path) -> None:
+    inputs, outputs = ports_from_params({"path": str(log_path)})
+    assert inputs == {} and set(outputs) == {topics.CONTACTS, topics.SURFACE_MESH}
+    assert outputs[topics.CONTACTS].message is ContactSet and outputs[topics.CONTACTS].topic == topics.CONTACTS
+    _, only = ports_from_params({"path": str(log_path), "topics": [topics.CONTACTS]})
+    assert set(only) == {topics.CONTACTS}
+    with pytest.raises(LaunchError, match="no topic 'nope'"):
+        ports_from_params({"path": str(log_path), "topics": ["nope"]})
+    with pytest.raises(LaunchError, match="cannot open log"):
+        ports_from_params({"path": str(log_path.with_name("missing.mcap"))})
+
+
+def test_each_step_publishes_one_recorded_tick_and_returns_its_stamp(log_path: Path) -> None:
+    spec = load_node_spec("replay").with_params({"path": str(log_path), "topics": [topics.CONTACTS]})
+    assert spec.clock_source and set(spec.outputs) == {topics.CONTACTS}
+    ctx = FakeContext({topics.CONTACTS: "remapped/contacts"})
+    node = ReplayNode(ReplayConfig(path=str(log_path), topics=(topics.CONTACTS,)), ctx)
+    assert node.period_ns == PERIOD_NS
+    recorded = [codec.encode(m) for t, m in lockstep_streams(4)["cube"] if t == topics.CONTACTS]
+    stamps = []
+    while (stamp := node.step()) is not None:
+        stamps.append(stamp)
+        assert ctx.sent[-1] == ("remapped/contacts", recorded[len(stamps) - 1])  # byte for byte
+    assert stamps == [t * PERIOD_NS for t in range(4)] and len(ctx.sent) == 4
+
+
+def test_launch_replay_replaces_the_nodes_whose_outputs_the_log_holds(tmp_path: Path, log_path: Path) -> None:
+    sensors = tmp_path / "sensors.mcap"
+    write_log(sensors, [(t, m) for t, m in canonical_log(3) if t != topics.SURFACE_MESH])
+    launch = replace_publishers_with_log(load_launch(DEMO), sensors)
+    names = [e.fields["name"] for e in launch.nodes]
+    assert names == ["replay", "stats", "estimator"]  # cube replaced; the estimator re-runs
+    graph = resolve(launch, bus_dir=tmp_path)
+    replay = graph.by_name["replay"]
+    assert replay.spec.clock_source and replay.publishes == {topics.CONTACTS: topics.CONTACTS}
+    assert replay.params["order"] == {topics.CONTACTS: 0}
+    # a log with the estimator's mesh too replaces the estimator as well
+    everything = replace_publishers_with_log(load_launch(DEMO), log_path)
+    assert [e.fields["name"] for e in everything.nodes] == ["replay", "stats"]
+
+
+def test_launch_replay_needs_the_clock_sources_topics(tmp_path: Path) -> None:
+    meshes = tmp_path / "meshes.mcap"
+    write_log(meshes, [(t, m) for t, m in canonical_log(2) if t == topics.SURFACE_MESH])
+    with pytest.raises(LaunchError, match="clock source 'cube'"):
+        replace_publishers_with_log(load_launch(DEMO), meshes)
+    empty = tmp_path / "clock_only.mcap"
+    write_log(empty, [(t, m) for t, m in canonical_log(2) if t == topics.CLOCK])
+    with pytest.raises(LaunchError, match="holds no node's complete outputs"):
+        replace_publishers_with_log(load_launch(DEMO), empty)
