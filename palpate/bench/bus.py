@@ -13,8 +13,9 @@ same float64 array of 64 B, 4 KB or 1 MB:
   rebuilt with `np.frombuffer`.
 
 Latency is measured by ping-pong (one hop = round trip / 2, on one clock). Throughput: the pinger
-streams messages back to back, the echo decodes each and answers a final flush message with the
-count it received; throughput = array bytes / time until that answer. Rounds alternate between the
+streams messages with at most WINDOW unacknowledged (the echo decodes each and acknowledges every
+ACK_EVERY-th), then a flush message that the echo answers with the count it received; throughput =
+array bytes / time until that answer. Rounds alternate between the
 transports (AB, BA, AB, ...) so that machine noise hits both alike. Not included: the node runner's
 lockstep bookkeeping (polling, acknowledgements), which is per tick rather than per message.
 """
@@ -40,13 +41,17 @@ import zmq
 from palpate.errors import BenchmarkError
 from palpate.messages import codec
 from palpate.messages.schemas import ParticleSetSummary
-from palpate.runtime import bus
+from palpate.runtime import bus, memory
 
 #: Array sizes measured, bytes of float64 data per message.
 SIZES_BYTES = (64, 4096, 1 << 20)
 
 PING, PONG, STREAM, FLUSH, STOP = b"bench/ping", b"bench/pong", b"bench/stream", b"bench/flush", b"bench/stop"
+ACK = b"bench/ack"
 _ECHO_TOPICS = (PING, STREAM, FLUSH, STOP)
+_PINGER_TOPICS = (PONG, ACK)
+#: Streaming keeps at most WINDOW messages unacknowledged; the echo acknowledges every ACK_EVERY-th.
+WINDOW, ACK_EVERY = 8, 4
 _BIG_BYTES = 64 * 1024  # sizes above this use fewer pings and stream messages per round
 TRANSPORTS = ("palpate", "raw")
 
@@ -220,10 +225,11 @@ def _wait_subscribed(pub: zmq.Socket[Any], topics: tuple[bytes, ...], timeout_s:
 # --- the echo process ------------------------------------------------------------------------------
 def echo(transport: str, workdir: Path, timeout_s: float = 30.0, validate: bool = False) -> None:
     """Answer pings with the same content, count streamed messages, answer flushes with the count."""
+    memory.keep_freed_buffers()  # as node processes do
     ctx: zmq.Context[Any] = zmq.Context()
     ping_endpoint, echo_endpoint = _endpoints(workdir, transport)
     link = _link(transport, ctx, echo_endpoint, ping_endpoint, _ECHO_TOPICS, validate)
-    _wait_subscribed(link.pub, (PONG,), timeout_s)
+    _wait_subscribed(link.pub, _PINGER_TOPICS, timeout_s)
     received = 0
     while True:
         topic, item = link.recv()
@@ -231,6 +237,8 @@ def echo(transport: str, workdir: Path, timeout_s: float = 30.0, validate: bool 
             link.send(PONG, item)
         elif topic == STREAM:
             received += 1
+            if received % ACK_EVERY == 0:
+                link.send(ACK, link.flush_item(received))
         elif topic == FLUSH:
             link.send(PONG, link.flush_item(received))
             received = 0
@@ -249,7 +257,7 @@ class _Pinger:
         self.transport = transport
         self.timeout_s = timeout_s
         ping_endpoint, echo_endpoint = _endpoints(workdir, transport)
-        self.link = _link(transport, ctx, ping_endpoint, echo_endpoint, (PONG,), validate)
+        self.link = _link(transport, ctx, ping_endpoint, echo_endpoint, _PINGER_TOPICS, validate)
         self.link.sub.setsockopt(zmq.RCVTIMEO, int(timeout_s * 1000))
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "palpate.bench.bus", "echo", transport, str(workdir), str(timeout_s)]
@@ -263,9 +271,9 @@ class _Pinger:
         except TimeoutError as exc:
             raise BenchmarkError(f"{self.transport} echo process never subscribed: {exc}{self._exit_note()}") from exc
 
-    def recv(self) -> Any:
+    def recv(self) -> tuple[bytes, Any]:
         try:
-            return self.link.recv()[1]
+            return self.link.recv()
         except zmq.Again:
             raise BenchmarkError(
                 f"{self.transport} echo process did not answer within {self.timeout_s:.0f} s{self._exit_note()}"
@@ -283,16 +291,28 @@ class _Pinger:
         return samples
 
     def throughput_s(self, item: Any, messages: int) -> float:
-        """Seconds to stream `messages` items and have the echo confirm it received them all."""
-        flush = self.link.flush_item(0)
+        """Seconds to stream `messages` items and have the echo confirm it received them all.
+
+        At most WINDOW messages are unacknowledged at any time, as in lockstep, where a tick bounds
+        what is in flight: an unbounded queue would measure the allocator (every queued payload is a
+        fresh buffer, whose pages fault in) more than the bus.
+        """
         start = time.perf_counter()
-        for _ in range(messages):
+        acknowledged = 0
+        for i in range(messages):
+            while i - acknowledged >= WINDOW:
+                acknowledged = self.link.count_of(self.recv()[1])
             self.link.send(STREAM, item)
-        self.link.send(FLUSH, flush)
-        count = self.link.count_of(self.recv())
+        self.link.send(FLUSH, self.link.flush_item(0))
+        while True:
+            topic, answer = self.recv()
+            if topic == PONG:
+                break
         elapsed = time.perf_counter() - start
-        if count != messages:
-            raise BenchmarkError(f"{self.transport}: the echo received {count} of {messages} streamed messages")
+        if self.link.count_of(answer) != messages:
+            raise BenchmarkError(
+                f"{self.transport}: the echo received {self.link.count_of(answer)} of {messages} streamed messages"
+            )
         return elapsed
 
     def close(self) -> None:
@@ -314,6 +334,7 @@ class _Pinger:
 def run(config: BusBenchConfig, progress: Callable[[str], None] | None = None) -> list[SizeResult]:
     """Measure every size of `config` through both transports, in alternating rounds."""
     say = progress or (lambda text: None)
+    memory.keep_freed_buffers()  # as node processes do
     workdir = Path(tempfile.mkdtemp(prefix="palpate-bench-"))
     ctx: zmq.Context[Any] = zmq.Context()
     pingers: dict[str, _Pinger] = {}
@@ -330,8 +351,9 @@ def run(config: BusBenchConfig, progress: Callable[[str], None] | None = None) -
             pings, streamed = config.pings(size), config.streamed(size)
             latencies: dict[str, list[np.ndarray]] = {t: [] for t in TRANSPORTS}
             seconds: dict[str, list[float]] = {t: [] for t in TRANSPORTS}
-            for t in TRANSPORTS:
+            for t in TRANSPORTS:  # warm up: connections, caches, and the heap for the stream's buffers
                 pingers[t].latency_us(items[t], config.warmup_pings)
+                pingers[t].throughput_s(items[t], streamed)
             for r in range(config.rounds):
                 for t in TRANSPORTS if r % 2 == 0 else TRANSPORTS[::-1]:  # AB, BA, AB, ...
                     latencies[t].append(pingers[t].latency_us(items[t], pings))

@@ -40,7 +40,7 @@ from palpate.errors import MessageError, PalpateError
 from palpate.messages import codec, topics
 from palpate.messages.base import Message
 from palpate.messages.schemas import Clock, LockstepAck, NodeStatus, RunControl
-from palpate.runtime import bus
+from palpate.runtime import bus, memory
 from palpate.runtime.spec import NodeProcessSpec, NodeSpec, build_config
 
 STOP_TOPIC = topics.GRAPH_CONTROL
@@ -379,6 +379,7 @@ def main(argv: list[str] | None = None) -> int:
         print("usage: python -m palpate.runtime.node NODE_SPEC.json", file=sys.stderr)
         return 64
     process = NodeProcessSpec.from_json(Path(args[0]).read_text())
+    memory.keep_freed_buffers()  # reuse big payload buffers instead of faulting fresh pages in per message
     logging.basicConfig(level=logging.INFO, format=f"[{process.name}] %(levelname)s %(message)s", stream=sys.stderr)
     try:
         spec = load_node_spec(process.type).with_params(process.params)
