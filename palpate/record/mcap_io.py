@@ -55,6 +55,9 @@ LIBRARY = f"palpate-{palpate.__version__} mcap-python-{_MCAP_VERSION}"
 _READ_ERRORS = (McapError, struct.error, ValueError, RuntimeError, EOFError, zstandard.ZstdError, zlib.error)
 
 
+_WHOLE_UNPACK_BYTES = 16_384
+
+
 class PayloadInfo(NamedTuple):
     """What the recorder needs from a payload's header: its type, schema version and stamp."""
 
@@ -69,6 +72,14 @@ def peek(payload: bytes | memoryview) -> PayloadInfo:
     Raises MalformedMessageError when the bytes are not a palpate envelope.
     """
     view = memoryview(payload)
+    if len(view) <= _WHOLE_UNPACK_BYTES:  # faster than an incremental unpacker for small payloads
+        try:
+            envelope = msgpack.unpackb(view, raw=False)
+        except (ValueError, TypeError, msgpack.UnpackException) as exc:
+            raise MalformedMessageError(f"payload is not msgpack: {exc}") from exc
+        if not isinstance(envelope, list) or len(envelope) != 2:
+            raise MalformedMessageError("payload is not a 2-item msgpack array [header, blob]")
+        return _info(envelope[0])
     size = 2048
     while True:
         unpacker = msgpack.Unpacker(raw=False, max_buffer_size=max(len(view), 1) + 16)
@@ -86,6 +97,10 @@ def peek(payload: bytes | memoryview) -> PayloadInfo:
             raise
         except (ValueError, TypeError, msgpack.UnpackException) as exc:
             raise MalformedMessageError(f"payload is not msgpack: {exc}") from exc
+    return _info(header)
+
+
+def _info(header: Any) -> PayloadInfo:
     if not isinstance(header, dict):
         raise MalformedMessageError("payload header is not a map")
     fields = header.get("fields")

@@ -47,6 +47,9 @@ from palpate.runtime import bus
 log = logging.getLogger("palpate.record")
 
 DISCOVERY_PERIOD_S = 0.5
+#: The main loop runs at most this often, so that messages are handled in batches: a wake-up per
+#: message costs more than the message (latency does not matter to a recorder; SUB queues are unbounded).
+BATCH_PERIOD_S = 0.01
 FLUSH_PERIOD_S = 1.0
 #: Without any tick marker for this long, the recorder stops waiting for one and writes as messages come.
 NO_CLOCK_TIMEOUT_S = 2.0
@@ -430,13 +433,17 @@ class Recorder:
         """Record until SIGINT/SIGTERM (or, with until_stop, the end of the run); returns an exit code."""
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         started = time.monotonic()
-        last_flush = last_discovery = started
+        last_flush = last_discovery = last_iteration = started
         try:
             for endpoint in self.static:
                 self._connect(endpoint, _endpoint_name(endpoint))
             self.discover()
             while not self.interrupted:
                 now = time.monotonic()
+                if (idle := BATCH_PERIOD_S - (now - last_iteration)) > 0:
+                    time.sleep(idle)
+                    now = time.monotonic()
+                last_iteration = now
                 unmatched = any(not c.manifest_seen for c in self.connections.values())
                 period = 0.1 if self.static and unmatched else DISCOVERY_PERIOD_S
                 if now - last_discovery >= period and (not self.static or unmatched):
