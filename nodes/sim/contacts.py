@@ -19,6 +19,7 @@ Measured by ``python -m palpate.nodes.sim.contact_bench`` against a brute-force 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,6 +34,8 @@ WEAK_SIGN_COS = 0.1
 WEAK_PSEUDO_NORMAL = 0.3
 #: Queries below this count run Open3D single-threaded.
 SMALL_BATCH = 64
+#: Queries of at most this many points take the scalar path (same maths, far less numpy overhead).
+FEW_POINTS = 4
 
 
 def closest_points_on_triangles(
@@ -76,6 +79,33 @@ def closest_points_on_triangles(
             wc = np.where(mask, case_c, wc)
     q = a + wb[:, None] * ab + wc[:, None] * ac
     return q, region
+
+
+def closest_region(d1: float, d2: float, d3: float, d4: float, d5: float, d6: float) -> tuple[int, float, float]:
+    """Scalar twin of :func:`closest_points_on_triangles` for one point and triangle.
+
+    d1 = ab.ap, d2 = ac.ap, d3 = ab.bp, d4 = ac.bp, d5 = ab.cp, d6 = ac.cp (Ericson 5.1.5). Returns the
+    region code and the weights (wb, wc) of the closest point q = a + wb ab + wc ac; same priority
+    order and formulas as the vectorised kernel.
+    """
+    if d1 <= 0.0 and d2 <= 0.0:
+        return VERTEX_A, 0.0, 0.0
+    if d3 >= 0.0 and d4 <= d3:
+        return VERTEX_B, 1.0, 0.0
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        return EDGE_AB, d1 / (d1 - d3), 0.0
+    if d6 >= 0.0 and d5 <= d6:
+        return VERTEX_C, 0.0, 1.0
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        return EDGE_CA, 0.0, d2 / (d2 - d6)
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and d4 >= d3 and d5 >= d6:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return EDGE_BC, 1.0 - t, t
+    denom = 1.0 / (va + vb + vc)
+    return FACE, vb * denom, vc * denom
 
 
 def pseudo_normals(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
@@ -157,6 +187,25 @@ class ExactContactSensor:
         # pseudo-normal per face and region code: FACE, VERTEX_A..C, EDGE_AB..CA -> (F, 7, 3)
         self._sign_normals = np.concatenate([self._face_normals[:, None], corner, edge], axis=1)
         self._ring = face_rings(mesh)
+        # lower bound of a face's distance for the few-point path, as planes g . p - h (F, 4): the face's
+        # plane (unit normal), then per edge AB, BC, CA its outward unit normal within that plane.
+        # Zero rows on degenerate faces (no pruning there).
+        ab = self._triangles[:, 1] - self._triangles[:, 0]
+        cross = np.cross(ab, self._triangles[:, 2] - self._triangles[:, 0])
+        length = np.linalg.norm(cross, axis=1, keepdims=True)
+        unit = np.divide(cross, length, out=np.zeros_like(cross), where=length > 0)
+        edges = np.roll(self._triangles, -1, axis=1) - self._triangles  # b - a, c - b, a - c
+        outward = np.cross(edges, unit[:, None, :])
+        length = np.linalg.norm(outward, axis=2, keepdims=True)
+        outward = np.divide(outward, length, out=np.zeros_like(outward), where=length > 0)
+        self._bound_planes = np.ascontiguousarray(np.concatenate([unit[:, None], outward], axis=1))
+        self._bound_offsets = np.concatenate(
+            [
+                np.einsum("fj,fj->f", unit, self._triangles[:, 0])[:, None],
+                np.einsum("fej,fej->fe", outward, self._triangles),
+            ],
+            axis=1,
+        )
         self._scene = o3d.t.geometry.RaycastingScene()
         self._o3d_vertices = np.ascontiguousarray(local, dtype=np.float32)  # kept alive: shared with Open3D
         self._o3d_faces = np.ascontiguousarray(faces, dtype=np.uint32)
@@ -187,6 +236,8 @@ class ExactContactSensor:
         if len(local) == 0:
             empty = np.zeros((0, 3))
             return ClosestPoints(empty, np.zeros(0), empty.copy(), np.zeros(0, dtype=np.int64))
+        if len(local) <= FEW_POINTS:
+            return self._closest_few(local)
         found, _ = self._closest_faces(local)
         # float64 projection onto Open3D's triangle and the faces around it (float32 near-ties):
         # the first (Open3D's) wins exact ties
@@ -216,6 +267,84 @@ class ExactContactSensor:
             normals=self._face_normals[faces].copy(),
             face_ids=faces,
         )
+
+    def _closest_few(self, local: np.ndarray) -> ClosestPoints:
+        """:meth:`closest` for a few points (n <= FEW_POINTS, shifted frame): same answer, less overhead.
+
+        The same steps as the vectorised path (Open3D's face, float64 projection onto it and onto its
+        ring, pseudo-normal sign, ray parity where the sign is weak), in Python scalars, whose cost
+        here is a fraction of numpy's per-call overhead on arrays of 3 to 20 elements. A ring face is
+        projected only when its distance can beat the best so far: its lower bound is
+        plane^2 + max(0, max_e out_e)^2 (squared distance to the face's plane plus how far the point
+        lies outside the face's edges within that plane; exact on the face and edge regions). Only the
+        rounding of the dot products differs from the vectorised path (about 1e-17 m), so exact ties
+        between ring faces may resolve to another face.
+        """
+        query = o3d.core.Tensor.from_numpy(np.ascontiguousarray(local, dtype=np.float32))
+        found = self._scene.compute_closest_points(query, nthreads=1)["primitive_ids"].numpy().tolist()
+        points, distance, faces = [], [], []
+        for p, f in zip(local.tolist(), found, strict=True):
+            ring = self._ring[f]
+            planes = (self._bound_planes[ring] @ p - self._bound_offsets[ring]).tolist()  # (K, 4), see __init__
+            best, pick = math.inf, (0, FACE, 0.0, 0.0)
+            for k, (plane, out_ab, out_bc, out_ca) in enumerate(planes):  # ring order: the first wins ties
+                outside = max(out_ab, out_bc, out_ca, 0.0)
+                # slack above the bound's rounding (~1e-17 m), so faces that may tie are projected
+                if k and plane * plane + outside * outside > best * (1.0 + 1e-9) + 1e-24:
+                    continue
+                squared, region, wb, wc = self._project_scalar(p, int(ring[k]))
+                if squared < best:
+                    best, pick = squared, (k, region, wb, wc)
+            k, region, wb, wc = pick
+            face = int(ring[k])
+            (ax, ay, az), (bx, by, bz), (cx, cy, cz) = self._triangle_list(face)
+            q = (
+                ax + wb * (bx - ax) + wc * (cx - ax),
+                ay + wb * (by - ay) + wc * (cy - ay),
+                az + wb * (bz - az) + wc * (cz - az),
+            )
+            ox, oy, oz = p[0] - q[0], p[1] - q[1], p[2] - q[2]
+            dist = math.sqrt(ox * ox + oy * oy + oz * oz)
+            # sign from the pseudo-normal of the feature holding q; ray parity where it is weak
+            nx, ny, nz = self._sign_normals[face, region].tolist()
+            side = ox * nx + oy * ny + oz * nz
+            strength = math.sqrt(nx * nx + ny * ny + nz * nz)
+            inside = side < 0.0
+            if strength < WEAK_PSEUDO_NORMAL or abs(side) < WEAK_SIGN_COS * dist * strength:
+                inside = bool(self._occupied(np.array([p]))[0])
+            points.append(q)
+            distance.append(-dist if inside else dist)
+            faces.append(face)
+        face_ids = np.array(faces, dtype=np.int64)
+        return ClosestPoints(
+            points_m=np.array(points, dtype=np.float64) + self._centre,
+            distance_m=np.array(distance, dtype=np.float64),
+            normals=self._face_normals[face_ids],
+            face_ids=face_ids,
+        )
+
+    def _triangle_list(self, face: int) -> list[list[float]]:
+        """Corners a, b, c of ``face`` (shifted frame) as Python floats."""
+        return self._triangles[face].tolist()
+
+    def _project_scalar(self, p: list[float], face: int) -> tuple[float, int, float, float]:
+        """Squared distance, region and weights (wb, wc) of point ``p`` (shifted frame) projected onto
+        ``face`` (Ericson 5.1.5 via :func:`closest_region`)."""
+        (ax, ay, az), (bx, by, bz), (cx, cy, cz) = self._triangle_list(face)
+        abx, aby, abz, acx, acy, acz = bx - ax, by - ay, bz - az, cx - ax, cy - ay, cz - az
+        x, y, z = p[0] - ax, p[1] - ay, p[2] - az  # ap
+        bpx, bpy, bpz = p[0] - bx, p[1] - by, p[2] - bz
+        cpx, cpy, cpz = p[0] - cx, p[1] - cy, p[2] - cz
+        region, wb, wc = closest_region(
+            abx * x + aby * y + abz * z,
+            acx * x + acy * y + acz * z,
+            abx * bpx + aby * bpy + abz * bpz,
+            acx * bpx + acy * bpy + acz * bpz,
+            abx * cpx + aby * cpy + abz * cpz,
+            acx * cpx + acy * cpy + acz * cpz,
+        )
+        ox, oy, oz = x - wb * abx - wc * acx, y - wb * aby - wc * acy, z - wb * abz - wc * acz  # p - q
+        return ox * ox + oy * oy + oz * oz, region, wb, wc
 
     def _occupied(self, local: np.ndarray) -> np.ndarray:
         """Inside test by ray parity (Open3D, majority of 3 rays), for points (n, 3) in the shifted frame."""
