@@ -48,7 +48,10 @@ def load_graph(path: Path, overrides: list[str], bus_dir: Path | None, replay: P
 def run_launch(args: argparse.Namespace) -> int:
     graph = load_graph(args.file, args.args, args.bus, args.replay)
     if args.dry_run:
-        print(describe(graph))
+        try:
+            print(describe(graph))
+        except BrokenPipeError:  # `palpate launch --dry-run FILE | head`
+            sys.stderr.close()
         return 0
     return run_graph(graph, record=args.record)
 
@@ -68,6 +71,8 @@ def run_graph(graph: Graph, record: Path | None = None) -> int:
                 "-o",
                 str(record),
                 "--until-stop",
+                "--bus",
+                str(graph.bus_dir),
                 "--connect",
                 *endpoints,
             ]

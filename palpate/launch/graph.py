@@ -107,6 +107,8 @@ class Graph:
         expected[wiring_topic] = len(connectors) + extra_subscribers
         if not expected[wiring_topic]:
             del expected[wiring_topic]
+        for peer in connectors:
+            expected[f"hello/{peer.name}"] = 1
         upstream = self.upstream(node)
         clock = self.clock_source
         return NodeProcessSpec(

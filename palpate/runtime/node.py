@@ -50,6 +50,11 @@ _LOG_FIRST_ERRORS = 10
 log = logging.getLogger("palpate.node")
 
 
+def hello_topic(node: str) -> str:
+    """The topic a node subscribes to so that its publishers know it is connected."""
+    return f"hello/{node}"
+
+
 class NodeContext:
     """The node object's view of the graph: publishing, time, randomness and counters."""
 
@@ -97,7 +102,9 @@ class NodeRunner:
         self.ack_timeout_s = 120.0
         self.zmq: zmq.Context[Any] = zmq.Context.instance()
         self.pub = bus.make_publisher(self.zmq, process.endpoint, lockstep=self.lockstep, curve=process.curve)
-        wanted = sorted({*process.subscribes.values(), *_INTERNAL})
+        # hello/<name> tells each publisher that this very node is connected (tools that subscribe
+        # to topics by name cannot stand in for it in the start-up count)
+        wanted = sorted({*process.subscribes.values(), *_INTERNAL, hello_topic(process.name)})
         self.sub = bus.make_subscriber(self.zmq, process.connect, wanted, lockstep=self.lockstep, curve=process.curve)
         self.counter = bus.SubscriptionCounter()
         self.poller = zmq.Poller()

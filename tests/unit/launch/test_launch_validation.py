@@ -179,7 +179,12 @@ def test_includes_bring_their_nodes_with_their_arguments(tmp_path: Path, capsys:
     assert graph.clock_source is graph.by_name["cube"]
     assert graph.by_name["cube"].rank == 0
     specs = {s.name: s for s in graph.process_specs()}
-    assert specs["cube"].expected_subscribers == {"sensors/contacts": 2, "lockstep/ack": 2}
+    assert specs["cube"].expected_subscribers == {
+        "sensors/contacts": 2,
+        "lockstep/ack": 2,
+        "hello/left_stats": 1,
+        "hello/right_stats": 1,
+    }
     assert sorted(specs["cube"].lockstep_nodes) == ["left_stats", "right_stats"]
     recorded = {s.name: s for s in graph.process_specs(extra_subscribers=1)}
     assert recorded["cube"].expected_subscribers == {"sensors/contacts": 3, "lockstep/ack": 3}
