@@ -187,7 +187,12 @@ def test_includes_bring_their_nodes_with_their_arguments(tmp_path: Path, capsys:
     }
     assert sorted(specs["cube"].lockstep_nodes) == ["left_stats", "right_stats"]
     recorded = {s.name: s for s in graph.process_specs(extra_subscribers=1)}
-    assert recorded["cube"].expected_subscribers == {"sensors/contacts": 3, "lockstep/ack": 3}
+    assert recorded["cube"].expected_subscribers == {
+        "sensors/contacts": 3,
+        "lockstep/ack": 3,
+        "hello/left_stats": 1,
+        "hello/right_stats": 1,
+    }
     assert main(["launch", "--dry-run", str(DATA / "include_parent.yaml"), "--bus", str(tmp_path)]) == 0
     assert "  sensors/contacts [ContactSet]: cube -> left_stats, right_stats" in capsys.readouterr().out
 
