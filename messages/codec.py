@@ -55,6 +55,7 @@ _SCALAR_TYPES: dict[str, tuple[type, ...]] = {
 }
 _EXACT_TYPE: dict[str, type] = {"int": int, "str": str, "bool": bool}
 _FLOAT64 = np.dtype("<f8")
+_SMALL_ARRAY = 32  # float arrays up to this many elements are checked for finiteness in Python
 _HEADER_KEYS = frozenset({"type", "version", "fields"})
 _SMALL_PAYLOAD = 16384  # decode parses payloads up to this size in one msgpack call (copying the blob)
 _BIN_MARKERS = {1: 0xC4, 2: 0xC5, 4: 0xC6}  # msgpack bin 8, 16, 32 by width of the length
@@ -336,7 +337,13 @@ def _fast_values(plan: _Plan, fields: dict[str, Any], blob: memoryview) -> dict[
         return None
     # Every array float64 and finite: one test over the whole blob (its padding is zeros) replaces
     # one per array; a blob that holds other bytes fails it and falls back to the arrays.
-    if len(unchecked) > 1 and plan.float64_blob and len(blob) % 8 == 0 and _all_finite(np.frombuffer(blob, _FLOAT64)):
+    if (
+        len(unchecked) > 1
+        and plan.float64_blob
+        and len(blob) > 8 * _SMALL_ARRAY
+        and len(blob) % 8 == 0
+        and _all_finite(np.frombuffer(blob, _FLOAT64))
+    ):
         return values
     for arr in unchecked:
         if not _all_finite(arr):
@@ -374,6 +381,11 @@ def _fast_array(f: _FieldPlan, raw: Any, blob: memoryview) -> np.ndarray | None:
 
 def _all_finite(arr: np.ndarray) -> bool:
     """True when no element is NaN or infinite."""
+    # A sum of Python floats is NaN or infinite when any term is (NaN and infinity propagate, and
+    # inf - inf is NaN), and cheaper than numpy for a few elements; an overflowing sum of finite
+    # terms is settled by the exact test below.
+    if arr.dtype.kind == "f" and arr.size <= _SMALL_ARRAY and math.isfinite(sum(arr.ravel().tolist())):
+        return True
     return bool(np.isfinite(arr).all())
 
 

@@ -15,9 +15,10 @@ same float64 array of 64 B, 4 KB or 1 MB:
 Latency is measured by ping-pong (one hop = round trip / 2, on one clock). Throughput: the pinger
 streams messages with at most WINDOW unacknowledged (the echo decodes each and acknowledges every
 ACK_EVERY-th), then a flush message that the echo answers with the count it received; throughput =
-array bytes / time until that answer. Rounds alternate between the
-transports (AB, BA, AB, ...) so that machine noise hits both alike. Not included: the node runner's
-lockstep bookkeeping (polling, acknowledgements), which is per tick rather than per message.
+array bytes / time until that answer. Rounds alternate between the transports (AB, BA, AB, ...) so
+that machine noise hits both alike. Every process tunes its allocator as node processes do
+(`palpate.runtime.memory`). Not included: the node runner's lockstep bookkeeping (polling,
+acknowledgements), which is per tick rather than per message.
 """
 
 from __future__ import annotations
@@ -230,9 +231,13 @@ def echo(transport: str, workdir: Path, timeout_s: float = 30.0, validate: bool 
     ping_endpoint, echo_endpoint = _endpoints(workdir, transport)
     link = _link(transport, ctx, echo_endpoint, ping_endpoint, _ECHO_TOPICS, validate)
     _wait_subscribed(link.pub, _PINGER_TOPICS, timeout_s)
+    link.sub.setsockopt(zmq.RCVTIMEO, int(timeout_s * 1000))  # an orphaned echo ends by itself
     received = 0
     while True:
-        topic, item = link.recv()
+        try:
+            topic, item = link.recv()
+        except zmq.Again:
+            break
         if topic == PING:
             link.send(PONG, item)
         elif topic == STREAM:

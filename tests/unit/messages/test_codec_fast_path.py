@@ -241,3 +241,30 @@ def test_big_blobs_start_8_aligned_and_small_payloads_stay_canonical(n: int) -> 
 
 def replace_weights(message: ParticleSetSummary, weights: np.ndarray) -> ParticleSetSummary:
     return dataclasses.replace(message, num_particles=len(weights), weights=weights)
+
+
+@pytest.mark.parametrize("n", [1, 5, 40])  # small arrays (summed in Python) and big ones (numpy)
+def test_huge_finite_values_are_finite_and_nan_or_inf_anywhere_are_not(n: int) -> None:
+    huge = np.full(n, 1e308)  # the sum overflows: the exact test must clear it
+    message = ParticleSetSummary(
+        stamp_ns=0,
+        num_particles=n,
+        effective_sample_size=1.0,
+        best_index=0,
+        resampled=False,
+        joint_names=[],
+        pose_mean_rad=np.zeros(0),
+        pose_best_rad=np.zeros(0),
+        weights=huge,
+    )
+    codec.validate(message)
+    assert codec.decode(codec.encode(message), ParticleSetSummary) == message
+    for bad in (np.nan, np.inf, -np.inf):
+        for at in {0, n // 2, n - 1}:
+            weights = huge.copy()
+            weights[at] = bad
+            broken = dataclasses.replace(message, weights=weights)
+            with pytest.raises(NonFiniteError, match=re.escape("ParticleSetSummary.weights must be finite")):
+                codec.validate(broken)
+            with pytest.raises(NonFiniteError, match=re.escape("ParticleSetSummary.weights must be finite")):
+                codec.decode(codec.encode(broken), ParticleSetSummary)
