@@ -84,7 +84,7 @@ _UINT_CODES: dict[int, Callable[[int], bytes]] = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class _FieldPlan:
     """One field, precompiled: its spec and, for arrays, the numpy dtype and the fixed axes."""
 
@@ -98,7 +98,7 @@ class _FieldPlan:
     check_finite: bool = False  # floats: spec.finite; arrays: spec.finite and a floating dtype
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class _Plan:
     """What the codec needs to know about a message class, computed once per class."""
 
