@@ -1,0 +1,425 @@
+"""`palpate bench sim`: steps per second and real-time factor of the simulation, bare and in the graph.
+
+For each scene (probe, finger, hand) touching a YCB object (011_banana; a box when the YCB folder is
+absent, and the output says so), three tiers on the same MuJoCo model:
+
+- bare: a bare ``mj_step`` loop (``nodes/sim/core.py`` ``bare_step_rate``), zero controls, no
+  contact sensing: the physics alone.
+- in-process: the same launch graph run by ``palpate.runtime.inprocess.InProcessGraph`` (node
+  objects, codec encode and decode, lockstep order; no processes, no sockets): the simulation core
+  with its exact-mesh contacts, the scripted motion, the node wrappers and the messages.
+- graph: ``palpate launch`` of that graph, one process per node in lockstep over the bus.
+
+The graphs are: probe - ``launch/probe.yaml`` (sim + :data:`PROBE_DRIVER`, which presses the probe
+onto the object and slides it around, so the exact contact sensor runs every physics step, + noise
+on the contacts); finger and hand - sim with its scripted exploration + noise on the joint angles +
+:data:`SIM_SINK`, which reads pose, contacts and joint states. Both timing nodes record the wall
+time of every tick; the rates use the ticks after a warm-up (start-up, including the scripted
+motion's search for touch poses, is excluded). Real-time factor = simulated time / wall time;
+steps per second = real-time factor / time step. overhead = in-process rate / graph rate is the
+runtime's own cost (processes, sockets, lockstep acknowledgements); bare / graph is everything on
+top of MuJoCo.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from palpate.errors import BenchmarkError
+from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, JointState, Pose
+from palpate.paths import REPO_ROOT, ycb_dir
+from palpate.runtime.spec import NodeSpec, Port
+
+PROBE_LAUNCH = REPO_ROOT / "launch" / "probe.yaml"
+SCENES = ("probe", "finger", "hand")
+YCB_OBJECT = "011_banana"
+#: Used when the YCB folder is absent.
+FALLBACK_OBJECT: dict[str, Any] = {"kind": "box"}
+
+
+# --- timing nodes (used by the benchmark's graphs and by launch/probe.yaml) ---------------------------
+
+
+class _TickTimes:
+    """Wall time of every tick, written as JSON to ``path`` at close (nothing when path is empty)."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.stamps_ns: list[int] = []
+        self.wall_s: list[float] = []
+
+    def tick(self, stamp_ns: int) -> None:
+        self.stamps_ns.append(int(stamp_ns))
+        self.wall_s.append(time.perf_counter())
+
+    def close(self, extra: Mapping[str, Any]) -> None:
+        if self.path:
+            Path(self.path).write_text(json.dumps({"stamps_ns": self.stamps_ns, "wall_s": self.wall_s, **extra}))
+
+
+@dataclass(frozen=True, kw_only=True)
+class ProbeDriverConfig:
+    """A scripted press-and-slide twist for the probe (a stand-in for the exploration controller)."""
+
+    #: Speed towards the object before the first contact and after losing it, m/s.
+    approach_speed_m_s: float = 0.05
+    #: Speed into the surface while touching (the sim keeps the probe on the surface), m/s.
+    press_speed_m_s: float = 0.01
+    #: Speed along the surface while touching, m/s; the sliding direction turns at turn_rate_rad_s.
+    slide_speed_m_s: float = 0.03
+    turn_rate_rad_s: float = 2.0
+    #: Write the wall time of every tick here as JSON (palpate bench sim); empty: do not.
+    timing_path: str = ""
+
+
+class ProbeDriver:
+    """Presses the probe onto the object and slides it around; counts the contacts it gets.
+
+    Before the first contact it moves along -z; while touching, it commands
+    ``slide * t - press * n`` (n the mean contact normal, t a horizontal direction turning at
+    turn_rate, projected onto the tangent plane); after losing contact it moves back along the last
+    normal. The command goes out every tick (the sim applies it at the next tick).
+    """
+
+    def __init__(self, config: ProbeDriverConfig, ctx: Any) -> None:
+        self.config, self.ctx = config, ctx
+        self.times = _TickTimes(config.timing_path)
+        self.normal: np.ndarray | None = None  # last contact normal
+        self.touching = False
+        self.contacts = 0
+        self.ticks_in_contact = 0
+
+    def on_contacts(self, message: ContactSet) -> None:
+        self.touching = len(message.normals) > 0
+        if self.touching:
+            n = np.asarray(message.normals, dtype=np.float64).mean(axis=0)
+            self.normal = n / np.linalg.norm(n)
+            self.contacts += len(message.normals)
+            self.ticks_in_contact += 1
+
+    def on_tick(self, stamp_ns: int) -> None:
+        self.times.tick(stamp_ns)
+        cfg = self.config
+        if self.normal is None:
+            linear = np.array([0.0, 0.0, -cfg.approach_speed_m_s])
+        elif not self.touching:
+            linear = -cfg.approach_speed_m_s * self.normal
+        else:
+            n = self.normal
+            angle = cfg.turn_rate_rad_s * stamp_ns * 1e-9
+            d = np.array([math.cos(angle), math.sin(angle), 0.0])
+            t = d - (d @ n) * n
+            length = float(np.linalg.norm(t))
+            tangent = t / length if length > 1e-6 else np.zeros(3)
+            linear = cfg.slide_speed_m_s * tangent - cfg.press_speed_m_s * n
+        self.ctx.publish(
+            "velocity", CartesianVelocityCommand(stamp_ns=stamp_ns, linear_m_s=linear, angular_rad_s=np.zeros(3))
+        )
+
+    def close(self) -> None:
+        self.ctx.log.info(
+            "probe driver: %d contacts in %d of %d ticks",
+            self.contacts,
+            self.ticks_in_contact,
+            len(self.times.stamps_ns),
+        )
+        self.times.close({"contacts": self.contacts, "ticks_in_contact": self.ticks_in_contact})
+
+
+PROBE_DRIVER = NodeSpec(
+    name="probe_driver",
+    config=ProbeDriverConfig,
+    factory=ProbeDriver,
+    inputs={"contacts": Port(ContactSet)},
+    outputs={"velocity": Port(CartesianVelocityCommand)},
+    doc="Scripted press-and-slide velocity commands for the sim probe (benchmark and tests).",
+)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SimSinkConfig:
+    """Where to write the wall time of every tick (empty: nowhere)."""
+
+    timing_path: str = ""
+
+
+class SimSink:
+    """Reads what a hand or finger sim publishes (pose, contacts, joint states) and times the ticks."""
+
+    def __init__(self, config: SimSinkConfig, ctx: Any) -> None:
+        self.ctx = ctx
+        self.times = _TickTimes(config.timing_path)
+        self.contacts = 0
+        self.joint_states = 0
+        self.poses = 0
+
+    def on_pose(self, message: Pose) -> None:
+        self.poses += 1
+
+    def on_contacts(self, message: ContactSet) -> None:
+        self.contacts += len(message.normals)
+
+    def on_joint_states(self, message: JointState) -> None:
+        self.joint_states += 1
+
+    def on_tick(self, stamp_ns: int) -> None:
+        self.times.tick(stamp_ns)
+
+    def close(self) -> None:
+        self.times.close({"contacts": self.contacts, "joint_states": self.joint_states, "poses": self.poses})
+
+
+SIM_SINK = NodeSpec(
+    name="sim_sink",
+    config=SimSinkConfig,
+    factory=SimSink,
+    inputs={"pose": Port(Pose), "contacts": Port(ContactSet), "joint_states": Port(JointState)},
+    doc="Consumes a hand or finger sim's outputs and records the wall time of every tick (benchmark).",
+)
+
+
+# --- the benchmark ------------------------------------------------------------------------------------
+
+_ARM_LAUNCH = """\
+# generated by palpate bench sim
+mode: lockstep
+seed: 0
+nodes:
+  - name: sim
+    type: sim
+    params:
+      scene: {scene}
+      tick_period_s: {tick_period_s}
+      duration_s: {duration_s}
+      scripted_motion: true
+  - name: noise
+    type: noise
+    params: {{joints: true, sigma_deg: 1.5}}
+  - name: sink
+    type: palpate.bench.sim:SIM_SINK
+    params: {{timing_path: "${{timing}}"}}
+    remaps: {{joint_states: sensors/joint_states_noisy}}
+args:
+  timing: ""
+"""
+
+
+@dataclass(frozen=True, kw_only=True)
+class SimBenchConfig:
+    """How long to run each scene."""
+
+    duration_s: float = 4.0
+    warmup_s: float = 0.5
+    bare_seconds: float = 2.0
+    tick_period_s: float = 0.01
+    #: In-process and graph runs alternate over this many rounds; the best of each counts.
+    rounds: int = 2
+
+
+QUICK = SimBenchConfig(duration_s=1.0, warmup_s=0.2, bare_seconds=0.5, rounds=1)
+
+
+def object_section() -> tuple[dict[str, Any], str]:
+    """The scene's object: the YCB banana, or a box when the YCB folder is absent; and a note saying which."""
+    root = ycb_dir()
+    if root is not None and (root / f"{YCB_OBJECT}.stl").is_file():
+        return {"kind": "mesh", "path": f"ycb:{YCB_OBJECT}"}, f"YCB {YCB_OBJECT}"
+    return dict(FALLBACK_OBJECT), "a box primitive (YCB meshes not found: set PALPATE_YCB_DIR for 011_banana)"
+
+
+def probe_start(obj: Mapping[str, Any], clearance_m: float = 0.012) -> list[float]:
+    """A probe start above the object's highest vertex, so the driver's first descent meets it."""
+    from palpate.nodes.sim.objects import ObjectSpec, load_object
+
+    mesh = load_object(ObjectSpec.from_dict(obj)).mesh
+    vertices = np.asarray(mesh.vertices)
+    top = vertices[int(np.argmax(vertices[:, 2]))]
+    return [float(top[0]), float(top[1]), float(top[2] + 0.008 + clearance_m)]
+
+
+def scene_launch(scene: str, obj: Mapping[str, Any], config: SimBenchConfig, workdir: Path) -> tuple[Path, list[str]]:
+    """The launch file of ``scene`` and its arguments (without ``timing``)."""
+    if scene == "probe":
+        args = [
+            f"object:={obj['kind']}",
+            f"mesh:={obj.get('path', '')}",
+            f"start:={json.dumps(probe_start(obj))}",
+            f"duration_s:={config.duration_s}",
+        ]
+        return PROBE_LAUNCH, args
+    text = _ARM_LAUNCH.format(
+        scene=json.dumps({"effector": scene, "object": dict(obj)}),
+        tick_period_s=config.tick_period_s,
+        duration_s=config.duration_s,
+    )
+    path = workdir / f"{scene}.yaml"
+    path.write_text(text)
+    return path, []
+
+
+def rate_from_timing(path: Path, warmup_s: float) -> dict[str, float]:
+    """Real-time factor over the ticks after ``warmup_s`` of simulated time, from a timing file."""
+    data = json.loads(path.read_text())
+    stamps = np.asarray(data["stamps_ns"], dtype=np.float64) * 1e-9
+    wall = np.asarray(data["wall_s"], dtype=np.float64)
+    start = int(np.searchsorted(stamps, warmup_s))
+    if len(stamps) - start < 2:
+        raise BenchmarkError(f"{path}: only {len(stamps)} ticks recorded; run longer than the warm-up {warmup_s} s")
+    sim_s = float(stamps[-1] - stamps[start])
+    wall_s = float(wall[-1] - wall[start])
+    return {"sim_s": sim_s, "wall_s": wall_s, "rtf": sim_s / wall_s, "contacts": float(data.get("contacts", 0))}
+
+
+def run_in_process(launch: Path, args: Sequence[str], timing: Path) -> None:
+    """Run the launch graph with the in-process executor."""
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch, parse_cli_args
+    from palpate.runtime.inprocess import InProcessGraph
+
+    graph = resolve(load_launch(launch, parse_cli_args([*args, f"timing:={timing}"])), bus_dir=timing.parent / "bus")
+    InProcessGraph(graph).run()
+
+
+def run_launched(launch: Path, args: Sequence[str], timing: Path, timeout_s: float) -> None:
+    """``palpate launch`` the graph (one process per node); BenchmarkError with its output on failure."""
+    command = [sys.executable, "-m", "palpate.cli", "launch", str(launch), *args, f"timing:={timing}"]
+    command += ["--bus", str(timing.parent / f"bus-{timing.stem}")]
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s, check=False)
+    except subprocess.TimeoutExpired as exc:
+        raise BenchmarkError(f"{' '.join(command)} did not finish in {timeout_s:.0f} s") from exc
+    if done.returncode != 0 or not timing.is_file():
+        tail = "\n".join((done.stdout + done.stderr).splitlines()[-20:])
+        raise BenchmarkError(f"{' '.join(command)} exited with code {done.returncode}:\n{tail}")
+
+
+def bare_rate(launch: Path, args: Sequence[str], seconds: float) -> tuple[float, float]:
+    """Bare mj_step steps per second on the scene's model, and its time step."""
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch, parse_cli_args
+    from palpate.nodes.sim.core import Simulation, bare_step_rate
+    from palpate.nodes.sim.scene import SceneConfig
+
+    with tempfile.TemporaryDirectory() as bus_dir:
+        graph = resolve(load_launch(launch, parse_cli_args(list(args))), bus_dir=Path(bus_dir))
+    scene = SceneConfig.from_dict(graph.by_name["sim"].params["scene"], "scene")
+    sim = Simulation(scene)
+    return bare_step_rate(sim.model, seconds), sim.timestep_s
+
+
+def bench_scene(scene: str, obj: Mapping[str, Any], config: SimBenchConfig, workdir: Path) -> dict[str, Any]:
+    """One row: bare, in-process and graph rates for ``scene``; the tiers alternate (ABBA...) over
+    ``config.rounds`` rounds and the best round of each counts (a shared machine only slows runs down)."""
+    launch, args = scene_launch(scene, obj, config, workdir)
+    bare_steps, dt = bare_rate(launch, args, config.bare_seconds)
+    rtf: dict[str, list[float]] = {"inprocess": [], "graph": []}
+    totals: dict[str, list[float]] = {"inprocess": [], "graph": []}
+    contacts = 0.0
+    for round_index in range(config.rounds):
+        tiers = ("inprocess", "graph") if round_index % 2 == 0 else ("graph", "inprocess")
+        for tier in tiers:
+            timing = workdir / f"{scene}-{tier}-{round_index}.json"
+            start = time.perf_counter()
+            if tier == "inprocess":
+                run_in_process(launch, args, timing)
+            else:
+                run_launched(launch, args, timing, timeout_s=180.0 + 20.0 * config.duration_s)
+            totals[tier].append(time.perf_counter() - start)
+            rate = rate_from_timing(timing, config.warmup_s)
+            rtf[tier].append(rate["rtf"])
+            contacts = rate["contacts"]
+    inproc, graph = max(rtf["inprocess"]), max(rtf["graph"])
+    return {
+        "scene": scene,
+        "timestep_s": dt,
+        "bare_steps_per_s": bare_steps,
+        "bare_rtf": bare_steps * dt,
+        "inprocess_steps_per_s": inproc / dt,
+        "inprocess_rtf": inproc,
+        "graph_steps_per_s": graph / dt,
+        "graph_rtf": graph,
+        "runtime_overhead": inproc / graph,
+        "bare_over_graph": bare_steps * dt / graph,
+        "measured_sim_s": config.duration_s - config.warmup_s,
+        "contacts": contacts,
+        "inprocess_rtf_rounds": rtf["inprocess"],
+        "graph_rtf_rounds": rtf["graph"],
+        "inprocess_total_s": min(totals["inprocess"]),
+        "graph_total_s": min(totals["graph"]),
+    }
+
+
+def table(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Plain-text table of the rows."""
+    head = (
+        f"{'scene':<8}{'dt ms':>6}{'bare steps/s':>14}{'in-proc steps/s':>17}{'graph steps/s':>15}"
+        f"{'graph RTF':>11}{'overhead':>10}{'bare/graph':>12}{'contacts':>10}"
+    )
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        lines.append(
+            f"{r['scene']:<8}{1000 * r['timestep_s']:>6.1f}{r['bare_steps_per_s']:>14.0f}"
+            f"{r['inprocess_steps_per_s']:>17.0f}{r['graph_steps_per_s']:>15.0f}{r['graph_rtf']:>11.2f}{r['runtime_overhead']:>10.2f}"
+            f"{r['bare_over_graph']:>12.1f}{r['contacts']:>10.0f}"
+        )
+    return "\n".join(lines)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `palpate bench sim` beyond the shared --quick and --json."""
+    parser.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES), help="scenes to run")
+    parser.add_argument("--duration", type=float, help="simulated seconds per scene and tier")
+    parser.add_argument("--rounds", type=int, help="alternating in-process/graph rounds; the best counts")
+
+
+def main(args: argparse.Namespace) -> int:
+    """`palpate bench sim [--quick] [--json] [--scenes ...] [--duration S]`."""
+    config = QUICK if args.quick else SimBenchConfig()
+    if getattr(args, "duration", None):
+        config = replace(config, duration_s=args.duration, warmup_s=min(config.warmup_s, args.duration / 4))
+    if getattr(args, "rounds", None):
+        config = replace(config, rounds=args.rounds)
+    obj, note = object_section()
+    scenes = list(getattr(args, "scenes", None) or SCENES)
+    print(
+        f"palpate bench sim: {', '.join(scenes)} on {note}; {config.duration_s:g} s simulated per run "
+        f"(first {config.warmup_s:g} s not timed), tick {1000 * config.tick_period_s:g} ms, best of "
+        f"{config.rounds} alternating round(s); "
+        f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}",
+        flush=True,
+    )
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="palpate-bench-sim-") as tmp:
+        for scene in scenes:
+            print(f"  {scene} ...", file=sys.stderr, flush=True)
+            rows.append(bench_scene(scene, obj, config, Path(tmp)))
+    print(table(rows))
+    print(
+        "overhead = in-process / graph rate (processes, sockets, lockstep); bare/graph = everything on top "
+        "of mj_step (exact-mesh contacts, scripted motion, node wrappers, messages, runtime)"
+    )
+    if args.json:
+        out = {
+            "object": note,
+            "duration_s": config.duration_s,
+            "warmup_s": config.warmup_s,
+            "rounds": config.rounds,
+            "quick": bool(args.quick),
+            "scenes": {row["scene"]: {k: v for k, v in row.items() if k != "scene"} for row in rows},
+            "runtime_overhead_max": max(row["runtime_overhead"] for row in rows),
+        }
+        print(json.dumps(out, sort_keys=True, allow_nan=False))
+    return 0

@@ -1,0 +1,27 @@
+"""The sim graph as processes: `palpate launch launch/probe.yaml` runs to the end and exits 0."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+from palpate.paths import REPO_ROOT
+from tests.integration.launch_helpers import launched, node_pids, text
+
+
+def test_probe_graph_runs_to_completion(tmp_path: Path) -> None:
+    bus_dir, log, timing = tmp_path / "bus", tmp_path / "launch.log", tmp_path / "timing.json"
+    args = ("duration_s:=1", "start:=[0.0, 0.0, 0.03]", f"timing:={timing}")
+    with launched(REPO_ROOT / "launch" / "probe.yaml", bus_dir, log, *args) as proc:
+        assert proc.wait(timeout=60) == 0, text(log)
+    out = text(log)
+    found = re.search(r"\[driver\] INFO probe driver: (\d+) contacts in (\d+) of (\d+) ticks", out)
+    assert found, out
+    contacts, touching, ticks = (int(g) for g in found.groups())
+    assert ticks == 101  # ticks 0..100 of 10 ms in 1 s
+    assert contacts == touching > 50  # one contact per tick while pressing and sliding on the box
+    data = json.loads(timing.read_text())
+    assert data["stamps_ns"] == [k * 10_000_000 for k in range(101)]
+    assert all(b >= a for a, b in zip(data["wall_s"], data["wall_s"][1:], strict=False))
+    assert node_pids(bus_dir) == {}  # every node exited and removed its manifest
