@@ -7,10 +7,10 @@ import sys
 from pathlib import Path
 
 import pytest
-from viewer_messages import session, write_mcap
 
 from palpate import cli
 from palpate.viewer import EXTRA_HINT
+from tests.unit.viewer.viewer_messages import session, write_mcap
 
 
 @pytest.fixture

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from matplotlib import colormaps
 from scipy.spatial.transform import Rotation
-from viewer_messages import clock, contacts, grid, pose, session, surface, target, touch, trajectory, truth
 
 from palpate.messages.base import Message
 from palpate.viewer.rerun_log import (
@@ -23,6 +22,18 @@ from palpate.viewer.rerun_log import (
     occupied_cells,
     quaternion_z_axis,
     vertex_normals,
+)
+from tests.unit.viewer.viewer_messages import (
+    clock,
+    contacts,
+    grid,
+    pose,
+    session,
+    surface,
+    target,
+    touch,
+    trajectory,
+    truth,
 )
 
 
