@@ -6,8 +6,9 @@ absent, and the output says so), three tiers on the same MuJoCo model:
 - bare: a bare ``mj_step`` loop (``nodes/sim/core.py`` ``bare_step_rate``), zero controls, no
   contact sensing: the physics alone.
 - in-process: the same launch graph run by ``palpate.runtime.inprocess.InProcessGraph`` (node
-  objects, codec encode and decode, lockstep order; no processes, no sockets): the simulation core
-  with its exact-mesh contacts, the scripted motion, the node wrappers and the messages.
+  objects, codec encode and decode, lockstep order; one process, no sockets), in a fresh process with
+  the node processes' allocator settings: the simulation core with its exact-mesh contacts, the
+  scripted motion, the node wrappers and the messages.
 - graph: ``palpate launch`` of that graph, one process per node in lockstep over the bus.
 
 The graphs are: probe - ``launch/probe.yaml`` (sim + :data:`PROBE_DRIVER`, which presses the probe
@@ -284,7 +285,7 @@ def rate_from_timing(path: Path, warmup_s: float) -> dict[str, float]:
 
 
 def run_in_process(launch: Path, args: Sequence[str], timing: Path) -> None:
-    """Run the launch graph with the in-process executor."""
+    """Run the launch graph with the in-process executor, in this process."""
     from palpate.launch.graph import resolve
     from palpate.launch.loader import load_launch, parse_cli_args
     from palpate.runtime.inprocess import InProcessGraph
@@ -293,10 +294,21 @@ def run_in_process(launch: Path, args: Sequence[str], timing: Path) -> None:
     InProcessGraph(graph).run()
 
 
+def run_in_process_fresh(launch: Path, args: Sequence[str], timing: Path, timeout_s: float) -> None:
+    """:func:`run_in_process` in a fresh Python process with the node processes' allocator settings,
+    so that both tiers start alike; BenchmarkError with its output on failure."""
+    command = [sys.executable, "-m", "palpate.bench.sim", "inprocess", str(launch), str(timing), *args]
+    _run_checked(command, timing, timeout_s)
+
+
 def run_launched(launch: Path, args: Sequence[str], timing: Path, timeout_s: float) -> None:
     """``palpate launch`` the graph (one process per node); BenchmarkError with its output on failure."""
     command = [sys.executable, "-m", "palpate.cli", "launch", str(launch), *args, f"timing:={timing}"]
     command += ["--bus", str(timing.parent / f"bus-{timing.stem}")]
+    _run_checked(command, timing, timeout_s)
+
+
+def _run_checked(command: Sequence[str], timing: Path, timeout_s: float) -> None:
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s, check=False)
     except subprocess.TimeoutExpired as exc:
@@ -333,10 +345,8 @@ def bench_scene(scene: str, obj: Mapping[str, Any], config: SimBenchConfig, work
         for tier in tiers:
             timing = workdir / f"{scene}-{tier}-{round_index}.json"
             start = time.perf_counter()
-            if tier == "inprocess":
-                run_in_process(launch, args, timing)
-            else:
-                run_launched(launch, args, timing, timeout_s=180.0 + 20.0 * config.duration_s)
+            runner = run_in_process_fresh if tier == "inprocess" else run_launched
+            runner(launch, args, timing, 180.0 + 20.0 * config.duration_s)
             totals[tier].append(time.perf_counter() - start)
             rate = rate_from_timing(timing, config.warmup_s)
             rtf[tier].append(rate["rtf"])
@@ -423,3 +433,19 @@ def main(args: argparse.Namespace) -> int:
         }
         print(json.dumps(out, sort_keys=True, allow_nan=False))
     return 0
+
+
+def _inprocess_main(argv: Sequence[str]) -> int:
+    """``python -m palpate.bench.sim inprocess LAUNCH TIMING [name:=value ...]`` (used by the benchmark)."""
+    if len(argv) < 3 or argv[0] != "inprocess":
+        print("usage: python -m palpate.bench.sim inprocess LAUNCH TIMING [name:=value ...]", file=sys.stderr)
+        return 64
+    from palpate.runtime import memory
+
+    memory.keep_freed_buffers()  # as node processes do
+    run_in_process(Path(argv[1]), argv[3:], Path(argv[2]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_inprocess_main(sys.argv[1:]))
