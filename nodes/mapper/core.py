@@ -1,0 +1,208 @@
+"""The mapper's pure core: occupancy-grid mapping at a known pose, or FastSLAM.
+
+``Mapper(config, chain, rng)`` takes joint readings and contacts and keeps the map(s):
+
+- mode ``known``: one grid updated at the given joint angles, no particle filter. Fed the true
+  angles it is the paper's known-pose mapping; fed the noisy angles it is dead reckoning, the
+  baseline FastSLAM must beat.
+- mode ``fastslam``: K particles with their own grids (fastslam.py).
+
+Both modes share one observation code path (observation.py, grid.py), so FastSLAM with sigma = 0
+produces the known-pose map bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from palpate.errors import ConfigError, EstimationError
+from palpate.nodes.mapper.fastslam import FastSlam
+from palpate.nodes.mapper.grid import L_FREE, L_OCC, GridSpec, LogOddsGrids, SparseMap
+from palpate.nodes.mapper.kinematics import KinematicChain
+from palpate.nodes.mapper.observation import capsule_lattice, observation_keys
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, kw_only=True)
+class MapperConfig:
+    """Mapper parameters; the defaults are the paper's (000_*.txt) where it gives one.
+
+    region_min_m, region_max_m: corners of the mapped box (the object's workspace plus a margin).
+    l_occ, l_free: log-odds increments log(0.9/0.1), log(0.1/0.9) (paper III).
+    l_min, l_max: clamp of the log-odds, so cells can change their mind (belief 4.5e-5 .. 1-4.5e-5).
+    sigma_deg: joint-noise standard deviation of the proposal (paper: 1.5 deg).
+    resample_threshold: resample when N_eff < threshold * K.
+    likelihood_floor: smallest probability one cell may give a particle (see fastslam.py); 0.01
+      mapped the synthetic tapping scene better than 0.05 or 0.2 and as well as 0.001.
+    free_weight: weight of free-volume cells against contact cells in the particle weights.
+    free_spacing_m, free_margin_m: lattice spacing and depth of the finger's free-volume samples
+      (None: the grid resolution; see observation.py).
+    chunk_edge: cells per chunk edge of the sparse storage (a power of two).
+    """
+
+    region_min_m: tuple[float, float, float]
+    region_max_m: tuple[float, float, float]
+    resolution_m: float = 0.002
+    mode: Literal["known", "fastslam"] = "fastslam"
+    n_particles: int = 100
+    sigma_deg: float = 1.5
+    resample_threshold: float = 0.5
+    l_occ: float = L_OCC
+    l_free: float = L_FREE
+    l_min: float = -10.0
+    l_max: float = 10.0
+    likelihood_floor: float = 0.01
+    free_weight: float = 1.0
+    free_spacing_m: float | None = None
+    free_margin_m: float | None = None
+    chunk_edge: int = 8
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("known", "fastslam"):
+            raise ConfigError(f"mode must be 'known' or 'fastslam', got {self.mode!r}")
+        if self.n_particles < 1:
+            raise ConfigError(f"n_particles must be at least 1, got {self.n_particles!r}")
+        if not (self.sigma_deg >= 0 and math.isfinite(self.sigma_deg)):
+            raise ConfigError(f"sigma_deg must be finite and >= 0, got {self.sigma_deg!r}")
+        if not (self.l_occ > 0 > self.l_free):
+            raise ConfigError(f"need l_occ > 0 > l_free, got l_occ={self.l_occ!r}, l_free={self.l_free!r}")
+        if self.free_spacing_m is not None and not self.free_spacing_m > 0:
+            raise ConfigError(f"free_spacing_m must be positive, got {self.free_spacing_m!r}")
+        if self.free_margin_m is not None and not self.free_margin_m >= 0:
+            raise ConfigError(f"free_margin_m must be >= 0, got {self.free_margin_m!r}")
+        GridSpec.from_bounds(self.region_min_m, self.region_max_m, self.resolution_m)  # validates
+
+
+@dataclass
+class MapperCounters:
+    """Running counts since the mapper started."""
+
+    updates: int = 0
+    contacts: int = 0
+    free_points_outside: int = 0
+    contacts_outside: int = 0
+    resamples: int = 0
+    update_seconds_total: float = 0.0
+    last_update_ms: float = math.nan
+
+    @property
+    def mean_update_ms(self) -> float:
+        """Mean wall-clock milliseconds per accepted update."""
+        return 1e3 * self.update_seconds_total / self.updates if self.updates else math.nan
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """Joint angles (J,) rad: the weighted mean over particles and the best particle's."""
+
+    mean_q_rad: FloatArray
+    best_q_rad: FloatArray
+
+
+class Mapper:
+    """Occupancy-grid mapper; see the module docstring for the modes."""
+
+    def __init__(self, config: MapperConfig, chain: KinematicChain, rng: np.random.Generator) -> None:
+        self.config = config
+        self.chain = chain
+        self.spec = GridSpec.from_bounds(config.region_min_m, config.region_max_m, config.resolution_m)
+        n_maps = 1 if config.mode == "known" else config.n_particles
+        self.grids = LogOddsGrids(
+            self.spec, n_maps, chunk_edge=config.chunk_edge, l_min=config.l_min, l_max=config.l_max
+        )
+        res = config.resolution_m
+        spacing = config.free_spacing_m if config.free_spacing_m is not None else res
+        margin = config.free_margin_m if config.free_margin_m is not None else res
+        self.free_volume = capsule_lattice(chain, spacing, margin)
+        self._free_h = self.free_volume.homogeneous()
+        self.counters = MapperCounters()
+        self._q = np.zeros(chain.n_joints)
+        self._filter: FastSlam | None = None
+        if config.mode == "fastslam":
+            self._filter = FastSlam(
+                chain=chain,
+                grids=self.grids,
+                free_volume=self.free_volume,
+                sigma_rad=math.radians(config.sigma_deg),
+                rng=rng,
+                resample_threshold=config.resample_threshold,
+                likelihood_floor=config.likelihood_floor,
+                free_weight=config.free_weight,
+                l_occ=config.l_occ,
+                l_free=config.l_free,
+            )
+
+    def update(self, q_rad: FloatArray, contact_links: NDArray[np.integer], contact_local_m: FloatArray) -> None:
+        """Integrate one joint reading q_rad (J,) and contacts: link indices (n,), positions (n, 3)
+        in those links' frames (metres).
+
+        Raises EstimationError (state unchanged) on a wrong shape, a non-finite value or a link
+        index outside the chain; the node counts it and goes on.
+        """
+        t0 = time.perf_counter()
+        q = np.asarray(q_rad, dtype=np.float64)
+        links = np.asarray(contact_links).reshape(-1)
+        local = np.asarray(contact_local_m, dtype=np.float64).reshape(-1, 3)
+        J = self.chain.n_joints
+        if q.shape != (J,):
+            raise EstimationError(f"joint reading has shape {q.shape}, the chain has {J} joints")
+        if not np.all(np.isfinite(q)):
+            raise EstimationError(f"joint reading is not finite: {q.tolist()}; update rejected")
+        if len(links) != len(local):
+            raise EstimationError(f"{len(links)} contact links but {len(local)} contact positions")
+        if len(links) and (
+            not np.issubdtype(links.dtype, np.integer) or links.min() < 0 or links.max() >= self.chain.n_links
+        ):
+            raise EstimationError(f"contact links {links.tolist()} outside 0..{self.chain.n_links - 1}")
+        if not np.all(np.isfinite(local)):
+            raise EstimationError("contact positions are not finite; update rejected")
+        c = self.counters
+        if self._filter is None:
+            rots, pos = self.chain.forward(q[None, :])
+            free, occ = observation_keys(self.grids, rots, pos, self._free_h, links, local)
+            self.grids.observe(free, occ, l_free=self.config.l_free, l_occ=self.config.l_occ, count=False)
+            out_f, out_c = free.n_outside, occ.n_outside
+        else:
+            stats = self._filter.update(q, links, local)
+            out_f, out_c = stats.free_points_outside, stats.contacts_outside
+            c.resamples += int(stats.resampled)
+        self._q = q
+        c.updates += 1
+        c.contacts += len(links)
+        c.free_points_outside += out_f
+        c.contacts_outside += out_c
+        dt = time.perf_counter() - t0
+        c.update_seconds_total += dt
+        c.last_update_ms = 1e3 * dt
+
+    # --- outputs ---------------------------------------------------------------------------------
+    def best_map(self) -> SparseMap:
+        """The map of the highest-weight particle (known mode: the one map)."""
+        return self.grids.to_sparse(0) if self._filter is None else self._filter.best_map()
+
+    def weighted_map(self) -> SparseMap:
+        """Per cell, the log-odds of the weight-averaged belief (known mode: the one map)."""
+        return self.grids.to_sparse(0) if self._filter is None else self._filter.weighted_map()
+
+    def pose_estimate(self) -> PoseEstimate:
+        """Weighted-mean and best-particle joint angles (known mode: the last reading)."""
+        if self._filter is None:
+            return PoseEstimate(mean_q_rad=self._q.copy(), best_q_rad=self._q.copy())
+        return PoseEstimate(mean_q_rad=self._filter.mean_q(), best_q_rad=self._filter.best_q())
+
+    @property
+    def n_eff(self) -> float:
+        """Effective sample size 1 / sum w^2 at the last update (known mode: 1)."""
+        return 1.0 if self._filter is None else self._filter.n_eff
+
+    @property
+    def filter(self) -> FastSlam | None:
+        """The particle filter (None in known mode), for diagnostics."""
+        return self._filter

@@ -1,0 +1,300 @@
+"""Forward kinematics of a serial finger chain, vectorised over particles.
+
+The chain is read from the simulator's MuJoCo model (kinematics only), so the mapper and the
+simulation share one model. ``forward`` reproduces ``mujoco.mj_kinematics`` (engine_core_smooth.c)
+for hinge and slide joints:
+
+    x_b = x_parent + R_parent @ body_pos_b,          R_b = R_parent @ R(body_quat_b)
+    for each joint j of body b, in order:
+      hinge: anchor = x_b + R_b @ jnt_pos_j;  R_b = R_b @ Rot(jnt_axis_j, q_j - qpos0_j);
+             x_b = anchor - R_b @ jnt_pos_j
+      slide: x_b = x_b + (R_b @ jnt_axis_j) * (q_j - qpos0_j)
+
+A "link" is a body of the chain: the bodies from the first joint's body to the last joint's body,
+plus the joint-less bodies fixed to them (a fingertip body, a nail). Everything above the first
+joint's body must be fixed (no joints): it is the chain's base.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from palpate.errors import ConfigError
+
+FloatArray = NDArray[np.float64]
+
+_HINGE = 3  # mujoco.mjtJoint.mjJNT_HINGE
+_SLIDE = 2  # mujoco.mjtJoint.mjJNT_SLIDE
+_SPHERE = 2  # mujoco.mjtGeom.mjGEOM_SPHERE
+_CAPSULE = 3  # mujoco.mjtGeom.mjGEOM_CAPSULE
+
+
+def quat_to_mat(q: FloatArray) -> FloatArray:
+    """Rotation matrix (3, 3) of a unit quaternion (w, x, y, z) (MuJoCo's convention)."""
+    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def axis_angle_to_mat(axis: FloatArray, angle: FloatArray) -> FloatArray:
+    """Rotations (K, 3, 3) about a unit axis (3,) by angles (K,) radians (Rodrigues)."""
+    u = np.asarray(axis, dtype=np.float64)
+    u = u / np.linalg.norm(u)
+    c = np.cos(angle)[:, None, None]
+    s = np.sin(angle)[:, None, None]
+    ux = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
+    # R = cos a I + sin a [u]x + (1 - cos a) u u^T
+    return c * np.eye(3) + s * ux + (1.0 - c) * np.outer(u, u)
+
+
+def _matvec(a: FloatArray, v: FloatArray) -> FloatArray:
+    """Batched a @ v for a (..., 3, 3), v (..., 3)."""
+    return np.asarray((a * v[..., None, :]).sum(axis=-1))
+
+
+@dataclass(frozen=True)
+class Capsule:
+    """A capsule (or sphere: half_length 0) fixed to a link, in the link frame (metres)."""
+
+    link: int
+    a_local_m: FloatArray  # (3,) one end of the axis segment
+    b_local_m: FloatArray  # (3,) the other end
+    radius_m: float
+    name: str
+
+
+@dataclass(frozen=True)
+class _Joint:
+    kind: int  # _HINGE or _SLIDE
+    axis: FloatArray  # (3,) unit, body frame
+    pos: FloatArray  # (3,) anchor, body frame
+    qpos0: float
+    column: int  # column of q
+
+
+@dataclass(frozen=True)
+class _Link:
+    parent: int  # link index, -1 for the base
+    pos: FloatArray  # (3,) body_pos
+    rot: FloatArray  # (3, 3) R(body_quat)
+    joints: tuple[_Joint, ...]
+
+
+class KinematicChain:
+    """A serial chain of links moved by J joints; ``forward`` maps q (K, J) to link poses."""
+
+    def __init__(
+        self,
+        *,
+        base_rot: FloatArray,
+        base_pos_m: FloatArray,
+        links: list[_Link],
+        capsules: list[Capsule],
+        joint_names: list[str],
+        link_names: list[str],
+        link_body_ids: list[int],
+    ) -> None:
+        self.base_rot = np.asarray(base_rot, dtype=np.float64)
+        self.base_pos_m = np.asarray(base_pos_m, dtype=np.float64)
+        self._links = links
+        self.capsule_list = capsules
+        self.joint_names = list(joint_names)
+        self.link_names = list(link_names)
+        self.link_body_ids = list(link_body_ids)
+        self.capsule_radii_m = np.array([c.radius_m for c in capsules], dtype=np.float64)
+        self._cap_links = np.array([c.link for c in capsules], dtype=np.intp)
+        self._cap_local = np.array([[c.a_local_m, c.b_local_m] for c in capsules], dtype=np.float64).reshape(
+            len(capsules), 2, 3
+        )
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def n_links(self) -> int:
+        return len(self._links)
+
+    def link_of_body(self, body_id: int) -> int:
+        """Link index of a MuJoCo body id; ConfigError if the body is not part of the chain."""
+        try:
+            return self.link_body_ids.index(int(body_id))
+        except ValueError:
+            raise ConfigError(
+                f"body {body_id} is not a link of this chain (links are bodies {self.link_body_ids})"
+            ) from None
+
+    @classmethod
+    def from_model(cls, model: Any, joint_names: list[str]) -> KinematicChain:
+        """Read the chain moved by ``joint_names`` (hinge or slide) from a ``mujoco.MjModel``.
+
+        Reads body_pos, body_quat, jnt_axis, jnt_pos, qpos0 and the capsule and sphere geoms of the
+        links. Raises ConfigError naming the problem if a joint is missing, is not hinge or slide,
+        the joints are not one serial chain, a link carries a joint not listed, or the base moves.
+        """
+        import mujoco  # local import: the pure maths above does not need MuJoCo
+
+        if not joint_names:
+            raise ConfigError("joint_names is empty: list the finger's joints from the root outwards")
+        jids = []
+        for name in joint_names:
+            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+            if jid < 0:
+                raise ConfigError(f"joint {name!r} is not in the model; check the finger's joint names")
+            if int(model.jnt_type[jid]) not in (_HINGE, _SLIDE):
+                raise ConfigError(f"joint {name!r} is not a hinge or slide joint; the chain supports only those")
+            jids.append(jid)
+        column = {jid: i for i, jid in enumerate(jids)}
+        parent = np.asarray(model.body_parentid)
+        joint_bodies = sorted({int(model.jnt_bodyid[j]) for j in jids})
+        first, last = joint_bodies[0], joint_bodies[-1]
+
+        def ancestors(b: int) -> list[int]:
+            out = []
+            while b != 0:
+                out.append(b)
+                b = int(parent[b])
+            return out
+
+        path = ancestors(last)
+        if first not in path or any(b not in path for b in joint_bodies):
+            raise ConfigError(f"joints {joint_names} do not form one serial chain of bodies")
+        path_bodies = sorted(b for b in path if b >= first)
+        base_bodies = [b for b in path if b < first]
+        for b in base_bodies:
+            if model.body_jntnum[b] > 0:
+                raise ConfigError(f"body {b} above the chain has joints; list them in joint_names or fix the base")
+        # joint-less bodies fixed to the chain (fingertip, nail): descendants reached without joints
+        bodies = set(path_bodies)
+        changed = True
+        while changed:
+            changed = False
+            for b in range(model.nbody):
+                if b not in bodies and int(parent[b]) in bodies and model.body_jntnum[b] == 0:
+                    bodies.add(b)
+                    changed = True
+        body_ids = sorted(bodies)  # MuJoCo numbers bodies parents first
+        link_of = {b: i for i, b in enumerate(body_ids)}
+
+        base_rot = np.eye(3)
+        base_pos = np.zeros(3)
+        for b in sorted(base_bodies):  # world -> ... -> parent of the first link
+            base_pos = base_pos + base_rot @ model.body_pos[b]
+            base_rot = base_rot @ quat_to_mat(model.body_quat[b])
+
+        links = []
+        for b in body_ids:
+            joints = []
+            for j in range(int(model.body_jntadr[b]), int(model.body_jntadr[b] + model.body_jntnum[b])):
+                if j not in column:
+                    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j)
+                    raise ConfigError(f"link body {b} has joint {name!r} (id {j}) not listed in joint_names")
+                joints.append(
+                    _Joint(
+                        kind=int(model.jnt_type[j]),
+                        axis=np.array(model.jnt_axis[j], dtype=np.float64),
+                        pos=np.array(model.jnt_pos[j], dtype=np.float64),
+                        qpos0=float(model.qpos0[model.jnt_qposadr[j]]),
+                        column=column[j],
+                    )
+                )
+            links.append(
+                _Link(
+                    parent=link_of.get(int(parent[b]), -1),
+                    pos=np.array(model.body_pos[b], dtype=np.float64),
+                    rot=quat_to_mat(model.body_quat[b]),
+                    joints=tuple(joints),
+                )
+            )
+
+        capsules = []
+        for g in range(model.ngeom):
+            b = int(model.geom_bodyid[g])
+            kind = int(model.geom_type[g])
+            if b not in link_of or kind not in (_CAPSULE, _SPHERE):
+                continue
+            rot = quat_to_mat(model.geom_quat[g])
+            centre = np.array(model.geom_pos[g], dtype=np.float64)
+            half = float(model.geom_size[g][1]) if kind == _CAPSULE else 0.0
+            capsules.append(
+                Capsule(
+                    link=link_of[b],
+                    a_local_m=centre - rot[:, 2] * half,
+                    b_local_m=centre + rot[:, 2] * half,
+                    radius_m=float(model.geom_size[g][0]),
+                    name=mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}",
+                )
+            )
+        if not capsules:
+            raise ConfigError(f"the chain of joints {joint_names} has no capsule or sphere geoms")
+        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or f"body{b}" for b in body_ids]
+        return cls(
+            base_rot=base_rot,
+            base_pos_m=base_pos,
+            links=links,
+            capsules=capsules,
+            joint_names=list(joint_names),
+            link_names=names,
+            link_body_ids=body_ids,
+        )
+
+    def forward(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Link poses for joint angles q (K, J) (radians, metres for slides).
+
+        Returns rotations (K, L, 3, 3) (link frame -> world) and origins (K, L, 3) in metres.
+        """
+        q = np.asarray(q, dtype=np.float64)
+        if q.ndim != 2 or q.shape[1] != self.n_joints:
+            raise ConfigError(f"q must have shape (K, {self.n_joints}), got {q.shape}")
+        K = q.shape[0]
+        rots = np.empty((K, self.n_links, 3, 3))
+        pos = np.empty((K, self.n_links, 3))
+        for i, link in enumerate(self._links):
+            if link.parent < 0:  # the fixed base: constant, computed once
+                x = np.broadcast_to(self.base_pos_m + self.base_rot @ link.pos, (K, 3))
+                r = np.broadcast_to(self.base_rot @ link.rot, (K, 3, 3))
+            else:
+                pr = rots[:, link.parent]
+                x = pos[:, link.parent] + pr @ link.pos
+                r = pr @ link.rot
+            for jt in link.joints:
+                angle = q[:, jt.column] - jt.qpos0
+                if jt.kind == _HINGE:
+                    off = bool(np.any(jt.pos))
+                    anchor = x + r @ jt.pos if off else x
+                    r = r @ axis_angle_to_mat(jt.axis, angle)
+                    x = anchor - r @ jt.pos if off else x
+                else:
+                    x = x + (r @ jt.axis) * angle[:, None]
+            rots[:, i] = r
+            pos[:, i] = x
+        return rots, pos
+
+    def to_world(self, q: FloatArray, link_index: NDArray[np.integer], local_points: FloatArray) -> FloatArray:
+        """World positions (K, n, 3) of points (n, 3) fixed in links link_index (n,), for q (K, J)."""
+        rots, pos = self.forward(q)
+        return transform_points(rots, pos, np.asarray(link_index, dtype=np.intp), local_points)
+
+    def capsules(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Capsule axis end points (K, C, 2, 3) in metres for q (K, J), and radii (C,) in metres."""
+        rots, pos = self.forward(q)
+        r = rots[:, self._cap_links]  # (K, C, 3, 3)
+        ends = _matvec(r[:, :, None], np.broadcast_to(self._cap_local, (*r.shape[:2], 2, 3)))
+        return ends + pos[:, self._cap_links, None, :], self.capsule_radii_m.copy()
+
+
+def transform_points(
+    rots: FloatArray, pos: FloatArray, link_index: NDArray[np.intp], local_points: FloatArray
+) -> FloatArray:
+    """World positions (K, n, 3) = R[:, link] @ p + x[:, link] for points (n, 3) in links (n,)."""
+    r = rots[:, link_index]  # (K, n, 3, 3)
+    return _matvec(r, np.broadcast_to(local_points, (*r.shape[:2], 3))) + pos[:, link_index]

@@ -1,0 +1,115 @@
+"""Which cells one observation touches, for K finger poses at once.
+
+An observation is the finger's joint angles and its contacts, each given as the link it is felt on
+and the position in that link's frame. For a pose (one particle, or the known pose):
+
+- occupied cells: the cells that hold the contacts (update log(0.9/0.1));
+- free cells: the cells that hold the finger's own volume (update log(0.1/0.9)). The volume is
+  sampled by a lattice of points fixed in the links (spacing ``spacing_m``), inside each capsule
+  shrunk by ``margin_m``. The margin keeps the free update off the cells the finger only partly
+  covers: with the finger resting on a surface, the cells that straddle the surface hold object
+  too and must not be cleared. A point at depth >= margin inside the finger lies in a cell whose
+  points are all within one cell diagonal of it, so margin = resolution is exact for faces aligned
+  with the grid and margin = sqrt(3) * resolution for any orientation; the default is the
+  resolution (a contact penetrating 1 mm into a soft finger is absorbed by the same margin).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from palpate.nodes.mapper.grid import CellKeys, LogOddsGrids
+from palpate.nodes.mapper.kinematics import KinematicChain
+
+FloatArray = NDArray[np.floating]
+
+
+@dataclass(frozen=True)
+class FreeVolume:
+    """Points filling the finger, fixed in its links: per link l, local_m[l] (P_l, 3) in metres."""
+
+    local_m: tuple[NDArray[np.float64], ...]
+
+    @property
+    def n_points(self) -> int:
+        return int(sum(len(p) for p in self.local_m))
+
+    def homogeneous(self) -> tuple[NDArray[np.float32], ...]:
+        """Per link, the points as homogeneous columns (4, P_l) float32."""
+        return tuple(np.vstack([p.T, np.ones((1, len(p)))]).astype(np.float32) for p in self.local_m)
+
+
+def capsule_lattice(chain: KinematicChain, spacing_m: float, margin_m: float) -> FreeVolume:
+    """A cubic lattice of spacing ``spacing_m`` inside every capsule of the chain shrunk by margin_m.
+
+    The lattice is laid in each capsule's own frame (axis along z), so it moves rigidly with its
+    link. A capsule thinner than the margin contributes the points of its axis only.
+    """
+    per_link: list[list[NDArray[np.float64]]] = [[] for _ in range(chain.n_links)]
+    for cap in chain.capsule_list:
+        a, b = cap.a_local_m, cap.b_local_m
+        length = float(np.linalg.norm(b - a))
+        z = (b - a) / length if length > 0 else np.array([0.0, 0.0, 1.0])
+        x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        r = cap.radius_m - margin_m
+        if r <= 0:  # too thin to hold a whole cell: sample its axis only
+            n = max(1, int(np.floor(length / spacing_m)) + 1)
+            t = np.linspace(0.0, length, n)
+            pts = a + t[:, None] * z
+        else:
+            nr = int(np.floor(r / spacing_m))
+            nz = int(np.floor((length / 2 + r) / spacing_m))
+            u = np.arange(-nr, nr + 1) * spacing_m
+            w = np.arange(-nz, nz + 1) * spacing_m + length / 2
+            gu, gv, gw = np.meshgrid(u, u, w, indexing="ij")
+            local = np.stack([gu.ravel(), gv.ravel(), gw.ravel()], axis=1)  # capsule frame
+            along = np.clip(local[:, 2], 0.0, length)
+            dist = np.hypot(np.hypot(local[:, 0], local[:, 1]), local[:, 2] - along)
+            local = local[dist <= r]
+            pts = a + local[:, :1] * x + local[:, 1:2] * y + local[:, 2:3] * z
+        per_link[cap.link].append(pts)
+    return FreeVolume(local_m=tuple(np.concatenate(p) if p else np.zeros((0, 3)) for p in per_link))
+
+
+def cell_affine(grids: LogOddsGrids, rots: FloatArray, pos: FloatArray) -> NDArray[np.float32]:
+    """Per pose and link, M (K, L, 3, 4) float32 with f = M [p; 1] = (R p + x - origin) / resolution:
+    the cell coordinates of a link point p."""
+    inv = 1.0 / grids.spec.resolution_m
+    m = np.empty((*rots.shape[:2], 3, 4), dtype=np.float32)
+    m[..., :3] = rots * inv
+    m[..., 3] = (pos - np.asarray(grids.spec.origin_m)) * inv
+    return m
+
+
+def observation_keys(
+    grids: LogOddsGrids,
+    rots: FloatArray,
+    pos: FloatArray,
+    free_h: tuple[NDArray[np.float32], ...],
+    contact_links: NDArray[np.integer],
+    contact_local_m: FloatArray,
+) -> tuple[CellKeys, CellKeys]:
+    """Cells of one observation for K link poses rots (K, L, 3, 3), pos (K, L, 3); map k = pose k.
+
+    free_h: the free volume per link as homogeneous columns (FreeVolume.homogeneous()).
+    Returns (free cells (K, P), contact cells (K, n)); points outside the region are marked invalid.
+    """
+    K = rots.shape[0]
+    m = cell_affine(grids, rots, pos)
+    sizes = [h.shape[1] for h in free_h]
+    f = np.empty((K, 3, sum(sizes)), dtype=np.float32)
+    start = 0
+    for link, h in enumerate(free_h):
+        if sizes[link]:
+            np.matmul(m[:, link], h, out=f[:, :, start : start + sizes[link]])  # (K, 3, P_l)
+            start += sizes[link]
+    links = np.asarray(contact_links, dtype=np.intp)
+    local = np.asarray(contact_local_m, dtype=np.float64).reshape(-1, 3)
+    local_h = np.concatenate([local, np.ones((len(local), 1))], axis=1).astype(np.float32)
+    fc = np.matmul(m[:, links], local_h[None, :, :, None])[..., 0]  # (K, n, 3)
+    return grids.cell_keys(f), grids.cell_keys(np.ascontiguousarray(fc.transpose(0, 2, 1)))

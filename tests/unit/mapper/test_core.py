@@ -1,0 +1,138 @@
+"""The Mapper facade: configuration, input checks, counters, outputs."""
+
+from __future__ import annotations
+
+import ast
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from palpate.errors import ConfigError, EstimationError
+from palpate.nodes.mapper.core import Mapper, MapperConfig
+from palpate.nodes.mapper.kinematics import KinematicChain
+from palpate.nodes.mapper.synthetic import TappingRecord, simulate_tapping
+
+REGION = {"region_min_m": (-0.03, -0.06, -0.06), "region_max_m": (0.12, 0.06, 0.06)}
+
+
+@pytest.fixture(scope="module")
+def scene() -> tuple[KinematicChain, TappingRecord]:
+    return simulate_tapping(0.5)
+
+
+def _contact_step(rec: TappingRecord) -> int:
+    return next(t for t in range(len(rec.q_true)) if len(rec.contact_links[t]))
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"mode": "gps"}, "mode"),
+        ({"n_particles": 0}, "n_particles"),
+        ({"sigma_deg": -1.0}, "sigma_deg"),
+        ({"sigma_deg": math.nan}, "sigma_deg"),
+        ({"l_occ": -1.0}, "l_occ"),
+        ({"resolution_m": 0.0}, "resolution_m"),
+        ({"region_max_m": (0.12, -0.07, 0.06)}, "must exceed"),
+        ({"free_margin_m": -0.001}, "free_margin_m"),
+    ],
+)
+def test_bad_config_values_are_quoted(changes: dict[str, object], message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        MapperConfig(**{**REGION, **changes})  # type: ignore[arg-type]
+
+
+def test_defaults_are_the_paper_values() -> None:
+    c = MapperConfig(**REGION)  # type: ignore[arg-type]
+    assert c.sigma_deg == 1.5 and c.l_occ == pytest.approx(math.log(9.0))
+    assert c.l_free == pytest.approx(-math.log(9.0)) and c.resample_threshold == 0.5
+
+
+@pytest.mark.parametrize("mode", ["known", "fastslam"])
+def test_bad_input_is_rejected_and_changes_nothing(scene: tuple[KinematicChain, TappingRecord], mode: str) -> None:
+    chain, rec = scene
+    m = Mapper(MapperConfig(**REGION, mode=mode, n_particles=4), chain, np.random.default_rng(0))  # type: ignore[arg-type]
+    t = _contact_step(rec)
+    m.update(rec.q_true[t], rec.contact_links[t], rec.contact_local_m[t])
+    before = m.best_map()
+    bad_q = rec.q_true[t].copy()
+    bad_q[2] = np.nan
+    cases = [
+        (bad_q, rec.contact_links[t], rec.contact_local_m[t], "not finite"),
+        (rec.q_true[t][:3], rec.contact_links[t], rec.contact_local_m[t], "shape"),
+        (rec.q_true[t], np.array([7]), np.zeros((1, 3)), "outside"),
+        (rec.q_true[t], np.array([0, 1]), np.zeros((1, 3)), "contact links"),
+        (rec.q_true[t], np.array([0]), np.full((1, 3), np.inf), "not finite"),
+    ]
+    for q, links, local, message in cases:
+        with pytest.raises(EstimationError, match=message):
+            m.update(q, links, local)
+    assert m.counters.updates == 1
+    after = m.best_map()
+    np.testing.assert_array_equal(after.flat, before.flat)
+    np.testing.assert_array_equal(after.log_odds, before.log_odds)
+    m.update(rec.q_true[t + 1], rec.contact_links[t + 1], rec.contact_local_m[t + 1])  # carries on
+    assert m.counters.updates == 2
+
+
+def test_counters_and_timing(scene: tuple[KinematicChain, TappingRecord]) -> None:
+    chain, rec = scene
+    m = Mapper(MapperConfig(**REGION, n_particles=5), chain, np.random.default_rng(1))  # type: ignore[arg-type]
+    for t in range(len(rec.q_true)):
+        m.update(rec.q_true[t], rec.contact_links[t], rec.contact_local_m[t])
+    c = m.counters
+    assert c.updates == len(rec.q_true)
+    assert c.contacts == sum(len(x) for x in rec.contact_links) > 0
+    assert c.mean_update_ms > 0 and math.isfinite(c.last_update_ms)
+    assert c.free_points_outside == 0 and c.contacts_outside == 0
+    est = m.pose_estimate()
+    assert est.mean_q_rad.shape == (4,) and est.best_q_rad.shape == (4,)
+
+
+def test_points_outside_the_region_are_ignored_and_counted(scene: tuple[KinematicChain, TappingRecord]) -> None:
+    chain, rec = scene
+    small = {"region_min_m": (0.04, -0.03, -0.01), "region_max_m": (0.09, 0.03, 0.03)}
+    m = Mapper(MapperConfig(**small, mode="known"), chain, np.random.default_rng(2))  # type: ignore[arg-type]
+    t = _contact_step(rec)
+    m.update(rec.q_true[t], rec.contact_links[t], rec.contact_local_m[t])
+    assert 0 < m.counters.free_points_outside < m.free_volume.n_points
+    far = np.array([[0.0, 0.5, 0.0]])  # a contact 0.5 m off the link: outside the region
+    m.update(rec.q_true[t], np.array([0]), far)
+    assert m.counters.contacts_outside == 1
+    assert m.n_eff == 1.0
+
+
+def test_known_mode_outputs_are_the_one_map(scene: tuple[KinematicChain, TappingRecord]) -> None:
+    chain, rec = scene
+    m = Mapper(MapperConfig(**REGION, mode="known"), chain, np.random.default_rng(3))  # type: ignore[arg-type]
+    for t in range(len(rec.q_true)):
+        m.update(rec.q_true[t], rec.contact_links[t], rec.contact_local_m[t])
+    assert m.filter is None
+    np.testing.assert_array_equal(m.weighted_map().log_odds, m.best_map().log_odds)
+    np.testing.assert_array_equal(m.pose_estimate().best_q_rad, rec.q_true[-1])
+    occupied = m.best_map().flat[m.best_map().log_odds > 0]
+    assert len(occupied) > 0
+    # contact cells lie on the cube's top face (z = 0), within a cell
+    centres = m.spec.centers(occupied)
+    assert np.all(np.abs(centres[:, 2]) <= m.spec.resolution_m)
+
+
+def test_free_spacing_and_margin_change_the_free_volume(scene: tuple[KinematicChain, TappingRecord]) -> None:
+    chain, _ = scene
+    base = MapperConfig(**REGION, mode="known")  # type: ignore[arg-type]
+    dense = Mapper(base, chain, np.random.default_rng(0)).free_volume.n_points
+    sparse = Mapper(replace(base, free_spacing_m=0.004), chain, np.random.default_rng(0)).free_volume.n_points
+    thin = Mapper(replace(base, free_margin_m=0.006), chain, np.random.default_rng(0)).free_volume.n_points
+    assert sparse < dense / 4 and thin < dense
+
+
+def test_cores_import_no_sockets() -> None:
+    folder = Path(__file__).resolve().parents[3] / "nodes" / "mapper"
+    for path in folder.glob("*.py"):
+        tree = ast.parse(path.read_text())
+        names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+        names |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+        assert not any(n.split(".")[0] == "zmq" or "codec" in n for n in names), path.name

@@ -1,0 +1,186 @@
+"""Forward kinematics of the finger chain against mujoco.mj_kinematics."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from palpate.errors import ConfigError
+from palpate.nodes.mapper.kinematics import KinematicChain, axis_angle_to_mat, quat_to_mat
+
+# A 4-hinge finger with the awkward cases: a tilted, offset base; two hinges in one body (MCP
+# abduction then flexion); an off-centre joint anchor; a joint with a reference angle (qpos0 != 0);
+# a non-axis-aligned joint axis; a tilted body frame; a joint-less fingertip body with a sphere;
+# and a second, unrelated body with a joint that the chain must ignore.
+FINGER_XML = """
+<mujoco>
+  <compiler angle="degree"/>
+  <worldbody>
+    <body name="other" pos="0.3 0 0"><joint name="other" axis="1 0 0"/><geom size="0.01"/></body>
+    <body name="base" pos="0.01 -0.02 0.05" euler="10 -20 30">
+      <geom name="palm" type="box" size="0.01 0.01 0.01"/>
+      <body name="proximal" pos="0.02 0 0">
+        <joint name="mcp_abd" axis="0 0 1"/>
+        <joint name="mcp_flex" axis="0 1 0" pos="0.001 0 0" ref="15"/>
+        <geom name="proximal" type="capsule" fromto="0 0 0 0.0398 0 0" size="0.009"/>
+        <body name="middle" pos="0.0398 0 0" euler="0 5 0">
+          <joint name="pip" axis="0 1 0.2"/>
+          <geom name="middle" type="capsule" fromto="0 0 0 0.0224 0 0" size="0.008"/>
+          <body name="distal" pos="0.0224 0 0">
+            <joint name="dip" axis="0 1 0" pos="0 0 0.002"/>
+            <geom name="distal" type="capsule" fromto="0 0 0 0.0158 0.001 0" size="0.0075"/>
+            <body name="tip" pos="0.0158 0 0" quat="0.9 0.1 0.3 0.1">
+              <geom name="tip" type="sphere" size="0.006"/>
+            </body>
+          </body>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+JOINTS = ["mcp_abd", "mcp_flex", "pip", "dip"]
+
+
+def _model(xml: str = FINGER_XML) -> mujoco.MjModel:
+    return mujoco.MjModel.from_xml_string(xml)
+
+
+def _mujoco_poses(model: mujoco.MjModel, names: list[str], q: np.ndarray) -> mujoco.MjData:
+    data = mujoco.MjData(model)
+    for name, value in zip(names, q, strict=True):
+        data.qpos[model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)]] = value
+    mujoco.mj_kinematics(model, data)
+    return data
+
+
+def _check_against_mujoco(model: mujoco.MjModel, names: list[str], n: int = 40, seed: int = 0) -> None:
+    chain = KinematicChain.from_model(model, names)
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-1.5, 1.5, size=(n, len(names)))
+    rots, pos = chain.forward(q)
+    ends, radii = chain.capsules(q)
+    for k in range(n):
+        data = _mujoco_poses(model, names, q[k])
+        for link, body in enumerate(chain.link_body_ids):
+            np.testing.assert_allclose(pos[k, link], data.xpos[body], atol=1e-9, rtol=0)
+            np.testing.assert_allclose(rots[k, link], data.xmat[body].reshape(3, 3), atol=1e-9, rtol=0)
+        for c, cap in enumerate(chain.capsule_list):
+            g = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, cap.name)
+            axis = data.geom_xmat[g].reshape(3, 3)[:, 2]
+            half = model.geom_size[g][1] if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_CAPSULE else 0.0
+            np.testing.assert_allclose(ends[k, c, 0], data.geom_xpos[g] - half * axis, atol=1e-9, rtol=0)
+            np.testing.assert_allclose(ends[k, c, 1], data.geom_xpos[g] + half * axis, atol=1e-9, rtol=0)
+            assert radii[c] == pytest.approx(model.geom_size[g][0])
+
+
+def test_forward_matches_mj_kinematics_on_random_angles() -> None:
+    _check_against_mujoco(_model(), JOINTS)
+
+
+def test_chain_reads_links_capsules_and_ignores_other_bodies() -> None:
+    chain = KinematicChain.from_model(_model(), JOINTS)
+    assert chain.link_names == ["proximal", "middle", "distal", "tip"]
+    assert [c.name for c in chain.capsule_list] == ["proximal", "middle", "distal", "tip"]
+    assert chain.n_joints == 4
+
+
+def test_joint_order_in_q_follows_joint_names() -> None:
+    model = _model()
+    names = ["dip", "mcp_flex", "pip", "mcp_abd"]  # any column order
+    _check_against_mujoco(model, names, n=10, seed=1)
+
+
+def test_slide_joint_chain_matches_mujoco() -> None:
+    xml = """
+    <mujoco><worldbody><body name="a" pos="0 0 0.1" euler="0.3 0.2 0.1">
+      <joint name="s" type="slide" axis="1 1 0"/>
+      <joint name="h" axis="0 0 1" pos="0.01 0 0"/>
+      <geom name="a" type="capsule" fromto="0 0 0 0.05 0 0" size="0.01"/>
+      <body name="b" pos="0.05 0 0"><joint name="s2" type="slide" axis="0 0 1" ref="0.02"/>
+        <geom name="b" type="capsule" fromto="0 0 0 0 0.03 0" size="0.005"/></body>
+    </body></worldbody></mujoco>"""
+    _check_against_mujoco(mujoco.MjModel.from_xml_string(xml), ["s", "h", "s2"], n=10)
+
+
+def test_to_world_places_link_points() -> None:
+    model = _model()
+    chain = KinematicChain.from_model(model, JOINTS)
+    q = np.random.default_rng(2).uniform(-1, 1, size=(3, 4))
+    local = np.array([[0.01, 0.002, -0.003], [0.0, 0.0, 0.0]])
+    links = np.array([2, 3])
+    world = chain.to_world(q, links, local)
+    for k in range(3):
+        data = _mujoco_poses(model, JOINTS, q[k])
+        for i, link in enumerate(links):
+            body = chain.link_body_ids[link]
+            expect = data.xpos[body] + data.xmat[body].reshape(3, 3) @ local[i]
+            np.testing.assert_allclose(world[k, i], expect, atol=1e-12)
+
+
+def test_forward_of_identical_rows_is_identical_bitwise() -> None:
+    chain = KinematicChain.from_model(_model(), JOINTS)
+    q = np.random.default_rng(3).uniform(-1, 1, size=(1, 4))
+    r1, p1 = chain.forward(q)
+    r7, p7 = chain.forward(np.repeat(q, 7, axis=0))
+    assert np.array_equal(r7, np.repeat(r1, 7, axis=0)) and np.array_equal(p7, np.repeat(p1, 7, axis=0))
+
+
+def test_rotation_helpers_against_references() -> None:
+    axis = np.array([0.3, -0.5, 0.8])
+    angle = np.array([0.7])
+    r = axis_angle_to_mat(axis, angle)[0]
+    u = axis / np.linalg.norm(axis)
+    quat = np.concatenate([[np.cos(0.35)], np.sin(0.35) * u])
+    expect = np.zeros(9)
+    mujoco.mju_quat2Mat(expect, quat)
+    np.testing.assert_allclose(r, expect.reshape(3, 3), atol=1e-14)
+    np.testing.assert_allclose(quat_to_mat(quat), expect.reshape(3, 3), atol=1e-14)
+
+
+@pytest.mark.parametrize(
+    ("names", "message"),
+    [
+        (["nope"], "not in the model"),
+        (["mcp_abd", "other"], "serial chain"),
+        (["mcp_abd", "pip", "dip"], "not listed"),
+        ([], "empty"),
+    ],
+)
+def test_bad_joint_lists_are_refused(names: list[str], message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        KinematicChain.from_model(_model(), names)
+
+
+def test_moving_base_is_refused() -> None:
+    with pytest.raises(ConfigError, match="above the chain has joints"):
+        KinematicChain.from_model(_model(), ["pip", "dip"])
+
+
+def test_wrong_q_shape_is_refused() -> None:
+    chain = KinematicChain.from_model(_model(), JOINTS)
+    with pytest.raises(ConfigError, match="shape"):
+        chain.forward(np.zeros((2, 3)))
+
+
+def test_real_finger_and_hand_models_match_mujoco() -> None:
+    """The simulator's finger (and the index finger of its hand) once palpate.nodes.sim exists."""
+    effectors = pytest.importorskip("palpate.nodes.sim.effectors")
+    for build, cfg_cls in (
+        (effectors.build_finger_mjcf, effectors.FingerConfig),
+        (effectors.build_hand_mjcf, effectors.HandConfig),
+    ):
+        frag = build(cfg_cls(), (0.01, 0.02, 0.1))
+        xml = (
+            '<mujoco><compiler angle="radian"/><worldbody>'
+            + frag.worldbody
+            + "</worldbody><actuator>"
+            + frag.actuators
+            + "</actuator></mujoco>"
+        )
+        model = mujoco.MjModel.from_xml_string(xml)
+        names = effectors.finger_joint_names("index")
+        _check_against_mujoco(model, names, n=10)
+        chain = KinematicChain.from_model(model, names)
+        assert chain.link_names == ["index_proximal", "index_middle", "index_distal"]
