@@ -1,0 +1,151 @@
+"""Mapper node: occupancy-grid mapping at a known pose, dead reckoning, or FastSLAM (paper 000).
+
+Each tick with a joint reading it runs one update with that reading and the contacts of the same
+tick (contact points in the touching link's frame: where on the finger the touch is felt). The
+finger's kinematics come from the same MuJoCo model the simulator builds from the scene (kinematics
+only: the mapper reads link lengths and joint axes, never the simulator's state).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from palpate.messages.schemas import ContactSet, JointState, OccupancyGrid, ParticleSetSummary
+from palpate.nodes.mapper.core import Mapper, MapperConfig
+from palpate.nodes.mapper.grid import SparseMap
+from palpate.nodes.mapper.kinematics import KinematicChain
+from palpate.runtime.spec import NodeSpec, Port
+
+
+def _default_scene() -> dict[str, Any]:
+    return {"effector": "finger", "object": {"kind": "rubiks_cube"}}
+
+
+@dataclass(frozen=True, kw_only=True)
+class MapperNodeConfig:
+    """The mapper's parameters, the scene its finger model comes from, and how often maps go out."""
+
+    mapper: MapperConfig
+    scene: dict[str, Any] = field(default_factory=_default_scene)
+    #: Publish the maps every this much simulated time (the particle summary goes out every update).
+    publish_period_s: float = 1.0
+    #: Map kind label of the published best map ('known' or 'dead_reckoning' when mode is known).
+    label: str = ""
+
+
+def finger_chain(scene_dict: dict[str, Any]) -> KinematicChain:
+    """The kinematic chain of the scene's exploring finger, read from the MuJoCo model."""
+    from palpate.nodes.sim.core import Simulation
+    from palpate.nodes.sim.scene import SceneConfig
+
+    sim = Simulation(SceneConfig.from_dict(scene_dict, "scene"))
+    names = list(sim.joint_names)
+    if sim.scene.effector == "hand":  # the exploring finger's joints only
+        names = [n for n in names if n.startswith(f"{sim.scene.hand.pose_finger}_")]
+    return KinematicChain.from_model(sim.model, names)
+
+
+class MapperNode:
+    """Thin wrapper around Mapper."""
+
+    def __init__(self, config: MapperNodeConfig, ctx: Any):
+        self.config, self.ctx = config, ctx
+        self.chain = finger_chain(config.scene)
+        self.core = Mapper(config.mapper, self.chain, ctx.rng)
+        self.link_index = {name: i for i, name in enumerate(self.chain.link_names)}
+        self.joint_state: JointState | None = None
+        self.contacts: ContactSet | None = None
+        self.next_publish_ns = 0
+        self.resampled = False
+        self.label = config.label or ("known" if config.mapper.mode == "known" else "best")
+
+    def on_joint_states(self, message: JointState) -> None:
+        self.joint_state = message
+
+    def on_contacts(self, message: ContactSet) -> None:
+        self.contacts = message
+
+    def on_tick(self, stamp_ns: int) -> None:
+        reading, contacts = self.joint_state, self.contacts
+        self.joint_state = None
+        if reading is None:
+            return
+        order = {name: i for i, name in enumerate(reading.names)}
+        q = np.array([reading.positions_rad[order[n]] for n in self.chain.joint_names])
+        links, local = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+        if contacts is not None and contacts.stamp_ns == reading.stamp_ns:
+            keep = [i for i, link in enumerate(contacts.links) if link in self.link_index]
+            links = np.array([self.link_index[contacts.links[i]] for i in keep], dtype=np.int64)
+            local = np.asarray(contacts.local_positions_m)[keep]
+        resamples_before = self.core.counters.resamples
+        self.core.update(q, links, local)
+        c = self.core.counters
+        self.resampled = c.resamples > resamples_before
+        self.ctx.metrics.update(updates=c.updates, ms_per_update=c.mean_update_ms, n_eff=self.core.n_eff)
+        if self.core.filter is not None:
+            self._publish_particles(stamp_ns)
+        if stamp_ns >= self.next_publish_ns:
+            self.next_publish_ns = stamp_ns + round(self.config.publish_period_s * 1e9)
+            self.publish_maps(stamp_ns)
+
+    def publish_maps(self, stamp_ns: int) -> None:
+        self._publish_map("map", self.core.best_map(), self.label, stamp_ns)
+        if self.core.filter is not None:
+            self._publish_map("weighted_map", self.core.weighted_map(), "weighted", stamp_ns)
+
+    def _publish_map(self, port: str, sparse: SparseMap, kind: str, stamp_ns: int) -> None:
+        spec = sparse.spec
+        self.ctx.publish(
+            port,
+            OccupancyGrid(
+                stamp_ns=stamp_ns,
+                map_kind=kind,
+                origin_m=np.array(spec.origin_m, dtype=np.float64),
+                resolution_m=spec.resolution_m,
+                shape=np.array(spec.shape, dtype=np.int64),
+                cell_indices=sparse.flat,
+                log_odds=sparse.log_odds,
+            ),
+        )
+
+    def _publish_particles(self, stamp_ns: int) -> None:
+        fs = self.core.filter
+        assert fs is not None
+        pose = self.core.pose_estimate()
+        weights = fs.weights
+        self.ctx.publish(
+            "particles",
+            ParticleSetSummary(
+                stamp_ns=stamp_ns,
+                num_particles=len(weights),
+                effective_sample_size=self.core.n_eff,
+                best_index=int(np.argmax(weights)),
+                resampled=self.resampled,
+                joint_names=list(self.chain.joint_names),
+                pose_mean_rad=pose.mean_q_rad,
+                pose_best_rad=pose.best_q_rad,
+                weights=weights,
+            ),
+        )
+
+
+def _ports(params: Mapping[str, Any]) -> tuple[dict[str, Port], dict[str, Port]]:
+    outputs = {"map": Port(OccupancyGrid)}
+    mode = (params.get("mapper") or {}).get("mode", "fastslam")
+    if mode == "fastslam":
+        outputs["weighted_map"] = Port(OccupancyGrid, topic="map/occupancy_weighted")
+        outputs["particles"] = Port(ParticleSetSummary)
+    return {"joint_states": Port(JointState), "contacts": Port(ContactSet)}, outputs
+
+
+SPEC = NodeSpec(
+    name="mapper",
+    config=MapperNodeConfig,
+    factory=MapperNode,
+    ports_from_params=_ports,
+    doc="Haptic SLAM mapper of paper 000: occupancy grid at a known pose, or FastSLAM with K particles.",
+)
