@@ -289,7 +289,18 @@ class TrajectoryController:
 
         curve = self._curve
         # Alg. 1 lines 35-37: v* = T_p(tau + dtau) - r, v = v0 v*/|v*|
-        v_star = curve.point(self._tau + cfg.d_tau) - r_
+        d_tau = cfg.d_tau
+        v_star = curve.point(self._tau + d_tau) - r_
+        # Not in the paper: where the curve bends sharply (|T'| small at the retract-then-approach turn)
+        # T(tau + dtau) can lie closer than one control step; the fingertip then overshoots it, v*
+        # points backwards along the curve, and tau stops advancing (a measured limit cycle at 10 ms
+        # ticks). Look further ahead (dtau doubled, at most 10 times) until v* points forwards,
+        # v* . T'(tau + dtau) > 0. Never triggers while the fingertip stays behind the look-ahead point.
+        for _ in range(10):
+            if float(v_star @ curve.derivative(self._tau + d_tau)) > 0.0:
+                break
+            d_tau *= 2.0
+            v_star = curve.point(self._tau + d_tau) - r_
         tangent = curve.derivative(min(self._tau, 1.0))
         norm = math.sqrt(float(v_star @ v_star))
         if norm < 1e-12:

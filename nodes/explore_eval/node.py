@@ -43,6 +43,7 @@ class ExploreEvalNode:
         self.final_requested = False
         self.last_estimate: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32))
         self.result: dict[str, Any] = {}
+        self.last_touch_ns = 0
 
     def on_truth_object(self, message: ObjectTruth) -> None:
         self.name = message.name
@@ -54,6 +55,7 @@ class ExploreEvalNode:
     def on_touches(self, message: TouchEvent) -> None:
         if self.evaluator is None or self.final_requested:
             return
+        self.last_touch_ns = self.ctx.stamp_ns
         reached = self.evaluator.add_touch(
             np.array(message.position_m),
             np.array(message.predicted_contact_m),
@@ -81,7 +83,14 @@ class ExploreEvalNode:
             self.ctx.request_stop(f"exploration finished: {self.evaluator.finished}")
 
     def on_tick(self, stamp_ns: int) -> None:
-        """Work happens per touch and per surface."""
+        """Watchdog: end a run that has made no touch for EvalConfig.max_idle_s of simulated time."""
+        ev = self.evaluator
+        if ev is None or self.final_requested:
+            return
+        if stamp_ns - self.last_touch_ns > self.config.eval.max_idle_s * 1e9:
+            ev.finished = "stalled"
+            self.final_requested = True
+            self.ctx.publish("request", SurfaceRequest(stamp_ns=stamp_ns, region="global"))
 
     def close(self) -> None:
         if self.evaluator is None:

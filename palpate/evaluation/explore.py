@@ -1,0 +1,487 @@
+"""The exploration benchmark of paper 002 (Sec. 3.2): episodes, one run in-process, many runs in workers.
+
+An episode is one object, one strategy and one run index. The run index seeds everything random: the
+first approach direction (uniform on the upper hemisphere, the same for every strategy, so IGEF and
+GP-V are compared from the same start) and the launch seed of the graph. The probe starts at
+
+    start = c + d (R_b + clearance),
+
+c the centre of the object's bounding box, R_b the radius of the smallest ball about c holding the
+object, d the drawn direction. The initial target (Algorithm 1 line 2, "known from the operator") is
+the first hit of the ray start -> c on the true mesh, pushed ``inside_m`` further along the ray; a
+ray that misses (through a hole: the torus, a cup seen from above) is drawn again. The probe starts
+facing along the ray (fingertip axis = -d), as an operator would point it.
+
+Every run builds the graph of ``launch/explore.yaml`` with the episode as launch arguments and runs
+it with :class:`palpate.runtime.inprocess.InProcessGraph` (exactly the lockstep semantics of the
+process graph; ``tests/integration/test_explore_graph.py`` checks both give the same contacts).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import multiprocessing
+import os
+import sys
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from palpate.errors import ConfigError, MeshError
+from palpate.paths import REPO_ROOT
+
+FloatArray = NDArray[np.float64]
+
+#: The launch file every episode runs.
+EXPLORE_LAUNCH = REPO_ROOT / "launch" / "explore.yaml"
+#: Mesh file suffixes taken from an --objects folder.
+MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb")
+#: Strategies compared by default (the paper's Table 2).
+DEFAULT_STRATEGIES = ("igef", "gpv")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ObjectCase:
+    """An object to explore: a mesh file (``kind="mesh"``) or a built-in primitive of the sim."""
+
+    name: str
+    kind: str = "mesh"
+    mesh: str = ""
+    size_m: tuple[float, ...] | None = None
+
+    def launch_args(self) -> dict[str, Any]:
+        """The launch arguments of explore.yaml that select this object."""
+        return {"object": self.kind, "mesh": self.mesh, "size_m": list(self.size_m) if self.size_m else None}
+
+    def true_mesh(self) -> tuple[FloatArray, NDArray[np.int64]]:
+        """The object's true surface as the simulation builds it: vertices (V, 3) m, faces (F, 3)."""
+        from palpate.nodes.sim.objects import ObjectSpec, load_object
+
+        spec = {"kind": self.kind, "path": self.mesh or None, "size_m": self.size_m}
+        model = load_object(ObjectSpec.from_dict(spec, f"object {self.name!r}"))
+        return np.asarray(model.mesh.vertices, dtype=np.float64), np.asarray(model.mesh.faces, dtype=np.int64)
+
+
+def objects_in(folder: Path) -> list[ObjectCase]:
+    """Every mesh file in ``folder`` (sorted by name) as an ObjectCase."""
+    if not folder.is_dir():
+        raise ConfigError(f"--objects {str(folder)!r} is not a folder; give a folder of mesh files (STL, metres)")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
+    if not files:
+        raise ConfigError(f"no mesh files ({', '.join(MESH_SUFFIXES)}) in {str(folder)!r}")
+    return [ObjectCase(name=p.stem, kind="mesh", mesh=str(p.resolve())) for p in files]
+
+
+@dataclass(frozen=True)
+class Approach:
+    """Where a run starts: probe start (3,) m, initial target (3,) m inside the object, the unit
+    direction d (3,) from the object centre to the start, and how many directions were drawn."""
+
+    start_m: FloatArray
+    target_m: FloatArray
+    direction: FloatArray
+    draws: int
+
+
+def approach(
+    vertices: FloatArray,
+    faces: NDArray[np.int64],
+    run: int,
+    *,
+    clearance_m: float = 0.03,
+    inside_m: float = 0.003,
+    max_draws: int = 256,
+) -> Approach:
+    """The seeded start and initial target of run ``run`` on a mesh (see the module docstring)."""
+    import open3d as o3d
+
+    V = np.asarray(vertices, dtype=np.float64)
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    radius = float(np.linalg.norm(V - centre, axis=1).max())
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor.from_numpy(np.ascontiguousarray(V - centre, dtype=np.float32)),
+        o3d.core.Tensor.from_numpy(np.ascontiguousarray(faces, dtype=np.uint32)),
+    )
+    rng = np.random.default_rng(run)
+    for draw in range(1, max_draws + 1):
+        d = rng.standard_normal(3)
+        d /= np.linalg.norm(d)
+        d[2] = abs(d[2])  # upper hemisphere
+        start_local = d * (radius + clearance_m)
+        ray = np.concatenate([start_local, -d])[None].astype(np.float32)
+        hit = scene.cast_rays(o3d.core.Tensor.from_numpy(ray), nthreads=1)
+        t = float(hit["t_hit"].numpy()[0])
+        if math.isfinite(t):
+            target = start_local - d * (t + inside_m)
+            return Approach(start_local + centre, target + centre, d, draw)
+    raise MeshError(f"no ray from the upper hemisphere towards the centre {centre} hits the mesh in {max_draws} draws")
+
+
+def probe_quaternion(direction: FloatArray) -> tuple[float, float, float, float]:
+    """wxyz quaternion of the probe facing along -direction (its z axis pokes towards the object)."""
+    from scipy.spatial.transform import Rotation
+
+    from palpate.nodes.controller.so3 import align_axis
+
+    R0 = Rotation.from_quat([0.0, 1.0, 0.0, 0.0], scalar_first=True).as_matrix()  # the sim's default: facing -z
+    R = align_axis(R0[:, 2], -np.asarray(direction, dtype=np.float64)) @ R0
+    q = Rotation.from_matrix(R).as_quat(scalar_first=True)
+    return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
+
+
+@dataclass(frozen=True, kw_only=True)
+class Episode:
+    """One run: object, strategy, run index (the seed), start geometry and parameter overrides.
+
+    ``params`` are dotted overrides of node parameters, ``"node.key.subkey" -> value`` (the sweep's
+    knobs), applied to the launch file after its arguments are substituted.
+    """
+
+    case: ObjectCase
+    strategy: str
+    run: int
+    start_m: tuple[float, float, float]
+    target_m: tuple[float, float, float]
+    quaternion_wxyz: tuple[float, float, float, float]
+    duration_s: float = 3600.0
+    params: tuple[tuple[str, Any], ...] = ()
+    results_path: str = ""
+    plot_path: str = ""
+
+    def launch_args(self) -> dict[str, Any]:
+        """Launch arguments of explore.yaml for this episode."""
+        return {
+            **self.case.launch_args(),
+            "strategy": self.strategy,
+            "seed": self.run,
+            "start": list(self.start_m),
+            "start_quaternion": list(self.quaternion_wxyz),
+            "target": list(self.target_m),
+            "duration_s": self.duration_s,
+            "variance": self.strategy == "gpv",
+            "results": self.results_path,
+            "plot": self.plot_path,
+        }
+
+
+def episodes(
+    cases: Sequence[ObjectCase],
+    runs: int,
+    strategies: Sequence[str] = DEFAULT_STRATEGIES,
+    *,
+    duration_s: float = 3600.0,
+    params: Mapping[str, Any] | None = None,
+) -> list[Episode]:
+    """Every (object, run, strategy) episode; the start geometry depends on the object and run only."""
+    out = []
+    frozen = tuple(sorted((params or {}).items()))
+    for case in cases:
+        vertices, faces = case.true_mesh()
+        for run in range(runs):
+            a = approach(vertices, faces, run)
+            q = probe_quaternion(a.direction)
+            for strategy in strategies:
+                out.append(
+                    Episode(
+                        case=case,
+                        strategy=strategy,
+                        run=run,
+                        start_m=_triple(a.start_m),
+                        target_m=_triple(a.target_m),
+                        quaternion_wxyz=q,
+                        duration_s=duration_s,
+                        params=frozen,
+                    )
+                )
+    return out
+
+
+def _triple(v: FloatArray) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def apply_params(launch: Any, params: Iterable[tuple[str, Any]]) -> None:
+    """Set dotted node parameters ``"node.key.subkey" = value`` in a loaded launch file, in place."""
+    nodes = {entry.fields["name"]: entry for entry in launch.nodes}
+    for dotted, value in params:
+        name, _, path = dotted.partition(".")
+        if name not in nodes or not path:
+            raise ConfigError(f"parameter override {dotted!r}: expected node.key with node one of {sorted(nodes)}")
+        target = nodes[name].fields.setdefault("params", {})
+        keys = path.split(".")
+        for key in keys[:-1]:
+            target = target.setdefault(key, {})
+            if not isinstance(target, dict):
+                raise ConfigError(f"parameter override {dotted!r}: {key!r} is not a mapping")
+        target[keys[-1]] = value
+
+
+def run_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> dict[str, Any]:
+    """Run one episode in this process; returns the evaluator's summary plus timing and identity."""
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch
+    from palpate.runtime.inprocess import InProcessGraph
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    launch = load_launch(launch_path, episode.launch_args())
+    apply_params(launch, episode.params)
+    graph = InProcessGraph(resolve(launch))
+    plan_s = _time_planning(graph)
+    t1 = time.perf_counter()
+    ticks = graph.run()
+    t2, c2 = time.perf_counter(), time.process_time()
+    result: dict[str, Any] = dict(graph.node("eval").result)
+    result.update(
+        object=episode.case.name,
+        strategy=episode.strategy,
+        run=episode.run,
+        ticks=ticks,
+        stop_reason=graph.stop_reason,
+        setup_s=t1 - t0,
+        wall_s=t2 - t1,
+        cpu_s=c2 - c0,
+        plan_ms=1000.0 * plan_s[0] / max(1, int(result.get("contacts", 0))),
+        params=dict(episode.params),
+    )
+    return result
+
+
+def _time_planning(graph: Any) -> list[float]:
+    """Accumulate the CPU seconds of the per-contact work (GPIS update + local surface, planner) into
+    the returned one-element list while the graph runs."""
+    total = [0.0]
+    for name, method in (("gpis", "on_touches"), ("planner", "on_surface")):
+        node = graph.node(name)
+        inner = getattr(node, method)
+
+        def timed(message: Any, inner: Callable[[Any], None] = inner) -> None:
+            start = time.process_time()
+            try:
+                inner(message)
+            finally:
+                total[0] += time.process_time() - start
+
+        setattr(node, method, timed)
+    return total
+
+
+@dataclass
+class RunnerOptions:
+    """How to run many episodes: worker processes and a progress callback."""
+
+    workers: int = 2
+    progress: bool = True
+    on_result: Callable[[dict[str, Any]], None] | None = None
+
+
+def run_episodes(items: Sequence[Episode], options: RunnerOptions | None = None) -> list[dict[str, Any]]:
+    """Run episodes in ``options.workers`` processes (1: in this process) with a tqdm progress bar.
+
+    Results come back in the order of ``items``. A run that raises is reported as a row with
+    ``error`` set (and coverage 0), never dropped.
+    """
+    from tqdm import tqdm
+
+    options = options or RunnerOptions()
+    results: list[dict[str, Any] | None] = [None] * len(items)
+    bar = tqdm(total=len(items), unit="run", disable=not options.progress, smoothing=0.0)
+
+    def done(i: int, row: dict[str, Any]) -> None:
+        results[i] = row
+        bar.update(1)
+        bar.set_postfix_str(f"{row['object'][:20]} {row['strategy']} cov {100 * row.get('coverage', 0):.0f}%")
+        if options.on_result is not None:
+            options.on_result(row)
+
+    try:
+        if options.workers <= 1:
+            for i, ep in enumerate(items):
+                done(i, _safe_run(ep))
+        else:
+            # spawned (not forked) workers read the environment at start-up: one BLAS thread each,
+            # since the workers already fill the cores
+            for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+                os.environ.setdefault(var, "1")
+            context = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(max_workers=options.workers, mp_context=context) as pool:
+                futures: dict[Future[dict[str, Any]], int] = {
+                    pool.submit(_safe_run, ep): i for i, ep in enumerate(_longest_first(items))
+                }
+                order = _longest_first_index(items)
+                for fut in as_completed(futures):
+                    i = order[futures[fut]]
+                    done(i, fut.result())
+    finally:
+        bar.close()
+    return [r for r in results if r is not None]
+
+
+def _longest_first_index(items: Sequence[Episode]) -> list[int]:
+    """Indices of ``items`` sorted so that big objects start first (better load balance)."""
+    return sorted(range(len(items)), key=lambda i: -_size_key(items[i]))
+
+
+def _longest_first(items: Sequence[Episode]) -> list[Episode]:
+    return [items[i] for i in _longest_first_index(items)]
+
+
+def _size_key(ep: Episode) -> float:
+    return float(np.linalg.norm(np.subtract(ep.start_m, ep.target_m)))
+
+
+def _safe_run(episode: Episode) -> dict[str, Any]:
+    from palpate.errors import PalpateError
+
+    try:
+        return run_episode(episode)
+    except PalpateError as exc:
+        return {
+            "object": episode.case.name,
+            "strategy": episode.strategy,
+            "run": episode.run,
+            "error": f"{type(exc).__name__}: {exc}",
+            "complete": False,
+            "coverage": 0.0,
+            "contacts": 0,
+        }
+
+
+# --- `palpate eval explore` ---------------------------------------------------------------------------
+
+#: Objects of --quick: the smallest meshes (by area) of the folder.
+QUICK_OBJECTS = 3
+#: Default output folder.
+DEFAULT_OUT = Path("out/eval_explore")
+#: Object of the coverage-against-travel plot when present (the paper's Fig. 7 uses the banana).
+PLOT_OBJECT = "011_banana"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Arguments of `palpate eval explore` (registered by palpate.commands.evaluate)."""
+    parser.add_argument("--objects", type=Path, help="folder of mesh files, metres (default: the YCB folder)")
+    parser.add_argument("--runs", type=int, default=3, help="start positions per object (seed = run index)")
+    parser.add_argument("--strategies", default="igef,gpv", help="comma-separated: igef, gpv, random")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes (1: run in this process)")
+    parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, 1 run each")
+    parser.add_argument("--json", action="store_true", help="print the summary as one JSON object, last line")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (CSV, tables, plots)")
+    parser.add_argument("--max-contacts", type=int, help="contact budget per run (default: EvalConfig's)")
+    parser.add_argument("--max-travel-m", type=float, help="travel budget per run, metres (default: EvalConfig's)")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NODE.KEY=VALUE",
+        help="override a node parameter of launch/explore.yaml (YAML value), e.g. controller.controller.v0_m_s=0.1",
+    )
+    parser.set_defaults(func=main)
+
+
+def parse_sets(items: Sequence[str]) -> dict[str, Any]:
+    """``["node.key=value", ...]`` -> {"node.key": value}, values parsed as YAML scalars."""
+    import yaml
+
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or "." not in key:
+            raise ConfigError(f"--set {item!r}: expected NODE.KEY=VALUE, e.g. planner.candidate_step_m=0.005")
+        out[key] = yaml.safe_load(value)
+    return out
+
+
+def eval_params(args: argparse.Namespace) -> dict[str, Any]:
+    """Node parameter overrides of an evaluation: budgets, no per-run printing, and --set."""
+    params: dict[str, Any] = {"eval.report": False}
+    if args.max_contacts is not None:
+        params["eval.eval.max_contacts"] = args.max_contacts
+    if args.max_travel_m is not None:
+        params["eval.eval.max_travel_m"] = args.max_travel_m
+    params.update(parse_sets(args.set))
+    return params
+
+
+def select_cases(folder: Path | None, smallest: int | None = None) -> list[ObjectCase]:
+    """The objects of an evaluation: every mesh of ``folder`` (default: the YCB folder), or only the
+    ``smallest`` ones by surface area."""
+    from palpate.paths import ycb_dir
+
+    folder = folder or ycb_dir()
+    if folder is None:
+        raise ConfigError("no --objects folder given and the YCB meshes are not found (set PALPATE_YCB_DIR)")
+    cases = objects_in(Path(folder))
+    if smallest is not None:
+        import trimesh
+
+        areas = {c.name: float(trimesh.load_mesh(c.mesh).area) for c in cases}
+        cases = sorted(cases, key=lambda c: areas[c.name])[:smallest]
+    return cases
+
+
+def main(args: argparse.Namespace) -> int:
+    """`palpate eval explore`: run, write CSV/JSONL/tables/plots into --out, print the tables."""
+    from palpate.evaluation import explore_report as report
+
+    strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
+    runs = 1 if args.quick else args.runs
+    if runs < 1:
+        raise ConfigError(f"--runs must be >= 1, got {runs}")
+    cases = select_cases(args.objects, QUICK_OBJECTS if args.quick else None)
+    items = episodes(cases, runs, strategies, params=eval_params(args))
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    log = (out / "runs.jsonl").open("w")
+
+    def keep(row: dict[str, Any]) -> None:
+        log.write(json.dumps(row, default=_json_default) + "\n")
+        log.flush()
+
+    start = time.perf_counter()
+    try:
+        results = run_episodes(items, RunnerOptions(workers=args.workers, on_result=keep))
+    finally:
+        log.close()
+    elapsed = time.perf_counter() - start
+    report.write_csv(out / "runs.csv", results)
+    baseline, method = ("gpv", "igef") if {"gpv", "igef"} <= set(strategies) else (strategies[0], strategies[-1])
+    text = (
+        f"# Exploration evaluation\n\n{len(cases)} objects x {runs} runs x {len(strategies)} strategies, "
+        f"{elapsed / 60:.1f} min wall with {args.workers} workers.\n\n## Averages (Table 2)\n\n"
+        + report.table2(results, baseline, method)
+        + "\n\n## Per object (Table 4)\n\n"
+        + report.table4(results, baseline, method)
+        + "\n"
+    )
+    (out / "tables.md").write_text(text)
+    names = sorted({r["object"] for r in results})
+    if names:
+        report.plot_coverage_vs_travel(
+            out / "coverage_vs_travel.png", results, PLOT_OBJECT if PLOT_OBJECT in names else names[0]
+        )
+        report.plot_travel_per_object(out / "travel_per_object.png", results, baseline, method)
+    errors = [r for r in results if "error" in r]
+    print(text)
+    for r in errors:
+        print(f"run failed: {r['object']} {r['strategy']} run {r['run']}: {r['error']}", file=sys.stderr)
+    print(f"wrote {out}/runs.csv, runs.jsonl, tables.md, coverage_vs_travel.png, travel_per_object.png")
+    if args.json:
+        print(json.dumps(report.summary_json(results, strategies, baseline, method)))
+    return 1 if errors else 0
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

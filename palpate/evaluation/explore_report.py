@@ -1,0 +1,334 @@
+"""Tables and plots of the exploration benchmark, in the form of paper 002's Tables 2 and 4.
+
+Input: the rows :func:`palpate.evaluation.explore.run_episode` returns (one per run). How averages
+treat incomplete runs (a run whose budget ended before the milestone): a figure at a milestone
+(50 % or 80 % coverage) is averaged only over PAIRED runs, the (object, run) pairs in which every
+strategy reached that milestone, so that both strategies are measured on the same objects from the
+same starts. Runs are first averaged per object, then objects are averaged (each object counts once,
+as in the paper). Every run still appears in the CSV with its coverage, and the tables give the
+counts of runs, completed runs and paired runs.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: Milestones of Table 2 (percent coverage).
+MILESTONES = ("50", "80")
+#: Table 2's metrics: (key in a milestone, label, unit).
+METRICS = (
+    ("travel_cm", "Avg. traveled distance", "cm"),
+    ("rotation_deg", "Avg. overall rotation", "deg"),
+    ("rmse_mm", "Avg. surface RMSE (symmetric)", "mm"),
+    ("rmse_estimate_to_truth_mm", "Avg. RMSE estimate -> truth", "mm"),
+    ("rmse_truth_to_estimate_mm", "Avg. RMSE truth -> estimate", "mm"),
+    ("prediction_miss_mm", "Avg. prediction miss", "mm"),
+    ("contacts", "Avg. number of contacts", ""),
+    ("angle_deg", "Avg. fingertip-normal angle", "deg"),
+)
+#: Columns of the per-run CSV (milestone figures get a _50 / _80 suffix).
+RUN_COLUMNS = (
+    "object",
+    "strategy",
+    "run",
+    "complete",
+    "finished",
+    "coverage",
+    "vertex_coverage",
+    "contacts",
+    "area_m2",
+    "covering_bound_contacts",
+    "ticks",
+    "cpu_s",
+    "wall_s",
+    "error",
+)
+MILESTONE_COLUMNS = (
+    "reached",
+    "contacts",
+    "travel_cm",
+    "rotation_deg",
+    "rmse_mm",
+    "rmse_estimate_to_truth_mm",
+    "rmse_truth_to_estimate_mm",
+    "prediction_miss_mm",
+    "angle_deg",
+    "coverage",
+    "vertex_coverage",
+)
+
+
+def flat_row(result: Mapping[str, Any]) -> dict[str, Any]:
+    """One CSV row of a run result (milestone figures as ``<name>_<percent>``)."""
+    row: dict[str, Any] = {key: result.get(key, "") for key in RUN_COLUMNS}
+    milestones = result.get("milestones", {})
+    for percent in MILESTONES:
+        m = milestones.get(percent, {})
+        for key in MILESTONE_COLUMNS:
+            row[f"{key}_{percent}"] = m.get(key, "")
+    return row
+
+
+def write_csv(path: Path, results: Iterable[Mapping[str, Any]]) -> None:
+    """Every run, one row each (see RUN_COLUMNS and MILESTONE_COLUMNS)."""
+    rows = [flat_row(r) for r in results]
+    columns = list(RUN_COLUMNS) + [f"{k}_{p}" for p in MILESTONES for k in MILESTONE_COLUMNS]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=columns)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: _csv_value(v) for k, v in row.items()})
+
+
+def _csv_value(value: Any) -> Any:
+    if isinstance(value, float):
+        return "" if math.isnan(value) else f"{value:.6g}"
+    return value
+
+
+def _reached(result: Mapping[str, Any], percent: str) -> bool:
+    m = result.get("milestones", {}).get(percent)
+    return bool(m and m.get("reached"))
+
+
+def _value(result: Mapping[str, Any], percent: str, key: str) -> float:
+    v = result["milestones"][percent].get(key)
+    return math.nan if v is None else float(v)
+
+
+def paired_means(
+    results: Sequence[Mapping[str, Any]], strategies: Sequence[str], percent: str
+) -> dict[str, dict[str, float]]:
+    """Per strategy, each metric at milestone ``percent`` averaged over the paired runs (see the
+    module doc: object means, then the mean over objects), plus counts.
+
+    Returns {strategy: {metric: mean, "runs": n, "runs_completed": n, "paired_runs": n, "objects": n}}.
+    """
+    by_key: dict[tuple[str, int], dict[str, Mapping[str, Any]]] = {}
+    for r in results:
+        by_key.setdefault((r["object"], int(r["run"])), {})[r["strategy"]] = r
+    paired = [
+        runs
+        for runs in by_key.values()
+        if all(s in runs and "error" not in runs[s] and _reached(runs[s], percent) for s in strategies)
+    ]
+    out: dict[str, dict[str, float]] = {}
+    for s in strategies:
+        mine = [r for r in results if r["strategy"] == s]
+        per_object: dict[str, list[Mapping[str, Any]]] = {}
+        for runs in paired:
+            per_object.setdefault(runs[s]["object"], []).append(runs[s])
+        stats: dict[str, float] = {
+            "runs": float(len(mine)),
+            "runs_completed": float(sum(1 for r in mine if "error" not in r and _reached(r, percent))),
+            "paired_runs": float(len(paired)),
+            "objects": float(len(per_object)),
+        }
+        for key, _, _ in METRICS:
+            object_means = [
+                float(np.nanmean([_value(r, percent, key) for r in rs]))
+                for rs in per_object.values()
+                if not all(math.isnan(_value(r, percent, key)) for r in rs)
+            ]
+            stats[key] = float(np.mean(object_means)) if object_means else math.nan
+        out[s] = stats
+    return out
+
+
+def improvement_pct(baseline: float, method: float) -> float:
+    """(baseline - method) / baseline in percent: how much smaller the method's figure is."""
+    if not (math.isfinite(baseline) and math.isfinite(method)) or baseline == 0.0:
+        return math.nan
+    return 100.0 * (baseline - method) / baseline
+
+
+def _fmt(value: float, unit: str = "", digits: int = 1) -> str:
+    if not math.isfinite(value):
+        return "-"
+    return f"{value:.{digits}f}" + (f" {unit}" if unit else "")
+
+
+def table2(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: str = "igef") -> str:
+    """Markdown table in the form of the paper's Table 2 (averages at 50 % and 80 % coverage)."""
+    lines = [
+        f"| Coverage | Metric | {baseline.upper()} | {method.upper()} | Avg. improvement |",
+        "|---|---|---:|---:|---:|",
+    ]
+    notes = []
+    for percent in MILESTONES:
+        means = paired_means(results, (baseline, method), percent)
+        b, m = means[baseline], means[method]
+        for key, label, unit in METRICS:
+            digits = 2 if unit == "mm" and "miss" not in key else 1
+            lines.append(
+                f"| {percent} % | {label} | {_fmt(b[key], unit, digits)} | {_fmt(m[key], unit, digits)} | "
+                f"{_fmt(improvement_pct(b[key], m[key]), '%', 0)} |"
+            )
+        notes.append(
+            f"{percent} %: {int(b['paired_runs'])} paired runs on {int(b['objects'])} objects; completed "
+            f"{baseline.upper()} {int(b['runs_completed'])}/{int(b['runs'])}, "
+            f"{method.upper()} {int(m['runs_completed'])}/{int(m['runs'])}"
+        )
+    lines.append("")
+    lines.append(
+        "Averages over paired runs only (every strategy reached the coverage in that (object, run)): "
+        "per object, then over objects. Improvement = (baseline - method) / baseline. " + "; ".join(notes) + "."
+    )
+    return "\n".join(lines)
+
+
+def table4(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: str = "igef") -> str:
+    """Markdown table in the form of the paper's Table 4: per object, travel at 80 % coverage.
+
+    Each strategy's travel is its mean over its own completed runs (the count beside it); the
+    improvement compares the paired runs only; the covering bound (contacts) is beside it.
+    """
+    objects = sorted({r["object"] for r in results})
+    lines = [
+        f"| Object | {baseline.upper()} travel | {method.upper()} travel | Improvement (paired) | "
+        f"{baseline.upper()} contacts | {method.upper()} contacts | Covering bound (contacts) | "
+        f"Coverage reached {baseline.upper()} / {method.upper()} |",
+        "|---|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for name in objects:
+        mine = [r for r in results if r["object"] == name]
+        cells = []
+        contact_cells = []
+        for s in (baseline, method):
+            done = [r for r in mine if r["strategy"] == s and "error" not in r and _reached(r, "80")]
+            runs = [r for r in mine if r["strategy"] == s]
+            travel = float(np.mean([_value(r, "80", "travel_cm") for r in done])) if done else math.nan
+            contacts = float(np.mean([_value(r, "80", "contacts") for r in done])) if done else math.nan
+            cells.append(f"{_fmt(travel, 'cm')} ({len(done)}/{len(runs)})")
+            contact_cells.append(_fmt(contacts, "", 0))
+        paired = paired_means(mine, (baseline, method), "80")
+        gain = improvement_pct(paired[baseline]["travel_cm"], paired[method]["travel_cm"])
+        bound = next((float(r["covering_bound_contacts"]) for r in mine if "covering_bound_contacts" in r), math.nan)
+        coverage = " / ".join(
+            _fmt(100.0 * float(np.mean([r.get("coverage", 0.0) for r in mine if r["strategy"] == s])), "%", 0)
+            for s in (baseline, method)
+        )
+        lines.append(
+            f"| {name} | {cells[0]} | {cells[1]} | {_fmt(gain, '%', 1)} | {contact_cells[0]} | "
+            f"{contact_cells[1]} | {_fmt(bound, '', 0)} | {coverage} |"
+        )
+    avg = paired_means(results, (baseline, method), "80")
+    lines.append(
+        f"| **average (paired)** | {_fmt(avg[baseline]['travel_cm'], 'cm')} | {_fmt(avg[method]['travel_cm'], 'cm')} | "
+        f"{_fmt(improvement_pct(avg[baseline]['travel_cm'], avg[method]['travel_cm']), '%', 1)} | "
+        f"{_fmt(avg[baseline]['contacts'], '', 0)} | {_fmt(avg[method]['contacts'], '', 0)} | | |"
+    )
+    lines.append("")
+    lines.append(
+        "Travel at 80 % coverage, mean over each strategy's completed runs (completed/runs in brackets); "
+        "the improvement compares the paired runs only. Covering bound: 1.21 x 0.8 x area / (pi (6 mm)^2), "
+        "the fewest 6 mm discs that cover 80 % of a flat surface of that area."
+    )
+    return "\n".join(lines)
+
+
+def summary_json(
+    results: Sequence[Mapping[str, Any]], strategies: Sequence[str], baseline: str = "gpv", method: str = "igef"
+) -> dict[str, Any]:
+    """The --json summary: per strategy the figures at 80 % (paired averages) and counts, plus ratios."""
+    keys = ("travel_cm", "rotation_deg", "rmse_mm", "prediction_miss_mm", "contacts")
+    means = paired_means(results, strategies, "80")
+    out: dict[str, Any] = {}
+    for s in strategies:
+        m = means[s]
+        out[s] = {k: _json_number(m[k]) for k in keys}
+        out[s].update(
+            runs_completed=int(m["runs_completed"]),
+            runs=int(m["runs"]),
+            paired_runs=int(m["paired_runs"]),
+            rmse_estimate_to_truth_mm=_json_number(m["rmse_estimate_to_truth_mm"]),
+            rmse_truth_to_estimate_mm=_json_number(m["rmse_truth_to_estimate_mm"]),
+        )
+    if baseline in means and method in means:
+        out["ratios"] = {
+            f"{k}_{method}_over_{baseline}": _json_number(_ratio(means[method][k], means[baseline][k])) for k in keys
+        }
+        out["ratios"]["travel_improvement_pct"] = _json_number(
+            improvement_pct(means[baseline]["travel_cm"], means[method]["travel_cm"])
+        )
+    out["coverage"] = 80
+    out["averaging"] = "paired runs (every strategy reached 80 %), mean per object, then over objects"
+    return out
+
+
+def _ratio(a: float, b: float) -> float:
+    return a / b if math.isfinite(a) and math.isfinite(b) and b != 0.0 else math.nan
+
+
+def _json_number(value: float) -> float | None:
+    return None if not math.isfinite(value) else round(float(value), 4)
+
+
+def plot_coverage_vs_travel(path: Path, results: Sequence[Mapping[str, Any]], object_name: str) -> None:
+    """Coverage against travelled distance for every strategy (and run) on one object (paper Fig. 7a)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    colours = {"igef": "tab:blue", "gpv": "tab:orange", "random": "tab:gray"}
+    labelled: set[str] = set()
+    for r in results:
+        if r["object"] != object_name or not r.get("touches"):
+            continue
+        s = r["strategy"]
+        travel = [t["travel_cm"] for t in r["touches"]]
+        coverage = [100.0 * t["coverage"] for t in r["touches"]]
+        ax.plot(travel, coverage, color=colours.get(s, "k"), alpha=0.8, label=None if s in labelled else s.upper())
+        labelled.add(s)
+    for level in (50, 80):
+        ax.axhline(level, color="0.6", linewidth=0.8, linestyle="--")
+    ax.set_xlabel("travelled distance (cm)")
+    ax.set_ylabel("coverage (% of the true surface within 6 mm of a contact)")
+    ax.set_title(f"{object_name}: exploration progress")
+    ax.legend()
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_travel_per_object(
+    path: Path, results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: str = "igef"
+) -> None:
+    """Per-object travel at 80 % coverage for both strategies (bars; completed runs only)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    objects = sorted({r["object"] for r in results})
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.35 * len(objects) + 2.0), 4.5))
+    x = np.arange(len(objects))
+    for k, (s, colour) in enumerate(((baseline, "tab:orange"), (method, "tab:blue"))):
+        values = []
+        for name in objects:
+            done = [
+                _value(r, "80", "travel_cm")
+                for r in results
+                if r["object"] == name and r["strategy"] == s and "error" not in r and _reached(r, "80")
+            ]
+            values.append(float(np.mean(done)) if done else 0.0)
+        ax.bar(x + (k - 0.5) * 0.4, values, width=0.4, color=colour, label=s.upper())
+    ax.set_xticks(x)
+    ax.set_xticklabels(objects, rotation=70, ha="right", fontsize=7)
+    ax.set_ylabel("travelled distance to 80 % coverage (cm)")
+    ax.set_title("Travel per object (completed runs; no bar: none completed)")
+    ax.legend()
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

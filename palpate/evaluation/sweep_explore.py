@@ -1,0 +1,203 @@
+"""`palpate sweep explore`: the speed-accuracy trade of the exploration graph, one knob at a time.
+
+Each setting changes one knob of launch/explore.yaml from its default (the first row, "default") and
+runs the same episodes (objects, start positions, strategies) as the default, in-process in worker
+processes. Reported per setting, over its runs: surface RMSE (symmetric) and travel at 80 % coverage
+(completed runs), contacts, milliseconds of CPU per planning step (GPIS update + local surface +
+planner, per contact), CPU seconds per run, and how many runs completed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from palpate.errors import ConfigError
+from palpate.evaluation.explore import (
+    Episode,
+    RunnerOptions,
+    episodes,
+    parse_sets,
+    run_episodes,
+    select_cases,
+)
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One point of the sweep: a name, the knob it turns, and the node parameter overrides."""
+
+    name: str
+    knob: str
+    params: tuple[tuple[str, Any], ...]
+
+
+def _s(name: str, knob: str, **params: Any) -> Setting:
+    return Setting(name, knob, tuple((k.replace("__", "."), v) for k, v in params.items()))
+
+
+#: The sweep: the default first, then one knob changed at a time (keys: node.param, "__" for ".").
+SETTINGS: tuple[Setting, ...] = (
+    _s("default", "-"),
+    _s("kernel gaussian (sigma 3 cm)", "kernel", gpis__gp__kernel="gaussian"),
+    _s("value noise 1 mm", "GP noise", gpis__gp__value_noise_m=1e-3),
+    _s("gradient noise 0.3", "GP noise", gpis__gp__gradient_noise=0.3),
+    _s("gradient noise 0.03", "GP noise", gpis__gp__gradient_noise=0.03),
+    _s("local mesh 3.5 mm", "marching-cubes resolution", gpis__local_resolution_m=0.0035),
+    _s("local mesh 7.5 mm", "marching-cubes resolution", gpis__local_resolution_m=0.0075),
+    _s("candidate step 2.5 mm", "candidate step", planner__candidate_step_m=0.0025),
+    _s("candidate step 10 mm", "candidate step", planner__candidate_step_m=0.01),
+    _s("v0 2.5 cm/s", "speed v0", controller__controller__v0_m_s=0.025),
+    _s("v0 10 cm/s", "speed v0", controller__controller__v0_m_s=0.1),
+    _s("sim step 1 ms", "simulation time step", sim__scene__timestep_s=0.001),
+    _s("sim step 5 ms", "simulation time step", sim__scene__timestep_s=0.005),
+    _s("tick 20 ms", "simulation time step", sim__tick_period_s=0.02),
+)
+#: Objects of --quick: the smallest meshes by area.
+QUICK_OBJECTS = 2
+#: Objects without --quick.
+FULL_OBJECTS = 5
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Arguments of `palpate sweep explore`."""
+    parser.add_argument("--objects", type=Path, help="folder of mesh files, metres (default: the YCB folder)")
+    parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, IGEF, 1 run")
+    parser.add_argument("--runs", type=int, default=1, help="start positions per object")
+    parser.add_argument("--strategies", default="igef", help="comma-separated strategies (default igef)")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes")
+    parser.add_argument("--only", default="", help="comma-separated setting names or knobs to run (default all)")
+    parser.add_argument("--out", type=Path, default=Path("out/sweep_explore"), help="output folder")
+    parser.add_argument("--json", action="store_true", help="print the rows as one JSON list, last line")
+    parser.add_argument("--set", action="append", default=[], metavar="NODE.KEY=VALUE", help="applies to all")
+    parser.set_defaults(func=main)
+
+
+def sweep_episodes(
+    base: Sequence[Episode], settings: Sequence[Setting], common: Mapping[str, Any]
+) -> list[tuple[Setting, Episode]]:
+    """Every base episode under every setting (common overrides first, the setting's on top)."""
+    out = []
+    for setting in settings:
+        for ep in base:
+            params = {**common, **dict(setting.params)}
+            out.append((setting, Episode(**{**ep.__dict__, "params": tuple(sorted(params.items()))})))
+    return out
+
+
+def summarise(setting: Setting, rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """One table row: the setting's means over its runs (RMSE and travel over completed runs)."""
+    ok = [r for r in rows if "error" not in r]
+    done = [r for r in ok if r["milestones"]["80"]["reached"]]
+
+    def mean(values: Sequence[float]) -> float:
+        finite = [v for v in values if v is not None and math.isfinite(v)]
+        return float(np.mean(finite)) if finite else math.nan
+
+    return {
+        "setting": setting.name,
+        "knob": setting.knob,
+        "params": dict(setting.params),
+        "runs": len(rows),
+        "completed": len(done),
+        "rmse_mm": mean([r["milestones"]["80"]["rmse_mm"] for r in done]),
+        "travel_cm": mean([r["milestones"]["80"]["travel_cm"] for r in done]),
+        "contacts": mean([float(r["contacts"]) for r in ok]),
+        "coverage": mean([float(r["coverage"]) for r in ok]),
+        "miss_mm": mean([r["milestones"]["80"]["prediction_miss_mm"] for r in done]),
+        "plan_ms": mean([float(r["plan_ms"]) for r in ok]),
+        "cpu_s": mean([float(r["cpu_s"]) for r in ok]),
+    }
+
+
+def table(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Markdown table of the summary rows."""
+
+    def f(v: float, digits: int = 1) -> str:
+        return "-" if not math.isfinite(v) else f"{v:.{digits}f}"
+
+    lines = [
+        "| Setting | Knob | Completed | RMSE 80 % (mm) | Travel 80 % (cm) | Contacts | Miss (mm) | "
+        "Plan step (ms CPU) | Run (s CPU) |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['setting']} | {r['knob']} | {r['completed']}/{r['runs']} | {f(r['rmse_mm'], 2)} | "
+            f"{f(r['travel_cm'])} | {f(r['contacts'], 0)} | {f(r['miss_mm'])} | {f(r['plan_ms'])} | {f(r['cpu_s'])} |"
+        )
+    return "\n".join(lines)
+
+
+def plot(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
+    """Accuracy (RMSE at 80 %) against time (CPU per run), one labelled point per setting."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    for ax, key, label in (
+        (axes[0], "cpu_s", "CPU seconds per run"),
+        (axes[1], "plan_ms", "CPU ms per planning step (GPIS + planner)"),
+    ):
+        for r in rows:
+            if not (math.isfinite(r["rmse_mm"]) and math.isfinite(r[key])):
+                continue
+            colour = "tab:red" if r["setting"] == "default" else "tab:blue"
+            ax.scatter(r[key], r["rmse_mm"], color=colour)
+            ax.annotate(r["setting"], (r[key], r["rmse_mm"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        ax.set_xlabel(label)
+        ax.set_ylabel("surface RMSE at 80 % coverage (mm)")
+        ax.grid(alpha=0.3)
+    fig.suptitle("Exploration speed-accuracy trade (one knob changed from the default per point)")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run the sweep; write sweep.md, sweep.png and runs.jsonl into --out."""
+    strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
+    wanted = {w.strip() for w in args.only.split(",") if w.strip()}
+    settings = [s for s in SETTINGS if not wanted or s.name in wanted or s.knob in wanted or s.name == "default"]
+    if not settings:
+        raise ConfigError(f"--only {args.only!r} matches no setting; settings: {[s.name for s in SETTINGS]}")
+    cases = select_cases(args.objects, QUICK_OBJECTS if args.quick else FULL_OBJECTS)
+    runs = 1 if args.quick else args.runs
+    common = {"eval.report": False, **parse_sets(args.set)}
+    base = episodes(cases, runs, strategies)
+    pairs = sweep_episodes(base, settings, common)
+    start = time.perf_counter()
+    results = run_episodes([ep for _, ep in pairs], RunnerOptions(workers=args.workers))
+    elapsed = time.perf_counter() - start
+    by_setting: dict[str, list[dict[str, Any]]] = {}
+    for (setting, _), row in zip(pairs, results, strict=True):
+        by_setting.setdefault(setting.name, []).append(row)
+    rows = [summarise(s, by_setting[s.name]) for s in settings]
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    with (out / "runs.jsonl").open("w") as f:
+        for (setting, _), row in zip(pairs, results, strict=True):
+            slim = {k: v for k, v in row.items() if k != "touches"}
+            f.write(json.dumps({"setting": setting.name, **slim}, default=str) + "\n")
+    text = (
+        f"# Exploration sweep\n\nObjects: {', '.join(c.name for c in cases)}; strategies {', '.join(strategies)}; "
+        f"{runs} run(s) each; {elapsed / 60:.1f} min wall with {args.workers} workers.\n\n" + table(rows) + "\n"
+    )
+    (out / "sweep.md").write_text(text)
+    plot(out / "sweep.png", rows)
+    print(text)
+    print(f"wrote {out}/sweep.md, sweep.png, runs.jsonl")
+    if args.json:
+        print(json.dumps(rows, default=lambda v: None if isinstance(v, float) and not math.isfinite(v) else v))
+    return 0

@@ -1,0 +1,91 @@
+"""Episode set-up of the exploration benchmark: seeded starts, initial targets, launch arguments."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from palpate.errors import ConfigError
+from palpate.evaluation.explore import (
+    EXPLORE_LAUNCH,
+    ObjectCase,
+    apply_params,
+    approach,
+    episodes,
+    parse_sets,
+    probe_quaternion,
+)
+from palpate.launch.loader import load_launch
+from palpate.metrics.exploration import DistanceField
+from palpate.nodes.controller.so3 import quat_to_matrix
+from palpate.nodes.sim.contacts import ExactContactSensor
+from palpate.nodes.sim.objects import primitive_mesh
+
+
+def test_start_and_target_follow_the_ray_to_the_centre() -> None:
+    box = trimesh.creation.box((0.04, 0.06, 0.02))
+    box.apply_translation([0.01, 0.0, 0.01])
+    V, F = np.asarray(box.vertices), np.asarray(box.faces)
+    centre = 0.5 * (V.min(axis=0) + V.max(axis=0))
+    radius = float(np.linalg.norm(V - centre, axis=1).max())
+    for run in range(5):
+        a = approach(V, F, run)
+        assert a.direction[2] >= 0.0 and np.linalg.norm(a.direction) == pytest.approx(1.0)
+        np.testing.assert_allclose(np.linalg.norm(a.start_m - centre), radius + 0.03, atol=1e-12)
+        # the target lies on the ray, 3 mm inside the surface
+        ray = (a.target_m - a.start_m) / np.linalg.norm(a.target_m - a.start_m)
+        np.testing.assert_allclose(ray, -a.direction, atol=1e-6)
+        hit = a.target_m + 0.003 * a.direction
+        assert DistanceField(box).distance(hit[None])[0] == pytest.approx(0.0, abs=1e-6)
+        assert ExactContactSensor(box).closest(a.target_m[None]).distance_m[0] < 0.0  # inside
+    # seeded: the same run gives the same start, another run another one
+    np.testing.assert_array_equal(approach(V, F, 2).start_m, approach(V, F, 2).start_m)
+    assert not np.allclose(approach(V, F, 2).start_m, approach(V, F, 3).start_m)
+
+
+def test_rays_through_the_torus_hole_are_drawn_again() -> None:
+    torus = primitive_mesh("torus", (0.04, 0.015))
+    V, F = np.asarray(torus.vertices), np.asarray(torus.faces)
+    draws = [approach(V, F, run).draws for run in range(8)]
+    assert max(draws) > 1  # steep rays pass through the hole
+    sensor = ExactContactSensor(torus)
+    for run in range(8):
+        assert sensor.closest(approach(V, F, run).target_m[None]).distance_m[0] < 0.0
+
+
+def test_probe_faces_the_object() -> None:
+    d = np.array([0.3, -0.2, 0.9])
+    d /= np.linalg.norm(d)
+    R = quat_to_matrix(probe_quaternion(d))
+    np.testing.assert_allclose(R[:, 2], -d, atol=1e-12)
+
+
+def test_episodes_pair_strategies_on_the_same_start_and_load_as_launch_arguments() -> None:
+    case = ObjectCase(name="sphere", kind="sphere", size_m=(0.03,))
+    items = episodes([case], 2, ("igef", "gpv"), params={"eval.report": False})
+    assert [(e.run, e.strategy) for e in items] == [(0, "igef"), (0, "gpv"), (1, "igef"), (1, "gpv")]
+    assert items[0].start_m == items[1].start_m and items[0].start_m != items[2].start_m
+    launch = load_launch(EXPLORE_LAUNCH, items[1].launch_args())
+    apply_params(launch, items[1].params)
+    nodes = {n.fields["name"]: n.fields for n in launch.nodes}
+    assert nodes["planner"]["params"]["strategy"] == "gpv"
+    assert nodes["gpis"]["params"]["vertex_variance"] is True
+    assert nodes["eval"]["params"]["report"] is False
+    assert launch.seed == 0
+
+
+def test_parameter_overrides_are_checked() -> None:
+    assert parse_sets(["planner.candidate_step_m=0.01", "gpis.gp.kernel=gaussian"]) == {
+        "planner.candidate_step_m": 0.01,
+        "gpis.gp.kernel": "gaussian",
+    }
+    with pytest.raises(ConfigError):
+        parse_sets(["no_equals_sign"])
+    launch = load_launch(EXPLORE_LAUNCH)
+    with pytest.raises(ConfigError, match=r"node\.key"):
+        apply_params(launch, [("nosuchnode.x", 1)])
+    apply_params(launch, [("controller.controller.v0_m_s", 0.1)])
+    assert next(n for n in launch.nodes if n.fields["name"] == "controller").fields["params"]["controller"] == {
+        "v0_m_s": 0.1
+    }

@@ -1,0 +1,118 @@
+"""Aggregation and tables of the exploration benchmark (synthetic run rows, no simulation)."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from palpate.evaluation import explore_report as report
+
+
+def run(
+    obj: str, strategy: str, idx: int, travel: float | None, contacts: int = 10, rmse: float = 1.0
+) -> dict[str, Any]:
+    """A result row; travel None means the run never reached 80 % (it reached 50 % at half)."""
+    reached = travel is not None
+    t = travel if travel is not None else 999.0
+
+    def milestone(scale: float, ok: bool) -> dict[str, Any]:
+        return {
+            "reached": ok,
+            "contacts": contacts * scale,
+            "travel_cm": t * scale,
+            "rotation_deg": 10.0 * t * scale,
+            "rmse_mm": rmse,
+            "rmse_estimate_to_truth_mm": rmse,
+            "rmse_truth_to_estimate_mm": rmse,
+            "prediction_miss_mm": 2.0,
+            "angle_deg": 5.0,
+            "coverage": 0.5 * scale,
+            "vertex_coverage": 0.5 * scale,
+        }
+
+    return {
+        "object": obj,
+        "strategy": strategy,
+        "run": idx,
+        "complete": reached,
+        "finished": "goal" if reached else "contact budget",
+        "coverage": 0.8 if reached else 0.6,
+        "vertex_coverage": 0.8,
+        "contacts": contacts,
+        "area_m2": 0.01,
+        "covering_bound_contacts": 86.0,
+        "milestones": {"50": milestone(0.5, True), "80": milestone(1.0, reached)},
+    }
+
+
+RESULTS = [
+    run("a", "gpv", 0, 100.0),
+    run("a", "igef", 0, 60.0),
+    run("a", "gpv", 1, 200.0),
+    run("a", "igef", 1, 100.0),
+    run("b", "gpv", 0, 50.0),
+    run("b", "igef", 0, None),  # incomplete: pair b/0 drops out at 80 %
+    run("c", "gpv", 0, None),
+    run("c", "igef", 0, 30.0),  # its own completion counts, but it is not paired
+]
+
+
+def test_paired_means_average_per_object_then_over_objects() -> None:
+    means = report.paired_means(RESULTS, ("gpv", "igef"), "80")
+    # only object a is paired at 80 %: (100 + 200) / 2 and (60 + 100) / 2
+    assert means["gpv"]["travel_cm"] == pytest.approx(150.0)
+    assert means["igef"]["travel_cm"] == pytest.approx(80.0)
+    assert means["gpv"]["paired_runs"] == 2 and means["gpv"]["objects"] == 1
+    assert means["gpv"]["runs"] == 4 and means["gpv"]["runs_completed"] == 3
+    assert means["igef"]["runs_completed"] == 3
+    # at 50 % everything is paired; objects weigh equally: a (75, 40), b (25, 499.5), c (499.5, 15)
+    half = report.paired_means(RESULTS, ("gpv", "igef"), "50")
+    assert half["gpv"]["objects"] == 3
+    assert half["gpv"]["travel_cm"] == pytest.approx((75.0 + 25.0 + 499.5) / 3)
+
+
+def test_improvement_is_relative_to_the_baseline() -> None:
+    assert report.improvement_pct(159.0, 117.0) == pytest.approx(26.4, abs=0.1)
+    assert math.isnan(report.improvement_pct(0.0, 1.0))
+    assert math.isnan(report.improvement_pct(math.nan, 1.0))
+
+
+def test_summary_json_has_the_issue_keys_and_ratios() -> None:
+    summary = report.summary_json(RESULTS, ("igef", "gpv"))
+    for s in ("igef", "gpv"):
+        for key in ("travel_cm", "rotation_deg", "rmse_mm", "prediction_miss_mm", "contacts", "runs_completed", "runs"):
+            assert key in summary[s]
+    assert summary["igef"]["runs"] == 4 and summary["igef"]["runs_completed"] == 3
+    assert summary["ratios"]["travel_cm_igef_over_gpv"] == pytest.approx(80.0 / 150.0, abs=1e-4)
+    assert summary["ratios"]["travel_improvement_pct"] == pytest.approx(100 * 70 / 150, abs=1e-3)
+
+
+def test_tables_state_counts_and_mark_incomplete_objects() -> None:
+    t2 = report.table2(RESULTS)
+    assert "| 80 % | Avg. traveled distance | 150.0 cm | 80.0 cm | 47 % |" in t2
+    assert "80 %: 2 paired runs on 1 objects; completed GPV 3/4, IGEF 3/4" in t2
+    t4 = report.table4(RESULTS)
+    row_b = next(line for line in t4.splitlines() if line.startswith("| b |"))
+    assert "50.0 cm (1/1)" in row_b and "- (0/1)" in row_b
+    assert "| 86 |" in row_b  # the covering bound beside the travel
+
+
+def test_csv_has_one_row_per_run_with_milestone_columns(tmp_path: Path) -> None:
+    path = tmp_path / "runs.csv"
+    report.write_csv(path, RESULTS)
+    rows = list(csv.DictReader(path.open()))
+    assert len(rows) == len(RESULTS)
+    assert rows[5]["object"] == "b" and rows[5]["reached_80"] == "False" and rows[5]["coverage"] == "0.6"
+    for column in ("travel_cm_80", "rmse_mm_50", "rmse_estimate_to_truth_mm_80", "covering_bound_contacts"):
+        assert column in rows[0]
+
+
+def test_plots_are_written(tmp_path: Path) -> None:
+    rows = [dict(r, touches=[{"travel_cm": 1.0 * i, "coverage": 0.01 * i} for i in range(5)]) for r in RESULTS]
+    report.plot_coverage_vs_travel(tmp_path / "c.png", rows, "a")
+    report.plot_travel_per_object(tmp_path / "t.png", rows)
+    assert (tmp_path / "c.png").stat().st_size > 1000 and (tmp_path / "t.png").stat().st_size > 1000
