@@ -32,9 +32,7 @@ class FieldSpec:
     finite: bool = False
 
 
-def scalar(
-    kind: str, doc: str, unit: str = "", *, finite: bool = True, default: Any = dataclasses.MISSING
-) -> Any:
+def scalar(kind: str, doc: str, unit: str = "", *, finite: bool = True, default: Any = dataclasses.MISSING) -> Any:
     """A scalar field (int, float, str or bool)."""
     spec = FieldSpec(kind=kind, unit=unit, doc=doc, finite=finite and kind == "float")
     return field(default=default, metadata={"spec": spec})
@@ -52,9 +50,7 @@ def array(shape: Shape, dtype: str, doc: str, unit: str = "", *, finite: bool = 
     return field(metadata={"spec": spec})
 
 
-@dataclass_transform(
-    kw_only_default=True, frozen_default=True, field_specifiers=(field, scalar, strings, array)
-)
+@dataclass_transform(kw_only_default=True, frozen_default=True, field_specifiers=(field, scalar, strings, array))
 @dataclass(frozen=True, kw_only=True, eq=False)
 class Message:
     """Base of every message. `stamp_ns` is simulated time (or hardware time in real-time mode)."""

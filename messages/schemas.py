@@ -178,9 +178,7 @@ class SurfaceMesh(Message):
     region: str = scalar("str", "'local' (near the latest contact) or 'global' (whole object)")
     num_contacts: int = scalar("int", "contacts in the estimate")
     vertices_m: np.ndarray = array(("v", 3), "float64", "vertex positions, world frame", "m")
-    faces: np.ndarray = array(
-        ("f", 3), "int32", "vertex indices of each triangle, counter-clockwise from outside"
-    )
+    faces: np.ndarray = array(("f", 3), "int32", "vertex indices of each triangle, counter-clockwise from outside")
     vertex_normals: np.ndarray = array(("v", 3), "float64", "unit outward normals from the GP gradient")
     vertex_variance: np.ndarray = array(("v",), "float64", "GP posterior variance at each vertex", "m^2")
 
