@@ -108,56 +108,6 @@ def closest_region(d1: float, d2: float, d3: float, d4: float, d5: float, d6: fl
     return FACE, vb * denom, vc * denom
 
 
-def _closest_on_triangle(
-    px: float,
-    py: float,
-    pz: float,
-    ax: float,
-    ay: float,
-    az: float,
-    bx: float,
-    by: float,
-    bz: float,
-    cx: float,
-    cy: float,
-    cz: float,
-) -> tuple[int, float, float, float]:
-    """Scalar ``closest_points_on_triangles`` (Ericson 5.1.5): (region code, closest point x, y, z)."""
-    abx, aby, abz = bx - ax, by - ay, bz - az
-    acx, acy, acz = cx - ax, cy - ay, cz - az
-    apx, apy, apz = px - ax, py - ay, pz - az
-    d1 = abx * apx + aby * apy + abz * apz
-    d2 = acx * apx + acy * apy + acz * apz
-    if d1 <= 0 and d2 <= 0:
-        return VERTEX_A, ax, ay, az
-    bpx, bpy, bpz = px - bx, py - by, pz - bz
-    d3 = abx * bpx + aby * bpy + abz * bpz
-    d4 = acx * bpx + acy * bpy + acz * bpz
-    if d3 >= 0 and d4 <= d3:
-        return VERTEX_B, ax + abx, ay + aby, az + abz
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0 and d1 >= 0 and d3 <= 0:
-        v = d1 / (d1 - d3)
-        return EDGE_AB, ax + v * abx, ay + v * aby, az + v * abz
-    cpx, cpy, cpz = px - cx, py - cy, pz - cz
-    d5 = abx * cpx + aby * cpy + abz * cpz
-    d6 = acx * cpx + acy * cpy + acz * cpz
-    if d6 >= 0 and d5 <= d6:
-        return VERTEX_C, ax + acx, ay + acy, az + acz
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0 and d2 >= 0 and d6 <= 0:
-        w = d2 / (d2 - d6)
-        return EDGE_CA, ax + w * acx, ay + w * acy, az + w * acz
-    va = d3 * d6 - d5 * d4
-    if va <= 0 and d4 >= d3 and d5 >= d6:
-        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        s = 1.0 - t
-        return EDGE_BC, ax + s * abx + t * acx, ay + s * aby + t * acy, az + s * abz + t * acz
-    denom = 1.0 / (va + vb + vc)
-    v, w = vb * denom, vc * denom
-    return FACE, ax + v * abx + w * acx, ay + v * aby + w * acy, az + v * abz + w * acz
-
-
 def pseudo_normals(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
     """Angle-weighted pseudo-normals per face corner (F, 3, 3) and per face edge (F, 3, 3).
 
@@ -237,8 +187,6 @@ class ExactContactSensor:
         # pseudo-normal per face and region code: FACE, VERTEX_A..C, EDGE_AB..CA -> (F, 7, 3)
         self._sign_normals = np.concatenate([self._face_normals[:, None], corner, edge], axis=1)
         self._ring = face_rings(mesh)
-        self._tri_list: list[list[list[float]]] | None = None  # plain-float copies for closest_one
-        self._ring_list: list[list[int]] | None = None
         # lower bound of a face's distance for the few-point path, as planes g . p - h (F, 4): the face's
         # plane (unit normal), then per edge AB, BC, CA its outward unit normal within that plane.
         # Zero rows on degenerate faces (no pruning there).
@@ -285,8 +233,6 @@ class ExactContactSensor:
     def closest(self, points_m: np.ndarray) -> ClosestPoints:
         """Closest surface points of ``points_m`` (n, 3); float64 results, see :class:`ClosestPoints`."""
         local = self._check(points_m)
-        if len(local) == 1:
-            return self._closest_one(local[0])
         if len(local) == 0:
             empty = np.zeros((0, 3))
             return ClosestPoints(empty, np.zeros(0), empty.copy(), np.zeros(0, dtype=np.int64))
@@ -399,42 +345,6 @@ class ExactContactSensor:
         )
         ox, oy, oz = x - wb * abx - wc * acx, y - wb * aby - wc * acy, z - wb * abz - wc * acz  # p - q
         return ox * ox + oy * oy + oz * oz, region, wb, wc
-
-    def _closest_one(self, local: np.ndarray) -> ClosestPoints:
-        """``closest`` for one point (3,) in the shifted frame, in plain floats (the simulation's probe
-        asks once per step; numpy's per-call overhead on (K, 3) arrays made it ~10x slower). Same
-        algorithm, regions, tie rule and sign rule as the vectorised path."""
-        if self._tri_list is None or self._ring_list is None:
-            self._tri_list = self._triangles.tolist()
-            self._ring_list = self._ring.tolist()
-        found, _ = self._closest_faces(local[None, :])
-        px, py, pz = local.tolist()
-        tris = self._tri_list
-        best_d2 = math.inf
-        best_face, best_region = 0, FACE
-        qx = qy = qz = 0.0
-        for f in self._ring_list[int(found[0])]:
-            (ax, ay, az), (bx, by, bz), (cx, cy, cz) = tris[f]
-            region, x, y, z = _closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
-            dx, dy, dz = x - px, y - py, z - pz
-            d2 = dx * dx + dy * dy + dz * dz
-            if d2 < best_d2:  # strictly: the first (Open3D's) face wins exact ties
-                best_d2, best_face, best_region, qx, qy, qz = d2, f, region, x, y, z
-        ox, oy, oz = px - qx, py - qy, pz - qz
-        distance = math.sqrt(ox * ox + oy * oy + oz * oz)
-        nx, ny, nz = self._sign_normals[best_face, best_region].tolist()
-        side = ox * nx + oy * ny + oz * nz
-        inside = side < 0.0
-        strength = math.sqrt(nx * nx + ny * ny + nz * nz)
-        if strength < WEAK_PSEUDO_NORMAL or abs(side) < WEAK_SIGN_COS * distance * strength:
-            inside = bool(self._occupied(local[None, :])[0])
-        c = self._centre
-        return ClosestPoints(
-            points_m=np.array([[qx + c[0], qy + c[1], qz + c[2]]]),
-            distance_m=np.array([-distance if inside else distance]),
-            normals=self._face_normals[best_face][None, :].copy(),
-            face_ids=np.array([best_face], dtype=np.int64),
-        )
 
     def _occupied(self, local: np.ndarray) -> np.ndarray:
         """Inside test by ray parity (Open3D, majority of 3 rays), for points (n, 3) in the shifted frame."""
