@@ -42,6 +42,9 @@ class MapperConfig:
     likelihood_floor: smallest probability one cell may give a particle (see fastslam.py); 0.01
       mapped the synthetic tapping scene better than 0.05 or 0.2 and as well as 0.001.
     free_weight: weight of free-volume cells against contact cells in the particle weights.
+    free_reward: let free-volume cells in known free space raise a particle's weight (False: free
+      cells only penalise overlap with occupied cells, which maps the Rubik's cube scene better;
+      see fastslam.observation_log_likelihood and docs/slam.md).
     free_spacing_m, free_margin_m: lattice spacing and depth of the finger's free-volume samples
       (None: the grid resolution; see observation.py).
     chunk_edge: cells per chunk edge of the sparse storage (a power of two).
@@ -60,6 +63,7 @@ class MapperConfig:
     l_max: float = 10.0
     likelihood_floor: float = 0.01
     free_weight: float = 1.0
+    free_reward: bool = True
     free_spacing_m: float | None = None
     free_margin_m: float | None = None
     chunk_edge: int = 8
@@ -135,6 +139,7 @@ class Mapper:
                 resample_threshold=config.resample_threshold,
                 likelihood_floor=config.likelihood_floor,
                 free_weight=config.free_weight,
+                free_reward=config.free_reward,
                 l_occ=config.l_occ,
                 l_free=config.l_free,
             )

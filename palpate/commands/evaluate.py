@@ -14,14 +14,17 @@ from collections.abc import Callable, Mapping
 #: `palpate eval NAME` -> "module:function(parser)".
 EVALUATIONS: dict[str, str] = {
     "explore": "palpate.evaluation.explore:configure",
+    "slam": "palpate.evaluation.slam:configure",
 }
 #: `palpate sweep NAME` -> "module:function(parser)".
 SWEEPS: dict[str, str] = {
     "explore": "palpate.evaluation.sweep_explore:configure",
+    "slam": "palpate.evaluation.sweep_slam:configure",
 }
 
 HELP = {
     "explore": "active tactile exploration (paper 002): IGEF against GP-V on a folder of meshes",
+    "slam": "Haptic SLAM (paper 000): known pose, dead reckoning and FastSLAM maps of the Rubik's cube",
 }
 
 

@@ -375,6 +375,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, 1 run each")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object, last line")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (CSV, tables, plots)")
+    parser.add_argument(
+        "--from-runs",
+        type=Path,
+        metavar="RUNS.jsonl",
+        help="no runs: remake the CSV, tables and plots from a runs.jsonl",
+    )
     parser.add_argument("--max-contacts", type=int, help="contact budget per run (default: EvalConfig's)")
     parser.add_argument("--max-travel-m", type=float, help="travel budget per run, metres (default: EvalConfig's)")
     parser.add_argument(
@@ -436,27 +442,35 @@ def main(args: argparse.Namespace) -> int:
     runs = 1 if args.quick else args.runs
     if runs < 1:
         raise ConfigError(f"--runs must be >= 1, got {runs}")
-    cases = select_cases(args.objects, QUICK_OBJECTS if args.quick else None)
-    items = episodes(cases, runs, strategies, params=eval_params(args))
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    log = (out / "runs.jsonl").open("w")
-
-    def keep(row: dict[str, Any]) -> None:
-        log.write(json.dumps(row, default=_json_default) + "\n")
-        log.flush()
-
     start = time.perf_counter()
-    try:
-        results = run_episodes(items, RunnerOptions(workers=args.workers, on_result=keep))
-    finally:
-        log.close()
+    if args.from_runs is not None:
+        results = [json.loads(line) for line in args.from_runs.read_text().splitlines() if line.strip()]
+        cases = sorted({r["object"] for r in results})
+        runs = 1 + max((int(r["run"]) for r in results), default=0)
+        strategies = [s for s in strategies if any(r["strategy"] == s for r in results)]
+    else:
+        chosen = select_cases(args.objects, QUICK_OBJECTS if args.quick else None)
+        cases = [c.name for c in chosen]
+        items = episodes(chosen, runs, strategies, params=eval_params(args))
+        log = (out / "runs.jsonl").open("w")
+
+        def keep(row: dict[str, Any]) -> None:
+            log.write(json.dumps(row, default=_json_default) + "\n")
+            log.flush()
+
+        try:
+            results = run_episodes(items, RunnerOptions(workers=args.workers, on_result=keep))
+        finally:
+            log.close()
     elapsed = time.perf_counter() - start
     report.write_csv(out / "runs.csv", results)
     baseline, method = ("gpv", "igef") if {"gpv", "igef"} <= set(strategies) else (strategies[0], strategies[-1])
     text = (
-        f"# Exploration evaluation\n\n{len(cases)} objects x {runs} runs x {len(strategies)} strategies, "
-        f"{elapsed / 60:.1f} min wall with {args.workers} workers.\n\n## Averages (Table 2)\n\n"
+        f"# Exploration evaluation\n\n{len(cases)} objects x {runs} runs x {len(strategies)} strategies"
+        + ("" if args.from_runs else f", {elapsed / 60:.1f} min wall with {args.workers} workers")
+        + ".\n\n## Averages (Table 2)\n\n"
         + report.table2(results, baseline, method)
         + "\n\n## Per object (Table 4)\n\n"
         + report.table4(results, baseline, method)

@@ -39,6 +39,7 @@ RUN_COLUMNS = (
     "run",
     "complete",
     "finished",
+    "stop_reason",
     "coverage",
     "vertex_coverage",
     "contacts",
@@ -212,7 +213,7 @@ def table4(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: 
         gain = improvement_pct(paired[baseline]["travel_cm"], paired[method]["travel_cm"])
         bound = next((float(r["covering_bound_contacts"]) for r in mine if "covering_bound_contacts" in r), math.nan)
         coverage = " / ".join(
-            _fmt(100.0 * float(np.mean([r.get("coverage", 0.0) for r in mine if r["strategy"] == s])), "%", 0)
+            _fmt(100.0 * _mean([float(r.get("coverage", 0.0)) for r in mine if r["strategy"] == s]), "%", 0)
             for s in (baseline, method)
         )
         lines.append(
@@ -261,6 +262,10 @@ def summary_json(
     out["coverage"] = 80
     out["averaging"] = "paired runs (every strategy reached 80 %), mean per object, then over objects"
     return out
+
+
+def _mean(values: Sequence[float]) -> float:
+    return float(np.mean(values)) if len(values) else math.nan
 
 
 def _ratio(a: float, b: float) -> float:

@@ -1,0 +1,551 @@
+"""The Haptic SLAM experiment of paper 000 (Fig. 2): maps of a Rubik's cube after 10 s and 100 s.
+
+Every seed runs the graph of ``launch/slam_eval.yaml`` with
+:class:`palpate.runtime.inprocess.InProcessGraph` (the same nodes and messages as the process graph,
+in lockstep order): the simulated finger explores the cube, the noise node adds 1.5 deg Gaussian
+noise to each joint reading, and three mapper nodes build maps side by side from the same run:
+
+- ``known``: occupancy-grid mapping at the true joint angles (the simulator's joint sensor);
+- ``dead_reckoning``: the same mapping fed the noisy angles, no filter;
+- ``fastslam``: FastSLAM with K particles on the noisy angles (its best particle's map).
+
+The maps are taken from the OccupancyGrid messages the mappers publish (``map/known``,
+``map/dead_reckoning``, ``map/fastslam``; every ``publish_period_s`` of simulated time), through the
+graph's listener, at each snapshot time. Scores (docs/slam.md has the exact definitions):
+
+- ``rmse``: ``metrics.map_rmse`` over the surface band of the cube (``metrics.surface_band``)
+  restricted to the cells the finger observed at its true pose (the cells whose log-odds the
+  known-pose mapper changed during the whole run of that seed): how wrong each map is where the
+  finger looked, whatever it covered elsewhere (the same cells for the three maps and both times);
+- ``rmse_explored``: the same RMSE over the band cells within ``explored_radius_m`` of a contact
+  point the simulator reported during the run: it also charges 0.5^2 for every cell of the
+  explored surface that no observation reached, so it mixes coverage with accuracy;
+- ``accuracy_mm`` / ``completeness_mm``: ``metrics.surface_distances_mm``, the mean distance from
+  occupied cells (belief > 0.5) to the true surface, and from the explored true surface to the
+  nearest occupied cell.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import multiprocessing
+import os
+import sys
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from palpate.errors import ConfigError
+from palpate.paths import REPO_ROOT
+
+FloatArray = NDArray[np.float64]
+
+#: The launch file every seed runs.
+SLAM_LAUNCH = REPO_ROOT / "launch" / "slam_eval.yaml"
+#: Methods in table order, with the topic their map arrives on and the mapper node that makes it.
+METHODS = ("known", "fastslam", "dead_reckoning")
+MAP_TOPICS = {"map/known": "known", "map/fastslam": "fastslam", "map/dead_reckoning": "dead_reckoning"}
+MAPPER_NODES = {"known": "mapper_known", "fastslam": "mapper_fastslam", "dead_reckoning": "mapper_dead_reckoning"}
+DEFAULT_OUT = Path("out") / "slam"
+
+
+@dataclass(frozen=True, kw_only=True)
+class SlamEvalConfig:
+    """One evaluation: seeds, snapshot times and the mapper settings (launch arguments)."""
+
+    seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
+    #: Simulated exploration times at which the maps are scored (the paper's 10 s and 100 s).
+    snapshot_s: tuple[float, ...] = (10.0, 100.0)
+    sigma_deg: float = 1.5
+    n_particles: int = 100
+    resolution_m: float = 0.002
+    #: Free band outside the surface that the RMSE scores (metrics.surface_band).
+    band_m: float = 0.004
+    #: A band cell counts as explored when a true contact lies within this distance of its centre.
+    explored_radius_m: float = 0.010
+    #: Spacing of the true-surface samples of the completeness figure.
+    surface_spacing_m: float = 0.001
+    #: Extra launch arguments of launch/slam_eval.yaml (name -> value).
+    launch_args: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.seeds:
+            raise ConfigError("SlamEvalConfig needs at least one seed")
+        if not self.snapshot_s or any(not (t > 0 and math.isfinite(t)) for t in self.snapshot_s):
+            raise ConfigError(f"snapshot times must be positive seconds, got {self.snapshot_s!r}")
+
+    @property
+    def duration_s(self) -> float:
+        return max(self.snapshot_s)
+
+    def publish_period_s(self) -> float:
+        """A publish period of the mappers that lands on every snapshot time (their GCD, 10 ms steps)."""
+        ticks = [round(t * 100) for t in self.snapshot_s]
+        return math.gcd(*ticks) / 100.0
+
+    def arguments(self, seed: int) -> dict[str, Any]:
+        """Launch arguments of slam_eval.yaml for one seed."""
+        args: dict[str, Any] = {
+            "seed": seed,
+            "duration_s": self.duration_s,
+            "sigma_deg": self.sigma_deg,
+            "particles": self.n_particles,
+            "resolution_m": self.resolution_m,
+            "publish_period_s": self.publish_period_s(),
+        }
+        args.update(self.launch_args)
+        return args
+
+
+# --- ground truth ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BoxTruth:
+    """An axis-aligned box object: centre (3,) and half extents (3,), metres (world frame)."""
+
+    center_m: FloatArray
+    half_m: FloatArray
+
+    @classmethod
+    def from_vertices(cls, vertices_m: FloatArray, tolerance_m: float = 1e-6) -> BoxTruth:
+        """The box whose mesh vertices (V, 3) are given; ConfigError if they are not an axis-aligned box."""
+        v = np.asarray(vertices_m, dtype=np.float64).reshape(-1, 3)
+        lo, hi = v.min(axis=0), v.max(axis=0)
+        on_bounds = (np.abs(v - lo) <= tolerance_m) | (np.abs(v - hi) <= tolerance_m)
+        if len(v) < 8 or not on_bounds.all():
+            raise ConfigError(
+                "the SLAM evaluation scores axis-aligned boxes (cube, rubiks_cube, box) only; "
+                f"the object's {len(v)} vertices are not the corners of one"
+            )
+        return cls(center_m=(lo + hi) / 2, half_m=(hi - lo) / 2)
+
+    def sdf(self, points_m: FloatArray) -> FloatArray:
+        from palpate.nodes.mapper.metrics import box_sdf
+
+        return box_sdf(points_m, self.center_m, self.half_m)
+
+    def surface_points(self, spacing_m: float) -> FloatArray:
+        from palpate.nodes.mapper.metrics import box_surface_points
+
+        return box_surface_points(self.center_m, self.half_m, spacing_m)
+
+
+# --- one seed through the graph -------------------------------------------------------------------
+class Capture:
+    """Graph listener: the maps at the snapshot stamps, every true contact point, the object."""
+
+    def __init__(self, snapshot_ns: Iterable[int]) -> None:
+        self.snapshot_ns = set(snapshot_ns)
+        self.maps: dict[tuple[str, int], Any] = {}  # (method, stamp_ns) -> OccupancyGrid
+        self.contacts: list[FloatArray] = []
+        self.vertices_m: FloatArray | None = None
+        self.n_messages = 0
+
+    def __call__(self, tick: int, node: str, topic: str, message: Any) -> None:
+        self.n_messages += 1
+        method = MAP_TOPICS.get(topic)
+        if method is not None:
+            if message.stamp_ns in self.snapshot_ns:
+                self.maps[(method, int(message.stamp_ns))] = message
+        elif topic == "sensors/contacts":
+            if len(message.positions_m):
+                self.contacts.append(np.array(message.positions_m, dtype=np.float64))
+        elif topic == "truth/object":
+            self.vertices_m = np.array(message.vertices_m, dtype=np.float64)
+
+    def contact_points(self) -> FloatArray:
+        return np.concatenate(self.contacts) if self.contacts else np.zeros((0, 3))
+
+
+def sparse_map(message: Any) -> Any:
+    """The SparseMap carried by an OccupancyGrid message."""
+    from palpate.nodes.mapper.grid import GridSpec, SparseMap
+
+    shape = tuple(int(n) for n in message.shape)
+    origin = tuple(float(x) for x in message.origin_m)
+    spec = GridSpec(origin_m=origin, resolution_m=float(message.resolution_m), shape=shape)  # type: ignore[arg-type]
+    return SparseMap(
+        spec=spec,
+        flat=np.asarray(message.cell_indices, dtype=np.int64),
+        log_odds=np.asarray(message.log_odds, dtype=np.float32),
+    )
+
+
+@dataclass(frozen=True)
+class MapScore:
+    """Scores of one map (see the module docstring)."""
+
+    rmse: float
+    rmse_explored: float
+    accuracy_mm: float
+    completeness_mm: float
+    occupied_cells: int
+
+
+def explored_mask(contacts_m: FloatArray, radius_m: float) -> Callable[[FloatArray], NDArray[np.bool_]]:
+    """Centres (n, 3) -> (n,) True within radius_m of a contact point (m, 3)."""
+    from scipy.spatial import cKDTree
+
+    if len(contacts_m) == 0:
+        return lambda p: np.zeros(len(p), dtype=np.bool_)
+    tree = cKDTree(contacts_m)
+
+    def mask(p: FloatArray) -> NDArray[np.bool_]:
+        d, _ = tree.query(p, distance_upper_bound=radius_m)
+        return np.asarray(np.isfinite(d))
+
+    return mask
+
+
+class Scorer:
+    """Scores maps of one seed: the explored band, the observed band and the surface samples."""
+
+    def __init__(
+        self,
+        spec: Any,
+        truth: BoxTruth,
+        contacts_m: FloatArray,
+        observed_flat: NDArray[np.int64],
+        config: SlamEvalConfig,
+    ):
+        from palpate.nodes.mapper.metrics import surface_band
+
+        self.truth = truth
+        mask = explored_mask(contacts_m, config.explored_radius_m)
+        self.region, self.region_truth = surface_band(spec, truth.sdf, config.band_m, mask=mask)
+        band, band_truth = surface_band(spec, truth.sdf, config.band_m)
+        seen = np.isin(band, observed_flat)
+        self.observed, self.observed_truth = band[seen], band_truth[seen]
+        surface = truth.surface_points(config.surface_spacing_m)
+        self.surface = surface[mask(surface)]
+
+    def score(self, m: Any) -> MapScore:
+        from palpate.nodes.mapper.metrics import map_rmse, surface_distances_mm
+
+        accuracy, completeness = surface_distances_mm(m, self.truth.sdf, self.surface)
+        return MapScore(
+            rmse=map_rmse(m, self.observed, self.observed_truth),
+            rmse_explored=map_rmse(m, self.region, self.region_truth),
+            accuracy_mm=accuracy,
+            completeness_mm=completeness,
+            occupied_cells=int(np.count_nonzero(m.log_odds > 0)),
+        )
+
+
+def run_seed(
+    seed: int, config: SlamEvalConfig, launch_path: Path = SLAM_LAUNCH, keep_maps: bool = False
+) -> dict[str, Any]:
+    """Run one seed through the graph; returns rows (one per method and snapshot), timing and,
+    with ``keep_maps``, the last snapshot's maps and the truth for plotting."""
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch
+    from palpate.runtime import memory
+    from palpate.runtime.inprocess import InProcessGraph
+
+    memory.keep_freed_buffers()  # as node processes do: the mappers' big temporaries reuse freed pages
+    stamps = {round(t * 1e9): t for t in config.snapshot_s}
+    capture = Capture(stamps)
+    t0, c0 = time.perf_counter(), time.process_time()
+    graph = InProcessGraph(resolve(load_launch(launch_path, config.arguments(seed))), listener=capture)
+    t1 = time.perf_counter()
+    ticks = graph.run()
+    t2, c2 = time.perf_counter(), time.process_time()
+    if capture.vertices_m is None:
+        raise ConfigError(f"{launch_path}: the sim published no truth/object; the evaluation needs the object")
+    truth = BoxTruth.from_vertices(capture.vertices_m)
+    last_ns = round(config.duration_s * 1e9)
+    missing = [(m, stamps[s]) for m in METHODS for s in stamps if (m, s) not in capture.maps]
+    if missing:
+        raise ConfigError(
+            f"no map from {missing} (ran {ticks} ticks): the mappers' publish_period_s must land on every "
+            "snapshot time and the run must last until the last one"
+        )
+    maps = {key: sparse_map(msg) for key, msg in capture.maps.items()}
+    known_final = maps[("known", last_ns)]
+    if any(m.spec != known_final.spec for m in maps.values()):
+        raise ConfigError(f"{launch_path}: the three mappers must map the same grid (region and resolution)")
+    scorer = Scorer(known_final.spec, truth, capture.contact_points(), known_final.flat, config)
+    rows = []
+    for (method, stamp), m in sorted(maps.items(), key=lambda kv: (METHODS.index(kv[0][0]), kv[0][1])):
+        rows.append({"seed": seed, "method": method, "time_s": stamps[stamp], **asdict(scorer.score(m))})
+    timing: dict[str, Any] = {
+        "seed": seed,
+        "ticks": ticks,
+        "setup_s": t1 - t0,
+        "wall_s": t2 - t1,
+        "cpu_s": c2 - c0,
+        "ms_per_tick": 1e3 * (t2 - t1) / max(1, ticks),
+        "contacts": len(capture.contact_points()),
+    }
+    for method, node in MAPPER_NODES.items():
+        counters = graph.node(node).core.counters
+        timing[f"ms_per_update_{method}"] = counters.mean_update_ms
+        timing[f"updates_{method}"] = counters.updates
+    timing["resamples_fastslam"] = graph.node(MAPPER_NODES["fastslam"]).core.counters.resamples
+    result: dict[str, Any] = {"rows": rows, "timing": timing}
+    if keep_maps:
+        result["maps"] = {method: maps[(method, last_ns)] for method in METHODS}
+        result["truth"] = truth
+        result["surface"] = scorer.surface
+    return result
+
+
+# --- aggregation (pure) -----------------------------------------------------------------------------
+SCORE_KEYS = ("rmse", "rmse_explored", "accuracy_mm", "completeness_mm", "occupied_cells")
+
+
+def aggregate(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Mean and standard deviation over seeds of every score, per (method, time_s).
+
+    Rows come out in METHODS order (unknown methods after, by name), then by time. ``n`` counts the
+    seeds; the standard deviation is the sample one (ddof 1; 0 for one seed). Non-finite scores (an
+    empty map's distances are inf) propagate to the mean.
+    """
+    groups: dict[tuple[str, float], list[Mapping[str, Any]]] = {}
+    for row in rows:
+        groups.setdefault((str(row["method"]), float(row["time_s"])), []).append(row)
+
+    def order(key: tuple[str, float]) -> tuple[int, str, float]:
+        method, t = key
+        return (METHODS.index(method) if method in METHODS else len(METHODS), method, t)
+
+    out = []
+    for key in sorted(groups, key=order):
+        members = groups[key]
+        summary: dict[str, Any] = {"method": key[0], "time_s": key[1], "n": len(members)}
+        for k in SCORE_KEYS:
+            values = np.array([float(r[k]) for r in members], dtype=np.float64)
+            summary[k] = float(np.mean(values))
+            with np.errstate(invalid="ignore"):  # inf - inf: the std of an infinite score is nan
+                summary[f"{k}_std"] = float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
+        out.append(summary)
+    return out
+
+
+def summary_json(summary: Sequence[Mapping[str, Any]], timing: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """The --json object: ``rmse_<method>`` at the last snapshot time (mean over seeds), the other
+    scores as ``<score>_<method>_<t>s``, the ordering checks and the timing means."""
+    if not summary:
+        raise ConfigError("no results to summarise")
+    last = max(float(s["time_s"]) for s in summary)
+    out: dict[str, Any] = {}
+    for s in summary:
+        t = f"{float(s['time_s']):g}s"
+        for k in ("rmse", "rmse_explored", "accuracy_mm", "completeness_mm"):
+            out[f"{k}_{s['method']}_{t}"] = round(float(s[k]), 4)
+        if float(s["time_s"]) == last:
+            out[f"rmse_{s['method']}"] = round(float(s["rmse"]), 4)
+    if all(f"rmse_{m}" in out for m in METHODS):
+        out["fastslam_beats_dead_reckoning"] = bool(out["rmse_fastslam"] < out["rmse_dead_reckoning"])
+        out["known_best"] = bool(out["rmse_known"] <= min(out["rmse_fastslam"], out["rmse_dead_reckoning"]))
+    out["seeds"] = sorted({int(t["seed"]) for t in timing})
+    out["time_s"] = last
+    for key in (
+        "ms_per_tick",
+        "ms_per_update_known",
+        "ms_per_update_dead_reckoning",
+        "ms_per_update_fastslam",
+        "wall_s",
+    ):
+        values = [float(t[key]) for t in timing if key in t]
+        if values:
+            out[key] = round(float(np.mean(values)), 3)
+    return out
+
+
+def format_table(summary: Sequence[Mapping[str, Any]]) -> str:
+    """Fixed-width table: one line per method and snapshot time, mean +- std over seeds."""
+    head = (
+        f"{'method':<16}{'t_s':>6}{'seeds':>6}{'rmse':>16}{'rmse_explored':>16}"
+        f"{'accuracy_mm':>16}{'completeness_mm':>18}{'occupied':>10}"
+    )
+    lines = [head, "-" * len(head)]
+    for s in summary:
+        lines.append(
+            f"{s['method']:<16}{float(s['time_s']):>6g}{int(s['n']):>6}"
+            f"{_pm(s, 'rmse', 3):>16}{_pm(s, 'rmse_explored', 3):>16}"
+            f"{_pm(s, 'accuracy_mm', 2):>16}{_pm(s, 'completeness_mm', 2):>18}{float(s['occupied_cells']):>10.0f}"
+        )
+    return "\n".join(lines)
+
+
+def _pm(s: Mapping[str, Any], key: str, digits: int) -> str:
+    return f"{float(s[key]):.{digits}f} +- {float(s[key + '_std']):.{digits}f}"
+
+
+# --- figure -------------------------------------------------------------------------------------------
+def plot_maps(path: Path, maps: Mapping[str, Any], truth: BoxTruth, surface_m: FloatArray, title: str) -> None:
+    """Four 3D panels: the true cube (explored surface highlighted) and the occupied cell centres of
+    each map (belief > 0.5), coloured by belief, zoomed onto the explored surface (m, 3)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(16, 4.6))
+    cube_lo, cube_hi = truth.center_m - truth.half_m, truth.center_m + truth.half_m
+    # the map panels zoom onto the explored surface (the finger reaches a few faces only)
+    zoom_lo = surface_m.min(axis=0) if len(surface_m) else cube_lo
+    zoom_hi = surface_m.max(axis=0) if len(surface_m) else cube_hi
+    margin = 0.004
+    panels: list[tuple[str, FloatArray, FloatArray | None]] = []
+    cube = truth.surface_points(0.004)
+    panels.append(("true cube (explored surface in red)", cube, None))
+    for method in METHODS:
+        m = maps[method]
+        occ = m.log_odds > 0
+        centres = m.spec.centers(m.flat[occ])
+        panels.append((f"{method.replace('_', ' ')}: {int(occ.sum())} occupied cells", centres, m.belief()[occ]))
+    for i, (name, pts, colour) in enumerate(panels):
+        ax = fig.add_subplot(1, 4, i + 1, projection="3d")
+        if colour is None:
+            ax.scatter(*pts.T * 1e3, s=1, c="0.7", depthshade=False)
+            ax.scatter(*surface_m.T * 1e3, s=1, c="tab:red", depthshade=False)
+        else:
+            ax.scatter(*pts.T * 1e3, s=3, c=colour, cmap="viridis", vmin=0.5, vmax=1.0, depthshade=False)
+        lo, hi = (cube_lo, cube_hi) if colour is None else (zoom_lo, zoom_hi)
+        ax.set_xlim((lo[0] - margin) * 1e3, (hi[0] + margin) * 1e3)
+        ax.set_ylim((lo[1] - margin) * 1e3, (hi[1] + margin) * 1e3)
+        ax.set_zlim((lo[2] - margin) * 1e3, (hi[2] + margin) * 1e3)
+        ax.set_xlabel("x mm", fontsize=8)
+        ax.set_ylabel("y mm", fontsize=8)
+        ax.set_zlabel("z mm", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.view_init(elev=25, azim=55)  # from +x, +y, above: the faces the finger reaches
+        ax.set_title(name, fontsize=9)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# --- runner ---------------------------------------------------------------------------------------------
+def _worker_init() -> None:
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+
+
+def run_seeds(config: SlamEvalConfig, workers: int = 2, plot_seed: int | None = None) -> list[dict[str, Any]]:
+    """Every seed of ``config`` (in ``workers`` spawned processes; 1: in this process), in seed order.
+    The run of ``plot_seed`` keeps its maps."""
+    seeds = list(config.seeds)
+    if workers <= 1 or len(seeds) == 1:
+        return [run_seed(s, config, keep_maps=s == plot_seed) for s in seeds]
+    _worker_init()  # spawned workers read the environment at start-up
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(workers, len(seeds)), mp_context=context) as pool:
+        futures = [pool.submit(run_seed, s, config, SLAM_LAUNCH, s == plot_seed) for s in seeds]
+        return [f.result() for f in futures]
+
+
+QUICK_SEEDS = 2
+FULL_SEEDS = 5
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Arguments of `palpate eval slam` (registered by palpate.commands.evaluate)."""
+    parser.add_argument(
+        "--quick", action="store_true", help=f"{QUICK_SEEDS} seeds (still 10 s and 100 s of exploration)"
+    )
+    parser.add_argument(
+        "--json", action="store_true", help="end with one line of JSON (rmse_known, rmse_fastslam, ...)"
+    )
+    parser.add_argument(
+        "--seeds", type=int, help=f"number of seeds 0..N-1 (default {FULL_SEEDS}, --quick {QUICK_SEEDS})"
+    )
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (rows CSV, summary JSON, PNG)")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes (1: run in this process)")
+    parser.add_argument("--particles", type=int, default=100, help="FastSLAM particles K")
+    parser.add_argument("--resolution-mm", type=float, default=2.0, help="grid resolution, mm")
+    parser.add_argument("--sigma-deg", type=float, default=1.5, help="joint noise standard deviation, degrees")
+    parser.add_argument(
+        "--arg",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="launch argument of launch/slam_eval.yaml (YAML value), e.g. free_reward=true or free_margin_m=null",
+    )
+    parser.set_defaults(func=main)
+
+
+def launch_args(items: Sequence[str]) -> dict[str, Any]:
+    """``["name=value", ...]`` -> {name: value}, values parsed as YAML scalars."""
+    import yaml
+
+    out: dict[str, Any] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise ConfigError(f"--arg {item!r}: expected NAME=VALUE, e.g. free_reward=true")
+        out[name] = yaml.safe_load(value)
+    return out
+
+
+def main(args: argparse.Namespace) -> int:
+    n = args.seeds if args.seeds is not None else (QUICK_SEEDS if args.quick else FULL_SEEDS)
+    if n < 1:
+        raise ConfigError(f"--seeds must be at least 1, got {n}")
+    config = SlamEvalConfig(
+        seeds=tuple(range(n)),
+        n_particles=args.particles,
+        resolution_m=args.resolution_mm * 1e-3,
+        sigma_deg=args.sigma_deg,
+        launch_args=launch_args(args.arg),
+    )
+    t0 = time.perf_counter()
+    print(
+        f"palpate eval slam: {n} seed(s), {config.duration_s:g} s of exploration each, K={config.n_particles}, "
+        f"{args.resolution_mm:g} mm, sigma {config.sigma_deg:g} deg, {args.workers} worker(s)"
+        + "".join(f", {k}={v}" for k, v in config.launch_args.items()),
+        file=sys.stderr,
+    )
+    results = run_seeds(config, workers=args.workers, plot_seed=config.seeds[0])
+    rows = [row for r in results for row in r["rows"]]
+    timing = [r["timing"] for r in results]
+    summary = aggregate(rows)
+    out = summary_json(summary, timing)
+    out["total_wall_s"] = round(time.perf_counter() - t0, 1)
+    args.out.mkdir(parents=True, exist_ok=True)
+    _write_csv(args.out / "slam_rows.csv", rows)
+    png = args.out / "slam_maps.png"
+    plotted = results[0]
+    plot_maps(
+        png,
+        plotted["maps"],
+        plotted["truth"],
+        plotted["surface"],
+        f"Rubik's cube after {config.duration_s:g} s of exploration (seed {config.seeds[0]}, K={config.n_particles}, "
+        f"{args.resolution_mm:g} mm cells, sigma {config.sigma_deg:g} deg)",
+    )
+    (args.out / "slam_summary.json").write_text(json.dumps({"summary": summary, "timing": timing, **out}, indent=1))
+    print(format_table(summary))
+    print()
+    for t in timing:
+        print(
+            f"seed {t['seed']}: {t['ticks']} ticks, {t['ms_per_tick']:.2f} ms/tick, mapper ms/update known "
+            f"{t['ms_per_update_known']:.2f}, dead reckoning {t['ms_per_update_dead_reckoning']:.2f}, FastSLAM "
+            f"{t['ms_per_update_fastslam']:.2f} ({t['resamples_fastslam']} resamples), {t['contacts']} contacts"
+        )
+    print(f"wrote {args.out / 'slam_rows.csv'}, {args.out / 'slam_summary.json'}, {png} ({out['total_wall_s']:.0f} s)")
+    if args.json:
+        print(json.dumps(out))
+    return 0
+
+
+def _write_csv(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
+    import csv
+
+    if not rows:
+        return
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)

@@ -1,0 +1,299 @@
+"""`palpate sweep slam`: the mapper's speed-accuracy trade on the Rubik's cube scene of the graph.
+
+The sensor streams come from the graph of ``launch/slam_eval.yaml`` without its mapper nodes (sim and
+noise, run in-process with lockstep semantics): per tick the joint reading (true and noisy) and the
+contacts (link names and positions in the link frames, as the mapper nodes receive them). The same
+stream then feeds mapper cores for every resolution and K (``nodes/mapper/sweep.py``'s ``_run``:
+wall and CPU ms per ``Mapper.update``, peak memory traced from the mapper's creation to the last
+update), and the maps are scored as in ``palpate eval slam`` (palpate/evaluation/slam.py).
+Feeding the cores directly keeps the timing to the mapper alone; through the graph the same
+update adds the message codec (about 0.1 ms per message).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from palpate.errors import ConfigError
+from palpate.evaluation.slam import SLAM_LAUNCH, BoxTruth, Scorer, SlamEvalConfig
+
+FloatArray = NDArray[np.float64]
+
+KS = (1, 10, 30, 100, 300)
+RESOLUTIONS_MM = (1.0, 2.0, 4.0)
+#: (resolution_mm, K) left out by --quick: K=300 at 1 mm alone takes longer than the rest together.
+QUICK_SKIP = frozenset({(1.0, 300)})
+#: Free margin per resolution: the depth below the finger's surface from which its volume counts as
+#: free. It must be at least the distance from a face of the cube to the outer face of the cells
+#: that hold it, or the free update clears cube cells at the true pose: on this grid (region from
+#: -45 mm, cube faces at +-28.5 mm) 0.5 mm at 1 and 2 mm cells, 2.5 mm at 4 mm (docs/slam.md).
+#: Other resolutions take the mapper's default (one cell, always enough).
+FREE_MARGIN_MM = {1.0: 0.5, 2.0: 0.5, 4.0: 2.5}
+DEFAULT_OUT = Path("out") / "slam"
+
+
+@dataclass(frozen=True)
+class SensorStream:
+    """What the mappers receive each tick: names (J,) of the chain's joints, q_true and q_noisy
+    (T, J) rad, and per tick the contact link names and positions (n_t, 3) in the link frames; plus
+    the true contact points (world, all ticks) and the object's vertices."""
+
+    q_true: FloatArray
+    q_noisy: FloatArray
+    contact_links: list[list[str]]
+    contact_local_m: list[FloatArray]
+    contact_world_m: FloatArray
+    vertices_m: FloatArray
+
+
+def record_stream(seed: int, duration_s: float, sigma_deg: float, launch_path: Path = SLAM_LAUNCH) -> SensorStream:
+    """Run sim and noise of the evaluation graph for duration_s and keep what the mappers would read."""
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch
+    from palpate.runtime.inprocess import InProcessGraph
+
+    launch = load_launch(launch_path, {"seed": seed, "duration_s": duration_s, "sigma_deg": sigma_deg})
+    launch.nodes = [n for n in launch.nodes if n.fields.get("type") != "mapper"]
+    true_q: dict[int, FloatArray] = {}
+    noisy_q: dict[int, FloatArray] = {}
+    contacts: dict[int, tuple[list[str], FloatArray, FloatArray]] = {}
+    names: list[str] = []
+    vertices: list[FloatArray] = []
+
+    def listen(tick: int, node: str, topic: str, message: Any) -> None:
+        if topic == "sensors/joint_states":
+            names[:] = list(message.names)
+            true_q[message.stamp_ns] = np.array(message.positions_rad, dtype=np.float64)
+        elif topic == "sensors/joint_states_noisy":
+            noisy_q[message.stamp_ns] = np.array(message.positions_rad, dtype=np.float64)
+        elif topic == "sensors/contacts":
+            contacts[message.stamp_ns] = (
+                list(message.links),
+                np.array(message.local_positions_m, dtype=np.float64).reshape(-1, 3),
+                np.array(message.positions_m, dtype=np.float64).reshape(-1, 3),
+            )
+        elif topic == "truth/object":
+            vertices.append(np.array(message.vertices_m, dtype=np.float64))
+
+    InProcessGraph(resolve(launch), listener=listen).run()
+    stamps = sorted(true_q)
+    if not stamps or not names or not vertices or set(stamps) - set(noisy_q):
+        raise ConfigError(f"{launch_path}: the sim and noise nodes did not publish joint states and the object")
+    empty: tuple[list[str], FloatArray, FloatArray] = ([], np.zeros((0, 3)), np.zeros((0, 3)))
+    per_tick = [contacts.get(s, empty) for s in stamps]
+    world = [c[2] for c in per_tick if len(c[2])]
+    return SensorStream(
+        q_true=np.array([true_q[s] for s in stamps]),
+        q_noisy=np.array([noisy_q[s] for s in stamps]),
+        contact_links=[c[0] for c in per_tick],
+        contact_local_m=[c[1] for c in per_tick],
+        contact_world_m=np.concatenate(world) if world else np.zeros((0, 3)),
+        vertices_m=vertices[0],
+    )
+
+
+def mapper_config(params: Mapping[str, Any], resolution_m: float, **changes: Any) -> Any:
+    """The MapperConfig of the evaluation graph's FastSLAM mapper node, at another resolution."""
+    from palpate.nodes.mapper.core import MapperConfig
+    from palpate.runtime.spec import build_config
+
+    base = build_config(MapperConfig, dict(params), "mapper_fastslam.mapper")
+    return replace(base, resolution_m=resolution_m, **changes)
+
+
+def fastslam_params(launch_path: Path = SLAM_LAUNCH, **args: Any) -> dict[str, Any]:
+    """The ``mapper`` params of the FastSLAM node of the launch file (arguments substituted)."""
+    from palpate.launch.loader import load_launch
+
+    launch = load_launch(launch_path, args)
+    node = next(n for n in launch.nodes if n.fields.get("name") == "mapper_fastslam")
+    return dict(node.fields["params"]["mapper"])
+
+
+def sweep(
+    stream: SensorStream,
+    Ks: Sequence[int] = KS,
+    resolutions_mm: Sequence[float] = RESOLUTIONS_MM,
+    *,
+    seed: int = 0,
+    config: SlamEvalConfig | None = None,
+    measure_memory: bool = True,
+    progress: bool = True,
+    skip: frozenset[tuple[float, int]] = frozenset(),
+) -> list[Any]:
+    """SweepRows (nodes/mapper/sweep.py) for known pose and dead reckoning, then FastSLAM at every K,
+    per resolution; ``rmse`` is the explored-band RMSE of palpate eval slam, plus the observed-band
+    RMSE: a list of (SweepRow, rmse_explored) (``rows_as_dicts`` flattens them). ``skip`` leaves out
+    (resolution_mm, K) pairs."""
+    from palpate.nodes.mapper.node import finger_chain
+    from palpate.nodes.mapper.sweep import SweepRow, TappingRecord, _run
+
+    config = config or SlamEvalConfig()
+    chain = finger_chain({"effector": "finger", "object": {"kind": "rubiks_cube"}})
+    index = {name: i for i, name in enumerate(chain.link_names)}
+    links = [np.array([index[n] for n in names if n in index], dtype=np.intp) for names in stream.contact_links]
+    local = [
+        loc[[i for i, n in enumerate(names) if n in index]].reshape(-1, 3)
+        for names, loc in zip(stream.contact_links, stream.contact_local_m, strict=True)
+    ]
+    rec = TappingRecord(q_true=stream.q_true, contact_links=links, contact_local_m=local, contact_world_m=[])
+    truth = BoxTruth.from_vertices(stream.vertices_m)
+    params = fastslam_params(sigma_deg=config.sigma_deg)
+    rows: list[Any] = []
+    for res_mm in resolutions_mm:
+        margin = FREE_MARGIN_MM.get(float(res_mm))
+        params["free_margin_m"] = None if margin is None else margin * 1e-3
+        known = mapper_config(params, res_mm * 1e-3, mode="known")
+        runs = [("known", 0, known, stream.q_true), ("dead_reckoning", 0, known, stream.q_noisy)]
+        runs += [
+            ("fastslam", int(K), mapper_config(params, res_mm * 1e-3, n_particles=int(K)), stream.q_noisy)
+            for K in Ks
+            if (float(res_mm), int(K)) not in skip
+        ]
+        scorer: Scorer | None = None
+        for method, K, cfg, q in runs:
+            t0 = time.perf_counter()
+            mapper, ms, cpu_ms, peak = _run(cfg, chain, q, rec, seed + 1, measure_memory)
+            m = mapper.best_map()
+            if scorer is None:  # the known-pose run comes first: its map defines the observed cells
+                scorer = Scorer(m.spec, truth, stream.contact_world_m, m.flat, config)
+            score = scorer.score(m)
+            row = SweepRow(
+                method=method,
+                K=K,
+                resolution_mm=float(res_mm),
+                rmse=score.rmse,
+                accuracy_mm=score.accuracy_mm,
+                completeness_mm=score.completeness_mm,
+                ms_per_update=ms,
+                cpu_ms_per_update=cpu_ms,
+                peak_memory_mb=float(peak),
+            )
+            rows.append((row, score.rmse_explored))
+            if progress:
+                print(
+                    f"  {res_mm:g} mm {method:<15} K={K:<4} rmse {score.rmse:.3f} explored {score.rmse_explored:.3f} "
+                    f"{ms:.2f} ms/update ({time.perf_counter() - t0:.0f} s)",
+                    file=sys.stderr,
+                    flush=True,
+                )
+    return rows
+
+
+def rows_as_dicts(rows: Sequence[Any]) -> list[dict[str, Any]]:
+    """(SweepRow, rmse_explored) pairs as flat dicts."""
+    return [{**row.as_dict(), "rmse_explored": explored} for row, explored in rows]
+
+
+def format_table(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Fixed-width table of the sweep rows (dicts of ``rows_as_dicts``)."""
+    head = (
+        f"{'method':<15}{'K':>5}{'res_mm':>8}{'rmse':>8}{'rmse_expl':>10}{'acc_mm':>8}{'comp_mm':>9}"
+        f"{'ms/upd':>9}{'cpu_ms':>9}{'peak_MB':>9}"
+    )
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        lines.append(
+            f"{r['method']:<15}{r['K']:>5}{r['resolution_mm']:>8.1f}{r['rmse']:>8.3f}{r['rmse_explored']:>10.3f}"
+            f"{r['accuracy_mm']:>8.2f}{r['completeness_mm']:>9.2f}{r['ms_per_update']:>9.2f}"
+            f"{r['cpu_ms_per_update']:>9.2f}{r['peak_memory_mb']:>9.1f}"
+        )
+    return "\n".join(lines)
+
+
+def plot(path: Path, rows: Sequence[Mapping[str, Any]], title: str) -> None:
+    """RMSE against ms per update: one line per resolution through K, baselines as markers."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 5))
+    colours = {1.0: "tab:blue", 2.0: "tab:orange", 4.0: "tab:green"}
+    for res in sorted({float(r["resolution_mm"]) for r in rows}):
+        c = colours.get(res)
+        fs = sorted(
+            (r for r in rows if r["method"] == "fastslam" and float(r["resolution_mm"]) == res), key=lambda r: r["K"]
+        )
+        if fs:
+            ax.plot(
+                [r["ms_per_update"] for r in fs], [r["rmse"] for r in fs], "o-", color=c, label=f"FastSLAM {res:g} mm"
+            )
+            for r in fs:
+                ax.annotate(
+                    f"K={r['K']}",
+                    (r["ms_per_update"], r["rmse"]),
+                    fontsize=7,
+                    xytext=(3, 3),
+                    textcoords="offset points",
+                )
+        for method, marker in (("known", "*"), ("dead_reckoning", "x")):
+            b = [r for r in rows if r["method"] == method and float(r["resolution_mm"]) == res]
+            if b:
+                label = f"{method.replace('_', ' ')} {res:g} mm"
+                ax.plot([b[0]["ms_per_update"]], [b[0]["rmse"]], marker, color=c, markersize=10, label=label)
+    ax.axvline(10.0, color="0.5", linestyle="--", linewidth=1)
+    ax.text(10.0, ax.get_ylim()[1], " 100 updates/s", va="top", fontsize=8, color="0.4")
+    ax.set_xscale("log")
+    ax.set_xlabel("wall-clock ms per update (one core)")
+    ax.set_ylabel("map RMSE (surface band, observed cells)")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Arguments of `palpate sweep slam` (registered by palpate.commands.evaluate)."""
+    parser.add_argument("--quick", action="store_true", help="5 s of exploration instead of 20 s, no K=300 at 1 mm")
+    parser.add_argument("--json", action="store_true", help="end with one line of JSON (every row)")
+    parser.add_argument(
+        "--duration-s", type=float, help="simulated exploration mapped per setting (default 20, --quick 5)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="launch seed of the recorded run")
+    parser.add_argument("--particles", default=",".join(map(str, KS)), help="comma-separated K values")
+    parser.add_argument("--resolutions-mm", default=",".join(f"{r:g}" for r in RESOLUTIONS_MM), help="comma-separated")
+    parser.add_argument("--no-memory", action="store_true", help="skip tracemalloc (peak memory column nan)")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (CSV, JSON, PNG)")
+    parser.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from palpate.runtime import memory
+
+    memory.keep_freed_buffers()  # as node processes do: the mappers' big temporaries reuse freed pages
+    duration = args.duration_s if args.duration_s is not None else (5.0 if args.quick else 20.0)
+    try:
+        Ks = [int(k) for k in str(args.particles).split(",") if k]
+        resolutions = [float(r) for r in str(args.resolutions_mm).split(",") if r]
+    except ValueError as exc:
+        raise ConfigError(f"--particles and --resolutions-mm take comma-separated numbers: {exc}") from None
+    if duration <= 0 or not Ks or not resolutions:
+        raise ConfigError("need a positive --duration-s, at least one K and one resolution")
+    t0 = time.perf_counter()
+    print(f"palpate sweep slam: recording {duration:g} s of exploration (seed {args.seed})", file=sys.stderr)
+    stream = record_stream(args.seed, duration, 1.5)
+    skip = QUICK_SKIP if args.quick else frozenset()
+    rows = rows_as_dicts(sweep(stream, Ks, resolutions, seed=args.seed, measure_memory=not args.no_memory, skip=skip))
+    args.out.mkdir(parents=True, exist_ok=True)
+    png = args.out / "slam_sweep.png"
+    plot(png, rows, f"Rubik's cube, {duration:g} s of exploration, sigma 1.5 deg (seed {args.seed})")
+    (args.out / "slam_sweep.json").write_text(json.dumps(rows, indent=1))
+    print(format_table(rows))
+    print(f"wrote {args.out / 'slam_sweep.json'} and {png} ({time.perf_counter() - t0:.0f} s)")
+    if args.json:
+        print(json.dumps({"duration_s": duration, "seed": args.seed, "rows": rows}))
+    return 0
