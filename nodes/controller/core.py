@@ -114,6 +114,19 @@ def _rotation(name: str, value: ArrayLike) -> FloatArray:
     return R
 
 
+def retract_direction(v_n: ArrayLike, normal: ArrayLike, min_cos: float) -> FloatArray:
+    """The v_n of the next Eq. 15 curve (not in the paper): the approach direction v_n (3,) when it
+    points into the surface, v_n . (-normal) >= min_cos, else -normal (3,, the outward contact
+    normal), so that the curve lifts the fingertip off the surface first."""
+    v = np.asarray(v_n, dtype=np.float64)
+    m = np.asarray(normal, dtype=np.float64)
+    n = float(np.linalg.norm(m))
+    if not n > 1e-12:  # no usable normal (also NaN): keep Eq. 15
+        return v
+    inward = -m / n
+    return v if float(v @ inward) >= min_cos else inward
+
+
 class TrajectoryController:
     """Algorithm 1's Cartesian velocity controller as a pure state machine (see the module doc)."""
 

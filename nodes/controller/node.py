@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, Pose, TouchEvent, TouchTarget, Trajectory
 from palpate.nodes.controller.bezier import bezier_length
-from palpate.nodes.controller.core import ControllerConfig, ControllerState, TrajectoryController
+from palpate.nodes.controller.core import ControllerConfig, ControllerState, TrajectoryController, retract_direction
 from palpate.nodes.controller.so3 import quat_to_matrix
 from palpate.runtime.spec import NodeSpec, Port
 
@@ -40,6 +40,12 @@ class ControllerNodeConfig:
     #: for this long, seconds (not in the paper): a curve blocked by the object (under the lip of a cup)
     #: otherwise pushes in place for ever. 0 disables it.
     rearm_push_s: float = 0.1
+    #: Not in the paper: the next curve retracts along -v_n (Eq. 15) only when v_n points into the
+    #: surface, v_n . (-n) >= this cosine (n the measured contact normal); otherwise it retracts along
+    #: n. A touch made while sliding (v_n tangential) would otherwise start the next curve along the
+    #: surface, and the fingertip touches again a few millimetres on (measured: 600 contacts on 2 % of
+    #: the YCB sponge with GP-V). 0.5 = 60 degrees; -1 keeps Eq. 15 as written.
+    retract_min_cos: float = 0.5
     controller: ControllerConfig = field(default_factory=ControllerConfig)
 
 
@@ -57,6 +63,7 @@ class ControllerNode:
         self.touches = 0
         self.missed_before = 0
         self.last_contact = np.zeros(3)
+        self.retract_from = np.zeros(3)  # v_n of the next curve (Eq. 15), set at each touch
         self.predicted = np.full(3, np.nan)
 
     def on_pose(self, message: Pose) -> None:
@@ -70,7 +77,7 @@ class ControllerNode:
             return
         R = _rotation(self.pose)
         centre_at_target = message.position_m + self.config.tip_radius_m * message.normal
-        P = self.core.start(self.pose.position_m, self.core.direction, R, centre_at_target, message.normal)
+        P = self.core.start(self.pose.position_m, self.retract_from, R, centre_at_target, message.normal)
         self.predicted = np.array(message.predicted_contact_m)
         self.armed = False
         R1 = Rotation.from_matrix(R).as_quat(scalar_first=True)
@@ -128,7 +135,9 @@ class ControllerNode:
     def _touch(self, r: np.ndarray, R: np.ndarray) -> None:
         assert self.contacts is not None
         strongest = int(np.argmax(self.contacts.forces_n))
-        direction = self.core.direction
+        normal = np.array(self.contacts.normals[strongest])
+        direction = retract_direction(self.core.direction, normal, self.config.retract_min_cos)
+        self.retract_from = direction
         self.core.on_contact(r, R)
         self.last_contact = np.array(self.contacts.positions_m[strongest])
         missed = self.core.recoveries > self.missed_before
@@ -139,7 +148,7 @@ class ControllerNode:
                 stamp_ns=self.ctx.stamp_ns,
                 index=self.touches,
                 position_m=self.last_contact,
-                normal=np.array(self.contacts.normals[strongest]),
+                normal=normal,
                 approach_direction=direction,
                 predicted_contact_m=self.predicted,
                 missed=missed,

@@ -17,8 +17,10 @@ from palpate.metrics.exploration import (
     CoverageTracker,
     SurfaceRmse,
     angle_to_normal_deg,
+    confident_faces,
     covering_bound_contacts,
     surface_rmse,
+    triangle_areas,
 )
 from palpate.nodes.sim.contacts import ExactContactSensor
 
@@ -41,6 +43,9 @@ class EvalConfig:
     #: the object without a touch event, or a planner error), seconds.
     max_idle_s: float = 30.0
     rmse_samples: int = 20000
+    #: The headline surface RMSE is taken over the part of the estimate whose GP standard deviation is
+    #: at most this, metres: the surface the estimate claims to know (see ``Milestone``).
+    confident_sigma_m: float = 0.001
 
 
 @dataclass
@@ -56,9 +61,26 @@ class Milestone:
     angle_deg: float
     coverage: float
     vertex_coverage: float
+    #: Headline surface RMSE: one-sided, from the confident estimate (GP std <= confident_sigma_m) to
+    #: the true mesh; how wrong the surface is where the estimate says it knows it.
     rmse_mm: float = math.nan
+    #: Area fraction of the estimated mesh that is confident.
+    confident_fraction: float = math.nan
+    #: Over the whole estimated mesh: symmetric, and one-sided each way (truth -> estimate also charges
+    #: the unexplored part of the object, where the estimate is only the GP's extrapolation).
+    rmse_symmetric_mm: float = math.nan
     rmse_estimate_to_truth_mm: float = math.nan
     rmse_truth_to_estimate_mm: float = math.nan
+
+
+@dataclass(frozen=True)
+class SurfaceScores:
+    """Surface RMSE of an estimate over the whole mesh and over its confident part, and the area
+    fraction of the estimate that is confident."""
+
+    whole: SurfaceRmse
+    confident: SurfaceRmse
+    confident_fraction: float
 
 
 @dataclass
@@ -157,15 +179,25 @@ class ExplorationEvaluator:
             vertex_coverage=self.tracker.vertex_coverage,
         )
 
-    def set_rmse(self, fraction: float, rmse: SurfaceRmse) -> None:
-        """Attach the surface RMSE of the estimate published when `fraction` was reached."""
+    def set_rmse(self, fraction: float, scores: SurfaceScores) -> None:
+        """Attach the surface scores of the estimate published when `fraction` was reached."""
         m = self.milestones[fraction]
-        m.rmse_mm = 1000.0 * rmse.symmetric_m
-        m.rmse_estimate_to_truth_mm = 1000.0 * rmse.estimate_to_truth_m
-        m.rmse_truth_to_estimate_mm = 1000.0 * rmse.truth_to_estimate_m
+        m.rmse_mm = 1000.0 * scores.confident.estimate_to_truth_m
+        m.confident_fraction = scores.confident_fraction
+        m.rmse_symmetric_mm = 1000.0 * scores.whole.symmetric_m
+        m.rmse_estimate_to_truth_mm = 1000.0 * scores.whole.estimate_to_truth_m
+        m.rmse_truth_to_estimate_mm = 1000.0 * scores.whole.truth_to_estimate_m
 
-    def rmse(self, vertices_m: np.ndarray, faces: np.ndarray) -> SurfaceRmse:
-        """Surface RMSE between an estimated mesh and the true mesh (one-sided both ways and symmetric)."""
+    def rmse(self, vertices_m: np.ndarray, faces: np.ndarray, vertex_variance: np.ndarray) -> SurfaceScores:
+        """Surface RMSE between an estimated mesh (vertices (v, 3) m, faces (f, 3), GP variance (v,) m^2)
+        and the true mesh: over the whole estimate and over its confident part."""
+        whole = self._rmse(vertices_m, faces)
+        sure = confident_faces(faces, vertex_variance, self.config.confident_sigma_m)
+        area = triangle_areas(vertices_m, np.asarray(faces, dtype=np.int64)).sum() if len(faces) else 0.0
+        fraction = float(triangle_areas(vertices_m, sure).sum() / area) if area > 0 else math.nan
+        return SurfaceScores(whole=whole, confident=self._rmse(vertices_m, sure), confident_fraction=fraction)
+
+    def _rmse(self, vertices_m: np.ndarray, faces: np.ndarray) -> SurfaceRmse:
         if len(faces) == 0:
             nan = math.nan
             return SurfaceRmse(estimate_to_truth_m=nan, truth_to_estimate_m=nan, symmetric_m=nan)

@@ -42,6 +42,7 @@ class ExploreEvalNode:
         self.pending: list[float] = []  # milestones waiting for their whole-object surface
         self.final_requested = False
         self.last_estimate: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32))
+        self.last_variance = np.zeros(0)
         self.result: dict[str, Any] = {}
         self.last_touch_ns = 0
 
@@ -74,8 +75,9 @@ class ExploreEvalNode:
         if message.region != "global" or self.evaluator is None:
             return
         self.last_estimate = (np.array(message.vertices_m), np.array(message.faces))
+        self.last_variance = np.array(message.vertex_variance)
         if self.pending:
-            rmse = self.evaluator.rmse(*self.last_estimate)
+            rmse = self.evaluator.rmse(*self.last_estimate, self.last_variance)
             for fraction in self.pending:
                 self.evaluator.set_rmse(fraction, rmse)
             self.pending = []

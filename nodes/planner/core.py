@@ -78,6 +78,13 @@ class PlannerConfig:
     #: wall) IGEF's shortest path picked a target the fingertip already touched, and the same contact
     #: repeated hundreds of times (measured on the YCB cups). 6 mm is the coverage radius.
     min_hop_m: float = 0.006
+    #: Not in the paper, for every strategy alike: a target whose touch landed further than
+    #: ``unreached_miss_m`` from it (the curve hit the object on the way, or the estimate was wrong there)
+    #: is remembered, and candidates within ``unreached_radius_m`` of a remembered target are not
+    #: admissible. Without it a strategy re-picks a target it cannot reach (GP-V: its variance stays high
+    #: because no contact lands there) and touches the same spot again and again. 0 disables it.
+    unreached_radius_m: float = 0.006
+    unreached_miss_m: float = 0.01
     #: Fingertip radius, metres (the controller's tip_radius_m): the curves guide the fingertip centre.
     tip_radius_m: float = 0.008
 
@@ -99,6 +106,10 @@ class PlannerConfig:
                 raise ConfigError(f"PlannerConfig.{name} must be finite and > 0, got {value!r}")
         if not (np.isfinite(self.min_hop_m) and self.min_hop_m >= 0.0):
             raise ConfigError(f"PlannerConfig.min_hop_m must be finite and >= 0, got {self.min_hop_m!r}")
+        for name in ("unreached_radius_m", "unreached_miss_m"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0.0):
+                raise ConfigError(f"PlannerConfig.{name} must be finite and >= 0, got {value!r}")
         if not (np.isfinite(self.curve_margin_m) and self.curve_margin_m >= 0.0):
             raise ConfigError(f"PlannerConfig.curve_margin_m must be finite and >= 0, got {self.curve_margin_m!r}")
         if not (np.isfinite(self.tip_radius_m) and self.tip_radius_m >= 0.0):
@@ -248,6 +259,16 @@ def igef_terms(
     # alpha = angle(R_z, -s_n)  =>  1 - cos(alpha) = 1 + R_z . s_n
     psi4 = np.exp(-(1.0 + normals @ R_z) / config.sigma_alpha**2)
     return np.stack([psi1, psi2, psi3, psi4], axis=1)
+
+
+def away_from(points_m: ArrayLike, avoid_m: ArrayLike, radius_m: float) -> NDArray[np.bool_]:
+    """Which points (m, 3) lie at least radius_m from every point of avoid_m (k, 3): a mask (m,)."""
+    P = _points("points_m", points_m)
+    A = np.asarray(avoid_m, dtype=np.float64).reshape(-1, 3)
+    if len(A) == 0 or len(P) == 0 or radius_m <= 0.0:
+        return np.ones(len(P), dtype=bool)
+    dist, _ = cKDTree(A).query(P, distance_upper_bound=radius_m)
+    return np.asarray(~np.isfinite(dist))
 
 
 def curves_clear(

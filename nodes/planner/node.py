@@ -9,7 +9,7 @@ import numpy as np
 from palpate.errors import PlanningError
 from palpate.messages.schemas import Pose, SurfaceMesh, TouchEvent, TouchTarget
 from palpate.nodes.controller.so3 import quat_to_matrix
-from palpate.nodes.planner.core import Candidates, Planner, PlannerConfig, Selection, curves_clear
+from palpate.nodes.planner.core import Candidates, Planner, PlannerConfig, Selection, away_from, curves_clear
 from palpate.runtime.spec import NodeSpec, Port
 
 
@@ -23,10 +23,14 @@ class PlannerNode:
         self.approach = np.zeros(3)
         self.pose: Pose | None = None
         self.planned_for = 0
+        self.unreached: list[np.ndarray] = []  # targets whose touch landed elsewhere
 
     def on_touches(self, message: TouchEvent) -> None:
-        self.contacts.append(np.array(message.position_m))
+        position, predicted = np.array(message.position_m), np.array(message.predicted_contact_m)
+        self.contacts.append(position)
         self.approach = np.array(message.approach_direction)
+        if np.all(np.isfinite(predicted)) and np.linalg.norm(position - predicted) > self.core.config.unreached_miss_m:
+            self.unreached.append(predicted)
 
     def on_pose(self, message: Pose) -> None:
         self.pose = message
@@ -51,6 +55,7 @@ class PlannerNode:
         if len(candidates.points_m):
             hop = centres - self.pose.position_m
             admissible = np.einsum("ij,ij->i", hop, hop) >= cfg.min_hop_m**2
+            admissible &= away_from(candidates.points_m, np.reshape(self.unreached, (-1, 3)), cfg.unreached_radius_m)
             if cfg.check_curves and cfg.strategy == "random":  # a uniform choice needs the whole mask
                 admissible &= self._clear(message, centres, candidates.normals, np.arange(len(centres)))
             if not admissible.any():  # nothing admissible: plan as the paper does

@@ -25,9 +25,11 @@ MILESTONES = ("50", "80")
 METRICS = (
     ("travel_cm", "Avg. traveled distance", "cm"),
     ("rotation_deg", "Avg. overall rotation", "deg"),
-    ("rmse_mm", "Avg. surface RMSE (symmetric)", "mm"),
-    ("rmse_estimate_to_truth_mm", "Avg. RMSE estimate -> truth", "mm"),
-    ("rmse_truth_to_estimate_mm", "Avg. RMSE truth -> estimate", "mm"),
+    ("rmse_mm", "Avg. surface RMSE (confident estimate -> truth)", "mm"),
+    ("confident_fraction", "Avg. confident fraction of the estimate", ""),
+    ("rmse_symmetric_mm", "Avg. RMSE whole estimate, symmetric", "mm"),
+    ("rmse_estimate_to_truth_mm", "Avg. RMSE whole estimate -> truth", "mm"),
+    ("rmse_truth_to_estimate_mm", "Avg. RMSE truth -> whole estimate", "mm"),
     ("prediction_miss_mm", "Avg. prediction miss", "mm"),
     ("contacts", "Avg. number of contacts", ""),
     ("angle_deg", "Avg. fingertip-normal angle", "deg"),
@@ -56,6 +58,8 @@ MILESTONE_COLUMNS = (
     "travel_cm",
     "rotation_deg",
     "rmse_mm",
+    "confident_fraction",
+    "rmse_symmetric_mm",
     "rmse_estimate_to_truth_mm",
     "rmse_truth_to_estimate_mm",
     "prediction_miss_mm",
@@ -167,7 +171,7 @@ def table2(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: 
         means = paired_means(results, (baseline, method), percent)
         b, m = means[baseline], means[method]
         for key, label, unit in METRICS:
-            digits = 2 if unit == "mm" and "miss" not in key else 1
+            digits = 2 if (unit == "mm" and "miss" not in key) or key == "confident_fraction" else 1
             lines.append(
                 f"| {percent} % | {label} | {_fmt(b[key], unit, digits)} | {_fmt(m[key], unit, digits)} | "
                 f"{_fmt(improvement_pct(b[key], m[key]), '%', 0)} |"
@@ -249,6 +253,8 @@ def summary_json(
             runs_completed=int(m["runs_completed"]),
             runs=int(m["runs"]),
             paired_runs=int(m["paired_runs"]),
+            confident_fraction=_json_number(m["confident_fraction"]),
+            rmse_symmetric_mm=_json_number(m["rmse_symmetric_mm"]),
             rmse_estimate_to_truth_mm=_json_number(m["rmse_estimate_to_truth_mm"]),
             rmse_truth_to_estimate_mm=_json_number(m["rmse_truth_to_estimate_mm"]),
         )

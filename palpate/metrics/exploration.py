@@ -228,6 +228,18 @@ def surface_rmse(
     return SurfaceRmse(estimate_to_truth_m=e2t, truth_to_estimate_m=t2e, symmetric_m=float(np.sqrt(np.mean(both**2))))
 
 
+def confident_faces(faces: ArrayLike, vertex_variance: ArrayLike, max_sigma_m: float) -> IntArray:
+    """The faces (k, 3) of a surface estimate whose three vertices have GP standard deviation
+    <= max_sigma_m: the part of the estimate the GP claims to know to that precision.
+
+    faces: (f, 3) vertex indices; vertex_variance: (v,) GP variance of f at the vertices, m^2.
+    """
+    F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    var = np.asarray(vertex_variance, dtype=np.float64)
+    ok = var <= max_sigma_m**2  # False for NaN
+    return F[ok[F].all(axis=1)] if len(F) else F
+
+
 def angle_to_normal_deg(fingertip_axis: ArrayLike, true_normals: ArrayLike) -> FloatArray:
     """Angle between the fingertip's poking axis and the inward true normal at contact, degrees (n,).
 

@@ -187,3 +187,15 @@ def test_rejects_bad_inputs() -> None:
         ctrl.start(np.array([np.nan, 0, 0]), V_DOWN, R_DOWN, np.array([0.02, 0, 0]), np.array([0, 0, 1.0]))
     with pytest.raises(ConfigError, match="v0_m_s"):
         ControllerConfig(v0_m_s=0.0)
+
+
+def test_retract_direction_keeps_v_n_into_the_surface_and_lifts_off_after_sliding() -> None:
+    from palpate.nodes.controller.core import retract_direction
+
+    normal = np.array([0.0, 0.0, 2.0])  # outward, not unit
+    into = np.array([0.0, 0.6, -0.8])  # 37 degrees from the inward normal
+    np.testing.assert_allclose(retract_direction(into, normal, 0.5), into, atol=0)
+    sliding = np.array([1.0, 0.0, 0.0])
+    np.testing.assert_allclose(retract_direction(sliding, normal, 0.5), [0.0, 0.0, -1.0], atol=1e-15)
+    np.testing.assert_allclose(retract_direction(sliding, normal, -1.0), sliding, atol=0)  # Eq. 15 as written
+    np.testing.assert_allclose(retract_direction(sliding, np.full(3, np.nan), 0.5), sliding, atol=0)

@@ -225,3 +225,13 @@ def test_admissible_mask_excludes_candidates() -> None:
         planner.select(*args, np.random.default_rng(0), admissible=np.zeros(len(S), dtype=bool))
     with pytest.raises(PlanningError, match="boolean mask"):
         planner.select(*args, np.random.default_rng(0), admissible=np.ones(3, dtype=bool))
+
+
+def test_away_from_drops_points_within_the_radius_of_any_avoided_point() -> None:
+    from palpate.nodes.planner.core import away_from
+
+    points = np.array([[0.0, 0.0, 0.0], [0.005, 0.0, 0.0], [0.0, 0.007, 0.0], [0.02, 0.0, 0.0]])
+    avoid = np.array([[0.0, 0.0, 0.001], [0.02, 0.0, 0.0]])
+    np.testing.assert_array_equal(away_from(points, avoid, 0.006), [False, False, True, False])
+    np.testing.assert_array_equal(away_from(points, np.zeros((0, 3)), 0.006), [True] * 4)
+    np.testing.assert_array_equal(away_from(points, avoid, 0.0), [True] * 4)

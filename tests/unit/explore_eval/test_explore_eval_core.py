@@ -1,0 +1,52 @@
+"""The exploration evaluator's surface scores: whole estimate against its confident part."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from palpate.metrics.exploration import confident_faces
+from palpate.nodes.explore_eval.core import EvalConfig, ExplorationEvaluator
+
+
+def _cube(edge: float, offset: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    box = trimesh.creation.box(extents=(edge, edge, edge))
+    box = box.subdivide().subdivide()
+    return np.asarray(box.vertices) + np.asarray(offset), np.asarray(box.faces, dtype=np.int64)
+
+
+def test_confident_faces_keeps_faces_whose_three_vertices_are_sure() -> None:
+    faces = np.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]])
+    variance = np.array([0.0, 1e-8, 1e-8, 4e-6, np.nan])  # sigma 0, 0.1 mm, 0.1 mm, 2 mm, NaN
+    np.testing.assert_array_equal(confident_faces(faces, variance, 0.001), faces[:1])
+    np.testing.assert_array_equal(confident_faces(faces, variance, 0.003), faces[:2])
+
+
+def test_phantom_surface_of_high_variance_counts_only_in_the_whole_estimate_scores() -> None:
+    V, F = _cube(0.05)
+    evaluator = ExplorationEvaluator(V, F, EvalConfig(rmse_samples=4000, coverage_samples=2000))
+    phantom_V, phantom_F = _cube(0.02, offset=(0.1, 0.0, 0.0))  # 7.5 cm beside the true cube
+    est_V = np.vstack([V, phantom_V])
+    est_F = np.vstack([F, phantom_F + len(V)])
+    variance = np.concatenate([np.full(len(V), 1e-8), np.full(len(phantom_V), 1e-4)])
+
+    scores = evaluator.rmse(est_V, est_F, variance)
+
+    assert scores.confident.estimate_to_truth_m == pytest.approx(0.0, abs=1e-9)
+    assert scores.whole.estimate_to_truth_m > 0.01  # the phantom cube is 7.5 cm off
+    area_true, area_phantom = 6 * 0.05**2, 6 * 0.02**2
+    assert scores.confident_fraction == pytest.approx(area_true / (area_true + area_phantom), rel=1e-6)
+
+
+def test_milestone_headline_is_the_confident_one_sided_rmse() -> None:
+    V, F = _cube(0.05)
+    evaluator = ExplorationEvaluator(V, F, EvalConfig(rmse_samples=4000, coverage_samples=2000))
+    evaluator.add_touch(V[0], V[0], 0.0, 0.0, np.array([0.0, 0.0, -1.0]))
+    evaluator.close_incomplete()
+    shrunk = 0.98 * V  # every estimate point ~0.5 mm inside the truth
+    evaluator.set_rmse(0.8, evaluator.rmse(shrunk, F, np.zeros(len(V))))
+    m = evaluator.milestones[0.8]
+    assert 0.2 < m.rmse_mm < 0.6
+    assert m.rmse_estimate_to_truth_mm == pytest.approx(m.rmse_mm, rel=1e-9)
+    assert m.confident_fraction == pytest.approx(1.0)
