@@ -7,22 +7,23 @@ exactly the cells the object overlaps) and 0 otherwise. The evaluation region is
 
     B = { c : -h < d(c) <= h + band_m }
 
-(optionally intersected with a caller's mask, e.g. the part of the object the finger can reach):
-the one-cell shell of cells that straddle the surface (truth 1) plus the free cells within band_m
-outside it (truth 0). Then
+(optionally intersected with a caller's mask or set of cells): the one-cell shell of cells that
+straddle the surface (truth 1) plus the free cells within band_m outside it (truth 0). Then
 
     RMSE = sqrt( mean_{c in B} (bel(c) - truth(c))^2 ),   bel = 1 - 1 / (1 + exp(l)),
 
-with bel = 0.5 for cells the map never touched.
+with bel = 0.5 for cells the map never touched. The headline ``rmse`` of ``palpate eval slam`` and
+``palpate sweep slam`` (docs/slam.md) takes the region B intersect O, O the cells the finger observed
+at its true pose (the cells whose log-odds the known-pose mapper changed during the run); their
+``rmse_explored`` takes B intersect E, E the cells within 10 mm of a true contact point.
 
 Why this region: touch never observes the inside of an object, so interior cells would stay at 0.5
 for every method; and the count of far free cells, which the finger may never visit, depends only
 on how large a margin the grid was given. Over all cells the RMSE would thus measure the grid's
-margin, not the map. Over the band, an unexplored band cell costs 0.5^2 and a well-mapped one
-~0, so the RMSE falls as exploration covers the surface: the paper's 0.35 at 10 s and 0.20 at
-100 s (known pose) correspond to about half and about a sixth of the band still unobserved.
-band_m defaults to 4 mm (the coarsest resolution of the sweep), so every resolution is judged on the
-same physical shell and band.
+margin, not the map. Over the band, a band cell not yet observed costs 0.5^2 and a well-mapped one
+~0, so the RMSE falls as exploration covers the region (the paper's 0.35 at 10 s and 0.20 at 100 s
+for the known pose fall the same way; its region is not stated). band_m defaults to 4 mm (the
+coarsest resolution of the sweep), so every resolution is judged on the same physical band.
 
 Readable figures (``surface_distances_mm``): the mean distance in mm from the centres of occupied
 cells (bel > 0.5) to the true surface (accuracy), and from points sampled on the true surface to

@@ -37,7 +37,8 @@ QUICK_SKIP = frozenset({(1.0, 300)})
 #: free. It must be at least the distance from a face of the cube to the outer face of the cells
 #: that hold it, or the free update clears cube cells at the true pose: on this grid (region from
 #: -45 mm, cube faces at +-28.5 mm) 0.5 mm at 1 and 2 mm cells, 2.5 mm at 4 mm (docs/slam.md).
-#: Other resolutions take the mapper's default (one cell, always enough).
+#: Other resolutions take the mapper's default (one cell, always enough). At 1 mm, 0.5 mm is not
+#: enough in practice: the known-pose map loses most of its surface cells (docs/benchmarks.md).
 FREE_MARGIN_MM = {1.0: 0.5, 2.0: 0.5, 4.0: 2.5}
 DEFAULT_OUT = Path("out") / "slam"
 
@@ -132,9 +133,10 @@ def sweep(
     skip: frozenset[tuple[float, int]] = frozenset(),
 ) -> list[Any]:
     """SweepRows (nodes/mapper/sweep.py) for known pose and dead reckoning, then FastSLAM at every K,
-    per resolution; ``rmse`` is the explored-band RMSE of palpate eval slam, plus the observed-band
-    RMSE: a list of (SweepRow, rmse_explored) (``rows_as_dicts`` flattens them). ``skip`` leaves out
-    (resolution_mm, K) pairs."""
+    per resolution, scored as in palpate eval slam: ``SweepRow.rmse`` is its ``rmse`` (surface band
+    intersect the cells the known-pose mapper observed), paired with its ``rmse_explored``: a list of
+    (SweepRow, rmse_explored) (``rows_as_dicts`` flattens them). ``skip`` leaves out (resolution_mm, K)
+    pairs."""
     from palpate.nodes.mapper.node import finger_chain
     from palpate.nodes.mapper.sweep import SweepRow, TappingRecord, _run
 

@@ -59,6 +59,9 @@ def test_log_weights_far_below_underflow_normalise_without_nan() -> None:
     assert n_eff == pytest.approx(1.0)
     lw, n_eff = normalise_log_weights(np.array([-np.inf, np.nan]))  # nothing usable: uniform
     np.testing.assert_allclose(np.exp(lw), [0.5, 0.5])
+    lw, n_eff = normalise_log_weights(np.full(4, -np.inf))  # every linear weight underflowed to 0
+    np.testing.assert_allclose(np.exp(lw), 0.25, rtol=1e-12)
+    assert n_eff == pytest.approx(4.0)
 
 
 def test_systematic_resampling_counts_follow_the_weights() -> None:
@@ -155,15 +158,24 @@ def test_one_particle(scene: tuple[KinematicChain, TappingRecord]) -> None:
     np.testing.assert_array_equal(slam.weighted_map().flat, slam.best_map().flat)
 
 
-def test_weights_below_underflow_inside_the_filter(scene: tuple[KinematicChain, TappingRecord]) -> None:
+@pytest.mark.parametrize(
+    "start",
+    [-1e6 - np.arange(10.0), np.full(10, -np.inf)],  # every exp() underflows to 0; every log is -inf
+    ids=["minus_1e6", "minus_inf"],
+)
+def test_weights_below_underflow_inside_the_filter(
+    scene: tuple[KinematicChain, TappingRecord], start: np.ndarray
+) -> None:
     chain, rec = scene
     slam = Mapper(_config(n_particles=10, resample_threshold=0.0), chain, np.random.default_rng(7))
     assert slam.filter is not None
-    slam.filter.log_weights = -1e6 - np.arange(10.0)  # every exp() underflows to 0
+    slam.filter.log_weights = start.copy()
     for _ in _feed(slam, rec, _noisy(rec, 1.5, seed=8)):
         assert np.all(np.isfinite(slam.filter.log_weights))
         assert slam.filter.weights.sum() == pytest.approx(1.0, abs=1e-12)
+        assert 1.0 - 1e-9 <= slam.n_eff <= 10 + 1e-9
     assert np.all(np.isfinite(slam.pose_estimate().mean_q_rad))
+    assert np.all(np.isfinite(slam.weighted_map().log_odds))
 
 
 def test_resampling_only_below_the_threshold(scene: tuple[KinematicChain, TappingRecord]) -> None:
