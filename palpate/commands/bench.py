@@ -20,6 +20,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "bus": ("palpate.bench.bus:main", "one-hop latency and throughput of the bus against raw pyzmq"),
     "sim": ("palpate.bench.sim:main", "simulation steps/s and real-time factor: bare mj_step, in-process, graph"),
     "contacts": ("palpate.bench.contacts:main", "exact-mesh contact accuracy (position, normal, phantom) on YCB"),
+    "gpis": ("palpate.bench.gpis:main", "GPIS update + local surface ms against contacts and grid step"),
 }
 
 

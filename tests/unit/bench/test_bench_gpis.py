@@ -1,0 +1,65 @@
+"""`palpate bench gpis`: the smallest run end to end, the goal check and the CLI errors."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from typing import Any
+
+import pytest
+
+from palpate.bench import gpis as bench_gpis
+from palpate.errors import BenchmarkError
+from palpate.nodes.gpis.bench import TIMED
+
+
+def test_smallest_run_prints_a_row_per_grid_and_json_last(capsys: Any) -> None:
+    args = argparse.Namespace(quick=True, json=True, contacts=[12], resolutions=[10.0, 20.0], repeats=2, seed=1)
+    assert bench_gpis.main(args) == 0  # no row at 200 contacts: no goal to miss
+    out = capsys.readouterr().out.strip().splitlines()
+    last = json.loads(out[-1])
+    assert last["goal"] is None and last["pass"] and last["repeats"] == 2 and last["quick"]
+    assert any(line.startswith("goal check: not run") for line in out)
+    rows = last["rows"]
+    assert [(r["n_contacts"], r["resolution_m"]) for r in rows] == [(12, 0.01), (12, 0.02)]
+    for r in rows:
+        for name in (*TIMED, "total", "total_without_variance"):
+            for key in (f"{name}_ms", f"cpu_{name}_ms"):
+                assert math.isfinite(r[key]) and r[key] > 0, key
+        assert r["cpu_total_ms"] == pytest.approx(r["cpu_add_contact_ms"] + r["cpu_local_surface_ms"])
+        assert r["n_vertices"] > 0 and r["n_faces"] > 0
+    assert rows[0]["n_vertices"] > rows[1]["n_vertices"]  # a finer grid gives more vertices
+    table_rows = [line.split() for line in out if line.split() and line.split()[0] == "12"]
+    assert [float(cells[1]) for cells in table_rows] == [10.0, 20.0]
+
+
+def _row(n: float, res: float, without: float, with_variance: float) -> dict[str, float]:
+    return {
+        "n_contacts": n,
+        "resolution_m": res,
+        "cpu_total_without_variance_ms": without,
+        "cpu_total_ms": with_variance,
+    }
+
+
+def test_goal_check_uses_200_contacts_at_the_default_grid() -> None:
+    rows = [_row(200, 0.004, 1.0, 1.0), _row(400, 0.005, 1.0, 1.0), _row(200, 0.005, 12.0, 25.0)]
+    goal = bench_gpis.goal_check(rows, 0.005)
+    assert goal is not None
+    assert (goal["igef_cpu_ms"], goal["gpv_cpu_ms"]) == (12.0, 25.0)
+    assert goal["igef_pass"] and not goal["gpv_pass"]
+    assert bench_gpis.goal_check(rows[:2], 0.005) is None
+
+
+def test_too_few_contacts_for_the_repeats_says_what_to_do() -> None:
+    args = argparse.Namespace(quick=True, json=False, contacts=[3], resolutions=None, repeats=3, seed=0)
+    with pytest.raises(BenchmarkError, match="give N >= 4"):
+        bench_gpis.main(args)
+
+
+def test_gpis_is_a_bench_sub_command() -> None:
+    from palpate.cli import build_parser
+
+    args = build_parser().parse_args(["bench", "gpis", "--quick", "--json", "--contacts", "50", "200"])
+    assert args.quick and args.json and args.contacts == [50, 200] and args.resolutions is None
