@@ -135,11 +135,16 @@ def demo_summary(result: dict[str, Any]) -> str:
         state = "reached" if m.get("reached") else "NOT reached (figures at the end of the run)"
         lines.append(
             f"[demo] {percent} % coverage {state}: {m['contacts']} contacts, travel {m['travel_cm']:.1f} cm, "
-            f"rotation {m['rotation_deg']:.0f} deg, surface RMSE {_mm(m.get('rmse_mm'))} (estimate->truth "
+            f"rotation {m['rotation_deg']:.0f} deg, surface RMSE {_mm(m.get('rmse_mm'))} over the confident "
+            f"{_pct(m.get('confident_fraction'))} of the estimate (whole estimate: estimate->truth "
             f"{_mm(m.get('rmse_estimate_to_truth_mm'))}, truth->estimate {_mm(m.get('rmse_truth_to_estimate_mm'))}), "
             f"prediction miss {_mm(m.get('prediction_miss_mm'))}, fingertip-normal angle {m['angle_deg']:.1f} deg"
         )
     return "\n".join(lines)
+
+
+def _pct(value: object) -> str:
+    return "n/a" if value is None or value != value else f"{100 * float(value):.0f} %"  # type: ignore[arg-type]
 
 
 def _mm(value: object) -> str:
