@@ -35,10 +35,11 @@ class EvalConfig:
     coverage_samples: int = 20000
     #: Budgets: a run that has not reached the coverage goal after this many contacts or this much
     #: travel ends as incomplete. Chosen for time (issue 5: the 180-run YCB evaluation within 2 hours on 2
-    #: cores): a run then costs at most ~50 s CPU. Measured: IGEF on the banana needs ~570 contacts, GP-V
-    #: on it ~9.6 m; the larger YCB cups reach 15-55 % coverage with 1000 contacts or 30 m (IGEF, GP-V).
-    max_contacts: int = 600
-    max_travel_m: float = 15.0
+    #: cores): a run then costs at most ~60 s CPU. About twice the covering bound of the largest YCB
+    #: objects (block of wood 360 contacts); IGEF needs 1.5-2.5 times the bound (its hops overlap), and
+    #: GP-V covered only 48-77 % of the large YCB cups within 15 m.
+    max_contacts: int = 800
+    max_travel_m: float = 20.0
     #: Simulated time without a touch after which the run ends as stalled (the fingertip stuck against
     #: the object without a touch event, or a planner error), seconds.
     max_idle_s: float = 30.0
