@@ -37,6 +37,7 @@ from scipy.spatial import ConvexHull, cKDTree
 from palpate.nodes.sim.contacts import ExactContactSensor, closest_points_on_triangles
 from palpate.nodes.sim.objects import read_mesh_file, sample_surface_faces
 from palpate.paths import YCB_DIR_ENV, ycb_dir
+from palpate.text_table import Column, fixed_width_table
 
 #: Default objects of the issue's check (file-name globs in the YCB folder).
 DEFAULT_OBJECTS = ("011_banana.stl", "051_large_clamp.stl", "065-*_cups.stl", "030_fork.stl")
@@ -299,20 +300,22 @@ def summary(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
 
 def format_table(rows: Sequence[dict[str, Any]]) -> str:
     """Plain-text table of the rows and the summary."""
-    head = (
-        f"{'object':<28}{'touch':>6}{'pos p95 mm':>12}{'pos max mm':>12}{'nrm p95 deg':>12}"
-        f"{'nrm max deg':>12}{'f32 p95 mm':>12}{'free':>6}{'phantom':>8}{'missed':>7}{'us/query':>9}"
-    )
-    lines = [head, "-" * len(head)]
-    for row in rows:
-        lines.append(
-            f"{row['object']:<28}{row['touches']:>6}{row['position_p95_mm']:>12.2e}{row['position_max_mm']:>12.2e}"
-            f"{row['normal_p95_deg']:>12.2e}{row['normal_max_deg']:>12.2e}{row['float32_position_p95_mm']:>12.2e}"
-            f"{row['free_probes']:>6}{row['phantom_contacts']:>8}{row['missed_contacts']:>7}"
-            f"{row['batch_query_us']:>9.2f}"
-        )
+    columns = [
+        Column("object", 28, "object", align="<"),
+        Column("touch", 6, "touches"),
+        Column("pos p95 mm", 12, "position_p95_mm", ".2e"),
+        Column("pos max mm", 12, "position_max_mm", ".2e"),
+        Column("nrm p95 deg", 12, "normal_p95_deg", ".2e"),
+        Column("nrm max deg", 12, "normal_max_deg", ".2e"),
+        Column("f32 p95 mm", 12, "float32_position_p95_mm", ".2e"),
+        Column("free", 6, "free_probes"),
+        Column("phantom", 8, "phantom_contacts"),
+        Column("missed", 7, "missed_contacts"),
+        Column("us/query", 9, "batch_query_us", ".2f"),
+    ]
+    table = fixed_width_table(columns, rows)
     s = summary(rows)
-    lines.append("-" * len(head))
+    lines = [table, table.split("\n", 2)[1]]  # closing rule as long as the header
     lines.append(
         f"worst p95 position {s['position_p95_mm_max']:.2e} mm (goal <= 0.5), worst p95 normal "
         f"{s['normal_p95_deg_max']:.2e} deg (goal <= 5), phantom contacts {s['phantom_contacts']} (goal 0), "

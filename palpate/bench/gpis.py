@@ -23,6 +23,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from palpate.errors import BenchmarkError
+from palpate.text_table import Column, fixed_width_table
 
 CONTACTS = (50, 100, 200, 400, 1000)
 QUICK_CONTACTS = (200,)
@@ -58,18 +59,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def table(rows: Sequence[Mapping[str, float]]) -> str:
     """Plain-text table of CPU medians (ms): one line per (contacts, grid step)."""
-    head = (
-        f"{'contacts':>8}{'grid mm':>9}{'vertices':>10}{'add':>8}{'surface':>10}{'+variance':>11}"
-        f"{'IGEF total':>12}{'GP-V total':>12}"
-    )
-    lines = [head, "-" * len(head)]
-    for r in rows:
-        lines.append(
-            f"{r['n_contacts']:>8.0f}{1e3 * r['resolution_m']:>9g}{r['n_vertices']:>10.0f}"
-            f"{r['cpu_add_contact_ms']:>8.2f}{r['cpu_local_surface_without_variance_ms']:>10.1f}"
-            f"{r['cpu_local_surface_ms']:>11.1f}{r['cpu_total_without_variance_ms']:>12.1f}{r['cpu_total_ms']:>12.1f}"
-        )
-    return "\n".join(lines)
+    columns = [
+        Column("contacts", 8, "n_contacts", ".0f"),
+        Column("grid mm", 9, lambda r: 1e3 * r["resolution_m"], "g"),
+        Column("vertices", 10, "n_vertices", ".0f"),
+        Column("add", 8, "cpu_add_contact_ms", ".2f"),
+        Column("surface", 10, "cpu_local_surface_without_variance_ms", ".1f"),
+        Column("+variance", 11, "cpu_local_surface_ms", ".1f"),
+        Column("IGEF total", 12, "cpu_total_without_variance_ms", ".1f"),
+        Column("GP-V total", 12, "cpu_total_ms", ".1f"),
+    ]
+    return fixed_width_table(columns, rows)
 
 
 def goal_check(rows: Sequence[Mapping[str, float]], resolution_m: float) -> dict[str, Any] | None:

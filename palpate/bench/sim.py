@@ -43,6 +43,7 @@ from palpate.errors import BenchmarkError
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, JointState, Pose
 from palpate.paths import REPO_ROOT, ycb_dir
 from palpate.runtime.spec import NodeSpec, Port
+from palpate.text_table import Column, fixed_width_table
 
 PROBE_LAUNCH = REPO_ROOT / "launch" / "probe.yaml"
 SCENES = ("probe", "finger", "hand")
@@ -374,18 +375,18 @@ def bench_scene(scene: str, obj: Mapping[str, Any], config: SimBenchConfig, work
 
 def table(rows: Sequence[Mapping[str, Any]]) -> str:
     """Plain-text table of the rows."""
-    head = (
-        f"{'scene':<8}{'dt ms':>6}{'bare steps/s':>14}{'in-proc steps/s':>17}{'graph steps/s':>15}"
-        f"{'graph RTF':>11}{'overhead':>10}{'bare/graph':>12}{'contacts':>10}"
-    )
-    lines = [head, "-" * len(head)]
-    for r in rows:
-        lines.append(
-            f"{r['scene']:<8}{1000 * r['timestep_s']:>6.1f}{r['bare_steps_per_s']:>14.0f}"
-            f"{r['inprocess_steps_per_s']:>17.0f}{r['graph_steps_per_s']:>15.0f}{r['graph_rtf']:>11.2f}{r['runtime_overhead']:>10.2f}"
-            f"{r['bare_over_graph']:>12.1f}{r['contacts']:>10.0f}"
-        )
-    return "\n".join(lines)
+    columns = [
+        Column("scene", 8, "scene", align="<"),
+        Column("dt ms", 6, lambda r: 1000 * r["timestep_s"], ".1f"),
+        Column("bare steps/s", 14, "bare_steps_per_s", ".0f"),
+        Column("in-proc steps/s", 17, "inprocess_steps_per_s", ".0f"),
+        Column("graph steps/s", 15, "graph_steps_per_s", ".0f"),
+        Column("graph RTF", 11, "graph_rtf", ".2f"),
+        Column("overhead", 10, "runtime_overhead", ".2f"),
+        Column("bare/graph", 12, "bare_over_graph", ".1f"),
+        Column("contacts", 10, "contacts", ".0f"),
+    ]
+    return fixed_width_table(columns, rows)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

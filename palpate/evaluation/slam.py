@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 
 from palpate.errors import ConfigError
 from palpate.paths import REPO_ROOT
+from palpate.text_table import Column, fixed_width_table
 
 FloatArray = NDArray[np.float64]
 
@@ -362,18 +363,17 @@ def summary_json(summary: Sequence[Mapping[str, Any]], timing: Sequence[Mapping[
 
 def format_table(summary: Sequence[Mapping[str, Any]]) -> str:
     """Fixed-width table: one line per method and snapshot time, mean +- std over seeds."""
-    head = (
-        f"{'method':<16}{'t_s':>6}{'seeds':>6}{'rmse':>16}{'rmse_explored':>16}"
-        f"{'accuracy_mm':>16}{'completeness_mm':>18}{'occupied':>10}"
-    )
-    lines = [head, "-" * len(head)]
-    for s in summary:
-        lines.append(
-            f"{s['method']:<16}{float(s['time_s']):>6g}{int(s['n']):>6}"
-            f"{_pm(s, 'rmse', 3):>16}{_pm(s, 'rmse_explored', 3):>16}"
-            f"{_pm(s, 'accuracy_mm', 2):>16}{_pm(s, 'completeness_mm', 2):>18}{float(s['occupied_cells']):>10.0f}"
-        )
-    return "\n".join(lines)
+    columns = [
+        Column("method", 16, "method", align="<"),
+        Column("t_s", 6, lambda s: float(s["time_s"]), "g"),
+        Column("seeds", 6, lambda s: int(s["n"])),
+        Column("rmse", 16, lambda s: _pm(s, "rmse", 3)),
+        Column("rmse_explored", 16, lambda s: _pm(s, "rmse_explored", 3)),
+        Column("accuracy_mm", 16, lambda s: _pm(s, "accuracy_mm", 2)),
+        Column("completeness_mm", 18, lambda s: _pm(s, "completeness_mm", 2)),
+        Column("occupied", 10, lambda s: float(s["occupied_cells"]), ".0f"),
+    ]
+    return fixed_width_table(columns, summary)
 
 
 def _pm(s: Mapping[str, Any], key: str, digits: int) -> str:

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from palpate.errors import ConfigError
 from palpate.evaluation.slam import SLAM_LAUNCH, BoxTruth, Scorer, SlamEvalConfig
+from palpate.text_table import Column, fixed_width_table
 
 FloatArray = NDArray[np.float64]
 
@@ -200,18 +201,19 @@ def rows_as_dicts(rows: Sequence[Any]) -> list[dict[str, Any]]:
 
 def format_table(rows: Sequence[Mapping[str, Any]]) -> str:
     """Fixed-width table of the sweep rows (dicts of ``rows_as_dicts``)."""
-    head = (
-        f"{'method':<15}{'K':>5}{'res_mm':>8}{'rmse':>8}{'rmse_expl':>10}{'acc_mm':>8}{'comp_mm':>9}"
-        f"{'ms/upd':>9}{'cpu_ms':>9}{'peak_MB':>9}"
-    )
-    lines = [head, "-" * len(head)]
-    for r in rows:
-        lines.append(
-            f"{r['method']:<15}{r['K']:>5}{r['resolution_mm']:>8.1f}{r['rmse']:>8.3f}{r['rmse_explored']:>10.3f}"
-            f"{r['accuracy_mm']:>8.2f}{r['completeness_mm']:>9.2f}{r['ms_per_update']:>9.2f}"
-            f"{r['cpu_ms_per_update']:>9.2f}{r['peak_memory_mb']:>9.1f}"
-        )
-    return "\n".join(lines)
+    columns = [
+        Column("method", 15, "method", align="<"),
+        Column("K", 5, "K"),
+        Column("res_mm", 8, "resolution_mm", ".1f"),
+        Column("rmse", 8, "rmse", ".3f"),
+        Column("rmse_expl", 10, "rmse_explored", ".3f"),
+        Column("acc_mm", 8, "accuracy_mm", ".2f"),
+        Column("comp_mm", 9, "completeness_mm", ".2f"),
+        Column("ms/upd", 9, "ms_per_update", ".2f"),
+        Column("cpu_ms", 9, "cpu_ms_per_update", ".2f"),
+        Column("peak_MB", 9, "peak_memory_mb", ".1f"),
+    ]
+    return fixed_width_table(columns, rows)
 
 
 def plot(path: Path, rows: Sequence[Mapping[str, Any]], title: str) -> None:
