@@ -125,7 +125,13 @@ class ControllerNode:
         else:
             linear, angular = self.core.command(r, R)
         if self.core.state is ControllerState.FAILED:
-            self.ctx.request_stop("controller: the fingertip found no surface (approach and recovery missed)")
+            self.ctx.request_stop(
+                "controller: the fingertip found no surface (approach and recovery missed)"
+                if self.touches
+                else "controller: the initial approach from the start position towards the initial target "
+                f"{list(self.config.initial_target_m)} found no surface; the target must lie inside the object "
+                "(launch arguments start:= and target:= of launch/explore.yaml)"
+            )
         self.ctx.publish(
             "velocity", CartesianVelocityCommand(stamp_ns=stamp_ns, linear_m_s=linear, angular_rad_s=angular)
         )

@@ -120,6 +120,7 @@ class NodeRunner:
         self.acks: dict[str, int] = {}
         self.clock_ticks: deque[Clock] = deque()
         self.stopping = False
+        self.stop_reason = ""  # the first reason another node gave for stopping the run
         self.interrupted = False
         manifest = bus.Manifest(
             node=process.name,
@@ -183,8 +184,10 @@ class NodeRunner:
             if ack is not None:
                 self.acks[ack.node] = max(ack.tick, self.acks.get(ack.node, -2))
         elif topic == STOP_TOPIC:
-            if self._decode_internal(topic, payload, RunControl) is not None:
+            control = self._decode_internal(topic, payload, RunControl)
+            if control is not None:
                 self.stopping = True
+                self.stop_reason = self.stop_reason or control.reason
         elif topic in self.input_types:
             self.seq += 1
             rank = self.process.topic_order.get(topic, 1 << 30)
@@ -302,7 +305,8 @@ class NodeRunner:
             if self.stopping or self.ctx.stop_requested:
                 break
             tick += 1
-        reason = self.ctx.stop_requested or "clock source finished"
+        reason = self.ctx.stop_requested or self.stop_reason or "clock source finished"
+        log.info("run stopped at t = %.3f s: %s", self.ctx.stamp_ns * 1e-9, reason)
         self._send_internal(STOP_TOPIC, RunControl(stamp_ns=self.ctx.stamp_ns, command="stop", reason=reason))
 
     def _run_follower(self) -> None:

@@ -39,6 +39,24 @@ class Crasher:
 
 
 @dataclass(frozen=True, kw_only=True)
+class QuitterConfig:
+    after_ticks: int = 5
+
+
+class Quitter:
+    """Asks the graph to stop, with a reason, after `after_ticks` ticks (as an exploration at its goal)."""
+
+    def __init__(self, config: QuitterConfig, ctx: Any):
+        self.config, self.ctx = config, ctx
+        self.ticks = 0
+
+    def on_tick(self, stamp_ns: int) -> None:
+        self.ticks += 1
+        if self.ticks == self.config.after_ticks:
+            self.ctx.request_stop(f"quitter: done after {self.ticks} ticks")
+
+
+@dataclass(frozen=True, kw_only=True)
 class StubbornConfig:
     hang_s: float = 60.0
 
@@ -82,6 +100,7 @@ class JointSink:
 
 
 CRASHER = NodeSpec(name="crasher", config=CrasherConfig, factory=Crasher, doc="dies after a few ticks")
+QUITTER = NodeSpec(name="quitter", config=QuitterConfig, factory=Quitter, doc="requests a stop after a few ticks")
 STUBBORN = NodeSpec(name="stubborn", config=StubbornConfig, factory=Stubborn, doc="ignores SIGTERM")
 JOINT_SINK = NodeSpec(
     name="joint_sink",

@@ -16,6 +16,7 @@ from palpate.paths import REPO_ROOT
 from tests.integration.launch_helpers import alive, descendants, launched, node_pids, text, wait_for
 
 CRASHER = "tests.integration.fake_nodes:CRASHER"
+QUITTER = "tests.integration.fake_nodes:QUITTER"
 STUBBORN = "tests.integration.fake_nodes:STUBBORN"
 
 
@@ -47,6 +48,16 @@ def test_demo_minimal_runs_and_exits_zero(tmp_path: Path) -> None:
     assert "decode errors 0" in out
     assert node_pids(tmp_path / "bus") == {}  # manifests are removed at exit
     assert not list((tmp_path / "bus").glob("*.json"))
+
+
+def test_a_node_that_stops_the_run_is_named_with_its_reason(tmp_path: Path) -> None:
+    extra = f"""  - name: quitter
+    type: {QUITTER}
+    params: {{after_ticks: 5}}"""
+    log = tmp_path / "launch.log"
+    with launched(write(tmp_path, long_graph("lockstep", extra)), tmp_path / "bus", log) as proc:
+        assert proc.wait(timeout=60) == 0, text(log)
+    assert re.search(r"\[cube\] INFO run stopped at t = 0\.0[45]0 s: quitter: done after 5 ticks", text(log)), text(log)
 
 
 @pytest.mark.parametrize(

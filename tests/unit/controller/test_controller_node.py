@@ -1,0 +1,64 @@
+"""Controller node in-process: a first approach that finds no surface stops the run with advice."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from palpate.messages import codec
+from palpate.messages.base import Message
+from palpate.messages.schemas import ContactSet, Pose
+from palpate.nodes.controller.node import ControllerNode, ControllerNodeConfig
+
+
+class FakeCtx:
+    """What ControllerNode sees of the runtime."""
+
+    def __init__(self) -> None:
+        self.stamp_ns = 0
+        self.metrics: dict[str, float] = {}
+        self.published: list[tuple[str, Any]] = []
+        self.stop_reason = ""
+
+    def publish(self, port: str, message: Message) -> None:
+        codec.validate(message)
+        self.published.append((port, message))
+
+    def request_stop(self, reason: str) -> None:
+        self.stop_reason = self.stop_reason or reason
+
+
+def _pose(position: np.ndarray) -> Pose:
+    return Pose(
+        stamp_ns=0,
+        frame="probe",
+        position_m=position,
+        quaternion_wxyz=np.array([0.0, 1.0, 0.0, 0.0]),
+        linear_velocity_m_s=np.zeros(3),
+        angular_velocity_rad_s=np.zeros(3),
+    )
+
+
+def _no_contacts() -> ContactSet:
+    empty = np.zeros((0, 3))
+    return ContactSet(
+        stamp_ns=0, positions_m=empty, local_positions_m=empty, normals=empty, forces_n=np.zeros(0), links=[]
+    )
+
+
+def test_initial_approach_that_finds_no_surface_stops_with_the_target_and_the_launch_arguments() -> None:
+    ctx = FakeCtx()
+    node = ControllerNode(ControllerNodeConfig(initial_target_m=(0.0, 0.0, 0.0)), ctx)
+    position, dt = np.array([0.0, 0.0, 0.05]), 0.01
+    node.on_contacts(_no_contacts())
+    for tick in range(200):  # 5 cm + 1 cm miss distance at 5 cm/s: fails after about 1.2 s
+        node.on_pose(_pose(position))
+        node.on_tick(tick * 10_000_000)
+        if ctx.stop_reason:
+            break
+        _, velocity = ctx.published[-1]
+        position = position + dt * np.asarray(velocity.linear_m_s)
+    assert "initial approach" in ctx.stop_reason
+    assert "[0.0, 0.0, 0.0]" in ctx.stop_reason and "target:=" in ctx.stop_reason
+    assert 0.059 < -position[2] + 0.05 < 0.062  # it went 1 cm past the target before giving up
