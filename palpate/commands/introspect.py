@@ -130,23 +130,32 @@ class TopicTap:
     def __init__(self, bus_dir: Path, topic: str):
         self.bus_dir, self.topic = bus_dir, topic
         self.context: zmq.Context[Any] = zmq.Context()
-        self.sock = self.context.socket(zmq.SUB)
-        self.sock.setsockopt(zmq.LINGER, 0)
-        # Everything, filtered here: a subscription by name would add to the subscriber counts that
-        # nodes wait for at start-up, and could let a node start before its real subscribers are there.
-        self.sock.setsockopt(zmq.SUBSCRIBE, b"")
-        self.endpoints: set[str] = set()
+        self.poller = zmq.Poller()
+        #: One SUB socket per publisher, so that each can carry that publisher's CurveZMQ server key.
+        self.socks: dict[str, zmq.Socket[Any]] = {}
         self.last_discovery = 0.0
         self.interrupted = False
+
+    @property
+    def endpoints(self) -> set[str]:
+        """Publisher endpoints connected so far."""
+        return set(self.socks)
 
     def discover(self) -> None:
         """Connect to every publisher of the topic (to every publisher when none declares it: runtime topics)."""
         manifests = bus.read_manifests(self.bus_dir)
         declared = [m for m in manifests if self.topic in m.publishes]
         for m in declared or manifests:
-            if m.endpoint not in self.endpoints:
-                self.sock.connect(m.endpoint)
-                self.endpoints.add(m.endpoint)
+            if m.endpoint not in self.socks:
+                sock = self.context.socket(zmq.SUB)
+                bus.apply_curve(sock, bus.client_curve(m.curve_public), server=False)
+                sock.setsockopt(zmq.LINGER, 0)
+                # Everything, filtered here: a subscription by name would add to the subscriber counts that
+                # nodes wait for at start-up, and could let a node start before its real subscribers are there.
+                sock.setsockopt(zmq.SUBSCRIBE, b"")
+                sock.connect(m.endpoint)
+                self.socks[m.endpoint] = sock
+                self.poller.register(sock, zmq.POLLIN)
         self.last_discovery = time.monotonic()
 
     def receive(self, timeout_s: float) -> list[tuple[float, bytes]]:
@@ -154,9 +163,10 @@ class TopicTap:
         if time.monotonic() - self.last_discovery >= DISCOVERY_PERIOD_S:
             self.discover()
         out = []
-        if self.sock.poll(int(timeout_s * 1000)):
-            while self.sock.poll(0):
-                frames = self.sock.recv_multipart()
+        ready = dict(self.poller.poll(int(timeout_s * 1000)))
+        for sock in ready:
+            while sock.poll(0):
+                frames = sock.recv_multipart()
                 if len(frames) == 2 and frames[0].decode(errors="replace") == self.topic:
                     out.append((time.monotonic(), frames[1]))
         return out
@@ -175,7 +185,8 @@ class TopicTap:
         finally:
             for s, handler in previous.items():
                 signal.signal(s, handler)
-            self.sock.close()
+            for sock in self.socks.values():
+                sock.close()
             self.context.term()
 
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:

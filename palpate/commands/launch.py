@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -67,6 +68,7 @@ def run_graph(graph: Graph, record: Path | None = None) -> int:
     recorder: subprocess.Popen[bytes] | None = None
     if record is not None:
         endpoints = [n.endpoint for n in graph.nodes]
+        server_keys = {n.endpoint: n.curve["public"] for n in graph.nodes if n.curve.get("public")}
         recorder = subprocess.Popen(
             [
                 sys.executable,
@@ -77,6 +79,8 @@ def run_graph(graph: Graph, record: Path | None = None) -> int:
                 "--until-stop",
                 "--bus",
                 str(graph.bus_dir),
+                "--curve-servers",
+                json.dumps(server_keys),
                 "--connect",
                 *endpoints,
             ]

@@ -24,12 +24,13 @@ SIGINT and SIGTERM write what is queued and finish the file.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import signal
 import sys
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
@@ -283,8 +284,11 @@ class Recorder:
         chunk_size: int = 1 << 20,
         chunk_ticks: int = 1,
         grace_s: float = 2.0,
+        server_keys: Mapping[str, str] | None = None,
     ):
         self.output = output
+        #: endpoint -> CurveZMQ server key of a keyed publisher (from the launcher or the manifests)
+        self.server_keys = dict(server_keys or {})
         self.wanted = list(topics_wanted)
         self.keep = set(self.wanted) | set(INTERNAL_TOPICS) if self.wanted else None
         self.static = list(connect)
@@ -325,6 +329,7 @@ class Recorder:
 
     def _connect(self, endpoint: str, name: str) -> _Connection:
         sock = self.zmq.socket(zmq.SUB)
+        bus.apply_curve(sock, bus.client_curve(self.server_keys.get(endpoint, "")), server=False)
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.RCVHWM, 0)  # never drop: the recorder must see every message
         for topic in self._base_topics():
@@ -368,6 +373,8 @@ class Recorder:
             for manifest in manifests:
                 if manifest.endpoint not in self.connections:
                     log.info("recording %s at %s", manifest.node, manifest.endpoint)
+                    if manifest.curve_public:
+                        self.server_keys[manifest.endpoint] = manifest.curve_public
                     self._connect(manifest.endpoint, manifest.node)
         for manifest in manifests:
             conn = self.connections.get(manifest.endpoint)
@@ -538,6 +545,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="N",
         help="lockstep: close a chunk every N ticks (a SIGKILL loses at most N ticks; default 1)",
     )
+    p.add_argument(
+        "--curve-servers",
+        type=json.loads,
+        default={},
+        metavar="JSON",
+        help='CurveZMQ server keys of keyed publishers, {"ENDPOINT": "z85 public key"} (manifest mode reads them)',
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -554,6 +568,7 @@ def run(args: argparse.Namespace) -> int:
         compression=args.compression,
         chunk_size=args.chunk_size,
         chunk_ticks=args.chunk_ticks,
+        server_keys=args.curve_servers,
     )
     return recorder.run()
 

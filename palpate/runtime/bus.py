@@ -50,6 +50,9 @@ class Manifest:
     pid: int
     publishes: dict[str, str]  # topic -> message type
     subscribes: dict[str, str]
+    #: CurveZMQ public key (z85) of the publisher when it is a Curve server, else "": a subscriber
+    #: (the recorder) needs it, and any client key pair, to connect.
+    curve_public: str = ""
 
     def write(self, bus_dir: str | Path) -> Path:
         Path(bus_dir).mkdir(parents=True, exist_ok=True)  # a graph of TCP nodes only has no ipc socket there
@@ -91,6 +94,15 @@ def publishers_of(bus_dir: str | Path, topics: list[str] | None = None) -> dict[
             if topics is None or topic in topics:
                 found.setdefault(topic, []).append(manifest)
     return found
+
+
+def client_curve(server_public: str) -> dict[str, str]:
+    """Curve keys for a subscriber of a publisher whose server key is ``server_public``: a fresh client
+    key pair (publishers authenticate no one, so any pair is accepted), or {} when the key is empty."""
+    if not server_public:
+        return {}
+    public, secret = zmq.curve_keypair()
+    return {"public": public.decode(), "secret": secret.decode(), "server_public": server_public}
 
 
 def apply_curve(socket: zmq.Socket[Any], curve: dict[str, str], *, server: bool) -> None:

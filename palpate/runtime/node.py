@@ -128,6 +128,7 @@ class NodeRunner:
             pid=_pid(),
             publishes={t: spec.outputs[p].message.TYPE for p, t in process.publishes.items()},
             subscribes={t: self.input_types[t].TYPE for t in self.input_types},
+            curve_public=process.curve.get("public", ""),
         )
         self.manifest_path = manifest.write(process.bus_dir)
 

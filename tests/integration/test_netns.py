@@ -23,12 +23,14 @@ import pytest
 import zmq
 
 from palpate.cli import main
+from palpate.commands.introspect import TopicTap
 from palpate.commands.keys import make_keys
 from palpate.launch.graph import resolve
 from palpate.launch.loader import load_launch
 from palpate.messages import codec
 from palpate.messages.schemas import RunControl
 from palpate.paths import REPO_ROOT
+from palpate.record.mcap_io import read_messages
 from palpate.runtime import bus
 from tests.integration.launch_helpers import child_env, free_port, kill_session, launched, text, wait_for
 
@@ -177,6 +179,37 @@ def test_curve_link_with_keys_works_and_a_wrong_server_key_hears_nothing() -> No
         ctx.term()
 
 
+def test_topic_tap_reads_a_keyed_and_a_plain_publisher_through_their_manifests(tmp_path: Path) -> None:
+    if not zmq.has("curve"):
+        pytest.skip("libzmq was built without CurveZMQ")
+    graph_key = make_keys()
+    ctx = zmq.Context()
+    keyed_ep, plain_ep = (f"tcp://127.0.0.1:{free_port()}" for _ in range(2))
+    keyed = bus.make_publisher(ctx, keyed_ep, lockstep=False, curve=graph_key)
+    plain = bus.make_publisher(ctx, plain_ep, lockstep=False)
+    for name, endpoint, key in (("keyed", keyed_ep, graph_key["public"]), ("plain", plain_ep, "")):
+        bus.Manifest(
+            node=name, endpoint=endpoint, pid=os.getpid(), publishes={}, subscribes={}, curve_public=key
+        ).write(tmp_path)
+    tap = TopicTap(tmp_path, "graph/control")
+    try:
+        tap.discover()
+        assert tap.endpoints == {keyed_ep, plain_ep}
+        heard: set[str] = set()
+        deadline = time.monotonic() + 5.0
+        while heard != {"keyed", "plain"} and time.monotonic() < deadline:
+            for name, pub in (("keyed", keyed), ("plain", plain)):
+                message = RunControl(stamp_ns=1, command="noop", reason=name)
+                pub.send_multipart([b"graph/control", codec.encode(message)])
+            heard |= {codec.decode(p).reason for _, p in tap.receive(0.05)}  # type: ignore[attr-defined]
+        assert heard == {"keyed", "plain"}
+    finally:
+        for sock in (*tap.socks.values(), keyed, plain):
+            sock.close(linger=0)
+        ctx.term()
+        tap.context.term()
+
+
 def test_launch_with_curve_keys_over_tcp(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     if not zmq.has("curve"):
         pytest.skip("libzmq was built without CurveZMQ")
@@ -208,6 +241,10 @@ nodes:
     specs = resolve(load_launch(launch_file), bus_dir=tmp_path / "bus").process_specs()
     assert [s.curve for s in specs] == [keys, keys]
     log = tmp_path / "launch.log"
-    with launched(launch_file, tmp_path / "bus", log) as proc:
+    recording = tmp_path / "run.mcap"
+    with launched(launch_file, tmp_path / "bus", log, "--record", str(recording)) as proc:
         assert proc.wait(timeout=30) == 0, text(log)
     assert "summary: 20 contact sets, 80 contacts" in text(log)
+    # the recorder connects to the keyed publishers with the server keys the launcher passes it
+    recorded = [m.topic for m in read_messages(recording, ["sensors/contacts"])]
+    assert len(recorded) == 20, text(log)
