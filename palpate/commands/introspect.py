@@ -185,9 +185,14 @@ class TopicTap:
         finally:
             for s, handler in previous.items():
                 signal.signal(s, handler)
-            for sock in self.socks.values():
-                sock.close()
-            self.context.term()
+            self.close()
+
+    def close(self) -> None:
+        """Close the sockets and the context."""
+        for sock in self.socks.values():
+            sock.close(linger=0)
+        self.socks.clear()
+        self.context.term()
 
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
         self.interrupted = True

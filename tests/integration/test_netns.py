@@ -204,10 +204,10 @@ def test_topic_tap_reads_a_keyed_and_a_plain_publisher_through_their_manifests(t
             heard |= {codec.decode(p).reason for _, p in tap.receive(0.05)}  # type: ignore[attr-defined]
         assert heard == {"keyed", "plain"}
     finally:
-        for sock in (*tap.socks.values(), keyed, plain):
+        tap.close()
+        for sock in (keyed, plain):
             sock.close(linger=0)
         ctx.term()
-        tap.context.term()
 
 
 def test_launch_with_curve_keys_over_tcp(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -165,8 +165,7 @@ def test_recover_a_log_whose_recorder_was_killed(tmp_path: Path) -> None:
                 latest = max(latest, codec.decode(payload, Clock).stamp_ns)
         recorder.send_signal(signal.SIGKILL)
         assert recorder.wait(timeout=10) == -signal.SIGKILL
-        tap.sock.close()
-        tap.context.term()
+        tap.close()
     info = palpate(tmp_path, "bag", "info", str(log))
     assert info.returncode != 0 and "bag recover" in info.stderr  # no footer: not a complete log
     fixed = tmp_path / "fixed.mcap"
