@@ -19,7 +19,6 @@ from types import FrameType
 from typing import Any
 
 import numpy as np
-import zmq
 
 from palpate.errors import MessageError
 from palpate.messages import codec
@@ -129,47 +128,31 @@ class TopicTap:
 
     def __init__(self, bus_dir: Path, topic: str):
         self.bus_dir, self.topic = bus_dir, topic
-        self.context: zmq.Context[Any] = zmq.Context()
-        self.poller = zmq.Poller()
-        #: One SUB socket per publisher, so that each can carry that publisher's CurveZMQ server key.
-        self.socks: dict[str, zmq.Socket[Any]] = {}
+        self.tap = bus.PublisherTap()
         self.last_discovery = 0.0
         self.interrupted = False
 
     @property
     def endpoints(self) -> set[str]:
         """Publisher endpoints connected so far."""
-        return set(self.socks)
+        return self.tap.endpoints
 
     def discover(self) -> None:
         """Connect to every publisher of the topic (to every publisher when none declares it: runtime topics)."""
         manifests = bus.read_manifests(self.bus_dir)
         declared = [m for m in manifests if self.topic in m.publishes]
-        for m in declared or manifests:
-            if m.endpoint not in self.socks:
-                sock = self.context.socket(zmq.SUB)
-                bus.apply_curve(sock, bus.client_curve(m.curve_public), server=False)
-                sock.setsockopt(zmq.LINGER, 0)
-                # Everything, filtered here: a subscription by name would add to the subscriber counts that
-                # nodes wait for at start-up, and could let a node start before its real subscribers are there.
-                sock.setsockopt(zmq.SUBSCRIBE, b"")
-                sock.connect(m.endpoint)
-                self.socks[m.endpoint] = sock
-                self.poller.register(sock, zmq.POLLIN)
+        self.tap.connect(declared or manifests)
         self.last_discovery = time.monotonic()
 
     def receive(self, timeout_s: float) -> list[tuple[float, bytes]]:
         """Payloads of the topic that arrive within `timeout_s`, with their arrival times."""
         if time.monotonic() - self.last_discovery >= DISCOVERY_PERIOD_S:
             self.discover()
-        out = []
-        ready = dict(self.poller.poll(int(timeout_s * 1000)))
-        for sock in ready:
-            while sock.poll(0):
-                frames = sock.recv_multipart()
-                if len(frames) == 2 and frames[0].decode(errors="replace") == self.topic:
-                    out.append((time.monotonic(), frames[1]))
-        return out
+        return [
+            (time.monotonic(), frames[1])
+            for frames in self.tap.receive(timeout_s)
+            if len(frames) == 2 and frames[0].decode(errors="replace") == self.topic
+        ]
 
     def run(self, handle: Callable[[float, bytes], bool], duration_s: float = 0.0) -> int:
         """Call `handle(arrival, payload)` per message until it returns False, a signal, or `duration_s`."""
@@ -189,10 +172,7 @@ class TopicTap:
 
     def close(self) -> None:
         """Close the sockets and the context."""
-        for sock in self.socks.values():
-            sock.close(linger=0)
-        self.socks.clear()
-        self.context.term()
+        self.tap.close()
 
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
         self.interrupted = True

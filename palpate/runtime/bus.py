@@ -18,6 +18,7 @@ import json
 import os
 import tempfile
 import time
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -160,6 +161,51 @@ def make_subscriber(
     for endpoint in endpoints:
         sock.connect(endpoint)
     return sock
+
+
+class PublisherTap:
+    """For tools that watch a running graph (topic echo/hz, the live viewer): one SUB socket per
+    publisher, subscribed to every topic (filtering is the caller's: a subscription by name would add
+    to the subscriber counts nodes wait for at start-up) and keyed with the publisher's CurveZMQ
+    server key when its manifest has one."""
+
+    def __init__(self) -> None:
+        self.context: zmq.Context[Any] = zmq.Context()
+        self.poller = zmq.Poller()
+        self.socks: dict[str, zmq.Socket[Any]] = {}
+
+    @property
+    def endpoints(self) -> set[str]:
+        """Publisher endpoints connected so far."""
+        return set(self.socks)
+
+    def connect(self, manifests: Iterable[Manifest]) -> None:
+        """Connect to the publishers of these manifests not connected yet."""
+        for m in manifests:
+            if m.endpoint in self.socks:
+                continue
+            sock = self.context.socket(zmq.SUB)
+            apply_curve(sock, client_curve(m.curve_public), server=False)
+            sock.setsockopt(zmq.LINGER, 0)
+            sock.setsockopt(zmq.SUBSCRIBE, b"")
+            sock.connect(m.endpoint)
+            self.socks[m.endpoint] = sock
+            self.poller.register(sock, zmq.POLLIN)
+
+    def receive(self, timeout_s: float) -> list[list[bytes]]:
+        """The multipart messages that arrive within `timeout_s` (and all already queued)."""
+        out = []
+        for sock in dict(self.poller.poll(int(timeout_s * 1000))):
+            while sock.poll(0):
+                out.append(sock.recv_multipart())
+        return out
+
+    def close(self) -> None:
+        """Close the sockets and the context."""
+        for sock in self.socks.values():
+            sock.close(linger=0)
+        self.socks.clear()
+        self.context.term()
 
 
 class SubscriptionCounter:

@@ -21,9 +21,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
-from typing import Any
 
-import zmq
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
@@ -97,11 +95,7 @@ class BusSource:
         self.bus_dir = Path(bus_dir)
         self.wanted = frozenset(wanted_topics) if wanted_topics else None
         self.stats = SourceStats()
-        self.context: zmq.Context[Any] = zmq.Context()
-        self.sock = self.context.socket(zmq.SUB)
-        self.sock.setsockopt(zmq.LINGER, 0)
-        self.sock.setsockopt(zmq.SUBSCRIBE, b"")
-        self.endpoints: set[str] = set()
+        self.tap = bus.PublisherTap()
         self.types: dict[str, str] = {}  # topic -> message type, from the manifests
         self.last_discovery = -float("inf")
         self.stopped = False  # the graph published RunControl "stop"
@@ -109,11 +103,10 @@ class BusSource:
 
     def discover(self) -> None:
         """Connect to publishers not yet connected and learn the types of their topics."""
-        for manifest in bus.read_manifests(self.bus_dir):
+        manifests = bus.read_manifests(self.bus_dir)
+        for manifest in manifests:
             self.types.update(manifest.publishes)
-            if manifest.endpoint not in self.endpoints:
-                self.sock.connect(manifest.endpoint)
-                self.endpoints.add(manifest.endpoint)
+        self.tap.connect(manifests)
         self.last_discovery = time.monotonic()
 
     def _shown(self, topic: str) -> bool:
@@ -125,10 +118,7 @@ class BusSource:
         if time.monotonic() - self.last_discovery >= DISCOVERY_PERIOD_S:
             self.discover()
         out: list[tuple[str, Message]] = []
-        if not self.sock.poll(int(timeout_s * 1000)):
-            return out
-        while self.sock.poll(0):
-            frames = self.sock.recv_multipart()
+        for frames in self.tap.receive(timeout_s):
             if len(frames) != 2:
                 continue
             self.stats.received += 1
@@ -170,8 +160,8 @@ class BusSource:
                 signal.signal(s, handler)
 
     def close(self) -> None:
-        self.sock.close()
-        self.context.term()
+        """Close the sockets."""
+        self.tap.close()
 
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
         self.interrupted = True
