@@ -75,27 +75,39 @@ class Harness:
 
 
 @contextmanager
-def contact_stats_node(tmp_path: Path) -> Iterator[Harness]:
-    """A `contact_stats` node process in lockstep mode, wired to sockets owned by the test."""
+def node_process(
+    tmp_path: Path,
+    *,
+    name: str,
+    node_type: str,
+    params: dict[str, Any],
+    publishes: dict[str, str],
+    subscribes: dict[str, str],
+    wanted: dict[str, int],
+    timeout_s: float,
+) -> Iterator[Harness]:
+    """One node process in lockstep mode, fed by the test's publisher at ipc://TMP/feeder.pub and read
+    through its own; ``wanted``: the feed topics (and subscriber counts) the node must have subscribed
+    to before anything is sent, since ZeroMQ drops earlier frames."""
     ctx = zmq.Context()
     feed = f"ipc://{tmp_path}/feeder.pub"
     pub = bus.make_publisher(ctx, feed, lockstep=True)
     counter = bus.SubscriptionCounter()
     spec = NodeProcessSpec(
-        name="stats",
-        type="contact_stats",
-        params={"report": True},
+        name=name,
+        type=node_type,
+        params=params,
         bus_dir=str(tmp_path),
-        endpoint=f"ipc://{tmp_path}/stats.pub",
-        publishes={},
-        subscribes={"contacts": STATS_INPUT},
+        endpoint=f"ipc://{tmp_path}/{name}.pub",
+        publishes=publishes,
+        subscribes=subscribes,
         connect=[feed],
         mode="lockstep",
         expected_subscribers={topics.LOCKSTEP_ACK: 1},  # the test's subscriber
     )
-    spec_path = tmp_path / "stats.json"
+    spec_path = tmp_path / f"{name}.json"
     spec_path.write_text(spec.to_json())
-    log = tmp_path / "stats.log"
+    log = tmp_path / f"{name}.log"
     with log.open("wb") as out:
         proc = subprocess.Popen(
             [sys.executable, "-m", "palpate.runtime.node", str(spec_path)],
@@ -108,15 +120,30 @@ def contact_stats_node(tmp_path: Path) -> Iterator[Harness]:
     sub = bus.make_subscriber(ctx, [spec.endpoint], [topics.LOCKSTEP_ACK, topics.NODE_STATUS], lockstep=True)
     harness = Harness(proc=proc, log=log, pub=pub, sub=sub, statuses=[])
     try:
-        # no frame may be sent before the node has subscribed to it, or ZeroMQ drops it
-        bus.wait_for_subscribers(pub, counter, {STATS_INPUT: 1, topics.CLOCK: 1, topics.GRAPH_CONTROL: 1}, 20.0)
-        harness.receive_until_ack(-1, timeout_s=20.0)  # start-up done
+        bus.wait_for_subscribers(pub, counter, wanted, timeout_s)
+        harness.receive_until_ack(-1, timeout_s=timeout_s)  # start-up done
         yield harness
     finally:
         kill_session(proc)
         pub.close(linger=0)
         sub.close(linger=0)
         ctx.term()
+
+
+@contextmanager
+def contact_stats_node(tmp_path: Path) -> Iterator[Harness]:
+    """A `contact_stats` node process in lockstep mode, wired to sockets owned by the test."""
+    with node_process(
+        tmp_path,
+        name="stats",
+        node_type="contact_stats",
+        params={"report": True},
+        publishes={},
+        subscribes={"contacts": STATS_INPUT},
+        wanted={STATS_INPUT: 1, topics.CLOCK: 1, topics.GRAPH_CONTROL: 1},
+        timeout_s=20.0,
+    ) as harness:
+        yield harness
 
 
 def contacts(n: int = 3, nan: bool = False) -> ContactSet:

@@ -14,18 +14,15 @@ from typing import Any
 
 import numpy as np
 import pytest
-import zmq
 
 from palpate.launch.graph import resolve
 from palpate.launch.loader import load_launch
 from palpate.messages import codec, topics
 from palpate.messages.schemas import ContactSet, JointState, OccupancyGrid
 from palpate.paths import REPO_ROOT
-from palpate.runtime import bus
 from palpate.runtime.inprocess import InProcessGraph
-from palpate.runtime.spec import NodeProcessSpec
-from tests.integration.launch_helpers import child_env, kill_session, launched, node_pids, text
-from tests.integration.test_bad_input import Harness, counters
+from tests.integration.launch_helpers import launched, node_pids, text
+from tests.integration.test_bad_input import Harness, counters, node_process
 
 LAUNCH = REPO_ROOT / "launch"
 SCENE = {"effector": "finger", "object": {"kind": "rubiks_cube"}}
@@ -115,49 +112,20 @@ def test_at_sigma_zero_the_fastslam_map_is_the_known_pose_map() -> None:
 @contextmanager
 def mapper_node(tmp_path: Path) -> Iterator[Harness]:
     """A known-pose mapper node process in lockstep mode, fed by the test's own publisher."""
-    ctx = zmq.Context()
-    feed = f"ipc://{tmp_path}/feeder.pub"
-    pub = bus.make_publisher(ctx, feed, lockstep=True)
-    counter = bus.SubscriptionCounter()
-    spec = NodeProcessSpec(
+    with node_process(
+        tmp_path,
         name="mapper",
-        type="mapper",
+        node_type="mapper",
         params={
             "scene": SCENE,
             "mapper": {"mode": "known", "region_min_m": [-0.045] * 3, "region_max_m": [0.045] * 3},
         },
-        bus_dir=str(tmp_path),
-        endpoint=f"ipc://{tmp_path}/mapper.pub",
         publishes={"map": topics.OCCUPANCY_GRID},
         subscribes={"joint_states": topics.JOINT_STATES, "contacts": topics.CONTACTS},
-        connect=[feed],
-        mode="lockstep",
-        expected_subscribers={topics.LOCKSTEP_ACK: 1},
-    )
-    spec_path = tmp_path / "mapper.json"
-    spec_path.write_text(spec.to_json())
-    log = tmp_path / "mapper.log"
-    with log.open("wb") as out:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "palpate.runtime.node", str(spec_path)],
-            cwd=REPO_ROOT,
-            env=child_env(tmp_path),
-            stdout=out,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )
-    sub = bus.make_subscriber(ctx, [spec.endpoint], [topics.LOCKSTEP_ACK, topics.NODE_STATUS], lockstep=True)
-    harness = Harness(proc=proc, log=log, pub=pub, sub=sub, statuses=[])
-    try:
-        wanted = {topics.JOINT_STATES: 1, topics.CONTACTS: 1, topics.CLOCK: 1, topics.GRAPH_CONTROL: 1}
-        bus.wait_for_subscribers(pub, counter, wanted, 60.0)
-        harness.receive_until_ack(-1, timeout_s=60.0)  # start-up done (the mapper builds its finger model)
+        wanted={topics.JOINT_STATES: 1, topics.CONTACTS: 1, topics.CLOCK: 1, topics.GRAPH_CONTROL: 1},
+        timeout_s=60.0,  # the mapper builds its finger model at start-up
+    ) as harness:
         yield harness
-    finally:
-        kill_session(proc)
-        pub.close(linger=0)
-        sub.close(linger=0)
-        ctx.term()
 
 
 def _reading(tick: int, names: list[str], nan: bool = False) -> bytes:
