@@ -107,20 +107,12 @@ class PlannerConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0.0):
                 raise ConfigError(f"PlannerConfig.{name} must be finite and > 0, got {value!r}")
-        if not (np.isfinite(self.min_hop_m) and self.min_hop_m >= 0.0):
-            raise ConfigError(f"PlannerConfig.min_hop_m must be finite and >= 0, got {self.min_hop_m!r}")
-        for name in ("unreached_radius_m", "unreached_miss_m"):
+        for name in ("min_hop_m", "unreached_radius_m", "unreached_miss_m", "curve_margin_m", "tip_radius_m", "mu3_m"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0.0):
                 raise ConfigError(f"PlannerConfig.{name} must be finite and >= 0, got {value!r}")
-        if not (np.isfinite(self.curve_margin_m) and self.curve_margin_m >= 0.0):
-            raise ConfigError(f"PlannerConfig.curve_margin_m must be finite and >= 0, got {self.curve_margin_m!r}")
-        if not (np.isfinite(self.tip_radius_m) and self.tip_radius_m >= 0.0):
-            raise ConfigError(f"PlannerConfig.tip_radius_m must be finite and >= 0, got {self.tip_radius_m!r}")
         if self.curve_samples < 1:
             raise ConfigError(f"PlannerConfig.curve_samples must be >= 1, got {self.curve_samples!r}")
-        if not (np.isfinite(self.mu3_m) and self.mu3_m >= 0.0):
-            raise ConfigError(f"PlannerConfig.mu3_m must be finite and >= 0, got {self.mu3_m!r}")
 
     @property
     def radius_m(self) -> float:
