@@ -24,7 +24,7 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 
 typecheck: $(STAMP)
-	$(BIN)/mypy -p palpate
+	$(BIN)/python scripts/typecheck.py
 
 test: $(STAMP) lint typecheck
 	$(BIN)/python -m pytest -q

@@ -292,7 +292,7 @@ def run_in_process(launch: Path, args: Sequence[str], timing: Path) -> None:
     from palpate.runtime.inprocess import InProcessGraph
 
     graph = resolve(load_launch(launch, parse_cli_args([*args, f"timing:={timing}"])), bus_dir=timing.parent / "bus")
-    InProcessGraph(graph).run()
+    InProcessGraph(graph.in_process_members()).run()
 
 
 def run_in_process_fresh(launch: Path, args: Sequence[str], timing: Path, timeout_s: float) -> None:

@@ -15,7 +15,7 @@ import os
 import sys
 from pathlib import Path
 
-import zmq
+from palpate.runtime.bus import make_curve_keys
 
 KEY_FIELDS = ("public", "secret", "server_public")
 
@@ -30,16 +30,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument("--force", action="store_true", help="overwrite an existing key file")
     p.set_defaults(func=run_keys)
-
-
-def make_keys(server_public: str | None = None) -> dict[str, str]:
-    """A new CurveZMQ key pair as z85 text, with the publisher key its subscriber will trust."""
-    if not zmq.has("curve"):
-        raise RuntimeError("this libzmq was built without CurveZMQ support")
-    public, secret = zmq.curve_keypair()
-    keys = {"public": public.decode(), "secret": secret.decode()}
-    keys["server_public"] = server_public or keys["public"]
-    return keys
 
 
 def write_keys(path: Path, keys: dict[str, str], *, force: bool = False) -> None:
@@ -58,7 +48,7 @@ def run_keys(args: argparse.Namespace) -> int:
         print("palpate keys: --server-public must be a 40-character z85 public key", file=sys.stderr)
         return 2
     try:
-        write_keys(args.output, make_keys(server_public), force=args.force)
+        write_keys(args.output, make_curve_keys(server_public), force=args.force)
     except FileExistsError:
         print(f"palpate keys: {args.output} exists; pass --force to replace it", file=sys.stderr)
         return 2

@@ -235,7 +235,7 @@ def run_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> dict[st
     t0, c0 = time.perf_counter(), time.process_time()
     launch = load_launch(launch_path, episode.launch_args())
     apply_params(launch, episode.params)
-    graph = InProcessGraph(resolve(launch))
+    graph = InProcessGraph(resolve(launch).in_process_members())
     plan_s = _time_planning(graph)
     t1 = time.perf_counter()
     ticks = graph.run()

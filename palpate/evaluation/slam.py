@@ -254,7 +254,9 @@ def run_seed(
     stamps = {round(t * 1e9): t for t in config.snapshot_s}
     capture = Capture(stamps)
     t0, c0 = time.perf_counter(), time.process_time()
-    graph = InProcessGraph(resolve(load_launch(launch_path, config.arguments(seed))), listener=capture)
+    graph = InProcessGraph(
+        resolve(load_launch(launch_path, config.arguments(seed))).in_process_members(), listener=capture
+    )
     t1 = time.perf_counter()
     ticks = graph.run()
     t2, c2 = time.perf_counter(), time.process_time()

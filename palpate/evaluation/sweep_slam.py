@@ -88,7 +88,7 @@ def record_stream(seed: int, duration_s: float, sigma_deg: float, launch_path: P
         elif topic == "truth/object":
             vertices.append(np.array(message.vertices_m, dtype=np.float64))
 
-    InProcessGraph(resolve(launch), listener=listen).run()
+    InProcessGraph(resolve(launch).in_process_members(), listener=listen).run()
     stamps = sorted(true_q)
     if not stamps or not names or not vertices or set(stamps) - set(noisy_q):
         raise ConfigError(f"{launch_path}: the sim and noise nodes did not publish joint states and the object")

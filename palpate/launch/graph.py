@@ -16,9 +16,9 @@ from typing import Any
 
 from palpate.errors import ConfigError, LaunchError
 from palpate.launch.loader import LaunchFile, NodeEntry, Where
+from palpate.launch.node_types import load_node_type, node_spec_reference
 from palpate.messages import topics
 from palpate.runtime import bus
-from palpate.runtime.registry import load_node_spec
 from palpate.runtime.spec import NodeProcessSpec, NodeSpec, build_config, coerce
 
 _SHARED_TOPICS = {topics.NODE_STATUS, topics.GRAPH_CONTROL}
@@ -80,6 +80,11 @@ class Graph:
         """What each node process gets; `extra_subscribers` counts a recorder connected to every node."""
         return [self._process_spec(n, extra_subscribers) for n in self.nodes]
 
+    def in_process_members(self) -> list[tuple[NodeSpec[Any], NodeProcessSpec]]:
+        """Each node's spec and process spec in rank order: what an in-process executor runs."""
+        ranked = sorted(zip(self.nodes, self.process_specs(), strict=True), key=lambda pair: pair[0].rank)
+        return [(node.spec, process) for node, process in ranked]
+
     def upstream(self, node: GraphNode) -> list[GraphNode]:
         topics_in = set(node.subscribes.values())
         return [n for n in self.nodes if n is not node and topics_in & set(n.publishes.values())]
@@ -114,6 +119,7 @@ class Graph:
         return NodeProcessSpec(
             name=node.name,
             type=node.type,
+            node_spec=node_spec_reference(node.type),
             params=node.params,
             bus_dir=str(self.bus_dir),
             endpoint=node.endpoint,
@@ -157,7 +163,7 @@ def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
         if key in f and not isinstance(f[key], kind):
             raise LaunchError(f"{entry.at(key)}: {key} must be a string, got {f[key]!r}")
     try:
-        spec = load_node_spec(node_type).with_params(f.get("params") or {})
+        spec = load_node_type(node_type).with_params(f.get("params") or {})
     except LaunchError as exc:
         raise LaunchError(f"{entry.at('type')}: {exc}") from exc
     params = f.get("params") or {}

@@ -97,6 +97,17 @@ def publishers_of(bus_dir: str | Path, topics: list[str] | None = None) -> dict[
     return found
 
 
+def make_curve_keys(server_public: str | None = None) -> dict[str, str]:
+    """A new CurveZMQ key pair as z85 text, with the publisher key its subscriber will trust
+    (`server_public`; default: the new pair's own public key, a graph key)."""
+    if not zmq.has("curve"):
+        raise RuntimeError("this libzmq was built without CurveZMQ support")
+    public, secret = zmq.curve_keypair()
+    keys = {"public": public.decode(), "secret": secret.decode()}
+    keys["server_public"] = server_public or keys["public"]
+    return keys
+
+
 def client_curve(server_public: str) -> dict[str, str]:
     """Curve keys for a subscriber of a publisher whose server key is ``server_public``: a fresh client
     key pair (publishers authenticate no one, so any pair is accepted), or {} when the key is empty."""

@@ -11,21 +11,21 @@ calls them in the order the lockstep protocol guarantees (see palpate/runtime/no
 - a stop request ends the run after the tick in which it was made.
 
 Messages go through the codec (encode then decode), so nodes see exactly what they would see on the
-bus. A test runs a launch file both ways and compares the contacts.
+bus. A test runs a launch file both ways and compares the contacts. The executor takes the nodes
+already resolved (a launch file's `Graph.in_process_members()`), so the runtime needs no launcher.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from palpate.errors import MessageError, PalpateError
-from palpate.launch.graph import Graph, GraphNode
 from palpate.messages import codec
 from palpate.messages.base import Message
 from palpate.runtime.node import NodeContext
-from palpate.runtime.spec import NodeProcessSpec, build_config
+from palpate.runtime.spec import NodeProcessSpec, NodeSpec, build_config
 
 #: Called for every message published: (tick, node name, topic, message).
 Listener = Callable[[int, str, str, Message], None]
@@ -33,7 +33,8 @@ Listener = Callable[[int, str, str, Message], None]
 
 @dataclass
 class _Member:
-    node: GraphNode
+    rank: int
+    spec: NodeSpec[Any]
     process: NodeProcessSpec
     ctx: NodeContext
     obj: Any
@@ -43,19 +44,17 @@ class _Member:
 class InProcessGraph:
     """A graph whose nodes run as objects in this process, in lockstep order."""
 
-    def __init__(self, graph: Graph, *, listener: Listener | None = None):
-        self.graph = graph
+    def __init__(self, nodes: Sequence[tuple[NodeSpec[Any], NodeProcessSpec]], *, listener: Listener | None = None):
+        """`nodes`: each node's spec and process spec, in graph rank order (the clock source first)."""
         self.listener = listener
         self.seq = 0
         self.tick = -1
         self.stop_reason = ""
         self.members: list[_Member] = []
-        ranks = {n.name: n.rank for n in graph.nodes}
-        for process in sorted(graph.process_specs(), key=lambda p: ranks[p.name]):
-            node = graph.by_name[process.name]
-            ctx = NodeContext(process.name, process.seed, self._sender(process.name), dict(process.publishes))
-            config = build_config(node.spec.config, process.params, f"node {process.name!r} params")
-            self.members.append(_Member(node, process, ctx, node.spec.factory(config, ctx)))
+        for rank, (spec, process) in enumerate(nodes):
+            ctx = NodeContext(process.name, process.seed, self._sender(rank), dict(process.publishes))
+            config = build_config(spec.config, process.params, f"node {process.name!r} params")
+            self.members.append(_Member(rank, spec, process, ctx, spec.factory(config, ctx)))
         self.subscribers: dict[str, list[_Member]] = {}
         for member in self.members:
             for topic in member.process.subscribes.values():
@@ -63,17 +62,16 @@ class InProcessGraph:
         self.clock = next(m for m in self.members if m.process.clock_source)
         self.followers = [m for m in self.members if m is not self.clock]
 
-    def _sender(self, name: str) -> Callable[[str, Message], None]:
+    def _sender(self, rank: int) -> Callable[[str, Message], None]:
         def send(topic: str, message: Message) -> None:
             decoded = codec.decode(codec.encode(message), type(message))
-            rank = self.graph.by_name[name].rank
             self.seq += 1
             for member in self.subscribers.get(topic, []):
                 member.inbox.append((rank, self.seq, topic, decoded))
-            member_ctx = next(m.ctx for m in self.members if m.process.name == name)
-            member_ctx.counters["messages_out"] += 1
+            sender = self.members[rank]
+            sender.ctx.counters["messages_out"] += 1
             if self.listener is not None:
-                self.listener(self.tick, name, topic, decoded)
+                self.listener(self.tick, sender.process.name, topic, decoded)
 
         return send
 

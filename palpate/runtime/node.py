@@ -394,7 +394,7 @@ def main(argv: list[str] | None = None) -> int:
     memory.keep_freed_buffers()  # reuse big payload buffers instead of faulting fresh pages in per message
     logging.basicConfig(level=logging.INFO, format=f"[{process.name}] %(levelname)s %(message)s", stream=sys.stderr)
     try:
-        spec = load_node_spec(process.type).with_params(process.params)
+        spec = load_node_spec(process.node_spec, label=process.type).with_params(process.params)
         runner = NodeRunner(spec, process)
     except PalpateError as exc:
         log.error("node %s could not start: %s", process.name, exc)

@@ -1,4 +1,4 @@
-"""Node types by name. A launch file may also name any `module:ATTRIBUTE` holding a NodeSpec."""
+"""Load a NodeSpec from its `module:ATTRIBUTE` reference (the launcher resolves type names)."""
 
 from __future__ import annotations
 
@@ -8,33 +8,18 @@ from typing import Any
 from palpate.errors import LaunchError
 from palpate.runtime.spec import NodeSpec
 
-#: Built-in node types and the module whose `SPEC` describes each.
-NODE_TYPES: dict[str, str] = {
-    "sim": "palpate.nodes.sim.node",
-    "noise": "palpate.nodes.noise.node",
-    "mapper": "palpate.nodes.mapper.node",
-    "gpis": "palpate.nodes.gpis.node",
-    "planner": "palpate.nodes.planner.node",
-    "controller": "palpate.nodes.controller.node",
-    "explore_eval": "palpate.nodes.explore_eval.node",
-    "cube_contacts": "palpate.nodes.demo.node:CUBE_CONTACTS",
-    "contact_stats": "palpate.nodes.demo.node:CONTACT_STATS",
-    "bbox_estimator": "palpate.nodes.demo.node:BBOX_ESTIMATOR",
-    "replay": "palpate.record.replay_node:SPEC",
-}
 
-
-def load_node_spec(node_type: str) -> NodeSpec[Any]:
-    """The NodeSpec of a built-in type name or of a `module:ATTRIBUTE` reference."""
-    target = NODE_TYPES.get(node_type, node_type)
-    module_name, _, attribute = target.partition(":")
-    if not module_name or (node_type not in NODE_TYPES and not attribute):
-        raise LaunchError(f"unknown node type {node_type!r}; built-in types: {', '.join(sorted(NODE_TYPES))}")
+def load_node_spec(reference: str, *, label: str = "") -> NodeSpec[Any]:
+    """The NodeSpec named by `reference`, ``package.module:ATTRIBUTE``; `label` names it in errors."""
+    label = label or reference
+    module_name, _, attribute = reference.partition(":")
+    if not module_name or not attribute:
+        raise LaunchError(f"node type {label!r}: expected a reference 'package.module:ATTRIBUTE', got {reference!r}")
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
-        raise LaunchError(f"node type {node_type!r}: cannot import {module_name}: {exc}") from exc
-    spec = getattr(module, attribute or "SPEC", None)
+        raise LaunchError(f"node type {label!r}: cannot import {module_name}: {exc}") from exc
+    spec = getattr(module, attribute, None)
     if not isinstance(spec, NodeSpec):
-        raise LaunchError(f"node type {node_type!r}: {module_name} has no NodeSpec named {attribute or 'SPEC'}")
+        raise LaunchError(f"node type {label!r}: {module_name} has no NodeSpec named {attribute}")
     return spec

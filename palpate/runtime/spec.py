@@ -70,7 +70,8 @@ class NodeProcessSpec:
     """Everything a node process needs, resolved by the launcher (serialised as JSON)."""
 
     name: str
-    type: str
+    type: str  # the launch file's type name, for messages
+    node_spec: str  # `module:ATTRIBUTE` of the NodeSpec the process runs
     params: dict[str, Any]
     bus_dir: str
     endpoint: str  # where this node's publisher binds

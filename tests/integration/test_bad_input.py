@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 import zmq
 
+from palpate.launch.node_types import node_spec_reference
 from palpate.messages import codec, topics
 from palpate.messages.schemas import Clock, ContactSet, LockstepAck, NodeStatus, RunControl
 from palpate.paths import REPO_ROOT
@@ -96,6 +97,7 @@ def node_process(
     spec = NodeProcessSpec(
         name=name,
         type=node_type,
+        node_spec=node_spec_reference(node_type),
         params=params,
         bus_dir=str(tmp_path),
         endpoint=f"ipc://{tmp_path}/{name}.pub",

@@ -39,7 +39,9 @@ def test_process_graph_and_in_process_graph_touch_the_same_points(tmp_path: Path
 
     inproc_json = tmp_path / "inproc.json"
     overrides = parse_cli_args([*ARGS, f"results:={inproc_json}"])
-    graph = InProcessGraph(resolve(load_launch(EXPLORE_LAUNCH, overrides), bus_dir=tmp_path / "bus2"))
+    graph = InProcessGraph(
+        resolve(load_launch(EXPLORE_LAUNCH, overrides), bus_dir=tmp_path / "bus2").in_process_members()
+    )
     graph.run()
 
     from_processes = json.loads(process_json.read_text())

@@ -24,7 +24,6 @@ import zmq
 
 from palpate.cli import main
 from palpate.commands.introspect import TopicTap
-from palpate.commands.keys import make_keys
 from palpate.launch.graph import resolve
 from palpate.launch.loader import load_launch
 from palpate.messages import codec
@@ -32,6 +31,7 @@ from palpate.messages.schemas import RunControl
 from palpate.paths import REPO_ROOT
 from palpate.record.mcap_io import read_messages
 from palpate.runtime import bus
+from palpate.runtime.bus import make_curve_keys
 from tests.integration.launch_helpers import child_env, free_port, kill_session, launched, text, wait_for
 
 
@@ -146,9 +146,9 @@ def _collect(sock: zmq.Socket[Any], pub: zmq.Socket[Any], seconds: float) -> lis
 def test_curve_link_with_keys_works_and_a_wrong_server_key_hears_nothing() -> None:
     if not zmq.has("curve"):
         pytest.skip("libzmq was built without CurveZMQ")
-    graph_key = make_keys()
-    client_key = make_keys(server_public=graph_key["public"])  # a client with its own pair
-    impostor = make_keys()  # trusts another server key
+    graph_key = make_curve_keys()
+    client_key = make_curve_keys(server_public=graph_key["public"])  # a client with its own pair
+    impostor = make_curve_keys()  # trusts another server key
     ctx = zmq.Context()
     endpoint = f"tcp://127.0.0.1:{free_port()}"
     pub = bus.make_publisher(ctx, endpoint, lockstep=False, curve=graph_key)
@@ -182,7 +182,7 @@ def test_curve_link_with_keys_works_and_a_wrong_server_key_hears_nothing() -> No
 def test_topic_tap_reads_a_keyed_and_a_plain_publisher_through_their_manifests(tmp_path: Path) -> None:
     if not zmq.has("curve"):
         pytest.skip("libzmq was built without CurveZMQ")
-    graph_key = make_keys()
+    graph_key = make_curve_keys()
     ctx = zmq.Context()
     keyed_ep, plain_ep = (f"tcp://127.0.0.1:{free_port()}" for _ in range(2))
     keyed = bus.make_publisher(ctx, keyed_ep, lockstep=False, curve=graph_key)

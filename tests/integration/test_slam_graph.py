@@ -94,7 +94,7 @@ def test_at_sigma_zero_the_fastslam_map_is_the_known_pose_map() -> None:
             maps[topic] = message  # the last one wins: the map after the last update
 
     args = {"duration_s": 1.5, "sigma_deg": 0.0, "particles": 5, "publish_period_s": 0.5}
-    graph = InProcessGraph(resolve(load_launch(LAUNCH / "slam_eval.yaml", args)), listener=listen)
+    graph = InProcessGraph(resolve(load_launch(LAUNCH / "slam_eval.yaml", args)).in_process_members(), listener=listen)
     assert graph.run() == 151
     known = maps["map/known"]
     assert known.stamp_ns == 1_500_000_000 and int(np.count_nonzero(known.log_odds > 0)) > 0  # it touched the cube

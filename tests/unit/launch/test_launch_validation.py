@@ -301,11 +301,12 @@ def test_lockstep_graph_needs_a_clock_source(tmp_path: Path) -> None:
 
 
 def test_curve_keys_must_agree_across_links(tmp_path: Path) -> None:
-    from palpate.commands.keys import make_keys, write_keys
+    from palpate.commands.keys import write_keys
+    from palpate.runtime.bus import make_curve_keys
 
     graph_key, other_key = tmp_path / "graph.key", tmp_path / "other.key"
-    write_keys(graph_key, make_keys())
-    write_keys(other_key, make_keys())
+    write_keys(graph_key, make_curve_keys())
+    write_keys(other_key, make_curve_keys())
 
     def graph(cube_keys: Path | None, stats_keys: Path | None) -> Path:
         path = tmp_path / "curve.yaml"

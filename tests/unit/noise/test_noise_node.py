@@ -143,7 +143,7 @@ def _noisy_contacts_of_a_run(tmp_path: Path, *args: str) -> list[np.ndarray]:
         if topic == "sensors/contacts_noisy" and isinstance(message, ContactSet) and len(message.links):
             seen.append(np.concatenate([message.positions_m, message.normals], axis=1))
 
-    InProcessGraph(resolve(launch, bus_dir=tmp_path / "bus"), listener=listen).run()
+    InProcessGraph(resolve(launch, bus_dir=tmp_path / "bus").in_process_members(), listener=listen).run()
     return seen
 
 

@@ -10,13 +10,13 @@ import pytest
 from palpate.errors import LaunchError
 from palpate.launch.graph import resolve
 from palpate.launch.loader import load_launch
+from palpate.launch.node_types import load_node_type
 from palpate.messages import codec, topics
 from palpate.messages.base import Message
 from palpate.messages.schemas import ContactSet
 from palpate.paths import REPO_ROOT
 from palpate.record.launch_support import replace_publishers_with_log
 from palpate.record.replay_node import ReplayConfig, ReplayNode, ports_from_params
-from palpate.runtime.registry import load_node_spec
 from tests.unit.record.synthetic import PERIOD_NS, canonical_log, lockstep_streams, write_log
 
 DEMO = REPO_ROOT / "launch" / "demo_minimal.yaml"
@@ -59,7 +59,7 @@ def test_ports_are_the_logs_data_topics(log_path: Path) -> None:
 
 
 def test_each_step_publishes_one_recorded_tick_and_returns_its_stamp(log_path: Path) -> None:
-    spec = load_node_spec("replay").with_params({"path": str(log_path), "topics": [topics.CONTACTS]})
+    spec = load_node_type("replay").with_params({"path": str(log_path), "topics": [topics.CONTACTS]})
     assert spec.clock_source and set(spec.outputs) == {topics.CONTACTS}
     ctx = FakeContext({topics.CONTACTS: "remapped/contacts"})
     node = ReplayNode(ReplayConfig(path=str(log_path), topics=(topics.CONTACTS,)), ctx)

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from palpate.errors import ConfigError, LaunchError
+from palpate.launch.node_types import NODE_TYPES, load_node_type
 from palpate.messages import codec
 from palpate.messages.schemas import ContactSet, TouchEvent
 from palpate.runtime import bus
 from palpate.runtime.node import _latest_state_messages
-from palpate.runtime.registry import NODE_TYPES, load_node_spec
 from palpate.runtime.spec import NodeProcessSpec, NodeSpec, build_config, coerce
 
 
@@ -96,8 +96,8 @@ def test_coerce_rejects_unsupported_annotations() -> None:
 
 
 def test_registry_resolves_builtin_and_module_attribute_types() -> None:
-    assert load_node_spec("cube_contacts").clock_source
-    spec = load_node_spec("tests.integration.fake_nodes:CRASHER")
+    assert load_node_type("cube_contacts").clock_source
+    spec = load_node_type("tests.integration.fake_nodes:CRASHER")
     assert isinstance(spec, NodeSpec) and spec.name == "crasher"
     assert "cube_contacts" in NODE_TYPES
 
@@ -113,13 +113,14 @@ def test_registry_resolves_builtin_and_module_attribute_types() -> None:
 )
 def test_registry_errors(name: str, message: str) -> None:
     with pytest.raises(LaunchError, match=message):
-        load_node_spec(name)
+        load_node_type(name)
 
 
 def test_process_spec_json_round_trip() -> None:
     spec = NodeProcessSpec(
         name="stats",
         type="contact_stats",
+        node_spec="palpate.nodes.demo.node:CONTACT_STATS",
         params={"report": False},
         bus_dir="/tmp/bus",
         endpoint="ipc:///tmp/bus/stats.pub",

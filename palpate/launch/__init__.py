@@ -1,0 +1,1 @@
+"""YAML launch files: loading, resolving into a graph, supervising processes."""
