@@ -5,7 +5,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import palpate.launch_files as _launch_files
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
+#: The launch files shipped with palpate: launch/ of the repository, installed as `palpate.launch_files`
+#: (so `palpate demo` and the evaluations find them in a wheel too).
+LAUNCH_DIR = Path(_launch_files.__file__).resolve().parent
 
 #: Environment variable that points at the YCB mesh folder (binary STL files in metres).
 YCB_DIR_ENV = "PALPATE_YCB_DIR"

@@ -41,11 +41,11 @@ import numpy as np
 
 from palpate.errors import BenchmarkError
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, JointState, Pose
-from palpate.paths import REPO_ROOT, ycb_dir
+from palpate.paths import LAUNCH_DIR, ycb_dir
 from palpate.runtime.spec import NodeSpec, Port
 from palpate.text_table import Column, fixed_width_table
 
-PROBE_LAUNCH = REPO_ROOT / "launch" / "probe.yaml"
+PROBE_LAUNCH = LAUNCH_DIR / "probe.yaml"
 SCENES = ("probe", "finger", "hand")
 YCB_OBJECT = "011_banana"
 #: Used when the YCB folder is absent.

@@ -12,10 +12,9 @@ from typing import Any
 from palpate.launch.graph import Graph, resolve
 from palpate.launch.loader import load_launch, parse_cli_args
 from palpate.launch.supervisor import Supervisor
-from palpate.paths import REPO_ROOT
+from palpate.paths import LAUNCH_DIR
 from palpate.runtime import bus
 
-LAUNCH_DIR = REPO_ROOT / "launch"
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

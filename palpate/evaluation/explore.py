@@ -36,12 +36,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from palpate.errors import ConfigError, MeshError
-from palpate.paths import REPO_ROOT
+from palpate.paths import LAUNCH_DIR
 
 FloatArray = NDArray[np.float64]
 
 #: The launch file every episode runs.
-EXPLORE_LAUNCH = REPO_ROOT / "launch" / "explore.yaml"
+EXPLORE_LAUNCH = LAUNCH_DIR / "explore.yaml"
 #: Mesh file suffixes taken from an --objects folder.
 MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb")
 #: Strategies compared by default (the paper's Table 2).

@@ -44,13 +44,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from palpate.errors import ConfigError
-from palpate.paths import REPO_ROOT
+from palpate.paths import LAUNCH_DIR
 from palpate.text_table import Column, fixed_width_table
 
 FloatArray = NDArray[np.float64]
 
 #: The launch file every seed runs.
-SLAM_LAUNCH = REPO_ROOT / "launch" / "slam_eval.yaml"
+SLAM_LAUNCH = LAUNCH_DIR / "slam_eval.yaml"
 #: Methods in table order, with the topic their map arrives on and the mapper node that makes it.
 METHODS = ("known", "fastslam", "dead_reckoning")
 MAP_TOPICS = {"map/known": "known", "map/fastslam": "fastslam", "map/dead_reckoning": "dead_reckoning"}
