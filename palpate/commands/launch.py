@@ -16,7 +16,6 @@ from palpate.paths import LAUNCH_DIR
 from palpate.runtime import bus
 
 
-
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("launch", help="run a node graph from a YAML launch file")
     p.add_argument("file", type=Path, help="launch file")
