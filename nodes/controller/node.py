@@ -8,7 +8,6 @@ target. Publishes velocity commands every tick and the curve it follows.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -17,7 +16,7 @@ from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, Pose,
 from palpate.nodes.controller.bezier import bezier_length
 from palpate.nodes.controller.core import ControllerConfig, ControllerState, TrajectoryController, retract_direction
 from palpate.nodes.controller.so3 import quat_to_matrix
-from palpate.runtime.spec import NodeSpec, Port
+from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -52,7 +51,7 @@ class ControllerNodeConfig:
 class ControllerNode:
     """Thin wrapper: messages in, TrajectoryController calls, messages out."""
 
-    def __init__(self, config: ControllerNodeConfig, ctx: Any):
+    def __init__(self, config: ControllerNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.core = TrajectoryController(config.controller)
         self.pose: Pose | None = None

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from palpate.messages.schemas import ContactSet, SurfaceMesh
 from palpate.nodes.demo.core import ContactStatistics, box_mesh, sample_cube_contacts
-from palpate.runtime.spec import NodeSpec, Port
+from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -23,7 +22,7 @@ class CubeContactsConfig:
 class CubeContacts:
     """Clock source: each tick publishes contacts sampled on a cube."""
 
-    def __init__(self, config: CubeContactsConfig, ctx: Any):
+    def __init__(self, config: CubeContactsConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.period_ns = round(config.period_s * 1e9)
         self.ticks = round(config.duration_s / config.period_s)
@@ -61,7 +60,7 @@ class ContactStatsConfig:
 class ContactStats:
     """Consumes contact sets and prints a summary when the run ends."""
 
-    def __init__(self, config: ContactStatsConfig, ctx: Any):
+    def __init__(self, config: ContactStatsConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.stats = ContactStatistics()
 
@@ -95,7 +94,7 @@ class BboxEstimator:
     distribution over the longest box edge, divided by the number of contacts.
     """
 
-    def __init__(self, config: BboxEstimatorConfig, ctx: Any):
+    def __init__(self, config: BboxEstimatorConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.stats = ContactStatistics()
         self.updated = False

@@ -18,7 +18,7 @@ import numpy as np
 from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.controller.so3 import quat_to_matrix
 from palpate.nodes.explore_eval.core import EvalConfig, ExplorationEvaluator
-from palpate.runtime.spec import NodeSpec, Port
+from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -35,7 +35,7 @@ class ExploreEvalNodeConfig:
 class ExploreEvalNode:
     """Thin wrapper around ExplorationEvaluator."""
 
-    def __init__(self, config: ExploreEvalNodeConfig, ctx: Any):
+    def __init__(self, config: ExploreEvalNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.evaluator: ExplorationEvaluator | None = None
         self.pose: Pose | None = None

@@ -2,21 +2,19 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from palpate.errors import PlanningError
 from palpate.messages.schemas import Pose, SurfaceMesh, TouchEvent, TouchTarget
 from palpate.nodes.controller.so3 import quat_to_matrix
 from palpate.nodes.planner.core import Candidates, Planner, PlannerConfig, Selection, away_from, curves_clear
-from palpate.runtime.spec import NodeSpec, Port
+from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 class PlannerNode:
     """Thin wrapper around Planner: plans once per contact, when the surface that includes it arrives."""
 
-    def __init__(self, config: PlannerConfig, ctx: Any):
+    def __init__(self, config: PlannerConfig, ctx: Context):
         self.ctx = ctx
         self.core = Planner(config)
         self.contacts: list[np.ndarray] = []
