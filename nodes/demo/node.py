@@ -90,8 +90,7 @@ class BboxEstimator:
     """A toy estimator: after each tick with contacts, publishes the bounding box of all contacts so far.
 
     Deterministic given its inputs, so re-running it on a recorded log (`palpate launch --replay`)
-    must reproduce its recorded meshes byte for byte. The per-vertex variance is that of a uniform
-    distribution over the longest box edge, divided by the number of contacts.
+    must reproduce its recorded meshes byte for byte. Vertex variance: ContactStatistics.box_variance_m2.
     """
 
     def __init__(self, config: BboxEstimatorConfig, ctx: Context):
@@ -108,7 +107,7 @@ class BboxEstimator:
             return
         self.updated = False
         vertices, faces, normals = box_mesh(self.stats.lower_m, self.stats.upper_m)
-        variance_m2 = float(self.stats.extent_m().max()) ** 2 / 12.0 / self.stats.contacts
+        variance_m2 = self.stats.box_variance_m2()
         self.ctx.publish(
             "mesh",
             SurfaceMesh(
