@@ -42,6 +42,11 @@ class ContactStatistics:
         """Edge lengths of the bounding box of every contact so far, (3,); zeros before any contact."""
         return np.where(np.isfinite(self.upper_m), self.upper_m - self.lower_m, 0.0)
 
+    def box_variance_m2(self) -> float:
+        """The toy estimator's variance, m^2: that of a uniform distribution over the longest edge of the
+        bounding box (edge^2 / 12), divided by the number of contacts. Needs at least one contact."""
+        return float(self.extent_m().max()) ** 2 / 12.0 / self.contacts
+
 
 def _box_faces() -> np.ndarray:
     """The 12 triangles of a box whose corner i has bit 0, 1, 2 of i set for the upper x, y, z.

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from palpate.messages.schemas import ContactSet, SurfaceMesh
 from palpate.nodes.demo.core import ContactStatistics, box_mesh, sample_cube_contacts
-from palpate.runtime.spec import NodeSpec, Port
+from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -23,7 +22,7 @@ class CubeContactsConfig:
 class CubeContacts:
     """Clock source: each tick publishes contacts sampled on a cube."""
 
-    def __init__(self, config: CubeContactsConfig, ctx: Any):
+    def __init__(self, config: CubeContactsConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.period_ns = round(config.period_s * 1e9)
         self.ticks = round(config.duration_s / config.period_s)
@@ -61,7 +60,7 @@ class ContactStatsConfig:
 class ContactStats:
     """Consumes contact sets and prints a summary when the run ends."""
 
-    def __init__(self, config: ContactStatsConfig, ctx: Any):
+    def __init__(self, config: ContactStatsConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.stats = ContactStatistics()
 
@@ -91,11 +90,10 @@ class BboxEstimator:
     """A toy estimator: after each tick with contacts, publishes the bounding box of all contacts so far.
 
     Deterministic given its inputs, so re-running it on a recorded log (`palpate launch --replay`)
-    must reproduce its recorded meshes byte for byte. The per-vertex variance is that of a uniform
-    distribution over the longest box edge, divided by the number of contacts.
+    must reproduce its recorded meshes byte for byte. Vertex variance: ContactStatistics.box_variance_m2.
     """
 
-    def __init__(self, config: BboxEstimatorConfig, ctx: Any):
+    def __init__(self, config: BboxEstimatorConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.stats = ContactStatistics()
         self.updated = False
@@ -109,7 +107,7 @@ class BboxEstimator:
             return
         self.updated = False
         vertices, faces, normals = box_mesh(self.stats.lower_m, self.stats.upper_m)
-        variance_m2 = float(self.stats.extent_m().max()) ** 2 / 12.0 / self.stats.contacts
+        variance_m2 = self.stats.box_variance_m2()
         self.ctx.publish(
             "mesh",
             SurfaceMesh(

@@ -99,6 +99,65 @@ class TouchRecord:
     missed: bool
 
 
+class RunControl:
+    """When an evaluated run asks for the whole-object surface, which milestones that surface scores,
+    and when the run ends (around an ExplorationEvaluator).
+
+    A touch that reaches milestones or finishes the run (goal or budget) asks for the surface; the next
+    whole-object surface scores the milestones waiting for it and, after the finishing touch, ends the
+    run. A run with no touch for EvalConfig.max_idle_s of simulated time finishes as "stalled".
+    """
+
+    def __init__(self, evaluator: ExplorationEvaluator) -> None:
+        self.evaluator = evaluator
+        self.pending: list[float] = []  # milestones waiting for their whole-object surface
+        self.final_requested = False
+        self.last_touch_ns = 0
+
+    def touch(
+        self,
+        stamp_ns: int,
+        position_m: np.ndarray,
+        predicted_m: np.ndarray,
+        travel_m: float,
+        rotation_deg: float,
+        fingertip_axis: np.ndarray | None,
+        missed: bool,
+    ) -> bool:
+        """Fold in a touch (see ExplorationEvaluator.add_touch; no fingertip axis: -z); True when the
+        whole-object surface must be requested. Touches after the finishing one are ignored."""
+        if self.final_requested:
+            return False
+        ev = self.evaluator
+        self.last_touch_ns = stamp_ns
+        axis = np.array([0.0, 0.0, -1.0]) if fingertip_axis is None else fingertip_axis
+        reached = ev.add_touch(position_m, predicted_m, travel_m, rotation_deg, axis, missed)
+        if reached or ev.finished:
+            self.pending.extend(reached)
+            self.final_requested = bool(ev.finished)
+            return True
+        return False
+
+    def surface(self, vertices_m: np.ndarray, faces: np.ndarray, vertex_variance: np.ndarray) -> bool:
+        """A whole-object estimate arrived (vertices (v, 3) m, faces (f, 3), GP variance (v,) m^2): score the
+        milestones waiting for it. True when the run is over (this was the surface asked for at the end)."""
+        if self.pending:
+            rmse = self.evaluator.rmse(vertices_m, faces, vertex_variance)
+            for fraction in self.pending:
+                self.evaluator.set_rmse(fraction, rmse)
+            self.pending = []
+        return self.final_requested
+
+    def tick(self, stamp_ns: int) -> bool:
+        """Watchdog: True (once) when the run has made no touch for max_idle_s and has just finished as
+        stalled; the whole-object surface must then be requested."""
+        if self.final_requested or stamp_ns - self.last_touch_ns <= self.evaluator.config.max_idle_s * 1e9:
+            return False
+        self.evaluator.finished = "stalled"
+        self.final_requested = True
+        return True
+
+
 @dataclass
 class ExplorationEvaluator:
     """Accumulates touches on a known true mesh and reports the paper's metrics."""

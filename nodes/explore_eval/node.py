@@ -17,8 +17,8 @@ import numpy as np
 
 from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.controller.so3 import quat_to_matrix
-from palpate.nodes.explore_eval.core import EvalConfig, ExplorationEvaluator
-from palpate.runtime.spec import NodeSpec, Port
+from palpate.nodes.explore_eval.core import EvalConfig, ExplorationEvaluator, RunControl
+from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -33,65 +33,52 @@ class ExploreEvalNodeConfig:
 
 
 class ExploreEvalNode:
-    """Thin wrapper around ExplorationEvaluator."""
+    """Thin wrapper around ExplorationEvaluator and its RunControl."""
 
-    def __init__(self, config: ExploreEvalNodeConfig, ctx: Any):
+    def __init__(self, config: ExploreEvalNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.evaluator: ExplorationEvaluator | None = None
+        self.run: RunControl | None = None
         self.pose: Pose | None = None
-        self.pending: list[float] = []  # milestones waiting for their whole-object surface
-        self.final_requested = False
         self.last_estimate: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32))
         self.last_variance = np.zeros(0)
         self.result: dict[str, Any] = {}
-        self.last_touch_ns = 0
 
     def on_truth_object(self, message: ObjectTruth) -> None:
         self.name = message.name
         self.evaluator = ExplorationEvaluator(np.array(message.vertices_m), np.array(message.faces), self.config.eval)
+        self.run = RunControl(self.evaluator)
 
     def on_pose(self, message: Pose) -> None:
         self.pose = message
 
     def on_touches(self, message: TouchEvent) -> None:
-        if self.evaluator is None or self.final_requested:
+        if self.run is None:
             return
-        self.last_touch_ns = self.ctx.stamp_ns
-        reached = self.evaluator.add_touch(
+        request = self.run.touch(
+            self.ctx.stamp_ns,
             np.array(message.position_m),
             np.array(message.predicted_contact_m),
             message.travelled_m,
             message.rotation_deg,
-            quat_to_matrix(self.pose.quaternion_wxyz)[:, 2] if self.pose else np.array([0.0, 0.0, -1.0]),
+            quat_to_matrix(self.pose.quaternion_wxyz)[:, 2] if self.pose else None,
             message.missed,
         )
-        self.ctx.metrics["coverage"] = self.evaluator.tracker.coverage
-        if reached or self.evaluator.finished:
-            self.pending.extend(reached)
-            self.final_requested = bool(self.evaluator.finished)
+        self.ctx.metrics["coverage"] = self.run.evaluator.tracker.coverage
+        if request:
             self.ctx.publish("request", SurfaceRequest(stamp_ns=self.ctx.stamp_ns, region="global"))
 
     def on_surface(self, message: SurfaceMesh) -> None:
-        if message.region != "global" or self.evaluator is None:
+        if message.region != "global" or self.run is None:
             return
         self.last_estimate = (np.array(message.vertices_m), np.array(message.faces))
         self.last_variance = np.array(message.vertex_variance)
-        if self.pending:
-            rmse = self.evaluator.rmse(*self.last_estimate, self.last_variance)
-            for fraction in self.pending:
-                self.evaluator.set_rmse(fraction, rmse)
-            self.pending = []
-        if self.final_requested:
-            self.ctx.request_stop(f"exploration finished: {self.evaluator.finished}")
+        if self.run.surface(*self.last_estimate, self.last_variance):
+            self.ctx.request_stop(f"exploration finished: {self.run.evaluator.finished}")
 
     def on_tick(self, stamp_ns: int) -> None:
         """Watchdog: end a run that has made no touch for EvalConfig.max_idle_s of simulated time."""
-        ev = self.evaluator
-        if ev is None or self.final_requested:
-            return
-        if stamp_ns - self.last_touch_ns > self.config.eval.max_idle_s * 1e9:
-            ev.finished = "stalled"
-            self.final_requested = True
+        if self.run is not None and self.run.tick(stamp_ns):
             self.ctx.publish("request", SurfaceRequest(stamp_ns=stamp_ns, region="global"))
 
     def close(self) -> None:

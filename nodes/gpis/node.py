@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from palpate.messages.schemas import SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.gpis.core import GPIS, GPISConfig
 from palpate.nodes.gpis.surface import SurfaceMeshArrays, global_surface, local_surface
-from palpate.runtime.spec import NodeSpec, Port
+from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -35,7 +34,7 @@ class GPISNodeConfig:
 class GPISNode:
     """Thin wrapper around GPIS: one update and one local mesh per touch."""
 
-    def __init__(self, config: GPISNodeConfig, ctx: Any):
+    def __init__(self, config: GPISNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.gp = GPIS(config.gp, prior_centre_m=config.prior_centre_m)
 

@@ -18,7 +18,7 @@ from palpate.messages.schemas import ContactSet, JointState, OccupancyGrid, Part
 from palpate.nodes.mapper.core import Mapper, MapperConfig
 from palpate.nodes.mapper.grid import SparseMap
 from palpate.nodes.mapper.kinematics import KinematicChain
-from palpate.runtime.spec import NodeSpec, Port
+from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 def _default_scene() -> dict[str, Any]:
@@ -52,7 +52,7 @@ def finger_chain(scene_dict: dict[str, Any]) -> KinematicChain:
 class MapperNode:
     """Thin wrapper around Mapper."""
 
-    def __init__(self, config: MapperNodeConfig, ctx: Any):
+    def __init__(self, config: MapperNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.chain = finger_chain(config.scene)
         self.core = Mapper(config.mapper, self.chain, ctx.rng)

@@ -15,7 +15,7 @@ from typing import Any
 from palpate.messages import topics
 from palpate.messages.schemas import ContactSet, JointState
 from palpate.nodes.noise.core import ContactNoise, ContactNoiseConfig, JointNoise, JointNoiseConfig
-from palpate.runtime.spec import NodeSpec, Port
+from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -40,7 +40,7 @@ class NoiseNodeConfig:
 class NoiseNode:
     """Thin wrapper around JointNoise and ContactNoise."""
 
-    def __init__(self, config: NoiseNodeConfig, ctx: Any):
+    def __init__(self, config: NoiseNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.joint_noise: JointNoise | None = None
         self.contact_noise = ContactNoise(

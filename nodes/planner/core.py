@@ -3,6 +3,9 @@
 The planner sees the estimated surface only as arrays: candidate points on the surface mesh, their
 outward unit normals and the GP variance there. ``sample_candidates`` thins the mesh near the last
 contact; ``Planner.select`` rates the candidates with the configured strategy and picks one.
+``TouchPlanner`` is the planner node's whole decision: it remembers the contacts, plans once per
+contact when the local surface that includes it arrives, and drops targets it cannot usefully reach
+(admissibility rules not in the paper, see PlannerConfig).
 
 Conventions: metres; the fingertip's local z axis ``R_z`` is the direction it pokes (it faces a surface
 with outward normal n when ``R_z = -n``); ``v_n`` is the unit velocity just before the last contact.
@@ -27,6 +30,7 @@ Choices where the paper disagrees with itself (both configurable):
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 from typing import Literal, get_args
 
@@ -37,6 +41,7 @@ from scipy.spatial.distance import cdist
 
 from palpate.errors import ConfigError, PlanningError
 from palpate.nodes.controller.bezier import approach_curve, bezier_length, bezier_point
+from palpate.nodes.controller.so3 import quat_to_matrix
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -400,4 +405,152 @@ class Planner:
             score=float(scores[index]),
             scores=scores,
             psi=psi,
+        )
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A planned touch: the candidates it was chosen among and the choice (scores over those candidates)."""
+
+    candidates: Candidates
+    selection: Selection
+
+
+class TouchPlanner:
+    """Algorithm 1 lines 11-18 with the rules not in the paper that PlannerConfig describes.
+
+    Owns the contacts so far, the approach direction v_n of the last one and the targets whose touch
+    landed elsewhere (unreached). ``plan`` runs once per contact, on the local surface that includes it.
+    Events the node reports as counters (``take_counts``): ``no_admissible_candidate`` (every candidate
+    was inadmissible, so the paper's choice among all of them was made) and ``no_clear_curve`` (no
+    candidate curve keeps clear of the estimate, so the paper's choice was kept).
+    """
+
+    def __init__(self, config: PlannerConfig | None = None) -> None:
+        self.planner = Planner(config)
+        self.config = self.planner.config
+        self.contacts: list[FloatArray] = []
+        self.approach = np.zeros(3)
+        self.unreached: list[FloatArray] = []  # targets whose touch landed elsewhere
+        self.planned_for = 0  # number of contacts the last plan was made for
+        self.counts: Counter[str] = Counter()
+
+    def add_touch(self, position_m: ArrayLike, predicted_contact_m: ArrayLike, approach_direction: ArrayLike) -> None:
+        """A touch at position_m (3,) m, aimed at predicted_contact_m (3,) m (NaN: no target), made
+        moving along approach_direction (3,), the v_n of the next curve."""
+        position, predicted = np.array(position_m), np.array(predicted_contact_m)
+        self.contacts.append(position)
+        self.approach = np.array(approach_direction)
+        if np.all(np.isfinite(predicted)) and np.linalg.norm(position - predicted) > self.config.unreached_miss_m:
+            self.unreached.append(predicted)
+
+    def take_counts(self) -> dict[str, int]:
+        """The events counted since the last call (name -> count), which are then forgotten."""
+        counts, self.counts = dict(self.counts), Counter()
+        return counts
+
+    def plan(
+        self,
+        region: str,
+        num_contacts: int,
+        vertices_m: FloatArray,
+        vertex_normals: FloatArray,
+        vertex_variance: FloatArray,
+        fingertip: tuple[FloatArray, FloatArray] | None,
+        rng: np.random.Generator,
+    ) -> Plan | None:
+        """The next touch, or None when this surface is not the one to plan on.
+
+        Plans on a "local" surface (vertices (k, 3) m, outward unit vertex normals (k, 3), GP variance
+        (k,) m^2) made from num_contacts contacts, when that is every contact so far and no plan was made
+        for them yet. fingertip: its centre (3,) m and orientation (unit quaternion wxyz (4,); its z axis
+        is the poking axis) now. Raises PlanningError
+        when planning is due and there is no fingertip pose, or no candidate near the last contact.
+        """
+        if region != "local" or num_contacts != len(self.contacts) or self.planned_for == len(self.contacts):
+            return None
+        self.planned_for = len(self.contacts)
+        if fingertip is None:
+            raise PlanningError("no fingertip pose received yet; the simulation or driver must publish one")
+        fingertip_m, quaternion_wxyz = fingertip
+        axis = quat_to_matrix(quaternion_wxyz)[:, 2]
+        cfg = self.config
+        last = self.contacts[-1]
+        candidates = self.planner.sample(vertices_m, vertex_normals, vertex_variance, last)
+        surface = (vertices_m, vertex_normals, fingertip_m)
+        contacts = np.array(self.contacts)
+        admissible = None
+        centres = candidates.points_m + cfg.tip_radius_m * candidates.normals  # fingertip centre at each target
+        if len(candidates.points_m):
+            hop = centres - fingertip_m
+            admissible = np.einsum("ij,ij->i", hop, hop) >= cfg.min_hop_m**2
+            admissible &= away_from(candidates.points_m, np.reshape(self.unreached, (-1, 3)), cfg.unreached_radius_m)
+            if cfg.check_curves and cfg.strategy == "random":  # a uniform choice needs the whole mask
+                admissible &= self._clear(surface, centres, candidates.normals, np.arange(len(centres)))
+            if not admissible.any():  # nothing admissible: plan as the paper does
+                self.counts["no_admissible_candidate"] += 1
+                admissible = None
+        # Psi2 measures the curve the controller will run: it starts at the last contact (c_p).
+        args = (candidates.points_m, candidates.normals, candidates.variance, contacts, last, self.approach, axis)
+        choice = self.planner.select(*args, rng, admissible=admissible)
+        if cfg.check_curves and cfg.strategy != "random" and admissible is not None:
+            choice = self._best_clear(choice, surface, candidates, centres, admissible)
+        return Plan(candidates, choice)
+
+    def _clear(
+        self,
+        surface: tuple[FloatArray, FloatArray, FloatArray],
+        centres: FloatArray,
+        normals: FloatArray,
+        rows: IntArray,
+    ) -> NDArray[np.bool_]:
+        """curves_clear from the fingertip for the candidate rows ``rows``: boolean (len(rows),).
+        surface: the mesh's vertices (k, 3) m and vertex normals (k, 3), and the fingertip centre (3,) m."""
+        vertices_m, vertex_normals, fingertip_m = surface
+        cfg = self.config
+        return curves_clear(
+            vertices_m,
+            vertex_normals,
+            fingertip_m,
+            self.approach,
+            centres[rows],
+            normals[rows],
+            cfg.tip_radius_m - cfg.curve_margin_m,
+            samples=cfg.curve_samples,
+        )
+
+    def _best_clear(
+        self,
+        choice: Selection,
+        surface: tuple[FloatArray, FloatArray, FloatArray],
+        candidates: Candidates,
+        centres: FloatArray,
+        mask: NDArray[np.bool_],
+    ) -> Selection:
+        """The best-scored candidate whose curve is clear, i.e. the argmax of the scores over the
+        admissible candidates with clear curves: curves are checked in descending score order, 32 at a
+        time, so usually only the first few are computed."""
+        scores = choice.scores.copy()
+        rel = candidates.points_m - self.contacts[-1]
+        order = np.flatnonzero(mask & (np.einsum("ij,ij->i", rel, rel) <= self.config.radius_m**2))
+        order = order[np.argsort(-scores[order], kind="stable")]
+        for start in range(0, len(order), 32):
+            rows = order[start : start + 32]
+            clear = self._clear(surface, centres, candidates.normals, rows)
+            scores[rows[~clear]] = 0.0
+            if clear.any():
+                index = int(rows[int(np.argmax(clear))])
+                break
+        else:  # no curve is clear: keep the paper's choice
+            self.counts["no_clear_curve"] += 1
+            return choice
+        point = candidates.points_m[index].copy()
+        return Selection(
+            index=index,
+            target_m=point,
+            normal=candidates.normals[index] / np.linalg.norm(candidates.normals[index]),
+            predicted_contact_m=point.copy(),
+            score=float(scores[index]),
+            scores=scores,
+            psi=choice.psi,
         )

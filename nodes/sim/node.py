@@ -25,7 +25,7 @@ from palpate.messages.schemas import (
     Pose,
 )
 from palpate.nodes.sim.scene import SceneConfig
-from palpate.runtime.spec import NodeSpec, Port
+from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 def _default_scene() -> dict[str, Any]:
@@ -63,7 +63,7 @@ class SimNodeConfig:
 class SimNode:
     """Thin wrapper around Simulation (and the scripted motion for hand and finger scenes)."""
 
-    def __init__(self, config: SimNodeConfig, ctx: Any):
+    def __init__(self, config: SimNodeConfig, ctx: Context):
         from palpate.nodes.sim.core import Simulation  # MuJoCo and open3d load only in the process that simulates
 
         self.config, self.ctx = config, ctx

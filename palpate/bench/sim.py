@@ -42,7 +42,7 @@ import numpy as np
 from palpate.errors import BenchmarkError
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, JointState, Pose
 from palpate.paths import LAUNCH_DIR, ycb_dir
-from palpate.runtime.spec import NodeSpec, Port
+from palpate.runtime.spec import Context, NodeSpec, Port
 from palpate.text_table import Column, fixed_width_table
 
 PROBE_LAUNCH = LAUNCH_DIR / "probe.yaml"
@@ -96,7 +96,7 @@ class ProbeDriver:
     normal. The command goes out every tick (the sim applies it at the next tick).
     """
 
-    def __init__(self, config: ProbeDriverConfig, ctx: Any) -> None:
+    def __init__(self, config: ProbeDriverConfig, ctx: Context) -> None:
         self.config, self.ctx = config, ctx
         self.times = _TickTimes(config.timing_path)
         self.normal: np.ndarray | None = None  # last contact normal
@@ -161,7 +161,7 @@ class SimSinkConfig:
 class SimSink:
     """Reads what a hand or finger sim publishes (pose, contacts, joint states) and times the ticks."""
 
-    def __init__(self, config: SimSinkConfig, ctx: Any) -> None:
+    def __init__(self, config: SimSinkConfig, ctx: Context) -> None:
         self.ctx = ctx
         self.times = _TickTimes(config.timing_path)
         self.contacts = 0

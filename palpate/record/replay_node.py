@@ -24,7 +24,7 @@ from palpate.errors import LaunchError, MessageError, RecordError
 from palpate.messages import codec, topics
 from palpate.messages.base import REGISTRY, Message
 from palpate.record import mcap_io
-from palpate.runtime.spec import NodeSpec, Port
+from palpate.runtime.spec import Context, NodeSpec, Port
 
 #: Topics the runtime publishes itself; a replay node never republishes them.
 RUNTIME_TOPICS = frozenset({*mcap_io.INTERNAL_TOPICS, topics.NODE_STATUS})
@@ -70,7 +70,7 @@ def ports_from_params(params: Mapping[str, Any]) -> tuple[Mapping[str, Port], Ma
 class ReplayNode:
     """Publishes a recorded tick per step; `period_ns` is the recorded clock period."""
 
-    def __init__(self, config: ReplayConfig, ctx: Any):
+    def __init__(self, config: ReplayConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.ports = set(ctx.outputs)
         wanted = sorted(self.ports | {topics.CLOCK, topics.LOCKSTEP_ACK})

@@ -19,13 +19,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 from palpate.errors import MessageError, PalpateError
 from palpate.messages import codec
 from palpate.messages.base import Message
 from palpate.runtime.node import NodeContext
-from palpate.runtime.spec import NodeProcessSpec, NodeSpec, build_config
+from palpate.runtime.spec import ClockSource, NodeLike, NodeProcessSpec, NodeSpec, build_config
 
 #: Called for every message published: (tick, node name, topic, message).
 Listener = Callable[[int, str, str, Message], None]
@@ -37,7 +37,7 @@ class _Member:
     spec: NodeSpec[Any]
     process: NodeProcessSpec
     ctx: NodeContext
-    obj: Any
+    obj: NodeLike
     inbox: list[tuple[int, int, str, Message]] = field(default_factory=list)
 
 
@@ -81,7 +81,7 @@ class InProcessGraph:
         while max_ticks is None or ticks < max_ticks:
             self.tick = ticks
             self.clock.ctx.tick = ticks
-            stamp = self.clock.obj.step()
+            stamp = cast(ClockSource, self.clock.obj).step()  # the launcher checked: process.clock_source
             if stamp is None:
                 break
             for member in [self.clock, *self.followers]:

@@ -31,7 +31,7 @@ from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import zmq
@@ -41,7 +41,7 @@ from palpate.messages import codec, topics
 from palpate.messages.base import Message
 from palpate.messages.schemas import Clock, LockstepAck, NodeStatus, RunControl
 from palpate.runtime import bus, memory
-from palpate.runtime.spec import NodeProcessSpec, NodeSpec, build_config
+from palpate.runtime.spec import ClockSource, NodeLike, NodeProcessSpec, NodeSpec, build_config
 
 STOP_TOPIC = topics.GRAPH_CONTROL
 _INTERNAL = (topics.CLOCK, topics.LOCKSTEP_ACK, STOP_TOPIC)
@@ -56,7 +56,7 @@ def hello_topic(node: str) -> str:
 
 
 class NodeContext:
-    """The node object's view of the graph: publishing, time, randomness and counters."""
+    """The node object's view of the graph: publishing, time, randomness and counters (a spec.Context)."""
 
     def __init__(self, name: str, seed: int, send: Callable[[str, Message], None], outputs: dict[str, str]):
         self.name = name
@@ -114,7 +114,7 @@ class NodeRunner:
         self.input_types = {topic: spec.inputs[port].message for port, topic in process.subscribes.items()}
         self.ctx = NodeContext(process.name, process.seed, self._send, dict(process.publishes))
         config: Any = build_config(spec.config, process.params, f"node {process.name!r} params")
-        self.node = spec.factory(config, self.ctx)
+        self.node: NodeLike = spec.factory(config, self.ctx)
         self.buffer: list[tuple[int, int, str, bytes]] = []
         self.seq = 0
         self.acks: dict[str, int] = {}
@@ -279,7 +279,7 @@ class NodeRunner:
             self._receive(100)
 
     def _run_clock_source(self) -> None:
-        step: Callable[[], int | None] = self.node.step
+        step = cast(ClockSource, self.node).step  # spec.clock_source says so
         period_ns = int(getattr(self.node, "period_ns", 0))
         if self.lockstep:
             self._wait_for_acks(self.process.lockstep_nodes, -1)

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import types
 import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar
+
+import numpy as np
 
 from palpate.errors import ConfigError
 from palpate.messages.base import Message
@@ -31,10 +34,64 @@ class Port:
         return self.topic or self.message.TOPIC
 
 
+class Context(Protocol):
+    """What a node object sees of the graph: the one argument besides its config that its factory gets.
+
+    The process runtime (palpate/runtime/node.py) and the in-process executor (palpate/runtime/inprocess.py)
+    provide it; a unit test may pass any object with these members.
+    """
+
+    #: Generator seeded from the launch file: the node's only source of randomness.
+    rng: np.random.Generator
+    #: Stamp of the tick being handled, nanoseconds (set by the runtime before each tick's inputs).
+    stamp_ns: int
+    log: logging.Logger
+
+    @property
+    def outputs(self) -> Mapping[str, str]:
+        """Output port -> the topic it is wired to."""
+        ...
+
+    @property
+    def metrics(self) -> dict[str, float]:
+        """Figures reported in the node's status (write entries; do not replace the dict)."""
+        ...
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """Event counts reported in the node's status; the runtime's own are messages_in, messages_out,
+        decode_errors and input_errors."""
+        ...
+
+    def publish(self, port: str, message: Message) -> None:
+        """Send `message` on the topic wired to output `port` (validated first)."""
+        ...
+
+    def count(self, name: str, n: int = 1) -> None:
+        """Add `n` to the counter `name`."""
+        ...
+
+    def request_stop(self, reason: str) -> None:
+        """Ask the graph to end the run after this tick."""
+        ...
+
+
 class NodeLike(Protocol):
     """What the runtime calls on a node object. Handlers are methods named `on_<input port>`."""
 
     def on_tick(self, stamp_ns: int) -> None: ...
+
+
+class ClockSource(NodeLike, Protocol):
+    """A node that drives the graph's clock (the simulator, a replayed log, a hardware driver).
+
+    It may also have an attribute `period_ns`, its tick period, which the runtime puts in each Clock
+    message (and paces real-time runs with).
+    """
+
+    def step(self) -> int | None:
+        """Publish one tick's data; returns the tick's stamp in nanoseconds, or None when the run is over."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -43,13 +100,13 @@ class NodeSpec(Generic[C]):
 
     `factory(config, ctx)` returns the node object; for each input port `p` the object has a method
     `on_p(message)`; `on_tick(stamp_ns)` runs once per clock tick after the tick's inputs.
-    A clock source (the simulator, a replayed log, a hardware driver) also has `step() -> bool`,
-    which publishes one tick's data and returns False when the run is over.
+    A clock source (the simulator, a replayed log, a hardware driver) is a `ClockSource`: it also has
+    `step()`, which publishes one tick's data and returns its stamp, or None when the run is over.
     """
 
     name: str
     config: type[C]
-    factory: Callable[[C, Any], Any]
+    factory: Callable[[C, Context], NodeLike]
     inputs: Mapping[str, Port] = field(default_factory=dict)
     outputs: Mapping[str, Port] = field(default_factory=dict)
     clock_source: bool = False

@@ -10,10 +10,9 @@ import os
 import signal
 import time
 from dataclasses import dataclass
-from typing import Any
 
 from palpate.messages.schemas import JointState
-from palpate.runtime.spec import NodeSpec, Port
+from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -25,7 +24,7 @@ class CrasherConfig:
 class Crasher:
     """Logs a line per tick and dies with `exit_code` (no clean-up) after `after_ticks` ticks."""
 
-    def __init__(self, config: CrasherConfig, ctx: Any):
+    def __init__(self, config: CrasherConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.ticks = 0
         print(f"crasher: started as pid {os.getpid()}", flush=True)
@@ -46,7 +45,7 @@ class QuitterConfig:
 class Quitter:
     """Asks the graph to stop, with a reason, after `after_ticks` ticks (as an exploration at its goal)."""
 
-    def __init__(self, config: QuitterConfig, ctx: Any):
+    def __init__(self, config: QuitterConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.ticks = 0
 
@@ -64,7 +63,7 @@ class StubbornConfig:
 class Stubborn:
     """Ignores SIGTERM and SIGINT and hangs in close(): only SIGKILL ends it."""
 
-    def __init__(self, config: StubbornConfig, ctx: Any):
+    def __init__(self, config: StubbornConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.armed = False
 
@@ -89,7 +88,7 @@ class JointSinkConfig:
 class JointSink:
     """Consumes joint states (a subscriber of another type than the demo's contacts)."""
 
-    def __init__(self, config: JointSinkConfig, ctx: Any):
+    def __init__(self, config: JointSinkConfig, ctx: Context):
         self.config, self.ctx = config, ctx
 
     def on_joints(self, message: JointState) -> None:

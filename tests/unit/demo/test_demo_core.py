@@ -23,3 +23,10 @@ def test_statistics_track_counts_and_extent() -> None:
     stats.add(np.zeros((0, 3)))
     assert (stats.messages, stats.contacts) == (2, 2)
     np.testing.assert_allclose(stats.extent_m(), [0.01, 0.02, 0.03])
+
+
+def test_box_variance_is_that_of_a_uniform_distribution_over_the_longest_edge_per_contact() -> None:
+    stats = ContactStatistics()
+    stats.add(np.array([[0.0, 0.0, 0.0], [0.01, 0.03, 0.02]]))
+    stats.add(np.array([[0.005, 0.01, 0.0]]))
+    assert stats.box_variance_m2() == 0.03**2 / 12 / 3

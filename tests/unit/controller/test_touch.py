@@ -1,0 +1,198 @@
+"""TouchArming (when a contact is a new touch) and TouchLoop (Algorithm 1's controller side), no MuJoCo."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from palpate.nodes.controller.core import (
+    ControllerConfig,
+    ControllerState,
+    ControlStep,
+    Touch,
+    TouchArming,
+    TouchConfig,
+    TouchLoop,
+)
+
+DT_S = 0.01
+TICK_NS = 10_000_000
+UP = np.array([0.0, 0.0, 1.0])
+NONE = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+
+
+def contact(at: list[float] | np.ndarray, force_n: float = 1.0, normal: np.ndarray = UP) -> tuple[np.ndarray, ...]:
+    """One contact: positions (1, 3), normals (1, 3), forces (1,)."""
+    return np.array([at], dtype=np.float64), np.array([normal]), np.array([force_n])
+
+
+# --- TouchArming ------------------------------------------------------------------------------------
+
+
+def touched_arming(config: TouchConfig) -> TouchArming:
+    """An arming that has announced a touch at the origin and then got a new target."""
+    arming = TouchArming(config)
+    assert arming.update(0, *contact([0.0, 0.0, 0.0])[::2])
+    arming.touched(np.zeros(3))
+    arming.disarm()
+    return arming
+
+
+def test_armed_at_first_disarmed_by_a_target_and_rearmed_when_the_contact_is_lost() -> None:
+    arming = TouchArming(TouchConfig())
+    assert arming.armed
+    arming.disarm()
+    assert not arming.update(0, *contact([0.0, 0.0, 0.0])[::2])
+    assert arming.update(TICK_NS, NONE[0], NONE[2])  # the fingertip left the surface
+
+
+def test_staying_in_contact_never_rearms_before_the_first_touch() -> None:
+    arming = TouchArming(TouchConfig())
+    arming.disarm()
+    for tick in range(100):  # slid 10 cm, pushed for 1 s
+        assert not arming.update(tick * TICK_NS, *contact([0.001 * tick, 0.0, 0.0])[::2])
+
+
+def test_sliding_beyond_rearm_distance_rearms() -> None:
+    arming = touched_arming(TouchConfig(rearm_distance_m=0.003, rearm_push_s=0.0))
+    assert not arming.update(TICK_NS, *contact([0.0029, 0.0, 0.0])[::2])
+    assert arming.update(2 * TICK_NS, *contact([0.0, 0.0031, 0.0])[::2])
+    off = touched_arming(TouchConfig(rearm_distance_m=0.0, rearm_push_s=0.0))
+    assert not off.update(TICK_NS, *contact([0.05, 0.0, 0.0])[::2])  # 0 disables it
+
+
+def test_the_strongest_contact_decides_the_slide() -> None:
+    arming = touched_arming(TouchConfig(rearm_distance_m=0.003, rearm_push_s=0.0))
+    positions = np.array([[0.01, 0.0, 0.0], [0.001, 0.0, 0.0]])
+    assert not arming.update(TICK_NS, positions, np.array([0.5, 2.0]))
+    assert arming.update(2 * TICK_NS, positions, np.array([2.0, 0.5]))
+
+
+def test_pushing_without_interruption_for_rearm_push_s_rearms() -> None:
+    arming = touched_arming(TouchConfig(rearm_distance_m=0.0, rearm_push_s=0.1))
+    push = contact([0.0, 0.0, 0.0])[::2]
+    assert not arming.update(1 * TICK_NS, *push)  # the push starts here
+    assert not arming.update(10 * TICK_NS, *push)  # 0.09 s
+    assert not arming.update(11 * TICK_NS, push[0], np.array([0.0]))  # an interruption: the clock restarts
+    assert not arming.update(12 * TICK_NS, *push)
+    assert not arming.update(21 * TICK_NS, *push)  # 0.09 s since the restart
+    assert arming.update(22 * TICK_NS, *push)  # 0.1 s
+    assert arming.push_since_ns is None
+    off = touched_arming(TouchConfig(rearm_distance_m=0.0, rearm_push_s=0.0))
+    assert not any(off.update(tick * TICK_NS, *push) for tick in range(1, 200))  # 0 disables it
+
+
+# --- TouchLoop ----------------------------------------------------------------------------------------
+
+Inside = Callable[[np.ndarray], bool]
+R_DOWN = np.diag([1.0, -1.0, -1.0])  # poking axis R[:, 2] = -z
+
+
+def drive(loop: TouchLoop, r: np.ndarray, inside: Inside, ticks: int = 2000) -> tuple[np.ndarray, Touch | None]:
+    """Integrate r += v dt (orientation held) until a touch or `ticks`; a point fingertip touches the
+    object where `inside` holds, with the contact at the fingertip and normal +z."""
+    for tick in range(ticks):
+        contacts = contact(r) if inside(r) else NONE
+        step = loop.step(tick * TICK_NS, r, R_DOWN, *contacts)
+        if step.touch is not None:
+            assert not step.linear_m_s.any() and not step.angular_rad_s.any()
+            return r, step.touch
+        r = r + DT_S * step.linear_m_s
+    return r, None
+
+
+def below_plane(p: np.ndarray) -> bool:
+    return bool(p[2] <= 0.0)
+
+
+def box_with_edge_at_1cm(p: np.ndarray) -> bool:
+    """Object filling x < 0.01 m, z < 0: its top face ends at an edge x = 0.01 m."""
+    return bool(p[0] < 0.01 and p[2] <= 0.0)
+
+
+def point_loop(**touch: float) -> TouchLoop:
+    return TouchLoop(TouchConfig(tip_radius_m=0.0, **touch), ControllerConfig(), initial_target_m=(0.0, 0.0, -0.01))
+
+
+def test_the_initial_approach_ends_in_touch_0_and_the_fingertip_waits_for_a_target() -> None:
+    loop = point_loop()
+    r, touch = drive(loop, np.array([0.0, 0.0, 0.02]), below_plane)
+    assert touch is not None and touch.index == 0 and loop.touches == 1
+    np.testing.assert_allclose(touch.position_m, r)
+    assert r[2] == pytest.approx(0.0, abs=0.05 * DT_S + 1e-12)
+    np.testing.assert_allclose(touch.normal, UP)
+    np.testing.assert_allclose(touch.approach_direction, [0.0, 0.0, -1.0])  # straight into the surface
+    assert np.isnan(touch.predicted_contact_m).all() and not touch.missed
+    assert touch.travelled_m == 0.0  # the initial approach is not an exploratory action
+    assert loop.controller.state is ControllerState.IDLE
+    # Still in contact and no target: zero command, no second touch.
+    step = loop.step(10**9, r, R_DOWN, *contact(r))
+    assert step.touch is None and not step.linear_m_s.any() and not step.failed
+
+
+def test_a_target_is_reached_on_its_curve_and_the_contact_it_starts_in_is_not_a_touch() -> None:
+    loop = point_loop()
+    r, _ = drive(loop, np.array([0.0, 0.0, 0.02]), below_plane)
+    target, predicted = np.array([0.02, 0.01, 0.0]), np.array([0.02, 0.01, 0.001])
+    P = loop.aim(r, R_DOWN, target, UP, predicted)
+    np.testing.assert_allclose(P[0], r)
+    np.testing.assert_allclose(P[3], target)
+    step = loop.step(0, r, R_DOWN, *contact(r))  # still touching the last contact: moving, but disarmed
+    assert step.touch is None and step.linear_m_s.any()
+    r, touch = drive(loop, r + DT_S * step.linear_m_s, below_plane)
+    assert touch is not None and touch.index == 1
+    assert np.linalg.norm(touch.position_m - target) < 1e-3
+    np.testing.assert_array_equal(touch.predicted_contact_m, predicted)
+    assert touch.travelled_m == pytest.approx(loop.travelled_m) and touch.travelled_m > 0.02
+
+
+def test_the_curve_guides_the_fingertip_centre_one_radius_off_the_target() -> None:
+    loop = TouchLoop(TouchConfig(tip_radius_m=0.008), ControllerConfig(), initial_target_m=(0.0, 0.0, -0.01))
+    r = np.array([0.0, 0.0, 0.008])
+    assert loop.step(0, r, R_DOWN, *contact([0.0, 0.0, 0.0])).touch is not None
+    normal = np.array([0.0, 0.6, 0.8])
+    P = loop.aim(r, R_DOWN, np.array([0.02, 0.0, 0.0]), normal, np.zeros(3))
+    np.testing.assert_allclose(P[3], [0.02, 0.0048, 0.0064], atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("start", "min_cos", "expected"),
+    [
+        ([-0.06, 0.0, 0.08], 0.5, [0.6, 0.0, -0.8]),  # into the surface (cos 0.8): Eq. 15's v_n
+        ([-0.1, 0.0, 0.0], 0.5, [0.0, 0.0, -1.0]),  # sliding along it: lift off along the normal
+        ([-0.1, 0.0, 0.0], -1.0, [1.0, 0.0, 0.0]),  # -1 keeps Eq. 15 as written
+    ],
+)
+def test_a_touch_retracts_along_v_n_only_when_v_n_points_into_the_surface(
+    start: list[float], min_cos: float, expected: list[float]
+) -> None:
+    loop = TouchLoop(TouchConfig(retract_min_cos=min_cos), ControllerConfig(), initial_target_m=(0.0, 0.0, 0.0))
+    step = loop.step(0, np.array(start), R_DOWN, *contact([0.0, 0.0, 0.0]))  # touching at once
+    assert isinstance(step, ControlStep) and step.touch is not None
+    np.testing.assert_allclose(step.touch.approach_direction, expected, atol=1e-12)
+    np.testing.assert_allclose(loop.retract_from, expected, atol=1e-12)
+
+
+def test_a_touch_made_by_the_recovery_curve_is_marked_missed() -> None:
+    loop = point_loop()
+    r, first = drive(loop, np.array([0.0, 0.0, 0.02]), box_with_edge_at_1cm)
+    assert first is not None and not first.missed
+    loop.aim(r, R_DOWN, np.array([0.03, 0.0, 0.0]), UP, np.array([0.03, 0.0, 0.0]))  # beyond the edge
+    r, touch = drive(loop, r, box_with_edge_at_1cm)
+    assert touch is not None and touch.index == 1 and touch.missed
+    assert loop.controller.recoveries == 1
+    assert r[0] == pytest.approx(0.01, abs=1e-3)  # back on the side face below the edge
+    loop.aim(r, R_DOWN, np.array([0.0, 0.0, 0.0]), UP, np.zeros(3))
+    _, again = drive(loop, r, box_with_edge_at_1cm)
+    assert again is not None and again.index == 2 and not again.missed  # counted once
+
+
+def test_an_initial_approach_into_nothing_fails() -> None:
+    loop = point_loop()
+    r, touch = drive(loop, np.array([0.0, 0.0, 0.02]), lambda p: False, ticks=200)
+    assert touch is None
+    step = loop.step(0, r, R_DOWN, *NONE)
+    assert step.failed and not step.linear_m_s.any()
+    assert r[2] == pytest.approx(-0.02, abs=0.05 * DT_S)  # 1 cm past the initial target

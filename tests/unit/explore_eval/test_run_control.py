@@ -1,0 +1,93 @@
+"""RunControl: when the evaluator asks for the whole-object surface, what it scores, when the run ends."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from palpate.nodes.explore_eval.core import EvalConfig, RunControl
+
+S_NS = 1_000_000_000
+
+
+class FakeEvaluator:
+    """Stands in for ExplorationEvaluator: each touch reaches the scripted milestones and finish state."""
+
+    def __init__(self, script: list[tuple[list[float], str]], config: EvalConfig | None = None) -> None:
+        self.script = list(script)
+        self.config = config or EvalConfig()
+        self.finished = ""
+        self.touches: list[tuple[Any, ...]] = []
+        self.scored: list[tuple[float, Any]] = []
+
+    def add_touch(self, *args: Any) -> list[float]:
+        self.touches.append(args)
+        reached, self.finished = self.script.pop(0)
+        return reached
+
+    def rmse(self, vertices_m: np.ndarray, faces: np.ndarray, vertex_variance: np.ndarray) -> Any:
+        return ("scores of", len(vertices_m))
+
+    def set_rmse(self, fraction: float, scores: Any) -> None:
+        self.scored.append((fraction, scores))
+
+
+def touch(run: RunControl, stamp_ns: int, axis: np.ndarray | None = None) -> bool:
+    return run.touch(stamp_ns, np.zeros(3), np.ones(3), 0.1, 5.0, axis, False)
+
+
+def surface(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return np.zeros((n, 3)), np.zeros((0, 3), dtype=np.int32), np.zeros(n)
+
+
+def test_a_milestone_asks_for_the_surface_and_the_next_surface_scores_it() -> None:
+    ev = FakeEvaluator([([], ""), ([0.5], ""), ([], "")])
+    run = RunControl(ev)  # type: ignore[arg-type]
+    assert not touch(run, 1 * S_NS)
+    assert touch(run, 2 * S_NS)
+    assert not run.surface(*surface(7))  # scores 50 %; the run goes on
+    assert ev.scored == [(0.5, ("scores of", 7))]
+    assert not touch(run, 3 * S_NS)
+    assert not run.surface(*surface(9))  # nothing waiting: nothing scored
+    assert ev.scored == [(0.5, ("scores of", 7))]
+    assert len(ev.touches) == 3
+
+
+def test_the_finishing_touch_asks_for_the_last_surface_which_ends_the_run() -> None:
+    ev = FakeEvaluator([([0.5, 0.8], "goal"), ([], "goal")])
+    run = RunControl(ev)  # type: ignore[arg-type]
+    assert touch(run, S_NS)
+    assert not touch(run, 2 * S_NS) and len(ev.touches) == 1  # touches after the finishing one are ignored
+    assert run.surface(*surface(4))
+    assert ev.scored == [(0.5, ("scores of", 4)), (0.8, ("scores of", 4))]
+    assert not run.tick(1000 * S_NS)  # finished: the watchdog is quiet
+
+
+def test_a_budget_that_ends_the_run_without_a_milestone_also_asks_for_the_surface() -> None:
+    ev = FakeEvaluator([([], "contact budget")])
+    run = RunControl(ev)  # type: ignore[arg-type]
+    assert touch(run, S_NS)
+    assert run.surface(*surface(3)) and ev.scored == []
+
+
+def test_a_run_without_a_touch_for_max_idle_s_finishes_as_stalled() -> None:
+    ev = FakeEvaluator([([], "")], EvalConfig(max_idle_s=30.0))
+    run = RunControl(ev)  # type: ignore[arg-type]
+    assert not run.tick(30 * S_NS)  # idle since the start, but not longer than 30 s
+    assert not touch(run, 20 * S_NS)
+    assert not run.tick(50 * S_NS)
+    assert run.tick(50 * S_NS + 1)
+    assert ev.finished == "stalled"
+    assert not run.tick(60 * S_NS)  # asked once
+    assert not touch(run, 61 * S_NS) and len(ev.touches) == 1
+    assert run.surface(*surface(2))
+
+
+def test_a_touch_without_a_fingertip_pose_is_scored_with_the_axis_pointing_down() -> None:
+    ev = FakeEvaluator([([], ""), ([], "")])
+    run = RunControl(ev)  # type: ignore[arg-type]
+    touch(run, S_NS)
+    touch(run, 2 * S_NS, axis=np.array([1.0, 0.0, 0.0]))
+    np.testing.assert_array_equal(ev.touches[0][4], [0.0, 0.0, -1.0])
+    np.testing.assert_array_equal(ev.touches[1][4], [1.0, 0.0, 0.0])
