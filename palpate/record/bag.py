@@ -1,10 +1,11 @@
 """Bag tools: describe a log, and play it back onto the bus (`palpate replay`).
 
-The player binds one publisher socket like a node (``ipc://<bus dir>/<name>.pub``) and writes a
-manifest, so recorders, `palpate topic echo` and nodes find it the way they find a launched graph.
-It never drops a message: the socket blocks when a subscriber's queue is full (XPUB_NODROP), so
-``--fast`` goes exactly as fast as the slowest subscriber takes messages, and a paced replay falls
-behind schedule rather than losing data. Before sending, it waits for subscribers (``--subscribers``).
+The player binds one publisher socket like a node (``ipc://<bus dir>/<name>.pub``, a
+`bus.BlockingPublisher`) and writes a manifest, so recorders, `palpate topic echo` and nodes find it
+the way they find a launched graph. It never drops a message: a send waits while a subscriber's
+queue is full, so ``--fast`` goes exactly as fast as the slowest subscriber takes messages, and a
+paced replay falls behind schedule rather than losing data. Before sending, it waits for
+subscribers (``--subscribers``).
 """
 
 from __future__ import annotations
@@ -16,9 +17,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
-from typing import Any
-
-import zmq
 
 from palpate.errors import RecordError
 from palpate.record import mcap_io
@@ -74,7 +72,6 @@ class Player:
         if not self.types:
             raise RecordError(f"{path} holds no messages to replay")
         self.start_ns = summary.start_ns + round(options.start_s * 1e9)
-        self.subscriptions: dict[str, int] = {}
         self.interrupted = False
         self.sent = 0
 
@@ -89,15 +86,8 @@ class Player:
     def run(self) -> int:
         """Play until the end of the log (or forever with `loop`); returns an exit code."""
         self._check_name()
-        context: zmq.Context[Any] = zmq.Context()
-        sock = context.socket(zmq.XPUB)
-        sock.setsockopt(zmq.XPUB_VERBOSE, 1)
-        sock.setsockopt(zmq.XPUB_NODROP, 1)
-        sock.setsockopt(zmq.SNDHWM, self.options.send_hwm)
-        sock.setsockopt(zmq.LINGER, 30_000)
-        sock.setsockopt(zmq.SNDTIMEO, 100)
         endpoint = bus.ipc_endpoint(self.bus_dir, self.options.name)
-        sock.bind(endpoint)
+        pub = bus.BlockingPublisher(endpoint, send_hwm=self.options.send_hwm)
         manifest = bus.Manifest(
             node=self.options.name, endpoint=endpoint, pid=_pid(), publishes=dict(self.types), subscribes={}
         )
@@ -105,55 +95,42 @@ class Player:
         previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         started = time.monotonic()
         try:
-            self._wait_for_subscribers(sock)
+            self._wait_for_subscribers(pub)
             while not self.interrupted:
-                self._play_once(sock)
+                self._play_once(pub)
                 if not self.options.loop:
                     break
         finally:
             manifest_path.unlink(missing_ok=True)
             for s, handler in previous.items():
                 signal.signal(s, handler)
-            sock.close()
-            context.term()  # waits (up to LINGER) until queued messages have left
+            pub.close()  # waits (up to its linger time) until queued messages have left
         elapsed = time.monotonic() - started
         log.info("replayed %d messages from %s in %.2f s", self.sent, self.path, elapsed)
         return 130 if self.interrupted and not self.options.loop else 0
 
-    def _covered(self) -> int:
+    def _covered(self, pub: bus.BlockingPublisher) -> int:
         """The most subscriptions any replayed topic has (a subscription covers the topics it prefixes)."""
-        best = 0
-        for topic in self.types:
-            best = max(best, sum(n for prefix, n in self.subscriptions.items() if topic.startswith(prefix)))
-        return best
+        return max(pub.counter.covering(topic) for topic in self.types)
 
-    def _read_subscriptions(self, sock: zmq.Socket[Any], timeout_ms: int) -> None:
-        if not sock.poll(timeout_ms, zmq.POLLIN):
-            return
-        while sock.poll(0, zmq.POLLIN):
-            frame = sock.recv()
-            if frame and frame[0] in (0, 1):
-                topic = frame[1:].decode(errors="replace")
-                self.subscriptions[topic] = self.subscriptions.get(topic, 0) + (1 if frame[0] == 1 else -1)
-
-    def _wait_for_subscribers(self, sock: zmq.Socket[Any]) -> None:
+    def _wait_for_subscribers(self, pub: bus.BlockingPublisher) -> None:
         wanted = self.options.subscribers
         if wanted <= 0:
             return
         deadline = time.monotonic() + self.options.wait_timeout_s
-        while not self.interrupted and self._covered() < wanted:
+        while not self.interrupted and self._covered(pub) < wanted:
             if self.options.wait_timeout_s > 0 and time.monotonic() > deadline:
                 log.warning(
                     "only %d of %d subscribers after %.0f s: replaying anyway",
-                    self._covered(),
+                    self._covered(pub),
                     wanted,
                     self.options.wait_timeout_s,
                 )
                 return
-            self._read_subscriptions(sock, 100)
-        self._read_subscriptions(sock, 50)  # the rest of a subscriber's subscriptions arrive together
+            pub.read_subscriptions(100)
+        pub.read_subscriptions(50)  # the rest of a subscriber's subscriptions arrive together
 
-    def _play_once(self, sock: zmq.Socket[Any]) -> None:
+    def _play_once(self, pub: bus.BlockingPublisher) -> None:
         rate = self.options.rate
         first_stamp: int | None = None
         wall0 = 0.0
@@ -168,17 +145,15 @@ class Player:
                     first_stamp, wall0 = message.log_time, time.monotonic()
                 due = wall0 + (message.log_time - first_stamp) * 1e-9 / rate
                 while (left := due - time.monotonic()) > 0 and not self.interrupted:
-                    self._read_subscriptions(sock, int(left * 1000) + 1)
-            self._send(sock, [message.topic.encode(), message.data])
+                    pub.read_subscriptions(int(left * 1000) + 1)
+            self._send(pub, [message.topic.encode(), message.data])
 
-    def _send(self, sock: zmq.Socket[Any], frames: list[bytes]) -> None:
+    def _send(self, pub: bus.BlockingPublisher, frames: list[bytes]) -> None:
         while not self.interrupted:
-            try:
-                sock.send_multipart(frames)  # blocks up to SNDTIMEO while a subscriber's queue is full
+            if pub.send(frames):  # waits up to its send timeout while a subscriber's queue is full
                 self.sent += 1
                 return
-            except zmq.Again:  # still full: keep waiting (never drop), but stay responsive to signals
-                self._read_subscriptions(sock, 0)
+            pub.read_subscriptions(0)  # still full: keep waiting (never drop), but stay responsive to signals
 
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
         self.interrupted = True

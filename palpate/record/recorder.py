@@ -3,7 +3,8 @@
 Finding the bus: with ``--connect EP...`` the recorder connects to those publisher endpoints (the
 launcher passes every node's); otherwise it reads the manifests in the bus directory and looks for
 new publishers every 0.5 s, so ``palpate record`` finds a graph the same way with or without a launch.
-It opens one SUB socket per publisher, so it knows where each message came from.
+It opens one SUB socket per publisher (a `bus.PublisherTap` that never drops and reports connections
+and disconnections), so it knows where each message came from.
 
 Canonical order (lockstep runs): messages arrive interleaved across publishers in an order that
 depends on scheduling. Each publisher's own stream, though, is ordered, and the lockstep protocol
@@ -35,9 +36,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
 from typing import Any, NamedTuple
-
-import zmq
-from zmq.utils.monitor import recv_monitor_message
 
 from palpate.errors import MalformedMessageError, MessageError, PalpateError
 from palpate.messages import codec, topics
@@ -253,8 +251,6 @@ def _decode(payload: bytes, cls: Any) -> Any:
 class _Connection:
     endpoint: str
     key: str
-    sock: zmq.Socket[Any]
-    monitor: zmq.Socket[Any]
     subscribed: set[str] = field(default_factory=set)
     manifest_seen: bool = False
     ever_connected: bool = False
@@ -296,11 +292,8 @@ class Recorder:
         self.until_stop = until_stop
         self.chunk_ticks = max(1, chunk_ticks)
         self.grace_s = grace_s
-        self.zmq: zmq.Context[Any] = zmq.Context.instance()
-        self.poller = zmq.Poller()
+        self.tap = bus.PublisherTap(never_drop=True, monitor=True)  # never drop: the recorder must see every message
         self.connections: dict[str, _Connection] = {}
-        self.by_socket: dict[Any, _Connection] = {}
-        self.by_monitor: dict[Any, _Connection] = {}
         self.sorter = TickSorter()
         self.writer = LogWriter(output, compression=compression, chunk_size=chunk_size)
         self.interrupted = False
@@ -328,20 +321,10 @@ class Recorder:
         return ["", *INTERNAL_TOPICS]
 
     def _connect(self, endpoint: str, name: str) -> _Connection:
-        sock = self.zmq.socket(zmq.SUB)
-        bus.apply_curve(sock, bus.client_curve(self.server_keys.get(endpoint, "")), server=False)
-        sock.setsockopt(zmq.LINGER, 0)
-        sock.setsockopt(zmq.RCVHWM, 0)  # never drop: the recorder must see every message
-        for topic in self._base_topics():
-            sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
-        monitor = sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED)
-        sock.connect(endpoint)
-        conn = _Connection(endpoint=endpoint, key=name, sock=sock, monitor=monitor, subscribed=set(self._base_topics()))
+        base = self._base_topics()
+        self.tap.add(endpoint, base, server_public=self.server_keys.get(endpoint, ""))
+        conn = _Connection(endpoint=endpoint, key=name, subscribed=set(base))
         self.connections[endpoint] = conn
-        self.by_socket[sock] = conn
-        self.by_monitor[monitor] = conn
-        self.poller.register(sock, zmq.POLLIN)
-        self.poller.register(monitor, zmq.POLLIN)
         self.sorter.expect(name)
         return conn
 
@@ -352,7 +335,7 @@ class Recorder:
             return
         for topic in sorted(manifest.publishes):
             if topic not in conn.subscribed and (not self.wanted or topic in self.wanted):
-                conn.sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
+                self.tap.subscribe(conn.endpoint, topic)
                 conn.subscribed.add(topic)
 
     def _manifests(self) -> list[bus.Manifest]:
@@ -383,11 +366,7 @@ class Recorder:
 
     # --- receiving ---------------------------------------------------------------------------------
     def _drain(self, conn: _Connection, limit: int = 5000) -> None:
-        for _ in range(limit):
-            try:
-                frames = conn.sock.recv_multipart(zmq.NOBLOCK)
-            except zmq.Again:
-                return
+        for frames in self.tap.take(conn.endpoint, limit):
             self.last_message = time.monotonic()
             if len(frames) != 2:
                 self.rejected += 1
@@ -407,13 +386,12 @@ class Recorder:
             self.received += 1
             self.sorter.add(conn.key, topic, frames[1], info)
 
-    def _on_monitor(self, conn: _Connection) -> None:
-        while conn.monitor.poll(0):
-            event = recv_monitor_message(conn.monitor)
-            if event["event"] == zmq.EVENT_CONNECTED:
+    def _on_connection_changes(self, conn: _Connection) -> None:
+        for connected in self.tap.connection_changes(conn.endpoint):
+            if connected:
                 conn.connected = conn.ever_connected = True
                 self.sorter.set_live(conn.key, True)
-            elif event["event"] == zmq.EVENT_DISCONNECTED:
+            else:
                 self._drain(conn, limit=1 << 30)  # what the publisher sent before it left is queued already
                 conn.connected = False
                 self.sorter.set_live(conn.key, False)
@@ -456,17 +434,11 @@ class Recorder:
                 if now - last_discovery >= period and (not self.static or unmatched):
                     self.discover()
                     last_discovery = now
-                if self.connections:
-                    events = dict(self.poller.poll(100))
-                else:  # zmq_poll with nothing to poll returns at once
-                    time.sleep(0.1)
-                    events = {}
-                for sock in events:
-                    if sock in self.by_socket:
-                        self._drain(self.by_socket[sock])
-                for sock in events:
-                    if sock in self.by_monitor:
-                        self._on_monitor(self.by_monitor[sock])
+                events = self.tap.poll(0.1)
+                for endpoint in events.messages:
+                    self._drain(self.connections[endpoint])
+                for endpoint in events.connections:
+                    self._on_connection_changes(self.connections[endpoint])
                 now = time.monotonic()
                 self._check_clockless(now)
                 self._check_unmarked(now)
@@ -482,10 +454,7 @@ class Recorder:
             self._write(self.sorter.finish(), lockstep=False)
         finally:
             self.writer.close()
-            for conn in self.connections.values():
-                conn.sock.disable_monitor()
-                conn.monitor.close(linger=0)
-                conn.sock.close(linger=0)
+            self.tap.close()
             for s, handler in previous.items():
                 signal.signal(s, handler)
         active = time.monotonic() - (self.first_message or started)

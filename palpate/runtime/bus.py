@@ -10,6 +10,9 @@ relies on that. Frames are ``[topic, payload]``.
 Discovery: the launcher wires static graphs. Each running node also writes a manifest
 ``<bus dir>/<node>.json`` (endpoint, topics, types), so tools started in another terminal
 (`palpate topic echo`, `record`, `replay`) find the same bus with or without a launch.
+
+Tools get their sockets here too, so that zmq stays in the runtime: `PublisherTap` (one SUB socket
+per publisher, for echo, the viewer and the recorder) and `BlockingPublisher` (the log player).
 """
 
 from __future__ import annotations
@@ -18,12 +21,13 @@ import json
 import os
 import tempfile
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import zmq
+from zmq.utils.monitor import recv_monitor_message
 
 #: Environment variable naming the bus directory (ipc sockets and manifests).
 BUS_ENV = "PALPATE_BUS"
@@ -134,18 +138,35 @@ def apply_curve(socket: zmq.Socket[Any], curve: dict[str, str], *, server: bool)
 
 
 def make_publisher(
-    ctx: zmq.Context[Any], endpoint: str, *, lockstep: bool, curve: dict[str, str] | None = None
+    ctx: zmq.Context[Any],
+    endpoint: str,
+    *,
+    lockstep: bool,
+    curve: dict[str, str] | None = None,
+    send_hwm: int | None = None,
+    block_when_full: bool = False,
+    linger_ms: int = 2000,
+    send_timeout_ms: int | None = None,
 ) -> zmq.Socket[Any]:
     """An XPUB socket bound to `endpoint` that reports every subscription (for start-up counting).
 
     In lockstep the high-water mark is unlimited, so nothing is ever dropped; the protocol bounds
-    what is in flight to one tick.
+    what is in flight to one tick. Otherwise `send_hwm` messages per subscriber (None: ZeroMQ's
+    default) are queued; beyond that a send drops the message, or with `block_when_full`
+    (XPUB_NODROP) waits, up to `send_timeout_ms` (None: forever), and then raises zmq.Again.
+    `linger_ms`: how long closing waits for queued messages to leave.
     """
     sock = ctx.socket(zmq.XPUB)
     sock.setsockopt(zmq.XPUB_VERBOSE, 1)
-    sock.setsockopt(zmq.LINGER, 2000)
+    sock.setsockopt(zmq.LINGER, linger_ms)
     if lockstep:
         sock.setsockopt(zmq.SNDHWM, 0)
+    elif send_hwm is not None:
+        sock.setsockopt(zmq.SNDHWM, send_hwm)
+    if block_when_full:
+        sock.setsockopt(zmq.XPUB_NODROP, 1)
+    if send_timeout_ms is not None:
+        sock.setsockopt(zmq.SNDTIMEO, send_timeout_ms)
     apply_curve(sock, curve or {}, server=True)
     if endpoint.startswith("ipc://"):
         Path(endpoint[len("ipc://") :]).parent.mkdir(parents=True, exist_ok=True)
@@ -174,16 +195,33 @@ def make_subscriber(
     return sock
 
 
-class PublisherTap:
-    """For tools that watch a running graph (topic echo/hz, the live viewer): one SUB socket per
-    publisher, subscribed to every topic (filtering is the caller's: a subscription by name would add
-    to the subscriber counts nodes wait for at start-up) and keyed with the publisher's CurveZMQ
-    server key when its manifest has one."""
+class TapEvents(NamedTuple):
+    """What a `PublisherTap.poll` found: endpoints with messages queued, endpoints whose connection changed."""
 
-    def __init__(self) -> None:
+    messages: list[str]
+    connections: list[str]
+
+
+class PublisherTap:
+    """For tools that watch a running graph (topic echo/hz, the live viewer, the recorder): one SUB
+    socket per publisher, so a message's publisher is known, keyed with the publisher's CurveZMQ
+    server key when it has one.
+
+    Tools subscribe to every topic by default (filtering is the caller's: a subscription by name
+    would add to the subscriber counts nodes wait for at start-up). With `never_drop` the receive
+    queues are unbounded (the recorder must see every message); with `monitor` each socket reports
+    when its publisher connects and disconnects (`connection_changes`).
+    """
+
+    def __init__(self, *, never_drop: bool = False, monitor: bool = False) -> None:
         self.context: zmq.Context[Any] = zmq.Context()
         self.poller = zmq.Poller()
+        self.never_drop = never_drop
+        self.monitor = monitor
         self.socks: dict[str, zmq.Socket[Any]] = {}
+        self.monitors: dict[str, zmq.Socket[Any]] = {}
+        self._endpoint_of: dict[zmq.Socket[Any], str] = {}
+        self._monitored: dict[zmq.Socket[Any], str] = {}
 
     @property
     def endpoints(self) -> set[str]:
@@ -191,31 +229,80 @@ class PublisherTap:
         return set(self.socks)
 
     def connect(self, manifests: Iterable[Manifest]) -> None:
-        """Connect to the publishers of these manifests not connected yet."""
+        """Connect to the publishers of these manifests not connected yet, subscribed to every topic."""
         for m in manifests:
-            if m.endpoint in self.socks:
-                continue
-            sock = self.context.socket(zmq.SUB)
-            apply_curve(sock, client_curve(m.curve_public), server=False)
-            sock.setsockopt(zmq.LINGER, 0)
-            sock.setsockopt(zmq.SUBSCRIBE, b"")
-            sock.connect(m.endpoint)
-            self.socks[m.endpoint] = sock
-            self.poller.register(sock, zmq.POLLIN)
+            if m.endpoint not in self.socks:
+                self.add(m.endpoint, server_public=m.curve_public)
+
+    def add(self, endpoint: str, topics: Sequence[str] = ("",), *, server_public: str = "") -> None:
+        """Connect a new socket to the publisher at `endpoint`, subscribed to `topics` (prefixes; "": all)."""
+        sock = self.context.socket(zmq.SUB)
+        apply_curve(sock, client_curve(server_public), server=False)
+        sock.setsockopt(zmq.LINGER, 0)
+        if self.never_drop:
+            sock.setsockopt(zmq.RCVHWM, 0)
+        for topic in topics:
+            sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
+        if self.monitor:  # before connecting, so that the first connection is reported
+            monitor = sock.get_monitor_socket(zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED)
+            self.monitors[endpoint] = monitor
+            self._monitored[monitor] = endpoint
+            self.poller.register(monitor, zmq.POLLIN)
+        sock.connect(endpoint)
+        self.socks[endpoint] = sock
+        self._endpoint_of[sock] = endpoint
+        self.poller.register(sock, zmq.POLLIN)
+
+    def subscribe(self, endpoint: str, topic: str) -> None:
+        """Add a subscription to the socket of the publisher at `endpoint`."""
+        self.socks[endpoint].setsockopt(zmq.SUBSCRIBE, topic.encode())
+
+    def poll(self, timeout_s: float) -> TapEvents:
+        """Wait up to `timeout_s` for messages or connection changes (sleeps when nothing is connected)."""
+        if not self.socks:  # pyzmq returns at once from a poll on no sockets
+            time.sleep(timeout_s)
+            return TapEvents([], [])
+        events = dict(self.poller.poll(int(timeout_s * 1000)))
+        messages = [self._endpoint_of[s] for s in events if s in self._endpoint_of]
+        connections = [self._monitored[s] for s in events if s in self._monitored]
+        return TapEvents(messages, connections)
+
+    def take(self, endpoint: str, limit: int = 1 << 30) -> Iterator[list[bytes]]:
+        """The multipart messages queued from the publisher at `endpoint` (at most `limit`), without waiting."""
+        sock = self.socks[endpoint]
+        for _ in range(limit):
+            try:
+                yield sock.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+
+    def connection_changes(self, endpoint: str) -> Iterator[bool]:
+        """The connection events queued for `endpoint`, oldest first: True connected, False disconnected."""
+        monitor = self.monitors[endpoint]
+        while monitor.poll(0):
+            event = recv_monitor_message(monitor)["event"]
+            if event == zmq.EVENT_CONNECTED:
+                yield True
+            elif event == zmq.EVENT_DISCONNECTED:
+                yield False
 
     def receive(self, timeout_s: float) -> list[list[bytes]]:
         """The multipart messages that arrive within `timeout_s` (and all already queued)."""
-        out = []
-        for sock in dict(self.poller.poll(int(timeout_s * 1000))):
-            while sock.poll(0):
-                out.append(sock.recv_multipart())
+        out: list[list[bytes]] = []
+        for endpoint in self.poll(timeout_s).messages:
+            out.extend(self.take(endpoint))
         return out
 
     def close(self) -> None:
         """Close the sockets and the context."""
-        for sock in self.socks.values():
+        for endpoint, sock in self.socks.items():
+            monitor = self.monitors.get(endpoint)
+            if monitor is not None:
+                sock.disable_monitor()
+                monitor.close(linger=0)
             sock.close(linger=0)
         self.socks.clear()
+        self.monitors.clear()
         self.context.term()
 
 
@@ -238,6 +325,18 @@ class SubscriptionCounter:
     def missing(self, expected: dict[str, int]) -> dict[str, int]:
         return {t: n - self.counts.get(t, 0) for t, n in expected.items() if self.counts.get(t, 0) < n}
 
+    def covering(self, topic: str) -> int:
+        """Subscriptions that match `topic`: ZeroMQ subscriptions are prefixes ("" matches every topic)."""
+        return sum(n for prefix, n in self.counts.items() if topic.startswith(prefix))
+
+
+def read_subscriptions(sock: zmq.Socket[Any], counter: SubscriptionCounter, timeout_ms: int) -> None:
+    """Wait up to `timeout_ms` for (un)subscriptions on an XPUB socket, then feed all queued to `counter`."""
+    if not sock.poll(timeout_ms, zmq.POLLIN):
+        return
+    while sock.poll(0, zmq.POLLIN):
+        counter.feed(sock.recv())
+
 
 def wait_for_subscribers(
     sock: zmq.Socket[Any], counter: SubscriptionCounter, expected: dict[str, int], timeout_s: float
@@ -248,5 +347,44 @@ def wait_for_subscribers(
         remaining = deadline - time.monotonic()
         if remaining <= 0:
             raise TimeoutError(f"subscribers still missing after {timeout_s:.0f} s: {counter.missing(expected)}")
-        if sock.poll(int(min(remaining, 0.1) * 1000)):
-            counter.feed(sock.recv())
+        read_subscriptions(sock, counter, int(min(remaining, 0.1) * 1000))
+
+
+class BlockingPublisher:
+    """A publisher for tools that put recorded data on the bus (the log player), with its own context.
+
+    It never drops a message: while a subscriber's queue holds `send_hwm` messages, `send` waits
+    (XPUB_NODROP), up to `send_timeout_ms`, so the caller stays responsive to signals and tries
+    again. `counter` holds the subscriptions seen (`read_subscriptions`). Closing waits up to
+    `linger_ms` for queued messages to leave.
+    """
+
+    def __init__(self, endpoint: str, *, send_hwm: int, linger_ms: int = 30_000, send_timeout_ms: int = 100):
+        self.context: zmq.Context[Any] = zmq.Context()
+        self.counter = SubscriptionCounter()
+        self.sock = make_publisher(
+            self.context,
+            endpoint,
+            lockstep=False,
+            send_hwm=send_hwm,
+            block_when_full=True,
+            linger_ms=linger_ms,
+            send_timeout_ms=send_timeout_ms,
+        )
+
+    def read_subscriptions(self, timeout_ms: int) -> None:
+        """Wait up to `timeout_ms` for subscriptions, then count all that are queued."""
+        read_subscriptions(self.sock, self.counter, timeout_ms)
+
+    def send(self, frames: list[bytes]) -> bool:
+        """Send a multipart message; False when a subscriber's queue stayed full (nothing sent: try again)."""
+        try:
+            self.sock.send_multipart(frames)
+        except zmq.Again:
+            return False
+        return True
+
+    def close(self) -> None:
+        """Close the socket, then wait (up to the linger time) until queued messages have left."""
+        self.sock.close()
+        self.context.term()

@@ -1,0 +1,132 @@
+"""The bus helpers tools use (PublisherTap, BlockingPublisher), on real ipc sockets in a temp dir, in one process."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zmq
+
+from palpate.runtime import bus
+
+TIMEOUT_S = 10.0
+
+
+@pytest.fixture
+def ctx() -> Iterator[zmq.Context[Any]]:
+    context: zmq.Context[Any] = zmq.Context()
+    yield context
+    context.destroy(linger=0)
+
+
+def _until(condition: Callable[[], bool], what: str) -> None:
+    deadline = time.monotonic() + TIMEOUT_S
+    while not condition():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+
+
+def test_counter_covering_counts_prefix_subscriptions() -> None:
+    counter = bus.SubscriptionCounter()
+    for frame in (b"\x01", b"\x01sensors/", b"\x01sensors/", b"\x01sensors/contacts", b"\x01other", b"\x00sensors/"):
+        counter.feed(frame)
+    assert counter.covering("sensors/contacts") == 3  # "", "sensors/" once (subscribed twice, left once), itself
+    assert counter.covering("sensors/wrench") == 2
+    assert counter.covering("planner/target") == 1
+    assert bus.SubscriptionCounter().covering("x") == 0
+
+
+def test_tap_takes_each_publishers_messages_and_reports_connections(ctx: zmq.Context[Any], tmp_path: Path) -> None:
+    endpoint = bus.ipc_endpoint(tmp_path, "pub")
+    pub = bus.make_publisher(ctx, endpoint, lockstep=True)
+    counter = bus.SubscriptionCounter()
+    tap = bus.PublisherTap(never_drop=True, monitor=True)
+    try:
+        tap.add(endpoint, ["a"])
+        bus.wait_for_subscribers(pub, counter, {"a": 1}, TIMEOUT_S)
+        changes: list[bool] = []
+        _until(lambda: changes.extend(tap.connection_changes(endpoint)) or bool(changes), "the connection")
+        assert changes == [True]
+
+        tap.subscribe(endpoint, "c")
+        bus.wait_for_subscribers(pub, counter, {"c": 1}, TIMEOUT_S)
+        for frames in ([b"a", b"1"], [b"b", b"2"], [b"a", b"3"], [b"c", b"4"]):
+            pub.send_multipart(frames)
+        received: list[list[bytes]] = []
+        _until(lambda: endpoint in tap.poll(0.1).messages, "messages")
+        received.extend(tap.take(endpoint, limit=1))
+        assert received == [[b"a", b"1"]]  # at most `limit`
+        _until(lambda: received.extend(tap.take(endpoint)) or len(received) >= 3, "all messages")
+        assert received == [[b"a", b"1"], [b"a", b"3"], [b"c", b"4"]]  # "b": not subscribed
+        assert list(tap.take(endpoint)) == []  # nothing left: returns without waiting
+
+        pub.close(linger=0)
+        changes.clear()
+        _until(lambda: changes.extend(tap.connection_changes(endpoint)) or bool(changes), "the disconnection")
+        assert changes == [False]
+    finally:
+        pub.close(linger=0)
+        tap.close()
+
+
+def test_tap_connects_to_manifests_once(ctx: zmq.Context[Any], tmp_path: Path) -> None:
+    endpoint = bus.ipc_endpoint(tmp_path, "pub")
+    pub = bus.make_publisher(ctx, endpoint, lockstep=True)
+    manifest = bus.Manifest("pub", endpoint, 1, {"a": "T"}, {})
+    tap = bus.PublisherTap()
+    try:
+        tap.connect([manifest])
+        tap.connect([manifest])  # already connected: no second socket, no second subscription
+        assert tap.endpoints == {endpoint}
+        counter = bus.SubscriptionCounter()
+        bus.wait_for_subscribers(pub, counter, {"": 1}, TIMEOUT_S)
+        bus.read_subscriptions(pub, counter, 200)
+        assert counter.counts == {"": 1}
+        pub.send_multipart([b"a", b"1"])
+        got: list[list[bytes]] = []
+        _until(lambda: got.extend(tap.receive(0.1)) or bool(got), "a message")
+        assert got == [[b"a", b"1"]]
+    finally:
+        pub.close(linger=0)
+        tap.close()
+
+
+def test_tap_poll_without_publishers_waits_out_its_timeout() -> None:
+    tap = bus.PublisherTap()
+    try:
+        started = time.monotonic()
+        assert tap.poll(0.05) == bus.TapEvents([], [])
+        assert time.monotonic() - started >= 0.05  # a tool's loop does not spin while the bus is empty
+    finally:
+        tap.close()
+
+
+def test_blocking_publisher_waits_instead_of_dropping(ctx: zmq.Context[Any], tmp_path: Path) -> None:
+    endpoint = bus.ipc_endpoint(tmp_path, "player")
+    pub = bus.BlockingPublisher(endpoint, send_hwm=1, linger_ms=0, send_timeout_ms=20)
+    sub = ctx.socket(zmq.SUB)
+    sub.setsockopt(zmq.RCVHWM, 1)
+    sub.setsockopt(zmq.SUBSCRIBE, b"t")
+    sub.connect(endpoint)
+    payload = bytes(1 << 20)
+    try:
+        _until(lambda: pub.read_subscriptions(100) or pub.counter.covering("t/x") == 1, "the subscription")
+        sent = 0
+        for _ in range(200):  # a slow subscriber: the queues fill within a few megabytes
+            if not pub.send([b"t/x", payload]):
+                break
+            sent += 1
+        else:
+            pytest.fail("200 MiB went out to a subscriber that reads nothing")
+        assert sent > 0
+        received = 0
+        while sub.poll(500):  # everything that send accepted arrives; nothing was dropped
+            sub.recv_multipart()
+            received += 1
+        assert received == sent
+        assert pub.send([b"t/x", payload])  # the queue has room again
+    finally:
+        sub.close(linger=0)
+        pub.close()
