@@ -41,7 +41,7 @@ OBJECT_CONTYPE = 1
 
 
 def _range(digit: str, joint: str) -> tuple[float, float]:
-    """The description's range of one joint, degrees."""
+    """The description's range of one joint, degrees (the long fingers share theirs: ask the index)."""
     (j,) = (j for j in HAND.digit(digit).joints if j.name == joint)
     return j.range_deg
 
