@@ -40,7 +40,8 @@ class MapperConfig:
     sigma_deg: joint-noise standard deviation of the proposal (paper: 1.5 deg).
     resample_threshold: resample when N_eff < threshold * K.
     likelihood_floor: smallest probability one cell may give a particle (see fastslam.py); 0.01
-      mapped the synthetic tapping scene better than 0.05 or 0.2 and as well as 0.001.
+      mapped the synthetic tapping scene (tests/unit/mapper/synthetic.py) better than 0.05 or 0.2
+      and as well as 0.001.
     free_weight: weight of free-volume cells against contact cells in the particle weights.
     free_reward: let free-volume cells in known free space raise a particle's weight (False: free
       cells only penalise overlap with occupied cells, which maps the Rubik's cube scene better;

@@ -1,8 +1,9 @@
 """Forward kinematics of a serial finger chain, vectorised over particles.
 
-The chain is read from the simulator's MuJoCo model (kinematics only), so the mapper and the
-simulation share one model. ``forward`` reproduces ``mujoco.mj_kinematics`` (engine_core_smooth.c)
-for hinge and slide joints:
+The mapper builds its chain from the hand description (``KinematicChain.from_description``: the
+file the simulator generates its MJCF from), placed where a ``FingerMount`` says; the chain equals
+the one read from the simulator's MuJoCo model (``from_model``) bit for bit. ``forward`` reproduces
+``mujoco.mj_kinematics`` (engine_core_smooth.c) for hinge and slide joints:
 
     x_b = x_parent + R_parent @ body_pos_b,          R_b = R_parent @ R(body_quat_b)
     for each joint j of body b, in order:
@@ -17,12 +18,15 @@ joint's body must be fixed (no joints): it is the chain's base.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
+from palpate.description import HandDescription, as_written
 from palpate.errors import ConfigError
 
 FloatArray = NDArray[np.float64]
@@ -56,6 +60,18 @@ def axis_angle_to_mat(axis: FloatArray, angle: FloatArray) -> FloatArray:
     return c * np.eye(3) + s * ux + (1.0 - c) * np.outer(u, u)
 
 
+def _bone_capsule_ends(length_m: float) -> tuple[FloatArray, FloatArray]:
+    """Ends (a, b) (3,) of the capsule from a segment's joint to (length_m, 0, 0), as ``from_model``
+    reads the simulator's ``fromto`` capsule: MuJoCo turns the geom's z axis onto from - to (-x) by
+    the quaternion (cos 45 deg, 0, -sin 45 deg, 0) (mjuu_z2quat), which leaves about 1e-18 m of
+    rounding in z and puts the distal end first. Doing the same keeps the mapper's free-volume
+    lattice (observation.capsule_lattice) what it was with the model, bit for bit."""
+    half = length_m / 2
+    z = quat_to_mat(np.array([math.cos(math.pi / 4), 0.0, -math.sin(math.pi / 4), 0.0]))[:, 2]
+    centre = np.array([half, 0.0, 0.0])
+    return centre - z * half, centre + z * half
+
+
 def _matvec(a: FloatArray, v: FloatArray) -> FloatArray:
     """Batched a @ v for a (..., 3, 3), v (..., 3)."""
     return np.asarray((a * v[..., None, :]).sum(axis=-1))
@@ -70,6 +86,35 @@ class Capsule:
     b_local_m: FloatArray  # (3,) the other end
     radius_m: float
     name: str
+
+
+@dataclass(frozen=True, kw_only=True)
+class FingerMount:
+    """Which digit of the described hand a chain models, and where the hand is fixed in the world.
+
+    effector "finger": the simulator's single-finger effector; the base is the proximal end of the
+    long finger's metacarpal. effector "hand": the simulator's hand; the base is the palm, and
+    ``finger`` may also be the thumb. ``scale`` multiplies every length and radius, as in the
+    simulator's scene.
+    """
+
+    effector: Literal["finger", "hand"] = "finger"
+    finger: str = "index"
+    scale: float = 1.0
+    #: The base (metacarpal base or palm) in the world, metres.
+    base_position_m: tuple[float, float, float]
+    base_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if self.effector not in ("finger", "hand"):
+            raise ConfigError(f"effector = {self.effector!r}: use 'finger' or 'hand'")
+        if not (math.isfinite(self.scale) and self.scale > 0):
+            raise ConfigError(f"scale = {self.scale!r}: expected a positive finite number")
+        if not all(math.isfinite(v) for v in (*self.base_position_m, *self.base_quaternion_wxyz)):
+            pose = f"{self.base_position_m!r}, {self.base_quaternion_wxyz!r}"
+            raise ConfigError(f"base pose {pose}: expected finite numbers")
+        if not math.hypot(*self.base_quaternion_wxyz) > 0:
+            raise ConfigError(f"base_quaternion_wxyz = {self.base_quaternion_wxyz!r}: a zero quaternion is no rotation")
 
 
 @dataclass(frozen=True)
@@ -101,7 +146,7 @@ class KinematicChain:
         capsules: list[Capsule],
         joint_names: list[str],
         link_names: list[str],
-        link_body_ids: list[int],
+        link_body_ids: list[int] | None = None,
     ) -> None:
         self.base_rot = np.asarray(base_rot, dtype=np.float64)
         self.base_pos_m = np.asarray(base_pos_m, dtype=np.float64)
@@ -109,7 +154,8 @@ class KinematicChain:
         self.capsule_list = capsules
         self.joint_names = list(joint_names)
         self.link_names = list(link_names)
-        self.link_body_ids = list(link_body_ids)
+        #: MuJoCo body id of each link (a chain read from a model only).
+        self.link_body_ids = list(link_body_ids or [])
         self.capsule_radii_m = np.array([c.radius_m for c in capsules], dtype=np.float64)
         self._cap_links = np.array([c.link for c in capsules], dtype=np.intp)
         self._cap_local = np.array([[c.a_local_m, c.b_local_m] for c in capsules], dtype=np.float64).reshape(
@@ -132,6 +178,66 @@ class KinematicChain:
             raise ConfigError(
                 f"body {body_id} is not a link of this chain (links are bodies {self.link_body_ids})"
             ) from None
+
+    @classmethod
+    def from_description(cls, hand: HandDescription, mount: FingerMount) -> KinematicChain:
+        """The chain of ``mount.finger`` of the described hand, fixed where ``mount`` says.
+
+        Its links are the digit's moving segments, their capsules run from joint to joint, and every
+        number is rounded as the simulator's MJCF writes it (``as_written``), so the chain equals the
+        one ``from_model`` reads from the simulator's model of the same effector.
+        """
+        digit = hand.digit(mount.finger)
+        first = digit.fixed_segments
+        if mount.effector == "finger" and first == 0:
+            raise ConfigError(f"finger = {mount.finger!r}: the single-finger effector is a long finger; mount the hand")
+        lengths = [as_written(v) for v in digit.lengths_m(mount.scale)]
+        if mount.effector == "hand":  # the digit's rest frame in the palm (a quaternion in the MJCF)
+            offset = np.array([as_written(v) for v in digit.base_m(mount.scale)])
+            rest_q = Rotation.from_euler("ZYX", digit.rest_ypr_deg, degrees=True).as_quat(scalar_first=True)
+            rest = quat_to_mat(np.array([as_written(v) for v in rest_q]))
+        else:  # the metacarpal's base is the mount itself
+            offset, rest = np.zeros(3), np.eye(3)
+        column = {name: i for i, name in enumerate(digit.joint_names())}
+        links, capsules, names = [], [], []
+        for k in range(first, len(digit.segments)):
+            segment = digit.segments[k]
+            i = k - first
+            joints = tuple(
+                _Joint(
+                    kind=_HINGE,
+                    axis=np.array(j.axis, dtype=np.float64),
+                    pos=np.zeros(3),
+                    qpos0=0.0,
+                    column=column[f"{digit.name}_{j.name}"],
+                )
+                for j in digit.segment_joints(segment)
+            )
+            if i == 0:  # the first moving segment starts at the end of the fixed ones
+                pos, rot = offset + rest @ np.array([sum(lengths[:first]), 0.0, 0.0]), rest
+            else:
+                pos, rot = np.array([lengths[k - 1], 0.0, 0.0]), np.eye(3)
+            links.append(_Link(parent=i - 1, pos=pos, rot=rot, joints=joints))
+            names.append(f"{digit.name}_{segment}")
+            a, b = _bone_capsule_ends(lengths[k])
+            capsules.append(
+                Capsule(
+                    link=i,
+                    a_local_m=a,
+                    b_local_m=b,
+                    radius_m=as_written(hand.radius_m(mount.scale)),
+                    name=names[-1],
+                )
+            )
+        quaternion = np.array([as_written(v) for v in mount.base_quaternion_wxyz])
+        return cls(
+            base_rot=quat_to_mat(quaternion),
+            base_pos_m=np.array([as_written(v) for v in mount.base_position_m]),
+            links=links,
+            capsules=capsules,
+            joint_names=digit.joint_names(),
+            link_names=names,
+        )
 
     @classmethod
     def from_model(cls, model: Any, joint_names: list[str]) -> KinematicChain:

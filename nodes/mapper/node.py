@@ -2,51 +2,38 @@
 
 Each tick with a joint reading it runs one update with that reading and the contacts of the same
 tick (contact points in the touching link's frame: where on the finger the touch is felt). The
-finger's kinematics come from the same MuJoCo model the simulator builds from the scene (kinematics
-only: the mapper reads link lengths and joint axes, never the simulator's state).
+finger's kinematics come from the hand description the simulator builds its model from
+(palpate/description/hand.yaml), placed where the launch file's ``mount`` says: the mapper reads link
+lengths and joint axes, never the simulator's state.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from palpate.description import load_hand
 from palpate.messages.schemas import ContactSet, JointState, OccupancyGrid, ParticleSetSummary
 from palpate.nodes.mapper.core import Mapper, MapperConfig
 from palpate.nodes.mapper.grid import SparseMap
-from palpate.nodes.mapper.kinematics import KinematicChain
+from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain
 from palpate.runtime.spec import Context, NodeSpec, Port
-
-
-def _default_scene() -> dict[str, Any]:
-    return {"effector": "finger", "object": {"kind": "rubiks_cube"}}
 
 
 @dataclass(frozen=True, kw_only=True)
 class MapperNodeConfig:
-    """The mapper's parameters, the scene its finger model comes from, and how often maps go out."""
+    """The mapper's parameters, where its finger is mounted, and how often maps go out."""
 
     mapper: MapperConfig
-    scene: dict[str, Any] = field(default_factory=_default_scene)
+    #: The simulated finger's base in the world (the same pose as the simulator's scene).
+    mount: FingerMount
     #: Publish the maps every this much simulated time (the particle summary goes out every update).
     publish_period_s: float = 1.0
     #: Map kind label of the published best map ('known' or 'dead_reckoning' when mode is known).
     label: str = ""
-
-
-def finger_chain(scene_dict: dict[str, Any]) -> KinematicChain:
-    """The kinematic chain of the scene's exploring finger, read from the MuJoCo model."""
-    from palpate.nodes.sim.core import Simulation
-    from palpate.nodes.sim.scene import SceneConfig
-
-    sim = Simulation(SceneConfig.from_dict(scene_dict, "scene"))
-    names = list(sim.joint_names)
-    if sim.scene.effector == "hand":  # the exploring finger's joints only
-        names = [n for n in names if n.startswith(f"{sim.scene.hand.pose_finger}_")]
-    return KinematicChain.from_model(sim.model, names)
 
 
 class MapperNode:
@@ -54,7 +41,7 @@ class MapperNode:
 
     def __init__(self, config: MapperNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
-        self.chain = finger_chain(config.scene)
+        self.chain = KinematicChain.from_description(load_hand(), config.mount)
         self.core = Mapper(config.mapper, self.chain, ctx.rng)
         self.link_index = {name: i for i, name in enumerate(self.chain.link_names)}
         self.joint_state: JointState | None = None

@@ -1,9 +1,9 @@
 """Generated MJCF for the three effectors: a 21-DoF human hand, one finger of it, a fingertip probe.
 
-Every length, range and gain is a field of a frozen config dataclass, so a scene can rescale or
-re-proportion the hand without editing XML. Segment lengths are the mean bone lengths of 66 adults
-(Buryanov and Kotiuk 2010, Table I); joint ranges follow the AAOS active ranges of motion (see
-docs/hand_model.md for the table and the sources).
+The hand's geometry, joints and default ranges and gains come from the hand description
+(palpate/description/hand.yaml, read by :func:`palpate.description.load_hand`), the one file the
+mapper reads too; docs/hand_model.md gives the sources. A scene's config chooses the finger, the
+scale and the base pose, and may change the ranges and gains.
 
 Conventions (hand frame = the frame of body ``palm``; finger frame = the frame of each phalanx):
 - Fingers point along +x, the back of the hand faces +z, the palm faces -z; the thumb is on the +y
@@ -26,14 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from palpate.description import Digit, load_hand
 from palpate.errors import ConfigError
 
+#: The hand every effector is built from.
+HAND = load_hand()
 #: The four long fingers, radial to ulnar.
-LONG_FINGERS: tuple[str, ...] = ("index", "middle", "ring", "little")
-#: Joints of a long finger, proximal to distal (MCP abduction before MCP flexion).
-FINGER_JOINTS: tuple[str, ...] = ("mcp_abd", "mcp_flex", "pip", "dip")
-#: Joints of the thumb, proximal to distal.
-THUMB_JOINTS: tuple[str, ...] = ("cmc_flex", "cmc_abd", "cmc_rot", "mcp", "ip")
+LONG_FINGERS: tuple[str, ...] = HAND.long_fingers
 
 #: contype / conaffinity bits: the object uses bit 0; effector geoms use bit 1 as their type and,
 #: when they may touch the object, bit 0 as affinity (so effector geoms never collide with each other).
@@ -41,80 +40,70 @@ EFFECTOR_CONTYPE = 2
 OBJECT_CONTYPE = 1
 
 
+def _range(digit: str, joint: str) -> tuple[float, float]:
+    """The description's range of one joint, degrees (the long fingers share theirs: ask the index)."""
+    (j,) = (j for j in HAND.digit(digit).joints if j.name == joint)
+    return j.range_deg
+
+
 @dataclass(frozen=True, kw_only=True)
 class DigitConfig:
-    """Geometry, ranges and actuation shared by the hand and the single-finger effector.
+    """Scale, joint ranges and actuation shared by the hand and the single-finger effector.
 
-    Lengths are bone lengths in mm (metacarpal, proximal, middle, distal phalanx) from Buryanov and
-    Kotiuk 2010, Table I (mean of 66 adults); ``scale`` multiplies every length and radius.
+    Lengths and the segment radius are the hand description's (mean bone lengths of 66 adults,
+    Buryanov and Kotiuk 2010, Table I); ``scale`` multiplies every length and radius. The ranges
+    and gains default to the description's.
     """
 
     scale: float = 1.0
-    index_lengths_mm: tuple[float, float, float, float] = (68.12, 39.78, 22.38, 15.82)
-    middle_lengths_mm: tuple[float, float, float, float] = (64.60, 44.63, 26.33, 17.40)
-    ring_lengths_mm: tuple[float, float, float, float] = (58.00, 41.37, 25.65, 17.30)
-    little_lengths_mm: tuple[float, float, float, float] = (53.69, 32.74, 18.11, 15.96)
-    #: Radius of every capsule segment (a 16 mm thick finger).
-    segment_radius_mm: float = 8.0
     # Human active ranges (AAOS 1965; DIP limited to 80 deg as in issue 3, AAOS gives 90).
-    mcp_flex_range_deg: tuple[float, float] = (0.0, 90.0)
-    mcp_abd_range_deg: tuple[float, float] = (-20.0, 20.0)
-    pip_range_deg: tuple[float, float] = (0.0, 100.0)
-    dip_range_deg: tuple[float, float] = (0.0, 80.0)
+    mcp_flex_range_deg: tuple[float, float] = _range("index", "mcp_flex")
+    mcp_abd_range_deg: tuple[float, float] = _range("index", "mcp_abd")
+    pip_range_deg: tuple[float, float] = _range("index", "pip")
+    dip_range_deg: tuple[float, float] = _range("index", "dip")
     #: Position actuator stiffness (torque per rad of target error).
-    kp_nm_per_rad: float = 0.5
+    kp_nm_per_rad: float = HAND.actuation.kp_nm_per_rad
     #: Joint damping, integrated implicitly (close to critical for kp and the armature below).
-    damping_nm_s_per_rad: float = 0.03
+    damping_nm_s_per_rad: float = HAND.actuation.damping_nm_s_per_rad
     #: Joint armature: a numerical inertia that keeps the light phalanges stable at a 2 ms step.
-    armature_kg_m2: float = 5e-4
+    armature_kg_m2: float = HAND.actuation.armature_kg_m2
     #: Density of the capsules (soft tissue and bone).
-    density_kg_m3: float = 1100.0
+    density_kg_m3: float = HAND.actuation.density_kg_m3
 
     def lengths_m(self, finger: str) -> tuple[float, ...]:
         """Scaled bone lengths of one long finger in metres (metacarpal, proximal, middle, distal)."""
-        table = {
-            "index": self.index_lengths_mm,
-            "middle": self.middle_lengths_mm,
-            "ring": self.ring_lengths_mm,
-            "little": self.little_lengths_mm,
-        }
-        if finger not in table:
+        if finger not in LONG_FINGERS:
             raise ConfigError(f"unknown finger {finger!r}: use one of {', '.join(LONG_FINGERS)}")
-        return tuple(self.scale * v / 1000.0 for v in table[finger])
+        return HAND.digit(finger).lengths_m(self.scale)
 
     @property
     def radius_m(self) -> float:
         """Scaled capsule radius in metres."""
-        return self.scale * self.segment_radius_mm / 1000.0
+        return HAND.radius_m(self.scale)
+
+    def joint_range_deg(self, joint: str) -> tuple[float, float]:
+        """This config's range of a joint named as in the model (``index_pip``, ``thumb_mcp``), degrees."""
+        digit, _, name = joint.partition("_")
+        field = f"thumb_{name}_range_deg" if digit == "thumb" else f"{name}_range_deg"
+        value: tuple[float, float] = getattr(self, field)
+        return value
 
 
 @dataclass(frozen=True, kw_only=True)
 class HandConfig(DigitConfig):
     """The 21-DoF hand of paper 000: four long fingers (4 DoF each) and a 5-DoF thumb.
 
-    The palm layout (metacarpal bases and directions) and the thumb's rest frame are model choices
-    approximating an adult right hand, not measurements; see docs/hand_model.md.
+    The palm layout (metacarpal bases and directions) and the thumb's rest frame are the hand
+    description's model choices approximating an adult right hand; see docs/hand_model.md.
     """
 
-    thumb_lengths_mm: tuple[float, float, float] = (46.22, 31.57, 21.67)
     # AAOS: CMC flexion 15 / extension 20, palmar abduction 70, MCP flexion 50, IP flexion 80.
-    thumb_cmc_flex_range_deg: tuple[float, float] = (-20.0, 15.0)
-    thumb_cmc_abd_range_deg: tuple[float, float] = (0.0, 70.0)
+    thumb_cmc_flex_range_deg: tuple[float, float] = _range("thumb", "cmc_flex")
+    thumb_cmc_abd_range_deg: tuple[float, float] = _range("thumb", "cmc_abd")
     #: Axial rotation (pronation positive) of the first metacarpal: a model choice covering opposition.
-    thumb_cmc_rot_range_deg: tuple[float, float] = (-10.0, 30.0)
-    thumb_mcp_range_deg: tuple[float, float] = (0.0, 50.0)
-    thumb_ip_range_deg: tuple[float, float] = (0.0, 80.0)
-    #: y of each long-finger metacarpal base in the palm frame (index, middle, ring, little), mm.
-    metacarpal_base_y_mm: tuple[float, float, float, float] = (10.0, 0.0, -9.0, -17.0)
-    #: x of each metacarpal base (the carpometacarpal row is slightly arched), mm.
-    metacarpal_base_x_mm: tuple[float, float, float, float] = (0.0, 0.0, -2.0, -6.0)
-    #: Direction of each metacarpal in the palm plane (towards +y positive), degrees.
-    metacarpal_yaw_deg: tuple[float, float, float, float] = (12.0, 4.0, -7.0, -15.0)
-    #: Thumb CMC joint in the palm frame, mm (radial and palmar of the index metacarpal base).
-    thumb_cmc_position_mm: tuple[float, float, float] = (2.0, 20.0, -10.0)
-    #: Thumb rest frame: yaw about palm z, then pitch about the new y (palmar tilt), then roll about
-    #: the bone axis, degrees. Roll -90 turns the thumb's flexion plane across the palm.
-    thumb_rest_ypr_deg: tuple[float, float, float] = (40.0, 20.0, -90.0)
+    thumb_cmc_rot_range_deg: tuple[float, float] = _range("thumb", "cmc_rot")
+    thumb_mcp_range_deg: tuple[float, float] = _range("thumb", "mcp")
+    thumb_ip_range_deg: tuple[float, float] = _range("thumb", "ip")
     #: Which fingertip ``effector_pose`` reports.
     pose_finger: str = "index"
     #: Palm pose in the world; None lets the scene place the hand so the object is in reach.
@@ -123,16 +112,13 @@ class HandConfig(DigitConfig):
 
     def thumb_lengths_m(self) -> tuple[float, float, float]:
         """Scaled thumb bone lengths in metres (metacarpal, proximal, distal)."""
-        a, b, c = (self.scale * v / 1000.0 for v in self.thumb_lengths_mm)
+        a, b, c = HAND.digit("thumb").lengths_m(self.scale)
         return (a, b, c)
 
     def mcp_position_m(self, finger: str) -> np.ndarray:
         """MCP joint of a long finger in the palm frame, metres, shape (3,)."""
-        i = LONG_FINGERS.index(finger)
-        yaw = math.radians(self.metacarpal_yaw_deg[i])
-        meta = self.lengths_m(finger)[0]
-        base = self.scale * np.array([self.metacarpal_base_x_mm[i], self.metacarpal_base_y_mm[i], 0.0]) / 1e3
-        return base + meta * np.array([math.cos(yaw), math.sin(yaw), 0.0])
+        self.lengths_m(finger)  # ConfigError for anything but a long finger
+        return HAND.digit(finger).first_joint_m(self.scale)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -158,7 +144,8 @@ class ProbeConfig:
     direction the fingertip faces.
     """
 
-    radius_m: float = 0.008
+    #: The hand's fingertip radius by default.
+    radius_m: float = HAND.radius_m()
     #: Start of the probe centre; None starts it above the object with ``start_clearance_m``.
     start_position_m: tuple[float, float, float] | None = None
     #: Start orientation; the default (180 deg about x) makes the fingertip face world -z.
@@ -239,28 +226,27 @@ def _tip_site(finger: str, length_m: float, cfg: DigitConfig) -> str:
     )
 
 
-def _long_finger_chain(finger: str, cfg: DigitConfig, collide: bool, mcp_pos: np.ndarray) -> str:
-    """Proximal, middle and distal phalanx bodies with their four joints, starting at the MCP."""
-    _, prox, mid, dist = cfg.lengths_m(finger)
-    return (
-        f'<body name="{finger}_proximal" pos="{_fmt(mcp_pos)}">'
-        + _joint(f"{finger}_mcp_abd", "0 0 1", cfg.mcp_abd_range_deg, cfg)
-        + _joint(f"{finger}_mcp_flex", "0 1 0", cfg.mcp_flex_range_deg, cfg)
-        + _capsule(f"{finger}_proximal", prox, cfg, collide)
-        + f'<body name="{finger}_middle" pos="{prox:.9g} 0 0">'
-        + _joint(f"{finger}_pip", "0 1 0", cfg.pip_range_deg, cfg)
-        + _capsule(f"{finger}_middle", mid, cfg, collide)
-        + f'<body name="{finger}_distal" pos="{mid:.9g} 0 0">'
-        + _joint(f"{finger}_dip", "0 1 0", cfg.dip_range_deg, cfg)
-        + _capsule(f"{finger}_distal", dist, cfg, collide)
-        + _tip_site(finger, dist, cfg)
-        + "</body></body></body>"
-    )
+def _segments(digit: Digit, cfg: DigitConfig, collide: bool, first: int, first_attrs: str) -> str:
+    """Nested bodies of the digit's segments from index ``first`` on, each with its joints and capsule,
+    the tip site on the last; the first body's placement is ``first_attrs`` (``pos=... [quat=...]``)."""
+    lengths = digit.lengths_m(cfg.scale)
+    parts = []
+    for k in range(first, len(digit.segments)):
+        name = f"{digit.name}_{digit.segments[k]}"
+        placement = first_attrs if k == first else f'pos="{lengths[k - 1]:.9g} 0 0"'  # on the parent bone's end
+        parts.append(f'<body name="{name}" {placement}>')
+        for j in digit.segment_joints(digit.segments[k]):
+            joint = f"{digit.name}_{j.name}"
+            parts.append(_joint(joint, _fmt(j.axis), cfg.joint_range_deg(joint), cfg))
+        parts.append(_capsule(name, lengths[k], cfg, collide))
+    parts.append(_tip_site(digit.name, lengths[-1], cfg))
+    return "".join(parts) + "</body>" * (len(digit.segments) - first)
 
 
-def _position_actuators(joint_names: list[str], ranges_deg: list[tuple[float, float]], cfg: DigitConfig) -> str:
+def _position_actuators(joint_names: list[str], cfg: DigitConfig) -> str:
     lines = []
-    for name, (lo, hi) in zip(joint_names, ranges_deg, strict=True):
+    for name in joint_names:
+        lo, hi = cfg.joint_range_deg(name)
         lines.append(
             f'<position name="{name}" joint="{name}" kp="{cfg.kp_nm_per_rad:.9g}" ctrllimited="true" '
             f'ctrlrange="{math.radians(lo):.9g} {math.radians(hi):.9g}"/>'
@@ -270,34 +256,18 @@ def _position_actuators(joint_names: list[str], ranges_deg: list[tuple[float, fl
 
 def finger_joint_names(finger: str) -> list[str]:
     """Joint names of one long finger, proximal to distal."""
-    return [f"{finger}_{j}" for j in FINGER_JOINTS]
+    return HAND.digit(finger).joint_names()
 
 
 def hand_joint_names() -> list[str]:
     """All 21 hand joint names in model order (index, middle, ring, little, then thumb)."""
-    names = [n for f in LONG_FINGERS for n in finger_joint_names(f)]
-    return names + [f"thumb_{j}" for j in THUMB_JOINTS]
-
-
-def _finger_ranges(cfg: DigitConfig) -> list[tuple[float, float]]:
-    return [cfg.mcp_abd_range_deg, cfg.mcp_flex_range_deg, cfg.pip_range_deg, cfg.dip_range_deg]
-
-
-def _hand_ranges(cfg: HandConfig) -> list[tuple[float, float]]:
-    thumb = [
-        cfg.thumb_cmc_flex_range_deg,
-        cfg.thumb_cmc_abd_range_deg,
-        cfg.thumb_cmc_rot_range_deg,
-        cfg.thumb_mcp_range_deg,
-        cfg.thumb_ip_range_deg,
-    ]
-    return _finger_ranges(cfg) * len(LONG_FINGERS) + thumb
+    return HAND.joint_names()
 
 
 def joint_ranges_rad(cfg: HandConfig | FingerConfig) -> np.ndarray:
     """Joint limits in model order, radians, shape (J, 2)."""
-    ranges = _hand_ranges(cfg) if isinstance(cfg, HandConfig) else _finger_ranges(cfg)
-    return np.radians(np.array(ranges, dtype=np.float64))
+    names = hand_joint_names() if isinstance(cfg, HandConfig) else finger_joint_names(cfg.finger)
+    return np.radians(np.array([cfg.joint_range_deg(n) for n in names], dtype=np.float64))
 
 
 # --- public builders -------------------------------------------------------------------------------
@@ -325,9 +295,10 @@ def build_hand_mjcf(
         raise ConfigError(f"pose_finger {cfg.pose_finger!r} is not a finger: use index, middle, ring, little or thumb")
     collide = collide_with_object
     parts = [f'<body name="palm" pos="{_fmt(np.asarray(base_position_m))}" quat="{_fmt(cfg.base_quaternion_wxyz)}">']
-    for i, finger in enumerate(LONG_FINGERS):
-        yaw = math.radians(cfg.metacarpal_yaw_deg[i])
-        base = cfg.scale * np.array([cfg.metacarpal_base_x_mm[i], cfg.metacarpal_base_y_mm[i], 0.0]) / 1e3
+    for finger in LONG_FINGERS:
+        digit = HAND.digit(finger)
+        yaw = math.radians(digit.rest_ypr_deg[0])
+        base = digit.base_m(cfg.scale)
         mcp = cfg.mcp_position_m(finger)
         parts.append(
             f'<geom name="{finger}_metacarpal" type="capsule" fromto="{_fmt(base)} {_fmt(mcp)}" '
@@ -337,29 +308,15 @@ def build_hand_mjcf(
         # Phalanx chain in the palm frame turned by the metacarpal's yaw.
         parts.append(
             f'<frame pos="{_fmt(base)}" quat="{math.cos(yaw / 2):.9g} 0 0 {math.sin(yaw / 2):.9g}">'
-            + _long_finger_chain(finger, cfg, collide, np.array([cfg.lengths_m(finger)[0], 0.0, 0.0]))
+            + _segments(digit, cfg, collide, 1, f'pos="{_fmt(np.array([cfg.lengths_m(finger)[0], 0.0, 0.0]))}"')
             + "</frame>"
         )
-    meta, prox, dist = cfg.thumb_lengths_m()
-    thumb_pos = cfg.scale * np.array(cfg.thumb_cmc_position_mm) / 1e3
-    thumb_quat = _quat_from_ypr_deg(*cfg.thumb_rest_ypr_deg)
-    parts.append(
-        f'<body name="thumb_metacarpal" pos="{_fmt(thumb_pos)}" quat="{_fmt(thumb_quat)}">'
-        + _joint("thumb_cmc_flex", "0 1 0", cfg.thumb_cmc_flex_range_deg, cfg)
-        + _joint("thumb_cmc_abd", "0 0 1", cfg.thumb_cmc_abd_range_deg, cfg)
-        + _joint("thumb_cmc_rot", "1 0 0", cfg.thumb_cmc_rot_range_deg, cfg)
-        + _capsule("thumb_metacarpal", meta, cfg, collide)
-        + f'<body name="thumb_proximal" pos="{meta:.9g} 0 0">'
-        + _joint("thumb_mcp", "0 1 0", cfg.thumb_mcp_range_deg, cfg)
-        + _capsule("thumb_proximal", prox, cfg, collide)
-        + f'<body name="thumb_distal" pos="{prox:.9g} 0 0">'
-        + _joint("thumb_ip", "0 1 0", cfg.thumb_ip_range_deg, cfg)
-        + _capsule("thumb_distal", dist, cfg, collide)
-        + _tip_site("thumb", dist, cfg)
-        + "</body></body></body>"
-    )
+    thumb = HAND.digit("thumb")
+    thumb_pos = thumb.base_m(cfg.scale)
+    thumb_quat = _quat_from_ypr_deg(*thumb.rest_ypr_deg)
+    parts.append(_segments(thumb, cfg, collide, 0, f'pos="{_fmt(thumb_pos)}" quat="{_fmt(thumb_quat)}"'))
     parts.append("</body>")
-    actuators = _position_actuators(hand_joint_names(), _hand_ranges(cfg), cfg)
+    actuators = _position_actuators(hand_joint_names(), cfg)
     return EffectorMjcf(worldbody="".join(parts), actuators=actuators)
 
 
@@ -375,10 +332,10 @@ def build_finger_mjcf(
         f'<body name="{finger}_metacarpal" pos="{_fmt(np.asarray(base_position_m))}" '
         f'quat="{_fmt(cfg.base_quaternion_wxyz)}">'
         + _capsule(f"{finger}_metacarpal", meta, cfg, collide_with_object)
-        + _long_finger_chain(finger, cfg, collide_with_object, np.array([meta, 0.0, 0.0]))
+        + _segments(HAND.digit(finger), cfg, collide_with_object, 1, f'pos="{_fmt(np.array([meta, 0.0, 0.0]))}"')
         + "</body>"
     )
-    actuators = _position_actuators(finger_joint_names(finger), _finger_ranges(cfg), cfg)
+    actuators = _position_actuators(finger_joint_names(finger), cfg)
     return EffectorMjcf(worldbody=body, actuators=actuators)
 
 

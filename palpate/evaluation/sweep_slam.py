@@ -3,21 +3,24 @@
 The sensor streams come from the graph of ``launch/slam_eval.yaml`` without its mapper nodes (sim and
 noise, run in-process with lockstep semantics): per tick the joint reading (true and noisy) and the
 contacts (link names and positions in the link frames, as the mapper nodes receive them). The same
-stream then feeds mapper cores for every resolution and K (``nodes/mapper/sweep.py``'s ``_run``:
-wall and CPU ms per ``Mapper.update``, peak memory traced from the mapper's creation to the last
-update), and the maps are scored as in ``palpate eval slam`` (palpate/evaluation/slam.py).
-Feeding the cores directly keeps the timing to the mapper alone; through the graph the same
-update adds the message codec (about 0.1 ms per message).
+stream then feeds mapper cores for every resolution and K (``run_mapper``: wall and CPU ms per
+``Mapper.update``, peak memory traced from the mapper's creation to the last update), and the maps
+are scored as in ``palpate eval slam`` (palpate/evaluation/slam.py). The cores model the finger of
+the FastSLAM node's ``mount`` (``fastslam_chain``). Feeding the cores directly keeps the timing to
+the mapper alone; through the graph the same update adds the message codec (about 0.1 ms per
+message).
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import sys
 import time
+import tracemalloc
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -105,6 +108,63 @@ def record_stream(seed: int, duration_s: float, sigma_deg: float, launch_path: P
     )
 
 
+@dataclass(frozen=True)
+class SweepRow:
+    """One configuration's result. K = 0 for the single-map methods (known, dead_reckoning)."""
+
+    method: str
+    K: int
+    resolution_mm: float
+    rmse: float
+    accuracy_mm: float
+    completeness_mm: float
+    ms_per_update: float
+    cpu_ms_per_update: float
+    peak_memory_mb: float
+
+    def as_dict(self) -> dict[str, float | int | str]:
+        return asdict(self)
+
+
+def _feed(mapper: Any, q_stream: FloatArray, links: Sequence[NDArray[np.intp]], local: Sequence[FloatArray]) -> None:
+    for t in range(len(q_stream)):
+        mapper.update(q_stream[t], links[t], local[t])
+
+
+def run_mapper(
+    config: Any,
+    chain: Any,
+    q_stream: FloatArray,
+    links: Sequence[NDArray[np.intp]],
+    local: Sequence[FloatArray],
+    seed: int,
+    measure_memory: bool,
+) -> tuple[Any, float, float, float]:
+    """Feed a mapper core (MapperConfig, KinematicChain) the stream q (T, J) with per tick the
+    contact links (n_t,) and link-frame points (n_t, 3); returns (mapper, wall ms per update, CPU ms
+    per update, peak MB or nan).
+
+    Timing comes from a first pass without tracemalloc (which would slow numpy's many small
+    allocations by half); the peak memory from a second, identical pass under tracemalloc.
+    """
+    from palpate.nodes.mapper.core import Mapper
+
+    gc.collect()
+    mapper = Mapper(config, chain, np.random.default_rng(seed))
+    t0, c0 = time.perf_counter(), time.process_time()
+    _feed(mapper, q_stream, links, local)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    peak = np.nan
+    if measure_memory:
+        gc.collect()
+        tracemalloc.start()
+        _feed(Mapper(config, chain, np.random.default_rng(seed)), q_stream, links, local)
+        peak = tracemalloc.get_traced_memory()[1] / 2**20
+        tracemalloc.stop()
+    n = max(1, len(q_stream))
+    return mapper, 1e3 * wall / n, 1e3 * cpu / n, peak
+
+
 def mapper_config(params: Mapping[str, Any], resolution_m: float, **changes: Any) -> Any:
     """The MapperConfig of the evaluation graph's FastSLAM mapper node, at another resolution."""
     from palpate.nodes.mapper.core import MapperConfig
@@ -114,13 +174,27 @@ def mapper_config(params: Mapping[str, Any], resolution_m: float, **changes: Any
     return replace(base, resolution_m=resolution_m, **changes)
 
 
-def fastslam_params(launch_path: Path = SLAM_LAUNCH, **args: Any) -> dict[str, Any]:
-    """The ``mapper`` params of the FastSLAM node of the launch file (arguments substituted)."""
+def _fastslam_node_params(launch_path: Path, args: Mapping[str, Any]) -> dict[str, Any]:
     from palpate.launch.loader import load_launch
 
-    launch = load_launch(launch_path, args)
+    launch = load_launch(launch_path, dict(args))
     node = next(n for n in launch.nodes if n.fields.get("name") == "mapper_fastslam")
-    return dict(node.fields["params"]["mapper"])
+    return dict(node.fields["params"])
+
+
+def fastslam_params(launch_path: Path = SLAM_LAUNCH, **args: Any) -> dict[str, Any]:
+    """The ``mapper`` params of the FastSLAM node of the launch file (arguments substituted)."""
+    return dict(_fastslam_node_params(launch_path, args)["mapper"])
+
+
+def fastslam_chain(launch_path: Path = SLAM_LAUNCH) -> Any:
+    """The KinematicChain of the launch file's FastSLAM node: the hand description at its ``mount``."""
+    from palpate.description import load_hand
+    from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain
+    from palpate.runtime.spec import build_config
+
+    mount = build_config(FingerMount, _fastslam_node_params(launch_path, {})["mount"], "mapper_fastslam.mount")
+    return KinematicChain.from_description(load_hand(), mount)
 
 
 def sweep(
@@ -134,23 +208,19 @@ def sweep(
     progress: bool = True,
     skip: frozenset[tuple[float, int]] = frozenset(),
 ) -> list[Any]:
-    """SweepRows (nodes/mapper/sweep.py) for known pose and dead reckoning, then FastSLAM at every K,
+    """SweepRows for known pose and dead reckoning, then FastSLAM at every K,
     per resolution, scored as in palpate eval slam: ``SweepRow.rmse`` is its ``rmse`` (surface band
     intersect the cells the known-pose mapper observed), paired with its ``rmse_explored``: a list of
     (SweepRow, rmse_explored) (``rows_as_dicts`` flattens them). ``skip`` leaves out (resolution_mm, K)
     pairs."""
-    from palpate.nodes.mapper.node import finger_chain
-    from palpate.nodes.mapper.sweep import SweepRow, TappingRecord, _run
-
     config = config or SlamEvalConfig()
-    chain = finger_chain({"effector": "finger", "object": {"kind": "rubiks_cube"}})
+    chain = fastslam_chain()
     index = {name: i for i, name in enumerate(chain.link_names)}
     links = [np.array([index[n] for n in names if n in index], dtype=np.intp) for names in stream.contact_links]
     local = [
         loc[[i for i, n in enumerate(names) if n in index]].reshape(-1, 3)
         for names, loc in zip(stream.contact_links, stream.contact_local_m, strict=True)
     ]
-    rec = TappingRecord(q_true=stream.q_true, contact_links=links, contact_local_m=local, contact_world_m=[])
     truth = BoxTruth.from_vertices(stream.vertices_m)
     params = fastslam_params(sigma_deg=config.sigma_deg)
     rows: list[Any] = []
@@ -167,7 +237,7 @@ def sweep(
         scorer: Scorer | None = None
         for method, K, cfg, q in runs:
             t0 = time.perf_counter()
-            mapper, ms, cpu_ms, peak = _run(cfg, chain, q, rec, seed + 1, measure_memory)
+            mapper, ms, cpu_ms, peak = run_mapper(cfg, chain, q, links, local, seed + 1, measure_memory)
             m = mapper.best_map()
             if scorer is None:  # the known-pose run comes first: its map defines the observed cells
                 scorer = Scorer(m.spec, truth, stream.contact_world_m, m.flat, config)

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from palpate.description import load_hand
 from palpate.launch.graph import resolve
 from palpate.launch.loader import load_launch
 from palpate.messages import codec, topics
@@ -25,7 +26,7 @@ from tests.integration.launch_helpers import launched, node_pids, text
 from tests.integration.test_bad_input import Harness, counters, node_process
 
 LAUNCH = REPO_ROOT / "launch"
-SCENE = {"effector": "finger", "object": {"kind": "rubiks_cube"}}
+MOUNT = {"effector": "finger", "finger": "index", "base_position_m": [-0.09662, 0.035, 0.0785]}
 
 
 # --- launch files --------------------------------------------------------------------------------------
@@ -108,6 +109,26 @@ def test_at_sigma_zero_the_fastslam_map_is_the_known_pose_map() -> None:
         np.testing.assert_array_equal(m.log_odds, known.log_odds)
 
 
+@pytest.mark.parametrize("name", ["map_known", "fastslam", "slam_eval"])
+def test_every_mapper_models_the_simulators_finger(name: str) -> None:
+    """The mapper's chain (hand description at its mount) is the simulator's model of the finger, bit for bit."""
+    from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain
+    from palpate.nodes.sim.scene import SceneConfig, build_model
+    from palpate.runtime.spec import build_config
+
+    specs = {p.name: p for p in resolve(load_launch(LAUNCH / f"{name}.yaml")).process_specs()}
+    scene = SceneConfig.from_dict(specs["sim"].params["scene"], "scene")
+    mappers = [p for p in specs.values() if p.type == "mapper"]
+    assert mappers
+    q = np.random.default_rng(0).uniform(-1.5, 1.5, size=(20, 4))
+    for mapper in mappers:
+        chain = KinematicChain.from_description(load_hand(), build_config(FingerMount, mapper.params["mount"]))
+        assert (mapper.params["mount"]["finger"], mapper.params["mount"]["effector"]) == (scene.finger.finger, "finger")
+        truth = KinematicChain.from_model(build_model(scene), chain.joint_names)
+        for got, expected in zip(chain.forward(q), truth.forward(q), strict=True):
+            np.testing.assert_array_equal(got, expected)
+
+
 # --- NaN in a joint reading ---------------------------------------------------------------------------
 @contextmanager
 def mapper_node(tmp_path: Path) -> Iterator[Harness]:
@@ -117,7 +138,7 @@ def mapper_node(tmp_path: Path) -> Iterator[Harness]:
         name="mapper",
         node_type="mapper",
         params={
-            "scene": SCENE,
+            "mount": MOUNT,
             "mapper": {"mode": "known", "region_min_m": [-0.045] * 3, "region_max_m": [0.045] * 3},
         },
         publishes={"map": topics.OCCUPANCY_GRID},
@@ -151,9 +172,7 @@ def _no_contacts(tick: int) -> bytes:
 
 
 def test_a_nan_joint_angle_is_rejected_counted_and_the_mapper_goes_on(tmp_path: Path) -> None:
-    from palpate.nodes.mapper.node import finger_chain
-
-    names = list(finger_chain(SCENE).joint_names)
+    names = load_hand().digit("index").joint_names()
     with mapper_node(tmp_path) as node:
         node.send(topics.JOINT_STATES, _reading(0, names, nan=True))
         node.send(topics.CONTACTS, _no_contacts(0))

@@ -7,11 +7,11 @@ import json
 import math
 from typing import Any
 
+import numpy as np
 import pytest
 
 from palpate.bench import gpis as bench_gpis
 from palpate.errors import BenchmarkError
-from palpate.nodes.gpis.bench import TIMED
 
 
 def test_smallest_run_prints_a_row_per_grid_and_json_last(capsys: Any) -> None:
@@ -24,7 +24,7 @@ def test_smallest_run_prints_a_row_per_grid_and_json_last(capsys: Any) -> None:
     rows = last["rows"]
     assert [(r["n_contacts"], r["resolution_m"]) for r in rows] == [(12, 0.01), (12, 0.02)]
     for r in rows:
-        for name in (*TIMED, "total", "total_without_variance"):
+        for name in (*bench_gpis.TIMED, "total", "total_without_variance"):
             for key in (f"{name}_ms", f"cpu_{name}_ms"):
                 assert math.isfinite(r[key]) and r[key] > 0, key
         assert r["cpu_total_ms"] == pytest.approx(r["cpu_add_contact_ms"] + r["cpu_local_surface_ms"])
@@ -32,6 +32,14 @@ def test_smallest_run_prints_a_row_per_grid_and_json_last(capsys: Any) -> None:
     assert rows[0]["n_vertices"] > rows[1]["n_vertices"]  # a finer grid gives more vertices
     table_rows = [line.split() for line in out if line.split() and line.split()[0] == "12"]
     assert [float(cells[1]) for cells in table_rows] == [10.0, 20.0]
+
+
+def test_one_step_at_the_default_patch_reports_positive_timings() -> None:
+    (result,) = bench_gpis.benchmark_steps(30, resolutions_m=[0.01], repeats=2)
+    for key in ("add_contact_ms", "local_surface_ms", "total_ms", "cpu_total_ms", "vertex_variance_ms"):
+        assert np.isfinite(result[key]) and result[key] > 0
+    assert result["total_ms"] == pytest.approx(result["add_contact_ms"] + result["local_surface_ms"])
+    assert result["n_vertices"] > 0 and result["n_faces"] > 0
 
 
 def _row(n: float, res: float, without: float, with_variance: float) -> dict[str, float]:

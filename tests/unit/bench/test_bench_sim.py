@@ -1,8 +1,8 @@
-"""`palpate bench sim` and `palpate bench contacts`: the pure parts, the timing nodes and the CLI errors."""
+"""`palpate bench sim`: the pure parts, the timing nodes and the CLI errors (and that both sim and contacts
+are sub-commands)."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 from pathlib import Path
@@ -11,7 +11,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-from palpate.bench import contacts as bench_contacts
 from palpate.bench import sim as bench_sim
 from palpate.errors import BenchmarkError
 from palpate.messages import codec
@@ -124,14 +123,6 @@ def test_table_has_a_row_per_scene() -> None:
 # --- contacts -------------------------------------------------------------------------------------------
 
 
-def test_contacts_without_ycb_says_what_to_do(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
-    monkeypatch.setenv("PALPATE_YCB_DIR", str(tmp_path / "absent"))
-    with pytest.raises(
-        BenchmarkError, match=r"the YCB meshes were not found: set PALPATE_YCB_DIR .* or pass --objects DIR"
-    ):
-        bench_contacts.object_paths(None)
-
-
 def test_both_benchmarks_are_sub_commands() -> None:
     from palpate.cli import build_parser
 
@@ -140,25 +131,3 @@ def test_both_benchmarks_are_sub_commands() -> None:
     assert (args.objects, args.touches, args.json) == (Path("x"), 5, True)
     args = parser.parse_args(["bench", "sim", "--quick", "--scenes", "probe", "hand"])
     assert args.quick and args.scenes == ["probe", "hand"]
-
-
-def test_contacts_objects_must_be_a_folder_of_meshes(tmp_path: Path) -> None:
-    with pytest.raises(BenchmarkError, match="not a directory"):
-        bench_contacts.object_paths(tmp_path / "nope")
-    (tmp_path / "README.md").write_text("no mesh here")
-    with pytest.raises(BenchmarkError, match="no mesh files"):
-        bench_contacts.object_paths(tmp_path)
-
-
-def test_contacts_json_last_line_has_the_goal_keys(tmp_path: Path, capsys: Any) -> None:
-    import trimesh
-
-    trimesh.creation.torus(0.04, 0.012, major_sections=48, minor_sections=24).export(tmp_path / "torus.stl")
-    args = argparse.Namespace(objects=tmp_path, touches=60, seed=1, quick=True, json=True)
-    assert bench_contacts.main(args) == 0
-    out = capsys.readouterr().out.strip().splitlines()
-    assert "torus" in out[-3] or any(line.startswith("torus") for line in out)
-    last = json.loads(out[-1])
-    assert {"position_p95_mm_max", "normal_p95_deg_max", "phantom_contacts"} <= set(last)
-    assert last["pass"] and last["phantom_contacts"] == 0 and last["objects"] == 1
-    assert last["rows"][0]["object"] == "torus" and last["touches_per_object"] == 60

@@ -7,7 +7,6 @@ import pytest
 from scipy.spatial import cKDTree
 
 from palpate.errors import EstimationError
-from palpate.nodes.gpis.bench import benchmark_update
 from palpate.nodes.gpis.core import GPIS, GPISConfig
 from palpate.nodes.gpis.surface import (
     SurfaceMeshArrays,
@@ -189,11 +188,3 @@ def test_grid_axes_cover_the_box_with_odd_counts() -> None:
         grid_axes([0, 0, 0], [1, -1, 1], 0.1)
     with pytest.raises(EstimationError, match="nodes"):
         grid_axes([0, 0, 0], [1, 1, 1], 1e-4)
-
-
-def test_benchmark_reports_positive_timings() -> None:
-    result = benchmark_update(30, resolution_m=0.01, repeats=2)
-    for key in ("add_contact_ms", "local_surface_ms", "total_ms", "cpu_total_ms", "vertex_variance_ms"):
-        assert np.isfinite(result[key]) and result[key] > 0
-    assert result["total_ms"] == pytest.approx(result["add_contact_ms"] + result["local_surface_ms"])
-    assert result["n_vertices"] > 0 and result["n_faces"] > 0

@@ -13,7 +13,7 @@ import pytest
 from palpate.errors import ConfigError, EstimationError
 from palpate.nodes.mapper.core import Mapper, MapperConfig
 from palpate.nodes.mapper.kinematics import KinematicChain
-from palpate.nodes.mapper.synthetic import TappingRecord, simulate_tapping
+from tests.unit.mapper.synthetic import TappingRecord, simulate_tapping
 
 REGION = {"region_min_m": (-0.03, -0.06, -0.06), "region_max_m": (0.12, 0.06, 0.06)}
 

@@ -19,7 +19,7 @@ from palpate.nodes.mapper.fastslam import (
 from palpate.nodes.mapper.grid import LogOddsGrids
 from palpate.nodes.mapper.kinematics import KinematicChain
 from palpate.nodes.mapper.observation import observation_keys
-from palpate.nodes.mapper.synthetic import CUBE_CENTER_M, CUBE_HALF_M, TappingRecord, simulate_tapping
+from tests.unit.mapper.synthetic import CUBE_CENTER_M, CUBE_HALF_M, TappingRecord, simulate_tapping
 
 
 @pytest.fixture(scope="module")

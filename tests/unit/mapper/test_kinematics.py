@@ -1,13 +1,19 @@
-"""Forward kinematics of the finger chain against mujoco.mj_kinematics."""
+"""Forward kinematics of the finger chain against mujoco.mj_kinematics, and the chain built from the hand
+description against the one read from the simulator's model."""
 
 from __future__ import annotations
+
+import math
+from typing import Any
 
 import mujoco
 import numpy as np
 import pytest
 
+from palpate.description import load_hand
 from palpate.errors import ConfigError
-from palpate.nodes.mapper.kinematics import KinematicChain, axis_angle_to_mat, quat_to_mat
+from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain, axis_angle_to_mat, quat_to_mat
+from palpate.nodes.mapper.observation import capsule_lattice
 
 # A 4-hinge finger with the awkward cases: a tilted, offset base; two hinges in one body (MCP
 # abduction then flexion); an off-centre joint anchor; a joint with a reference angle (qpos0 != 0);
@@ -184,3 +190,81 @@ def test_real_finger_and_hand_models_match_mujoco() -> None:
         _check_against_mujoco(model, names, n=10)
         chain = KinematicChain.from_model(model, names)
         assert chain.link_names == ["index_proximal", "index_middle", "index_distal"]
+
+
+# --- the chain from the hand description ---------------------------------------------------------------
+LAUNCH_BASE = (-0.09662, 0.035, 0.0785)  # the launch files' finger base
+TILTED = (0.9, 0.1, -0.2, 0.3)
+
+
+def _simulator_chain(mount: FingerMount) -> KinematicChain:
+    """The chain read from the simulator's model of the mounted effector (its MJCF, compiled)."""
+    effectors = pytest.importorskip("palpate.nodes.sim.effectors")
+    if mount.effector == "finger":
+        cfg = effectors.FingerConfig(
+            finger=mount.finger, scale=mount.scale, base_quaternion_wxyz=mount.base_quaternion_wxyz
+        )
+        frag = effectors.build_finger_mjcf(cfg, mount.base_position_m)
+    else:
+        cfg = effectors.HandConfig(scale=mount.scale, base_quaternion_wxyz=mount.base_quaternion_wxyz)
+        frag = effectors.build_hand_mjcf(cfg, mount.base_position_m)
+    model = _model(f'<mujoco><compiler angle="radian"/><worldbody>{frag.worldbody}</worldbody></mujoco>')
+    return KinematicChain.from_model(model, load_hand().digit(mount.finger).joint_names())
+
+
+@pytest.mark.parametrize("finger", ["index", "middle", "ring", "little"])
+@pytest.mark.parametrize(
+    ("scale", "base", "quaternion"), [(1.0, LAUNCH_BASE, (1.0, 0.0, 0.0, 0.0)), (1.3, (0.01, -0.2, 0.3), TILTED)]
+)
+def test_finger_chain_from_the_description_is_the_simulators_bit_for_bit(
+    finger: str, scale: float, base: tuple[float, float, float], quaternion: tuple[float, float, float, float]
+) -> None:
+    mount = FingerMount(finger=finger, scale=scale, base_position_m=base, base_quaternion_wxyz=quaternion)
+    chain = KinematicChain.from_description(load_hand(), mount)
+    truth = _simulator_chain(mount)
+    assert (chain.link_names, chain.joint_names) == (truth.link_names, truth.joint_names)
+    assert [c.name for c in chain.capsule_list] == [c.name for c in truth.capsule_list]
+    q = np.random.default_rng(5).uniform(-1.5, 1.5, size=(50, 4))
+    for got, expected in zip(
+        (*chain.forward(q), *chain.capsules(q)), (*truth.forward(q), *truth.capsules(q)), strict=True
+    ):
+        np.testing.assert_array_equal(got, expected)
+    # so the mapper's free-volume samples, in float32, are the ones it had with the model
+    for got_h, expected_h in zip(
+        capsule_lattice(chain, 0.002, 0.0005).homogeneous(),
+        capsule_lattice(truth, 0.002, 0.0005).homogeneous(),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(got_h, expected_h)
+
+
+@pytest.mark.parametrize("digit", ["index", "middle", "ring", "little", "thumb"])
+def test_hand_chain_from_the_description_is_the_simulators(digit: str) -> None:
+    """MuJoCo composes the palm's frames itself: equal to rounding (1e-12)."""
+    mount = FingerMount(
+        effector="hand", finger=digit, scale=1.1, base_position_m=(0.01, 0.02, 0.1), base_quaternion_wxyz=TILTED
+    )
+    chain = KinematicChain.from_description(load_hand(), mount)
+    truth = _simulator_chain(mount)
+    assert chain.link_names == truth.link_names
+    q = np.random.default_rng(6).uniform(-1.5, 1.5, size=(50, chain.n_joints))
+    for got, expected in zip(
+        (*chain.forward(q), *chain.capsules(q)), (*truth.forward(q), *truth.capsules(q)), strict=True
+    ):
+        np.testing.assert_allclose(got, expected, atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"finger": "thumb"}, "the single-finger effector is a long finger"),
+        ({"finger": "pinky"}, "unknown finger 'pinky'"),
+        ({"effector": "arm"}, "use 'finger' or 'hand'"),
+        ({"scale": 0.0}, "scale"),
+        ({"base_position_m": (0.0, math.nan, 0.0)}, "finite"),
+        ({"base_quaternion_wxyz": (0.0, 0.0, 0.0, 0.0)}, "zero quaternion"),
+    ],
+)
+def test_bad_mounts_are_refused(changes: dict[str, Any], message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        KinematicChain.from_description(load_hand(), FingerMount(**{"base_position_m": LAUNCH_BASE, **changes}))

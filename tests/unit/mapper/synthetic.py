@@ -1,7 +1,6 @@
-"""A self-contained finger-taps-a-box scene for checking and sweeping the mapper.
+"""A self-contained finger-taps-a-box scene for checking the mapper core without the simulator node.
 
-Stands in for the simulation node (palpate.nodes.sim) until the mapper is evaluated through the
-graph: an index finger of four hinges (MCP abduction and flexion, PIP, DIP; segment lengths
+An index finger of four hinges (MCP abduction and flexion, PIP, DIP; segment lengths
 39.8, 22.4, 15.8 mm after Buryanov and Kotiuk 2010) on a fixed base taps the top of a 57 mm cube
 (a Rubik's cube, as in the paper) while its abduction sweeps side to side. MuJoCo simulates it;
 contacts are read from MuJoCo and expressed in the frame of the link that felt them.

@@ -1,0 +1,23 @@
+"""Descriptions of the robot that every node reads as data (as ROS nodes read a URDF)."""
+
+from palpate.description.hand import (
+    MJCF_SIGNIFICANT_DIGITS,
+    Actuation,
+    Digit,
+    HandDescription,
+    Joint,
+    as_written,
+    load_hand,
+    parse_hand,
+)
+
+__all__ = [
+    "MJCF_SIGNIFICANT_DIGITS",
+    "Actuation",
+    "Digit",
+    "HandDescription",
+    "Joint",
+    "as_written",
+    "load_hand",
+    "parse_hand",
+]
