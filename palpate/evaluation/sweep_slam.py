@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from palpate.config import load
 from palpate.errors import ConfigError
 from palpate.evaluation.slam import SLAM_LAUNCH, BoxTruth, Scorer, SlamEvalConfig
 from palpate.text_table import Column, fixed_width_table
@@ -108,9 +109,8 @@ def record_stream(seed: int, duration_s: float, sigma_deg: float, launch_path: P
 def mapper_config(params: Mapping[str, Any], resolution_m: float, **changes: Any) -> Any:
     """The MapperConfig of the evaluation graph's FastSLAM mapper node, at another resolution."""
     from palpate.nodes.mapper.core import MapperConfig
-    from palpate.runtime.spec import build_config
 
-    base = build_config(MapperConfig, dict(params), "mapper_fastslam.mapper")
+    base = load(MapperConfig, dict(params), "mapper_fastslam.mapper")
     return replace(base, resolution_m=resolution_m, **changes)
 
 

@@ -20,12 +20,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from palpate.config import load
 from palpate.errors import MessageError, PalpateError
 from palpate.launch.graph import Graph, GraphNode
 from palpate.messages import codec
 from palpate.messages.base import Message
 from palpate.runtime.node import NodeContext
-from palpate.runtime.spec import NodeProcessSpec, build_config
+from palpate.runtime.spec import NodeProcessSpec
 
 #: Called for every message published: (tick, node name, topic, message).
 Listener = Callable[[int, str, str, Message], None]
@@ -54,7 +55,7 @@ class InProcessGraph:
         for process in sorted(graph.process_specs(), key=lambda p: ranks[p.name]):
             node = graph.by_name[process.name]
             ctx = NodeContext(process.name, process.seed, self._sender(process.name), dict(process.publishes))
-            config = build_config(node.spec.config, process.params, f"node {process.name!r} params")
+            config = load(node.spec.config, process.params, f"node {process.name!r} params")
             self.members.append(_Member(node, process, ctx, node.spec.factory(config, ctx)))
         self.subscribers: dict[str, list[_Member]] = {}
         for member in self.members:
