@@ -8,11 +8,12 @@ target. Publishes velocity commands every tick and the curve it follows.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from palpate.config import NonNegativeFloat, Range, Validated
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, Pose, TouchEvent, TouchTarget, Trajectory
 from palpate.nodes.controller.bezier import bezier_length
 from palpate.nodes.controller.core import ControllerConfig, ControllerState, TrajectoryController, retract_direction
@@ -21,31 +22,31 @@ from palpate.runtime.spec import NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
-class ControllerNodeConfig:
+class ControllerNodeConfig(Validated):
     """The controller's parameters plus the initial touch target (Alg. 1 line 2)."""
 
     #: A point inside the object the first approach aims at (the object's position is enough).
     initial_target_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     #: Radius of the fingertip sphere: the curve guides its centre, which touches a surface point
     #: t_p when it reaches t_p + radius t_n.
-    tip_radius_m: float = 0.008
+    tip_radius_m: NonNegativeFloat = 0.008
     #: A contact counts as a new touch once the fingertip has left the last one, or (not in the paper)
     #: once the contact point has slid this far from the last touch while the fingertip stayed in
     #: contact, metres. Without it a curve that grazes the surface (retracting along a tangential v_n,
     #: or bending around an edge) slides along the object for ever without a touch event: measured on
     #: the YCB wood block. 3 mm is half the coverage radius, so such a touch still explores new surface.
     #: 0 disables it.
-    rearm_distance_m: float = 0.003
+    rearm_distance_m: NonNegativeFloat = 0.003
     #: ... or once the fingertip has pushed against the surface (normal force > 0) without interruption
     #: for this long, seconds (not in the paper): a curve blocked by the object (under the lip of a cup)
     #: otherwise pushes in place for ever. 0 disables it.
-    rearm_push_s: float = 0.1
+    rearm_push_s: NonNegativeFloat = 0.1
     #: Not in the paper: the next curve retracts along -v_n (Eq. 15) only when v_n points into the
     #: surface, v_n . (-n) >= this cosine (n the measured contact normal); otherwise it retracts along
     #: n. A touch made while sliding (v_n tangential) would otherwise start the next curve along the
     #: surface, and the fingertip touches again a few millimetres on (measured: 600 contacts on 2 % of
     #: the YCB sponge with GP-V). 0.5 = 60 degrees; -1 keeps Eq. 15 as written.
-    retract_min_cos: float = 0.5
+    retract_min_cos: Annotated[float, Range(ge=-1.0, le=1.0)] = 0.5
     controller: ControllerConfig = field(default_factory=ControllerConfig)
 
 

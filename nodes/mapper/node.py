@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from palpate.config import PositiveFloat, Validated, load
 from palpate.messages.schemas import ContactSet, JointState, OccupancyGrid, ParticleSetSummary
 from palpate.nodes.mapper.core import Mapper, MapperConfig
 from palpate.nodes.mapper.grid import SparseMap
@@ -26,13 +27,13 @@ def _default_scene() -> dict[str, Any]:
 
 
 @dataclass(frozen=True, kw_only=True)
-class MapperNodeConfig:
+class MapperNodeConfig(Validated):
     """The mapper's parameters, the scene its finger model comes from, and how often maps go out."""
 
     mapper: MapperConfig
     scene: dict[str, Any] = field(default_factory=_default_scene)
     #: Publish the maps every this much simulated time (the particle summary goes out every update).
-    publish_period_s: float = 1.0
+    publish_period_s: PositiveFloat = 1.0
     #: Map kind label of the published best map ('known' or 'dead_reckoning' when mode is known).
     label: str = ""
 
@@ -42,7 +43,7 @@ def finger_chain(scene_dict: dict[str, Any]) -> KinematicChain:
     from palpate.nodes.sim.core import Simulation
     from palpate.nodes.sim.scene import SceneConfig
 
-    sim = Simulation(SceneConfig.from_dict(scene_dict, "scene"))
+    sim = Simulation(load(SceneConfig, scene_dict, "scene"))
     names = list(sim.joint_names)
     if sim.scene.effector == "hand":  # the exploring finger's joints only
         names = [n for n in names if n.startswith(f"{sim.scene.hand.pose_finger}_")]

@@ -23,9 +23,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 
+from palpate.config import NonNegativeFloat, OneOf, PositiveFloat, Validated
 from palpate.errors import ConfigError
 
 #: The four long fingers, radial to ulnar.
@@ -39,36 +41,38 @@ THUMB_JOINTS: tuple[str, ...] = ("cmc_flex", "cmc_abd", "cmc_rot", "mcp", "ip")
 #: when they may touch the object, bit 0 as affinity (so effector geoms never collide with each other).
 EFFECTOR_CONTYPE = 2
 OBJECT_CONTYPE = 1
+#: Bone lengths of a long finger (metacarpal, proximal, middle, distal), mm.
+_Mm4 = tuple[PositiveFloat, PositiveFloat, PositiveFloat, PositiveFloat]
 
 
 @dataclass(frozen=True, kw_only=True)
-class DigitConfig:
+class DigitConfig(Validated):
     """Geometry, ranges and actuation shared by the hand and the single-finger effector.
 
     Lengths are bone lengths in mm (metacarpal, proximal, middle, distal phalanx) from Buryanov and
     Kotiuk 2010, Table I (mean of 66 adults); ``scale`` multiplies every length and radius.
     """
 
-    scale: float = 1.0
-    index_lengths_mm: tuple[float, float, float, float] = (68.12, 39.78, 22.38, 15.82)
-    middle_lengths_mm: tuple[float, float, float, float] = (64.60, 44.63, 26.33, 17.40)
-    ring_lengths_mm: tuple[float, float, float, float] = (58.00, 41.37, 25.65, 17.30)
-    little_lengths_mm: tuple[float, float, float, float] = (53.69, 32.74, 18.11, 15.96)
+    scale: PositiveFloat = 1.0
+    index_lengths_mm: _Mm4 = (68.12, 39.78, 22.38, 15.82)
+    middle_lengths_mm: _Mm4 = (64.60, 44.63, 26.33, 17.40)
+    ring_lengths_mm: _Mm4 = (58.00, 41.37, 25.65, 17.30)
+    little_lengths_mm: _Mm4 = (53.69, 32.74, 18.11, 15.96)
     #: Radius of every capsule segment (a 16 mm thick finger).
-    segment_radius_mm: float = 8.0
+    segment_radius_mm: PositiveFloat = 8.0
     # Human active ranges (AAOS 1965; DIP limited to 80 deg as in issue 3, AAOS gives 90).
     mcp_flex_range_deg: tuple[float, float] = (0.0, 90.0)
     mcp_abd_range_deg: tuple[float, float] = (-20.0, 20.0)
     pip_range_deg: tuple[float, float] = (0.0, 100.0)
     dip_range_deg: tuple[float, float] = (0.0, 80.0)
     #: Position actuator stiffness (torque per rad of target error).
-    kp_nm_per_rad: float = 0.5
+    kp_nm_per_rad: NonNegativeFloat = 0.5
     #: Joint damping, integrated implicitly (close to critical for kp and the armature below).
-    damping_nm_s_per_rad: float = 0.03
+    damping_nm_s_per_rad: NonNegativeFloat = 0.03
     #: Joint armature: a numerical inertia that keeps the light phalanges stable at a 2 ms step.
-    armature_kg_m2: float = 5e-4
+    armature_kg_m2: NonNegativeFloat = 5e-4
     #: Density of the capsules (soft tissue and bone).
-    density_kg_m3: float = 1100.0
+    density_kg_m3: PositiveFloat = 1100.0
 
     def lengths_m(self, finger: str) -> tuple[float, ...]:
         """Scaled bone lengths of one long finger in metres (metacarpal, proximal, middle, distal)."""
@@ -96,7 +100,7 @@ class HandConfig(DigitConfig):
     approximating an adult right hand, not measurements; see docs/hand_model.md.
     """
 
-    thumb_lengths_mm: tuple[float, float, float] = (46.22, 31.57, 21.67)
+    thumb_lengths_mm: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = (46.22, 31.57, 21.67)
     # AAOS: CMC flexion 15 / extension 20, palmar abduction 70, MCP flexion 50, IP flexion 80.
     thumb_cmc_flex_range_deg: tuple[float, float] = (-20.0, 15.0)
     thumb_cmc_abd_range_deg: tuple[float, float] = (0.0, 70.0)
@@ -116,7 +120,7 @@ class HandConfig(DigitConfig):
     #: the bone axis, degrees. Roll -90 turns the thumb's flexion plane across the palm.
     thumb_rest_ypr_deg: tuple[float, float, float] = (40.0, 20.0, -90.0)
     #: Which fingertip ``effector_pose`` reports.
-    pose_finger: str = "index"
+    pose_finger: Annotated[str, OneOf((*LONG_FINGERS, "thumb"))] = "index"
     #: Palm pose in the world; None lets the scene place the hand so the object is in reach.
     base_position_m: tuple[float, float, float] | None = None
     base_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
@@ -143,14 +147,14 @@ class FingerConfig(DigitConfig):
     back of the finger facing local +z.
     """
 
-    finger: str = "index"
+    finger: Annotated[str, OneOf(LONG_FINGERS)] = "index"
     #: Metacarpal base in the world; None lets the scene place it so the object is in reach.
     base_position_m: tuple[float, float, float] | None = None
     base_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True, kw_only=True)
-class ProbeConfig:
+class ProbeConfig(Validated):
     """A spherical fingertip with ideal 6-DoF Cartesian velocity control (paper 002, Algorithm 1).
 
     The probe is a free body whose velocity is imposed every step (an ideal Cartesian velocity
@@ -158,16 +162,16 @@ class ProbeConfig:
     direction the fingertip faces.
     """
 
-    radius_m: float = 0.008
+    radius_m: PositiveFloat = 0.008
     #: Start of the probe centre; None starts it above the object with ``start_clearance_m``.
     start_position_m: tuple[float, float, float] | None = None
     #: Start orientation; the default (180 deg about x) makes the fingertip face world -z.
     start_quaternion_wxyz: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 0.0)
-    start_clearance_m: float = 0.03
+    start_clearance_m: NonNegativeFloat = 0.03
     #: Gain of the velocity controller against a rigid surface: reported normal force is this
     #: gain times the commanded speed into the surface (what a velocity-controlled arm would push).
-    force_gain_n_s_per_m: float = 50.0
-    density_kg_m3: float = 1100.0
+    force_gain_n_s_per_m: NonNegativeFloat = 50.0
+    density_kg_m3: PositiveFloat = 1100.0
 
 
 # --- helpers ---------------------------------------------------------------------------------------
@@ -321,8 +325,6 @@ def build_hand_mjcf(
     The long-finger metacarpals are capsules of the palm body (no CMC motion for fingers II-V);
     the thumb metacarpal moves on three CMC hinges.
     """
-    if cfg.pose_finger not in (*LONG_FINGERS, "thumb"):
-        raise ConfigError(f"pose_finger {cfg.pose_finger!r} is not a finger: use index, middle, ring, little or thumb")
     collide = collide_with_object
     parts = [f'<body name="palm" pos="{_fmt(np.asarray(base_position_m))}" quat="{_fmt(cfg.base_quaternion_wxyz)}">']
     for i, finger in enumerate(LONG_FINGERS):
