@@ -30,7 +30,15 @@ class NonFiniteError(MessageError):
 
 # --- configuration and launch ---------------------------------------------------------------------
 class ConfigError(PalpateError):
-    """A node's parameters are missing, unknown or of the wrong type."""
+    """A node's parameters are missing, unknown, of the wrong type or out of range.
+
+    ``path`` is the key path of the offending value (``("scene", "object", "size_m", 0)``) when the
+    error came from palpate.config, so that a launch file error can name the line of that key.
+    """
+
+    def __init__(self, message: str, path: tuple[str | int, ...] = ()) -> None:
+        super().__init__(message)
+        self.path = path
 
 
 class LaunchError(PalpateError):

@@ -24,11 +24,13 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from palpate.errors import ConfigError, PlanningError
+from palpate.config import NonNegativeFloat, PositiveFloat, Range, Validated
+from palpate.errors import PlanningError
 from palpate.nodes.controller import so3
 from palpate.nodes.controller.bezier import Cubic, approach_curve, recovery_curve
 
@@ -36,68 +38,53 @@ FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True)
-class TouchConfig:
+class TouchConfig(Validated):
     """When a contact is a new touch and where the next curve starts (TouchLoop, TouchArming)."""
 
     #: Radius of the fingertip sphere: the curve guides its centre, which touches a surface point
     #: t_p when it reaches t_p + radius t_n.
-    tip_radius_m: float = 0.008
+    tip_radius_m: NonNegativeFloat = 0.008
     #: A contact counts as a new touch once the fingertip has left the last one, or (not in the paper)
     #: once the contact point has slid this far from the last touch while the fingertip stayed in
     #: contact, metres. Without it a curve that grazes the surface (retracting along a tangential v_n,
     #: or bending around an edge) slides along the object for ever without a touch event: measured on
     #: the YCB wood block. 3 mm is half the coverage radius, so such a touch still explores new surface.
     #: 0 disables it.
-    rearm_distance_m: float = 0.003
+    rearm_distance_m: NonNegativeFloat = 0.003
     #: ... or once the fingertip has pushed against the surface (normal force > 0) without interruption
     #: for this long, seconds (not in the paper): a curve blocked by the object (under the lip of a cup)
     #: otherwise pushes in place for ever. 0 disables it.
-    rearm_push_s: float = 0.1
+    rearm_push_s: NonNegativeFloat = 0.1
     #: Not in the paper: the next curve retracts along -v_n (Eq. 15) only when v_n points into the
     #: surface, v_n . (-n) >= this cosine (n the measured contact normal); otherwise it retracts along
     #: n. A touch made while sliding (v_n tangential) would otherwise start the next curve along the
     #: surface, and the fingertip touches again a few millimetres on (measured: 600 contacts on 2 % of
     #: the YCB sponge with GP-V). 0.5 = 60 degrees; -1 keeps Eq. 15 as written.
-    retract_min_cos: float = 0.5
+    retract_min_cos: Annotated[float, Range(ge=-1.0, le=1.0)] = 0.5
 
 
 @dataclass(frozen=True, kw_only=True)
-class ControllerConfig:
+class ControllerConfig(Validated):
     """Parameters of the trajectory controller. The paper gives no values for v0 or Delta_m."""
 
     #: v0, desired fingertip speed (Table 1). Paper silent; 5 cm/s is a gentle tactile approach speed.
-    v0_m_s: float = 0.05
+    v0_m_s: PositiveFloat = 0.05
     #: Delta_m, how far past the end of the curve (from T(1)) the fingertip may get without a contact
     #: before the prediction counts as missed (Alg. 1 line 26). Paper silent; 1 cm is about twice the
     #: IGEF prediction miss the paper reports (5 mm), so ordinary prediction errors still end in a
     #: contact and only real misses (an edge) start the recovery curve.
-    miss_distance_m: float = 0.01
+    miss_distance_m: PositiveFloat = 0.01
     #: Proportional gain on the orientation error R^-1 T_R(tau) (Alg. 1 line 38), 1/s.
-    angular_gain_1_s: float = 5.0
+    angular_gain_1_s: NonNegativeFloat = 5.0
     #: Add the slerp's own rate (axis * angle * dtau/dt) to the angular velocity, so the fingertip
     #: faces the target normal at tau = 1 instead of lagging behind by rate / gain. Not in the paper.
     orientation_feedforward: bool = True
     #: Delta tau, the look-ahead on the curve parameter for the velocity direction (Alg. 1 line 35).
-    d_tau: float = 0.02
+    d_tau: PositiveFloat = 0.02
     #: Floor on |c_p - t_p| for the control-point scaling beta, metres (a target at the start point).
-    min_chord_m: float = 1e-4
+    min_chord_m: PositiveFloat = 1e-4
     #: Samples of the closest-point search on [tau, tau_max] before Newton refinement.
-    closest_samples: int = 33
-
-    def __post_init__(self) -> None:
-        positive = {
-            "v0_m_s": self.v0_m_s,
-            "miss_distance_m": self.miss_distance_m,
-            "d_tau": self.d_tau,
-            "min_chord_m": self.min_chord_m,
-        }
-        for name, value in positive.items():
-            if not (np.isfinite(value) and value > 0.0):
-                raise ConfigError(f"ControllerConfig.{name} must be finite and > 0, got {value!r}")
-        if not (np.isfinite(self.angular_gain_1_s) and self.angular_gain_1_s >= 0.0):
-            raise ConfigError(f"ControllerConfig.angular_gain_1_s must be >= 0, got {self.angular_gain_1_s!r}")
-        if self.closest_samples < 3:
-            raise ConfigError(f"ControllerConfig.closest_samples must be >= 3, got {self.closest_samples!r}")
+    closest_samples: Annotated[int, Range(ge=3)] = 33
 
 
 class ControllerState(enum.Enum):

@@ -3,20 +3,22 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 
+from palpate.config import NonNegativeFloat, PositiveFloat, Range, Validated
 from palpate.messages.schemas import ContactSet, SurfaceMesh
 from palpate.nodes.demo.core import ContactStatistics, box_mesh, sample_cube_contacts
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
-class CubeContactsConfig:
-    edge_m: float = 0.05
-    contacts_per_tick: int = 4
-    period_s: float = 0.01
-    duration_s: float = 1.0
+class CubeContactsConfig(Validated):
+    edge_m: PositiveFloat = 0.05
+    contacts_per_tick: Annotated[int, Range(ge=0)] = 4
+    period_s: PositiveFloat = 0.01
+    duration_s: NonNegativeFloat = 1.0
 
 
 class CubeContacts:
@@ -53,7 +55,7 @@ class CubeContacts:
 
 
 @dataclass(frozen=True, kw_only=True)
-class ContactStatsConfig:
+class ContactStatsConfig(Validated):
     report: bool = True
 
 
@@ -82,7 +84,7 @@ class ContactStats:
 
 
 @dataclass(frozen=True, kw_only=True)
-class BboxEstimatorConfig:
+class BboxEstimatorConfig(Validated):
     region: str = "global"
 
 

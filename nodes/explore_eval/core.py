@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 
+from palpate.config import PositiveFloat, PositiveInt, Range, Validated
 from palpate.metrics.exploration import (
     CoverageTracker,
     SurfaceRmse,
@@ -26,27 +27,27 @@ from palpate.nodes.sim.contacts import ExactContactSensor
 
 
 @dataclass(frozen=True, kw_only=True)
-class EvalConfig:
+class EvalConfig(Validated):
     """Goal, milestones and budgets of a run."""
 
-    coverage_goal: float = 0.8
-    milestones: tuple[float, ...] = (0.5, 0.8)
-    radius_m: float = 0.006
-    coverage_samples: int = 20000
+    coverage_goal: Annotated[float, Range(gt=0.0, le=1.0)] = 0.8
+    milestones: tuple[Annotated[float, Range(gt=0.0, le=1.0)], ...] = (0.5, 0.8)
+    radius_m: PositiveFloat = 0.006
+    coverage_samples: PositiveInt = 20000
     #: Budgets: a run that has not reached the coverage goal after this many contacts or this much
     #: travel ends as incomplete. Chosen for time (issue 5: the 180-run YCB evaluation within 2 hours on 2
     #: cores): a run then costs at most ~60 s CPU. About twice the covering bound of the largest YCB
     #: objects (block of wood 360 contacts); IGEF needs 1.5-2.5 times the bound (its hops overlap), and
     #: GP-V covered only 48-77 % of the large YCB cups within 15 m.
-    max_contacts: int = 800
-    max_travel_m: float = 20.0
+    max_contacts: PositiveInt = 800
+    max_travel_m: PositiveFloat = 20.0
     #: Simulated time without a touch after which the run ends as stalled (the fingertip stuck against
     #: the object without a touch event, or a planner error), seconds.
-    max_idle_s: float = 30.0
-    rmse_samples: int = 20000
+    max_idle_s: PositiveFloat = 30.0
+    rmse_samples: PositiveInt = 20000
     #: The headline surface RMSE is taken over the part of the estimate whose GP standard deviation is
     #: at most this, metres: the surface the estimate claims to know (see ``Milestone``).
-    confident_sigma_m: float = 0.001
+    confident_sigma_m: PositiveFloat = 0.001
 
 
 @dataclass

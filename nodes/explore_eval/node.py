@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from palpate.config import Validated
 from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.controller.so3 import quat_to_matrix
 from palpate.nodes.explore_eval.core import EvalConfig, ExplorationEvaluator, RunControl
@@ -22,7 +23,7 @@ from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
-class ExploreEvalNodeConfig:
+class ExploreEvalNodeConfig(Validated):
     """Evaluation settings and where to write the results."""
 
     eval: EvalConfig = field(default_factory=EvalConfig)

@@ -28,11 +28,13 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
+from palpate.config import NonNegativeFloat, OneOf, Positive, PositiveFloat, Validated
 from palpate.errors import ConfigError, EstimationError
 from palpate.nodes.gpis.kernels import ROWS_PER_POINT, GaussianKernel, IsotropicKernel, ThinPlateKernel
 
@@ -53,7 +55,7 @@ _VARIANCE_CHUNK_ENTRIES = 1 << 22
 
 
 @dataclass(frozen=True, kw_only=True)
-class GPISConfig:
+class GPISConfig(Validated):
     """GPIS parameters. Defaults suit objects up to ~0.4 m across (YCB); see ``for_object_size``.
 
     kernel: "thin_plate" (paper 002 Sec. 3.2) or "gaussian" (Eq. 5).
@@ -74,39 +76,25 @@ class GPISConfig:
         sphere that bulges out of the object leaves spurious surface (measured: 3 cm errors).
     """
 
-    kernel: str = "thin_plate"
-    R_m: float = 0.5
-    thin_plate_scale: float = 1.0
-    length_scale_m: float = 0.03
-    gaussian_variance_m2: float | None = None
-    value_noise_m: float = 1e-4
-    gradient_noise: float = 0.1
-    jitter: float = 1e-10
-    prior: str = "sphere"
-    prior_radius_m: float = 0.02
-    prior_scale: float = 1.0
+    kernel: Annotated[str, OneOf(KERNELS)] = "thin_plate"
+    R_m: PositiveFloat = 0.5
+    thin_plate_scale: PositiveFloat = 1.0
+    length_scale_m: PositiveFloat = 0.03
+    gaussian_variance_m2: Annotated[float | None, Positive] = None
+    value_noise_m: NonNegativeFloat = 1e-4
+    gradient_noise: NonNegativeFloat = 0.1
+    jitter: NonNegativeFloat = 1e-10
+    prior: Annotated[str, OneOf(PRIORS)] = "sphere"
+    prior_radius_m: PositiveFloat = 0.02
+    prior_scale: PositiveFloat = 1.0
 
     def __post_init__(self) -> None:
-        if self.kernel not in KERNELS:
-            raise ConfigError(f"GPISConfig.kernel must be one of {KERNELS}, got {self.kernel!r}")
-        if self.prior not in PRIORS:
-            raise ConfigError(f"GPISConfig.prior must be one of {PRIORS}, got {self.prior!r}")
-        for name in ("R_m", "thin_plate_scale", "length_scale_m", "prior_radius_m", "prior_scale"):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
-                raise ConfigError(f"GPISConfig.{name} must be a positive finite number, got {value!r}")
-        for name in ("value_noise_m", "gradient_noise", "jitter"):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and np.isfinite(value) and value >= 0):
-                raise ConfigError(f"GPISConfig.{name} must be a finite number >= 0, got {value!r}")
+        super().__post_init__()
         if self.value_noise_m == 0 and self.gradient_noise == 0 and self.jitter == 0:
             raise ConfigError(
                 "GPISConfig: value_noise_m, gradient_noise and jitter are all 0; duplicate contacts would "
                 "make the covariance singular. Set jitter > 0 (e.g. 1e-10)"
             )
-        v = self.gaussian_variance_m2
-        if v is not None and not (np.isfinite(v) and v > 0):
-            raise ConfigError(f"GPISConfig.gaussian_variance_m2 must be None or positive, got {v!r}")
 
     @classmethod
     def for_object_size(cls, size_m: float, **overrides: object) -> GPISConfig:

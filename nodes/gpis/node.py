@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from palpate.config import NonNegativeFloat, PositiveFloat, Validated
 from palpate.messages.schemas import SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.gpis.core import GPIS, GPISConfig
 from palpate.nodes.gpis.surface import SurfaceMeshArrays, global_surface, local_surface
@@ -13,20 +14,20 @@ from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
-class GPISNodeConfig:
+class GPISNodeConfig(Validated):
     """GPIS parameters and the meshes the node publishes."""
 
     gp: GPISConfig = field(default_factory=GPISConfig)
     #: Centre of the prior sphere (Algorithm 1's initial target, inside the object); null: from the first touch.
     prior_centre_m: tuple[float, float, float] | None = None
     #: Half edge of the box meshed around the latest contact; at least the planner's candidate radius.
-    local_half_extent_m: float = 0.06
+    local_half_extent_m: PositiveFloat = 0.06
     #: Marching-cubes cell size of the local mesh (5 mm gives candidates 2-5 mm apart).
-    local_resolution_m: float = 0.005
+    local_resolution_m: PositiveFloat = 0.005
     #: Cell size of the whole-object mesh published on request.
-    global_resolution_m: float = 0.003
+    global_resolution_m: PositiveFloat = 0.003
     #: Margin around the contacts' bounding box for the whole-object mesh.
-    global_margin_m: float = 0.03
+    global_margin_m: NonNegativeFloat = 0.03
     #: GP variance at every vertex (GP-V needs it; IGEF does not and runs ~2x faster without it).
     vertex_variance: bool = True
 

@@ -16,12 +16,22 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
-from palpate.errors import ConfigError, EstimationError
+from palpate.config import (
+    Fraction,
+    NonNegative,
+    NonNegativeFloat,
+    Positive,
+    PositiveFloat,
+    PositiveInt,
+    Range,
+    Validated,
+)
+from palpate.errors import EstimationError
 from palpate.nodes.mapper.fastslam import FastSlam
 from palpate.nodes.mapper.grid import L_FREE, L_OCC, GridSpec, LogOddsGrids, SparseMap
 from palpate.nodes.mapper.kinematics import KinematicChain
@@ -31,7 +41,7 @@ FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True, kw_only=True)
-class MapperConfig:
+class MapperConfig(Validated):
     """Mapper parameters; the defaults are the paper's (000_*.txt) where it gives one.
 
     region_min_m, region_max_m: corners of the mapped box (the object's workspace plus a margin).
@@ -53,35 +63,24 @@ class MapperConfig:
 
     region_min_m: tuple[float, float, float]
     region_max_m: tuple[float, float, float]
-    resolution_m: float = 0.002
+    resolution_m: PositiveFloat = 0.002
     mode: Literal["known", "fastslam"] = "fastslam"
-    n_particles: int = 100
-    sigma_deg: float = 1.5
-    resample_threshold: float = 0.5
-    l_occ: float = L_OCC
-    l_free: float = L_FREE
+    n_particles: PositiveInt = 100
+    sigma_deg: NonNegativeFloat = 1.5
+    resample_threshold: Annotated[float, Fraction] = 0.5
+    l_occ: PositiveFloat = L_OCC
+    l_free: Annotated[float, Range(lt=0.0)] = L_FREE
     l_min: float = -10.0
     l_max: float = 10.0
-    likelihood_floor: float = 0.01
-    free_weight: float = 1.0
+    likelihood_floor: Annotated[float, Fraction] = 0.01
+    free_weight: NonNegativeFloat = 1.0
     free_reward: bool = True
-    free_spacing_m: float | None = None
-    free_margin_m: float | None = None
-    chunk_edge: int = 8
+    free_spacing_m: Annotated[float | None, Positive] = None
+    free_margin_m: Annotated[float | None, NonNegative] = None
+    chunk_edge: PositiveInt = 8
 
     def __post_init__(self) -> None:
-        if self.mode not in ("known", "fastslam"):
-            raise ConfigError(f"mode must be 'known' or 'fastslam', got {self.mode!r}")
-        if self.n_particles < 1:
-            raise ConfigError(f"n_particles must be at least 1, got {self.n_particles!r}")
-        if not (self.sigma_deg >= 0 and math.isfinite(self.sigma_deg)):
-            raise ConfigError(f"sigma_deg must be finite and >= 0, got {self.sigma_deg!r}")
-        if not (self.l_occ > 0 > self.l_free):
-            raise ConfigError(f"need l_occ > 0 > l_free, got l_occ={self.l_occ!r}, l_free={self.l_free!r}")
-        if self.free_spacing_m is not None and not self.free_spacing_m > 0:
-            raise ConfigError(f"free_spacing_m must be positive, got {self.free_spacing_m!r}")
-        if self.free_margin_m is not None and not self.free_margin_m >= 0:
-            raise ConfigError(f"free_margin_m must be >= 0, got {self.free_margin_m!r}")
+        super().__post_init__()
         GridSpec.from_bounds(self.region_min_m, self.region_max_m, self.resolution_m)  # validates
 
 

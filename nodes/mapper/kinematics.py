@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from palpate.config import PositiveFloat, Validated
 from palpate.description import HandDescription, as_written
 from palpate.errors import ConfigError
 
@@ -89,7 +90,7 @@ class Capsule:
 
 
 @dataclass(frozen=True, kw_only=True)
-class FingerMount:
+class FingerMount(Validated):
     """Which digit of the described hand a chain models, and where the hand is fixed in the world.
 
     effector "finger": the simulator's single-finger effector; the base is the proximal end of the
@@ -100,19 +101,13 @@ class FingerMount:
 
     effector: Literal["finger", "hand"] = "finger"
     finger: str = "index"
-    scale: float = 1.0
+    scale: PositiveFloat = 1.0
     #: The base (metacarpal base or palm) in the world, metres.
     base_position_m: tuple[float, float, float]
     base_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
-        if self.effector not in ("finger", "hand"):
-            raise ConfigError(f"effector = {self.effector!r}: use 'finger' or 'hand'")
-        if not (math.isfinite(self.scale) and self.scale > 0):
-            raise ConfigError(f"scale = {self.scale!r}: expected a positive finite number")
-        if not all(math.isfinite(v) for v in (*self.base_position_m, *self.base_quaternion_wxyz)):
-            pose = f"{self.base_position_m!r}, {self.base_quaternion_wxyz!r}"
-            raise ConfigError(f"base pose {pose}: expected finite numbers")
+        super().__post_init__()
         if not math.hypot(*self.base_quaternion_wxyz) > 0:
             raise ConfigError(f"base_quaternion_wxyz = {self.base_quaternion_wxyz!r}: a zero quaternion is no rotation")
 

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from palpate.config import PositiveFloat, Validated
 from palpate.description import load_hand
 from palpate.messages.schemas import ContactSet, JointState, OccupancyGrid, ParticleSetSummary
 from palpate.nodes.mapper.core import Mapper, MapperConfig
@@ -24,14 +25,14 @@ from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
-class MapperNodeConfig:
+class MapperNodeConfig(Validated):
     """The mapper's parameters, where its finger is mounted, and how often maps go out."""
 
     mapper: MapperConfig
     #: The simulated finger's base in the world (the same pose as the simulator's scene).
     mount: FingerMount
     #: Publish the maps every this much simulated time (the particle summary goes out every update).
-    publish_period_s: float = 1.0
+    publish_period_s: PositiveFloat = 1.0
     #: Map kind label of the published best map ('known' or 'dead_reckoning' when mode is known).
     label: str = ""
 

@@ -12,57 +12,21 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
+from palpate.config import NonNegativeFloat, Validated
 from palpate.errors import ConfigError
 
 
-def _finite(value: Any, key: str, non_negative: bool) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{key} = {value!r}: expected a number")
-    out = float(value)
-    if not math.isfinite(out) or (non_negative and out < 0):
-        raise ConfigError(f"{key} = {value!r}: expected a finite{' non-negative' if non_negative else ''} number")
-    return out
-
-
-def _check_keys(d: Mapping[str, Any], allowed: Sequence[str], source: str) -> None:
-    unknown = sorted(set(d) - set(allowed))
-    if unknown:
-        raise ConfigError(f"{source}: unknown key(s) {unknown}; allowed keys are {list(allowed)}")
-
-
 @dataclass(frozen=True, kw_only=True)
-class JointNoiseConfig:
+class JointNoiseConfig(Validated):
     """Joint-angle noise. ``per_joint_sigma_deg`` overrides ``sigma_deg`` for the joints it names;
     ``bias_deg`` is one constant for every joint or a mapping joint name -> bias (others 0)."""
 
-    sigma_deg: float = 1.5
-    per_joint_sigma_deg: Mapping[str, float] = field(default_factory=dict)
+    sigma_deg: NonNegativeFloat = 1.5
+    per_joint_sigma_deg: Mapping[str, NonNegativeFloat] = field(default_factory=dict)
     bias_deg: float | Mapping[str, float] = 0.0
-
-    def __post_init__(self) -> None:
-        _finite(self.sigma_deg, "sigma_deg", non_negative=True)
-        if not isinstance(self.per_joint_sigma_deg, Mapping):
-            raise ConfigError(f"per_joint_sigma_deg = {self.per_joint_sigma_deg!r}: expected joint name -> sigma")
-        for name, sigma in self.per_joint_sigma_deg.items():
-            _finite(sigma, f"per_joint_sigma_deg[{name!r}]", non_negative=True)
-        if isinstance(self.bias_deg, Mapping):
-            for name, bias in self.bias_deg.items():
-                _finite(bias, f"bias_deg[{name!r}]", non_negative=False)
-        else:
-            _finite(self.bias_deg, "bias_deg", non_negative=False)
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any], source: str = "<noise>") -> JointNoiseConfig:
-        """Build from a YAML mapping; ConfigError naming the key and value on anything wrong."""
-        _check_keys(d, ("sigma_deg", "per_joint_sigma_deg", "bias_deg"), source)
-        try:
-            return cls(**dict(d))
-        except ConfigError as error:
-            raise ConfigError(f"{source}: {error}") from None
 
 
 class JointNoise:
@@ -100,24 +64,11 @@ class JointNoise:
 
 
 @dataclass(frozen=True, kw_only=True)
-class ContactNoiseConfig:
+class ContactNoiseConfig(Validated):
     """Contact-sensor noise: position sigma per axis (m), normal direction sigma per tangent axis (deg)."""
 
-    position_sigma_m: float = 0.0
-    normal_sigma_deg: float = 0.0
-
-    def __post_init__(self) -> None:
-        _finite(self.position_sigma_m, "position_sigma_m", non_negative=True)
-        _finite(self.normal_sigma_deg, "normal_sigma_deg", non_negative=True)
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any], source: str = "<noise>") -> ContactNoiseConfig:
-        """Build from a YAML mapping; ConfigError naming the key and value on anything wrong."""
-        _check_keys(d, ("position_sigma_m", "normal_sigma_deg"), source)
-        try:
-            return cls(**dict(d))
-        except ConfigError as error:
-            raise ConfigError(f"{source}: {error}") from None
+    position_sigma_m: NonNegativeFloat = 0.0
+    normal_sigma_deg: NonNegativeFloat = 0.0
 
 
 class ContactNoise:

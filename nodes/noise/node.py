@@ -9,7 +9,7 @@ sim + noise.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from palpate.messages import topics
@@ -19,22 +19,13 @@ from palpate.runtime.spec import Context, NodeSpec, Port
 
 
 @dataclass(frozen=True, kw_only=True)
-class NoiseNodeConfig:
-    """Which streams to corrupt and how."""
+class NoiseNodeConfig(JointNoiseConfig, ContactNoiseConfig):
+    """Which streams to corrupt and how (the joint and contact noise parameters, flat in YAML)."""
 
     #: Add noise to joint states (hand and finger scenes).
     joints: bool = True
-    sigma_deg: float = 1.5
-    per_joint_sigma_deg: dict[str, float] = field(default_factory=dict)
-    bias_deg: float | dict[str, float] = 0.0
     #: Add noise to contact sets (probe scene).
     contacts: bool = False
-    position_sigma_m: float = 0.0
-    normal_sigma_deg: float = 0.0
-
-    def __post_init__(self) -> None:
-        JointNoiseConfig(sigma_deg=self.sigma_deg, per_joint_sigma_deg=self.per_joint_sigma_deg, bias_deg=self.bias_deg)
-        ContactNoiseConfig(position_sigma_m=self.position_sigma_m, normal_sigma_deg=self.normal_sigma_deg)
 
 
 class NoiseNode:
@@ -43,18 +34,11 @@ class NoiseNode:
     def __init__(self, config: NoiseNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.joint_noise: JointNoise | None = None
-        self.contact_noise = ContactNoise(
-            ContactNoiseConfig(position_sigma_m=config.position_sigma_m, normal_sigma_deg=config.normal_sigma_deg),
-            ctx.rng,
-        )
+        self.contact_noise = ContactNoise(config, ctx.rng)
 
     def on_joint_states(self, message: JointState) -> None:
         if self.joint_noise is None:  # joint names come with the first reading
-            cfg = self.config
-            noise_config = JointNoiseConfig(
-                sigma_deg=cfg.sigma_deg, per_joint_sigma_deg=cfg.per_joint_sigma_deg, bias_deg=cfg.bias_deg
-            )
-            self.joint_noise = JointNoise(noise_config, message.names, self.ctx.rng)
+            self.joint_noise = JointNoise(self.config, message.names, self.ctx.rng)
         self.ctx.publish(
             "noisy_joint_states",
             JointState(

@@ -32,41 +32,41 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass
-from typing import Literal, get_args
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
-from palpate.errors import ConfigError, PlanningError
+from palpate.config import NonNegativeFloat, PositiveFloat, PositiveInt, Validated
+from palpate.errors import PlanningError
 from palpate.nodes.controller.bezier import approach_curve, bezier_length, bezier_point
 from palpate.nodes.controller.so3 import quat_to_matrix
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 Strategy = Literal["igef", "gpv", "random"]
-STRATEGIES: tuple[str, ...] = get_args(Strategy)
 
 
 @dataclass(frozen=True, kw_only=True)
-class PlannerConfig:
+class PlannerConfig(Validated):
     """Planner parameters; defaults are the paper's YCB settings (Section 2.4 and 2.6)."""
 
     strategy: Strategy = "igef"
-    sigma1_m: float = 0.02  # sigma_1 of Eq. 7
-    mu3_m: float = 0.02  # mu_3 of Eq. 10
-    sigma3_m: float = 0.02  # sigma_3 of Eq. 10
-    sigma_alpha: float = 1.0  # sigma_alpha of Eq. 11
+    sigma1_m: PositiveFloat = 0.02  # sigma_1 of Eq. 7
+    mu3_m: NonNegativeFloat = 0.02  # mu_3 of Eq. 10
+    sigma3_m: PositiveFloat = 0.02  # sigma_3 of Eq. 10
+    sigma_alpha: PositiveFloat = 1.0  # sigma_alpha of Eq. 11
     #: Candidate sampling on the estimated surface: step 0.5 cm, up to 5 cm from the last contact.
-    candidate_step_m: float = 0.005
-    candidate_radius_m: float = 0.05
+    candidate_step_m: PositiveFloat = 0.005
+    candidate_radius_m: PositiveFloat = 0.05
     #: GP-V's maximum target distance from the last contact (Section 2.6: 6 cm).
-    gpv_radius_m: float = 0.06
+    gpv_radius_m: PositiveFloat = 0.06
     #: beta = scale * |r - s| in the Psi2 path (1/3 = Eq. 15; 1 = Algorithm 2 line 4 literally).
-    psi2_control_scale: float = 1.0 / 3.0
+    psi2_control_scale: PositiveFloat = 1.0 / 3.0
     #: Floor on the Psi2 path length, metres (targets closer than the fingertip radius).
-    min_path_m: float = 1e-3
+    min_path_m: PositiveFloat = 1e-3
     #: Not in the paper, for every strategy alike: drop targets whose executed Eq. 15 curve brings the
     #: fingertip into the estimated object before the end (see ``curves_clear``). Without it GP-V picks
     #: the far side of small objects, the curve runs through them, and the fingertip touches again next
@@ -74,15 +74,15 @@ class PlannerConfig:
     check_curves: bool = True
     #: How far the fingertip sphere may dip into the estimated surface along a curve, metres (the
     #: estimate's and the nearest-vertex distance's error): the centre keeps tip_radius_m - this.
-    curve_margin_m: float = 0.001
+    curve_margin_m: NonNegativeFloat = 0.001
     #: Points sampled on each candidate curve for that check (tau in (0, 1)).
-    curve_samples: int = 16
+    curve_samples: PositiveInt = 16
     #: Not in the paper, for every strategy alike: a target whose fingertip centre (t_p + radius t_n) lies
     #: closer than this to the fingertip centre now is not admissible, metres. Such an action barely
     #: moves the fingertip: where the estimate rounds a concave corner (the floor of a cup meeting its
     #: wall) IGEF's shortest path picked a target the fingertip already touched, and the same contact
     #: repeated hundreds of times (measured on the YCB cups). 6 mm is the coverage radius.
-    min_hop_m: float = 0.006
+    min_hop_m: NonNegativeFloat = 0.006
     #: Not in the paper, for every strategy alike: a target whose touch landed further than
     #: ``unreached_miss_m`` from it (the curve hit the object on the way, or the estimate was wrong there)
     #: is remembered, and candidates within ``unreached_radius_m`` of a remembered target are not
@@ -91,33 +91,10 @@ class PlannerConfig:
     #: concave corner where a cup's floor meets its wall, which the 8 mm fingertip cannot reach, drew
     #: 500 touches 9.5 mm away on 13 spots (measured on YCB 065-i: coverage stuck at 26 %; with 5 mm it
     #: reached 80 % in 387 contacts). 0 disables it.
-    unreached_radius_m: float = 0.006
-    unreached_miss_m: float = 0.005
+    unreached_radius_m: NonNegativeFloat = 0.006
+    unreached_miss_m: NonNegativeFloat = 0.005
     #: Fingertip radius, metres (the controller's tip_radius_m): the curves guide the fingertip centre.
-    tip_radius_m: float = 0.008
-
-    def __post_init__(self) -> None:
-        if self.strategy not in STRATEGIES:
-            raise ConfigError(f"PlannerConfig.strategy must be one of {STRATEGIES}, got {self.strategy!r}")
-        for name in (
-            "sigma1_m",
-            "sigma3_m",
-            "sigma_alpha",
-            "candidate_step_m",
-            "candidate_radius_m",
-            "gpv_radius_m",
-            "psi2_control_scale",
-            "min_path_m",
-        ):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0.0):
-                raise ConfigError(f"PlannerConfig.{name} must be finite and > 0, got {value!r}")
-        for name in ("min_hop_m", "unreached_radius_m", "unreached_miss_m", "curve_margin_m", "tip_radius_m", "mu3_m"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ConfigError(f"PlannerConfig.{name} must be finite and >= 0, got {value!r}")
-        if self.curve_samples < 1:
-            raise ConfigError(f"PlannerConfig.curve_samples must be >= 1, got {self.curve_samples!r}")
+    tip_radius_m: NonNegativeFloat = 0.008
 
     @property
     def radius_m(self) -> float:

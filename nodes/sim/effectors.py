@@ -23,14 +23,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 
+from palpate.config import NonNegativeFloat, OneOf, PositiveFloat, Validated
 from palpate.description import Digit, load_hand
 from palpate.errors import ConfigError
 
 #: The hand every effector is built from.
 HAND = load_hand()
+#: The hand's fingertip radius, the probe's default.
+TIP_RADIUS_M = HAND.radius_m()
 #: The four long fingers, radial to ulnar.
 LONG_FINGERS: tuple[str, ...] = HAND.long_fingers
 
@@ -38,6 +42,7 @@ LONG_FINGERS: tuple[str, ...] = HAND.long_fingers
 #: when they may touch the object, bit 0 as affinity (so effector geoms never collide with each other).
 EFFECTOR_CONTYPE = 2
 OBJECT_CONTYPE = 1
+#: Bone lengths of a long finger (metacarpal, proximal, middle, distal), mm.
 
 
 def _range(digit: str, joint: str) -> tuple[float, float]:
@@ -47,7 +52,7 @@ def _range(digit: str, joint: str) -> tuple[float, float]:
 
 
 @dataclass(frozen=True, kw_only=True)
-class DigitConfig:
+class DigitConfig(Validated):
     """Scale, joint ranges and actuation shared by the hand and the single-finger effector.
 
     Lengths and the segment radius are the hand description's (mean bone lengths of 66 adults,
@@ -55,20 +60,20 @@ class DigitConfig:
     and gains default to the description's.
     """
 
-    scale: float = 1.0
+    scale: PositiveFloat = 1.0
     # Human active ranges (AAOS 1965; DIP limited to 80 deg as in issue 3, AAOS gives 90).
     mcp_flex_range_deg: tuple[float, float] = _range("index", "mcp_flex")
     mcp_abd_range_deg: tuple[float, float] = _range("index", "mcp_abd")
     pip_range_deg: tuple[float, float] = _range("index", "pip")
     dip_range_deg: tuple[float, float] = _range("index", "dip")
     #: Position actuator stiffness (torque per rad of target error).
-    kp_nm_per_rad: float = HAND.actuation.kp_nm_per_rad
+    kp_nm_per_rad: NonNegativeFloat = HAND.actuation.kp_nm_per_rad
     #: Joint damping, integrated implicitly (close to critical for kp and the armature below).
-    damping_nm_s_per_rad: float = HAND.actuation.damping_nm_s_per_rad
+    damping_nm_s_per_rad: NonNegativeFloat = HAND.actuation.damping_nm_s_per_rad
     #: Joint armature: a numerical inertia that keeps the light phalanges stable at a 2 ms step.
-    armature_kg_m2: float = HAND.actuation.armature_kg_m2
+    armature_kg_m2: NonNegativeFloat = HAND.actuation.armature_kg_m2
     #: Density of the capsules (soft tissue and bone).
-    density_kg_m3: float = HAND.actuation.density_kg_m3
+    density_kg_m3: PositiveFloat = HAND.actuation.density_kg_m3
 
     def lengths_m(self, finger: str) -> tuple[float, ...]:
         """Scaled bone lengths of one long finger in metres (metacarpal, proximal, middle, distal)."""
@@ -105,7 +110,7 @@ class HandConfig(DigitConfig):
     thumb_mcp_range_deg: tuple[float, float] = _range("thumb", "mcp")
     thumb_ip_range_deg: tuple[float, float] = _range("thumb", "ip")
     #: Which fingertip ``effector_pose`` reports.
-    pose_finger: str = "index"
+    pose_finger: Annotated[str, OneOf((*LONG_FINGERS, "thumb"))] = "index"
     #: Palm pose in the world; None lets the scene place the hand so the object is in reach.
     base_position_m: tuple[float, float, float] | None = None
     base_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
@@ -129,14 +134,14 @@ class FingerConfig(DigitConfig):
     back of the finger facing local +z.
     """
 
-    finger: str = "index"
+    finger: Annotated[str, OneOf(LONG_FINGERS)] = "index"
     #: Metacarpal base in the world; None lets the scene place it so the object is in reach.
     base_position_m: tuple[float, float, float] | None = None
     base_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True, kw_only=True)
-class ProbeConfig:
+class ProbeConfig(Validated):
     """A spherical fingertip with ideal 6-DoF Cartesian velocity control (paper 002, Algorithm 1).
 
     The probe is a free body whose velocity is imposed every step (an ideal Cartesian velocity
@@ -145,16 +150,16 @@ class ProbeConfig:
     """
 
     #: The hand's fingertip radius by default.
-    radius_m: float = HAND.radius_m()
+    radius_m: PositiveFloat = TIP_RADIUS_M
     #: Start of the probe centre; None starts it above the object with ``start_clearance_m``.
     start_position_m: tuple[float, float, float] | None = None
     #: Start orientation; the default (180 deg about x) makes the fingertip face world -z.
     start_quaternion_wxyz: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 0.0)
-    start_clearance_m: float = 0.03
+    start_clearance_m: NonNegativeFloat = 0.03
     #: Gain of the velocity controller against a rigid surface: reported normal force is this
     #: gain times the commanded speed into the surface (what a velocity-controlled arm would push).
-    force_gain_n_s_per_m: float = 50.0
-    density_kg_m3: float = 1100.0
+    force_gain_n_s_per_m: NonNegativeFloat = 50.0
+    density_kg_m3: PositiveFloat = 1100.0
 
 
 # --- helpers ---------------------------------------------------------------------------------------
@@ -291,8 +296,6 @@ def build_hand_mjcf(
     The long-finger metacarpals are capsules of the palm body (no CMC motion for fingers II-V);
     the thumb metacarpal moves on three CMC hinges.
     """
-    if cfg.pose_finger not in (*LONG_FINGERS, "thumb"):
-        raise ConfigError(f"pose_finger {cfg.pose_finger!r} is not a finger: use index, middle, ring, little or thumb")
     collide = collide_with_object
     parts = [f'<body name="palm" pos="{_fmt(np.asarray(base_position_m))}" quat="{_fmt(cfg.base_quaternion_wxyz)}">']
     for finger in LONG_FINGERS:

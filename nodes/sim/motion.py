@@ -27,10 +27,12 @@ import json
 import math
 import time
 from dataclasses import dataclass
+from typing import Annotated
 
 import mujoco
 import numpy as np
 
+from palpate.config import Fraction, NonNegativeFloat, PositiveFloat, PositiveInt, Range, Validated
 from palpate.nodes.sim.contacts import ExactContactSensor
 from palpate.nodes.sim.core import Simulation, capsule_spheres, sphere_centres
 from palpate.nodes.sim.effectors import LONG_FINGERS, FingerConfig, HandConfig, finger_joint_names
@@ -39,30 +41,30 @@ from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model
 
 
 @dataclass(frozen=True, kw_only=True)
-class MotionConfig:
+class MotionConfig(Validated):
     """Parameters of the scripted exploration."""
 
     #: Joint-space samples drawn to find touch configurations.
-    candidate_samples: int = 1500
+    candidate_samples: PositiveInt = 1500
     #: Newton iterations projecting a sample onto the touch surface, and the accepted residual.
-    newton_iterations: int = 6
-    touch_tolerance_m: float = 3e-4
+    newton_iterations: Annotated[int, Range(ge=0)] = 6
+    touch_tolerance_m: PositiveFloat = 3e-4
     #: Hover height above a touch point before pressing, and the press depth into the surface.
-    hover_m: float = 0.012
-    press_m: float = 0.004
+    hover_m: NonNegativeFloat = 0.012
+    press_m: NonNegativeFloat = 0.004
     #: Minimum distance kept between the object and the parts that must not touch it.
-    clearance_m: float = 0.001
-    approach_s: float = 0.2
-    hold_s: float = 0.06
-    retract_s: float = 0.1
+    clearance_m: NonNegativeFloat = 0.001
+    approach_s: PositiveFloat = 0.2
+    hold_s: NonNegativeFloat = 0.06
+    retract_s: PositiveFloat = 0.1
     #: Joint speed of transits between strokes.
-    transit_speed_rad_s: float = 4.0
-    slide_probability: float = 0.5
+    transit_speed_rad_s: PositiveFloat = 4.0
+    slide_probability: Annotated[float, Fraction] = 0.5
     #: Slide length range and speed along the surface.
-    slide_length_m: tuple[float, float] = (0.01, 0.035)
-    slide_speed_m_s: float = 0.06
+    slide_length_m: tuple[NonNegativeFloat, NonNegativeFloat] = (0.01, 0.035)
+    slide_speed_m_s: PositiveFloat = 0.06
     #: Slides stay on one face: the end normals differ by less than this angle.
-    slide_max_turn_deg: float = 10.0
+    slide_max_turn_deg: NonNegativeFloat = 10.0
 
 
 @dataclass(frozen=True)

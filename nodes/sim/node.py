@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from palpate.config import PositiveFloat, Validated
 from palpate.errors import ConfigError
 from palpate.messages import topics
 from palpate.messages.schemas import (
@@ -24,40 +25,36 @@ from palpate.messages.schemas import (
     ObjectTruth,
     Pose,
 )
+from palpate.nodes.sim.objects import ObjectSpec
 from palpate.nodes.sim.scene import SceneConfig
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
-def _default_scene() -> dict[str, Any]:
-    return {"effector": "probe", "object": {"kind": "torus"}}
+def _default_scene() -> SceneConfig:
+    return SceneConfig(effector="probe", object=ObjectSpec(kind="torus"))
 
 
 @dataclass(frozen=True, kw_only=True)
-class SimNodeConfig:
+class SimNodeConfig(Validated):
     """The scene (see SceneConfig: effector, object, physics) and the graph timing."""
 
-    scene: dict[str, Any] = field(default_factory=_default_scene)
+    scene: SceneConfig = field(default_factory=_default_scene)
     #: Simulated time between two graph ticks (messages are published once per tick).
-    tick_period_s: float = 0.01
+    tick_period_s: PositiveFloat = 0.01
     #: The run ends after this much simulated time (or earlier, when a node asks to stop).
-    duration_s: float = 60.0
+    duration_s: PositiveFloat = 60.0
     #: Hand and finger: follow the built-in scripted exploration (true) or take joint commands (false).
     scripted_motion: bool = True
 
     def __post_init__(self) -> None:
-        scene = SceneConfig.from_dict(self.scene, "scene")
-        steps = self.tick_period_s / scene.timestep_s
-        if self.tick_period_s <= 0 or abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
+        super().__post_init__()
+        steps = self.tick_period_s / self.scene.timestep_s
+        if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
             raise ConfigError(
                 f"tick_period_s = {self.tick_period_s!r} must be a positive multiple of the scene's time step "
-                f"{scene.timestep_s!r}"
+                f"{self.scene.timestep_s!r}",
+                ("tick_period_s",),
             )
-        if self.duration_s <= 0:
-            raise ConfigError(f"duration_s = {self.duration_s!r} must be positive")
-
-    @property
-    def scene_config(self) -> SceneConfig:
-        return SceneConfig.from_dict(self.scene, "scene")
 
 
 class SimNode:
@@ -67,7 +64,7 @@ class SimNode:
         from palpate.nodes.sim.core import Simulation  # MuJoCo and open3d load only in the process that simulates
 
         self.config, self.ctx = config, ctx
-        scene = config.scene_config
+        scene = config.scene
         self.sim = Simulation(scene)
         self.probe = scene.effector == "probe"
         self.motion = None
@@ -166,8 +163,11 @@ class SimNode:
 
 def _ports(params: Mapping[str, Any]) -> tuple[dict[str, Port], dict[str, Port]]:
     """Ports for the scene in `params`: only what the effector needs."""
-    scene = params.get("scene") or _default_scene()
-    effector = scene.get("effector", "finger") if isinstance(scene, Mapping) else "finger"
+    scene = params.get("scene")
+    if not scene:
+        effector = _default_scene().effector
+    else:
+        effector = scene.get("effector", "finger") if isinstance(scene, Mapping) else "finger"
     outputs = {
         "pose": Port(Pose),
         "contacts": Port(ContactSet),

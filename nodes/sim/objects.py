@@ -23,14 +23,15 @@ import math
 import os
 import tempfile
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Literal
 
 import numpy as np
 import trimesh
 
+from palpate.config import BlankIsDefault, OneOf, PositiveFloat, ScalarIsTuple, Validated
 from palpate.errors import ConfigError, MeshError, MeshWarning
 from palpate.paths import YCB_DIR_ENV, cache_dir, ycb_dir
 
@@ -69,91 +70,51 @@ CYLINDER_SECTIONS = 128
 TORUS_MAJOR_SECTIONS = 128
 TORUS_MINOR_SECTIONS = 64
 
-_SPEC_KEYS = ("kind", "size_m", "path", "scale", "position_m", "quaternion_wxyz")
-
 
 @dataclass(frozen=True, kw_only=True)
-class ObjectSpec:
+class ObjectSpec(Validated):
     """The object of a scene, as written in the scene YAML section ``object``.
 
     ``size_m`` per kind: cube ``(edge,)`` (default 0.05); rubiks_cube fixed 57 mm (leave empty);
     box ``(x, y, z)``; sphere ``(radius,)``; cylinder ``(radius, height)``; torus ``(major, minor)``;
     mesh: empty, give ``path`` (STL/OBJ/PLY/OFF/GLB in metres, ``ycb:<id>`` for a YCB mesh) and
     optionally ``scale``. The quaternion is normalised; it must have a norm within 1e-3 of 1.
+    In YAML, null, [] and "" mean "not given" (launch files pass every argument, empty when unused),
+    and a single number is a one-value ``size_m``.
     """
 
-    kind: str
-    size_m: tuple[float, ...] = ()
-    path: str | None = None
-    scale: float = 1.0
-    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    kind: Annotated[str, OneOf(KINDS)]
+    size_m: Annotated[tuple[PositiveFloat, ...], BlankIsDefault, ScalarIsTuple] = ()
+    path: Annotated[str | None, BlankIsDefault] = None
+    scale: Annotated[PositiveFloat, BlankIsDefault] = 1.0
+    position_m: Annotated[tuple[float, float, float], BlankIsDefault] = (0.0, 0.0, 0.0)
+    quaternion_wxyz: Annotated[tuple[float, float, float, float], BlankIsDefault] = (1.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
-        _validate_spec(self, "ObjectSpec")
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any], source: str = "<scene>") -> ObjectSpec:
-        """Build from a YAML mapping; ConfigError naming the key and value on anything wrong."""
-        if not isinstance(d, Mapping):
-            raise ConfigError(f"{source}: object must be a mapping with a 'kind' key, got {d!r}")
-        unknown = sorted(set(d) - set(_SPEC_KEYS))
-        if unknown:
-            raise ConfigError(f"{source}: unknown key(s) {unknown} in object; allowed keys are {list(_SPEC_KEYS)}")
-        if "kind" not in d:
-            raise ConfigError(f"{source}: object needs 'kind', one of {list(KINDS)}")
-        kwargs: dict[str, Any] = {"kind": d["kind"]}
-        # null, [] and "" mean "not given" (launch files pass every argument, empty when unused)
-        d = {k: v for k, v in d.items() if v is not None and not (isinstance(v, str | list | tuple) and len(v) == 0)}
-        if "size_m" in d:
-            size = d["size_m"]
-            kwargs["size_m"] = (size,) if isinstance(size, int | float) else size
-        for key in ("path", "scale", "position_m", "quaternion_wxyz"):
-            if key in d:
-                kwargs[key] = d[key]
-        try:
-            return cls(**kwargs)
-        except ConfigError as error:
-            raise ConfigError(f"{source}: {error}") from None
+        super().__post_init__()
+        _normalise_spec(self)
 
 
-def _float_tuple(value: Any, key: str, length: int | None) -> tuple[float, ...]:
-    if isinstance(value, str) or not isinstance(value, Sequence | np.ndarray):
-        raise ConfigError(f"object.{key} = {value!r}: expected a list of numbers")
-    try:
-        out = tuple(float(v) for v in value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"object.{key} = {value!r}: expected a list of numbers") from None
-    if length is not None and len(out) != length:
-        raise ConfigError(f"object.{key} = {list(value)!r}: expected {length} numbers, got {len(out)}")
-    if not all(math.isfinite(v) for v in out):
-        raise ConfigError(f"object.{key} = {list(value)!r}: values must be finite")
-    return out
-
-
-def _validate_spec(spec: ObjectSpec, source: str) -> None:
-    """Check and normalise the fields of a (frozen) spec in place; ConfigError on bad values."""
-    if spec.kind not in KINDS:
-        raise ConfigError(f"object.kind = {spec.kind!r}: unknown kind; use one of {list(KINDS)}")
+def _normalise_spec(spec: ObjectSpec) -> None:
+    """Checks across fields, then normalise the (frozen) spec in place: floats, default sizes, unit quaternion."""
     fields = SIZE_FIELDS[spec.kind]
-    size = _float_tuple(spec.size_m, "size_m", None)
+    size = tuple(float(v) for v in spec.size_m)
     if not size and spec.kind in DEFAULT_SIZES_M:
         size = DEFAULT_SIZES_M[spec.kind]
     if spec.kind in ("rubiks_cube", "mesh"):
         if size:
             hint = "its size is fixed at 57 mm" if spec.kind == "rubiks_cube" else "use 'scale' instead"
-            raise ConfigError(f"object.size_m = {list(size)!r}: kind {spec.kind!r} takes no size ({hint})")
+            raise ConfigError(f"size_m = {list(size)!r}: kind {spec.kind!r} takes no size ({hint})", ("size_m",))
     elif len(size) != len(fields):
         raise ConfigError(
-            f"object.size_m = {list(size)!r}: kind {spec.kind!r} needs {len(fields)} value(s) "
-            f"({', '.join(fields)}) in metres"
+            f"size_m = {list(size)!r}: kind {spec.kind!r} needs {len(fields)} value(s) ({', '.join(fields)}) in metres",
+            ("size_m",),
         )
-    if any(v <= 0 for v in size):
-        raise ConfigError(f"object.size_m = {list(size)!r}: sizes must be positive (metres)")
     if spec.kind == "torus" and size[1] >= size[0]:
         raise ConfigError(
-            f"object.size_m = {list(size)!r}: a torus needs minor radius < major radius "
-            "(size_m: [major_radius, minor_radius])"
+            f"size_m = {list(size)!r}: a torus needs minor radius < major radius "
+            "(size_m: [major_radius, minor_radius])",
+            ("size_m",),
         )
     if size:
         extent = max(size)
@@ -166,35 +127,33 @@ def _validate_spec(spec: ObjectSpec, source: str) -> None:
         if not MIN_EXTENT_M <= extent <= MAX_EXTENT_M:
             guess = [round(v * (0.001 if extent > MAX_EXTENT_M else 1000.0), 6) for v in size]
             raise ConfigError(
-                f"object.size_m = {list(size)!r}: the {spec.kind} would be {extent:g} m across, outside "
+                f"size_m = {list(size)!r}: the {spec.kind} would be {extent:g} m across, outside "
                 f"{MIN_EXTENT_M * 1000:g} mm to {MAX_EXTENT_M:g} m; sizes are in metres "
-                f"(millimetres given as metres or the reverse?), e.g. size_m: {guess}"
+                f"(millimetres given as metres or the reverse?), e.g. size_m: {guess}",
+                ("size_m",),
             )
     if spec.kind == "mesh":
-        if not isinstance(spec.path, str | os.PathLike) or not str(spec.path):
+        if not spec.path:
             raise ConfigError(
-                f"object.path = {spec.path!r}: kind 'mesh' needs a path to a mesh file in metres "
-                "(or ycb:<id>, e.g. ycb:011_banana)"
+                f"path = {spec.path!r}: kind 'mesh' needs a path to a mesh file in metres "
+                "(or ycb:<id>, e.g. ycb:011_banana)",
+                ("path",),
             )
     elif spec.path is not None:
-        raise ConfigError(f"object.path = {spec.path!r}: only kind 'mesh' takes a path (kind is {spec.kind!r})")
-    if isinstance(spec.scale, bool) or not isinstance(spec.scale, int | float):
-        raise ConfigError(f"object.scale = {spec.scale!r}: expected a positive number")
+        raise ConfigError(f"path = {spec.path!r}: only kind 'mesh' takes a path (kind is {spec.kind!r})", ("path",))
     scale = float(spec.scale)
-    if not (math.isfinite(scale) and scale > 0):
-        raise ConfigError(f"object.scale = {spec.scale!r}: expected a positive finite number")
     if scale != 1.0 and spec.kind != "mesh":
-        raise ConfigError(f"object.scale = {spec.scale!r}: only kind 'mesh' takes a scale; set size_m")
-    position = _float_tuple(spec.position_m, "position_m", 3)
-    quat = _float_tuple(spec.quaternion_wxyz, "quaternion_wxyz", 4)
+        raise ConfigError(f"scale = {spec.scale!r}: only kind 'mesh' takes a scale; set size_m", ("scale",))
+    position = tuple(float(v) for v in spec.position_m)
+    quat = tuple(float(v) for v in spec.quaternion_wxyz)
     norm = math.sqrt(sum(v * v for v in quat))
     if abs(norm - 1.0) > 1e-3:
         raise ConfigError(
-            f"object.quaternion_wxyz = {list(quat)!r}: norm {norm:.6g} is not 1; give a unit quaternion "
-            "(w, x, y, z), e.g. [1, 0, 0, 0] for no rotation"
+            f"quaternion_wxyz = {list(quat)!r}: norm {norm:.6g} is not 1; give a unit quaternion "
+            "(w, x, y, z), e.g. [1, 0, 0, 0] for no rotation",
+            ("quaternion_wxyz",),
         )
     object.__setattr__(spec, "size_m", size)
-    object.__setattr__(spec, "path", None if spec.path is None else str(spec.path))
     object.__setattr__(spec, "scale", scale)
     object.__setattr__(spec, "position_m", position)
     object.__setattr__(spec, "quaternion_wxyz", tuple(v / norm for v in quat))

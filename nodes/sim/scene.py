@@ -14,16 +14,13 @@ down.
 
 from __future__ import annotations
 
-import math
-import types
-import typing
-from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Annotated
 
 import mujoco
 import numpy as np
 
+from palpate.config import NonNegativeFloat, OneOf, PositiveFloat, Validated
 from palpate.errors import ConfigError
 from palpate.nodes.sim.effectors import (
     LONG_FINGERS,
@@ -48,125 +45,45 @@ def _default_object() -> ObjectSpec:
 
 
 @dataclass(frozen=True, kw_only=True)
-class SceneConfig:
+class SceneConfig(Validated):
     """Object, effector and physics options of one simulated scene (YAML: the sim node's section).
 
     YAML keys: ``effector`` (hand | finger | probe), ``object`` (see ObjectSpec), an optional section
     named after the effector (``hand:``, ``finger:`` or ``probe:``) with that effector's config, and
-    the scalar options below.
+    the scalar options below. A section of another effector must keep its defaults (it would be ignored).
     """
 
-    effector: str = "finger"
+    effector: Annotated[str, OneOf(EFFECTORS)] = "finger"
     object: ObjectSpec = field(default_factory=_default_object)
     hand: HandConfig = field(default_factory=HandConfig)
     finger: FingerConfig = field(default_factory=FingerConfig)
     probe: ProbeConfig = field(default_factory=ProbeConfig)
-    timestep_s: float = 0.002
+    timestep_s: PositiveFloat = 0.002
     #: Off by default (see the module docstring).
     gravity_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
     #: Exploring finger's MCP relative to the object's bounding box (-x face, y centre, top face).
     finger_mcp_offset_m: tuple[float, float, float] = (0.0, 0.035, 0.05)
     #: Exact-mesh contacts: a surface within radius + this distance counts as touched.
-    contact_tolerance_m: float = 2e-4
+    contact_tolerance_m: NonNegativeFloat = 2e-4
     #: Penalty contact of hand/finger on non-convex objects (exact-mesh path), see core.Simulation.
-    mesh_contact_stiffness_n_per_m: float = 10000.0
-    mesh_contact_damping_n_s_per_m: float = 10.0
+    mesh_contact_stiffness_n_per_m: NonNegativeFloat = 10000.0
+    mesh_contact_damping_n_s_per_m: NonNegativeFloat = 10.0
 
     def __post_init__(self) -> None:
-        if self.effector not in EFFECTORS:
-            raise ConfigError(f"effector = {self.effector!r}: unknown effector; use one of {list(EFFECTORS)}")
-        if not (math.isfinite(self.timestep_s) and self.timestep_s > 0):
-            raise ConfigError(f"timestep_s = {self.timestep_s!r}: expected a positive time step in seconds")
-        if self.effector == "finger" and self.finger.finger not in LONG_FINGERS:
-            raise ConfigError(
-                f"finger.finger = {self.finger.finger!r}: use one of {list(LONG_FINGERS)} "
-                "(the single-finger effector has 4 joints; the thumb needs the hand)"
-            )
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any], source: str = "<scene>") -> SceneConfig:
-        """Build from a YAML mapping; ConfigError naming the key and quoting the bad value."""
-        if not isinstance(d, Mapping):
-            raise ConfigError(f"{source}: the scene must be a mapping, got {d!r}")
-        allowed = {f.name for f in fields(cls)}
-        for key in d:
-            if key not in allowed:
+        super().__post_init__()
+        for name, default in (("hand", HandConfig()), ("finger", FingerConfig()), ("probe", ProbeConfig())):
+            if name != self.effector and getattr(self, name) != default:
                 raise ConfigError(
-                    f"{source}: unknown key {key!r} (value {d[key]!r}) in the scene; allowed keys are {sorted(allowed)}"
+                    f"section {name!r} ({getattr(self, name)!r}) is not used by effector {self.effector!r}; "
+                    f"remove it or set effector: {name}",
+                    (name,),
                 )
-        effector = d.get("effector", "finger")
-        kwargs: dict[str, Any] = {}
-        hints = typing.get_type_hints(cls)
-        for key, value in d.items():
-            if key == "object":
-                kwargs[key] = ObjectSpec.from_dict(value, source=source)
-            elif key in EFFECTORS:
-                if key != effector:
-                    raise ConfigError(
-                        f"{source}: section {key!r} (value {value!r}) is not used by effector {effector!r}; "
-                        f"remove it or set effector: {key}"
-                    )
-                kwargs[key] = _dataclass_from_dict(hints[key], value, f"{source}: {key}")
-            else:
-                kwargs[key] = _coerce(value, hints[key], f"{source}: {key}")
-        try:
-            return cls(**kwargs)
-        except ConfigError as error:
-            raise ConfigError(f"{source}: {error}") from None
 
     def effector_config(self) -> HandConfig | FingerConfig | ProbeConfig:
         """The config of the chosen effector."""
         if self.effector == "hand":
             return self.hand
         return self.finger if self.effector == "finger" else self.probe
-
-
-def _dataclass_from_dict(cls: Any, d: Any, where: str) -> Any:
-    if not isinstance(d, Mapping):
-        raise ConfigError(f"{where} = {d!r}: expected a mapping of options")
-    hints = typing.get_type_hints(cls)
-    names = {f.name for f in fields(cls)}
-    kwargs = {}
-    for key, value in d.items():
-        if key not in names:
-            raise ConfigError(f"{where}: unknown key {key!r} (value {value!r}); allowed keys are {sorted(names)}")
-        kwargs[key] = _coerce(value, hints[key], f"{where}.{key}")
-    try:
-        return cls(**kwargs)
-    except ConfigError as error:
-        raise ConfigError(f"{where}: {error}") from None
-
-
-def _coerce(value: Any, hint: Any, where: str) -> Any:
-    """Check ``value`` against a simple annotation (float, int, str, fixed tuples, Optional)."""
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        inner = [a for a in args if a is not type(None)]
-        return _coerce(value, inner[0], where)
-    if hint is float:
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise ConfigError(f"{where} = {value!r}: expected a finite number")
-        return float(value)
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where} = {value!r}: expected an integer")
-        return value
-    if hint is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{where} = {value!r}: expected a string")
-        return value
-    if origin is tuple:
-        if isinstance(value, str) or not isinstance(value, list | tuple):
-            raise ConfigError(f"{where} = {value!r}: expected a list of {len(args)} numbers")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_coerce(v, args[0], where) for v in value)
-        if len(value) != len(args):
-            raise ConfigError(f"{where} = {value!r}: expected {len(args)} values, got {len(value)}")
-        return tuple(_coerce(v, a, where) for v, a in zip(value, args, strict=True))
-    raise ConfigError(f"{where} = {value!r}: cannot read a value of type {hint!r} from YAML")
 
 
 # --- placement -------------------------------------------------------------------------------------

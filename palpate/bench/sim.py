@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from palpate.config import NonNegativeFloat, Validated, load
 from palpate.errors import BenchmarkError
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, JointState, Pose
 from palpate.paths import LAUNCH_DIR, ycb_dir
@@ -73,15 +74,15 @@ class _TickTimes:
 
 
 @dataclass(frozen=True, kw_only=True)
-class ProbeDriverConfig:
+class ProbeDriverConfig(Validated):
     """A scripted press-and-slide twist for the probe (a stand-in for the exploration controller)."""
 
     #: Speed towards the object before the first contact and after losing it, m/s.
-    approach_speed_m_s: float = 0.05
+    approach_speed_m_s: NonNegativeFloat = 0.05
     #: Speed into the surface while touching (the sim keeps the probe on the surface), m/s.
-    press_speed_m_s: float = 0.01
+    press_speed_m_s: NonNegativeFloat = 0.01
     #: Speed along the surface while touching, m/s; the sliding direction turns at turn_rate_rad_s.
-    slide_speed_m_s: float = 0.03
+    slide_speed_m_s: NonNegativeFloat = 0.03
     turn_rate_rad_s: float = 2.0
     #: Write the wall time of every tick here as JSON (palpate bench sim); empty: do not.
     timing_path: str = ""
@@ -152,7 +153,7 @@ PROBE_DRIVER = NodeSpec(
 
 
 @dataclass(frozen=True, kw_only=True)
-class SimSinkConfig:
+class SimSinkConfig(Validated):
     """Where to write the wall time of every tick (empty: nowhere)."""
 
     timing_path: str = ""
@@ -246,7 +247,7 @@ def probe_start(obj: Mapping[str, Any], clearance_m: float = 0.012) -> list[floa
     """A probe start above the object's highest vertex, so the driver's first descent meets it."""
     from palpate.nodes.sim.objects import ObjectSpec, load_object
 
-    mesh = load_object(ObjectSpec.from_dict(obj)).mesh
+    mesh = load_object(load(ObjectSpec, obj, "object")).mesh
     vertices = np.asarray(mesh.vertices)
     top = vertices[int(np.argmax(vertices[:, 2]))]
     return [float(top[0]), float(top[1]), float(top[2] + 0.008 + clearance_m)]
@@ -328,8 +329,7 @@ def bare_rate(launch: Path, args: Sequence[str], seconds: float) -> tuple[float,
 
     with tempfile.TemporaryDirectory() as bus_dir:
         graph = resolve(load_launch(launch, parse_cli_args(list(args))), bus_dir=Path(bus_dir))
-    scene = SceneConfig.from_dict(graph.by_name["sim"].params["scene"], "scene")
-    sim = Simulation(scene)
+    sim = Simulation(load(SceneConfig, graph.by_name["sim"].params["scene"], "scene"))
     return bare_step_rate(sim.model, seconds), sim.timestep_s
 
 

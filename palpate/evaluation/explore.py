@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from palpate.config import load
 from palpate.errors import ConfigError, MeshError
 from palpate.paths import LAUNCH_DIR
 
@@ -66,7 +67,7 @@ class ObjectCase:
         from palpate.nodes.sim.objects import ObjectSpec, load_object
 
         spec = {"kind": self.kind, "path": self.mesh or None, "size_m": self.size_m}
-        model = load_object(ObjectSpec.from_dict(spec, f"object {self.name!r}"))
+        model = load_object(load(ObjectSpec, spec, f"object {self.name!r}"))
         return np.asarray(model.mesh.vertices, dtype=np.float64), np.asarray(model.mesh.faces, dtype=np.int64)
 
 

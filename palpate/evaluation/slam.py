@@ -38,11 +38,12 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from palpate.config import NonEmpty, NonNegativeFloat, PositiveFloat, PositiveInt, Validated
 from palpate.errors import ConfigError
 from palpate.paths import LAUNCH_DIR
 from palpate.text_table import Column, fixed_width_table
@@ -59,29 +60,23 @@ DEFAULT_OUT = Path("out") / "slam"
 
 
 @dataclass(frozen=True, kw_only=True)
-class SlamEvalConfig:
+class SlamEvalConfig(Validated):
     """One evaluation: seeds, snapshot times and the mapper settings (launch arguments)."""
 
-    seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
+    seeds: Annotated[tuple[int, ...], NonEmpty] = (0, 1, 2, 3, 4)
     #: Simulated exploration times at which the maps are scored (the paper's 10 s and 100 s).
-    snapshot_s: tuple[float, ...] = (10.0, 100.0)
-    sigma_deg: float = 1.5
-    n_particles: int = 100
-    resolution_m: float = 0.002
+    snapshot_s: Annotated[tuple[PositiveFloat, ...], NonEmpty] = (10.0, 100.0)
+    sigma_deg: NonNegativeFloat = 1.5
+    n_particles: PositiveInt = 100
+    resolution_m: PositiveFloat = 0.002
     #: Free band outside the surface that the RMSE scores (metrics.surface_band).
-    band_m: float = 0.004
+    band_m: PositiveFloat = 0.004
     #: A band cell counts as explored when a true contact lies within this distance of its centre.
-    explored_radius_m: float = 0.010
+    explored_radius_m: PositiveFloat = 0.010
     #: Spacing of the true-surface samples of the completeness figure.
-    surface_spacing_m: float = 0.001
+    surface_spacing_m: PositiveFloat = 0.001
     #: Extra launch arguments of launch/slam_eval.yaml (name -> value).
     launch_args: Mapping[str, Any] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if not self.seeds:
-            raise ConfigError("SlamEvalConfig needs at least one seed")
-        if not self.snapshot_s or any(not (t > 0 and math.isfinite(t)) for t in self.snapshot_s):
-            raise ConfigError(f"snapshot times must be positive seconds, got {self.snapshot_s!r}")
 
     @property
     def duration_s(self) -> float:

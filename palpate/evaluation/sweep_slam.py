@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from palpate.config import load
 from palpate.errors import ConfigError
 from palpate.evaluation.slam import SLAM_LAUNCH, BoxTruth, Scorer, SlamEvalConfig
 from palpate.text_table import Column, fixed_width_table
@@ -168,9 +169,8 @@ def run_mapper(
 def mapper_config(params: Mapping[str, Any], resolution_m: float, **changes: Any) -> Any:
     """The MapperConfig of the evaluation graph's FastSLAM mapper node, at another resolution."""
     from palpate.nodes.mapper.core import MapperConfig
-    from palpate.runtime.spec import build_config
 
-    base = build_config(MapperConfig, dict(params), "mapper_fastslam.mapper")
+    base = load(MapperConfig, dict(params), "mapper_fastslam.mapper")
     return replace(base, resolution_m=resolution_m, **changes)
 
 
@@ -189,11 +189,11 @@ def fastslam_params(launch_path: Path = SLAM_LAUNCH, **args: Any) -> dict[str, A
 
 def fastslam_chain(launch_path: Path = SLAM_LAUNCH) -> Any:
     """The KinematicChain of the launch file's FastSLAM node: the hand description at its ``mount``."""
+    from palpate.config import load
     from palpate.description import load_hand
     from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain
-    from palpate.runtime.spec import build_config
 
-    mount = build_config(FingerMount, _fastslam_node_params(launch_path, {})["mount"], "mapper_fastslam.mount")
+    mount = load(FingerMount, _fastslam_node_params(launch_path, {})["mount"], "mapper_fastslam.mount")
     return KinematicChain.from_description(load_hand(), mount)
 
 

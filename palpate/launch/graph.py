@@ -7,19 +7,18 @@ topics wired into non-evaluator nodes. Each error names the file, the line and t
 
 from __future__ import annotations
 
-import dataclasses
 import json
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from palpate.config import load
 from palpate.errors import ConfigError, LaunchError
 from palpate.launch.loader import LaunchFile, NodeEntry, Where
 from palpate.launch.node_types import load_node_type, node_spec_reference
 from palpate.messages import topics
 from palpate.runtime import bus
-from palpate.runtime.spec import NodeProcessSpec, NodeSpec, build_config, coerce
+from palpate.runtime.spec import NodeProcessSpec, NodeSpec
 
 _SHARED_TOPICS = {topics.NODE_STATUS, topics.GRAPH_CONTROL}
 
@@ -212,21 +211,11 @@ def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
 
 
 def _check_params(entry: NodeEntry, spec: NodeSpec[Any], params: dict[str, Any]) -> None:
-    hints = typing.get_type_hints(spec.config)
-    fields = {f.name: f for f in dataclasses.fields(spec.config) if f.init}
-    node = entry.fields["name"]
-    for key, value in params.items():
-        where = entry.param_lines.get(key, entry.at("params"))
-        if key not in fields:
-            raise LaunchError(f"{where}: node {node!r}: unknown parameter {key!r}; known: {', '.join(sorted(fields))}")
-        try:
-            coerce(hints[key], value, f"params.{key}")
-        except ConfigError as exc:
-            raise LaunchError(f"{where}: node {node!r}: {exc}") from exc
+    """Load the node's config from its params; an error names the line of the offending key."""
     try:
-        build_config(spec.config, params, "params")
+        load(spec.config, params, "params")
     except ConfigError as exc:
-        raise LaunchError(f"{entry.at('params')}: node {node!r}: {exc}") from exc
+        raise LaunchError(f"{entry.param_at(exc.path)}: node {entry.fields['name']!r}: {exc}") from exc
 
 
 def _check_wiring(graph: Graph) -> None:

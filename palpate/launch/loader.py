@@ -13,6 +13,7 @@ from typing import Any
 
 import yaml
 
+from palpate.config import KeyPath
 from palpate.errors import LaunchError
 
 _CONSTRUCTOR = yaml.constructor.SafeConstructor()
@@ -55,11 +56,19 @@ class NodeEntry:
     fields: dict[str, Any]
     where: Where
     key_lines: dict[str, Where] = field(default_factory=dict)
-    param_lines: dict[str, Where] = field(default_factory=dict)
+    #: The line of every key and list item under ``params``, by key path (``("scene", "object", "kind")``).
+    param_lines: dict[KeyPath, Where] = field(default_factory=dict)
     remap_lines: dict[str, Where] = field(default_factory=dict)
 
     def at(self, key: str) -> Where:
         return self.key_lines.get(key, self.where)
+
+    def param_at(self, path: KeyPath) -> Where:
+        """The line of the deepest key of ``path`` written in the file (else the ``params`` line)."""
+        for end in range(len(path), 0, -1):
+            if path[:end] in self.param_lines:
+                return self.param_lines[path[:end]]
+        return self.at("params")
 
 
 @dataclass
@@ -169,14 +178,28 @@ def _node_entry(node: yaml.Node, name: str, args: dict[str, Any]) -> NodeEntry:
             raise LaunchError(f"{line}: unknown node key {key!r}; allowed: {sorted(NODE_KEYS)}")
         entry.key_lines[key] = line
         entry.fields[key] = _plain(vnode, name, args)
-        if key in ("params", "remaps") and isinstance(vnode, yaml.MappingNode):
-            lines = entry.param_lines if key == "params" else entry.remap_lines
+        if key == "params":
+            _mark_lines(vnode, name, (), entry.param_lines)
+        if key == "remaps" and isinstance(vnode, yaml.MappingNode):
             for sub_key, (sub_knode, _) in _mapping_items(vnode, name).items():
-                lines[sub_key] = Where(name, sub_knode.start_mark.line + 1)
+                entry.remap_lines[sub_key] = Where(name, sub_knode.start_mark.line + 1)
     for required in ("name", "type"):
         if required not in entry.fields:
             raise LaunchError(f"{where}: node needs a {required!r}")
     return entry
+
+
+def _mark_lines(node: yaml.Node, name: str, path: KeyPath, out: dict[KeyPath, Where]) -> None:
+    """Record the line of every mapping key and list item below ``node`` by its key path."""
+    if isinstance(node, yaml.MappingNode):
+        for knode, vnode in node.value:
+            key = (*path, str(knode.value))
+            out[key] = Where(name, knode.start_mark.line + 1)
+            _mark_lines(vnode, name, key, out)
+    elif isinstance(node, yaml.SequenceNode):
+        for index, item in enumerate(node.value):
+            out[(*path, index)] = Where(name, item.start_mark.line + 1)
+            _mark_lines(item, name, (*path, index), out)
 
 
 def _mapping_items(node: yaml.Node, name: str) -> dict[str, tuple[yaml.Node, yaml.Node]]:

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from palpate.config import Validated
 from palpate.errors import LaunchError, MessageError, RecordError
 from palpate.messages import codec, topics
 from palpate.messages.base import REGISTRY, Message
@@ -31,7 +32,7 @@ RUNTIME_TOPICS = frozenset({*mcap_io.INTERNAL_TOPICS, topics.NODE_STATUS})
 
 
 @dataclass(frozen=True, kw_only=True)
-class ReplayConfig:
+class ReplayConfig(Validated):
     path: str
     topics: tuple[str, ...] = ()
     order: dict[str, int] = field(default_factory=dict)

@@ -21,11 +21,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, cast
 
+from palpate.config import load
 from palpate.errors import MessageError, PalpateError
 from palpate.messages import codec
 from palpate.messages.base import Message
 from palpate.runtime.node import NodeContext
-from palpate.runtime.spec import ClockSource, NodeLike, NodeProcessSpec, NodeSpec, build_config
+from palpate.runtime.spec import ClockSource, NodeLike, NodeProcessSpec, NodeSpec
 
 #: Called for every message published: (tick, node name, topic, message).
 Listener = Callable[[int, str, str, Message], None]
@@ -53,7 +54,7 @@ class InProcessGraph:
         self.members: list[_Member] = []
         for rank, (spec, process) in enumerate(nodes):
             ctx = NodeContext(process.name, process.seed, self._sender(rank), dict(process.publishes))
-            config = build_config(spec.config, process.params, f"node {process.name!r} params")
+            config = load(spec.config, process.params, f"node {process.name!r} params")
             self.members.append(_Member(rank, spec, process, ctx, spec.factory(config, ctx)))
         self.subscribers: dict[str, list[_Member]] = {}
         for member in self.members:

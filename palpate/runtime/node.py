@@ -36,12 +36,13 @@ from typing import Any, cast
 import numpy as np
 import zmq
 
+from palpate.config import load
 from palpate.errors import MessageError, PalpateError
 from palpate.messages import codec, topics
 from palpate.messages.base import Message
 from palpate.messages.schemas import Clock, LockstepAck, NodeStatus, RunControl
 from palpate.runtime import bus, memory
-from palpate.runtime.spec import ClockSource, NodeLike, NodeProcessSpec, NodeSpec, build_config
+from palpate.runtime.spec import ClockSource, NodeLike, NodeProcessSpec, NodeSpec
 
 STOP_TOPIC = topics.GRAPH_CONTROL
 _INTERNAL = (topics.CLOCK, topics.LOCKSTEP_ACK, STOP_TOPIC)
@@ -113,7 +114,7 @@ class NodeRunner:
         self.port_of_topic = {topic: port for port, topic in process.subscribes.items()}
         self.input_types = {topic: spec.inputs[port].message for port, topic in process.subscribes.items()}
         self.ctx = NodeContext(process.name, process.seed, self._send, dict(process.publishes))
-        config: Any = build_config(spec.config, process.params, f"node {process.name!r} params")
+        config: Any = load(spec.config, process.params, f"node {process.name!r} params")
         self.node: NodeLike = spec.factory(config, self.ctx)
         self.buffer: list[tuple[int, int, str, bytes]] = []
         self.seq = 0

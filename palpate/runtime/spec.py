@@ -5,15 +5,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import types
-import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
-from palpate.errors import ConfigError
 from palpate.messages.base import Message
 
 C = TypeVar("C")
@@ -152,87 +149,3 @@ class NodeProcessSpec:
     @classmethod
     def from_json(cls, text: str) -> NodeProcessSpec:
         return cls(**json.loads(text))
-
-
-# --- configuration dataclasses from YAML params ------------------------------------------------------
-
-
-def build_config(cls: type[C], params: Mapping[str, Any], where: str = "params") -> C:
-    """Fill a config dataclass from a mapping, rejecting unknown keys and mistyped values.
-
-    `where` prefixes every error, for example ``launch/demo.yaml:12: nodes.sim.params``.
-    """
-    if not dataclasses.is_dataclass(cls):
-        raise TypeError(f"{cls!r} is not a dataclass")
-    if not isinstance(params, Mapping):
-        raise ConfigError(f"{where}: expected a mapping of parameters, got {type(params).__name__}")
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(set(params) - set(fields))
-    if unknown:
-        raise ConfigError(f"{where}: unknown parameter {unknown[0]!r}; known parameters: {', '.join(sorted(fields))}")
-    values: dict[str, Any] = {}
-    for name, f in fields.items():
-        if name not in params:
-            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-                raise ConfigError(f"{where}: missing required parameter {name!r} ({_type_name(hints[name])})")
-            continue
-        values[name] = coerce(hints[name], params[name], f"{where}.{name}")
-    try:
-        return cls(**values)
-    except (ValueError, TypeError) as exc:
-        raise ConfigError(f"{where}: {exc}") from exc
-
-
-def coerce(annotation: Any, value: Any, where: str) -> Any:
-    """Check `value` against a type annotation, converting lists to tuples and ints to floats."""
-    origin = typing.get_origin(annotation)
-    args = typing.get_args(annotation)
-    if annotation is Any:
-        return value
-    if origin in (typing.Union, types.UnionType):
-        errors = []
-        for option in args:
-            try:
-                return coerce(option, value, where)
-            except ConfigError as exc:
-                errors.append(str(exc))
-        raise ConfigError(f"{where}: expected {_type_name(annotation)}, got {value!r}")
-    if annotation is type(None):
-        if value is None:
-            return None
-        raise ConfigError(f"{where}: expected null, got {value!r}")
-    if origin is typing.Literal:
-        if value in args:
-            return value
-        raise ConfigError(f"{where}: expected one of {list(args)}, got {value!r}")
-    if annotation is float:
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            return float(value)
-        raise ConfigError(f"{where}: expected a number, got {value!r}")
-    if annotation in (int, str, bool):
-        if isinstance(value, annotation) and not (annotation is int and isinstance(value, bool)):
-            return value
-        raise ConfigError(f"{where}: expected {annotation.__name__}, got {value!r}")
-    if origin in (tuple, list):
-        if not isinstance(value, list | tuple):
-            raise ConfigError(f"{where}: expected a list, got {value!r}")
-        if origin is tuple and args and args[-1] is not Ellipsis:
-            if len(value) != len(args):
-                raise ConfigError(f"{where}: expected {len(args)} items, got {len(value)} ({value!r})")
-            return tuple(coerce(a, v, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value, strict=True)))
-        item = args[0] if args else Any
-        items = [coerce(item, v, f"{where}[{i}]") for i, v in enumerate(value)]
-        return tuple(items) if origin is tuple else items
-    if origin is dict:
-        if not isinstance(value, Mapping):
-            raise ConfigError(f"{where}: expected a mapping, got {value!r}")
-        key_type, value_type = args if args else (Any, Any)
-        return {coerce(key_type, k, where): coerce(value_type, v, f"{where}.{k}") for k, v in value.items()}
-    if dataclasses.is_dataclass(annotation) and isinstance(annotation, type):
-        return build_config(annotation, value, where)
-    raise ConfigError(f"{where}: unsupported parameter type {annotation!r}")
-
-
-def _type_name(annotation: Any) -> str:
-    return getattr(annotation, "__name__", None) or str(annotation).replace("typing.", "")

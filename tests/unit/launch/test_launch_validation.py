@@ -61,9 +61,9 @@ def test_dry_run_succeeds_on_every_launch_file(path: Path, tmp_path: Path, capsy
 BAD = [
     ("unknown_top_key.yaml", [], "unknown key 'nodez'"),
     ("unknown_node_key.yaml", [], "unknown node key 'respwan'"),
-    ("unknown_param.yaml", [], "node 'cube': unknown parameter 'edge_mm'"),
-    ("mistyped_param.yaml", [], "node 'cube': params.edge_m: expected a number, got 'big'"),
-    ("missing_param.yaml", [], "node 'sink': params: missing required parameter 'gain'"),
+    ("unknown_param.yaml", [], "node 'cube': params.edge_mm: unknown key 'edge_mm'; known keys: contacts_per_tick,"),
+    ("mistyped_param.yaml", [], "node 'cube': params.edge_m: expected a finite number > 0, got 'big'"),
+    ("missing_param.yaml", [], "node 'sink': params: missing required key 'gain'"),
     (
         "no_publisher.yaml",
         [],
@@ -153,7 +153,9 @@ def test_argument_overrides_from_the_command_line(tmp_path: Path) -> None:
 
 
 def test_overridden_argument_values_are_validated(tmp_path: Path) -> None:
-    with pytest.raises(LaunchError, match=r"with_args.yaml:14: node 'cube': params.edge_m: expected a number"):
+    with pytest.raises(
+        LaunchError, match=r"with_args.yaml:14: node 'cube': params.edge_m: expected a finite number > 0, got 'wide'"
+    ):
         load(DATA / "with_args.yaml", tmp_path, ["edge_m:=wide"])
 
 

@@ -259,7 +259,7 @@ def test_hand_chain_from_the_description_is_the_simulators(digit: str) -> None:
     [
         ({"finger": "thumb"}, "the single-finger effector is a long finger"),
         ({"finger": "pinky"}, "unknown finger 'pinky'"),
-        ({"effector": "arm"}, "use 'finger' or 'hand'"),
+        ({"effector": "arm"}, "expected one of \\['finger', 'hand'\\]"),
         ({"scale": 0.0}, "scale"),
         ({"base_position_m": (0.0, math.nan, 0.0)}, "finite"),
         ({"base_quaternion_wxyz": (0.0, 0.0, 0.0, 0.0)}, "zero quaternion"),

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from palpate.config import load
 from palpate.errors import ConfigError
 from palpate.nodes.noise.core import (
     ContactNoise,
@@ -95,17 +96,17 @@ def test_same_seed_same_stream() -> None:
 
 
 def test_config_errors_name_the_key_and_value() -> None:
-    with pytest.raises(ConfigError, match=r"sigma_deg = -1.0: expected a finite non-negative number"):
+    with pytest.raises(ConfigError, match=r"JointNoiseConfig.sigma_deg: expected a finite number >= 0, got -1.0"):
         JointNoiseConfig(sigma_deg=-1.0)
-    with pytest.raises(ConfigError, match=r"<launch>: unknown key\(s\) \['sigma'\]"):
-        JointNoiseConfig.from_dict({"sigma": 1.0}, source="<launch>")
+    with pytest.raises(ConfigError, match=r"<launch>.sigma: unknown key 'sigma'; known keys: bias_deg, per_joint"):
+        load(JointNoiseConfig, {"sigma": 1.0}, "<launch>")
     with pytest.raises(ConfigError, match=r"per_joint_sigma_deg names unknown joint\(s\) \['thumb'\]"):
         JointNoise(JointNoiseConfig(per_joint_sigma_deg={"thumb": 1.0}), JOINTS, np.random.default_rng(0))
-    with pytest.raises(ConfigError, match=r"bias_deg\['pip'\] = 'x': expected a number"):
-        JointNoiseConfig.from_dict({"bias_deg": {"pip": "x"}})
+    with pytest.raises(ConfigError, match=r"JointNoiseConfig.bias_deg.pip: expected a finite number, got 'x'"):
+        load(JointNoiseConfig, {"bias_deg": {"pip": "x"}})
     with pytest.raises(ValueError, match=r"shape \(\.\.\., 4\)"):
         JointNoise(JointNoiseConfig(), JOINTS, np.random.default_rng(0)).apply(np.zeros(3))
-    assert JointNoiseConfig.from_dict({"sigma_deg": 0.5}).sigma_deg == 0.5
+    assert load(JointNoiseConfig, {"sigma_deg": 0.5}).sigma_deg == 0.5
 
 
 # --- contacts --------------------------------------------------------------------------------------
@@ -164,5 +165,7 @@ def test_contact_noise_same_seed_same_stream() -> None:
     b = ContactNoise(config, np.random.default_rng(10)).apply(p, n)
     for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x, y)
-    with pytest.raises(ConfigError, match="normal_sigma_deg = -2"):
+    with pytest.raises(
+        ConfigError, match=r"ContactNoiseConfig.normal_sigma_deg: expected a finite number >= 0, got -2"
+    ):
         ContactNoiseConfig(normal_sigma_deg=-2)

@@ -1,98 +1,21 @@
-"""Socket-free parts of the runtime: config building, node-type registry, manifests, subscription counting."""
+"""Socket-free parts of the runtime: node-type registry, manifests, subscription counting."""
 
 from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import pytest
 
-from palpate.errors import ConfigError, LaunchError
+from palpate.errors import LaunchError
 from palpate.launch.node_types import NODE_TYPES, load_node_type
 from palpate.messages import codec
 from palpate.messages.schemas import ContactSet, TouchEvent
 from palpate.runtime import bus
 from palpate.runtime.node import _latest_state_messages
-from palpate.runtime.spec import NodeProcessSpec, NodeSpec, build_config, coerce
-
-
-@dataclass(frozen=True, kw_only=True)
-class Inner:
-    radius_m: float = 0.01
-
-
-@dataclass(frozen=True, kw_only=True)
-class Config:
-    rate_hz: float
-    count: int = 3
-    name: str = "x"
-    enabled: bool = True
-    sigma: float | None = None
-    mode: Literal["igef", "gpv"] = "igef"
-    size_m: tuple[float, float, float] = (0.1, 0.1, 0.1)
-    gains: list[float] = field(default_factory=list)
-    limits: dict[str, float] = field(default_factory=dict)
-    inner: Inner = field(default_factory=Inner)
-
-
-def test_build_config_fills_and_converts() -> None:
-    config = build_config(
-        Config,
-        {
-            "rate_hz": 100,  # an int is a valid float
-            "size_m": [1, 2, 3],
-            "gains": [1, 2.5],
-            "limits": {"a": 1},
-            "inner": {"radius_m": 2},
-            "mode": "gpv",
-            "sigma": 0.5,
-        },
-    )
-    assert config.rate_hz == 100.0 and isinstance(config.rate_hz, float)
-    assert config.size_m == (1.0, 2.0, 3.0)
-    assert config.gains == [1.0, 2.5]
-    assert config.limits == {"a": 1.0}
-    assert config.inner == Inner(radius_m=2.0)
-    assert (config.mode, config.sigma, config.count) == ("gpv", 0.5, 3)
-
-
-@pytest.mark.parametrize(
-    ("params", "message"),
-    [
-        ({}, "where: missing required parameter 'rate_hz' (float)"),
-        ({"rate_hz": 1, "rate": 2}, "where: unknown parameter 'rate'; known parameters: "),
-        ({"rate_hz": "fast"}, "where.rate_hz: expected a number, got 'fast'"),
-        ({"rate_hz": True}, "where.rate_hz: expected a number, got True"),
-        ({"rate_hz": 1, "count": 2.5}, "where.count: expected int, got 2.5"),
-        ({"rate_hz": 1, "count": False}, "where.count: expected int, got False"),
-        ({"rate_hz": 1, "name": 3}, "where.name: expected str, got 3"),
-        ({"rate_hz": 1, "mode": "random"}, "where.mode: expected one of ['igef', 'gpv'], got 'random'"),
-        ({"rate_hz": 1, "size_m": [1, 2]}, "where.size_m: expected 3 items, got 2"),
-        ({"rate_hz": 1, "gains": [1, "a"]}, "where.gains[1]: expected a number, got 'a'"),
-        ({"rate_hz": 1, "gains": 3}, "where.gains: expected a list, got 3"),
-        ({"rate_hz": 1, "limits": [1]}, "where.limits: expected a mapping, got [1]"),
-        ({"rate_hz": 1, "inner": {"radius": 1}}, "where.inner: unknown parameter 'radius'"),
-        ({"rate_hz": 1, "sigma": "big"}, "where.sigma: expected float | None, got 'big'"),
-    ],
-)
-def test_build_config_errors_quote_the_key_and_value(params: dict[str, object], message: str) -> None:
-    with pytest.raises(ConfigError) as info:
-        build_config(Config, params, "where")
-    assert message in str(info.value)
-
-
-def test_build_config_rejects_a_non_mapping() -> None:
-    with pytest.raises(ConfigError, match="expected a mapping of parameters, got list"):
-        build_config(Config, [1, 2], "where")  # type: ignore[arg-type]
-
-
-def test_coerce_rejects_unsupported_annotations() -> None:
-    with pytest.raises(ConfigError, match="unsupported parameter type"):
-        coerce(set[int], [1], "p")
+from palpate.runtime.spec import NodeProcessSpec, NodeSpec
 
 
 def test_registry_resolves_builtin_and_module_attribute_types() -> None:

@@ -9,6 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from palpate.config import load
 from palpate.errors import ConfigError, SimulationDivergedError
 from palpate.nodes.sim.contacts import ExactContactSensor
 from palpate.nodes.sim.core import Contacts, Simulation, bare_step_rate
@@ -220,8 +221,9 @@ def test_commands_for_the_wrong_effector_or_shape_are_refused() -> None:
 
 @pytest.mark.parametrize("effector", ["finger", "hand"])
 def test_huge_time_step_raises_naming_it_and_suggesting_a_smaller_one(effector: str) -> None:
-    scene = SceneConfig.from_dict(
-        {"effector": effector, "timestep_s": 0.5, effector: {"kp_nm_per_rad": 1000.0}, "object": {"kind": "cube"}}
+    scene = load(
+        SceneConfig,
+        {"effector": effector, "timestep_s": 0.5, effector: {"kp_nm_per_rad": 1000.0}, "object": {"kind": "cube"}},
     )
     sim = Simulation(scene)
     q = np.zeros(len(sim.joint_names))

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from palpate.config import load
 from palpate.errors import ConfigError, MeshError, MeshWarning
 from palpate.nodes.sim.contacts import ExactContactSensor
 from palpate.nodes.sim.decomposition import convex_decomposition
@@ -38,38 +39,42 @@ def _model(assets: str, geoms: str, extra: str = "") -> mujoco.MjModel:
 
 
 # --- specs -----------------------------------------------------------------------------------------
-def test_from_dict_fills_defaults_and_converts_lists() -> None:
-    spec = ObjectSpec.from_dict({"kind": "cube", "position_m": [0.1, 0, 0.2]})
+def test_load_fills_defaults_and_converts_lists() -> None:
+    spec = load(ObjectSpec, {"kind": "cube", "position_m": [0.1, 0, 0.2]})
     assert spec.size_m == (0.05,)
     assert spec.position_m == (0.1, 0.0, 0.2)
     assert spec.quaternion_wxyz == (1.0, 0.0, 0.0, 0.0)
-    assert ObjectSpec.from_dict({"kind": "sphere", "size_m": 0.03}).size_m == (0.03,)
-    q = ObjectSpec.from_dict({"kind": "box", "size_m": [0.1, 0.05, 0.02], "quaternion_wxyz": [1, 0, 0, 1e-4]})
+    assert load(ObjectSpec, {"kind": "sphere", "size_m": 0.03}).size_m == (0.03,)
+    blank = load(ObjectSpec, {"kind": "cube", "size_m": None, "path": "", "scale": None, "position_m": []})
+    assert blank == ObjectSpec(kind="cube")  # null, "" and [] mean "not given" (launch arguments left empty)
+    q = load(ObjectSpec, {"kind": "box", "size_m": [0.1, 0.05, 0.02], "quaternion_wxyz": [1, 0, 0, 1e-4]})
     np.testing.assert_allclose(np.linalg.norm(q.quaternion_wxyz), 1.0, atol=1e-15)
 
 
 @pytest.mark.parametrize(
     ("d", "fragment"),
     [
-        ({"kind": "cube", "colour": "red"}, "unknown key(s) ['colour']"),
-        ({"size_m": [0.1]}, "needs 'kind'"),
-        ({"kind": "pyramid"}, "object.kind = 'pyramid'"),
+        ({"kind": "cube", "colour": "red"}, "object.colour: unknown key 'colour'; known keys: kind, path, position_m"),
+        ({"size_m": [0.1]}, "object: missing required key 'kind'"),
+        ({"kind": "pyramid"}, "object.kind: expected one of ['cube', 'rubiks_cube', 'box', 'sphere', "),
         ({"kind": "box", "size_m": [0.1, 0.1]}, "needs 3 value(s) (x, y, z)"),
-        ({"kind": "sphere", "size_m": [-0.1]}, "must be positive"),
+        ({"kind": "sphere", "size_m": [-0.1]}, "object.size_m[0]: expected a finite number > 0, got -0.1"),
+        ({"kind": "sphere", "size_m": [float("nan")]}, "object.size_m[0]: expected a finite number > 0, got nan"),
         ({"kind": "cube", "size_m": [50]}, "millimetres given as metres"),
         ({"kind": "torus", "size_m": [0.01, 0.02]}, "minor radius < major radius"),
         ({"kind": "rubiks_cube", "size_m": [0.06]}, "fixed at 57 mm"),
         ({"kind": "mesh"}, "needs a path"),
         ({"kind": "cube", "path": "a.stl"}, "only kind 'mesh' takes a path"),
-        ({"kind": "mesh", "path": "a.stl", "scale": 0}, "object.scale = 0"),
-        ({"kind": "cube", "position_m": [0, 0]}, "object.position_m = [0, 0]: expected 3 numbers"),
-        ({"kind": "cube", "quaternion_wxyz": [0, 0, 0, 0]}, "give a unit quaternion"),
-        ({"kind": "cube", "position_m": "origin"}, "expected a list of numbers"),
+        ({"kind": "mesh", "path": "a.stl", "scale": 0}, "object.scale: expected a finite number > 0, got 0"),
+        ({"kind": "cube", "position_m": [0, 0]}, "object.position_m: expected 3 items, got [0, 0]"),
+        ({"kind": "cube", "position_m": [0, 0, math.inf]}, "object.position_m[2]: expected a finite number, got inf"),
+        ({"kind": "cube", "quaternion_wxyz": [0, 0, 0, 0]}, "object: quaternion_wxyz = [0.0, 0.0, 0.0, 0.0]: norm 0"),
+        ({"kind": "cube", "position_m": "origin"}, "object.position_m: expected a list, got 'origin'"),
     ],
 )
-def test_from_dict_rejects_bad_input_naming_key_and_value(d: dict, fragment: str) -> None:
+def test_load_rejects_bad_input_naming_key_and_value(d: dict, fragment: str) -> None:
     with pytest.raises(ConfigError) as info:
-        ObjectSpec.from_dict(d, source="scenes/x.yaml")
+        load(ObjectSpec, d, "scenes/x.yaml: object")
     assert "scenes/x.yaml" in str(info.value)
     assert fragment in str(info.value)
 
@@ -87,7 +92,7 @@ def test_from_dict_rejects_bad_input_naming_key_and_value(d: dict, fragment: str
     ],
 )
 def test_primitives_are_watertight_with_the_right_size(d: dict, volume: float, extents: tuple) -> None:
-    model = load_object(ObjectSpec.from_dict(d))
+    model = load_object(load(ObjectSpec, d))
     assert model.watertight and model.mesh.is_watertight
     assert model.name == d["kind"]
     assert model.convex == (d["kind"] != "torus")
@@ -124,7 +129,7 @@ def test_pose_is_applied_in_the_world_frame() -> None:
 )
 def test_primitive_mjcf_is_a_native_geom_at_the_pose(d: dict, geom_type: int, size: list) -> None:
     d = {**d, "position_m": [0.1, 0.2, 0.3], "quaternion_wxyz": [0, 1, 0, 0]}
-    model = load_object(ObjectSpec.from_dict(d))
+    model = load_object(load(ObjectSpec, d))
     assets, geoms = model.mjcf_assets_and_geoms()
     assert assets == ""
     m = _model(assets, geoms)
@@ -202,7 +207,7 @@ def test_sample_surface_is_reproducible() -> None:
 # --- mesh files and bad input -------------------------------------------------------------------
 @pytest.mark.ycb
 def test_ycb_mesh_loads_by_id(ycb: Path) -> None:
-    model = load_object(ObjectSpec.from_dict({"kind": "mesh", "path": "ycb:011_banana"}))
+    model = load_object(load(ObjectSpec, {"kind": "mesh", "path": "ycb:011_banana"}))
     assert model.name == "011_banana"
     assert model.watertight and not model.convex
     assert model.source_path == ycb / "011_banana.stl"

@@ -8,6 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from palpate.config import load
 from palpate.errors import ConfigError
 from palpate.nodes.sim.effectors import FingerConfig, ProbeConfig
 from palpate.nodes.sim.objects import KINDS, ObjectSpec, load_object
@@ -32,8 +33,9 @@ def test_every_primitive_kind_is_covered() -> None:
     assert set(PRIMITIVES) == set(KINDS) - {"mesh"}
 
 
-def test_from_dict_reads_every_section() -> None:
-    scene = SceneConfig.from_dict(
+def test_load_reads_every_section() -> None:
+    scene = load(
+        SceneConfig,
         {
             "effector": "finger",
             "object": {"kind": "sphere", "size_m": [0.03], "position_m": [0.1, 0, 0]},
@@ -41,7 +43,7 @@ def test_from_dict_reads_every_section() -> None:
             "timestep_s": 0.001,
             "gravity_m_s2": [0, 0, -9.81],
         },
-        source="scene.yaml",
+        "scene.yaml: scene",
     )
     assert scene.finger == FingerConfig(finger="ring", kp_nm_per_rad=0.7, mcp_flex_range_deg=(0.0, 80.0))
     assert scene.object.size_m == (0.03,)
@@ -60,20 +62,22 @@ def test_defaults_have_no_gravity_and_a_2_ms_step() -> None:
 @pytest.mark.parametrize(
     ("d", "fragment"),
     [
-        ({"effector": "probe", "radius_m": 0.01}, "'radius_m' (value 0.01)"),
-        ({"effector": "probe", "probe": {"radius": 0.01}}, "'radius' (value 0.01)"),
-        ({"effector": "gripper"}, "'gripper'"),
-        ({"effector": "probe", "hand": {}}, "section 'hand'"),
-        ({"timestep_s": "fast"}, "timestep_s = 'fast'"),
-        ({"timestep_s": -0.001}, "timestep_s = -0.001"),
-        ({"effector": "finger", "finger": {"finger": "thumb"}}, "'thumb'"),
-        ({"effector": "finger", "finger": {"pip_range_deg": [0, 100, 5]}}, "pip_range_deg = [0, 100, 5]"),
-        ({"object": {"kind": "cube", "colour": "red"}}, "colour"),
+        ({"effector": "probe", "radius_m": 0.01}, "scene.radius_m: unknown key 'radius_m'; known keys: contact_tol"),
+        ({"effector": "probe", "probe": {"radius": 0.01}}, "scene.probe.radius: unknown key 'radius'"),
+        ({"effector": "gripper"}, "scene.effector: expected one of ['hand', 'finger', 'probe'], got 'gripper'"),
+        ({"effector": "probe", "hand": {"scale": 2}}, "scene: section 'hand' (HandConfig(scale=2.0, "),
+        ({"timestep_s": "fast"}, "scene.timestep_s: expected a finite number > 0, got 'fast'"),
+        ({"timestep_s": -0.001}, "scene.timestep_s: expected a finite number > 0, got -0.001"),
+        ({"effector": "finger", "finger": {"finger": "thumb"}}, "scene.finger.finger: expected one of ['index', "),
+        ({"effector": "finger", "finger": {"pip_range_deg": [0, 100, 5]}}, "finger.pip_range_deg: expected 2 items"),
+        ({"effector": "finger", "finger": {"pip_range_deg": [0, "a"]}}, "pip_range_deg[1]: expected"),
+        ({"probe": {"radius_m": 0.0}}, "scene.probe.radius_m: expected a finite number > 0, got 0.0"),
+        ({"object": {"kind": "cube", "colour": "red"}}, "scene.object.colour: unknown key 'colour'"),
     ],
 )
-def test_from_dict_rejects_bad_keys_and_values_naming_them(d: dict[str, object], fragment: str) -> None:
+def test_load_rejects_bad_keys_and_values_naming_them(d: dict[str, object], fragment: str) -> None:
     with pytest.raises(ConfigError) as info:
-        SceneConfig.from_dict(d, source="launch/x.yaml")
+        load(SceneConfig, d, "launch/x.yaml: scene")
     assert fragment in str(info.value)
     assert "launch/x.yaml" in str(info.value)
 
@@ -81,7 +85,7 @@ def test_from_dict_rejects_bad_keys_and_values_naming_them(d: dict[str, object],
 @pytest.mark.parametrize("effector", ["hand", "finger", "probe"])
 @pytest.mark.parametrize("kind", sorted(PRIMITIVES))
 def test_builds_every_effector_with_every_primitive(effector: str, kind: str) -> None:
-    scene = SceneConfig.from_dict({"effector": effector, "object": PRIMITIVES[kind]})
+    scene = load(SceneConfig, {"effector": effector, "object": PRIMITIVES[kind]})
     model = build_model(scene)
     joints = {"hand": 21, "finger": 4, "probe": 1}[effector]
     assert model.njnt == joints
