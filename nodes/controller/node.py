@@ -11,12 +11,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from palpate.geometry.bezier import bezier_length
+from palpate.geometry.rotations import matrix_to_quat, quat_to_matrix
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, Pose, TouchEvent, TouchTarget, Trajectory
-from palpate.nodes.controller.bezier import bezier_length
 from palpate.nodes.controller.core import ControllerConfig, ControllerState, TrajectoryController, retract_direction
-from palpate.nodes.controller.so3 import quat_to_matrix
 from palpate.runtime.spec import NodeSpec, Port
 
 
@@ -75,12 +74,12 @@ class ControllerNode:
     def on_target(self, message: TouchTarget) -> None:
         if self.pose is None:
             return
-        R = _rotation(self.pose)
+        R = quat_to_matrix(self.pose.quaternion_wxyz)
         centre_at_target = message.position_m + self.config.tip_radius_m * message.normal
         P = self.core.start(self.pose.position_m, self.retract_from, R, centre_at_target, message.normal)
         self.predicted = np.array(message.predicted_contact_m)
         self.armed = False
-        R1 = Rotation.from_matrix(R).as_quat(scalar_first=True)
+        R1 = matrix_to_quat(R)
         self.ctx.publish(
             "trajectory",
             Trajectory(
@@ -96,7 +95,7 @@ class ControllerNode:
     def on_tick(self, stamp_ns: int) -> None:
         if self.pose is None:
             return
-        r, R = np.array(self.pose.position_m), _rotation(self.pose)
+        r, R = np.array(self.pose.position_m), quat_to_matrix(self.pose.quaternion_wxyz)
         if not self.started:
             self.core.initial_approach(r, np.array(self.config.initial_target_m))
             self.started = True
@@ -163,11 +162,6 @@ class ControllerNode:
             ),
         )
         self.touches += 1
-
-
-def _rotation(pose: Pose) -> np.ndarray:
-    """Rotation matrix (3, 3) of a pose's wxyz quaternion."""
-    return quat_to_matrix(pose.quaternion_wxyz)
 
 
 SPEC = NodeSpec(

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from palpate.errors import ConfigError
+from palpate.geometry.rotations import axis_angle_to_matrices, quat_to_matrix
 
 FloatArray = NDArray[np.float64]
 
@@ -31,29 +32,6 @@ _HINGE = 3  # mujoco.mjtJoint.mjJNT_HINGE
 _SLIDE = 2  # mujoco.mjtJoint.mjJNT_SLIDE
 _SPHERE = 2  # mujoco.mjtGeom.mjGEOM_SPHERE
 _CAPSULE = 3  # mujoco.mjtGeom.mjGEOM_CAPSULE
-
-
-def quat_to_mat(q: FloatArray) -> FloatArray:
-    """Rotation matrix (3, 3) of a unit quaternion (w, x, y, z) (MuJoCo's convention)."""
-    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def axis_angle_to_mat(axis: FloatArray, angle: FloatArray) -> FloatArray:
-    """Rotations (K, 3, 3) about a unit axis (3,) by angles (K,) radians (Rodrigues)."""
-    u = np.asarray(axis, dtype=np.float64)
-    u = u / np.linalg.norm(u)
-    c = np.cos(angle)[:, None, None]
-    s = np.sin(angle)[:, None, None]
-    ux = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
-    # R = cos a I + sin a [u]x + (1 - cos a) u u^T
-    return c * np.eye(3) + s * ux + (1.0 - c) * np.outer(u, u)
 
 
 def _matvec(a: FloatArray, v: FloatArray) -> FloatArray:
@@ -189,7 +167,7 @@ class KinematicChain:
         base_pos = np.zeros(3)
         for b in sorted(base_bodies):  # world -> ... -> parent of the first link
             base_pos = base_pos + base_rot @ model.body_pos[b]
-            base_rot = base_rot @ quat_to_mat(model.body_quat[b])
+            base_rot = base_rot @ quat_to_matrix(model.body_quat[b])
 
         links = []
         for b in body_ids:
@@ -211,7 +189,7 @@ class KinematicChain:
                 _Link(
                     parent=link_of.get(int(parent[b]), -1),
                     pos=np.array(model.body_pos[b], dtype=np.float64),
-                    rot=quat_to_mat(model.body_quat[b]),
+                    rot=quat_to_matrix(model.body_quat[b]),
                     joints=tuple(joints),
                 )
             )
@@ -222,7 +200,7 @@ class KinematicChain:
             kind = int(model.geom_type[g])
             if b not in link_of or kind not in (_CAPSULE, _SPHERE):
                 continue
-            rot = quat_to_mat(model.geom_quat[g])
+            rot = quat_to_matrix(model.geom_quat[g])
             centre = np.array(model.geom_pos[g], dtype=np.float64)
             half = float(model.geom_size[g][1]) if kind == _CAPSULE else 0.0
             capsules.append(
@@ -271,7 +249,7 @@ class KinematicChain:
                 if jt.kind == _HINGE:
                     off = bool(np.any(jt.pos))
                     anchor = x + r @ jt.pos if off else x
-                    r = r @ axis_angle_to_mat(jt.axis, angle)
+                    r = r @ axis_angle_to_matrices(jt.axis, angle)
                     x = anchor - r @ jt.pos if off else x
                 else:
                     x = x + (r @ jt.axis) * angle[:, None]

@@ -36,7 +36,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
 from palpate.errors import ConfigError, PlanningError
-from palpate.nodes.controller.bezier import approach_curve, bezier_length, bezier_point
+from palpate.geometry.bezier import approach_curve, bezier_length, bezier_point
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -7,8 +7,8 @@ from typing import Any
 import numpy as np
 
 from palpate.errors import PlanningError
+from palpate.geometry.rotations import quat_to_matrix
 from palpate.messages.schemas import Pose, SurfaceMesh, TouchEvent, TouchTarget
-from palpate.nodes.controller.so3 import quat_to_matrix
 from palpate.nodes.planner.core import Candidates, Planner, PlannerConfig, Selection, away_from, curves_clear
 from palpate.runtime.spec import NodeSpec, Port
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from palpate.errors import ConfigError
+from palpate.geometry.rotations import ypr_deg_to_quat
 
 #: The four long fingers, radial to ulnar.
 LONG_FINGERS: tuple[str, ...] = ("index", "middle", "ring", "little")
@@ -177,32 +178,6 @@ def _fmt(values: np.ndarray | tuple[float, ...] | list[float]) -> str:
     return " ".join(f"{float(v):.9g}" for v in values)
 
 
-def _quat_from_ypr_deg(yaw: float, pitch: float, roll: float) -> np.ndarray:
-    """Quaternion (w, x, y, z) of Rz(yaw) @ Ry(pitch) @ Rx(roll) (intrinsic z-y'-x'')."""
-
-    def axis_quat(axis: int, deg: float) -> np.ndarray:
-        h = math.radians(deg) / 2.0
-        q = np.zeros(4)
-        q[0] = math.cos(h)
-        q[1 + axis] = math.sin(h)
-        return q
-
-    return _quat_mul(_quat_mul(axis_quat(2, yaw), axis_quat(1, pitch)), axis_quat(0, roll))
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return np.array(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ]
-    )
-
-
 def _collision_attrs(collide_with_object: bool) -> str:
     affinity = OBJECT_CONTYPE if collide_with_object else 0
     contype = EFFECTOR_CONTYPE if collide_with_object else 0
@@ -342,7 +317,7 @@ def build_hand_mjcf(
         )
     meta, prox, dist = cfg.thumb_lengths_m()
     thumb_pos = cfg.scale * np.array(cfg.thumb_cmc_position_mm) / 1e3
-    thumb_quat = _quat_from_ypr_deg(*cfg.thumb_rest_ypr_deg)
+    thumb_quat = ypr_deg_to_quat(*cfg.thumb_rest_ypr_deg)
     parts.append(
         f'<body name="thumb_metacarpal" pos="{_fmt(thumb_pos)}" quat="{_fmt(thumb_quat)}">'
         + _joint("thumb_cmc_flex", "0 1 0", cfg.thumb_cmc_flex_range_deg, cfg)

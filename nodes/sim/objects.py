@@ -32,6 +32,7 @@ import numpy as np
 import trimesh
 
 from palpate.errors import ConfigError, MeshError, MeshWarning
+from palpate.geometry.rotations import quat_to_matrix
 from palpate.paths import YCB_DIR_ENV, cache_dir, ycb_dir
 
 #: Object kinds a scene may name.
@@ -202,9 +203,10 @@ def _validate_spec(spec: ObjectSpec, source: str) -> None:
 
 def pose_matrix(position_m: Sequence[float], quaternion_wxyz: Sequence[float]) -> np.ndarray:
     """Homogeneous transform (4, 4) from a position (m) and a unit quaternion (w, x, y, z)."""
-    T = trimesh.transformations.quaternion_matrix(np.asarray(quaternion_wxyz, dtype=np.float64))
+    T = np.eye(4)
+    T[:3, :3] = quat_to_matrix(quaternion_wxyz)
     T[:3, 3] = np.asarray(position_m, dtype=np.float64)
-    return np.asarray(T, dtype=np.float64)
+    return T
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

@@ -129,13 +129,10 @@ def approach(
 
 def probe_quaternion(direction: FloatArray) -> tuple[float, float, float, float]:
     """wxyz quaternion of the probe facing along -direction (its z axis pokes towards the object)."""
-    from scipy.spatial.transform import Rotation
+    from palpate.geometry.rotations import get_rotation, matrix_to_quat, quat_to_matrix
 
-    from palpate.nodes.controller.so3 import align_axis
-
-    R0 = Rotation.from_quat([0.0, 1.0, 0.0, 0.0], scalar_first=True).as_matrix()  # the sim's default: facing -z
-    R = align_axis(R0[:, 2], -np.asarray(direction, dtype=np.float64)) @ R0
-    q = Rotation.from_matrix(R).as_quat(scalar_first=True)
+    R0 = quat_to_matrix([0.0, 1.0, 0.0, 0.0])  # the sim's default: facing -z
+    q = matrix_to_quat(get_rotation(R0, direction))
     return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
 
 
