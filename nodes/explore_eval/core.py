@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.metrics.exploration import (
     CoverageTracker,
     SurfaceRmse,
@@ -22,7 +23,6 @@ from palpate.metrics.exploration import (
     surface_rmse,
     triangle_areas,
 )
-from palpate.nodes.sim.contacts import ExactContactSensor
 
 
 @dataclass(frozen=True, kw_only=True)

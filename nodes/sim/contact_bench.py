@@ -34,7 +34,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, cKDTree
 
-from palpate.nodes.sim.contacts import ExactContactSensor, closest_points_on_triangles
+from palpate.geometry.mesh_query import ExactContactSensor, closest_points_on_triangles
 from palpate.nodes.sim.objects import read_mesh_file, sample_surface_faces
 from palpate.paths import YCB_DIR_ENV, ycb_dir
 from palpate.text_table import Column, fixed_width_table

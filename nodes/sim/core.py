@@ -38,7 +38,7 @@ import mujoco
 import numpy as np
 
 from palpate.errors import ConfigError, SimulationDivergedError
-from palpate.nodes.sim.contacts import ExactContactSensor
+from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.nodes.sim.effectors import FingerConfig, HandConfig
 from palpate.nodes.sim.objects import ObjectModel, load_object
 from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model, uses_exact_contacts

@@ -12,7 +12,7 @@ Conventions:
 - ``path`` may be ``ycb:<id>`` (for example ``ycb:011_banana``), resolved in
   :func:`palpate.paths.ycb_dir`; other relative paths resolve against the current directory.
 - MuJoCo collides a mesh geom as its convex hull. ``convex`` says whether that is exact; for the
-  other objects the contacts come from :class:`palpate.nodes.sim.contacts.ExactContactSensor`,
+  other objects the contacts come from :class:`palpate.geometry.mesh_query.ExactContactSensor`,
   and ``mjcf_assets_and_geoms(collision="decomposed")`` gives the physics a convex decomposition.
 """
 

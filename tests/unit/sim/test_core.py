@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from palpate.errors import ConfigError, SimulationDivergedError
-from palpate.nodes.sim.contacts import ExactContactSensor
+from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.nodes.sim.core import Contacts, Simulation, bare_step_rate
 from palpate.nodes.sim.effectors import FingerConfig, ProbeConfig
 from palpate.nodes.sim.objects import ObjectSpec

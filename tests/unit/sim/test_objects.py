@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from palpate.errors import ConfigError, MeshError, MeshWarning
-from palpate.nodes.sim.contacts import ExactContactSensor
+from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.nodes.sim.decomposition import convex_decomposition
 from palpate.nodes.sim.objects import (
     RUBIKS_CUBE_EDGE_M,
