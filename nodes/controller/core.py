@@ -7,7 +7,7 @@ fingertip touches. It never sleeps and keeps no time; it only needs the poses it
 
 Frames and units: positions in metres (world frame), linear velocity in m/s and angular velocity in
 rad/s, both in the world frame. The fingertip's local z axis ``R[:, 2]`` is the direction it pokes; it
-faces a surface with outward normal n when ``R[:, 2] = -n`` (see ``so3.get_rotation``).
+faces a surface with outward normal n when ``R[:, 2] = -n`` (see ``palpate.geometry.rotations.get_rotation``).
 
 States: IDLE (stopped, zero command) -> DIRECT (initial straight approach, Alg. 1 lines 1-4) or
 APPROACH (Eq. 15 curve to the target) -> RECOVERY (Eq. 17 curve back to the last contact after a
@@ -31,8 +31,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from palpate.config import NonNegativeFloat, PositiveFloat, Range, Validated
 from palpate.errors import PlanningError
-from palpate.nodes.controller import so3
-from palpate.nodes.controller.bezier import Cubic, approach_curve, recovery_curve
+from palpate.geometry import rotations
+from palpate.geometry.bezier import Cubic, approach_curve, recovery_curve
 
 FloatArray = NDArray[np.float64]
 
@@ -235,7 +235,7 @@ class TrajectoryController:
         if self._prev_r is not None and self._prev_R is not None:
             step = r_ - self._prev_r
             self._travelled[self._exploring] += math.sqrt(float(step @ step))
-            self._rotated_rad[self._exploring] += so3.rotation_angle_3x3(self._prev_R.T @ R_)
+            self._rotated_rad[self._exploring] += rotations.rotation_angle_3x3(self._prev_R.T @ R_)
         self._prev_r, self._prev_R = r_, R_
 
     # --- commands --------------------------------------------------------------------------------
@@ -345,8 +345,8 @@ class TrajectoryController:
 
         # Alg. 1 lines 38-39: omega from the orientation error R^-1 T_R(tau) (as a rotation vector)
         tau_r = min(self._tau, 1.0)
-        R_target = self._R0 @ so3.exp_so3(tau_r * self._w01)
-        angular = cfg.angular_gain_1_s * (R_ @ so3.log_so3(R_.T @ R_target))
+        R_target = self._R0 @ rotations.exp_so3(tau_r * self._w01)
+        angular = cfg.angular_gain_1_s * (R_ @ rotations.log_so3(R_.T @ R_target))
         if cfg.orientation_feedforward and self._tau < 1.0:
             speed = math.sqrt(float(tangent @ tangent))
             if speed > 1e-12:
@@ -362,9 +362,9 @@ class TrajectoryController:
         end_speed = float(np.linalg.norm(self._curve.end_tangent))  # |T'(1)|
         # Search far enough past T(1) that passing it by Delta_m is seen (tau > 1 branch of line 26).
         self._tau_max = 1.0 + cfg.d_tau + 2.0 * cfg.miss_distance_m / max(end_speed, 1e-12)
-        R1 = so3.get_rotation(R0, face_n)  # Alg. 1 line 20: R1 <- getRotation(R0, t_n)
+        R1 = rotations.get_rotation(R0, face_n)  # Alg. 1 line 20: R1 <- getRotation(R0, t_n)
         self._R0 = R0
-        self._w01 = so3.log_so3(R0.T @ R1)  # T_R(tau) = R0 exp(tau w01)
+        self._w01 = rotations.log_so3(R0.T @ R1)  # T_R(tau) = R0 exp(tau w01)
 
     def _start_recovery(self, r: FloatArray, R: FloatArray) -> None:
         """Alg. 1 lines 27-34 with the text's target: the last contact (always on the surface)."""

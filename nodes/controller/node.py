@@ -10,12 +10,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from palpate.geometry.bezier import bezier_length
+from palpate.geometry.rotations import matrix_to_quat, quat_to_matrix
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, Pose, TouchEvent, TouchTarget, Trajectory
-from palpate.nodes.controller.bezier import bezier_length
 from palpate.nodes.controller.core import ControllerConfig, Touch, TouchConfig, TouchLoop
-from palpate.nodes.controller.so3 import quat_to_matrix
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
@@ -50,9 +49,9 @@ class ControllerNode:
     def on_target(self, message: TouchTarget) -> None:
         if self.pose is None:
             return
-        R = _rotation(self.pose)
+        R = quat_to_matrix(self.pose.quaternion_wxyz)
         P = self.core.aim(self.pose.position_m, R, message.position_m, message.normal, message.predicted_contact_m)
-        R1 = Rotation.from_matrix(R).as_quat(scalar_first=True)
+        R1 = matrix_to_quat(R)
         self.ctx.publish(
             "trajectory",
             Trajectory(
@@ -70,7 +69,9 @@ class ControllerNode:
             return
         c = self.contacts
         contacts = _NO_CONTACT if c is None else (c.positions_m, c.normals, c.forces_n)
-        step = self.core.step(stamp_ns, np.array(self.pose.position_m), _rotation(self.pose), *contacts)
+        step = self.core.step(
+            stamp_ns, np.array(self.pose.position_m), quat_to_matrix(self.pose.quaternion_wxyz), *contacts
+        )
         if step.touch is not None:
             self._publish_touch(step.touch)
         if step.failed:
@@ -103,11 +104,6 @@ class ControllerNode:
                 rotation_deg=touch.rotation_deg,
             ),
         )
-
-
-def _rotation(pose: Pose) -> np.ndarray:
-    """Rotation matrix (3, 3) of a pose's wxyz quaternion."""
-    return quat_to_matrix(pose.quaternion_wxyz)
 
 
 SPEC = NodeSpec(

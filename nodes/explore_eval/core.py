@@ -14,6 +14,7 @@ from typing import Annotated, Any
 import numpy as np
 
 from palpate.config import PositiveFloat, PositiveInt, Range, Validated
+from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.metrics.exploration import (
     CoverageTracker,
     SurfaceRmse,
@@ -23,7 +24,6 @@ from palpate.metrics.exploration import (
     surface_rmse,
     triangle_areas,
 )
-from palpate.nodes.sim.contacts import ExactContactSensor
 
 
 @dataclass(frozen=True, kw_only=True)

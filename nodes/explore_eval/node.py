@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from palpate.config import Validated
+from palpate.geometry.rotations import quat_to_matrix
 from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
-from palpate.nodes.controller.so3 import quat_to_matrix
 from palpate.nodes.explore_eval.core import EvalConfig, ExplorationEvaluator, RunControl
 from palpate.runtime.spec import Context, NodeSpec, Port
 

@@ -24,11 +24,11 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from palpate.config import PositiveFloat, Validated
 from palpate.description import HandDescription, as_written
 from palpate.errors import ConfigError
+from palpate.geometry.rotations import axis_angle_to_matrices, quat_to_matrix, ypr_deg_to_quat
 
 FloatArray = NDArray[np.float64]
 
@@ -38,29 +38,6 @@ _SPHERE = 2  # mujoco.mjtGeom.mjGEOM_SPHERE
 _CAPSULE = 3  # mujoco.mjtGeom.mjGEOM_CAPSULE
 
 
-def quat_to_mat(q: FloatArray) -> FloatArray:
-    """Rotation matrix (3, 3) of a unit quaternion (w, x, y, z) (MuJoCo's convention)."""
-    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def axis_angle_to_mat(axis: FloatArray, angle: FloatArray) -> FloatArray:
-    """Rotations (K, 3, 3) about a unit axis (3,) by angles (K,) radians (Rodrigues)."""
-    u = np.asarray(axis, dtype=np.float64)
-    u = u / np.linalg.norm(u)
-    c = np.cos(angle)[:, None, None]
-    s = np.sin(angle)[:, None, None]
-    ux = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
-    # R = cos a I + sin a [u]x + (1 - cos a) u u^T
-    return c * np.eye(3) + s * ux + (1.0 - c) * np.outer(u, u)
-
-
 def _bone_capsule_ends(length_m: float) -> tuple[FloatArray, FloatArray]:
     """Ends (a, b) (3,) of the capsule from a segment's joint to (length_m, 0, 0), as ``from_model``
     reads the simulator's ``fromto`` capsule: MuJoCo turns the geom's z axis onto from - to (-x) by
@@ -68,7 +45,7 @@ def _bone_capsule_ends(length_m: float) -> tuple[FloatArray, FloatArray]:
     rounding in z and puts the distal end first. Doing the same keeps the mapper's free-volume
     lattice (observation.capsule_lattice) what it was with the model, bit for bit."""
     half = length_m / 2
-    z = quat_to_mat(np.array([math.cos(math.pi / 4), 0.0, -math.sin(math.pi / 4), 0.0]))[:, 2]
+    z = quat_to_matrix(np.array([math.cos(math.pi / 4), 0.0, -math.sin(math.pi / 4), 0.0]))[:, 2]
     centre = np.array([half, 0.0, 0.0])
     return centre - z * half, centre + z * half
 
@@ -189,8 +166,8 @@ class KinematicChain:
         lengths = [as_written(v) for v in digit.lengths_m(mount.scale)]
         if mount.effector == "hand":  # the digit's rest frame in the palm (a quaternion in the MJCF)
             offset = np.array([as_written(v) for v in digit.base_m(mount.scale)])
-            rest_q = Rotation.from_euler("ZYX", digit.rest_ypr_deg, degrees=True).as_quat(scalar_first=True)
-            rest = quat_to_mat(np.array([as_written(v) for v in rest_q]))
+            rest_q = ypr_deg_to_quat(*digit.rest_ypr_deg)
+            rest = quat_to_matrix(np.array([as_written(v) for v in rest_q]))
         else:  # the metacarpal's base is the mount itself
             offset, rest = np.zeros(3), np.eye(3)
         column = {name: i for i, name in enumerate(digit.joint_names())}
@@ -226,7 +203,7 @@ class KinematicChain:
             )
         quaternion = np.array([as_written(v) for v in mount.base_quaternion_wxyz])
         return cls(
-            base_rot=quat_to_mat(quaternion),
+            base_rot=quat_to_matrix(quaternion),
             base_pos_m=np.array([as_written(v) for v in mount.base_position_m]),
             links=links,
             capsules=capsules,
@@ -290,7 +267,7 @@ class KinematicChain:
         base_pos = np.zeros(3)
         for b in sorted(base_bodies):  # world -> ... -> parent of the first link
             base_pos = base_pos + base_rot @ model.body_pos[b]
-            base_rot = base_rot @ quat_to_mat(model.body_quat[b])
+            base_rot = base_rot @ quat_to_matrix(model.body_quat[b])
 
         links = []
         for b in body_ids:
@@ -312,7 +289,7 @@ class KinematicChain:
                 _Link(
                     parent=link_of.get(int(parent[b]), -1),
                     pos=np.array(model.body_pos[b], dtype=np.float64),
-                    rot=quat_to_mat(model.body_quat[b]),
+                    rot=quat_to_matrix(model.body_quat[b]),
                     joints=tuple(joints),
                 )
             )
@@ -323,7 +300,7 @@ class KinematicChain:
             kind = int(model.geom_type[g])
             if b not in link_of or kind not in (_CAPSULE, _SPHERE):
                 continue
-            rot = quat_to_mat(model.geom_quat[g])
+            rot = quat_to_matrix(model.geom_quat[g])
             centre = np.array(model.geom_pos[g], dtype=np.float64)
             half = float(model.geom_size[g][1]) if kind == _CAPSULE else 0.0
             capsules.append(
@@ -372,7 +349,7 @@ class KinematicChain:
                 if jt.kind == _HINGE:
                     off = bool(np.any(jt.pos))
                     anchor = x + r @ jt.pos if off else x
-                    r = r @ axis_angle_to_mat(jt.axis, angle)
+                    r = r @ axis_angle_to_matrices(jt.axis, angle)
                     x = anchor - r @ jt.pos if off else x
                 else:
                     x = x + (r @ jt.axis) * angle[:, None]

@@ -41,8 +41,8 @@ from scipy.spatial.distance import cdist
 
 from palpate.config import NonNegativeFloat, PositiveFloat, PositiveInt, Validated
 from palpate.errors import PlanningError
-from palpate.nodes.controller.bezier import approach_curve, bezier_length, bezier_point
-from palpate.nodes.controller.so3 import quat_to_matrix
+from palpate.geometry.bezier import approach_curve, bezier_length, bezier_point
+from palpate.geometry.rotations import quat_to_matrix
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

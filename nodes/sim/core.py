@@ -38,7 +38,7 @@ import mujoco
 import numpy as np
 
 from palpate.errors import ConfigError, SimulationDivergedError
-from palpate.nodes.sim.contacts import ExactContactSensor
+from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.nodes.sim.effectors import FingerConfig, HandConfig
 from palpate.nodes.sim.objects import ObjectModel, load_object
 from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model, uses_exact_contacts
@@ -87,12 +87,17 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:
+    """MuJoCo's own conversion of its state quaternion (w, x, y, z) -> (3, 3). Not
+    ``palpate.geometry.rotations.quat_to_matrix``: that rounds differently, and the result feeds back
+    into the physics (the probe's body-frame angular velocity)."""
     R = np.zeros(9)
     mujoco.mju_quat2Mat(R, np.asarray(q, dtype=np.float64))
     return R.reshape(3, 3)
 
 
 def _mat_to_quat(R: np.ndarray) -> np.ndarray:
+    """MuJoCo's own conversion (3, 3) -> (w, x, y, z) of a site frame (0.4 us; scipy's takes 60 us and
+    picks the other sign for some rotations)."""
     q = np.zeros(4)
     mujoco.mju_mat2Quat(q, np.asarray(R, dtype=np.float64).reshape(9))
     return q

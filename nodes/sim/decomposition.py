@@ -3,7 +3,7 @@
 MuJoCo collides every mesh geom as its convex hull, so a probe in a torus's hole or inside a cup
 would be pushed out by a surface that does not exist. Splitting the mesh into convex parts lets the
 physics reach into concavities. The parts only shape the physics; the reported contacts come from
-:class:`palpate.nodes.sim.contacts.ExactContactSensor` on the true mesh.
+:class:`palpate.geometry.mesh_query.ExactContactSensor` on the true mesh.
 
 Cost (2 cores, CoACD 1.0, threshold 0.05): about 6 s and 11 parts for a 4k-face torus, about 50 s
 and 100 parts for a 16k-face YCB cup. Results are cached in ``<cache>/coacd/<mesh sha1>-<threshold>.npz``

@@ -30,6 +30,7 @@ import numpy as np
 from palpate.config import NonNegativeFloat, OneOf, PositiveFloat, Validated
 from palpate.description import Digit, load_hand
 from palpate.errors import ConfigError
+from palpate.geometry.rotations import ypr_deg_to_quat
 
 #: The hand every effector is built from.
 HAND = load_hand()
@@ -169,32 +170,6 @@ def _fmt(values: np.ndarray | tuple[float, ...] | list[float]) -> str:
     return " ".join(f"{float(v):.9g}" for v in values)
 
 
-def _quat_from_ypr_deg(yaw: float, pitch: float, roll: float) -> np.ndarray:
-    """Quaternion (w, x, y, z) of Rz(yaw) @ Ry(pitch) @ Rx(roll) (intrinsic z-y'-x'')."""
-
-    def axis_quat(axis: int, deg: float) -> np.ndarray:
-        h = math.radians(deg) / 2.0
-        q = np.zeros(4)
-        q[0] = math.cos(h)
-        q[1 + axis] = math.sin(h)
-        return q
-
-    return _quat_mul(_quat_mul(axis_quat(2, yaw), axis_quat(1, pitch)), axis_quat(0, roll))
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return np.array(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ]
-    )
-
-
 def _collision_attrs(collide_with_object: bool) -> str:
     affinity = OBJECT_CONTYPE if collide_with_object else 0
     contype = EFFECTOR_CONTYPE if collide_with_object else 0
@@ -316,7 +291,7 @@ def build_hand_mjcf(
         )
     thumb = HAND.digit("thumb")
     thumb_pos = thumb.base_m(cfg.scale)
-    thumb_quat = _quat_from_ypr_deg(*thumb.rest_ypr_deg)
+    thumb_quat = ypr_deg_to_quat(*thumb.rest_ypr_deg)
     parts.append(_segments(thumb, cfg, collide, 0, f'pos="{_fmt(thumb_pos)}" quat="{_fmt(thumb_quat)}"'))
     parts.append("</body>")
     actuators = _position_actuators(hand_joint_names(), cfg)

@@ -33,7 +33,7 @@ import mujoco
 import numpy as np
 
 from palpate.config import Fraction, NonNegativeFloat, PositiveFloat, PositiveInt, Range, Validated
-from palpate.nodes.sim.contacts import ExactContactSensor
+from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.nodes.sim.core import Simulation, capsule_spheres, sphere_centres
 from palpate.nodes.sim.effectors import LONG_FINGERS, FingerConfig, HandConfig, finger_joint_names
 from palpate.nodes.sim.objects import ObjectModel, load_object, sample_surface

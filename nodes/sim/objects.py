@@ -12,7 +12,7 @@ Conventions:
 - ``path`` may be ``ycb:<id>`` (for example ``ycb:011_banana``), resolved in
   :func:`palpate.paths.ycb_dir`; other relative paths resolve against the current directory.
 - MuJoCo collides a mesh geom as its convex hull. ``convex`` says whether that is exact; for the
-  other objects the contacts come from :class:`palpate.nodes.sim.contacts.ExactContactSensor`,
+  other objects the contacts come from :class:`palpate.geometry.mesh_query.ExactContactSensor`,
   and ``mjcf_assets_and_geoms(collision="decomposed")`` gives the physics a convex decomposition.
 """
 
@@ -33,6 +33,7 @@ import trimesh
 
 from palpate.config import BlankIsDefault, OneOf, PositiveFloat, ScalarIsTuple, Validated
 from palpate.errors import ConfigError, MeshError, MeshWarning
+from palpate.geometry.rotations import quat_to_matrix
 from palpate.paths import YCB_DIR_ENV, cache_dir, ycb_dir
 
 #: Object kinds a scene may name.
@@ -161,9 +162,10 @@ def _normalise_spec(spec: ObjectSpec) -> None:
 
 def pose_matrix(position_m: Sequence[float], quaternion_wxyz: Sequence[float]) -> np.ndarray:
     """Homogeneous transform (4, 4) from a position (m) and a unit quaternion (w, x, y, z)."""
-    T = trimesh.transformations.quaternion_matrix(np.asarray(quaternion_wxyz, dtype=np.float64))
+    T = np.eye(4)
+    T[:3, :3] = quat_to_matrix(quaternion_wxyz)
     T[:3, 3] = np.asarray(position_m, dtype=np.float64)
-    return np.asarray(T, dtype=np.float64)
+    return T
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

@@ -22,6 +22,7 @@ import numpy as np
 
 from palpate.config import NonNegativeFloat, OneOf, PositiveFloat, Validated
 from palpate.errors import ConfigError
+from palpate.geometry.rotations import quat_to_matrix
 from palpate.nodes.sim.effectors import (
     LONG_FINGERS,
     OBJECT_CONTYPE,
@@ -89,13 +90,6 @@ class SceneConfig(Validated):
 # --- placement -------------------------------------------------------------------------------------
 
 
-def _rotation(quaternion_wxyz: tuple[float, float, float, float]) -> np.ndarray:
-    q = np.asarray(quaternion_wxyz, dtype=np.float64)
-    R = np.zeros(9)
-    mujoco.mju_quat2Mat(R, q / np.linalg.norm(q))
-    return R.reshape(3, 3)
-
-
 def target_mcp_position(scene: SceneConfig, obj: ObjectModel) -> np.ndarray:
     """World position (3,) where the exploring finger's MCP joint goes by default."""
     lo, hi = np.asarray(obj.mesh.bounds, dtype=np.float64)
@@ -117,13 +111,13 @@ def effector_base_position(scene: SceneConfig, obj: ObjectModel) -> np.ndarray:
         if fcfg.base_position_m is not None:
             return np.asarray(fcfg.base_position_m, dtype=np.float64)
         meta = fcfg.lengths_m(fcfg.finger)[0]
-        R = _rotation(fcfg.base_quaternion_wxyz)
+        R = quat_to_matrix(fcfg.base_quaternion_wxyz)
         return target_mcp_position(scene, obj) - R @ np.array([meta, 0.0, 0.0])
     hcfg = scene.hand
     if hcfg.base_position_m is not None:
         return np.asarray(hcfg.base_position_m, dtype=np.float64)
     finger = hcfg.pose_finger if hcfg.pose_finger in LONG_FINGERS else "index"
-    R = _rotation(hcfg.base_quaternion_wxyz)
+    R = quat_to_matrix(hcfg.base_quaternion_wxyz)
     return target_mcp_position(scene, obj) - R @ hcfg.mcp_position_m(finger)
 
 

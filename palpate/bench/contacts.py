@@ -49,7 +49,7 @@ from palpate.text_table import Column, fixed_width_table
 if TYPE_CHECKING:
     import trimesh
 
-    from palpate.nodes.sim.contacts import ExactContactSensor
+    from palpate.geometry.mesh_query import ExactContactSensor
 
 #: Default objects of the issue's check (file-name globs in the YCB folder).
 DEFAULT_OBJECTS = ("011_banana.stl", "051_large_clamp.stl", "065-*_cups.stl", "030_fork.stl")
@@ -96,7 +96,7 @@ class ReferenceMesh:
         Exact: a face is skipped only when |p - centroid| - R_max exceeds the distance to the nearest
         vertex, an upper bound of the true distance.
         """
-        from palpate.nodes.sim.contacts import closest_points_on_triangles
+        from palpate.geometry.mesh_query import closest_points_on_triangles
 
         n = len(points)
         out_q = np.zeros((n, 3))
@@ -195,7 +195,7 @@ def bench_mesh(
 
     Returns the row described in the module docstring.
     """
-    from palpate.nodes.sim.contacts import ExactContactSensor
+    from palpate.geometry.mesh_query import ExactContactSensor
     from palpate.nodes.sim.objects import sample_surface_faces
 
     cfg = config or ContactBenchConfig()

@@ -102,26 +102,19 @@ def approach(
     max_draws: int = 256,
 ) -> Approach:
     """The seeded start and initial target of run ``run`` on a mesh (see the module docstring)."""
-    import open3d as o3d
+    from palpate.geometry.mesh_query import MeshScene  # imported here: it loads Open3D
 
     V = np.asarray(vertices, dtype=np.float64)
-    lo, hi = V.min(axis=0), V.max(axis=0)
-    centre = 0.5 * (lo + hi)
+    scene = MeshScene(V, faces)  # shifted to the bounding-box centre
+    centre = scene.origin_m
     radius = float(np.linalg.norm(V - centre, axis=1).max())
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3d.core.Tensor.from_numpy(np.ascontiguousarray(V - centre, dtype=np.float32)),
-        o3d.core.Tensor.from_numpy(np.ascontiguousarray(faces, dtype=np.uint32)),
-    )
     rng = np.random.default_rng(run)
     for draw in range(1, max_draws + 1):
         d = rng.standard_normal(3)
         d /= np.linalg.norm(d)
         d[2] = abs(d[2])  # upper hemisphere
         start_local = d * (radius + clearance_m)
-        ray = np.concatenate([start_local, -d])[None].astype(np.float32)
-        hit = scene.cast_rays(o3d.core.Tensor.from_numpy(ray), nthreads=1)
-        t = float(hit["t_hit"].numpy()[0])
+        t = float(scene.ray_hit_distance(start_local, -d)[0])
         if math.isfinite(t):
             target = start_local - d * (t + inside_m)
             return Approach(start_local + centre, target + centre, d, draw)
@@ -130,13 +123,10 @@ def approach(
 
 def probe_quaternion(direction: FloatArray) -> tuple[float, float, float, float]:
     """wxyz quaternion of the probe facing along -direction (its z axis pokes towards the object)."""
-    from scipy.spatial.transform import Rotation
+    from palpate.geometry.rotations import get_rotation, matrix_to_quat, quat_to_matrix
 
-    from palpate.nodes.controller.so3 import align_axis
-
-    R0 = Rotation.from_quat([0.0, 1.0, 0.0, 0.0], scalar_first=True).as_matrix()  # the sim's default: facing -z
-    R = align_axis(R0[:, 2], -np.asarray(direction, dtype=np.float64)) @ R0
-    q = Rotation.from_matrix(R).as_quat(scalar_first=True)
+    R0 = quat_to_matrix([0.0, 1.0, 0.0, 0.0])  # the sim's default: facing -z
+    q = matrix_to_quat(get_rotation(R0, direction))
     return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
 
 

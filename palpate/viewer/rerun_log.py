@@ -32,6 +32,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from palpate.geometry.bezier import bezier_point
+from palpate.geometry.rotations import quat_to_matrix
 from palpate.messages.base import Message
 from palpate.messages.schemas import (
     ContactSet,
@@ -106,17 +108,6 @@ def entity_root(topic: str) -> str:
     return "/".join(["world", *parts])
 
 
-def bezier_points(control_points_m: np.ndarray, samples: int) -> np.ndarray:
-    """Points of the cubic Bezier with control points p0..p3 (4, 3) at `samples` uniform t in [0, 1].
-
-    B(t) = (1-t)^3 p0 + 3(1-t)^2 t p1 + 3(1-t) t^2 p2 + t^3 p3 (paper 002, Eq. 15); returns (samples, 3) m.
-    """
-    t = np.linspace(0.0, 1.0, max(2, samples))[:, None]
-    s = 1.0 - t
-    p = np.asarray(control_points_m, dtype=np.float64)
-    return s**3 * p[0] + 3.0 * s**2 * t * p[1] + 3.0 * s * t**2 * p[2] + t**3 * p[3]
-
-
 def colorize(
     values: np.ndarray, colormap: str = "viridis", *, vmin: float | None = None, vmax: float | None = None
 ) -> np.ndarray:
@@ -147,12 +138,6 @@ def vertex_normals(vertices_m: np.ndarray, faces: np.ndarray) -> np.ndarray:
             np.add.at(normals, f[:, k], face_n)
     norm = np.linalg.norm(normals, axis=1, keepdims=True)
     return np.divide(normals, norm, out=np.zeros_like(normals), where=norm > 0)
-
-
-def quaternion_z_axis(quaternion_wxyz: np.ndarray) -> np.ndarray:
-    """Third column of the rotation matrix of a unit quaternion (w, x, y, z): the body's z axis (3,)."""
-    w, x, y, z = np.asarray(quaternion_wxyz, dtype=np.float64) / np.linalg.norm(quaternion_wxyz)
-    return np.array([2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)])
 
 
 def occupied_cells(grid: OccupancyGrid, threshold_log_odds: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -328,7 +313,7 @@ class SceneLogger:
         logger.log(
             f"{root}/curve",
             "LineStrips3D",
-            strips=bezier_points(control, c.curve_samples)[None],
+            strips=bezier_point(control, np.linspace(0.0, 1.0, max(2, c.curve_samples)))[None],
             radii=np.full(1, c.line_radius_m),
             colors=_rgba(CURVE_RGBA, 1),
             labels=[m.kind],
@@ -370,7 +355,7 @@ class SceneLogger:
             f"{root}/axis",
             "Arrows3D",
             origins=p[None],
-            vectors=quaternion_z_axis(m.quaternion_wxyz)[None] * c.normal_length_m,
+            vectors=quat_to_matrix(m.quaternion_wxyz)[:, 2][None] * c.normal_length_m,
             colors=_rgba(TRAIL_RGBA, 1),
         )
 

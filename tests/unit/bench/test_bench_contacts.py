@@ -13,7 +13,7 @@ import trimesh
 
 from palpate.bench import contacts as bench_contacts
 from palpate.errors import BenchmarkError
-from palpate.nodes.sim.contacts import ExactContactSensor
+from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.nodes.sim.objects import ObjectSpec, load_object
 
 

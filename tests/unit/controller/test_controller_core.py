@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from palpate.errors import ConfigError, PlanningError
-from palpate.nodes.controller import so3
-from palpate.nodes.controller.bezier import bezier_length, bezier_point
+from palpate.geometry import rotations
+from palpate.geometry.bezier import bezier_length, bezier_point
 from palpate.nodes.controller.core import ControllerConfig, ControllerState, TrajectoryController
 
 Inside = Callable[[np.ndarray], bool]
@@ -47,7 +47,7 @@ def drive(
         if ctrl.state in (ControllerState.IDLE, ControllerState.FAILED):
             break
         run.r = run.r + v * DT_S
-        run.R = so3.exp_so3(w * DT_S) @ run.R
+        run.R = rotations.exp_so3(w * DT_S) @ run.R
         moved += float(np.linalg.norm(v)) * DT_S
         run.trail.append(run.r.copy())
         if moved > arm_after_m and inside(run.r):
@@ -70,7 +70,7 @@ def nothing(p: np.ndarray) -> bool:
     return False
 
 
-R_DOWN = so3.get_rotation(np.eye(3), np.array([0.0, 0.0, 1.0]))  # poking down onto a z-up surface
+R_DOWN = rotations.get_rotation(np.eye(3), np.array([0.0, 0.0, 1.0]))  # poking down onto a z-up surface
 V_DOWN = np.array([0.0, 0.0, -1.0])
 
 
@@ -161,7 +161,7 @@ def test_odometry_integrates_poses() -> None:
     ctrl = TrajectoryController()
     ctrl.on_contact()  # exploring: counts into travelled_m / rotation_deg
     for k in range(91):  # 1 mm steps along x while turning 1 degree per step about z
-        ctrl.observe(np.array([0.001 * k, 0.0, 0.0]), so3.exp_so3(np.radians(k) * np.array([0, 0, 1.0])))
+        ctrl.observe(np.array([0.001 * k, 0.0, 0.0]), rotations.exp_so3(np.radians(k) * np.array([0, 0, 1.0])))
     assert ctrl.travelled_m == pytest.approx(0.090, abs=1e-12)
     assert ctrl.rotation_deg == pytest.approx(90.0, abs=1e-9)
 

@@ -16,10 +16,10 @@ from palpate.evaluation.explore import (
     parse_sets,
     probe_quaternion,
 )
+from palpate.geometry.mesh_query import ExactContactSensor
+from palpate.geometry.rotations import quat_to_matrix
 from palpate.launch.loader import load_launch
 from palpate.metrics.exploration import DistanceField
-from palpate.nodes.controller.so3 import quat_to_matrix
-from palpate.nodes.sim.contacts import ExactContactSensor
 from palpate.nodes.sim.objects import primitive_mesh
 
 

@@ -12,7 +12,7 @@ import pytest
 
 from palpate.description import load_hand
 from palpate.errors import ConfigError
-from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain, axis_angle_to_mat, quat_to_mat
+from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain
 from palpate.nodes.mapper.observation import capsule_lattice
 
 # A 4-hinge finger with the awkward cases: a tilted, offset base; two hinges in one body (MCP
@@ -131,18 +131,6 @@ def test_forward_of_identical_rows_is_identical_bitwise() -> None:
     r1, p1 = chain.forward(q)
     r7, p7 = chain.forward(np.repeat(q, 7, axis=0))
     assert np.array_equal(r7, np.repeat(r1, 7, axis=0)) and np.array_equal(p7, np.repeat(p1, 7, axis=0))
-
-
-def test_rotation_helpers_against_references() -> None:
-    axis = np.array([0.3, -0.5, 0.8])
-    angle = np.array([0.7])
-    r = axis_angle_to_mat(axis, angle)[0]
-    u = axis / np.linalg.norm(axis)
-    quat = np.concatenate([[np.cos(0.35)], np.sin(0.35) * u])
-    expect = np.zeros(9)
-    mujoco.mju_quat2Mat(expect, quat)
-    np.testing.assert_allclose(r, expect.reshape(3, 3), atol=1e-14)
-    np.testing.assert_allclose(quat_to_mat(quat), expect.reshape(3, 3), atol=1e-14)
 
 
 @pytest.mark.parametrize(

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from palpate.errors import ConfigError, PlanningError
-from palpate.nodes.controller.bezier import approach_curve, bezier_length, bezier_point
+from palpate.geometry.bezier import approach_curve, bezier_length, bezier_point
 from palpate.nodes.planner.core import Planner, PlannerConfig, igef_terms, sample_candidates
 
 RNG_SEED = 5

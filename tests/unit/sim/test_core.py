@@ -11,7 +11,7 @@ import pytest
 
 from palpate.config import load
 from palpate.errors import ConfigError, SimulationDivergedError
-from palpate.nodes.sim.contacts import ExactContactSensor
+from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.nodes.sim.core import Contacts, Simulation, bare_step_rate
 from palpate.nodes.sim.effectors import FingerConfig, ProbeConfig
 from palpate.nodes.sim.objects import ObjectSpec

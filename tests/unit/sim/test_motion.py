@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from palpate.nodes.sim.contacts import ExactContactSensor
+from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.nodes.sim.motion import ExplorationMotion, MotionConfig, explore
 from palpate.nodes.sim.scene import SceneConfig
 

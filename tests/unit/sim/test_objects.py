@@ -13,7 +13,7 @@ import trimesh
 
 from palpate.config import load
 from palpate.errors import ConfigError, MeshError, MeshWarning
-from palpate.nodes.sim.contacts import ExactContactSensor
+from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.nodes.sim.decomposition import convex_decomposition
 from palpate.nodes.sim.objects import (
     RUBIKS_CUBE_EDGE_M,
@@ -317,3 +317,11 @@ def test_inward_wound_mesh_is_inverted_with_a_warning(tmp_path: Path) -> None:
     with pytest.warns(MeshWarning, match=r"inside_out\.stl: faces are wound inward"):
         model = load_object(_mesh_spec(path))
     assert model.mesh.volume > 0
+
+
+def test_sampled_surface_points_are_on_the_surface() -> None:
+    mesh = load_object(ObjectSpec(kind="sphere", size_m=(0.03,))).mesh
+    points, normals = sample_surface(mesh, 1000, np.random.default_rng(6))
+    closest = ExactContactSensor(mesh).closest(points + 1e-3 * normals)
+    np.testing.assert_allclose(closest.distance_m, 1e-3, atol=1e-12)
+    np.testing.assert_allclose(closest.normals, normals, atol=1e-12)

@@ -9,18 +9,15 @@ from typing import Any
 import numpy as np
 import pytest
 from matplotlib import colormaps
-from scipy.spatial.transform import Rotation
 
 from palpate.messages.base import Message
 from palpate.viewer.rerun_log import (
     KINDS,
     SceneLogger,
     ViewConfig,
-    bezier_points,
     colorize,
     entity_root,
     occupied_cells,
-    quaternion_z_axis,
     vertex_normals,
 )
 from tests.unit.viewer.viewer_messages import (
@@ -188,22 +185,6 @@ def test_touch_target_candidates_coloured_by_score() -> None:
     assert paths["world/planner/target/predicted_contact"].arrays["positions"].shape == (1, 3)
 
 
-def _de_casteljau(p: np.ndarray, t: float) -> np.ndarray:
-    pts = [np.asarray(q, dtype=np.float64) for q in p]
-    while len(pts) > 1:
-        pts = [(1 - t) * a + t * b for a, b in itertools.pairwise(pts)]
-    return pts[0]
-
-
-def test_bezier_samples_match_de_casteljau() -> None:
-    rng = np.random.default_rng(3)
-    p = rng.normal(size=(4, 3))
-    samples = bezier_points(p, 11)
-    assert samples.shape == (11, 3)
-    for i, t in enumerate(np.linspace(0, 1, 11)):
-        np.testing.assert_allclose(samples[i], _de_casteljau(p, t), rtol=0, atol=1e-14)
-
-
 def test_trajectory_curve_strip() -> None:
     msg = trajectory(40)
     paths = _log([("controller/trajectory", msg)], ViewConfig(curve_samples=17)).by_path()
@@ -232,11 +213,7 @@ def test_pose_trail_decimates_and_chunks_without_gaps() -> None:
     np.testing.assert_allclose(joined[:, 0], kept, atol=1e-15)
 
 
-def test_quaternion_z_axis_matches_scipy() -> None:
-    rng = np.random.default_rng(7)
-    for q in rng.normal(size=(20, 4)):
-        expected = Rotation.from_quat(q, scalar_first=True).as_matrix()[:, 2]
-        np.testing.assert_allclose(quaternion_z_axis(q), expected, atol=1e-12)
+def test_pose_axis_is_the_body_z_axis() -> None:
     axis = _log([("sensors/effector_pose", pose(0, [0, 0, 0], [np.cos(np.pi / 4), np.sin(np.pi / 4), 0, 0]))])
     np.testing.assert_allclose(
         axis.by_path()["world/sensors/effector_pose/axis"].arrays["vectors"][0],

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
-import palpate.nodes.sim.contacts as contacts
-from palpate.nodes.sim.contacts import (
+import palpate.geometry.mesh_query as mesh_query
+from palpate.geometry.mesh_query import (
     FEW_POINTS,
     ExactContactSensor,
     closest_points_on_triangles,
@@ -44,9 +44,11 @@ def test_scalar_region_matches_the_vectorised_kernel() -> None:
     assert len(np.unique(region)) == 7  # every Voronoi region was exercised
 
 
-def _general(sensor: ExactContactSensor, points: np.ndarray, monkeypatch: pytest.MonkeyPatch) -> contacts.ClosestPoints:
+def _general(
+    sensor: ExactContactSensor, points: np.ndarray, monkeypatch: pytest.MonkeyPatch
+) -> mesh_query.ClosestPoints:
     with monkeypatch.context() as patch:
-        patch.setattr(contacts, "FEW_POINTS", 0)
+        patch.setattr(mesh_query, "FEW_POINTS", 0)
         return sensor.closest(points)
 
 

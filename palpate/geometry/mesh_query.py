@@ -1,11 +1,15 @@
-"""Exact-mesh touch sensor: contacts of a spherical fingertip with the TRUE (non-convex) mesh.
+"""Queries on a triangle mesh: closest points, signed distances, sphere touches, inside tests, rays.
 
-MuJoCo collides mesh geoms as their convex hulls, so its contacts are wrong in holes and cups. This
-sensor answers "where is the closest surface point, how far, and on which side" for the real mesh:
+``MeshScene`` is the one Open3D ``RaycastingScene`` set-up (a BVH in float32): the mesh is shifted by
+an origin (by default its bounding-box centre) before Open3D sees it, so float32 coordinates stay
+small (a 0.2 m object: 1.5e-8 m spacing instead of that of its world position). Open3D is imported
+when the first scene is built (loading it takes about a second).
 
-1. Open3D's ``RaycastingScene.compute_closest_points`` (a BVH, float32) picks the closest triangle.
-   The mesh and the queries are shifted by the bounding-box centre first, so float32 coordinates
-   stay small (a 0.2 m object: 1.5e-8 m spacing instead of that of its world position).
+``ExactContactSensor`` answers "where is the closest surface point, how far, and on which side" for
+the real (non-convex) mesh; MuJoCo collides mesh geoms as their convex hulls, so its contacts are
+wrong in holes and cups. The simulator's touch sensor and the exploration metrics both use it:
+
+1. Open3D's ``compute_closest_points`` (``MeshScene.closest``) picks the closest triangle.
 2. The closest point on that triangle is recomputed in float64 (Ericson, Real-Time Collision
    Detection, 5.1.5), so points and distances carry float64 precision; float32 only decides
    near-ties between triangles that are equally close to within about 1e-8 m.
@@ -14,17 +18,22 @@ sensor answers "where is the closest surface point, how far, and on which side" 
    without folds. Where the offset is nearly orthogonal to that pseudo-normal (folded scan
    triangles cancel it: seen on the legacy ``block_of_wood_6in``), Open3D's ray parity decides.
 
-Measured by ``python -m palpate.nodes.sim.contact_bench`` against a brute-force float64 reference.
+Measured by ``palpate bench contacts`` against a brute-force float64 reference.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import open3d as o3d
-import trimesh
+from numpy.typing import ArrayLike, NDArray
+
+from palpate.errors import MeshError
+
+if TYPE_CHECKING:
+    import trimesh
 
 #: Region of the triangle that holds the closest point (result of closest_points_on_triangles).
 FACE, VERTEX_A, VERTEX_B, VERTEX_C, EDGE_AB, EDGE_BC, EDGE_CA = range(7)
@@ -153,6 +162,74 @@ def face_rings(mesh: trimesh.Trimesh) -> np.ndarray:
     return np.ascontiguousarray(np.concatenate([own[:, None], ring], axis=1))
 
 
+class MeshScene:
+    """Open3D ``RaycastingScene`` of one triangle mesh: closest points, distances, inside tests, rays.
+
+    Open3D works in float32 on the mesh shifted by ``origin_m`` (default: the bounding-box centre).
+    Every query takes and returns coordinates in that shifted frame, ``local = world - origin_m``,
+    so callers that refine in float64 (``ExactContactSensor``) subtract the origin once. Queries of
+    fewer than ``SMALL_BATCH`` points run single-threaded (26 instead of 67 us for one point: no
+    thread-pool start-up); the thread count does not change the answers.
+
+    vertices_m: (V, 3) metres; faces: (F, 3) vertex indices; origin_m: (3,) metres.
+    """
+
+    def __init__(self, vertices_m: ArrayLike, faces: ArrayLike, origin_m: ArrayLike | None = None) -> None:
+        import open3d as o3d  # imported here: loading Open3D takes about a second
+
+        V = np.asarray(vertices_m, dtype=np.float64)
+        F = np.asarray(faces)
+        if V.ndim != 2 or V.shape[1] != 3 or F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
+            raise MeshError(f"a mesh scene needs vertices (V, 3) and faces (F > 0, 3), got {V.shape} and {F.shape}")
+        self.origin_m = 0.5 * (V.min(axis=0) + V.max(axis=0)) if origin_m is None else np.asarray(origin_m, np.float64)
+        self._o3d: Any = o3d
+        # kept alive: Open3D's tensors share this memory
+        self._vertices = np.ascontiguousarray(V - self.origin_m, dtype=np.float32)
+        self._faces = np.ascontiguousarray(F, dtype=np.uint32)
+        self._scene = o3d.t.geometry.RaycastingScene()
+        self._scene.add_triangles(o3d.core.Tensor.from_numpy(self._vertices), o3d.core.Tensor.from_numpy(self._faces))
+
+    def _tensor(self, local_m: np.ndarray) -> Any:
+        return self._o3d.core.Tensor.from_numpy(np.ascontiguousarray(local_m, dtype=np.float32))
+
+    @staticmethod
+    def _threads(n: int) -> int:
+        return 1 if n < SMALL_BATCH else 0  # 0: Open3D's default, all cores
+
+    def _closest_answer(self, local_m: np.ndarray) -> Any:
+        return self._scene.compute_closest_points(self._tensor(local_m), nthreads=self._threads(len(local_m)))
+
+    def closest(self, local_m: np.ndarray) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """Closest triangle of each point (n, 3), shifted frame: face ids (n,) and points (n, 3) (float32 values)."""
+        answer = self._closest_answer(local_m)
+        return answer["primitive_ids"].numpy().astype(np.int64), answer["points"].numpy().astype(np.float64)
+
+    def closest_face_ids(self, local_m: np.ndarray) -> list[int]:
+        """Face ids of :meth:`closest` as Python ints, for a few points (skips the points' conversion)."""
+        ids: list[int] = self._closest_answer(local_m)["primitive_ids"].numpy().tolist()
+        return ids
+
+    def distance(self, local_m: np.ndarray) -> NDArray[np.float64]:
+        """Unsigned distance (n,) metres of points (n, 3), shifted frame, to the surface (float32 values)."""
+        d = self._scene.compute_distance(self._tensor(local_m), nthreads=self._threads(len(local_m)))
+        return np.asarray(d.numpy(), dtype=np.float64)
+
+    def occupied(self, local_m: np.ndarray, rays: int = 3) -> NDArray[np.bool_]:
+        """Inside test (n,) of points (n, 3), shifted frame, by ray parity (majority of ``rays`` rays)."""
+        n = len(local_m)
+        occupancy = self._scene.compute_occupancy(self._tensor(local_m), nthreads=self._threads(n), nsamples=rays)
+        return np.asarray(occupancy.numpy() > 0.5)
+
+    def ray_hit_distance(self, origins_m: np.ndarray, directions: np.ndarray) -> NDArray[np.float64]:
+        """Ray parameter t of the first hit (n,) (inf: no hit) of rays origin + t direction, shifted frame.
+
+        origins_m, directions: (n, 3); with unit directions t is the distance in metres.
+        """
+        rays = np.concatenate([origins_m, directions], axis=-1).reshape(-1, 6).astype(np.float32)
+        hit = self._scene.cast_rays(self._tensor(rays), nthreads=self._threads(len(rays)))
+        return np.asarray(hit["t_hit"].numpy(), dtype=np.float64)
+
+
 @dataclass(frozen=True)
 class ClosestPoints:
     """Closest surface points of n query points.
@@ -178,8 +255,9 @@ class ExactContactSensor:
         self.mesh = mesh
         vertices = np.asarray(mesh.vertices, dtype=np.float64)
         faces = np.asarray(mesh.faces, dtype=np.int64)
-        # shift to the bounding-box centre: float32 inside Open3D then resolves ~1e-8 m on a 0.2 m object
-        self._centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+        # shifted to the bounding-box centre: float32 inside Open3D then resolves ~1e-8 m on a 0.2 m object
+        self._scene = MeshScene(vertices, faces)
+        self._centre = self._scene.origin_m
         local = vertices - self._centre
         self._triangles = local[faces]  # (F, 3, 3) float64
         self._face_normals = np.asarray(mesh.face_normals, dtype=np.float64)
@@ -206,12 +284,6 @@ class ExactContactSensor:
             ],
             axis=1,
         )
-        self._scene = o3d.t.geometry.RaycastingScene()
-        self._o3d_vertices = np.ascontiguousarray(local, dtype=np.float32)  # kept alive: shared with Open3D
-        self._o3d_faces = np.ascontiguousarray(faces, dtype=np.uint32)
-        self._scene.add_triangles(
-            o3d.core.Tensor.from_numpy(self._o3d_vertices), o3d.core.Tensor.from_numpy(self._o3d_faces)
-        )
 
     def _check(self, points_m: np.ndarray) -> np.ndarray:
         p = np.asarray(points_m, dtype=np.float64)
@@ -221,15 +293,6 @@ class ExactContactSensor:
             raise ValueError("query points must be finite (got NaN or infinity)")
         return p - self._centre
 
-    def _closest_faces(self, local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Open3D's float32 answer: face ids (n,) and raw closest points (n, 3) in the shifted frame."""
-        # small batches: one thread avoids Open3D's thread-pool start-up (26 vs 67 us for one point)
-        threads = 1 if len(local) < SMALL_BATCH else 0
-        query = o3d.core.Tensor.from_numpy(np.ascontiguousarray(local, dtype=np.float32))
-        answer = self._scene.compute_closest_points(query, nthreads=threads)
-        faces = answer["primitive_ids"].numpy().astype(np.int64)
-        return faces, answer["points"].numpy().astype(np.float64)
-
     def closest(self, points_m: np.ndarray) -> ClosestPoints:
         """Closest surface points of ``points_m`` (n, 3); float64 results, see :class:`ClosestPoints`."""
         local = self._check(points_m)
@@ -238,7 +301,7 @@ class ExactContactSensor:
             return ClosestPoints(empty, np.zeros(0), empty.copy(), np.zeros(0, dtype=np.int64))
         if len(local) <= FEW_POINTS:
             return self._closest_few(local)
-        found, _ = self._closest_faces(local)
+        found, _ = self._scene.closest(local)
         # float64 projection onto Open3D's triangle and the faces around it (float32 near-ties):
         # the first (Open3D's) wins exact ties
         ring = self._ring[found]  # (n, K)
@@ -260,7 +323,7 @@ class ExactContactSensor:
         strength = np.linalg.norm(pseudo, axis=1)
         weak = (strength < WEAK_PSEUDO_NORMAL) | (np.abs(side) < WEAK_SIGN_COS * distance * strength)
         if np.any(weak):
-            inside[weak] = self._occupied(local[weak])
+            inside[weak] = self._scene.occupied(local[weak])
         return ClosestPoints(
             points_m=q + self._centre,
             distance_m=np.where(inside, -distance, distance),
@@ -280,8 +343,7 @@ class ExactContactSensor:
         rounding of the dot products differs from the vectorised path (about 1e-17 m), so exact ties
         between ring faces may resolve to another face.
         """
-        query = o3d.core.Tensor.from_numpy(np.ascontiguousarray(local, dtype=np.float32))
-        found = self._scene.compute_closest_points(query, nthreads=1)["primitive_ids"].numpy().tolist()
+        found = self._scene.closest_face_ids(local)
         points, distance, faces = [], [], []
         for p, f in zip(local.tolist(), found, strict=True):
             ring = self._ring[f]
@@ -311,7 +373,7 @@ class ExactContactSensor:
             strength = math.sqrt(nx * nx + ny * ny + nz * nz)
             inside = side < 0.0
             if strength < WEAK_PSEUDO_NORMAL or abs(side) < WEAK_SIGN_COS * dist * strength:
-                inside = bool(self._occupied(np.array([p]))[0])
+                inside = bool(self._scene.occupied(np.array([p]))[0])
             points.append(q)
             distance.append(-dist if inside else dist)
             faces.append(face)
@@ -346,16 +408,10 @@ class ExactContactSensor:
         ox, oy, oz = x - wb * abx - wc * acx, y - wb * aby - wc * acy, z - wb * abz - wc * acz  # p - q
         return ox * ox + oy * oy + oz * oz, region, wb, wc
 
-    def _occupied(self, local: np.ndarray) -> np.ndarray:
-        """Inside test by ray parity (Open3D, majority of 3 rays), for points (n, 3) in the shifted frame."""
-        query = o3d.core.Tensor.from_numpy(np.ascontiguousarray(local, dtype=np.float32))
-        occupancy = self._scene.compute_occupancy(query, nthreads=1 if len(local) < SMALL_BATCH else 0, nsamples=3)
-        return np.asarray(occupancy.numpy() > 0.5)
-
     def closest_float32(self, points_m: np.ndarray) -> np.ndarray:
         """Open3D's raw float32 closest points (n, 3), world frame, without the float64 refinement."""
         local = self._check(points_m)
-        _, raw = self._closest_faces(local)
+        _, raw = self._scene.closest(local)
         return raw + self._centre
 
     def touch(

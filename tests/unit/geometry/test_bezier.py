@@ -2,17 +2,18 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
-from palpate.nodes.controller.bezier import (
+from palpate.geometry.bezier import (
     Cubic,
     approach_curve,
     bezier_derivative,
     bezier_length,
     bezier_point,
     bezier_second_derivative,
-    closest_tau,
     extended_point,
     recovery_curve,
 )
@@ -21,6 +22,14 @@ from palpate.nodes.controller.bezier import (
 def polyline_length(P: np.ndarray, tau0: float = 0.0, tau1: float = 1.0, n: int = 200_001) -> float:
     pts = bezier_point(P, np.linspace(tau0, tau1, n))
     return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+
+
+def _de_casteljau(p: np.ndarray, t: float) -> np.ndarray:
+    """Slow reference: repeated linear interpolation of the control points."""
+    pts = [np.asarray(q, dtype=np.float64) for q in p]
+    while len(pts) > 1:
+        pts = [(1 - t) * a + t * b for a, b in itertools.pairwise(pts)]
+    return pts[0]
 
 
 @pytest.fixture
@@ -35,6 +44,15 @@ def test_endpoints_and_end_tangents(curves: np.ndarray) -> None:
     d = bezier_derivative(curves, [0.0, 1.0])
     np.testing.assert_allclose(d[:, 0], 3 * (curves[:, 1] - curves[:, 0]), atol=1e-15)
     np.testing.assert_allclose(d[:, 1], 3 * (curves[:, 3] - curves[:, 2]), atol=1e-15)
+
+
+def test_points_match_de_casteljau(curves: np.ndarray) -> None:
+    tau = np.linspace(0.0, 1.0, 11)
+    pts = bezier_point(curves, tau)
+    assert pts.shape == (len(curves), 11, 3)
+    for P, row in zip(curves, pts, strict=True):
+        for t, point in zip(tau, row, strict=True):
+            np.testing.assert_allclose(point, _de_casteljau(P, t), rtol=0, atol=1e-15)
 
 
 def test_derivatives_match_finite_differences(curves: np.ndarray) -> None:
@@ -86,7 +104,7 @@ def test_closest_tau_matches_brute_force(curves: np.ndarray) -> None:
         for _ in range(5):
             r = P.mean(axis=0) + rng.normal(scale=0.04, size=3)
             for tau_min in (0.0, 0.4):
-                tau = closest_tau(P, r, tau_min, 1.0)
+                tau = Cubic(P).closest_tau(r, tau_min, 1.0)
                 assert tau_min <= tau <= 1.0
                 window = dense >= tau_min
                 brute = np.min(np.linalg.norm(pts[window] - r, axis=1))
@@ -96,16 +114,16 @@ def test_closest_tau_matches_brute_force(curves: np.ndarray) -> None:
 
 def test_closest_tau_respects_the_lower_bound() -> None:
     P = np.array([[0.0, 0, 0], [0.01, 0, 0], [0.02, 0, 0], [0.03, 0, 0]])
-    assert closest_tau(P, np.array([0.0, 0.001, 0.0]), 0.5) == pytest.approx(0.5)
-    assert closest_tau(P, np.array([0.012, 0.001, 0.0])) == pytest.approx(0.4, abs=1e-12)
+    assert Cubic(P).closest_tau(np.array([0.0, 0.001, 0.0]), 0.5) == pytest.approx(0.5)
+    assert Cubic(P).closest_tau(np.array([0.012, 0.001, 0.0])) == pytest.approx(0.4, abs=1e-12)
 
 
 def test_closest_tau_on_the_straight_continuation() -> None:
     P = np.array([[0.0, 0, 0], [0.01, 0, 0], [0.02, 0, 0], [0.03, 0, 0]])  # |T'(1)| = 0.03
     r = np.array([0.036, 0.002, 0.0])  # 6 mm past the end
-    assert closest_tau(P, r, 0.0, 1.5) == pytest.approx(1.2, abs=1e-12)
+    assert Cubic(P).closest_tau(r, 0.0, 1.5) == pytest.approx(1.2, abs=1e-12)
     np.testing.assert_allclose(extended_point(P, [1.2])[0], [0.036, 0, 0], atol=1e-15)
-    assert closest_tau(P, r, 0.0, 1.0) == pytest.approx(1.0)
+    assert Cubic(P).closest_tau(r, 0.0, 1.0) == pytest.approx(1.0)
 
 
 def test_cubic_agrees_with_vectorised_functions(curves: np.ndarray) -> None:
@@ -140,6 +158,12 @@ def test_recovery_curve_is_eq17() -> None:
     tangents = bezier_derivative(P, [0.0, 1.0])
     np.testing.assert_allclose(tangents[0], v_n * d, atol=1e-15)  # Eq. 16: velocity continuous
     np.testing.assert_allclose(tangents[1], t_n * d, atol=1e-15)
+    # bit for bit the written-out Eq. 17 on random inputs (it is computed as Eq. 15 with signs reversed)
+    rng = np.random.default_rng(11)
+    r, v_n, t_p, t_n = rng.normal(size=(4, 50, 3))
+    beta = (1.0 / 3.0) * np.maximum(np.linalg.norm(r - t_p, axis=-1, keepdims=True), 0.01)
+    expected = np.stack([r, r + v_n * beta, t_p - t_n * beta, t_p], axis=-2)
+    assert np.array_equal(recovery_curve(r, v_n, t_p, t_n, min_chord_m=0.01), expected)
 
 
 def test_curves_broadcast_over_candidates() -> None:

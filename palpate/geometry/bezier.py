@@ -5,7 +5,7 @@ the leading dimensions, so the planner can measure hundreds of candidate paths i
 parameter is ``tau`` in [0, 1]; ``T(0) = p0`` is the start and ``T(1) = p3`` the target.
 
 Beyond ``tau = 1`` the trajectory controller continues along the end tangent (Algorithm 1 line 26
-tests ``tau > 1``): ``extended_point`` and ``closest_tau`` use that straight continuation
+tests ``tau > 1``): ``extended_point`` and ``Cubic`` use that straight continuation
 ``T(1) + (tau - 1) T'(1)``, which is C1 with the curve.
 """
 
@@ -166,9 +166,10 @@ class Cubic:
         samples: int = 33,
         newton_steps: int = 5,
     ) -> float:
-        """argmin over tau in [tau_min, tau_max] of |r - T(tau)| (Algorithm 1 line 25).
+        """argmin over tau in [tau_min, tau_max] of |r - T(tau)| (Algorithm 1 line 25), r: (3,) metres.
 
-        Dense sampling finds the best bracket, Newton's method on g = (T - r) . T' refines inside it.
+        For ``tau_max > 1`` the straight continuation past T(1) is searched too. Dense sampling finds
+        the best bracket, Newton's method on g = (T - r) . T' refines inside it.
         """
         if not tau_max >= tau_min:
             raise ValueError(f"closest_tau needs tau_min <= tau_max, got {tau_min} > {tau_max}")
@@ -217,22 +218,6 @@ class Cubic:
         return g, dg
 
 
-def closest_tau(
-    P: ArrayLike,
-    r: ArrayLike,
-    tau_min: float = 0.0,
-    tau_max: float = 1.0,
-    *,
-    samples: int = 33,
-    newton_steps: int = 5,
-) -> float:
-    """argmin over tau in [tau_min, tau_max] of |r - T(tau)| (Algorithm 1 line 25).
-
-    For ``tau_max > 1`` the straight continuation past T(1) is searched too. P: (4, 3); r: (3,).
-    """
-    return Cubic(P).closest_tau(r, tau_min, tau_max, samples=samples, newton_steps=newton_steps)
-
-
 def approach_curve(
     c_p: ArrayLike,
     v_n: ArrayLike,
@@ -272,10 +257,6 @@ def recovery_curve(
     t_p moving along +t_n, i.e. from inside the object when t_p is a known surface point.
     Broadcasts: (..., 3) inputs -> (..., 4, 3). ``min_chord_m`` as in ``approach_curve``.
     """
-    r_ = np.asarray(r, dtype=np.float64)
-    t = np.asarray(t_p, dtype=np.float64)
-    beta = scale * np.maximum(np.linalg.norm(r_ - t, axis=-1, keepdims=True), min_chord_m)
-    r_, t = np.broadcast_arrays(r_, t)
-    p1 = r_ + np.asarray(v_n, dtype=np.float64) * beta
-    p2 = t - np.asarray(t_n, dtype=np.float64) * beta
-    return np.stack(np.broadcast_arrays(r_, p1, p2, t), axis=-2)
+    # Eq. 15 with v_n and t_n reversed: r - (-v_n) beta and t_p + (-t_n) beta are the same floats
+    back, into = -np.asarray(v_n, dtype=np.float64), -np.asarray(t_n, dtype=np.float64)
+    return approach_curve(r, back, t_p, into, scale, min_chord_m)
