@@ -473,20 +473,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(func=main)
 
 
-def launch_args(items: Sequence[str]) -> dict[str, Any]:
-    """``["name=value", ...]`` -> {name: value}, values parsed as YAML scalars."""
-    import yaml
-
-    out: dict[str, Any] = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep or not name:
-            raise ConfigError(f"--arg {item!r}: expected NAME=VALUE, e.g. free_reward=true")
-        out[name] = yaml.safe_load(value)
-    return out
-
-
 def main(args: argparse.Namespace) -> int:
+    from palpate.launch.loader import parse_cli_args
+
     n = args.seeds if args.seeds is not None else (QUICK_SEEDS if args.quick else FULL_SEEDS)
     if n < 1:
         raise ConfigError(f"--seeds must be at least 1, got {n}")
@@ -495,7 +484,7 @@ def main(args: argparse.Namespace) -> int:
         n_particles=args.particles,
         resolution_m=args.resolution_mm * 1e-3,
         sigma_deg=args.sigma_deg,
-        launch_args=launch_args(args.arg),
+        launch_args=parse_cli_args(args.arg, separator="="),
     )
     t0 = time.perf_counter()
     print(

@@ -6,7 +6,7 @@ Every value keeps the file and line it came from, so that validation errors can 
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -83,13 +83,14 @@ class LaunchFile:
     description: str = ""
 
 
-def parse_cli_args(items: list[str]) -> dict[str, Any]:
-    """`name:=value` pairs from the command line; values are parsed as YAML scalars."""
+def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any]:
+    """`name:=value` pairs (or `name<separator>value`) from the command line; values are parsed as
+    YAML scalars, an empty value is the empty string."""
     out: dict[str, Any] = {}
     for item in items:
-        name, sep, value = item.partition(":=")
+        name, sep, value = item.partition(separator)
         if not sep or not name:
-            raise LaunchError(f"launch argument {item!r} must look like name:=value")
+            raise LaunchError(f"launch argument {item!r} must look like name{separator}value")
         out[name] = yaml.safe_load(value) if value else ""
     return out
 

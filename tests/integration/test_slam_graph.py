@@ -112,17 +112,17 @@ def test_at_sigma_zero_the_fastslam_map_is_the_known_pose_map() -> None:
 @pytest.mark.parametrize("name", ["map_known", "fastslam", "slam_eval"])
 def test_every_mapper_models_the_simulators_finger(name: str) -> None:
     """The mapper's chain (hand description at its mount) is the simulator's model of the finger, bit for bit."""
+    from palpate.config import load
     from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain
     from palpate.nodes.sim.scene import SceneConfig, build_model
-    from palpate.runtime.spec import build_config
 
     specs = {p.name: p for p in resolve(load_launch(LAUNCH / f"{name}.yaml")).process_specs()}
-    scene = SceneConfig.from_dict(specs["sim"].params["scene"], "scene")
+    scene = load(SceneConfig, specs["sim"].params["scene"], "scene")
     mappers = [p for p in specs.values() if p.type == "mapper"]
     assert mappers
     q = np.random.default_rng(0).uniform(-1.5, 1.5, size=(20, 4))
     for mapper in mappers:
-        chain = KinematicChain.from_description(load_hand(), build_config(FingerMount, mapper.params["mount"]))
+        chain = KinematicChain.from_description(load_hand(), load(FingerMount, mapper.params["mount"]))
         assert (mapper.params["mount"]["finger"], mapper.params["mount"]["effector"]) == (scene.finger.finger, "finger")
         truth = KinematicChain.from_model(build_model(scene), chain.joint_names)
         for got, expected in zip(chain.forward(q), truth.forward(q), strict=True):

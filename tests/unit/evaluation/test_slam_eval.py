@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from palpate.errors import ConfigError
+from palpate.errors import ConfigError, LaunchError
 from palpate.evaluation.slam import (
     METHODS,
     BoxTruth,
@@ -213,12 +213,12 @@ def test_maps_png_is_written(tmp_path: Path) -> None:
 
 
 def test_launch_args_are_yaml_values() -> None:
-    from palpate.evaluation.slam import launch_args
+    from palpate.launch.loader import parse_cli_args
 
-    assert launch_args(["free_reward=true", "free_margin_m=null", "particles=30"]) == {
+    assert parse_cli_args(["free_reward=true", "free_margin_m=null", "particles=30"], separator="=") == {
         "free_reward": True,
         "free_margin_m": None,
         "particles": 30,
     }
-    with pytest.raises(ConfigError, match="NAME=VALUE"):
-        launch_args(["free_reward"])
+    with pytest.raises(LaunchError, match="must look like name=value"):
+        parse_cli_args(["free_reward"], separator="=")
