@@ -115,13 +115,13 @@ def slerp(R0: ArrayLike, R1: ArrayLike, tau: float) -> FloatArray:
 
 def quat_to_matrix(q_wxyz: ArrayLike) -> FloatArray:
     """Rotation matrix (3, 3) of a unit quaternion (w, x, y, z); normalised here. Scalar fast path."""
-    q = np.asarray(q_wxyz, dtype=np.float64).reshape(4)
-    w, x, y, z = (float(v) for v in q / np.linalg.norm(q))
+    w, x, y, z = (float(v) for v in np.asarray(q_wxyz, dtype=np.float64).reshape(4))
+    s = 2.0 / (w * w + x * x + y * y + z * z)
     return np.array(
         [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+            [1.0 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y)],
+            [s * (x * y + w * z), 1.0 - s * (x * x + z * z), s * (y * z - w * x)],
+            [s * (x * z - w * y), s * (y * z + w * x), 1.0 - s * (x * x + y * y)],
         ]
     )
 

