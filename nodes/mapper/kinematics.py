@@ -2,7 +2,8 @@
 
 The mapper builds its chain from the hand description (``KinematicChain.from_description``: the
 file the simulator generates its MJCF from), placed where a ``FingerMount`` says; the chain equals
-the one read from the simulator's MuJoCo model (``from_model``) bit for bit. ``forward`` reproduces
+the one read from the simulator's MuJoCo model (``from_model``): bit for bit for an untilted mount
+(every launch file), to 1e-15 for a tilted one. ``forward`` reproduces
 ``mujoco.mj_kinematics`` (engine_core_smooth.c) for hinge and slide joints:
 
     x_b = x_parent + R_parent @ body_pos_b,          R_b = R_parent @ R(body_quat_b)

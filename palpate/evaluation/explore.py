@@ -386,14 +386,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def parse_sets(items: Sequence[str]) -> dict[str, Any]:
     """``["node.key=value", ...]`` -> {"node.key": value}, values parsed as YAML scalars."""
-    import yaml
+    from palpate.launch.loader import parse_cli_args
 
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or "." not in key:
-            raise ConfigError(f"--set {item!r}: expected NODE.KEY=VALUE, e.g. planner.candidate_step_m=0.005")
-        out[key] = yaml.safe_load(value)
+    out = parse_cli_args(items, separator="=")
+    for key in out:
+        if "." not in key:
+            raise ConfigError(f"--set {key!r}: expected NODE.KEY=VALUE, e.g. planner.candidate_step_m=0.005")
     return out
 
 

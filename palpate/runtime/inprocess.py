@@ -53,6 +53,12 @@ class InProcessGraph:
         self.stop_reason = ""
         self.members: list[_Member] = []
         for rank, (spec, process) in enumerate(nodes):
+            ranked = {process.topic_order.get(topic, rank) for topic in process.publishes.values()}
+            if ranked - {rank}:
+                raise ValueError(
+                    f"node {process.name!r} is passed at position {rank} but ranks {min(ranked - {rank})} in its "
+                    "graph: pass the nodes in rank order (Graph.in_process_members())"
+                )
             ctx = NodeContext(process.name, process.seed, self._sender(rank), dict(process.publishes))
             config = load(spec.config, process.params, f"node {process.name!r} params")
             self.members.append(_Member(rank, spec, process, ctx, spec.factory(config, ctx)))

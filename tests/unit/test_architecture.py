@@ -47,6 +47,13 @@ ZMQ_ALLOWED = {
 }
 
 
+#: What may be imported from the root package itself: it holds only the version and the BLAS thread defaults.
+ROOT_NAMES = {"palpate", "palpate.__version__"}
+#: The geometry layer is stricter than the library layer: third-party numerics and palpate.errors only.
+GEOMETRY_LIBRARIES = {"__future__", "math", "dataclasses", "functools", "typing", "numpy", "scipy", "open3d"}
+GEOMETRY_LIBRARIES |= {"trimesh", "skimage"}
+
+
 @dataclass(frozen=True)
 class Import:
     module: str  # the importing module
@@ -86,6 +93,8 @@ def imports() -> Iterator[Import]:
                     anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
                     base = ".".join([*anchor, base] if base else anchor)
                 yield Import(module, base, path, node.lineno)
+                for alias in node.names:  # `from palpate.nodes import controller` imports a module too
+                    yield Import(module, f"{base}.{alias.name}", path, node.lineno)
 
 
 ALL_IMPORTS = list(imports())
@@ -126,13 +135,26 @@ def test_layers_point_one_way() -> None:
     for imp in ALL_IMPORTS:
         layer = layer_of(imp.module)
         in_library = any(under(imp.module, lib) for lib in LIBRARY)
-        if imp.target == "palpate" or not under(imp.target, "palpate") or (layer and under(imp.target, layer)):
+        if imp.target in ROOT_NAMES or not under(imp.target, "palpate") or (layer and under(imp.target, layer)):
             continue  # the root package holds only the version and the BLAS thread defaults
         if in_library and not any(under(imp.target, lib) for lib in LIBRARY):
             bad.append(where(imp) + " (the library layer imports only the library layer)")
         elif layer and not any(under(imp.target, allowed) for allowed in ALLOWED[layer]):
             bad.append(where(imp) + f" ({layer} may import {', '.join(ALLOWED[layer])})")
     assert not bad, "imports against the layering of docs/architecture.md:\n" + "\n".join(bad)
+
+
+def test_geometry_imports_only_numerics_and_errors() -> None:
+    bad = []
+    for imp in ALL_IMPORTS:
+        if not under(imp.module, "palpate.geometry"):
+            continue
+        if under(imp.target, "palpate"):
+            if not (under(imp.target, "palpate.geometry") or under(imp.target, "palpate.errors")):
+                bad.append(where(imp))
+        elif imp.target.split(".")[0] not in GEOMETRY_LIBRARIES:
+            bad.append(where(imp))
+    assert not bad, "the geometry layer uses numerical libraries and palpate.errors only:\n" + "\n".join(bad)
 
 
 def test_zmq_only_in_the_runtime_and_node_files() -> None:

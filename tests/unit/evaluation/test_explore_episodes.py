@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from palpate.errors import ConfigError
+from palpate.errors import ConfigError, LaunchError
 from palpate.evaluation.explore import (
     EXPLORE_LAUNCH,
     ObjectCase,
@@ -80,8 +80,10 @@ def test_parameter_overrides_are_checked() -> None:
         "planner.candidate_step_m": 0.01,
         "gpis.gp.kernel": "gaussian",
     }
-    with pytest.raises(ConfigError):
+    with pytest.raises(LaunchError, match="must look like name=value"):
         parse_sets(["no_equals_sign"])
+    with pytest.raises(ConfigError, match="NODE.KEY=VALUE"):
+        parse_sets(["candidate_step_m=0.01"])
     launch = load_launch(EXPLORE_LAUNCH)
     with pytest.raises(ConfigError, match=r"node\.key"):
         apply_params(launch, [("nosuchnode.x", 1)])

@@ -113,3 +113,15 @@ def test_realtime_keeps_only_the_latest_state_message_but_every_event() -> None:
     ]
     kept = _latest_state_messages(batch, types)  # type: ignore[arg-type]
     assert [seq for _, seq, _, _ in kept] == [2, 4, 5]
+
+
+def test_in_process_graph_refuses_nodes_out_of_rank_order(tmp_path: Path) -> None:
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch
+    from palpate.paths import LAUNCH_DIR
+    from palpate.runtime.inprocess import InProcessGraph
+
+    members = resolve(load_launch(LAUNCH_DIR / "demo_minimal.yaml"), bus_dir=tmp_path).in_process_members()
+    assert InProcessGraph(members).run(max_ticks=2) == 2
+    with pytest.raises(ValueError, match="rank order"):
+        InProcessGraph(members[::-1])
