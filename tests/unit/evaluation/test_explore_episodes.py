@@ -82,7 +82,7 @@ def test_parameter_overrides_are_checked() -> None:
     }
     with pytest.raises(LaunchError, match="must look like name=value"):
         parse_sets(["no_equals_sign"])
-    with pytest.raises(ConfigError, match="NODE.KEY=VALUE"):
+    with pytest.raises(ConfigError, match=r"NODE\.KEY=VALUE"):
         parse_sets(["candidate_step_m=0.01"])
     launch = load_launch(EXPLORE_LAUNCH)
     with pytest.raises(ConfigError, match=r"node\.key"):
