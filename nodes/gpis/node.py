@@ -4,12 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from palpate.config import NonNegativeFloat, PositiveFloat, Validated
 from palpate.messages.schemas import SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.gpis.core import GPIS, GPISConfig
-from palpate.nodes.gpis.surface import SurfaceMeshArrays, global_surface, local_surface
+from palpate.nodes.gpis.surface import SurfaceMeshArrays, local_surface, whole_surface
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
@@ -52,13 +50,8 @@ class GPISNode:
         self._publish(mesh, "local")
 
     def on_request(self, message: SurfaceRequest) -> None:
-        if self.gp.n_contacts == 0:
-            self._publish(SurfaceMeshArrays.empty(), "global")
-            return
         cfg = self.config
-        points = self.gp.positions_m
-        lower, upper = points.min(axis=0) - cfg.global_margin_m, points.max(axis=0) + cfg.global_margin_m
-        self._publish(global_surface(self.gp, lower, upper, cfg.global_resolution_m, with_variance=True), "global")
+        self._publish(whole_surface(self.gp, cfg.global_margin_m, cfg.global_resolution_m), "global")
 
     def _publish(self, mesh: SurfaceMeshArrays, region: str) -> None:
         self.ctx.metrics["contacts"] = float(self.gp.n_contacts)
@@ -71,7 +64,7 @@ class GPISNode:
                 vertices_m=mesh.vertices,
                 faces=mesh.faces,
                 vertex_normals=mesh.vertex_normals,
-                vertex_variance=np.maximum(mesh.vertex_variance, 0.0),
+                vertex_variance=mesh.vertex_variance,
             ),
         )
 

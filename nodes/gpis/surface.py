@@ -44,7 +44,7 @@ class SurfaceMeshArrays:
 
     vertices (v, 3), faces (f, 3) int32 indices into vertices (counter-clockwise seen from outside),
     vertex_normals (v, 3) outward unit normals from the GP gradient, vertex_variance (v,) GP variance
-    of f at each vertex in m^2 (Eq. 6).
+    of f at each vertex in m^2 (Eq. 6; never negative: ``GPIS.variance`` clamps round-off at 0).
     """
 
     vertices: FloatArray
@@ -207,3 +207,15 @@ def global_surface(
     """Surface mesh over the box [bounds_min, bounds_max] (the whole object, on request)."""
     axes = grid_axes(bounds_min, bounds_max, resolution_m)
     return mesh_from_grid(gp, axes, with_variance=with_variance, refine=refine)
+
+
+def whole_surface(
+    gp: GPIS, margin_m: float, resolution_m: float, *, with_variance: bool = True, refine: bool = True
+) -> SurfaceMeshArrays:
+    """Surface mesh over the contacts' bounding box grown by margin_m on every side (the whole object
+    as touched so far); an empty mesh before the first contact."""
+    if gp.n_contacts == 0:
+        return SurfaceMeshArrays.empty()
+    points = gp.positions_m
+    lower, upper = points.min(axis=0) - margin_m, points.max(axis=0) + margin_m
+    return global_surface(gp, lower, upper, resolution_m, with_variance=with_variance, refine=refine)

@@ -21,6 +21,7 @@ from palpate.messages.schemas import ContactSet, JointState, OccupancyGrid, Part
 from palpate.nodes.mapper.core import Mapper, MapperConfig
 from palpate.nodes.mapper.grid import SparseMap
 from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain
+from palpate.nodes.mapper.session import MapperSession
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
@@ -38,50 +39,33 @@ class MapperNodeConfig(Validated):
 
 
 class MapperNode:
-    """Thin wrapper around Mapper."""
+    """Thin wrapper around MapperSession (and its Mapper)."""
 
     def __init__(self, config: MapperNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.chain = KinematicChain.from_description(load_hand(), config.mount)
         self.core = Mapper(config.mapper, self.chain, ctx.rng)
-        self.link_index = {name: i for i, name in enumerate(self.chain.link_names)}
-        self.joint_state: JointState | None = None
-        self.contacts: ContactSet | None = None
-        self.next_publish_ns = 0
-        self.resampled = False
-        self.label = config.label or ("known" if config.mapper.mode == "known" else "best")
+        self.session = MapperSession(self.core, config.publish_period_s, config.label)
 
     def on_joint_states(self, message: JointState) -> None:
-        self.joint_state = message
+        self.session.joint_reading(message.names, message.positions_rad, message.stamp_ns)
 
     def on_contacts(self, message: ContactSet) -> None:
-        self.contacts = message
+        self.session.contacts(message.links, message.local_positions_m, message.stamp_ns)
 
     def on_tick(self, stamp_ns: int) -> None:
-        reading, contacts = self.joint_state, self.contacts
-        self.joint_state = None
-        if reading is None:
+        step = self.session.tick(stamp_ns)
+        if step is None:
             return
-        order = {name: i for i, name in enumerate(reading.names)}
-        q = np.array([reading.positions_rad[order[n]] for n in self.chain.joint_names])
-        links, local = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
-        if contacts is not None and contacts.stamp_ns == reading.stamp_ns:
-            keep = [i for i, link in enumerate(contacts.links) if link in self.link_index]
-            links = np.array([self.link_index[contacts.links[i]] for i in keep], dtype=np.int64)
-            local = np.asarray(contacts.local_positions_m)[keep]
-        resamples_before = self.core.counters.resamples
-        self.core.update(q, links, local)
         c = self.core.counters
-        self.resampled = c.resamples > resamples_before
         self.ctx.metrics.update(updates=c.updates, ms_per_update=c.mean_update_ms, n_eff=self.core.n_eff)
         if self.core.filter is not None:
-            self._publish_particles(stamp_ns)
-        if stamp_ns >= self.next_publish_ns:
-            self.next_publish_ns = stamp_ns + round(self.config.publish_period_s * 1e9)
+            self._publish_particles(stamp_ns, step.resampled)
+        if step.publish_maps:
             self.publish_maps(stamp_ns)
 
     def publish_maps(self, stamp_ns: int) -> None:
-        self._publish_map("map", self.core.best_map(), self.label, stamp_ns)
+        self._publish_map("map", self.core.best_map(), self.session.label, stamp_ns)
         if self.core.filter is not None:
             self._publish_map("weighted_map", self.core.weighted_map(), "weighted", stamp_ns)
 
@@ -100,7 +84,7 @@ class MapperNode:
             ),
         )
 
-    def _publish_particles(self, stamp_ns: int) -> None:
+    def _publish_particles(self, stamp_ns: int, resampled: bool) -> None:
         fs = self.core.filter
         assert fs is not None
         pose = self.core.pose_estimate()
@@ -112,7 +96,7 @@ class MapperNode:
                 num_particles=len(weights),
                 effective_sample_size=self.core.n_eff,
                 best_index=int(np.argmax(weights)),
-                resampled=self.resampled,
+                resampled=resampled,
                 joint_names=list(self.chain.joint_names),
                 pose_mean_rad=pose.mean_q_rad,
                 pose_best_rad=pose.best_q_rad,

@@ -63,6 +63,23 @@ class JointNoise:
         return np.where(self._noisy, q + self.bias_rad + self.sigma_rad * z, q)  # q + b + sigma z
 
 
+class JointStreamNoise:
+    """Joint noise on a stream of readings whose joint names come with the first reading: the
+    JointNoise model is built for those names (and the config checked against them) then, and every
+    reading goes through it."""
+
+    def __init__(self, config: JointNoiseConfig, rng: np.random.Generator) -> None:
+        self.config = config
+        self.model: JointNoise | None = None
+        self._rng = rng
+
+    def apply(self, joint_names: Sequence[str], q_rad: np.ndarray) -> np.ndarray:
+        """Noisy copy of one reading q_rad (J,) of the joints joint_names (see JointNoise.apply)."""
+        if self.model is None:
+            self.model = JointNoise(self.config, joint_names, self._rng)
+        return self.model.apply(q_rad)
+
+
 @dataclass(frozen=True, kw_only=True)
 class ContactNoiseConfig(Validated):
     """Contact-sensor noise: position sigma per axis (m), normal direction sigma per tangent axis (deg)."""

@@ -14,7 +14,7 @@ from typing import Any
 
 from palpate.messages import topics
 from palpate.messages.schemas import ContactSet, JointState
-from palpate.nodes.noise.core import ContactNoise, ContactNoiseConfig, JointNoise, JointNoiseConfig
+from palpate.nodes.noise.core import ContactNoise, ContactNoiseConfig, JointNoiseConfig, JointStreamNoise
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
@@ -29,22 +29,20 @@ class NoiseNodeConfig(JointNoiseConfig, ContactNoiseConfig):
 
 
 class NoiseNode:
-    """Thin wrapper around JointNoise and ContactNoise."""
+    """Thin wrapper around JointStreamNoise and ContactNoise."""
 
     def __init__(self, config: NoiseNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
-        self.joint_noise: JointNoise | None = None
+        self.joint_noise = JointStreamNoise(config, ctx.rng)
         self.contact_noise = ContactNoise(config, ctx.rng)
 
     def on_joint_states(self, message: JointState) -> None:
-        if self.joint_noise is None:  # joint names come with the first reading
-            self.joint_noise = JointNoise(self.config, message.names, self.ctx.rng)
         self.ctx.publish(
             "noisy_joint_states",
             JointState(
                 stamp_ns=message.stamp_ns,
                 names=message.names,
-                positions_rad=self.joint_noise.apply(message.positions_rad),
+                positions_rad=self.joint_noise.apply(message.names, message.positions_rad),
                 velocities_rad_s=message.velocities_rad_s,
             ),
         )

@@ -27,6 +27,7 @@ from palpate.messages.schemas import (
 )
 from palpate.nodes.sim.objects import ObjectSpec
 from palpate.nodes.sim.scene import SceneConfig
+from palpate.nodes.sim.session import SimSession, SimTick
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
@@ -58,7 +59,7 @@ class SimNodeConfig(Validated):
 
 
 class SimNode:
-    """Thin wrapper around Simulation (and the scripted motion for hand and finger scenes)."""
+    """Thin wrapper around SimSession (a Simulation, and the scripted motion for hand and finger scenes)."""
 
     def __init__(self, config: SimNodeConfig, ctx: Context):
         from palpate.nodes.sim.core import Simulation  # MuJoCo and open3d load only in the process that simulates
@@ -67,60 +68,49 @@ class SimNode:
         scene = config.scene
         self.sim = Simulation(scene)
         self.probe = scene.effector == "probe"
-        self.motion = None
+        motion = None
         if not self.probe and config.scripted_motion:
             from palpate.nodes.sim.motion import ExplorationMotion
 
-            self.motion = ExplorationMotion(scene, ctx.rng, obj=self.sim.object)
-        self.steps_per_tick = round(config.tick_period_s / scene.timestep_s)
-        self.period_ns = round(config.tick_period_s * 1e9)
-        self.ticks = round(config.duration_s / config.tick_period_s)
-        self.tick = 0
-        self.previous_pose: tuple[np.ndarray, np.ndarray] | None = None
+            motion = ExplorationMotion(scene, ctx.rng, obj=self.sim.object)
+        self.session = SimSession(
+            self.sim,
+            tick_period_s=config.tick_period_s,
+            duration_s=config.duration_s,
+            timestep_s=scene.timestep_s,
+            motion=motion,
+        )
+        self.period_ns = self.session.period_ns  # the runtime puts it in every Clock
 
     def on_velocity(self, message: CartesianVelocityCommand) -> None:
         self.sim.set_velocity(message.linear_m_s, message.angular_rad_s)
 
     def on_joint_commands(self, message: JointCommand) -> None:
-        order = {name: i for i, name in enumerate(message.names)}
-        missing = [n for n in self.sim.joint_names if n not in order]
-        if missing:
-            raise ConfigError(f"joint command lacks joints {missing}; it must name every joint of the effector")
-        self.sim.set_joint_targets(np.array([message.positions_rad[order[n]] for n in self.sim.joint_names]))
+        self.session.joint_command(message.names, message.positions_rad)
 
     def step(self) -> int | None:
-        if self.tick > self.ticks:
+        tick = self.session.step()
+        if tick is None:
             return None
-        if self.tick == 0:
+        if tick.first:
             self._publish_object()
-        else:
-            if self.motion is not None:
-                self.sim.set_joint_targets(self.motion.targets(self.sim.time_s))
-            self.sim.step(self.steps_per_tick)
-        stamp = self.tick * self.period_ns
-        self.ctx.stamp_ns = stamp
-        self._publish_state(stamp)
-        self.tick += 1
-        return stamp
+        self._publish_state(tick)
+        return tick.stamp_ns
 
     def on_tick(self, stamp_ns: int) -> None:
         """The clock source does its work in step()."""
 
-    def _publish_state(self, stamp: int) -> None:
-        position, quaternion = self.sim.effector_pose()
-        linear = angular = np.zeros(3)
-        if self.previous_pose is not None:
-            linear = (position - self.previous_pose[0]) / self.config.tick_period_s
-        self.previous_pose = (position, quaternion)
+    def _publish_state(self, tick: SimTick) -> None:
+        stamp = tick.stamp_ns
         self.ctx.publish(
             "pose",
             Pose(
                 stamp_ns=stamp,
                 frame="fingertip",
-                position_m=position,
-                quaternion_wxyz=quaternion,
-                linear_velocity_m_s=linear,
-                angular_velocity_rad_s=angular,
+                position_m=tick.position_m,
+                quaternion_wxyz=tick.quaternion_wxyz,
+                linear_velocity_m_s=tick.linear_velocity_m_s,
+                angular_velocity_rad_s=tick.angular_velocity_rad_s,
             ),
         )
         c = self.sim.contacts()

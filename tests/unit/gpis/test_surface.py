@@ -14,6 +14,7 @@ from palpate.nodes.gpis.surface import (
     grid_axes,
     local_surface,
     sample_mean,
+    whole_surface,
 )
 
 CENTRE = np.array([0.02, -0.01, 0.1])
@@ -188,3 +189,36 @@ def test_grid_axes_cover_the_box_with_odd_counts() -> None:
         grid_axes([0, 0, 0], [1, -1, 1], 0.1)
     with pytest.raises(EstimationError, match="nodes"):
         grid_axes([0, 0, 0], [1, 1, 1], 1e-4)
+
+
+def test_whole_surface_spans_the_contacts_box_plus_the_margin() -> None:
+    gp = GPIS()
+    assert whole_surface(gp, 0.03, 0.004).is_empty  # before the first contact: nothing to mesh
+    P, N = sphere_contacts(60, np.random.default_rng(8), 0.04)
+    gp.add_contacts(P, N)
+    mesh = whole_surface(gp, 0.01, 0.004)
+    _check_mesh_arrays(mesh)
+    lower, upper = P.min(axis=0) - 0.01, P.max(axis=0) + 0.01
+    same = global_surface(gp, lower, upper, 0.004)
+    np.testing.assert_array_equal(mesh.vertices, same.vertices)
+    np.testing.assert_array_equal(mesh.vertex_variance, same.vertex_variance)
+    assert np.all(mesh.vertices >= lower - 0.004) and np.all(mesh.vertices <= upper + 0.004)
+    # the box holds the whole object: the mesh spans the touched sphere
+    np.testing.assert_allclose(mesh.vertices.min(axis=0), CENTRE - 0.04, atol=0.003)
+    np.testing.assert_allclose(mesh.vertices.max(axis=0), CENTRE + 0.04, atol=0.003)
+    bare = whole_surface(gp, 0.01, 0.004, with_variance=False)
+    np.testing.assert_array_equal(bare.vertices, mesh.vertices)
+    assert np.all(bare.vertex_variance == 0)
+
+
+def test_vertex_variance_is_never_negative(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Round-off can make Eq. 6 (prior variance minus a positive term) negative; the mesh carries 0
+    there. Forced here with a prior variance of 0, where Eq. 6 is negative at every vertex."""
+    rng = np.random.default_rng(9)
+    P, N = sphere_contacts(30, rng, 0.04)
+    gp = GPIS()
+    gp.add_contacts(P, N)
+    monkeypatch.setattr(type(gp.kernel), "value_variance", property(lambda self: 0.0))
+    mesh = local_surface(gp, P[0], 0.02, 0.004)
+    assert not mesh.is_empty
+    assert mesh.vertex_variance.tobytes() == np.zeros(len(mesh.vertices)).tobytes()  # +0.0, not -0.0

@@ -14,6 +14,7 @@ from palpate.nodes.noise.core import (
     ContactNoiseConfig,
     JointNoise,
     JointNoiseConfig,
+    JointStreamNoise,
     perturb_directions,
 )
 
@@ -107,6 +108,22 @@ def test_config_errors_name_the_key_and_value() -> None:
     with pytest.raises(ValueError, match=r"shape \(\.\.\., 4\)"):
         JointNoise(JointNoiseConfig(), JOINTS, np.random.default_rng(0)).apply(np.zeros(3))
     assert load(JointNoiseConfig, {"sigma_deg": 0.5}).sigma_deg == 0.5
+
+
+def test_stream_builds_its_model_from_the_first_reading_names() -> None:
+    """The first reading's names fix the model (per-joint sigma found by name); later readings use it
+    and draw from the one generator, as a JointNoise built up front does."""
+    config = JointNoiseConfig(sigma_deg=0.0, per_joint_sigma_deg={"pip": 2.0})
+    stream = JointStreamNoise(config, np.random.default_rng(5))
+    assert stream.model is None  # nothing is known before a reading
+    reference = JointNoise(config, JOINTS, np.random.default_rng(5))
+    q = np.array([0.1, -0.2, 0.7, 0.3])
+    for _ in range(3):
+        assert stream.apply(JOINTS, q).tobytes() == reference.apply(q).tobytes()
+    assert stream.model is not None and stream.model.joint_names == JOINTS
+    np.testing.assert_array_equal(stream.model.sigma_rad, np.radians([0.0, 0.0, 2.0, 0.0]))
+    with pytest.raises(ConfigError, match=r"per_joint_sigma_deg names unknown joint\(s\) \['pip'\]"):
+        JointStreamNoise(config, np.random.default_rng(0)).apply(["a", "b"], np.zeros(2))
 
 
 # --- contacts --------------------------------------------------------------------------------------

@@ -1,0 +1,113 @@
+"""The mapper node's decisions, between its messages and the Mapper (pure, no transport).
+
+- A joint reading is put in the chain's joint order when it arrives; a reading that lacks one of the
+  chain's joints is refused (EstimationError) and the previous one is kept. Joints the chain does not
+  have (the other fingers of a hand) are ignored.
+- Contacts keep only those on the chain's links, as link indices and positions in the link's frame.
+- Each tick with a new reading runs one update, with the contacts of the same stamp (the simulator
+  publishes both in one tick); a tick without a new reading does nothing.
+- The maps go out at the first update and then once every ``publish_period_s`` of simulated time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from palpate.description.names import match_names
+from palpate.errors import EstimationError
+from palpate.nodes.mapper.core import Mapper
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class JointReading:
+    """Joint angles q_rad (J,) in the chain's joint order, measured at stamp_ns."""
+
+    stamp_ns: int
+    q_rad: FloatArray
+
+
+@dataclass(frozen=True)
+class ChainContacts:
+    """The contacts on the chain's links at stamp_ns: link indices (n,), positions (n, 3) in those
+    links' frames (metres)."""
+
+    stamp_ns: int
+    links: NDArray[np.int64]
+    local_m: FloatArray
+
+    @classmethod
+    def none(cls, stamp_ns: int) -> ChainContacts:
+        return cls(stamp_ns=stamp_ns, links=np.zeros(0, dtype=np.int64), local_m=np.zeros((0, 3)))
+
+
+@dataclass(frozen=True)
+class MapperTick:
+    """What one tick's update asks the node to publish."""
+
+    #: The particle filter resampled in this update (reported in the particle summary).
+    resampled: bool
+    #: The maps are due (first update, then every publish period).
+    publish_maps: bool
+
+
+class MapperSession:
+    """Feeds the Mapper from decoded messages and decides when the maps go out."""
+
+    def __init__(self, mapper: Mapper, publish_period_s: float, label: str = "") -> None:
+        self.mapper = mapper
+        self.chain = mapper.chain
+        self.publish_period_ns = round(publish_period_s * 1e9)
+        #: Map kind of the published best map: the configured label, or 'known' / 'best' by mode.
+        self.label = label or ("known" if mapper.config.mode == "known" else "best")
+        self.next_publish_ns = 0
+        self._reading: JointReading | None = None
+        self._contacts: ChainContacts | None = None
+
+    def joint_reading(self, names: Sequence[str], positions_rad: ArrayLike, stamp_ns: int) -> JointReading:
+        """Keep a reading (joint names and angles in the message's order) for the next tick; returns
+        it in the chain's joint order. Raises EstimationError, keeping the previous reading, when a
+        joint of the chain is missing."""
+        match = match_names(self.chain.joint_names, names)
+        if match.missing:
+            raise EstimationError(
+                f"joint reading lacks the chain's joints {list(match.missing)} (it names {list(names)}); "
+                "the reading is ignored"
+            )
+        reading = JointReading(stamp_ns=stamp_ns, q_rad=np.asarray(positions_rad, dtype=np.float64)[match.index])
+        self._reading = reading
+        return reading
+
+    def contacts(self, links: Sequence[str], local_positions_m: ArrayLike, stamp_ns: int) -> ChainContacts:
+        """Keep the contacts (the link of each and its position in that link's frame) that lie on the
+        chain's links, as link indices; returns them."""
+        index = match_names(links, self.chain.link_names).index
+        on_chain = index >= 0
+        contacts = ChainContacts(
+            stamp_ns=stamp_ns,
+            links=index[on_chain].astype(np.int64),
+            local_m=np.asarray(local_positions_m, dtype=np.float64).reshape(-1, 3)[on_chain],
+        )
+        self._contacts = contacts
+        return contacts
+
+    def tick(self, stamp_ns: int) -> MapperTick | None:
+        """One update with the reading received since the last tick (None: there was none) and the
+        contacts of the reading's stamp."""
+        reading, contacts = self._reading, self._contacts
+        self._reading = None
+        if reading is None:
+            return None
+        if contacts is None or contacts.stamp_ns != reading.stamp_ns:
+            contacts = ChainContacts.none(reading.stamp_ns)
+        resamples_before = self.mapper.counters.resamples
+        self.mapper.update(reading.q_rad, contacts.links, contacts.local_m)
+        publish_maps = stamp_ns >= self.next_publish_ns
+        if publish_maps:
+            self.next_publish_ns = stamp_ns + self.publish_period_ns
+        return MapperTick(resampled=self.mapper.counters.resamples > resamples_before, publish_maps=publish_maps)
