@@ -73,6 +73,7 @@ class NodeContext:
             "input_errors": 0,
         }
         self.metrics: dict[str, float] = {}
+        self.timings: dict[str, float] = {}
         self.stop_requested = ""
         self._send = send
         self.log = logging.getLogger(f"palpate.{name}")
@@ -142,8 +143,11 @@ class NodeRunner:
         self.pub.send_multipart([topic.encode(), codec.encode(message)])
 
     def publish_status(self, state: str, message: str = "") -> None:
+        """Counters and metrics on `status`; wall-clock timings only in real-time mode (a lockstep status,
+        like everything else in a lockstep log, depends on the launch and seed alone)."""
         names = sorted(self.ctx.counters)
-        metric_names = sorted(self.ctx.metrics)
+        figures = self.ctx.metrics if self.lockstep else {**self.ctx.metrics, **self.ctx.timings}
+        metric_names = sorted(figures)
         status = NodeStatus(
             stamp_ns=self.ctx.stamp_ns,
             node=self.process.name,
@@ -152,7 +156,7 @@ class NodeRunner:
             counter_names=names,
             counter_values=np.array([self.ctx.counters[n] for n in names], dtype=np.int64),
             metric_names=metric_names,
-            metric_values=np.array([self.ctx.metrics[n] for n in metric_names], dtype=np.float64),
+            metric_values=np.array([figures[n] for n in metric_names], dtype=np.float64),
         )
         self._send_internal(topics.NODE_STATUS, status)
 
@@ -240,6 +244,9 @@ class NodeRunner:
             else:
                 self._run_follower()
             self.publish_status("finished", self.ctx.stop_requested)
+            if self.lockstep and self.ctx.timings:
+                timings = ", ".join(f"{k} {v:.4g}" for k, v in sorted(self.ctx.timings.items()))
+                log.info("node %s wall-clock timings: %s", self.process.name, timings)
             return 0
         except TimeoutError as exc:
             log.error("node %s: %s", self.process.name, exc)

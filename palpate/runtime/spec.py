@@ -55,6 +55,12 @@ class Context(Protocol):
         ...
 
     @property
+    def timings(self) -> dict[str, float]:
+        """Wall-clock figures (``ms_per_update``): in the status in real-time mode only, since a lockstep
+        log must not depend on CPU speed (same launch and seed, same bytes); logged at exit in lockstep."""
+        ...
+
+    @property
     def counters(self) -> dict[str, int]:
         """Event counts reported in the node's status; the runtime's own are messages_in, messages_out,
         decode_errors and input_errors."""
