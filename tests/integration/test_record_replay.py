@@ -21,6 +21,7 @@ from contextlib import contextmanager, suppress
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 
 from palpate.commands.introspect import TopicTap
 from palpate.messages import codec, topics
@@ -125,6 +126,23 @@ def test_two_same_seed_fastslam_runs_give_the_same_bytes(tmp_path: Path) -> None
     metrics = dict(zip(mapper[-1].metric_names, mapper[-1].metric_values.tolist(), strict=True))
     assert metrics["updates"] == 101 and "ms_per_update" not in metrics  # a wall time: real-time statuses only
     assert first.read_bytes() == second.read_bytes()
+
+
+def test_a_recorded_run_exports_for_foxglove(recorded: Path, tmp_path: Path) -> None:
+    pytest.importorskip("foxglove")
+    out = tmp_path / "foxglove.mcap"
+    done = palpate(tmp_path, "bag", "export", str(recorded), "-o", str(out), "--foxglove")
+    assert done.returncode == 0, done.stdout + done.stderr
+    with out.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None and summary.statistics is not None
+    counts = {
+        (channel.topic, summary.schemas[channel.schema_id].name): summary.statistics.channel_message_counts[cid]
+        for cid, channel in summary.channels.items()
+    }
+    assert counts[(topics.SURFACE_MESH, "foxglove.SceneUpdate")] == TICKS  # the estimator's box, every tick
+    assert counts[(topics.CONTACTS, "foxglove.SceneUpdate")] == TICKS
+    assert counts[(topics.NODE_STATUS, "palpate.NodeStatus")] > 0
 
 
 def test_replayed_messages_equal_the_recorded_ones(recorded: Path, tmp_path: Path) -> None:
