@@ -103,7 +103,16 @@ class NodeRunner:
         self.start_timeout_s = start_timeout_s
         self.ack_timeout_s = 120.0
         self.zmq: zmq.Context[Any] = zmq.Context.instance()
-        self.pub = bus.make_publisher(self.zmq, process.endpoint, lockstep=self.lockstep, curve=process.curve)
+        # a Curve publisher admits only the client keys the launcher lists (a ZAP handler in this process)
+        self.allow = bus.ClientAllowList(self.zmq) if process.curve else None
+        self.pub = bus.make_publisher(
+            self.zmq,
+            process.endpoint,
+            lockstep=self.lockstep,
+            curve=process.curve,
+            allow=self.allow,
+            curve_clients=process.curve_clients,
+        )
         # hello/<name> tells each publisher that this very node is connected (tools that subscribe
         # to topics by name cannot stand in for it in the start-up count)
         wanted = sorted({*process.subscribes.values(), *_INTERNAL, hello_topic(process.name)})
@@ -264,6 +273,9 @@ class NodeRunner:
             time.sleep(0.05)  # let the last status leave
             self.pub.close(linger=1000)
             self.sub.close()
+            bus.remove_ipc_file(self.process.endpoint)  # the context is never terminated: zmq would leave it
+            if self.allow is not None:
+                self.allow.close()
 
     def _start_up(self) -> None:
         deadline = time.monotonic() + self.start_timeout_s

@@ -132,11 +132,12 @@ def runtime_doc_examples() -> list[tuple[str, str]]:
 
 
 @pytest.mark.parametrize("command", [c for c, _ in runtime_doc_examples()])
-def test_the_runtime_docs_examples_print_what_the_page_shows(command: str) -> None:
+def test_the_runtime_docs_examples_print_what_the_page_shows(command: str, tmp_path: Path) -> None:
     """Run with the installed `palpate` script from the repository root and no PYTHONPATH, as a reader would."""
     expected = dict(runtime_doc_examples())[command]
     script = Path(sys.executable).parent / "palpate"
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PALPATE_BUS")}
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["PALPATE_BUS"] = str(tmp_path / "bus")  # a private bus: the examples print no bus directory of their own
     done = subprocess.run(
         [str(script), *shlex.split(command)[1:]], cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=60
     )
