@@ -494,6 +494,7 @@ class BlockingPublisher:
     def __init__(self, endpoint: str, *, send_hwm: int, linger_ms: int = 30_000, send_timeout_ms: int = 100):
         self.context: zmq.Context[Any] = zmq.Context()
         self.counter = SubscriptionCounter()
+        self.endpoint = endpoint
         self.sock = make_publisher(
             self.context,
             endpoint,
@@ -517,6 +518,7 @@ class BlockingPublisher:
         return True
 
     def close(self) -> None:
-        """Close the socket, then wait (up to the linger time) until queued messages have left."""
+        """Close the socket, wait (up to the linger time) until queued messages have left, delete the socket file."""
         self.sock.close()
         self.context.term()
+        remove_ipc_file(self.endpoint)
