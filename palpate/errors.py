@@ -41,6 +41,10 @@ class ConfigError(PalpateError):
         self.path = path
 
 
+class BusError(PalpateError):
+    """The bus cannot be used safely: an unsafe bus directory, or an unreadable CurveZMQ key file."""
+
+
 class LaunchError(PalpateError):
     """A launch file is invalid or a launched graph failed."""
 

@@ -58,7 +58,8 @@ class MapperNode:
         if step is None:
             return
         c = self.core.counters
-        self.ctx.metrics.update(updates=c.updates, ms_per_update=c.mean_update_ms, n_eff=self.core.n_eff)
+        self.ctx.metrics.update(updates=c.updates, n_eff=self.core.n_eff)
+        self.ctx.timings["ms_per_update"] = c.mean_update_ms
         if self.core.filter is not None:
             self._publish_particles(stamp_ns, step.resampled)
         if step.publish_maps:

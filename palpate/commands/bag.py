@@ -46,6 +46,19 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     flt.add_argument("--topics", nargs="+", metavar="TOPIC", help="keep only these topics")
     flt.add_argument("--exclude", nargs="+", default=[], metavar="TOPIC", help="drop these topics")
     flt.set_defaults(func=run_filter)
+    exp = bsub.add_parser(
+        "export", help="rewrite a log for another tool: --foxglove, Foxglove's schemas (scene, transforms, plots)"
+    )
+    exp.add_argument("file", type=Path)
+    exp.add_argument("-o", "--output", type=Path, required=True, help="output MCAP file")
+    fmt = exp.add_mutually_exclusive_group(required=True)
+    fmt.add_argument(
+        "--foxglove",
+        action="store_true",
+        help="Foxglove's own schemas (protobuf, needs pip install 'palpate[foxglove]'); docs/viewer.md",
+    )
+    exp.add_argument("--topics", nargs="+", metavar="TOPIC", help="export only these topics")
+    exp.set_defaults(func=run_export)
 
 
 def run_replay(args: argparse.Namespace) -> int:
@@ -84,4 +97,21 @@ def run_recover(args: argparse.Namespace) -> int:
 def run_filter(args: argparse.Namespace) -> int:
     count = mcap_io.copy_log(args.file, args.output, include=args.topics, exclude=args.exclude)
     print(f"wrote {count} messages to {args.output}")
+    return 0
+
+
+def run_export(args: argparse.Namespace) -> int:
+    from palpate.viewer.foxglove_export import export_foxglove  # needs the foxglove extra
+
+    report = export_foxglove(args.file, args.output, args.topics)
+    total = sum(report.written.values())
+    print(
+        f"exported {report.converted} of {report.read} messages as {total} Foxglove messages to {args.output}"
+        + (f"; {report.undecodable} undecodable skipped" if report.undecodable else "")
+    )
+    width = max([len(t) for t, _ in report.written] + [5])
+    for (topic, schema), count in sorted(report.written.items()):
+        print(f"  {topic:<{width}}  {schema:<24}  {count:>8}")
+    if total == 0:
+        raise RecordError(f"{args.file}: nothing to export (no message of a type the export knows)")
     return 0

@@ -30,6 +30,10 @@ DISCOVERY_PERIOD_S = 0.5
 _INLINE_ELEMENTS = 6
 
 
+#: Help of the tools' `--curve-keys` option.
+CURVE_KEYS_HELP = "CurveZMQ key file for keyed publishers (they admit only the keys of their launch file's nodes)"
+
+
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     bus_help = f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)"
     t = sub.add_parser("topic", help="list, print and measure topics of the running bus")
@@ -44,12 +48,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     te.add_argument("--bus", type=Path, help=bus_help)
     te.add_argument("--full", action="store_true", help="print arrays in full")
     te.add_argument("--timeout", type=float, default=0.0, metavar="S", help="give up after S s (0: never)")
+    te.add_argument("--curve-keys", type=Path, metavar="FILE", help=CURVE_KEYS_HELP)
     te.set_defaults(func=run_topic_echo)
     th = tsub.add_parser("hz", help="message rate of a topic, in wall-clock and sim time")
     th.add_argument("topic")
     th.add_argument("--window", type=int, default=100, metavar="N", help="messages the rate is measured over")
     th.add_argument("--duration", type=float, default=0.0, metavar="S", help="exit after S s (0: never)")
     th.add_argument("--bus", type=Path, help=bus_help)
+    th.add_argument("--curve-keys", type=Path, metavar="FILE", help=CURVE_KEYS_HELP)
     th.set_defaults(func=run_topic_hz)
 
     n = sub.add_parser("node", help="nodes of the running bus")
@@ -58,6 +64,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     nl.add_argument("--bus", type=Path, help=bus_help)
     nl.add_argument("--json", action="store_true", help="one JSON line")
     nl.set_defaults(func=run_node_list)
+
+
+def _client_keys(args: argparse.Namespace) -> dict[str, str] | None:
+    return bus.read_key_file(args.curve_keys) if args.curve_keys else None
 
 
 def _bus_dir(args: argparse.Namespace) -> Path:
@@ -126,9 +136,9 @@ def run_node_list(args: argparse.Namespace) -> int:
 class TopicTap:
     """A SUB socket on one topic that follows the publishers appearing in the bus directory."""
 
-    def __init__(self, bus_dir: Path, topic: str):
+    def __init__(self, bus_dir: Path, topic: str, client_keys: dict[str, str] | None = None):
         self.bus_dir, self.topic = bus_dir, topic
-        self.tap = bus.PublisherTap()
+        self.tap = bus.PublisherTap(client_keys=client_keys)
         self.last_discovery = 0.0
         self.interrupted = False
 
@@ -212,7 +222,7 @@ def format_message(topic: str, message: Message, *, full: bool = False) -> str:
 
 
 def run_topic_echo(args: argparse.Namespace) -> int:
-    tap = TopicTap(_bus_dir(args), args.topic)
+    tap = TopicTap(_bus_dir(args), args.topic, _client_keys(args))
     seen = 0
 
     def handle(arrival: float, payload: bytes) -> bool:
@@ -268,7 +278,7 @@ class RateMeter:
 
 
 def run_topic_hz(args: argparse.Namespace) -> int:
-    tap = TopicTap(_bus_dir(args), args.topic)
+    tap = TopicTap(_bus_dir(args), args.topic, _client_keys(args))
     meter = RateMeter(args.window)
     last_report = time.monotonic()
 

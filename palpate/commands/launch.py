@@ -61,12 +61,20 @@ def run_launch(args: argparse.Namespace) -> int:
 
 def run_graph(graph: Graph, record: Path | None = None) -> int:
     """Start the graph's processes (and a recorder), supervise them, return the exit code."""
-    specs = graph.process_specs(extra_subscribers=1 if record else 0)
+    # a recorder of a keyed graph gets its own key pair, which every keyed publisher admits
+    recorder_keys = bus.make_curve_keys() if record is not None and graph.keyed else {}
+    specs = graph.process_specs(
+        extra_subscribers=1 if record else 0,
+        extra_curve_clients=[recorder_keys["public"]] if recorder_keys else [],
+    )
     supervisor = Supervisor(graph, specs)
     recorder: subprocess.Popen[bytes] | None = None
     if record is not None:
         endpoints = [n.endpoint for n in graph.nodes]
         server_keys = {n.endpoint: n.curve["public"] for n in graph.nodes if n.curve.get("public")}
+        key_args = []
+        if recorder_keys:
+            key_args = ["--curve-keys", str(supervisor.write_secret("recorder.key", recorder_keys))]
         recorder = subprocess.Popen(
             [
                 sys.executable,
@@ -79,6 +87,7 @@ def run_graph(graph: Graph, record: Path | None = None) -> int:
                 str(graph.bus_dir),
                 "--curve-servers",
                 json.dumps(server_keys),
+                *key_args,
                 "--connect",
                 *endpoints,
             ]

@@ -12,6 +12,7 @@ import os
 import sys
 from pathlib import Path
 
+from palpate.commands.introspect import CURVE_KEYS_HELP
 from palpate.errors import ViewerError
 from palpate.runtime import bus
 from palpate.viewer import require_rerun
@@ -33,6 +34,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--bus", type=Path, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
     p.add_argument("--save", type=Path, metavar="FILE.rrd", help="write a rerun recording file instead of a window")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="show only these topics (default: every shown type)")
+    p.add_argument("--curve-keys", type=Path, metavar="FILE", help=CURVE_KEYS_HELP)
     p.add_argument(
         "--duration",
         type=float,
@@ -75,7 +77,8 @@ def run_view(args: argparse.Namespace) -> int:
     else:
         bus_dir = Path(args.bus) if args.bus else bus.default_bus_dir()
         sink = open_recording(save=args.save)
-        bus_source = BusSource(bus_dir, args.topics)
+        client_keys = bus.read_key_file(args.curve_keys) if args.curve_keys else None
+        bus_source = BusSource(bus_dir, args.topics, client_keys)
         print(f"palpate view: watching bus {bus_dir} (Ctrl-C to stop)", flush=True)
         try:
             for topic, message in bus_source.messages(args.duration):

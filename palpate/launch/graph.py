@@ -7,13 +7,13 @@ topics wired into non-evaluator nodes. Each error names the file, the line and t
 
 from __future__ import annotations
 
-import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from palpate.config import load
-from palpate.errors import ConfigError, LaunchError
+from palpate.errors import BusError, ConfigError, LaunchError
 from palpate.launch.loader import LaunchFile, NodeEntry, Where
 from palpate.launch.node_types import load_node_type, node_spec_reference
 from palpate.messages import topics
@@ -75,9 +75,17 @@ class Graph:
         sources = [n for n in self.nodes if n.spec.clock_source]
         return sources[0] if sources else None
 
-    def process_specs(self, *, extra_subscribers: int = 0) -> list[NodeProcessSpec]:
-        """What each node process gets; `extra_subscribers` counts a recorder connected to every node."""
-        return [self._process_spec(n, extra_subscribers) for n in self.nodes]
+    def process_specs(
+        self, *, extra_subscribers: int = 0, extra_curve_clients: Sequence[str] = ()
+    ) -> list[NodeProcessSpec]:
+        """What each node process gets; `extra_subscribers` counts a recorder connected to every node, and
+        `extra_curve_clients` are its CurveZMQ public keys, which every keyed publisher then admits."""
+        return [self._process_spec(n, extra_subscribers, extra_curve_clients) for n in self.nodes]
+
+    @property
+    def keyed(self) -> bool:
+        """Whether any node uses CurveZMQ keys."""
+        return any(n.curve for n in self.nodes)
 
     def in_process_members(self) -> list[tuple[NodeSpec[Any], NodeProcessSpec]]:
         """Each node's spec and process spec in rank order: what an in-process executor runs."""
@@ -99,9 +107,14 @@ class Graph:
             peers.append(clock)
         return peers
 
-    def _process_spec(self, node: GraphNode, extra_subscribers: int) -> NodeProcessSpec:
+    def _process_spec(
+        self, node: GraphNode, extra_subscribers: int, extra_curve_clients: Sequence[str] = ()
+    ) -> NodeProcessSpec:
         lockstep = self.mode == "lockstep"
         connectors = [n for n in self.nodes if node in self._connections(n)]
+        # a keyed publisher admits exactly the keys of the nodes that connect to it (validation made sure
+        # they have keys) and of the recorder
+        clients = {n.curve["public"] for n in connectors if n.curve} | set(extra_curve_clients)
         expected: dict[str, int] = {}
         for topic in set(node.publishes.values()):
             count = sum(1 for n in connectors if topic in n.subscribes.values()) + extra_subscribers
@@ -134,6 +147,7 @@ class Graph:
             lockstep_nodes=[n.name for n in self.nodes if n is not node] if node is clock else [],
             topic_order={t: p.rank for p in self.nodes for t in p.publishes.values()},
             curve=node.curve,
+            curve_clients=sorted(clients) if node.curve else [],
         )
 
 
@@ -327,13 +341,12 @@ def _curve(entry: NodeEntry) -> dict[str, str]:
     if path is None:
         return {}
     try:
-        keys = json.loads(Path(str(path)).expanduser().read_text())
-    except (OSError, ValueError) as exc:
-        raise LaunchError(f"{entry.at('curve_keys')}: cannot read CurveZMQ key file {path!r}: {exc}") from exc
-    missing = {"public", "secret", "server_public"} - set(keys)
-    if missing:
-        raise LaunchError(f"{entry.at('curve_keys')}: key file {path!r} lacks {sorted(missing)}")
-    return {k: str(keys[k]) for k in ("public", "secret", "server_public")}
+        keys = bus.read_key_file(str(path))
+    except BusError as exc:
+        raise LaunchError(f"{entry.at('curve_keys')}: {exc}") from exc
+    if "server_public" not in keys:
+        raise LaunchError(f"{entry.at('curve_keys')}: key file {path!r} lacks ['server_public']")
+    return keys
 
 
 def _stable_hash(text: str) -> int:

@@ -9,7 +9,9 @@ exits non-zero unless the node is set to respawn (up to `max_restarts`).
 from __future__ import annotations
 
 import ctypes
+import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -24,6 +26,7 @@ from types import FrameType
 from typing import IO
 
 from palpate.launch.graph import Graph, GraphNode
+from palpate.runtime import bus
 from palpate.runtime.spec import NodeProcessSpec
 
 _PR_SET_PDEATHSIG = 1
@@ -57,6 +60,7 @@ class Supervisor:
     def __init__(self, graph: Graph, process_specs: list[NodeProcessSpec], *, out: IO[str] | None = None):
         self.graph = graph
         self.out = out or sys.stdout
+        # the node specs (and any key file) live in a 0700 directory, removed at shutdown: they hold secret keys
         self.run_dir = Path(tempfile.mkdtemp(prefix="palpate-run-"))
         self.children: list[Child] = []
         self.lock = threading.Lock()
@@ -68,6 +72,14 @@ class Supervisor:
             path = self.run_dir / f"{spec.name}.json"
             path.write_text(spec.to_json())
             self.children.append(Child(node=node, spec_path=path))
+
+    def write_secret(self, name: str, values: dict[str, str]) -> Path:
+        """Write `values` as JSON readable by this user only, in the run directory; returns the path."""
+        path = self.run_dir / name
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "w") as f:
+            json.dump(values, f)
+        return path
 
     def _start(self, child: Child) -> None:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -182,3 +194,6 @@ class Supervisor:
         for child in self.children:
             for pump in child.pumps:
                 pump.join(timeout=1.0)
+            # a node that exits cleanly removes its socket file; one that was killed cannot
+            bus.remove_ipc_file(child.node.endpoint)
+        shutil.rmtree(self.run_dir, ignore_errors=True)

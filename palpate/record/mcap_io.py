@@ -165,7 +165,9 @@ class LogWriter:
     the bytes to the operating system, so a process killed afterwards loses nothing written before.
     """
 
-    def __init__(self, path: str | Path, *, compression: str = "zstd", chunk_size: int = 1 << 20):
+    def __init__(
+        self, path: str | Path, *, compression: str = "zstd", chunk_size: int = 1 << 20, profile: str = PROFILE
+    ):
         if compression not in COMPRESSIONS:
             raise RecordError(f"unknown compression {compression!r}; choose one of {sorted(COMPRESSIONS)}")
         self.path = Path(path)
@@ -177,7 +179,7 @@ class LogWriter:
             # per-message indexes cost more than they save with the recorder's small chunks
             index_types=IndexType.CHUNK | IndexType.ATTACHMENT | IndexType.METADATA,
         )
-        self._writer.start(profile=PROFILE, library=LIBRARY)
+        self._writer.start(profile=profile, library=LIBRARY)
         self._schemas: dict[tuple[str, str, bytes], int] = {}
         self._channels: dict[tuple[str, str], int] = {}
         self.messages = 0
@@ -215,6 +217,11 @@ class LogWriter:
         if channel_id is None:
             channel_id = self.channel(topic, info.type, schema_bytes(info.type, info.version))
         self._writer.add_message(channel_id, info.stamp_ns, payload, info.stamp_ns, sequence & 0xFFFFFFFF)
+        self.messages += 1
+
+    def add(self, channel_id: int, log_time_ns: int, data: bytes, sequence: int = 0) -> None:
+        """Append already encoded `data` on a channel from `channel()`; log and publish time are `log_time_ns`."""
+        self._writer.add_message(channel_id, log_time_ns, data, log_time_ns, sequence & 0xFFFFFFFF)
         self.messages += 1
 
     def write_logged(

@@ -281,6 +281,7 @@ class Recorder:
         chunk_ticks: int = 1,
         grace_s: float = 2.0,
         server_keys: Mapping[str, str] | None = None,
+        client_keys: Mapping[str, str] | None = None,
     ):
         self.output = output
         #: endpoint -> CurveZMQ server key of a keyed publisher (from the launcher or the manifests)
@@ -292,7 +293,8 @@ class Recorder:
         self.until_stop = until_stop
         self.chunk_ticks = max(1, chunk_ticks)
         self.grace_s = grace_s
-        self.tap = bus.PublisherTap(never_drop=True, monitor=True)  # never drop: the recorder must see every message
+        # never drop: the recorder must see every message; keyed publishers admit it by its client keys
+        self.tap = bus.PublisherTap(never_drop=True, monitor=True, client_keys=client_keys)
         self.connections: dict[str, _Connection] = {}
         self.sorter = TickSorter()
         self.writer = LogWriter(output, compression=compression, chunk_size=chunk_size)
@@ -521,6 +523,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="JSON",
         help='CurveZMQ server keys of keyed publishers, {"ENDPOINT": "z85 public key"} (manifest mode reads them)',
     )
+    p.add_argument(
+        "--curve-keys",
+        type=Path,
+        metavar="FILE",
+        help="CurveZMQ key file the recorder connects to keyed publishers with (one their launch admits)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -538,6 +546,7 @@ def run(args: argparse.Namespace) -> int:
         chunk_size=args.chunk_size,
         chunk_ticks=args.chunk_ticks,
         server_keys=args.curve_servers,
+        client_keys=bus.read_key_file(args.curve_keys) if args.curve_keys else None,
     )
     return recorder.run()
 

@@ -13,32 +13,92 @@ Discovery: the launcher wires static graphs. Each running node also writes a man
 
 Tools get their sockets here too, so that zmq stays in the runtime: `PublisherTap` (one SUB socket
 per publisher, for echo, the viewer and the recorder) and `BlockingPublisher` (the log player).
+
+Security: the default bus directory is private to the user (`default_bus_dir`, `private_dir`); a
+CurveZMQ publisher admits only the client keys the launcher lists (`ClientAllowList`, a ZAP handler).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import os
+import stat
 import tempfile
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import zmq
+from zmq.auth.thread import ThreadAuthenticator
 from zmq.utils.monitor import recv_monitor_message
+
+from palpate.errors import BusError
+
+log = logging.getLogger("palpate.bus")
 
 #: Environment variable naming the bus directory (ipc sockets and manifests).
 BUS_ENV = "PALPATE_BUS"
+#: The XDG base-directory variable of the per-user runtime directory (sockets belong there).
+RUNTIME_DIR_ENV = "XDG_RUNTIME_DIR"
 
 
 def default_bus_dir() -> Path:
-    """``$PALPATE_BUS`` or a per-user directory under the system temp dir."""
+    """``$PALPATE_BUS``; else ``$XDG_RUNTIME_DIR/palpate/default`` (the per-user runtime directory, 0700 by
+    the XDG specification); else ``<temp dir>/palpate-<uid>/default``. The directory above ``default`` is
+    created 0700 or checked to be a directory of this user that no one else can enter (`private_dir`),
+    since anyone who can reach the ipc sockets can talk to the graph."""
     configured = os.environ.get(BUS_ENV)
-    path = Path(configured) if configured else Path(tempfile.gettempdir()) / f"palpate-{os.getuid()}" / "default"
-    path.mkdir(parents=True, exist_ok=True)
+    if configured:
+        path = Path(configured)
+        path.mkdir(parents=True, exist_ok=True)
+        return path
+    runtime = os.environ.get(RUNTIME_DIR_ENV)
+    if runtime and Path(runtime).is_absolute() and Path(runtime).is_dir():
+        base = Path(runtime) / "palpate"
+    else:
+        base = Path(tempfile.gettempdir()) / f"palpate-{os.getuid()}"
+    path = private_dir(base) / "default"
+    path.mkdir(mode=0o700, exist_ok=True)
     return path
+
+
+def private_dir(path: Path) -> Path:
+    """Create `path` as a directory only its owner can enter (mode 0700), or check that it already is one:
+    a real directory (not a symlink), owned by this user; group and other permissions are removed.
+
+    Raises BusError saying what is wrong and what to do. In a shared temp dir (sticky, like /tmp) no
+    other user can replace the directory once it is checked.
+    """
+    with contextlib.suppress(FileExistsError):
+        os.mkdir(path, 0o700)
+    info = os.lstat(path)
+    fix = f"remove it, or choose a bus directory with --bus DIR or ${BUS_ENV}"
+    if stat.S_ISLNK(info.st_mode) or not stat.S_ISDIR(info.st_mode):
+        kind = "symlink" if stat.S_ISLNK(info.st_mode) else "file"
+        raise BusError(f"bus directory {path} is not a directory but a {kind}; {fix}")
+    if info.st_uid != os.getuid():
+        raise BusError(f"bus directory {path} belongs to uid {info.st_uid}, not to you (uid {os.getuid()}); {fix}")
+    if info.st_mode & 0o077:  # yours, but open (made by an older palpate): close it
+        log.warning("bus directory %s had mode %o; setting it to 700", path, stat.S_IMODE(info.st_mode))
+        os.chmod(path, 0o700)
+    return path
+
+
+def ipc_path(endpoint: str) -> Path | None:
+    """The socket file of an ``ipc://`` endpoint (None for TCP)."""
+    return Path(endpoint[len("ipc://") :]) if endpoint.startswith("ipc://") else None
+
+
+def remove_ipc_file(endpoint: str) -> None:
+    """Delete the socket file of a closed ``ipc://`` publisher (ZeroMQ leaves it when the process exits
+    without terminating its context); nothing for TCP endpoints."""
+    path = ipc_path(endpoint)
+    if path is not None:
+        path.unlink(missing_ok=True)
 
 
 def ipc_endpoint(bus_dir: str | Path, name: str) -> str:
@@ -112,13 +172,29 @@ def make_curve_keys(server_public: str | None = None) -> dict[str, str]:
     return keys
 
 
-def client_curve(server_public: str) -> dict[str, str]:
-    """Curve keys for a subscriber of a publisher whose server key is ``server_public``: a fresh client
-    key pair (publishers authenticate no one, so any pair is accepted), or {} when the key is empty."""
+def client_curve(server_public: str, client_keys: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Curve keys for a subscriber of a publisher whose server key is ``server_public``: the client key pair
+    `client_keys` (``public``, ``secret``; a key file the graph admits), or a fresh pair, which a
+    publisher with an allow-list refuses; {} when ``server_public`` is empty (no Curve)."""
     if not server_public:
         return {}
+    if client_keys:
+        return {"public": client_keys["public"], "secret": client_keys["secret"], "server_public": server_public}
     public, secret = zmq.curve_keypair()
     return {"public": public.decode(), "secret": secret.decode(), "server_public": server_public}
+
+
+def read_key_file(path: str | Path) -> dict[str, str]:
+    """The z85 keys of a key file written by `palpate keys` ({"public", "secret", "server_public"})."""
+    try:
+        keys = json.loads(Path(path).expanduser().read_text())
+    except (OSError, ValueError) as exc:
+        raise BusError(f"cannot read CurveZMQ key file {str(path)!r}: {exc}") from exc
+    if not isinstance(keys, dict) or {"public", "secret"} - set(keys):
+        raise BusError(
+            f"CurveZMQ key file {str(path)!r} lacks 'public' and 'secret' keys; write one with `palpate keys`"
+        )
+    return {k: str(v) for k, v in keys.items() if k in ("public", "secret", "server_public")}
 
 
 def apply_curve(socket: zmq.Socket[Any], curve: dict[str, str], *, server: bool) -> None:
@@ -137,6 +213,42 @@ def apply_curve(socket: zmq.Socket[Any], curve: dict[str, str], *, server: bool)
         socket.curve_serverkey = curve["server_public"].encode()
 
 
+class ClientAllowList:
+    """The ZAP handler of one zmq context: each Curve publisher of the context admits only the client
+    public keys listed for it, and refuses every other client during the Curve handshake.
+
+    Without a ZAP handler a Curve server admits any client that knows its public key. A publisher
+    registers with `admit(sock, endpoint, keys)` before it binds; its ZAP domain is its endpoint.
+    `close()` stops the handler's thread (before the context is terminated).
+    """
+
+    def __init__(self, ctx: zmq.Context[Any]):
+        self._allowed: dict[str, frozenset[bytes]] = {}
+        self._refused: set[tuple[str, bytes]] = set()
+        self._auth = ThreadAuthenticator(ctx, log=logging.getLogger("palpate.bus.zap"))
+        self._auth.start()
+
+    def admit(self, sock: zmq.Socket[Any], domain: str, client_keys: Iterable[str]) -> None:
+        """Let only `client_keys` (z85 public keys) connect to `sock`, a Curve server not bound yet."""
+        sock.zap_domain = domain.encode()
+        self._allowed[domain] = frozenset(k.encode() for k in client_keys)
+        self._auth.configure_curve_callback(domain, self)
+
+    def callback(self, domain: str, client_key: bytes) -> bool:
+        """ZAP's question, in the handler's thread: may the client with this z85 key connect?"""
+        if client_key in self._allowed.get(domain, frozenset()):
+            return True
+        if (domain, client_key) not in self._refused:  # log each refused client once
+            self._refused.add((domain, client_key))
+            log.warning(
+                "publisher %s refused a CurveZMQ client whose key %s it does not list", domain, client_key.decode()
+            )
+        return False
+
+    def close(self) -> None:
+        self._auth.stop()
+
+
 def make_publisher(
     ctx: zmq.Context[Any],
     endpoint: str,
@@ -147,8 +259,13 @@ def make_publisher(
     block_when_full: bool = False,
     linger_ms: int = 2000,
     send_timeout_ms: int | None = None,
+    allow: ClientAllowList | None = None,
+    curve_clients: Iterable[str] = (),
 ) -> zmq.Socket[Any]:
     """An XPUB socket bound to `endpoint` that reports every subscription (for start-up counting).
+
+    With `curve` keys it is a Curve server that admits only the client public keys `curve_clients`,
+    checked by the context's ZAP handler `allow` (required with `curve`).
 
     In lockstep the high-water mark is unlimited, so nothing is ever dropped; the protocol bounds
     what is in flight to one tick. Otherwise `send_hwm` messages per subscriber (None: ZeroMQ's
@@ -167,6 +284,11 @@ def make_publisher(
         sock.setsockopt(zmq.XPUB_NODROP, 1)
     if send_timeout_ms is not None:
         sock.setsockopt(zmq.SNDTIMEO, send_timeout_ms)
+    if curve:
+        if allow is None:
+            sock.close(linger=0)
+            raise ValueError("a CurveZMQ publisher needs a ClientAllowList: publishers admit listed clients only")
+        allow.admit(sock, endpoint, curve_clients)
     apply_curve(sock, curve or {}, server=True)
     if endpoint.startswith("ipc://"):
         Path(endpoint[len("ipc://") :]).parent.mkdir(parents=True, exist_ok=True)
@@ -213,8 +335,12 @@ class PublisherTap:
     when its publisher connects and disconnects (`connection_changes`).
     """
 
-    def __init__(self, *, never_drop: bool = False, monitor: bool = False) -> None:
+    def __init__(
+        self, *, never_drop: bool = False, monitor: bool = False, client_keys: Mapping[str, str] | None = None
+    ) -> None:
         self.context: zmq.Context[Any] = zmq.Context()
+        #: the Curve client key pair for keyed publishers (they admit only the keys their launch lists)
+        self.client_keys = dict(client_keys or {})
         self.poller = zmq.Poller()
         self.never_drop = never_drop
         self.monitor = monitor
@@ -237,7 +363,13 @@ class PublisherTap:
     def add(self, endpoint: str, topics: Sequence[str] = ("",), *, server_public: str = "") -> None:
         """Connect a new socket to the publisher at `endpoint`, subscribed to `topics` (prefixes; "": all)."""
         sock = self.context.socket(zmq.SUB)
-        apply_curve(sock, client_curve(server_public), server=False)
+        if server_public and not self.client_keys:
+            log.warning(
+                "publisher %s uses CurveZMQ and admits only the client keys its launch lists: give this tool "
+                "a key file of the graph (--curve-keys FILE) to hear it",
+                endpoint,
+            )
+        apply_curve(sock, client_curve(server_public, self.client_keys), server=False)
         sock.setsockopt(zmq.LINGER, 0)
         if self.never_drop:
             sock.setsockopt(zmq.RCVHWM, 0)
@@ -362,6 +494,7 @@ class BlockingPublisher:
     def __init__(self, endpoint: str, *, send_hwm: int, linger_ms: int = 30_000, send_timeout_ms: int = 100):
         self.context: zmq.Context[Any] = zmq.Context()
         self.counter = SubscriptionCounter()
+        self.endpoint = endpoint
         self.sock = make_publisher(
             self.context,
             endpoint,
@@ -385,6 +518,7 @@ class BlockingPublisher:
         return True
 
     def close(self) -> None:
-        """Close the socket, then wait (up to the linger time) until queued messages have left."""
+        """Close the socket, wait (up to the linger time) until queued messages have left, delete the socket file."""
         self.sock.close()
         self.context.term()
+        remove_ipc_file(self.endpoint)

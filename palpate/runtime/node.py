@@ -73,6 +73,7 @@ class NodeContext:
             "input_errors": 0,
         }
         self.metrics: dict[str, float] = {}
+        self.timings: dict[str, float] = {}
         self.stop_requested = ""
         self._send = send
         self.log = logging.getLogger(f"palpate.{name}")
@@ -102,7 +103,16 @@ class NodeRunner:
         self.start_timeout_s = start_timeout_s
         self.ack_timeout_s = 120.0
         self.zmq: zmq.Context[Any] = zmq.Context.instance()
-        self.pub = bus.make_publisher(self.zmq, process.endpoint, lockstep=self.lockstep, curve=process.curve)
+        # a Curve publisher admits only the client keys the launcher lists (a ZAP handler in this process)
+        self.allow = bus.ClientAllowList(self.zmq) if process.curve else None
+        self.pub = bus.make_publisher(
+            self.zmq,
+            process.endpoint,
+            lockstep=self.lockstep,
+            curve=process.curve,
+            allow=self.allow,
+            curve_clients=process.curve_clients,
+        )
         # hello/<name> tells each publisher that this very node is connected (tools that subscribe
         # to topics by name cannot stand in for it in the start-up count)
         wanted = sorted({*process.subscribes.values(), *_INTERNAL, hello_topic(process.name)})
@@ -142,8 +152,11 @@ class NodeRunner:
         self.pub.send_multipart([topic.encode(), codec.encode(message)])
 
     def publish_status(self, state: str, message: str = "") -> None:
+        """Counters and metrics on `status`; wall-clock timings only in real-time mode (a lockstep status,
+        like everything else in a lockstep log, depends on the launch and seed alone)."""
         names = sorted(self.ctx.counters)
-        metric_names = sorted(self.ctx.metrics)
+        figures = self.ctx.metrics if self.lockstep else {**self.ctx.metrics, **self.ctx.timings}
+        metric_names = sorted(figures)
         status = NodeStatus(
             stamp_ns=self.ctx.stamp_ns,
             node=self.process.name,
@@ -152,7 +165,7 @@ class NodeRunner:
             counter_names=names,
             counter_values=np.array([self.ctx.counters[n] for n in names], dtype=np.int64),
             metric_names=metric_names,
-            metric_values=np.array([self.ctx.metrics[n] for n in metric_names], dtype=np.float64),
+            metric_values=np.array([figures[n] for n in metric_names], dtype=np.float64),
         )
         self._send_internal(topics.NODE_STATUS, status)
 
@@ -240,6 +253,9 @@ class NodeRunner:
             else:
                 self._run_follower()
             self.publish_status("finished", self.ctx.stop_requested)
+            if self.lockstep and self.ctx.timings:
+                timings = ", ".join(f"{k} {v:.4g}" for k, v in sorted(self.ctx.timings.items()))
+                log.info("node %s wall-clock timings: %s", self.process.name, timings)
             return 0
         except TimeoutError as exc:
             log.error("node %s: %s", self.process.name, exc)
@@ -257,6 +273,9 @@ class NodeRunner:
             time.sleep(0.05)  # let the last status leave
             self.pub.close(linger=1000)
             self.sub.close()
+            bus.remove_ipc_file(self.process.endpoint)  # the context is never terminated: zmq would leave it
+            if self.allow is not None:
+                self.allow.close()
 
     def _start_up(self) -> None:
         deadline = time.monotonic() + self.start_timeout_s

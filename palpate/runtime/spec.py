@@ -55,6 +55,12 @@ class Context(Protocol):
         ...
 
     @property
+    def timings(self) -> dict[str, float]:
+        """Wall-clock figures (``ms_per_update``): in the status in real-time mode only, since a lockstep
+        log must not depend on CPU speed (same launch and seed, same bytes); logged at exit in lockstep."""
+        ...
+
+    @property
     def counters(self) -> dict[str, int]:
         """Event counts reported in the node's status; the runtime's own are messages_in, messages_out,
         decode_errors and input_errors."""
@@ -142,6 +148,8 @@ class NodeProcessSpec:
     lockstep_nodes: list[str] = field(default_factory=list)  # clock source: every node that acknowledges
     topic_order: dict[str, int] = field(default_factory=dict)  # topic -> publisher rank, for dispatch order
     curve: dict[str, str] = field(default_factory=dict)  # CurveZMQ keys (z85): public, secret, server_public
+    #: With `curve`: the client public keys (z85) the publisher admits (ZAP): its subscribers' and a recorder's.
+    curve_clients: list[str] = field(default_factory=list)
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)

@@ -91,11 +91,13 @@ class LogSource:
 class BusSource:
     """Messages from every publisher of the bus, found (and re-found every 0.5 s) through the manifests."""
 
-    def __init__(self, bus_dir: Path, wanted_topics: list[str] | None = None):
+    def __init__(
+        self, bus_dir: Path, wanted_topics: list[str] | None = None, client_keys: dict[str, str] | None = None
+    ):
         self.bus_dir = Path(bus_dir)
         self.wanted = frozenset(wanted_topics) if wanted_topics else None
         self.stats = SourceStats()
-        self.tap = bus.PublisherTap()
+        self.tap = bus.PublisherTap(client_keys=client_keys)  # client_keys: for keyed publishers
         self.types: dict[str, str] = {}  # topic -> message type, from the manifests
         self.last_discovery = -float("inf")
         self.stopped = False  # the graph published RunControl "stop"

@@ -48,6 +48,7 @@ def test_demo_minimal_runs_and_exits_zero(tmp_path: Path) -> None:
     assert "decode errors 0" in out
     assert node_pids(tmp_path / "bus") == {}  # manifests are removed at exit
     assert not list((tmp_path / "bus").glob("*.json"))
+    assert not list((tmp_path / "bus").glob("*.pub"))  # and the ipc socket files
 
 
 def test_a_node_that_stops_the_run_is_named_with_its_reason(tmp_path: Path) -> None:
@@ -85,6 +86,7 @@ def test_signal_ends_every_child_without_orphans(tmp_path: Path, mode: str, sign
     assert took < 5.0 + 2.0, f"shutdown took {took:.1f} s (sigterm_timeout_s is 5 s)"
     assert [p for p in pids if alive(p)] == [], "orphan node processes"
     assert not list(bus_dir.glob("*.json")), "a node did not remove its manifest (it did not exit cleanly)"
+    assert not list(bus_dir.glob("*.pub")), "ipc socket files left behind"
 
 
 def test_killed_launcher_takes_its_children_along(tmp_path: Path) -> None:
@@ -115,6 +117,7 @@ def test_node_ignoring_sigterm_is_killed_after_its_timeout(tmp_path: Path) -> No
     assert "[launch] node 'stubborn' ignored SIGTERM for 1.0 s: killing it" in out
     assert 1.0 <= took < 1.0 + 3.0, f"took {took:.1f} s"
     assert [p for p in pids if alive(p)] == []
+    assert not list(bus_dir.glob("*.pub")), "the launcher did not remove the killed node's socket file"
 
 
 def test_dying_node_is_reported_and_fails_the_launch(tmp_path: Path) -> None:

@@ -149,33 +149,39 @@ def test_curve_link_with_keys_works_and_a_wrong_server_key_hears_nothing() -> No
     graph_key = make_curve_keys()
     client_key = make_curve_keys(server_public=graph_key["public"])  # a client with its own pair
     impostor = make_curve_keys()  # trusts another server key
+    unlisted = make_curve_keys(server_public=graph_key["public"])  # the right server key, but not admitted
     ctx = zmq.Context()
+    allow = bus.ClientAllowList(ctx)
     endpoint = f"tcp://127.0.0.1:{free_port()}"
-    pub = bus.make_publisher(ctx, endpoint, lockstep=False, curve=graph_key)
+    admitted = [client_key["public"], graph_key["public"]]
+    pub = bus.make_publisher(ctx, endpoint, lockstep=False, curve=graph_key, allow=allow, curve_clients=admitted)
     good = bus.make_subscriber(ctx, [endpoint], ["graph/control"], lockstep=False, curve=client_key)
     shared = bus.make_subscriber(ctx, [endpoint], ["graph/control"], lockstep=False, curve=graph_key)
     wrong = bus.make_subscriber(ctx, [endpoint], ["graph/control"], lockstep=False, curve=impostor)
+    stranger = bus.make_subscriber(ctx, [endpoint], ["graph/control"], lockstep=False, curve=unlisted)
     plain = bus.make_subscriber(ctx, [endpoint], ["graph/control"], lockstep=False)
+    sockets = [pub, good, shared, wrong, stranger, plain]
     try:
-        for sock in (good, shared, wrong, plain):
+        for sock in sockets[1:]:
             sock.setsockopt(zmq.RCVTIMEO, 100)
         heard_good = _collect(good, pub, 1.0)
         assert heard_good and codec.decode(heard_good[0]).reason == "curve test"  # type: ignore[attr-defined]
         assert _collect(shared, pub, 0.5)
         assert _collect(wrong, pub, 1.0) == [], "a subscriber with the wrong server key received data"
+        assert _collect(stranger, pub, 1.0) == [], "a subscriber whose key the publisher does not list received data"
         assert _collect(plain, pub, 0.5) == [], "a subscriber without keys received data"
         # and a Curve client cannot talk to a publisher without keys either (launch validation refuses it)
         open_endpoint = f"tcp://127.0.0.1:{free_port()}"
         open_pub = bus.make_publisher(ctx, open_endpoint, lockstep=False)
         curious = bus.make_subscriber(ctx, [open_endpoint], ["graph/control"], lockstep=False, curve=client_key)
-        try:
-            assert _collect(curious, open_pub, 0.5) == []
-        finally:
-            open_pub.close(linger=0)
-            curious.close(linger=0)
+        sockets += [open_pub, curious]
+        assert _collect(curious, open_pub, 0.5) == []
+        with pytest.raises(ValueError, match="ClientAllowList"):  # a keyed publisher always checks its clients
+            bus.make_publisher(ctx, f"tcp://127.0.0.1:{free_port()}", lockstep=False, curve=graph_key)
     finally:
-        for sock in (pub, good, shared, wrong, plain):
+        for sock in sockets:
             sock.close(linger=0)
+        allow.close()
         ctx.term()
 
 
@@ -184,14 +190,17 @@ def test_topic_tap_reads_a_keyed_and_a_plain_publisher_through_their_manifests(t
         pytest.skip("libzmq was built without CurveZMQ")
     graph_key = make_curve_keys()
     ctx = zmq.Context()
+    allow = bus.ClientAllowList(ctx)
     keyed_ep, plain_ep = (f"tcp://127.0.0.1:{free_port()}" for _ in range(2))
-    keyed = bus.make_publisher(ctx, keyed_ep, lockstep=False, curve=graph_key)
+    keyed = bus.make_publisher(
+        ctx, keyed_ep, lockstep=False, curve=graph_key, allow=allow, curve_clients=[graph_key["public"]]
+    )
     plain = bus.make_publisher(ctx, plain_ep, lockstep=False)
     for name, endpoint, key in (("keyed", keyed_ep, graph_key["public"]), ("plain", plain_ep, "")):
         bus.Manifest(
             node=name, endpoint=endpoint, pid=os.getpid(), publishes={}, subscribes={}, curve_public=key
         ).write(tmp_path)
-    tap = TopicTap(tmp_path, "graph/control")
+    tap = TopicTap(tmp_path, "graph/control", client_keys=graph_key)  # a tool holding the graph's key file
     try:
         tap.discover()
         assert tap.endpoints == {keyed_ep, plain_ep}
@@ -207,6 +216,7 @@ def test_topic_tap_reads_a_keyed_and_a_plain_publisher_through_their_manifests(t
         tap.close()
         for sock in (keyed, plain):
             sock.close(linger=0)
+        allow.close()
         ctx.term()
 
 
@@ -240,11 +250,19 @@ nodes:
     )
     specs = resolve(load_launch(launch_file), bus_dir=tmp_path / "bus").process_specs()
     assert [s.curve for s in specs] == [keys, keys]
+    assert [s.curve_clients for s in specs] == [[keys["public"]], [keys["public"]]]  # each admits the other
+    recorder_key = make_curve_keys()["public"]
+    specs = resolve(load_launch(launch_file), bus_dir=tmp_path / "bus").process_specs(
+        extra_subscribers=1, extra_curve_clients=[recorder_key]
+    )
+    assert all(set(s.curve_clients) == {keys["public"], recorder_key} for s in specs)
     log = tmp_path / "launch.log"
     recording = tmp_path / "run.mcap"
     with launched(launch_file, tmp_path / "bus", log, "--record", str(recording)) as proc:
         assert proc.wait(timeout=30) == 0, text(log)
     assert "summary: 20 contact sets, 80 contacts" in text(log)
-    # the recorder connects to the keyed publishers with the server keys the launcher passes it
+    # the recorder connects to the keyed publishers with the server keys the launcher passes it, and its
+    # own client key pair, which the launcher adds to every publisher's allow-list
     recorded = [m.topic for m in read_messages(recording, ["sensors/contacts"])]
     assert len(recorded) == 20, text(log)
+    assert "refused" not in text(log)

@@ -1,7 +1,8 @@
 """Record, replay, recover and re-run: real `palpate` processes, each test on its own bus directory.
 
 - a lockstep run of launch/demo_minimal.yaml recorded with `launch --record`: `bag info` counts;
-- the same launch and seed recorded twice: byte-identical MCAP files;
+- the same launch and seed recorded twice: byte-identical MCAP files (the demo, and FastSLAM, whose
+  mapper's status would carry wall-clock timings if the runtime let it);
 - `palpate replay --fast` recorded by `palpate record`: the same messages, byte for byte, in order;
 - `palpate launch --replay` on the sensor topics of the log: the estimator's meshes come out again;
 - a recorder SIGKILLed in a real-time run: `bag recover` keeps everything up to the last second.
@@ -20,14 +21,16 @@ from contextlib import contextmanager, suppress
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 
 from palpate.commands.introspect import TopicTap
 from palpate.messages import codec, topics
-from palpate.messages.schemas import Clock
+from palpate.messages.schemas import Clock, NodeStatus
 from palpate.paths import REPO_ROOT
 from palpate.record.mcap_io import copy_log, read_messages, summarize
 
 DEMO = REPO_ROOT / "launch" / "demo_minimal.yaml"
+FASTSLAM = REPO_ROOT / "launch" / "fastslam.yaml"
 TICKS = 100  # demo_minimal: duration 1 s at 10 ms per tick
 
 
@@ -67,13 +70,13 @@ def started(bus_dir: Path, log: Path, *args: str) -> Iterator[subprocess.Popen[b
             proc.wait(timeout=10)
 
 
-def launch_recorded(directory: Path, name: str, *extra: str) -> Path:
-    """Launch the demo with `--record`; returns the log, after checking the exit code."""
+def launch_recorded(directory: Path, name: str, *extra: str, launch_file: Path = DEMO) -> Path:
+    """Launch `launch_file` (the demo) with `--record`; returns the log, after checking the exit code."""
     out = directory / f"{name}.mcap"
     done = palpate(
         directory / f"bus-{name}",
         "launch",
-        str(DEMO),
+        str(launch_file),
         *extra,
         "--record",
         str(out),
@@ -112,6 +115,34 @@ def test_bag_info_reports_the_counts_of_a_recorded_run(recorded: Path, tmp_path:
 def test_same_launch_and_seed_give_the_same_bytes(recorded: Path, tmp_path: Path) -> None:
     again = launch_recorded(tmp_path, "again")
     assert again.read_bytes() == recorded.read_bytes()
+
+
+def test_two_same_seed_fastslam_runs_give_the_same_bytes(tmp_path: Path) -> None:
+    short = ("duration_s:=1.0", "particles:=20", "seed:=3")
+    first, second = (launch_recorded(tmp_path, name, *short, launch_file=FASTSLAM) for name in ("a", "b"))
+    statuses = [codec.decode(m.data, NodeStatus) for m in read_messages(first, [topics.NODE_STATUS])]
+    mapper = [s for s in statuses if s.node == "mapper"]
+    assert [s.state for s in mapper] == ["running", "running", "finished"]  # ticks 0 and 100, then the end
+    metrics = dict(zip(mapper[-1].metric_names, mapper[-1].metric_values.tolist(), strict=True))
+    assert metrics["updates"] == 101 and "ms_per_update" not in metrics  # a wall time: real-time statuses only
+    assert first.read_bytes() == second.read_bytes()
+
+
+def test_a_recorded_run_exports_for_foxglove(recorded: Path, tmp_path: Path) -> None:
+    pytest.importorskip("foxglove")
+    out = tmp_path / "foxglove.mcap"
+    done = palpate(tmp_path, "bag", "export", str(recorded), "-o", str(out), "--foxglove")
+    assert done.returncode == 0, done.stdout + done.stderr
+    with out.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None and summary.statistics is not None
+    counts = {
+        (channel.topic, summary.schemas[channel.schema_id].name): summary.statistics.channel_message_counts[cid]
+        for cid, channel in summary.channels.items()
+    }
+    assert counts[(topics.SURFACE_MESH, "foxglove.SceneUpdate")] == TICKS  # the estimator's box, every tick
+    assert counts[(topics.CONTACTS, "foxglove.SceneUpdate")] == TICKS
+    assert counts[(topics.NODE_STATUS, "palpate.NodeStatus")] > 0
 
 
 def test_replayed_messages_equal_the_recorded_ones(recorded: Path, tmp_path: Path) -> None:

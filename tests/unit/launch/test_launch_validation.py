@@ -3,6 +3,11 @@
 
 from __future__ import annotations
 
+import os
+import re
+import shlex
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -73,7 +78,7 @@ BAD = [
         "type_mismatch.yaml",
         [],
         "type mismatch on 'sensors/contacts': cube publishes ContactSet, "
-        "but node 'sink' port 'joints' expects JointState",
+        "but node 'noise' port 'joint_states' expects JointState",
     ),
     ("truth_topic.yaml", [], "node 'stats' reads ground truth 'truth/contacts' on port 'contacts'; only evaluators"),
     ("duplicate_name.yaml", [], "node name 'stats' is already used at tests/data/launch/duplicate_name.yaml:5"),
@@ -117,6 +122,28 @@ def test_cli_reports_a_bad_file_and_starts_nothing(
     assert f"palpate launch: {marked_line('type_mismatch.yaml')}: type mismatch on 'sensors/contacts'" in err
     assert started == []
     assert list(tmp_path.iterdir()) == []
+
+
+def runtime_doc_examples() -> list[tuple[str, str]]:
+    """The `$ palpate ...` examples of docs/runtime.md with the output the page shows."""
+    text = (REPO_ROOT / "docs" / "runtime.md").read_text()
+    blocks = re.findall(r"^```\n\$ (palpate [^\n]*)\n(.*?)```", text, re.M | re.S)
+    return [(command, output) for command, output in blocks]
+
+
+@pytest.mark.parametrize("command", [c for c, _ in runtime_doc_examples()])
+def test_the_runtime_docs_examples_print_what_the_page_shows(command: str, tmp_path: Path) -> None:
+    """Run with the installed `palpate` script from the repository root and no PYTHONPATH, as a reader would."""
+    expected = dict(runtime_doc_examples())[command]
+    script = Path(sys.executable).parent / "palpate"
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["PALPATE_BUS"] = str(tmp_path / "bus")  # a private bus: the examples print no bus directory of their own
+    done = subprocess.run(
+        [str(script), *shlex.split(command)[1:]], cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=60
+    )
+    printed = (done.stdout + done.stderr).replace(str(REPO_ROOT), "/path/to/palpate")
+    assert printed == expected, f"exit code {done.returncode}"
+    assert done.returncode == (2 if "palpate launch:" in expected else 0)
 
 
 def test_errors_in_an_included_file_name_the_included_file(tmp_path: Path) -> None:

@@ -130,3 +130,4 @@ def test_blocking_publisher_waits_instead_of_dropping(ctx: zmq.Context[Any], tmp
     finally:
         sub.close(linger=0)
         pub.close()
+    assert not (tmp_path / "player.pub").exists()  # closing deletes the socket file

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import json
 import os
+import stat
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from palpate.errors import LaunchError
+from palpate.errors import BusError, LaunchError
 from palpate.launch.node_types import NODE_TYPES, load_node_type
 from palpate.messages import codec
 from palpate.messages.schemas import ContactSet, TouchEvent
@@ -75,6 +77,51 @@ def test_default_bus_dir_follows_the_environment(tmp_path: Path, monkeypatch: py
     assert bus.default_bus_dir() == tmp_path / "bus"
     assert (tmp_path / "bus").is_dir()
     assert bus.ipc_endpoint(tmp_path, "cube") == f"ipc://{tmp_path}/cube.pub"
+
+
+def test_default_bus_dir_is_private_in_the_runtime_dir_or_the_temp_dir(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv(bus.BUS_ENV, raising=False)
+    runtime = tmp_path / "run-user"
+    runtime.mkdir(mode=0o700)
+    monkeypatch.setenv(bus.RUNTIME_DIR_ENV, str(runtime))
+    assert bus.default_bus_dir() == runtime / "palpate" / "default"
+    assert stat.S_IMODE((runtime / "palpate").stat().st_mode) == 0o700
+    monkeypatch.delenv(bus.RUNTIME_DIR_ENV)  # no runtime dir (a container, cron): a 0700 dir in the temp dir
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    base = tmp_path / f"palpate-{os.getuid()}"
+    assert bus.default_bus_dir() == base / "default"
+    assert stat.S_IMODE(base.stat().st_mode) == 0o700 and base.stat().st_uid == os.getuid()
+    assert bus.default_bus_dir() == base / "default"  # an existing private directory is fine
+
+
+def test_an_unsafe_bus_directory_is_refused_or_closed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    open_dir = tmp_path / "open"  # yours but open, as an older palpate made it: closed, not refused
+    open_dir.mkdir()
+    open_dir.chmod(0o755)
+    assert bus.private_dir(open_dir) == open_dir and stat.S_IMODE(open_dir.stat().st_mode) == 0o700
+    target = tmp_path / "elsewhere"
+    target.mkdir(mode=0o700)
+    planted = tmp_path / "planted"
+    planted.symlink_to(target)
+    with pytest.raises(BusError, match="not a directory but a symlink"):
+        bus.private_dir(planted)
+    (tmp_path / "file").write_text("")
+    with pytest.raises(BusError, match="not a directory but a file"):
+        bus.private_dir(tmp_path / "file")
+    if os.geteuid() == 0:  # only root can give a directory to someone else
+        theirs = tmp_path / "theirs"
+        theirs.mkdir(mode=0o700)
+        os.chown(theirs, 12345, 12345)
+        with pytest.raises(BusError, match="belongs to uid 12345"):
+            bus.private_dir(theirs)
+    monkeypatch.delenv(bus.BUS_ENV, raising=False)
+    monkeypatch.delenv(bus.RUNTIME_DIR_ENV, raising=False)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    (tmp_path / f"palpate-{os.getuid()}").symlink_to(target)  # planted before the user's first run
+    with pytest.raises(BusError, match="symlink"):
+        bus.default_bus_dir()
 
 
 def test_subscription_counter() -> None:
