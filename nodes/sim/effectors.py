@@ -328,8 +328,6 @@ def build_probe_mjcf(
     A short visual capsule behind the sphere (along local -z) shows which way the fingertip faces.
     Gravity is compensated (``gravcomp``): a velocity-controlled arm holds the probe up.
     """
-    if cfg.radius_m <= 0:
-        raise ConfigError(f"probe radius_m must be positive, got {cfg.radius_m!r}")
     r = cfg.radius_m
     body = (
         f'<body name="probe" pos="{_fmt(np.asarray(start_position_m))}" quat="{_fmt(cfg.start_quaternion_wxyz)}" '
