@@ -123,7 +123,8 @@ def test_every_mapper_models_the_simulators_finger(name: str) -> None:
     q = np.random.default_rng(0).uniform(-1.5, 1.5, size=(20, 4))
     for mapper in mappers:
         chain = KinematicChain.from_description(load_hand(), load(FingerMount, mapper.params["mount"]))
-        assert (mapper.params["mount"]["finger"], mapper.params["mount"]["effector"]) == (scene.finger.finger, "finger")
+        mount = mapper.params["mount"]
+        assert (mount["finger"], mount["effector"]) == (scene.finger_config().finger, "finger")
         truth = KinematicChain.from_model(build_model(scene), chain.joint_names)
         for got, expected in zip(chain.forward(q), truth.forward(q), strict=True):
             np.testing.assert_array_equal(got, expected)

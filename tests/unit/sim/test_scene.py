@@ -65,7 +65,11 @@ def test_defaults_have_no_gravity_and_a_2_ms_step() -> None:
         ({"effector": "probe", "radius_m": 0.01}, "scene.radius_m: unknown key 'radius_m'; known keys: contact_tol"),
         ({"effector": "probe", "probe": {"radius": 0.01}}, "scene.probe.radius: unknown key 'radius'"),
         ({"effector": "gripper"}, "scene.effector: expected one of ['hand', 'finger', 'probe'], got 'gripper'"),
-        ({"effector": "probe", "hand": {"scale": 2}}, "scene: section 'hand' (HandConfig(scale=2.0, "),
+        ({"effector": "probe", "hand": {"scale": 2}}, "scene: section 'hand' is not used by effector 'probe'"),
+        ({"effector": "probe", "finger": {}}, "scene: section 'finger' is not used by effector 'probe'; remove it"),
+        ({"hand": {}}, "scene: section 'hand' is not used by effector 'finger'; remove it or set effector: hand"),
+        ({"effector": "finger", "finger": {"pip_range_deg": [90, 0]}}, "finger: pip_range_deg = [90.0, 0.0]: empty"),
+        ({"effector": "hand", "hand": {"thumb_ip_range_deg": [5, 5]}}, "hand: thumb_ip_range_deg = [5.0, 5.0]: empty"),
         ({"timestep_s": "fast"}, "scene.timestep_s: expected a finite number > 0, got 'fast'"),
         ({"timestep_s": -0.001}, "scene.timestep_s: expected a finite number > 0, got -0.001"),
         ({"effector": "finger", "finger": {"finger": "thumb"}}, "scene.finger.finger: expected one of ['index', "),
@@ -80,6 +84,22 @@ def test_load_rejects_bad_keys_and_values_naming_them(d: dict[str, object], frag
         load(SceneConfig, d, "launch/x.yaml: scene")
     assert fragment in str(info.value)
     assert "launch/x.yaml" in str(info.value)
+
+
+def test_an_empty_joint_range_is_refused_at_the_key_that_holds_it() -> None:
+    with pytest.raises(ConfigError) as info:
+        load(SceneConfig, {"effector": "finger", "finger": {"dip_range_deg": [10, -10]}}, "scene")
+    assert info.value.path == ("finger", "dip_range_deg")
+    with pytest.raises(ConfigError, match="mcp_abd_range_deg = \\[20, -20\\]: empty joint range"):
+        FingerConfig(mcp_abd_range_deg=(20, -20))
+
+
+def test_only_the_section_of_the_effector_in_use_is_set() -> None:
+    scene = load(SceneConfig, {"effector": "probe", "probe": None, "finger": None}, "scene")
+    assert scene.probe_config() == ProbeConfig() and (scene.hand, scene.finger) == (None, None)
+    assert SceneConfig(effector="finger") == SceneConfig(effector="finger", finger=FingerConfig())
+    with pytest.raises(ConfigError, match="the scene's effector is 'probe', not 'finger'"):
+        scene.finger_config()
 
 
 @pytest.mark.parametrize("effector", ["hand", "finger", "probe"])
