@@ -146,8 +146,10 @@ class FingerConfig(DigitConfig):
     back of the finger facing local +z.
     """
 
-    finger: Annotated[str, OneOf(LONG_FINGERS)] = "index"
-    #: Metacarpal base in the world; None lets the scene place it so the object is in reach.
+    #: Default: the description's finger mount (the mapper's default too).
+    finger: Annotated[str, OneOf(LONG_FINGERS)] = HAND.finger_mount.finger
+    #: Metacarpal base in the world; None lets the scene place it so the object is in reach (on the
+    #: default object, that is the description's finger mount).
     base_position_m: tuple[float, float, float] | None = None
     base_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
 

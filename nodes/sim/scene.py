@@ -15,12 +15,13 @@ down.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Annotated, TypeVar
+from typing import Annotated, Any, TypeVar
 
 import mujoco
 import numpy as np
 
 from palpate.config import NonNegativeFloat, OneOf, PositiveFloat, Validated
+from palpate.description import mount_fact
 from palpate.errors import ConfigError
 from palpate.geometry.rotations import quat_to_matrix
 from palpate.nodes.sim.effectors import (
@@ -147,6 +148,21 @@ def effector_base_position(scene: SceneConfig, obj: ObjectModel) -> np.ndarray:
     finger = hcfg.pose_finger if hcfg.pose_finger in LONG_FINGERS else "index"
     R = quat_to_matrix(hcfg.base_quaternion_wxyz)
     return target_mcp_position(scene, obj) - R @ hcfg.mcp_position_m(finger)
+
+
+def effector_mount(scene: SceneConfig) -> dict[str, Any]:
+    """Where the scene fixes its hand or finger (``mount_fact``): what a mapper of this finger states.
+
+    Loads the object only when the base is placed from it (no ``base_position_m``).
+    """
+    cfg = scene.effector_config()
+    if isinstance(cfg, ProbeConfig):
+        return {"effector": "probe"}
+    base = cfg.base_position_m
+    if base is None:
+        base = tuple(effector_base_position(scene, load_object(scene.object)))
+    finger = cfg.finger if isinstance(cfg, FingerConfig) else None
+    return mount_fact(scene.effector, finger, cfg.scale, base, cfg.base_quaternion_wxyz)
 
 
 def uses_exact_contacts(scene: SceneConfig, obj: ObjectModel) -> bool:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -129,12 +129,23 @@ class Actuation(Validated):
 
 
 @dataclass(frozen=True, kw_only=True)
+class DefaultMount(Validated):
+    """Where the single-finger effector is fixed unless a scene or a mapper says otherwise (hand.yaml)."""
+
+    #: A long finger.
+    finger: str
+    #: The finger's metacarpal base in the world, metres (fingers along +x, palm down).
+    base_position_m: tuple[float, float, float]
+
+
+@dataclass(frozen=True, kw_only=True)
 class HandDescription:
     """The whole hand: long fingers radial to ulnar, then the thumb (the model's joint order)."""
 
     segment_radius_mm: float
     digits: tuple[Digit, ...]
     actuation: Actuation
+    finger_mount: DefaultMount
 
     @property
     def long_fingers(self) -> tuple[str, ...]:
@@ -200,12 +211,18 @@ class HandFile(Validated):
     long_fingers: Mapping[str, LongFingerEntry]
     thumb: ThumbEntry
     actuation: Actuation
+    finger_mount: DefaultMount
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if not self.long_fingers or "thumb" in self.long_fingers:
-            names = list(self.long_fingers)
+        names = list(self.long_fingers)
+        if not names or "thumb" in names:
             raise ConfigError(f"long_fingers: {names}: name at least one finger (and not 'thumb')", ("long_fingers",))
+        if self.finger_mount.finger not in names:
+            raise ConfigError(
+                f"finger_mount.finger: {self.finger_mount.finger!r} is not a long finger; use one of {names}",
+                ("finger_mount", "finger"),
+            )
         for name, finger in self.long_fingers.items():
             _check_chain(self.long_finger_segments, finger.lengths_mm, self.long_finger_joints, ("long_fingers", name))
         if _fixed_segments(self.long_finger_segments, self.long_finger_joints) != 1:
@@ -237,8 +254,30 @@ class HandFile(Validated):
             rest_ypr_deg=t.rest_ypr_deg,
         )
         return HandDescription(
-            segment_radius_mm=self.segment_radius_mm, digits=(*digits, thumb), actuation=self.actuation
+            segment_radius_mm=self.segment_radius_mm,
+            digits=(*digits, thumb),
+            actuation=self.actuation,
+            finger_mount=self.finger_mount,
         )
+
+
+def mount_fact(
+    effector: str,
+    finger: str | None,
+    scale: float,
+    base_position_m: Sequence[float],
+    base_quaternion_wxyz: Sequence[float],
+) -> dict[str, Any]:
+    """Where a hand (effector "hand") or its single finger (effector "finger", ``finger`` its name) is
+    fixed in the world, as a model built from the description holds it (rounded as the simulator's
+    MJCF writes it): what a simulator's scene and the mappers that model its finger must agree on."""
+    return {
+        "effector": effector,
+        **({"finger": finger} if effector == "finger" else {}),
+        "scale": as_written(scale),
+        "base_position_m": [as_written(v) for v in base_position_m],
+        "base_quaternion_wxyz": [as_written(v) for v in base_quaternion_wxyz],
+    }
 
 
 def _fixed_segments(segments: tuple[str, ...], joints: tuple[Joint, ...]) -> int:

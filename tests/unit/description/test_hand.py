@@ -103,7 +103,13 @@ NEW_FINGER = {"lengths_mm": [1, 2, 3, 4], "metacarpal_base_mm": [0, 0], "metacar
 @pytest.mark.parametrize(
     ("path", "value", "message", "key"),
     [
-        ("colour", "pink", "hand.colour: unknown key 'colour'; known keys: actuation, long_finger_joints", "colour"),
+        ("colour", "pink", "hand.colour: unknown key 'colour'; known keys: actuation, finger_mount, long", "colour"),
+        (
+            "finger_mount.finger",
+            "thumb",
+            "hand: finger_mount.finger: 'thumb' is not a long finger",
+            "finger_mount.finger",
+        ),
         ("segment_radius_mm", KeyError, "hand: missing required key 'segment_radius_mm' (float)", ""),
         (
             "segment_radius_mm",

@@ -9,11 +9,19 @@ import numpy as np
 import pytest
 
 from palpate.config import load
+from palpate.description import load_hand, mount_fact
 from palpate.errors import ConfigError
 from palpate.nodes.sim.effectors import FingerConfig, ProbeConfig
 from palpate.nodes.sim.objects import KINDS, ObjectSpec, load_object
-from palpate.nodes.sim.scene import SceneConfig, build_model, target_mcp_position
+from palpate.nodes.sim.scene import (
+    SceneConfig,
+    build_model,
+    effector_base_position,
+    effector_mount,
+    target_mcp_position,
+)
 
+NOT_LOADED = ObjectSpec(kind="mesh", path="/nonexistent.stl")  # never loaded: the base is given
 PRIMITIVES = {
     "cube": {"kind": "cube", "size_m": [0.05]},
     "rubiks_cube": {"kind": "rubiks_cube"},
@@ -125,6 +133,20 @@ def test_finger_mcp_is_placed_at_the_offset_from_the_object() -> None:
     expected = np.array([0.2 - 0.025, 0.0, 0.025]) + np.array(scene.finger_mcp_offset_m)
     np.testing.assert_allclose(data.body("index_proximal").xpos, expected, atol=1e-12)
     np.testing.assert_allclose(target_mcp_position(scene, load_object(scene.object)), expected, atol=1e-12)
+
+
+def test_the_descriptions_finger_mount_is_where_the_default_scene_puts_the_finger() -> None:
+    """hand.yaml's finger_mount (the mappers' default mount) is the finger's placement on the default
+    object, exactly: the launch files give neither the simulator nor the mappers a base."""
+    mount = load_hand().finger_mount
+    scene = SceneConfig(effector="finger")
+    base = effector_base_position(scene, load_object(scene.object))
+    assert (scene.finger_config().finger, tuple(base.tolist())) == (mount.finger, mount.base_position_m)
+    assert effector_mount(scene) == mount_fact("finger", mount.finger, 1.0, mount.base_position_m, (1, 0, 0, 0))
+    given = SceneConfig(effector="finger", finger=FingerConfig(base_position_m=(0.1, 0.2, 0.3)), object=NOT_LOADED)
+    assert effector_mount(given)["base_position_m"] == [0.1, 0.2, 0.3]
+    assert effector_mount(SceneConfig(effector="probe")) == {"effector": "probe"}
+    assert "finger" not in effector_mount(SceneConfig(effector="hand"))
 
 
 def test_hand_places_its_index_mcp_like_the_finger() -> None:
