@@ -20,7 +20,8 @@ a length or time is non-negative only because its field says so (positions may b
 Every error is a :class:`~palpate.errors.ConfigError` whose message names the key path, the bad
 value and what is allowed (``params.scene.object.size_m[0]: expected a finite number > 0, got -0.05``) and
 whose ``path`` attribute holds that key path, so that the launcher can prefix the ``file:line`` of
-the offending key itself.
+the offending key itself. :func:`load_yaml` does the same for a whole YAML file (the hand
+description): its errors start with ``file:line:`` of the offending key (:func:`key_lines`).
 
 Why our own walker (~200 lines) and not pydantic or msgspec (both looked at): the configs are plain frozen
 dataclasses used everywhere (tests build them directly, ``dataclasses.replace`` them, compare them);
@@ -45,9 +46,12 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, TypeVar
 
+import yaml
+
 from palpate.errors import ConfigError
 
 T = TypeVar("T")
+V = TypeVar("V")
 #: Where a value sits below the root of what was loaded: mapping keys and list indices.
 KeyPath = tuple[str | int, ...]
 
@@ -137,6 +141,50 @@ def load(cls: type[T], data: Any, where: str = "", path: KeyPath = ()) -> T:
         raise ConfigError(f"{_loc(where, path)}: {exc}", full) from None
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{_loc(where, path)}: {exc}", path) from exc
+
+
+def load_yaml(cls: type[T], text: str, source: str, where: str = "") -> T:
+    """Build ``cls`` from the YAML document ``text`` read from ``source`` (a file name, for messages).
+
+    A ConfigError reads ``source:line: where.key.path: ...``, with the line of the offending key.
+    """
+    loader = yaml.SafeLoader(text)
+    try:
+        node = loader.get_single_node()
+        data = None if node is None else loader.construct_document(node)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source}: invalid YAML: {exc}") from exc
+    finally:
+        loader.dispose()
+    try:
+        return load(cls, data, where)
+    except ConfigError as exc:
+        lines = {} if node is None else key_lines(node)
+        line = line_at(lines, exc.path) or (1 if node is None else node.start_mark.line + 1)
+        raise ConfigError(f"{source}:{line}: {exc}", exc.path) from None
+
+
+def key_lines(node: yaml.Node, path: KeyPath = ()) -> dict[KeyPath, int]:
+    """The line (from 1) of every mapping key and list item below a composed YAML ``node``, by key path."""
+    out: dict[KeyPath, int] = {}
+    if isinstance(node, yaml.MappingNode):
+        for knode, vnode in node.value:
+            key = (*path, str(knode.value))
+            out[key] = knode.start_mark.line + 1
+            out.update(key_lines(vnode, key))
+    elif isinstance(node, yaml.SequenceNode):
+        for index, item in enumerate(node.value):
+            out[(*path, index)] = item.start_mark.line + 1
+            out.update(key_lines(item, (*path, index)))
+    return out
+
+
+def line_at(lines: Mapping[KeyPath, V], path: KeyPath) -> V | None:
+    """The entry of ``lines`` for the deepest prefix of ``path`` it holds (None if it holds none)."""
+    for end in range(len(path), 0, -1):
+        if path[:end] in lines:
+            return lines[path[:end]]
+    return None
 
 
 def check(obj: Any) -> None:
@@ -281,6 +329,11 @@ def _shape(hint: Any) -> str:
 
 def _blank(value: Any) -> bool:
     return value is None or (isinstance(value, str | list | tuple) and len(value) == 0)
+
+
+def dotted(path: KeyPath) -> str:
+    """A key path as messages write it: ``long_fingers.ring.lengths_mm[1]``."""
+    return _loc("", path).removeprefix(".")
 
 
 def _loc(where: str, path: KeyPath) -> str:

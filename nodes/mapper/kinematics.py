@@ -21,13 +21,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
-from palpate.config import PositiveFloat, Validated
-from palpate.description import HandDescription, as_written
+from palpate.config import OneOf, PositiveFloat, Validated
+from palpate.description import HandDescription, as_written, load_hand, mount_fact
 from palpate.errors import ConfigError
 from palpate.geometry.rotations import axis_angle_to_matrices, quat_to_matrix, ypr_deg_to_quat
 
@@ -67,27 +67,45 @@ class Capsule:
     name: str
 
 
+#: The hand every chain's mount is checked against (its digit names and default finger mount).
+_HAND = load_hand()
+
+
 @dataclass(frozen=True, kw_only=True)
 class FingerMount(Validated):
     """Which digit of the described hand a chain models, and where the hand is fixed in the world.
 
-    effector "finger": the simulator's single-finger effector; the base is the proximal end of the
-    long finger's metacarpal. effector "hand": the simulator's hand; the base is the palm, and
-    ``finger`` may also be the thumb. ``scale`` multiplies every length and radius, as in the
-    simulator's scene.
+    effector "finger": the simulator's single-finger effector, one of the long fingers; the base is
+    the proximal end of its metacarpal. effector "hand": the simulator's hand; the base is the palm,
+    and ``finger`` may also be the thumb. ``scale`` multiplies every length and radius, as in the
+    simulator's scene. The defaults are the hand description's finger mount (hand.yaml
+    ``finger_mount``): where the simulator places its finger in front of its default object.
     """
 
     effector: Literal["finger", "hand"] = "finger"
-    finger: str = "index"
+    finger: Annotated[str, OneOf(tuple(d.name for d in _HAND.digits))] = _HAND.finger_mount.finger
     scale: PositiveFloat = 1.0
     #: The base (metacarpal base or palm) in the world, metres.
-    base_position_m: tuple[float, float, float]
+    base_position_m: tuple[float, float, float] = _HAND.finger_mount.base_position_m
     base_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.effector == "finger" and self.finger not in _HAND.long_fingers:
+            raise ConfigError(
+                f"finger = {self.finger!r}: the single-finger effector is a long finger "
+                f"({', '.join(_HAND.long_fingers)}); set effector: hand to model the {self.finger}",
+                ("finger",),
+            )
         if not math.hypot(*self.base_quaternion_wxyz) > 0:
-            raise ConfigError(f"base_quaternion_wxyz = {self.base_quaternion_wxyz!r}: a zero quaternion is no rotation")
+            raise ConfigError(
+                f"base_quaternion_wxyz = {self.base_quaternion_wxyz!r}: a zero quaternion is no rotation",
+                ("base_quaternion_wxyz",),
+            )
+
+    def fact(self) -> dict[str, Any]:
+        """Where this mount fixes the hand, as the simulator's scene must state it too (``mount_fact``)."""
+        return mount_fact(self.effector, self.finger, self.scale, self.base_position_m, self.base_quaternion_wxyz)
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ lengths and joint axes, never the simulator's state.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -30,8 +30,9 @@ class MapperNodeConfig(Validated):
     """The mapper's parameters, where its finger is mounted, and how often maps go out."""
 
     mapper: MapperConfig
-    #: The simulated finger's base in the world (the same pose as the simulator's scene).
-    mount: FingerMount
+    #: Which finger the mapper models and where the hand is fixed: the simulator's finger in a simulated
+    #: graph (``palpate launch`` checks it); default: the hand description's finger mount.
+    mount: FingerMount = field(default_factory=FingerMount)
     #: Publish the maps every this much simulated time (the particle summary goes out every update).
     publish_period_s: PositiveFloat = 1.0
     #: Map kind label of the published best map ('known' or 'dead_reckoning' when mode is known).
@@ -115,10 +116,16 @@ def _ports(params: Mapping[str, Any]) -> tuple[dict[str, Port], dict[str, Port]]
     return {"joint_states": Port(JointState), "contacts": Port(ContactSet)}, outputs
 
 
+def _facts(config: MapperNodeConfig) -> dict[str, tuple[Any, tuple[str, ...]]]:
+    """Where the mapper's finger is mounted: the simulator of the same graph must put it there."""
+    return {"hand_mount": (config.mount.fact(), ("mount",))}
+
+
 SPEC = NodeSpec(
     name="mapper",
     config=MapperNodeConfig,
     factory=MapperNode,
     ports_from_params=_ports,
+    facts=_facts,
     doc="Haptic SLAM mapper of paper 000: occupancy grid at a known pose, or FastSLAM with K particles.",
 )

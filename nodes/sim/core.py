@@ -160,7 +160,9 @@ class Simulation:
 
         if scene.effector == "probe":
             self._probe_body = m.body("probe").id
-            self._probe_radius = float(scene.probe.radius_m)
+            probe = scene.probe_config()
+            self._probe_radius = float(probe.radius_m)
+            self._probe_force_gain = float(probe.force_gain_n_s_per_m)
             self._cmd_lin = np.zeros(3)
             self._cmd_ang = np.zeros(3)
             self.joint_names: list[str] = []
@@ -358,7 +360,7 @@ class Simulation:
         q = self.data.qpos
         R = _quat_to_mat(q[3:7])
         local = R.T @ (point - q[0:3])
-        force = self.scene.probe.force_gain_n_s_per_m * max(0.0, -float(self._cmd_lin @ normal))
+        force = self._probe_force_gain * max(0.0, -float(self._cmd_lin @ normal))
         return Contacts(point[None, :], local[None, :], normal[None, :], np.array([force]), ["probe"])
 
     # --- hand / finger on non-convex objects: exact-mesh penalty contacts ---------------------------

@@ -21,6 +21,7 @@ Conventions (hand frame = the frame of body ``palm``; finger frame = the frame o
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Annotated
@@ -75,6 +76,16 @@ class DigitConfig(Validated):
     armature_kg_m2: NonNegativeFloat = HAND.actuation.armature_kg_m2
     #: Density of the capsules (soft tissue and bone).
     density_kg_m3: PositiveFloat = HAND.actuation.density_kg_m3
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in (f.name for f in dataclasses.fields(self) if f.name.endswith("_range_deg")):
+            lo, hi = getattr(self, name)
+            if not lo < hi:
+                raise ConfigError(
+                    f"{name} = {[lo, hi]}: empty joint range; give [lower, upper], lower < upper",
+                    (name,),
+                )
 
     def lengths_m(self, finger: str) -> tuple[float, ...]:
         """Scaled bone lengths of one long finger in metres (metacarpal, proximal, middle, distal)."""
@@ -135,8 +146,10 @@ class FingerConfig(DigitConfig):
     back of the finger facing local +z.
     """
 
-    finger: Annotated[str, OneOf(LONG_FINGERS)] = "index"
-    #: Metacarpal base in the world; None lets the scene place it so the object is in reach.
+    #: Default: the description's finger mount (the mapper's default too).
+    finger: Annotated[str, OneOf(LONG_FINGERS)] = HAND.finger_mount.finger
+    #: Metacarpal base in the world; None lets the scene place it so the object is in reach (on the
+    #: default object, that is the description's finger mount).
     base_position_m: tuple[float, float, float] | None = None
     base_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
 
@@ -178,8 +191,6 @@ def _collision_attrs(collide_with_object: bool) -> str:
 
 def _range_attr(range_deg: tuple[float, float]) -> str:
     lo, hi = range_deg
-    if not lo < hi:
-        raise ConfigError(f"joint range {list(range_deg)!r} is empty: give (lower, upper) with lower < upper")
     return f'range="{math.radians(lo):.9g} {math.radians(hi):.9g}"'
 
 
@@ -328,8 +339,6 @@ def build_probe_mjcf(
     A short visual capsule behind the sphere (along local -z) shows which way the fingertip faces.
     Gravity is compensated (``gravcomp``): a velocity-controlled arm holds the probe up.
     """
-    if cfg.radius_m <= 0:
-        raise ConfigError(f"probe radius_m must be positive, got {cfg.radius_m!r}")
     r = cfg.radius_m
     body = (
         f'<body name="probe" pos="{_fmt(np.asarray(start_position_m))}" quat="{_fmt(cfg.start_quaternion_wxyz)}" '

@@ -26,7 +26,7 @@ from palpate.messages.schemas import (
     Pose,
 )
 from palpate.nodes.sim.objects import ObjectSpec
-from palpate.nodes.sim.scene import SceneConfig
+from palpate.nodes.sim.scene import SceneConfig, effector_mount
 from palpate.nodes.sim.session import SimSession, SimTick
 from palpate.runtime.spec import Context, NodeSpec, Port
 
@@ -171,11 +171,17 @@ def _ports(params: Mapping[str, Any]) -> tuple[dict[str, Port], dict[str, Port]]
     return inputs, outputs
 
 
+def _facts(config: SimNodeConfig) -> dict[str, tuple[Any, tuple[str, ...]]]:
+    """Where the scene fixes its hand or finger: a mapper of the same graph must be mounted there."""
+    return {"hand_mount": (effector_mount(config.scene), ("scene",))}
+
+
 SPEC = NodeSpec(
     name="sim",
     config=SimNodeConfig,
     factory=SimNode,
     clock_source=True,
     ports_from_params=_ports,
+    facts=_facts,
     doc="MuJoCo simulation (hand, finger or probe on a primitive or mesh): the graph's clock source.",
 )

@@ -15,12 +15,13 @@ down.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Annotated
+from typing import Annotated, Any, TypeVar
 
 import mujoco
 import numpy as np
 
 from palpate.config import NonNegativeFloat, OneOf, PositiveFloat, Validated
+from palpate.description import mount_fact
 from palpate.errors import ConfigError
 from palpate.geometry.rotations import quat_to_matrix
 from palpate.nodes.sim.effectors import (
@@ -51,14 +52,16 @@ class SceneConfig(Validated):
 
     YAML keys: ``effector`` (hand | finger | probe), ``object`` (see ObjectSpec), an optional section
     named after the effector (``hand:``, ``finger:`` or ``probe:``) with that effector's config, and
-    the scalar options below. A section of another effector must keep its defaults (it would be ignored).
+    the scalar options below. A section of another effector is refused (it would be ignored). Once
+    built, the section of the effector in use is always set (its defaults when not given) and the
+    other two are None.
     """
 
     effector: Annotated[str, OneOf(EFFECTORS)] = "finger"
     object: ObjectSpec = field(default_factory=_default_object)
-    hand: HandConfig = field(default_factory=HandConfig)
-    finger: FingerConfig = field(default_factory=FingerConfig)
-    probe: ProbeConfig = field(default_factory=ProbeConfig)
+    hand: HandConfig | None = None
+    finger: FingerConfig | None = None
+    probe: ProbeConfig | None = None
     timestep_s: PositiveFloat = 0.002
     #: Off by default (see the module docstring).
     gravity_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -72,19 +75,45 @@ class SceneConfig(Validated):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for name, default in (("hand", HandConfig()), ("finger", FingerConfig()), ("probe", ProbeConfig())):
-            if name != self.effector and getattr(self, name) != default:
+        for name in EFFECTORS:
+            if name != self.effector and getattr(self, name) is not None:
                 raise ConfigError(
-                    f"section {name!r} ({getattr(self, name)!r}) is not used by effector {self.effector!r}; "
-                    f"remove it or set effector: {name}",
+                    f"section {name!r} is not used by effector {self.effector!r}; remove it or set effector: {name}",
                     (name,),
                 )
+        if getattr(self, self.effector) is None:  # frozen: fill the section in use with its defaults
+            object.__setattr__(self, self.effector, _SECTIONS[self.effector]())
 
     def effector_config(self) -> HandConfig | FingerConfig | ProbeConfig:
         """The config of the chosen effector."""
-        if self.effector == "hand":
-            return self.hand
-        return self.finger if self.effector == "finger" else self.probe
+        cfg: HandConfig | FingerConfig | ProbeConfig = getattr(self, self.effector)
+        return cfg
+
+    def finger_config(self) -> FingerConfig:
+        """The single finger's config; ConfigError if the scene's effector is not the finger."""
+        return self._section("finger", FingerConfig)
+
+    def hand_config(self) -> HandConfig:
+        """The hand's config; ConfigError if the scene's effector is not the hand."""
+        return self._section("hand", HandConfig)
+
+    def probe_config(self) -> ProbeConfig:
+        """The probe's config; ConfigError if the scene's effector is not the probe."""
+        return self._section("probe", ProbeConfig)
+
+    def _section(self, name: str, kind: type[_C]) -> _C:
+        cfg = getattr(self, name)
+        if not isinstance(cfg, kind):
+            raise ConfigError(f"the scene's effector is {self.effector!r}, not {name!r}: it has no {name} section")
+        return cfg
+
+
+_C = TypeVar("_C", HandConfig, FingerConfig, ProbeConfig)
+_SECTIONS: dict[str, type[HandConfig | FingerConfig | ProbeConfig]] = {
+    "hand": HandConfig,
+    "finger": FingerConfig,
+    "probe": ProbeConfig,
+}
 
 
 # --- placement -------------------------------------------------------------------------------------
@@ -100,25 +129,40 @@ def target_mcp_position(scene: SceneConfig, obj: ObjectModel) -> np.ndarray:
 def effector_base_position(scene: SceneConfig, obj: ObjectModel) -> np.ndarray:
     """World position (3,) of the effector's root body (palm, metacarpal base or probe centre)."""
     if scene.effector == "probe":
-        cfg = scene.probe
+        cfg = scene.probe_config()
         if cfg.start_position_m is not None:
             return np.asarray(cfg.start_position_m, dtype=np.float64)
         lo, hi = np.asarray(obj.mesh.bounds, dtype=np.float64)
         centre = 0.5 * (lo + hi)
         return np.array([centre[0], centre[1], hi[2] + cfg.radius_m + cfg.start_clearance_m])
     if scene.effector == "finger":
-        fcfg = scene.finger
+        fcfg = scene.finger_config()
         if fcfg.base_position_m is not None:
             return np.asarray(fcfg.base_position_m, dtype=np.float64)
         meta = fcfg.lengths_m(fcfg.finger)[0]
         R = quat_to_matrix(fcfg.base_quaternion_wxyz)
         return target_mcp_position(scene, obj) - R @ np.array([meta, 0.0, 0.0])
-    hcfg = scene.hand
+    hcfg = scene.hand_config()
     if hcfg.base_position_m is not None:
         return np.asarray(hcfg.base_position_m, dtype=np.float64)
     finger = hcfg.pose_finger if hcfg.pose_finger in LONG_FINGERS else "index"
     R = quat_to_matrix(hcfg.base_quaternion_wxyz)
     return target_mcp_position(scene, obj) - R @ hcfg.mcp_position_m(finger)
+
+
+def effector_mount(scene: SceneConfig) -> dict[str, Any]:
+    """Where the scene fixes its hand or finger (``mount_fact``): what a mapper of this finger states.
+
+    Loads the object only when the base is placed from it (no ``base_position_m``).
+    """
+    cfg = scene.effector_config()
+    if isinstance(cfg, ProbeConfig):
+        return {"effector": "probe"}
+    base = cfg.base_position_m
+    if base is None:
+        base = tuple(effector_base_position(scene, load_object(scene.object)))
+    finger = cfg.finger if isinstance(cfg, FingerConfig) else None
+    return mount_fact(scene.effector, finger, cfg.scale, base, cfg.base_quaternion_wxyz)
 
 
 def uses_exact_contacts(scene: SceneConfig, obj: ObjectModel) -> bool:
@@ -131,10 +175,10 @@ def effector_mjcf(scene: SceneConfig, obj: ObjectModel) -> EffectorMjcf:
     base = effector_base_position(scene, obj)
     collide = not uses_exact_contacts(scene, obj)
     if scene.effector == "probe":
-        return build_probe_mjcf(scene.probe, base)
+        return build_probe_mjcf(scene.probe_config(), base)
     if scene.effector == "finger":
-        return build_finger_mjcf(scene.finger, base, collide_with_object=collide)
-    return build_hand_mjcf(scene.hand, base, collide_with_object=collide)
+        return build_finger_mjcf(scene.finger_config(), base, collide_with_object=collide)
+    return build_hand_mjcf(scene.hand_config(), base, collide_with_object=collide)
 
 
 def scene_mjcf(scene: SceneConfig, obj: ObjectModel) -> str:

@@ -3,21 +3,25 @@
 from palpate.description.hand import (
     MJCF_SIGNIFICANT_DIGITS,
     Actuation,
+    DefaultMount,
     Digit,
     HandDescription,
     Joint,
     as_written,
     load_hand,
+    mount_fact,
     parse_hand,
 )
 
 __all__ = [
     "MJCF_SIGNIFICANT_DIGITS",
     "Actuation",
+    "DefaultMount",
     "Digit",
     "HandDescription",
     "Joint",
     "as_written",
     "load_hand",
+    "mount_fact",
     "parse_hand",
 ]

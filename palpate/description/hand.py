@@ -3,7 +3,8 @@
 As ROS nodes read a robot's URDF, the simulator generates its hand and finger MJCF from this
 description (nodes/sim/effectors.py) and the mapper builds its finger's kinematic chain from it
 (nodes/mapper/kinematics.py), so the two cannot disagree on a length or an axis. ``load_hand()``
-reads and validates the file once; the result is frozen.
+reads the file once through palpate.config (``HandFile`` declares its structure; an error names
+the file, line and key) and builds the frozen ``HandDescription``.
 
 A digit is a serial chain of segments (bones). Segment k's frame has its origin at its proximal
 joint and its bone along local +x; segment k + 1 starts at (length_k, 0, 0) in it. Segment 0 starts
@@ -19,12 +20,12 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
+from palpate.config import KeyPath, NonEmpty, PositiveFloat, Validated, dotted, load, load_yaml
 from palpate.errors import ConfigError
 
 #: Significant digits of every number the simulator writes into its MJCF, so of every number its
@@ -42,7 +43,7 @@ def as_written(x: float) -> float:
 
 
 @dataclass(frozen=True, kw_only=True)
-class Joint:
+class Joint(Validated):
     """A hinge of a digit; its model name is ``<digit>_<name>``."""
 
     name: str
@@ -54,6 +55,16 @@ class Joint:
     range_deg: tuple[float, float]
     #: Where the range comes from.
     source: str
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if abs(math.hypot(*self.axis) - 1.0) > 1e-9:
+            raise ConfigError(f"axis = {list(self.axis)}: expected a unit vector", ("axis",))
+        lo, hi = self.range_deg
+        if not lo < hi:
+            raise ConfigError(
+                f"range_deg = {[lo, hi]}: empty range; give [lower, upper] with lower < upper", ("range_deg",)
+            )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -75,8 +86,7 @@ class Digit:
     @property
     def fixed_segments(self) -> int:
         """Number of leading segments without joints (1 for a long finger: its metacarpal)."""
-        moving = {j.segment for j in self.joints}
-        return next(i for i, s in enumerate(self.segments) if s in moving)
+        return _fixed_segments(self.segments, self.joints)
 
     def joint_names(self) -> list[str]:
         """Model names of the digit's joints, proximal to distal (``index_mcp_abd``, ...)."""
@@ -109,13 +119,23 @@ class Digit:
 
 
 @dataclass(frozen=True, kw_only=True)
-class Actuation:
+class Actuation(Validated):
     """The simulator's default joint actuation and mass (see docs/hand_model.md)."""
 
-    kp_nm_per_rad: float
-    damping_nm_s_per_rad: float
-    armature_kg_m2: float
-    density_kg_m3: float
+    kp_nm_per_rad: PositiveFloat
+    damping_nm_s_per_rad: PositiveFloat
+    armature_kg_m2: PositiveFloat
+    density_kg_m3: PositiveFloat
+
+
+@dataclass(frozen=True, kw_only=True)
+class DefaultMount(Validated):
+    """Where the single-finger effector is fixed unless a scene or a mapper says otherwise (hand.yaml)."""
+
+    #: A long finger.
+    finger: str
+    #: The finger's metacarpal base in the world, metres (fingers along +x, palm down).
+    base_position_m: tuple[float, float, float]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -125,6 +145,7 @@ class HandDescription:
     segment_radius_mm: float
     digits: tuple[Digit, ...]
     actuation: Actuation
+    finger_mount: DefaultMount
 
     @property
     def long_fingers(self) -> tuple[str, ...]:
@@ -147,124 +168,151 @@ class HandDescription:
         return scale * self.segment_radius_mm / 1000.0
 
 
-# --- reading and checking hand.yaml ----------------------------------------------------------------
+# --- hand.yaml: its structure, checked by palpate.config ---------------------------------------------
 
 
-def _keys(d: Any, required: Sequence[str], where: str, optional: Sequence[str] = ()) -> Mapping[str, Any]:
-    if not isinstance(d, Mapping):
-        raise ConfigError(f"{where}: expected a mapping, got {d!r}")
-    for key in d:
-        if key not in (*required, *optional):
-            raise ConfigError(f"{where}: unknown key {key!r}; allowed keys are {sorted((*required, *optional))}")
-    for key in required:
-        if key not in d:
-            raise ConfigError(f"{where}: missing key {key!r}")
-    return d
+@dataclass(frozen=True, kw_only=True)
+class LongFingerEntry(Validated):
+    """One long finger in hand.yaml (``long_fingers.<name>``)."""
+
+    #: Bone lengths, one per ``long_finger_segments`` entry.
+    lengths_mm: tuple[PositiveFloat, ...]
+    #: (x, y) of the metacarpal base in the palm frame.
+    metacarpal_base_mm: tuple[float, float]
+    #: The metacarpal's direction in the palm plane (+y positive).
+    metacarpal_yaw_deg: float
 
 
-def _number(value: Any, where: str, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ConfigError(f"{where} = {value!r}: expected a finite number")
-    if positive and not value > 0:
-        raise ConfigError(f"{where} = {value!r}: expected a positive number")
-    return float(value)
+@dataclass(frozen=True, kw_only=True)
+class ThumbEntry(Validated):
+    """The thumb in hand.yaml: its own segments and joints; its first segment moves."""
+
+    segments: Annotated[tuple[str, ...], NonEmpty]
+    lengths_mm: tuple[PositiveFloat, ...]
+    cmc_position_mm: tuple[float, float, float]
+    rest_ypr_deg: tuple[float, float, float]
+    joints: Annotated[tuple[Joint, ...], NonEmpty]
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_chain(self.segments, self.lengths_mm, self.joints, ())
+        if _fixed_segments(self.segments, self.joints) != 0:
+            raise ConfigError("joints: the thumb's first segment (its metacarpal) must have a joint", ("joints",))
 
 
-def _numbers(value: Any, n: int | None, where: str, positive: bool = False) -> tuple[float, ...]:
-    if isinstance(value, str) or not isinstance(value, Sequence) or (n is not None and len(value) != n):
-        raise ConfigError(f"{where} = {value!r}: expected a list of {n if n is not None else 'some'} numbers")
-    return tuple(_number(v, f"{where}[{i}]", positive) for i, v in enumerate(value))
+@dataclass(frozen=True, kw_only=True)
+class HandFile(Validated):
+    """The structure of hand.yaml (the long fingers share their segments and joints)."""
 
+    segment_radius_mm: PositiveFloat
+    long_finger_segments: Annotated[tuple[str, ...], NonEmpty]
+    long_finger_joints: Annotated[tuple[Joint, ...], NonEmpty]
+    #: Radial to ulnar.
+    long_fingers: Mapping[str, LongFingerEntry]
+    thumb: ThumbEntry
+    actuation: Actuation
+    finger_mount: DefaultMount
 
-def _names(value: Any, where: str) -> tuple[str, ...]:
-    if not isinstance(value, list) or not value or not all(isinstance(v, str) and v for v in value):
-        raise ConfigError(f"{where} = {value!r}: expected a non-empty list of names")
-    if len(set(value)) != len(value):
-        raise ConfigError(f"{where} = {value!r}: names repeat")
-    return tuple(value)
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        names = list(self.long_fingers)
+        if not names or "thumb" in names:
+            raise ConfigError(f"long_fingers: {names}: name at least one finger (and not 'thumb')", ("long_fingers",))
+        if self.finger_mount.finger not in names:
+            raise ConfigError(
+                f"finger_mount.finger: {self.finger_mount.finger!r} is not a long finger; use one of {names}",
+                ("finger_mount", "finger"),
+            )
+        for name, finger in self.long_fingers.items():
+            _check_chain(self.long_finger_segments, finger.lengths_mm, self.long_finger_joints, ("long_fingers", name))
+        if _fixed_segments(self.long_finger_segments, self.long_finger_joints) != 1:
+            raise ConfigError(
+                "long_finger_joints: the first segment (the metacarpal) must have no joint, the second one must",
+                ("long_finger_joints",),
+            )
 
-
-def _joint(d: Any, segments: tuple[str, ...], where: str) -> Joint:
-    d = _keys(d, ("name", "segment", "axis", "range_deg", "source"), where)
-    if d["segment"] not in segments:
-        raise ConfigError(f"{where}.segment = {d['segment']!r}: not one of the segments {list(segments)}")
-    axis = _numbers(d["axis"], 3, f"{where}.axis")
-    if abs(math.hypot(*axis) - 1.0) > 1e-9:
-        raise ConfigError(f"{where}.axis = {list(axis)}: expected a unit vector")
-    lo, hi = _numbers(d["range_deg"], 2, f"{where}.range_deg")
-    if not lo < hi:
-        raise ConfigError(f"{where}.range_deg = {[lo, hi]}: empty range; give [lower, upper] with lower < upper")
-    return Joint(
-        name=str(d["name"]),
-        segment=d["segment"],
-        axis=(axis[0], axis[1], axis[2]),
-        range_deg=(lo, hi),
-        source=str(d["source"]),
-    )
-
-
-def _digit(
-    name: str,
-    segments: tuple[str, ...],
-    lengths: Any,
-    joints: Any,
-    base_mm: tuple[float, float, float],
-    rest_ypr_deg: tuple[float, float, float],
-    where: str,
-) -> Digit:
-    if not isinstance(joints, list) or not joints:
-        raise ConfigError(f"{where}: expected a non-empty list of joints, got {joints!r}")
-    parsed = tuple(_joint(j, segments, f"{where} joints[{i}]") for i, j in enumerate(joints))
-    order = [segments.index(j.segment) for j in parsed]
-    if order != sorted(order) or len({j.name for j in parsed}) != len(parsed):
-        raise ConfigError(f"{where}: list the joints proximal to distal, each name once")
-    return Digit(
-        name=name,
-        segments=segments,
-        lengths_mm=_numbers(lengths, len(segments), f"{where} lengths_mm", positive=True),
-        joints=parsed,
-        base_mm=base_mm,
-        rest_ypr_deg=rest_ypr_deg,
-    )
-
-
-_TOP_KEYS = ("segment_radius_mm", "long_finger_segments", "long_finger_joints", "long_fingers", "thumb", "actuation")
-_ACTUATION_KEYS = ("kp_nm_per_rad", "damping_nm_s_per_rad", "armature_kg_m2", "density_kg_m3")
-
-
-def parse_hand(data: Any, source: str = "hand.yaml") -> HandDescription:
-    """Check the mapping read from a hand file and build the description; ConfigError naming the key."""
-    top = _keys(data, _TOP_KEYS, source)
-    segments = _names(top["long_finger_segments"], f"{source}: long_finger_segments")
-    fingers = top["long_fingers"]
-    if not isinstance(fingers, Mapping) or not fingers or "thumb" in fingers:
-        raise ConfigError(f"{source}: long_fingers = {fingers!r}: name at least one finger (and not 'thumb')")
-    digits = []
-    for name, f in fingers.items():
-        where = f"{source}: long_fingers.{name}"
-        f = _keys(f, ("lengths_mm", "metacarpal_base_mm", "metacarpal_yaw_deg"), where)
-        x, y = _numbers(f["metacarpal_base_mm"], 2, f"{where}.metacarpal_base_mm")
-        yaw = _number(f["metacarpal_yaw_deg"], f"{where}.metacarpal_yaw_deg")
-        digit = _digit(
-            str(name), segments, f["lengths_mm"], top["long_finger_joints"], (x, y, 0.0), (yaw, 0.0, 0.0), where
+    def description(self) -> HandDescription:
+        """The hand these entries describe."""
+        digits = [
+            Digit(
+                name=name,
+                segments=self.long_finger_segments,
+                lengths_mm=finger.lengths_mm,
+                joints=self.long_finger_joints,
+                base_mm=(*finger.metacarpal_base_mm, 0.0),
+                rest_ypr_deg=(finger.metacarpal_yaw_deg, 0.0, 0.0),
+            )
+            for name, finger in self.long_fingers.items()
+        ]
+        t = self.thumb
+        thumb = Digit(
+            name="thumb",
+            segments=t.segments,
+            lengths_mm=t.lengths_mm,
+            joints=t.joints,
+            base_mm=t.cmc_position_mm,
+            rest_ypr_deg=t.rest_ypr_deg,
         )
-        if digit.fixed_segments != 1:
-            raise ConfigError(f"{source}: long_finger_joints: the first segment (the metacarpal) must have no joint")
-        digits.append(digit)
-    where = f"{source}: thumb"
-    t = _keys(top["thumb"], ("segments", "lengths_mm", "cmc_position_mm", "rest_ypr_deg", "joints"), where)
-    px, py, pz = _numbers(t["cmc_position_mm"], 3, f"{where}.cmc_position_mm")
-    yaw, pitch, roll = _numbers(t["rest_ypr_deg"], 3, f"{where}.rest_ypr_deg")
-    thumb_segments = _names(t["segments"], f"{where}.segments")
-    thumb = _digit("thumb", thumb_segments, t["lengths_mm"], t["joints"], (px, py, pz), (yaw, pitch, roll), where)
-    if thumb.fixed_segments != 0:
-        raise ConfigError(f"{where}.joints: the thumb's first segment (its metacarpal) must have a joint")
-    a = _keys(top["actuation"], _ACTUATION_KEYS, f"{source}: actuation")
-    return HandDescription(
-        segment_radius_mm=_number(top["segment_radius_mm"], f"{source}: segment_radius_mm", positive=True),
-        digits=(*digits, thumb),
-        actuation=Actuation(**{k: _number(v, f"{source}: actuation.{k}", positive=True) for k, v in a.items()}),
-    )
+        return HandDescription(
+            segment_radius_mm=self.segment_radius_mm,
+            digits=(*digits, thumb),
+            actuation=self.actuation,
+            finger_mount=self.finger_mount,
+        )
+
+
+def mount_fact(
+    effector: str,
+    finger: str | None,
+    scale: float,
+    base_position_m: Sequence[float],
+    base_quaternion_wxyz: Sequence[float],
+) -> dict[str, Any]:
+    """Where a hand (effector "hand") or its single finger (effector "finger", ``finger`` its name) is
+    fixed in the world, as a model built from the description holds it (rounded as the simulator's
+    MJCF writes it): what a simulator's scene and the mappers that model its finger must agree on."""
+    return {
+        "effector": effector,
+        **({"finger": finger} if effector == "finger" else {}),
+        "scale": as_written(scale),
+        "base_position_m": [as_written(v) for v in base_position_m],
+        "base_quaternion_wxyz": [as_written(v) for v in base_quaternion_wxyz],
+    }
+
+
+def _fixed_segments(segments: tuple[str, ...], joints: tuple[Joint, ...]) -> int:
+    """Number of leading segments that no joint moves."""
+    moving = {j.segment for j in joints}
+    return next((i for i, s in enumerate(segments) if s in moving), len(segments))
+
+
+def _check_chain(
+    segments: tuple[str, ...], lengths_mm: tuple[float, ...], joints: tuple[Joint, ...], path: KeyPath
+) -> None:
+    """A digit's segments, lengths and joints agree; ConfigError naming the key path. ``path`` holds
+    ``lengths_mm``; ``segments`` and ``joints`` are its siblings, or the long fingers' shared keys."""
+    shared = path[:1] == ("long_fingers",)
+    segments_path: KeyPath = ("long_finger_segments",) if shared else (*path, "segments")
+    joints_path: KeyPath = ("long_finger_joints",) if shared else (*path, "joints")
+
+    def fail(where: KeyPath, problem: str) -> ConfigError:
+        return ConfigError(f"{dotted(where)}: {problem}", where)
+
+    if not all(segments) or len(set(segments)) != len(segments):
+        raise fail(segments_path, f"{list(segments)}: give each segment a name, once")
+    if len(lengths_mm) != len(segments):
+        raise fail((*path, "lengths_mm"), f"{len(lengths_mm)} lengths; give one per segment {list(segments)}")
+    for i, joint in enumerate(joints):
+        if joint.segment not in segments:
+            raise fail((*joints_path, i, "segment"), f"{joint.segment!r} is not one of the segments {list(segments)}")
+    order = [segments.index(j.segment) for j in joints]
+    if order != sorted(order) or len({j.name for j in joints}) != len(joints):
+        raise fail(joints_path, "list the joints proximal to distal, each name once")
+
+
+def parse_hand(data: Any, where: str = "hand") -> HandDescription:
+    """Check the mapping read from a hand file and build the description; ConfigError naming the key."""
+    return load(HandFile, data, where).description()
 
 
 def load_hand(path: str | Path | None = None) -> HandDescription:
@@ -276,18 +324,10 @@ def load_hand(path: str | Path | None = None) -> HandDescription:
         text = path.read_text()
     except OSError as error:
         raise ConfigError(f"{path}: cannot read the hand description: {error.strerror}") from error
-    return _parse_text(text, str(path))
+    return load_yaml(HandFile, text, str(path), "hand").description()
 
 
 @functools.cache
 def _packaged_hand() -> HandDescription:
     text = resources.files("palpate.description").joinpath("hand.yaml").read_text()
-    return _parse_text(text, "palpate/description/hand.yaml")
-
-
-def _parse_text(text: str, source: str) -> HandDescription:
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        raise ConfigError(f"{source}: invalid YAML: {error}") from error
-    return parse_hand(data, source)
+    return load_yaml(HandFile, text, "palpate/description/hand.yaml", "hand").description()

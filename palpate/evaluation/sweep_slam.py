@@ -193,7 +193,7 @@ def fastslam_chain(launch_path: Path = SLAM_LAUNCH) -> Any:
     from palpate.description import load_hand
     from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain
 
-    mount = load(FingerMount, _fastslam_node_params(launch_path, {})["mount"], "mapper_fastslam.mount")
+    mount = load(FingerMount, _fastslam_node_params(launch_path, {}).get("mount", {}), "mapper_fastslam.mount")
     return KinematicChain.from_description(load_hand(), mount)
 
 

@@ -5,8 +5,8 @@ the leading dimensions, so the planner can measure hundreds of candidate paths i
 parameter is ``tau`` in [0, 1]; ``T(0) = p0`` is the start and ``T(1) = p3`` the target.
 
 Beyond ``tau = 1`` the trajectory controller continues along the end tangent (Algorithm 1 line 26
-tests ``tau > 1``): ``extended_point`` and ``Cubic`` use that straight continuation
-``T(1) + (tau - 1) T'(1)``, which is C1 with the curve.
+tests ``tau > 1``): ``Cubic`` uses that straight continuation ``T(1) + (tau - 1) T'(1)``,
+which is C1 with the curve.
 """
 
 from __future__ import annotations
@@ -101,20 +101,6 @@ def bezier_length(
     gram = np.einsum("...id,...jd->...ij", d, d).reshape(*d.shape[:-2], 9)
     speed = 3.0 * np.sqrt(np.maximum(gram @ products.T, 0.0))  # |T'(tau_k)|, (..., k)
     return np.asarray((tau1 - tau0) * (speed @ w), dtype=np.float64)
-
-
-def extended_point(P: ArrayLike, tau: ArrayLike) -> FloatArray:
-    """T(tau) for tau <= 1, and T(1) + (tau - 1) T'(1) beyond. P: (4, 3); tau: (k,) -> (k, 3)."""
-    P = np.asarray(P, dtype=np.float64)
-    t = np.atleast_1d(np.asarray(tau, dtype=np.float64))
-    inside = bezier_point(P, np.minimum(t, 1.0))
-    tangent_end = 3.0 * (P[3] - P[2])  # T'(1)
-    return inside + np.maximum(t - 1.0, 0.0)[:, None] * tangent_end
-
-
-def extended_derivative(P: ArrayLike, tau: ArrayLike) -> FloatArray:
-    """Derivative of ``extended_point``. P: (4, 3); tau: (k,) -> (k, 3)."""
-    return bezier_derivative(P, np.minimum(np.atleast_1d(np.asarray(tau, dtype=np.float64)), 1.0))
 
 
 #: Bernstein -> power basis: T(tau) = sum_k A[k] tau^k with A = _TO_POWER @ P.

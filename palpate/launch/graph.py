@@ -2,7 +2,8 @@
 
 Everything is checked before any process starts: node types, parameters (unknown, missing,
 mistyped), subscriptions without a publisher, publisher/subscriber type mismatches, ground-truth
-topics wired into non-evaluator nodes. Each error names the file, the line and the key.
+topics wired into non-evaluator nodes, nodes that disagree on a fact about the world (a mapper
+mounted where the simulator's finger is not). Each error names the file, the line and the key.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from palpate.config import load
-from palpate.errors import BusError, ConfigError, LaunchError
+from palpate.errors import BusError, ConfigError, LaunchError, PalpateError
 from palpate.launch.loader import LaunchFile, NodeEntry, Where
 from palpate.launch.node_types import load_node_type, node_spec_reference
 from palpate.messages import topics
@@ -43,6 +44,8 @@ class GraphNode:
     endpoint: str = ""
     curve: dict[str, str] = field(default_factory=dict)
     rank: int = 0
+    #: The node's config, loaded from its params.
+    config: Any = None
 
 
 @dataclass
@@ -164,6 +167,7 @@ def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
         nodes.append(node)
     graph = Graph(source=launch, nodes=nodes, bus_dir=bus_dir, mode=launch.mode, seed=launch.seed)
     _check_wiring(graph)
+    _check_facts(graph)
     _check_curve(graph)
     _rank(graph)
     return graph
@@ -182,7 +186,7 @@ def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
     params = f.get("params") or {}
     if not isinstance(params, dict):
         raise LaunchError(f"{entry.at('params')}: params must be a mapping")
-    _check_params(entry, spec, params)
+    config = _check_params(entry, spec, params)
     remaps = f.get("remaps") or {}
     if not isinstance(remaps, dict):
         raise LaunchError(f"{entry.at('remaps')}: remaps must be a mapping port: topic")
@@ -220,16 +224,49 @@ def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
         sigterm_timeout_s=_number(entry, "sigterm_timeout_s", 5.0, float),
         endpoint=endpoint,
         curve=_curve(entry),
+        config=config,
     )
     return node
 
 
-def _check_params(entry: NodeEntry, spec: NodeSpec[Any], params: dict[str, Any]) -> None:
+def _check_params(entry: NodeEntry, spec: NodeSpec[Any], params: dict[str, Any]) -> Any:
     """Load the node's config from its params; an error names the line of the offending key."""
     try:
-        load(spec.config, params, "params")
+        return load(spec.config, params, "params")
     except ConfigError as exc:
         raise LaunchError(f"{entry.param_at(exc.path)}: node {entry.fields['name']!r}: {exc}") from exc
+
+
+def _check_facts(graph: Graph) -> None:
+    """Nodes that state the same fact about the world (NodeSpec.facts) state the same value."""
+    stating = [n for n in graph.nodes if n.spec.facts is not None]
+    if len(stating) < 2:
+        return
+    first: dict[str, tuple[GraphNode, Any, Where]] = {}
+    for node in stating:
+        assert node.spec.facts is not None
+        try:
+            facts = node.spec.facts(node.config)
+        except PalpateError as exc:
+            raise LaunchError(f"{node.entry.at('params')}: node {node.name!r}: {exc}") from exc
+        for name, (value, path) in facts.items():
+            where = node.entry.param_at(path)
+            if name not in first:
+                first[name] = (node, value, where)
+                continue
+            other, other_value, other_where = first[name]
+            if value != other_value:
+                raise LaunchError(
+                    f"{where}: node {node.name!r} and node {other.name!r} ({other_where}) disagree on {name}: "
+                    f"{_difference(value, other_value)}; make them the same"
+                )
+
+
+def _difference(here: Any, there: Any) -> str:
+    """What differs between two stated values: the differing keys of two mappings, else both values."""
+    if isinstance(here, dict) and isinstance(there, dict) and set(here) == set(there):
+        return "; ".join(f"{k} {here[k]!r} here, {there[k]!r} there" for k in here if here[k] != there[k])
+    return f"{here!r} here, {there!r} there"
 
 
 def _check_wiring(graph: Graph) -> None:

@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from palpate.config import KeyPath
+from palpate.config import KeyPath, key_lines, line_at
 from palpate.errors import LaunchError
 
 _CONSTRUCTOR = yaml.constructor.SafeConstructor()
@@ -65,10 +65,7 @@ class NodeEntry:
 
     def param_at(self, path: KeyPath) -> Where:
         """The line of the deepest key of ``path`` written in the file (else the ``params`` line)."""
-        for end in range(len(path), 0, -1):
-            if path[:end] in self.param_lines:
-                return self.param_lines[path[:end]]
-        return self.at("params")
+        return line_at(self.param_lines, path) or self.at("params")
 
 
 @dataclass
@@ -180,7 +177,7 @@ def _node_entry(node: yaml.Node, name: str, args: dict[str, Any]) -> NodeEntry:
         entry.key_lines[key] = line
         entry.fields[key] = _plain(vnode, name, args)
         if key == "params":
-            _mark_lines(vnode, name, (), entry.param_lines)
+            entry.param_lines = {path: Where(name, line) for path, line in key_lines(vnode).items()}
         if key == "remaps" and isinstance(vnode, yaml.MappingNode):
             for sub_key, (sub_knode, _) in _mapping_items(vnode, name).items():
                 entry.remap_lines[sub_key] = Where(name, sub_knode.start_mark.line + 1)
@@ -188,19 +185,6 @@ def _node_entry(node: yaml.Node, name: str, args: dict[str, Any]) -> NodeEntry:
         if required not in entry.fields:
             raise LaunchError(f"{where}: node needs a {required!r}")
     return entry
-
-
-def _mark_lines(node: yaml.Node, name: str, path: KeyPath, out: dict[KeyPath, Where]) -> None:
-    """Record the line of every mapping key and list item below ``node`` by its key path."""
-    if isinstance(node, yaml.MappingNode):
-        for knode, vnode in node.value:
-            key = (*path, str(knode.value))
-            out[key] = Where(name, knode.start_mark.line + 1)
-            _mark_lines(vnode, name, key, out)
-    elif isinstance(node, yaml.SequenceNode):
-        for index, item in enumerate(node.value):
-            out[(*path, index)] = Where(name, item.start_mark.line + 1)
-            _mark_lines(item, name, (*path, index), out)
 
 
 def _mapping_items(node: yaml.Node, name: str) -> dict[str, tuple[yaml.Node, yaml.Node]]:

@@ -11,6 +11,7 @@ from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
+from palpate.config import KeyPath
 from palpate.messages.base import Message
 
 C = TypeVar("C")
@@ -116,6 +117,10 @@ class NodeSpec(Generic[C]):
     doc: str = ""
     #: For nodes whose ports depend on their parameters (a replayed log): params -> (inputs, outputs).
     ports_from_params: Callable[[Mapping[str, Any]], tuple[Mapping[str, Port], Mapping[str, Port]]] | None = None
+    #: Facts about the world that the node's config states: config -> {fact: (value, key path of the
+    #: params that state it)}, e.g. where the hand is mounted. The launcher checks that every node of a
+    #: graph that states a fact states the same value (a simulator and the mappers of its finger).
+    facts: Callable[[C], Mapping[str, tuple[Any, KeyPath]]] | None = None
 
     def with_params(self, params: Mapping[str, Any]) -> NodeSpec[C]:
         """This spec with its ports resolved for `params` (itself when its ports are fixed)."""

@@ -26,7 +26,6 @@ from tests.integration.launch_helpers import launched, node_pids, text
 from tests.integration.test_bad_input import Harness, counters, node_process
 
 LAUNCH = REPO_ROOT / "launch"
-MOUNT = {"effector": "finger", "finger": "index", "base_position_m": [-0.09662, 0.035, 0.0785]}
 
 
 # --- launch files --------------------------------------------------------------------------------------
@@ -112,18 +111,17 @@ def test_at_sigma_zero_the_fastslam_map_is_the_known_pose_map() -> None:
 @pytest.mark.parametrize("name", ["map_known", "fastslam", "slam_eval"])
 def test_every_mapper_models_the_simulators_finger(name: str) -> None:
     """The mapper's chain (hand description at its mount) is the simulator's model of the finger, bit for bit."""
-    from palpate.config import load
-    from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain
-    from palpate.nodes.sim.scene import SceneConfig, build_model
+    from palpate.nodes.mapper.kinematics import KinematicChain
+    from palpate.nodes.sim.scene import build_model
 
-    specs = {p.name: p for p in resolve(load_launch(LAUNCH / f"{name}.yaml")).process_specs()}
-    scene = load(SceneConfig, specs["sim"].params["scene"], "scene")
-    mappers = [p for p in specs.values() if p.type == "mapper"]
+    graph = resolve(load_launch(LAUNCH / f"{name}.yaml"))
+    scene = graph.by_name["sim"].config.scene
+    mappers = [n for n in graph.nodes if n.type == "mapper"]
     assert mappers
     q = np.random.default_rng(0).uniform(-1.5, 1.5, size=(20, 4))
     for mapper in mappers:
-        chain = KinematicChain.from_description(load_hand(), load(FingerMount, mapper.params["mount"]))
-        assert (mapper.params["mount"]["finger"], mapper.params["mount"]["effector"]) == (scene.finger.finger, "finger")
+        chain = KinematicChain.from_description(load_hand(), mapper.config.mount)
+        assert (mapper.config.mount.finger, mapper.config.mount.effector) == (scene.finger_config().finger, "finger")
         truth = KinematicChain.from_model(build_model(scene), chain.joint_names)
         for got, expected in zip(chain.forward(q), truth.forward(q), strict=True):
             np.testing.assert_array_equal(got, expected)
@@ -138,7 +136,6 @@ def mapper_node(tmp_path: Path) -> Iterator[Harness]:
         name="mapper",
         node_type="mapper",
         params={
-            "mount": MOUNT,
             "mapper": {"mode": "known", "region_min_m": [-0.045] * 3, "region_max_m": [0.045] * 3},
         },
         publishes={"map": topics.OCCUPANCY_GRID},

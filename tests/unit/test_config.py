@@ -312,11 +312,9 @@ def _float_fields(cls: type) -> list[str]:
 
 
 REGION = {"region_min_m": [0, 0, 0], "region_max_m": [0.1, 0.1, 0.1]}
-MOUNT = {"base_position_m": [0.0, 0.0, 0.0]}
 REQUIRED = {
     "MapperConfig": REGION,
-    "MapperNodeConfig": {"mapper": REGION, "mount": MOUNT},
-    "FingerMount": MOUNT,
+    "MapperNodeConfig": {"mapper": REGION},
     "ObjectSpec": {"kind": "cube"},
 }
 FLOAT_FIELDS = [(cls, name) for cls in NODE_CONFIGS for name in _float_fields(cls)]

@@ -97,36 +97,160 @@ def _set(data: dict[str, Any], path: str, value: Any) -> None:
         node[last] = value
 
 
+NEW_FINGER = {"lengths_mm": [1, 2, 3, 4], "metacarpal_base_mm": [0, 0], "metacarpal_yaw_deg": 0}
+
+
 @pytest.mark.parametrize(
-    ("path", "value", "message"),
+    ("path", "value", "message", "key"),
     [
-        ("colour", "pink", "unknown key 'colour'"),
-        ("segment_radius_mm", KeyError, "missing key 'segment_radius_mm'"),
-        ("segment_radius_mm", -8.0, "positive"),
-        ("long_fingers.ring.lengths_mm", [58.0, math.nan, 25.0, 17.0], "finite"),
-        ("long_fingers.ring.lengths_mm", [58.0, 41.0, 25.0], "list of 4 numbers"),
-        ("long_fingers.thumb", {"lengths_mm": [1, 2, 3, 4]}, "not 'thumb'"),
-        ("long_finger_joints.2.range_deg", [100, 0], "lower < upper"),
-        ("long_finger_joints.1.axis", [0, 2, 0], "unit vector"),
-        ("long_finger_joints.1.segment", "palm", "not one of the segments"),
-        ("long_finger_joints.0.segment", "metacarpal", "must have no joint"),
-        ("long_finger_joints.3.segment", "proximal", "proximal to distal"),
-        ("thumb.joints.0.segment", "proximal", "proximal to distal"),
-        ("actuation.kp_nm_per_rad", True, "finite number"),
-        ("thumb.rest_ypr_deg", [40, 20], "list of 3 numbers"),
+        ("colour", "pink", "hand.colour: unknown key 'colour'; known keys: actuation, finger_mount, long", "colour"),
+        (
+            "finger_mount.finger",
+            "thumb",
+            "hand: finger_mount.finger: 'thumb' is not a long finger",
+            "finger_mount.finger",
+        ),
+        ("segment_radius_mm", KeyError, "hand: missing required key 'segment_radius_mm' (float)", ""),
+        (
+            "segment_radius_mm",
+            -8.0,
+            "hand.segment_radius_mm: expected a finite number > 0, got -8.0",
+            "segment_radius_mm",
+        ),
+        (
+            "long_fingers.ring.lengths_mm",
+            [58.0, math.nan, 25.0, 17.0],
+            "hand.long_fingers.ring.lengths_mm[1]: expected a finite number > 0, got nan",
+            "long_fingers.ring.lengths_mm.1",
+        ),
+        (
+            "long_fingers.ring.lengths_mm",
+            [58.0, 41.0, 25.0],
+            "hand: long_fingers.ring.lengths_mm: 3 lengths; give one per segment ['metacarpal', ",
+            "long_fingers.ring.lengths_mm",
+        ),
+        (
+            "long_fingers.thumb",
+            NEW_FINGER,
+            "hand: long_fingers: ['index', 'middle', 'ring', 'little', 'thumb']: name",
+            "long_fingers",
+        ),
+        (
+            "long_fingers.ring",
+            {"lengths_mm": [1, 2, 3, 4]},
+            "hand.long_fingers.ring: missing required key 'metacarpal_base_mm'",
+            "long_fingers.ring",
+        ),
+        (
+            "long_finger_joints.2.range_deg",
+            [100, 0],
+            "hand.long_finger_joints[2]: range_deg = [100.0, 0.0]: empty range; give [lower, upper] with lower < upper",
+            "long_finger_joints.2.range_deg",
+        ),
+        (
+            "long_finger_joints.1.axis",
+            [0, 2, 0],
+            "hand.long_finger_joints[1]: axis = [0.0, 2.0, 0.0]: expected a unit vector",
+            "long_finger_joints.1.axis",
+        ),
+        (
+            "long_finger_joints.1.axis",
+            [0, 1],
+            "hand.long_finger_joints[1].axis: expected 3 items, got [0, 1]",
+            "long_finger_joints.1.axis",
+        ),
+        (
+            "long_finger_joints.1.source",
+            KeyError,
+            "hand.long_finger_joints[1]: missing required key 'source'",
+            "long_finger_joints.1",
+        ),
+        (
+            "long_finger_joints.1.segment",
+            "palm",
+            "hand: long_finger_joints[1].segment: 'palm' is not one of the segments ['metacarpal', ",
+            "long_finger_joints.1.segment",
+        ),
+        (
+            "long_finger_joints.0.segment",
+            "metacarpal",
+            "hand: long_finger_joints: the first segment (the metacarpal) must have no joint",
+            "long_finger_joints",
+        ),
+        (
+            "long_finger_joints.3.segment",
+            "proximal",
+            "hand: long_finger_joints: list the joints proximal to distal, each name once",
+            "long_finger_joints",
+        ),
+        (
+            "long_finger_segments",
+            ["metacarpal", "proximal", "proximal", "distal"],
+            "hand: long_finger_segments: ['metacarpal', 'proximal', 'proximal', 'distal']: give each segment a name",
+            "long_finger_segments",
+        ),
+        ("long_finger_joints", [], "hand.long_finger_joints: expected a non-empty list, got []", "long_finger_joints"),
+        (
+            "thumb.joints.0.segment",
+            "proximal",
+            "hand.thumb: joints: list the joints proximal to distal",
+            "thumb.joints",
+        ),
+        (
+            "thumb.lengths_mm",
+            [46.0, 31.0],
+            "hand.thumb: lengths_mm: 2 lengths; give one per segment",
+            "thumb.lengths_mm",
+        ),
+        (
+            "actuation.kp_nm_per_rad",
+            True,
+            "hand.actuation.kp_nm_per_rad: expected a finite number > 0, got True",
+            "actuation.kp_nm_per_rad",
+        ),
+        (
+            "actuation.density_kg_m3",
+            math.inf,
+            "hand.actuation.density_kg_m3: expected a finite number > 0, got inf",
+            "actuation.density_kg_m3",
+        ),
+        (
+            "thumb.rest_ypr_deg",
+            [40, 20],
+            "hand.thumb.rest_ypr_deg: expected 3 items, got [40, 20]",
+            "thumb.rest_ypr_deg",
+        ),
     ],
 )
-def test_a_bad_hand_file_is_refused_naming_the_key(path: str, value: Any, message: str) -> None:
+def test_a_bad_hand_file_is_refused_naming_the_key(path: str, value: Any, message: str, key: str) -> None:
     data = copy.deepcopy(_data())
     _set(data, path, value)
-    with pytest.raises(ConfigError, match=re.escape(message)):
-        parse_hand(data, "hand.yaml")
+    with pytest.raises(ConfigError) as info:
+        parse_hand(data)
+    assert str(info.value).startswith(message), str(info.value)
+    assert info.value.path == tuple(int(k) if k.isdigit() else k for k in key.split(".") if k)
+
+
+def test_a_bad_hand_file_is_refused_naming_its_line(tmp_path: Path) -> None:
+    text = HAND_YAML.read_text()
+    lines = text.splitlines()
+    ring = next(i for i, line in enumerate(lines) if line.lstrip().startswith("ring:")) + 1
+    pip = next(i for i, line in enumerate(lines) if "{name: pip," in line) + 1
+    path = tmp_path / "hand.yaml"
+    path.write_text(text.replace("ring: {lengths_mm: [58.00, 41.37,", "ring: {lengths_mm: [58.00, .nan,"))
+    with pytest.raises(
+        ConfigError, match=rf"^{path}:{ring}: hand.long_fingers.ring.lengths_mm\[1\]: expected a finite"
+    ):
+        load_hand(path)
+    path.write_text(text.replace("range_deg: [0, 100]", "range_deg: [100, 0]"))
+    with pytest.raises(ConfigError, match=rf"^{path}:{pip}: hand.long_finger_joints\[2\]: range_deg = \[100.0, 0.0\]"):
+        load_hand(path)
 
 
 def test_a_thumb_whose_first_segment_has_no_joint_is_refused() -> None:
     data = _data()
     data["thumb"]["joints"] = [j for j in data["thumb"]["joints"] if j["segment"] != "metacarpal"]
-    with pytest.raises(ConfigError, match="must have a joint"):
+    with pytest.raises(ConfigError, match=r"hand.thumb: joints: the thumb's first segment .* must have a joint"):
         parse_hand(data)
 
 

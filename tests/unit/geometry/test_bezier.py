@@ -14,7 +14,6 @@ from palpate.geometry.bezier import (
     bezier_length,
     bezier_point,
     bezier_second_derivative,
-    extended_point,
     recovery_curve,
 )
 
@@ -122,7 +121,7 @@ def test_closest_tau_on_the_straight_continuation() -> None:
     P = np.array([[0.0, 0, 0], [0.01, 0, 0], [0.02, 0, 0], [0.03, 0, 0]])  # |T'(1)| = 0.03
     r = np.array([0.036, 0.002, 0.0])  # 6 mm past the end
     assert Cubic(P).closest_tau(r, 0.0, 1.5) == pytest.approx(1.2, abs=1e-12)
-    np.testing.assert_allclose(extended_point(P, [1.2])[0], [0.036, 0, 0], atol=1e-15)
+    np.testing.assert_allclose(Cubic(P).point(1.2), [0.036, 0, 0], atol=1e-15)
     assert Cubic(P).closest_tau(r, 0.0, 1.0) == pytest.approx(1.0)
 
 
@@ -131,7 +130,10 @@ def test_cubic_agrees_with_vectorised_functions(curves: np.ndarray) -> None:
     for t in (0.0, 0.3, 0.77, 1.0):
         np.testing.assert_allclose(cubic.point(t), bezier_point(curves[3], [t])[0], atol=1e-15)
         np.testing.assert_allclose(cubic.derivative(t), bezier_derivative(curves[3], [t])[0], atol=1e-15)
-    np.testing.assert_allclose(cubic.point(1.3), extended_point(curves[3], [1.3])[0], atol=1e-15)
+    # beyond tau = 1: the straight continuation T(1) + (tau - 1) T'(1), C1 with the curve
+    end, tangent = bezier_point(curves[3], [1.0])[0], bezier_derivative(curves[3], [1.0])[0]
+    np.testing.assert_allclose(cubic.point(1.3), end + 0.3 * tangent, atol=1e-15)
+    np.testing.assert_allclose(cubic.derivative(1.3), tangent, atol=1e-15)
 
 
 def test_approach_curve_is_eq15() -> None:

@@ -90,6 +90,16 @@ BAD = [
     ("with_args.yaml", ["x:=1"], "unknown launch argument 'x'"),
     ("include_missing.yaml", [], "included launch file tests/data/launch/does_not_exist.yaml does not exist"),
     ("include_cycle_a.yaml", [], "include cycle: tests/data/launch/include_cycle_a.yaml -> "),
+    (
+        "mount_not_the_sims.yaml",
+        [],
+        "node 'mapper' and node 'sim' (tests/data/launch/mount_not_the_sims.yaml:7) disagree on hand_mount: "
+        "base_position_m [-0.09662, 0.035, 0.0785] here, [-0.09312, 0.035, 0.075] there",
+    ),
+    ("mount_other_finger.yaml", [], "disagree on hand_mount: finger 'index' here, 'ring' there; make them the same"),
+    ("mount_object_missing.yaml", [], "node 'sim': does_not_exist.stl: mesh file not found"),
+    ("mount_unknown_finger.yaml", [], "node 'mapper': params.mount.finger: expected one of ['index', 'middle', "),
+    ("mount_thumb_on_finger.yaml", [], "params.mount: finger = 'thumb': the single-finger effector is a long finger"),
 ]
 
 

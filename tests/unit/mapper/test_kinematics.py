@@ -10,6 +10,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from palpate.config import load
 from palpate.description import load_hand
 from palpate.errors import ConfigError
 from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain
@@ -181,7 +182,7 @@ def test_real_finger_and_hand_models_match_mujoco() -> None:
 
 
 # --- the chain from the hand description ---------------------------------------------------------------
-LAUNCH_BASE = (-0.09662, 0.035, 0.0785)  # the launch files' finger base
+LAUNCH_BASE = FingerMount().base_position_m  # the description's finger mount, where the launch files' mappers are
 TILTED = (0.9, 0.1, -0.2, 0.3)
 
 
@@ -246,16 +247,33 @@ def test_hand_chain_from_the_description_is_the_simulators(digit: str) -> None:
 
 
 @pytest.mark.parametrize(
-    ("changes", "message"),
+    ("changes", "message", "key"),
     [
-        ({"finger": "thumb"}, "the single-finger effector is a long finger"),
-        ({"finger": "pinky"}, "unknown finger 'pinky'"),
-        ({"effector": "arm"}, "expected one of \\['finger', 'hand'\\]"),
-        ({"scale": 0.0}, "scale"),
-        ({"base_position_m": (0.0, math.nan, 0.0)}, "finite"),
-        ({"base_quaternion_wxyz": (0.0, 0.0, 0.0, 0.0)}, "zero quaternion"),
+        ({"finger": "thumb"}, "finger = 'thumb': the single-finger effector is a long finger", "finger"),
+        ({"finger": "pinky"}, "mount.finger: expected one of ['index', 'middle', 'ring', 'little', 'thumb']", "finger"),
+        ({"effector": "arm"}, "mount.effector: expected one of ['finger', 'hand']", "effector"),
+        ({"scale": 0.0}, "mount.scale: expected a finite number > 0", "scale"),
+        (
+            {"base_position_m": [0.0, math.nan, 0.0]},
+            "mount.base_position_m[1]: expected a finite number",
+            "base_position_m",
+        ),
+        ({"base_quaternion_wxyz": [0.0, 0.0, 0.0, 0.0]}, "zero quaternion", "base_quaternion_wxyz"),
     ],
 )
-def test_bad_mounts_are_refused(changes: dict[str, Any], message: str) -> None:
-    with pytest.raises(ConfigError, match=message):
-        KinematicChain.from_description(load_hand(), FingerMount(**{"base_position_m": LAUNCH_BASE, **changes}))
+def test_bad_mounts_are_refused_naming_the_key(changes: dict[str, Any], message: str, key: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        load(FingerMount, changes, "mount")
+    assert message in str(info.value)
+    assert info.value.path[:1] == (key,)
+
+
+def test_the_default_mount_is_the_descriptions_and_the_thumb_needs_the_hand() -> None:
+    hand = load_hand()
+    assert (FingerMount().finger, FingerMount().base_position_m) == (
+        hand.finger_mount.finger,
+        hand.finger_mount.base_position_m,
+    )
+    assert FingerMount(effector="hand", finger="thumb").finger == "thumb"
+    with pytest.raises(ConfigError, match="set effector: hand to model the thumb"):
+        FingerMount(finger="thumb")

@@ -21,7 +21,7 @@ MS = 1_000_000
 
 @pytest.fixture(scope="module")
 def chain() -> KinematicChain:
-    return KinematicChain.from_description(load_hand(), FingerMount(base_position_m=(-0.09662, 0.035, 0.0785)))
+    return KinematicChain.from_description(load_hand(), FingerMount())
 
 
 @dataclass

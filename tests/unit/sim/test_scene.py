@@ -9,11 +9,19 @@ import numpy as np
 import pytest
 
 from palpate.config import load
+from palpate.description import load_hand, mount_fact
 from palpate.errors import ConfigError
 from palpate.nodes.sim.effectors import FingerConfig, ProbeConfig
 from palpate.nodes.sim.objects import KINDS, ObjectSpec, load_object
-from palpate.nodes.sim.scene import SceneConfig, build_model, target_mcp_position
+from palpate.nodes.sim.scene import (
+    SceneConfig,
+    build_model,
+    effector_base_position,
+    effector_mount,
+    target_mcp_position,
+)
 
+NOT_LOADED = ObjectSpec(kind="mesh", path="/nonexistent.stl")  # never loaded: the base is given
 PRIMITIVES = {
     "cube": {"kind": "cube", "size_m": [0.05]},
     "rubiks_cube": {"kind": "rubiks_cube"},
@@ -65,7 +73,11 @@ def test_defaults_have_no_gravity_and_a_2_ms_step() -> None:
         ({"effector": "probe", "radius_m": 0.01}, "scene.radius_m: unknown key 'radius_m'; known keys: contact_tol"),
         ({"effector": "probe", "probe": {"radius": 0.01}}, "scene.probe.radius: unknown key 'radius'"),
         ({"effector": "gripper"}, "scene.effector: expected one of ['hand', 'finger', 'probe'], got 'gripper'"),
-        ({"effector": "probe", "hand": {"scale": 2}}, "scene: section 'hand' (HandConfig(scale=2.0, "),
+        ({"effector": "probe", "hand": {"scale": 2}}, "scene: section 'hand' is not used by effector 'probe'"),
+        ({"effector": "probe", "finger": {}}, "scene: section 'finger' is not used by effector 'probe'; remove it"),
+        ({"hand": {}}, "scene: section 'hand' is not used by effector 'finger'; remove it or set effector: hand"),
+        ({"effector": "finger", "finger": {"pip_range_deg": [90, 0]}}, "finger: pip_range_deg = [90.0, 0.0]: empty"),
+        ({"effector": "hand", "hand": {"thumb_ip_range_deg": [5, 5]}}, "hand: thumb_ip_range_deg = [5.0, 5.0]: empty"),
         ({"timestep_s": "fast"}, "scene.timestep_s: expected a finite number > 0, got 'fast'"),
         ({"timestep_s": -0.001}, "scene.timestep_s: expected a finite number > 0, got -0.001"),
         ({"effector": "finger", "finger": {"finger": "thumb"}}, "scene.finger.finger: expected one of ['index', "),
@@ -80,6 +92,22 @@ def test_load_rejects_bad_keys_and_values_naming_them(d: dict[str, object], frag
         load(SceneConfig, d, "launch/x.yaml: scene")
     assert fragment in str(info.value)
     assert "launch/x.yaml" in str(info.value)
+
+
+def test_an_empty_joint_range_is_refused_at_the_key_that_holds_it() -> None:
+    with pytest.raises(ConfigError) as info:
+        load(SceneConfig, {"effector": "finger", "finger": {"dip_range_deg": [10, -10]}}, "scene")
+    assert info.value.path == ("finger", "dip_range_deg")
+    with pytest.raises(ConfigError, match="mcp_abd_range_deg = \\[20, -20\\]: empty joint range"):
+        FingerConfig(mcp_abd_range_deg=(20, -20))
+
+
+def test_only_the_section_of_the_effector_in_use_is_set() -> None:
+    scene = load(SceneConfig, {"effector": "probe", "probe": None, "finger": None}, "scene")
+    assert scene.probe_config() == ProbeConfig() and (scene.hand, scene.finger) == (None, None)
+    assert SceneConfig(effector="finger") == SceneConfig(effector="finger", finger=FingerConfig())
+    with pytest.raises(ConfigError, match="the scene's effector is 'probe', not 'finger'"):
+        scene.finger_config()
 
 
 @pytest.mark.parametrize("effector", ["hand", "finger", "probe"])
@@ -105,6 +133,20 @@ def test_finger_mcp_is_placed_at_the_offset_from_the_object() -> None:
     expected = np.array([0.2 - 0.025, 0.0, 0.025]) + np.array(scene.finger_mcp_offset_m)
     np.testing.assert_allclose(data.body("index_proximal").xpos, expected, atol=1e-12)
     np.testing.assert_allclose(target_mcp_position(scene, load_object(scene.object)), expected, atol=1e-12)
+
+
+def test_the_descriptions_finger_mount_is_where_the_default_scene_puts_the_finger() -> None:
+    """hand.yaml's finger_mount (the mappers' default mount) is the finger's placement on the default
+    object, exactly: the launch files give neither the simulator nor the mappers a base."""
+    mount = load_hand().finger_mount
+    scene = SceneConfig(effector="finger")
+    base = effector_base_position(scene, load_object(scene.object))
+    assert (scene.finger_config().finger, tuple(base.tolist())) == (mount.finger, mount.base_position_m)
+    assert effector_mount(scene) == mount_fact("finger", mount.finger, 1.0, mount.base_position_m, (1, 0, 0, 0))
+    given = SceneConfig(effector="finger", finger=FingerConfig(base_position_m=(0.1, 0.2, 0.3)), object=NOT_LOADED)
+    assert effector_mount(given)["base_position_m"] == [0.1, 0.2, 0.3]
+    assert effector_mount(SceneConfig(effector="probe")) == {"effector": "probe"}
+    assert "finger" not in effector_mount(SceneConfig(effector="hand"))
 
 
 def test_hand_places_its_index_mcp_like_the_finger() -> None:
