@@ -17,6 +17,7 @@ import numpy as np
 
 from palpate.config import PositiveFloat, Validated
 from palpate.description import load_hand
+from palpate.inputs import coordinates, select_named
 from palpate.messages.schemas import ContactSet, JointState, OccupancyGrid, ParticleSetSummary
 from palpate.nodes.mapper.core import Mapper, MapperConfig
 from palpate.nodes.mapper.grid import SparseMap
@@ -45,30 +46,31 @@ class MapperNode:
         self.chain = KinematicChain.from_description(load_hand(), config.mount)
         self.core = Mapper(config.mapper, self.chain, ctx.rng)
         self.link_index = {name: i for i, name in enumerate(self.chain.link_names)}
-        self.joint_state: JointState | None = None
-        self.contacts: ContactSet | None = None
+        self.reading: tuple[int, np.ndarray] | None = None  # stamp, the chain's joint angles (J,) rad
+        self.contacts: tuple[int, np.ndarray, np.ndarray] | None = None  # stamp, link indices, local points
         self.next_publish_ns = 0
         self.resampled = False
         self.label = config.label or ("known" if config.mapper.mode == "known" else "best")
 
     def on_joint_states(self, message: JointState) -> None:
-        self.joint_state = message
+        q = select_named(message.names, message.positions_rad, self.chain.joint_names, "names")
+        self.reading = (message.stamp_ns, q)
 
     def on_contacts(self, message: ContactSet) -> None:
-        self.contacts = message
+        local = coordinates(message.local_positions_m, "local_positions_m")
+        keep = [i for i, link in enumerate(message.links) if link in self.link_index]
+        links = np.array([self.link_index[message.links[i]] for i in keep], dtype=np.int64)
+        self.contacts = (message.stamp_ns, links, local[keep])
 
     def on_tick(self, stamp_ns: int) -> None:
-        reading, contacts = self.joint_state, self.contacts
-        self.joint_state = None
+        reading, contacts = self.reading, self.contacts
+        self.reading = None
         if reading is None:
             return
-        order = {name: i for i, name in enumerate(reading.names)}
-        q = np.array([reading.positions_rad[order[n]] for n in self.chain.joint_names])
+        stamp, q = reading
         links, local = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
-        if contacts is not None and contacts.stamp_ns == reading.stamp_ns:
-            keep = [i for i, link in enumerate(contacts.links) if link in self.link_index]
-            links = np.array([self.link_index[contacts.links[i]] for i in keep], dtype=np.int64)
-            local = np.asarray(contacts.local_positions_m)[keep]
+        if contacts is not None and contacts[0] == stamp:
+            _, links, local = contacts
         resamples_before = self.core.counters.resamples
         self.core.update(q, links, local)
         c = self.core.counters

@@ -37,7 +37,8 @@ class NoiseNode:
         self.contact_noise = ContactNoise(config, ctx.rng)
 
     def on_joint_states(self, message: JointState) -> None:
-        if self.joint_noise is None:  # joint names come with the first reading
+        if self.joint_noise is None or self.joint_noise.joint_names != tuple(message.names):
+            # joint names come with the readings; a bad reading leaves the last noise model in place
             self.joint_noise = JointNoise(self.config, message.names, self.ctx.rng)
         self.ctx.publish(
             "noisy_joint_states",

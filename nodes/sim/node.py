@@ -16,6 +16,7 @@ import numpy as np
 
 from palpate.config import PositiveFloat, Validated
 from palpate.errors import ConfigError
+from palpate.inputs import MAX_RATE, bounded, select_named
 from palpate.messages import topics
 from palpate.messages.schemas import (
     CartesianVelocityCommand,
@@ -79,14 +80,13 @@ class SimNode:
         self.previous_pose: tuple[np.ndarray, np.ndarray] | None = None
 
     def on_velocity(self, message: CartesianVelocityCommand) -> None:
-        self.sim.set_velocity(message.linear_m_s, message.angular_rad_s)
+        linear = bounded(message.linear_m_s, "linear_m_s", MAX_RATE, "m/s")
+        angular = bounded(message.angular_rad_s, "angular_rad_s", MAX_RATE, "rad/s")
+        self.sim.set_velocity(linear, angular)
 
     def on_joint_commands(self, message: JointCommand) -> None:
-        order = {name: i for i, name in enumerate(message.names)}
-        missing = [n for n in self.sim.joint_names if n not in order]
-        if missing:
-            raise ConfigError(f"joint command lacks joints {missing}; it must name every joint of the effector")
-        self.sim.set_joint_targets(np.array([message.positions_rad[order[n]] for n in self.sim.joint_names]))
+        """Targets for every joint of the effector (clipped to the joint limits); others are ignored."""
+        self.sim.set_joint_targets(select_named(message.names, message.positions_rad, self.sim.joint_names, "names"))
 
     def step(self) -> int | None:
         if self.tick > self.ticks:
