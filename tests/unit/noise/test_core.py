@@ -100,7 +100,7 @@ def test_config_errors_name_the_key_and_value() -> None:
         JointNoiseConfig(sigma_deg=-1.0)
     with pytest.raises(ConfigError, match=r"<launch>.sigma: unknown key 'sigma'; known keys: bias_deg, per_joint"):
         load(JointNoiseConfig, {"sigma": 1.0}, "<launch>")
-    with pytest.raises(InputError, match=r"names: lacks joint\(s\) \['thumb'\] that the noise node's per_joint_sigma_deg"):
+    with pytest.raises(InputError, match=r"names: lacks joint\(s\) \['thumb'\] that the noise node's per_joint_sigma"):
         JointNoise(JointNoiseConfig(per_joint_sigma_deg={"thumb": 1.0}), JOINTS, np.random.default_rng(0))
     with pytest.raises(InputError, match=r"names: repeated name\(s\) 'pip'"):
         JointNoise(JointNoiseConfig(), ("pip", "dip", "pip"), np.random.default_rng(0))
