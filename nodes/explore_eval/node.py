@@ -7,8 +7,6 @@ At the end it prints one line `explore_result: {json}` and optionally writes JSO
 
 from __future__ import annotations
 
-import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,6 +15,8 @@ import numpy as np
 
 from palpate.config import Validated
 from palpate.inputs import coordinates, fingertip_pose, triangle_mesh
+from palpate.jsonio import dumps as json_dumps
+from palpate.jsonio import write as write_json
 from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.explore_eval.core import EvalConfig, ExplorationEvaluator, RunControl
 from palpate.runtime.spec import Context, NodeSpec, Port
@@ -93,8 +93,7 @@ class ExploreEvalNode:
         self.result = self.evaluator.summary()
         self.result["object"] = self.name
         if self.config.results_path:
-            Path(self.config.results_path).parent.mkdir(parents=True, exist_ok=True)
-            Path(self.config.results_path).write_text(json.dumps(self.result, indent=1))
+            write_json(self.config.results_path, self.result, indent=1)
         if self.config.plot_path:
             from palpate.nodes.explore_eval.plot import plot_run
 
@@ -109,13 +108,7 @@ class ExploreEvalNode:
             )
         if self.config.report:
             brief = {k: v for k, v in self.result.items() if k != "touches"}
-            print("explore_result: " + json.dumps(brief, default=_json_number), flush=True)
-
-
-def _json_number(value: Any) -> Any:
-    if isinstance(value, float) and math.isnan(value):
-        return None
-    return value
+            print("explore_result: " + json_dumps(brief), flush=True)
 
 
 SPEC = NodeSpec(

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from palpate import jsonio
 from palpate.config import NonNegativeFloat, Validated, load
 from palpate.errors import BenchmarkError, InputError
 from palpate.inputs import contact_arrays
@@ -71,7 +72,7 @@ class _TickTimes:
 
     def close(self, extra: Mapping[str, Any]) -> None:
         if self.path:
-            Path(self.path).write_text(json.dumps({"stamps_ns": self.stamps_ns, "wall_s": self.wall_s, **extra}))
+            jsonio.write(self.path, {"stamps_ns": self.stamps_ns, "wall_s": self.wall_s, **extra})
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -437,7 +438,7 @@ def main(args: argparse.Namespace) -> int:
             "scenes": {row["scene"]: {k: v for k, v in row.items() if k != "scene"} for row in rows},
             "runtime_overhead_max": max(row["runtime_overhead"] for row in rows),
         }
-        print(json.dumps(out, sort_keys=True, allow_nan=False))
+        print(jsonio.dumps(out, sort_keys=True))
     return 0
 
 

@@ -140,13 +140,17 @@ def demo_summary(result: dict[str, Any]) -> str:
             f"rotation {m['rotation_deg']:.0f} deg, surface RMSE {_mm(m.get('rmse_mm'))} over the confident "
             f"{_pct(m.get('confident_fraction'))} of the estimate (whole estimate: estimate->truth "
             f"{_mm(m.get('rmse_estimate_to_truth_mm'))}, truth->estimate {_mm(m.get('rmse_truth_to_estimate_mm'))}), "
-            f"prediction miss {_mm(m.get('prediction_miss_mm'))}, fingertip-normal angle {m['angle_deg']:.1f} deg"
+            f"prediction miss {_mm(m.get('prediction_miss_mm'))}, fingertip-normal angle {_deg(m.get('angle_deg'))}"
         )
     return "\n".join(lines)
 
 
 def _pct(value: object) -> str:
     return "n/a" if value is None or value != value else f"{100 * float(value):.0f} %"  # type: ignore[arg-type]
+
+
+def _deg(value: object) -> str:
+    return "n/a" if value is None or value != value else f"{float(value):.1f} deg"  # type: ignore[arg-type]
 
 
 def _mm(value: object) -> str:

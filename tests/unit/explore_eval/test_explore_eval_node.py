@@ -3,6 +3,9 @@ previous one stays); zero-area triangles are dropped; an estimate must index its
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -55,3 +58,23 @@ def test_bad_true_meshes_are_refused_and_slivers_dropped() -> None:
     )
     with pytest.raises(InputError, match=r"^faces: vertex index 99 is outside"):
         node.on_surface(estimate)
+
+
+def test_results_without_a_milestone_write_null_not_nan(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 15: `"rmse_mm": NaN` in explore_result when a milestone is not reached; JSON has no NaN."""
+    ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
+    results = tmp_path / "out" / "explore.json"
+    node = ExploreEvalNode(ExploreEvalNodeConfig(results_path=str(results)), ctx)
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    node.on_truth_object(truth(np.asarray(box.vertices), np.asarray(box.faces)))
+    node.close()
+
+    def refuse(name: str) -> None:
+        raise ValueError(f"not JSON: {name}")
+
+    written = json.loads(results.read_text(), parse_constant=refuse)
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("explore_result: "))
+    printed = json.loads(line.removeprefix("explore_result: "), parse_constant=refuse)
+    for result in (written, printed):
+        milestone = result["milestones"]["80"]
+        assert milestone["reached"] is False and milestone["rmse_mm"] is None and milestone["angle_deg"] is None
