@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from palpate.errors import LaunchError
 from palpate.launch.graph import Graph, resolve
 from palpate.launch.loader import load_launch, parse_cli_args
 from palpate.launch.supervisor import Supervisor
@@ -29,6 +30,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="replace the publishers of the log's topics by the log",
     )
     p.add_argument("--bus", type=Path, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
+    p.add_argument(
+        "--spec",
+        metavar="NODE",
+        help="print the process spec of NODE as JSON (what an external node's driver needs) and start nothing",
+    )
     p.set_defaults(func=run_launch)
 
     d = sub.add_parser(
@@ -50,6 +56,12 @@ def load_graph(path: Path, overrides: list[str], bus_dir: Path | None, replay: P
 
 def run_launch(args: argparse.Namespace) -> int:
     graph = load_graph(args.file, args.args, args.bus, args.replay)
+    if args.spec is not None:
+        specs = {s.name: s for s in graph.process_specs(extra_subscribers=1 if args.record else 0)}
+        if args.spec not in specs:
+            raise LaunchError(f"no node {args.spec!r} in {args.file}; nodes: {', '.join(sorted(specs))}")
+        print(json.dumps(json.loads(specs[args.spec].to_json()), indent=1, sort_keys=True))
+        return 0
     if args.dry_run:
         try:
             print(describe(graph))

@@ -39,6 +39,21 @@ def _die_with_parent() -> None:
         pass
 
 
+def external_spec_path(bus_dir: str | Path, name: str) -> Path:
+    """Where the launcher puts the process spec of external node `name` (docs/runtime.md, "External nodes")."""
+    return Path(bus_dir) / "external" / f"{name}.json"
+
+
+def write_external_spec(bus_dir: str | Path, spec: NodeProcessSpec) -> Path:
+    """Write `spec` for the driver that plays external node `spec.name` (atomically: write, then rename)."""
+    path = external_spec_path(bus_dir, spec.name)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(spec.to_json())
+    tmp.replace(path)
+    return path
+
+
 @dataclass
 class Child:
     """A running node process and what we keep of its output."""
@@ -61,9 +76,11 @@ class Supervisor:
         self.children: list[Child] = []
         self.lock = threading.Lock()
         self.stop_signal = 0
+        self.external_specs: list[Path] = []
         for spec in process_specs:
             node = graph.by_name[spec.name]
-            if node.external:
+            if node.external:  # not started here: its driver reads what the launcher would have passed it
+                self.external_specs.append(write_external_spec(graph.bus_dir, spec))
                 continue
             path = self.run_dir / f"{spec.name}.json"
             path.write_text(spec.to_json())
@@ -167,6 +184,8 @@ class Supervisor:
 
     def shutdown(self) -> None:
         """SIGTERM every live child, wait its timeout, SIGKILL what is left, reap all."""
+        for path in self.external_specs:
+            path.unlink(missing_ok=True)
         live = [c for c in self.children if c.proc is not None and c.proc.poll() is None]
         for child in live:
             assert child.proc is not None
