@@ -37,9 +37,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def parse(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
+    """Parse the command line; `NAME:=VALUE` arguments may also come after options
+    (``palpate launch FILE --bus DIR seed:=3``), for the commands that take them (an ``args`` list)."""
+    args, extra = parser.parse_known_args(argv)
+    takes_assignments = isinstance(getattr(args, "args", None), list)
+    late = [a for a in extra if takes_assignments and ":=" in a and not a.startswith("-")]
+    unknown = [a for a in extra if a not in late]
+    if unknown:
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
+    if late:
+        args.args = [*args.args, *late]
+    return args
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parse(parser, argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(message)s")
     try:
         return int(args.func(args) or 0)

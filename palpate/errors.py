@@ -28,6 +28,21 @@ class NonFiniteError(MessageError):
     """A field that must be finite holds NaN or infinity."""
 
 
+class InputError(PalpateError):
+    """A message decoded (it matches its schema) but holds values a node cannot use: a zero quaternion,
+    a joint state without the joints the node needs, a target farther than any workspace.
+
+    ``field`` names the message field (``quaternion_wxyz``, ``names``), ``reason`` says what is wrong
+    with it. The runtime counts the message in the node's ``input_errors``, logs node, topic, field and
+    reason, and the node goes on with the state it had before the message.
+    """
+
+    def __init__(self, field: str, reason: str) -> None:
+        super().__init__(f"{field}: {reason}")
+        self.field = field
+        self.reason = reason
+
+
 # --- configuration and launch ---------------------------------------------------------------------
 class ConfigError(PalpateError):
     """A node's parameters are missing, unknown, of the wrong type or out of range.

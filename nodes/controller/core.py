@@ -33,6 +33,7 @@ from palpate.config import NonNegativeFloat, PositiveFloat, Range, Validated
 from palpate.errors import PlanningError
 from palpate.geometry import rotations
 from palpate.geometry.bezier import Cubic, approach_curve, recovery_curve
+from palpate.inputs import coordinates, unit_vectors
 
 FloatArray = NDArray[np.float64]
 
@@ -488,10 +489,16 @@ class TouchLoop:
     ) -> FloatArray:
         """A new touch target (Alg. 1 lines 19-20): start its Eq. 15 curve from the fingertip at r (3,) m,
         orientation R (3, 3), to the target point t_p (3,) m with outward unit normal t_n (3,); the curve
-        guides the fingertip centre to t_p + radius t_n. Returns the control points (4, 3)."""
-        centre_at_target = np.asarray(target_m) + self.config.tip_radius_m * np.asarray(normal)
+        guides the fingertip centre to t_p + radius t_n. Returns the control points (4, 3).
+
+        A target beyond the sanity bounds of palpate.inputs or a normal that is not unit is an InputError
+        naming the TouchTarget field; the loop then keeps its state."""
+        target = coordinates(target_m, "position_m")
+        normal = unit_vectors(normal, "normal")
+        predicted = coordinates(predicted_contact_m, "predicted_contact_m")
+        centre_at_target = target + self.config.tip_radius_m * normal
         P = self.controller.start(r, self.retract_from, R, centre_at_target, normal)
-        self.predicted = np.array(predicted_contact_m)
+        self.predicted = np.array(predicted)
         self.arming.disarm()
         return P
 

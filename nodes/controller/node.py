@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from palpate.geometry.bezier import bezier_length
-from palpate.geometry.rotations import matrix_to_quat, quat_to_matrix
+from palpate.geometry.rotations import matrix_to_quat
+from palpate.inputs import contact_arrays, fingertip_pose
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, Pose, TouchEvent, TouchTarget, Trajectory
 from palpate.nodes.controller.core import ControllerConfig, Touch, TouchConfig, TouchLoop
 from palpate.runtime.spec import Context, NodeSpec, Port
@@ -37,20 +38,20 @@ class ControllerNode:
     def __init__(self, config: ControllerNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.core = TouchLoop(config, config.controller, config.initial_target_m)
-        self.pose: Pose | None = None
-        self.contacts: ContactSet | None = None
+        self.pose: tuple[np.ndarray, np.ndarray] | None = None  # fingertip position (3,) m, orientation (3, 3)
+        self.contacts = _NO_CONTACT
 
     def on_pose(self, message: Pose) -> None:
-        self.pose = message
+        self.pose = fingertip_pose(message.position_m, message.quaternion_wxyz)
 
     def on_contacts(self, message: ContactSet) -> None:
-        self.contacts = message
+        self.contacts = contact_arrays(message.positions_m, message.normals, message.forces_n)
 
     def on_target(self, message: TouchTarget) -> None:
         if self.pose is None:
             return
-        R = quat_to_matrix(self.pose.quaternion_wxyz)
-        P = self.core.aim(self.pose.position_m, R, message.position_m, message.normal, message.predicted_contact_m)
+        r, R = self.pose
+        P = self.core.aim(r, R, message.position_m, message.normal, message.predicted_contact_m)
         R1 = matrix_to_quat(R)
         self.ctx.publish(
             "trajectory",
@@ -67,11 +68,7 @@ class ControllerNode:
     def on_tick(self, stamp_ns: int) -> None:
         if self.pose is None:
             return
-        c = self.contacts
-        contacts = _NO_CONTACT if c is None else (c.positions_m, c.normals, c.forces_n)
-        step = self.core.step(
-            stamp_ns, np.array(self.pose.position_m), quat_to_matrix(self.pose.quaternion_wxyz), *contacts
-        )
+        step = self.core.step(stamp_ns, *self.pose, *self.contacts)
         if step.touch is not None:
             self._publish_touch(step.touch)
         if step.failed:

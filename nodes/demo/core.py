@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from palpate.inputs import coordinates
+
 
 def sample_cube_contacts(edge_m: float, count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Points uniformly distributed on the surface of an axis-aligned cube centred at the origin.
@@ -31,7 +33,9 @@ class ContactStatistics:
     upper_m: np.ndarray = field(default_factory=lambda: np.full(3, -np.inf))
 
     def add(self, positions_m: np.ndarray) -> None:
-        """Fold one contact set, positions (n, 3), into the statistics."""
+        """Fold one contact set, positions (n, 3), into the statistics (InputError for a position
+        beyond the bounds of palpate.inputs; the statistics are then unchanged)."""
+        positions_m = coordinates(positions_m, "positions_m")
         self.messages += 1
         self.contacts += len(positions_m)
         if len(positions_m):

@@ -7,8 +7,6 @@ At the end it prints one line `explore_result: {json}` and optionally writes JSO
 
 from __future__ import annotations
 
-import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,7 +14,9 @@ from typing import Any
 import numpy as np
 
 from palpate.config import Validated
-from palpate.geometry.rotations import quat_to_matrix
+from palpate.inputs import coordinates, fingertip_pose, triangle_mesh
+from palpate.jsonio import dumps as json_dumps
+from palpate.jsonio import write as write_json
 from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.explore_eval.core import EvalConfig, ExplorationEvaluator, RunControl
 from palpate.runtime.spec import Context, NodeSpec, Port
@@ -40,29 +40,32 @@ class ExploreEvalNode:
         self.config, self.ctx = config, ctx
         self.evaluator: ExplorationEvaluator | None = None
         self.run: RunControl | None = None
-        self.pose: Pose | None = None
+        self.fingertip_axis: np.ndarray | None = None  # the fingertip's poking axis R[:, 2] (3,)
         self.last_estimate: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32))
         self.last_variance = np.zeros(0)
         self.result: dict[str, Any] = {}
 
     def on_truth_object(self, message: ObjectTruth) -> None:
+        vertices, faces = triangle_mesh(message.vertices_m, message.faces, solid=True)
         self.name = message.name
-        self.evaluator = ExplorationEvaluator(np.array(message.vertices_m), np.array(message.faces), self.config.eval)
+        self.evaluator = ExplorationEvaluator(np.array(vertices), np.array(faces), self.config.eval)
         self.run = RunControl(self.evaluator)
 
     def on_pose(self, message: Pose) -> None:
-        self.pose = message
+        self.fingertip_axis = fingertip_pose(message.position_m, message.quaternion_wxyz)[1][:, 2]
 
     def on_touches(self, message: TouchEvent) -> None:
         if self.run is None:
             return
+        position = coordinates(message.position_m, "position_m")
+        predicted = coordinates(message.predicted_contact_m, "predicted_contact_m", allow_nan=True)
         request = self.run.touch(
             self.ctx.stamp_ns,
-            np.array(message.position_m),
-            np.array(message.predicted_contact_m),
+            np.array(position),
+            np.array(predicted),
             message.travelled_m,
             message.rotation_deg,
-            quat_to_matrix(self.pose.quaternion_wxyz)[:, 2] if self.pose else None,
+            self.fingertip_axis,
             message.missed,
         )
         self.ctx.metrics["coverage"] = self.run.evaluator.tracker.coverage
@@ -72,7 +75,8 @@ class ExploreEvalNode:
     def on_surface(self, message: SurfaceMesh) -> None:
         if message.region != "global" or self.run is None:
             return
-        self.last_estimate = (np.array(message.vertices_m), np.array(message.faces))
+        vertices, faces = triangle_mesh(message.vertices_m, message.faces, solid=False)
+        self.last_estimate = (np.array(vertices), np.array(faces))
         self.last_variance = np.array(message.vertex_variance)
         if self.run.surface(*self.last_estimate, self.last_variance):
             self.ctx.request_stop(f"exploration finished: {self.run.evaluator.finished}")
@@ -89,8 +93,7 @@ class ExploreEvalNode:
         self.result = self.evaluator.summary()
         self.result["object"] = self.name
         if self.config.results_path:
-            Path(self.config.results_path).parent.mkdir(parents=True, exist_ok=True)
-            Path(self.config.results_path).write_text(json.dumps(self.result, indent=1))
+            write_json(self.config.results_path, self.result, indent=1)
         if self.config.plot_path:
             from palpate.nodes.explore_eval.plot import plot_run
 
@@ -105,13 +108,7 @@ class ExploreEvalNode:
             )
         if self.config.report:
             brief = {k: v for k, v in self.result.items() if k != "touches"}
-            print("explore_result: " + json.dumps(brief, default=_json_number), flush=True)
-
-
-def _json_number(value: Any) -> Any:
-    if isinstance(value, float) and math.isnan(value):
-        return None
-    return value
+            print("explore_result: " + json_dumps(brief), flush=True)
 
 
 SPEC = NodeSpec(

@@ -5,9 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from palpate.config import NonNegativeFloat, PositiveFloat, Validated
+from palpate.errors import InputError
 from palpate.messages.schemas import SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.gpis.core import GPIS, GPISConfig
-from palpate.nodes.gpis.surface import SurfaceMeshArrays, local_surface, whole_surface
+from palpate.nodes.gpis.surface import SurfaceMeshArrays, add_touch, whole_surface
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
@@ -38,11 +39,11 @@ class GPISNode:
         self.gp = GPIS(config.gp, prior_centre_m=config.prior_centre_m)
 
     def on_touches(self, message: TouchEvent) -> None:
-        self.gp.add_contact(message.position_m, message.normal)
         cfg = self.config
-        mesh = local_surface(
+        mesh = add_touch(
             self.gp,
             message.position_m,
+            message.normal,
             cfg.local_half_extent_m,
             cfg.local_resolution_m,
             with_variance=cfg.vertex_variance,
@@ -50,6 +51,8 @@ class GPISNode:
         self._publish(mesh, "local")
 
     def on_request(self, message: SurfaceRequest) -> None:
+        if message.region != "global":
+            raise InputError("region", f"{message.region!r} is no region a request can name; use 'global'")
         cfg = self.config
         self._publish(whole_surface(self.gp, cfg.global_margin_m, cfg.global_resolution_m), "global")
 

@@ -20,7 +20,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from skimage.measure import marching_cubes
 
-from palpate.errors import EstimationError
+from palpate.errors import EstimationError, InputError
+from palpate.inputs import coordinates, unit_vectors
 from palpate.nodes.gpis.core import GPIS
 
 FloatArray = NDArray[np.float64]
@@ -219,3 +220,36 @@ def whole_surface(
     points = gp.positions_m
     lower, upper = points.min(axis=0) - margin_m, points.max(axis=0) + margin_m
     return global_surface(gp, lower, upper, resolution_m, with_variance=with_variance, refine=refine)
+
+
+def add_touch(
+    gp: GPIS,
+    position_m: ArrayLike,
+    normal: ArrayLike,
+    half_extent_m: float = LOCAL_HALF_EXTENT_M,
+    resolution_m: float = LOCAL_RESOLUTION_M,
+    *,
+    with_variance: bool = True,
+) -> SurfaceMeshArrays:
+    """Add a touch (position (3,) m, outward unit normal (3,)) to the GP and mesh the surface around it.
+
+    Atomic: InputError (naming the TouchEvent field) leaves the GP as it was, for a position beyond
+    palpate.inputs' bounds, a normal that is not unit, or a touch the kernel cannot hold together with
+    the contacts so far (thin plate: some point of its local grid, or of an earlier contact's, would be
+    farther than R_m from a contact, so that this mesh and every later one would fail).
+    """
+    p = coordinates(position_m, "position_m")
+    n = unit_vectors(normal, "normal")
+    axes = grid_axes(p - half_extent_m, p + half_extent_m, resolution_m)
+    if gp.n_contacts:
+        # every local grid has these half extents; the farthest point of the grid around a from b is
+        # the corner at sqrt(sum_i (|a_i - b_i| + e_i)^2), both ways round
+        e = np.array([0.5 * float(a[-1] - a[0]) for a in axes])
+        reach = float(np.sqrt(np.max(np.sum((np.abs(gp.positions_m - p) + e) ** 2, axis=1))))
+        try:
+            gp.kernel.check_distances(reach)
+        except EstimationError as exc:
+            reason = f"the GPIS cannot add this touch to its {gp.n_contacts} contacts: {exc}"
+            raise InputError("position_m", reason) from exc
+    gp.add_contact(p, n)
+    return mesh_from_grid(gp, axes, with_variance=with_variance)

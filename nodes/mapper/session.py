@@ -1,7 +1,7 @@
 """The mapper node's decisions, between its messages and the Mapper (pure, no transport).
 
 - A joint reading is put in the chain's joint order when it arrives; a reading that lacks one of the
-  chain's joints is refused (EstimationError) and the previous one is kept. Joints the chain does not
+  chain's joints is refused (InputError) and the previous one is kept. Joints the chain does not
   have (the other fingers of a hand) are ignored.
 - Contacts keep only those on the chain's links, as link indices and positions in the link's frame.
 - Each tick with a new reading runs one update, with the contacts of the same stamp (the simulator
@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from palpate.description.names import match_names
-from palpate.errors import EstimationError
+from palpate.inputs import coordinates, select_named
 from palpate.nodes.mapper.core import Mapper
 
 FloatArray = NDArray[np.float64]
@@ -71,15 +71,10 @@ class MapperSession:
 
     def joint_reading(self, names: Sequence[str], positions_rad: ArrayLike, stamp_ns: int) -> JointReading:
         """Keep a reading (joint names and angles in the message's order) for the next tick; returns
-        it in the chain's joint order. Raises EstimationError, keeping the previous reading, when a
+        it in the chain's joint order. Raises InputError, keeping the previous reading, when a
         joint of the chain is missing."""
-        match = match_names(self.chain.joint_names, names)
-        if match.missing:
-            raise EstimationError(
-                f"joint reading lacks the chain's joints {list(match.missing)} (it names {list(names)}); "
-                "the reading is ignored"
-            )
-        reading = JointReading(stamp_ns=stamp_ns, q_rad=np.asarray(positions_rad, dtype=np.float64)[match.index])
+        q_rad = select_named(names, positions_rad, self.chain.joint_names, "names")
+        reading = JointReading(stamp_ns=stamp_ns, q_rad=q_rad)
         self._reading = reading
         return reading
 
@@ -91,7 +86,7 @@ class MapperSession:
         contacts = ChainContacts(
             stamp_ns=stamp_ns,
             links=index[on_chain].astype(np.int64),
-            local_m=np.asarray(local_positions_m, dtype=np.float64).reshape(-1, 3)[on_chain],
+            local_m=coordinates(local_positions_m, "local_positions_m").reshape(-1, 3)[on_chain],
         )
         self._contacts = contacts
         return contacts

@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from palpate.config import NonNegativeFloat, Validated
-from palpate.errors import ConfigError
+from palpate.errors import InputError
+from palpate.inputs import coordinates, unique_names, unit_vectors
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -30,16 +31,20 @@ class JointNoiseConfig(Validated):
 
 
 class JointNoise:
-    """Adds joint-angle noise to readings of the joints ``joint_names``, drawing from ``rng``."""
+    """Adds joint-angle noise to readings of the joints ``joint_names``, drawing from ``rng``.
+
+    The names come from a reading (a JointState's ``names``): InputError when one is empty or
+    repeated, or when the reading lacks a joint that ``per_joint_sigma_deg`` or ``bias_deg`` names.
+    """
 
     def __init__(self, config: JointNoiseConfig, joint_names: Sequence[str], rng: np.random.Generator) -> None:
-        names = list(joint_names)
+        names = unique_names(joint_names, "names")
         known = set(names)
         bias_map = config.bias_deg if isinstance(config.bias_deg, Mapping) else {}
         for label, mapping in (("per_joint_sigma_deg", config.per_joint_sigma_deg), ("bias_deg", bias_map)):
             unknown = sorted(set(mapping) - known)
             if unknown:
-                raise ConfigError(f"{label} names unknown joint(s) {unknown}; the joints are {names}")
+                raise InputError("names", f"lacks joint(s) {unknown} that the noise node's {label} names")
         sigma_deg = np.array([config.per_joint_sigma_deg.get(n, config.sigma_deg) for n in names], float)
         if isinstance(config.bias_deg, Mapping):
             bias_deg = np.array([config.bias_deg.get(n, 0.0) for n in names], float)
@@ -75,7 +80,8 @@ class JointStreamNoise:
 
     def apply(self, joint_names: Sequence[str], q_rad: np.ndarray) -> np.ndarray:
         """Noisy copy of one reading q_rad (J,) of the joints joint_names (see JointNoise.apply)."""
-        if self.model is None:
+        if self.model is None or self.model.joint_names != tuple(joint_names):
+            # joint names come with the readings; a bad reading (InputError) leaves the last model in place
             self.model = JointNoise(self.config, joint_names, self._rng)
         return self.model.apply(q_rad)
 
@@ -97,9 +103,12 @@ class ContactNoise:
         self._rng = rng
 
     def apply(self, positions_m: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Noisy copies of positions (n, 3) m and unit normals (n, 3); the normals stay unit length."""
-        p = np.array(positions_m, dtype=np.float64)
-        n = np.array(normals, dtype=np.float64)
+        """Noisy copies of positions (n, 3) m and unit normals (n, 3); the normals stay unit length.
+
+        InputError (naming the ContactSet field) for positions beyond palpate.inputs' bounds or normals
+        that are not unit vectors."""
+        p = np.array(coordinates(positions_m, "positions_m"))
+        n = np.array(unit_vectors(normals, "normals"))
         if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
             raise ValueError(f"positions and normals must both have shape (n, 3), got {p.shape} and {n.shape}")
         if self.config.position_sigma_m > 0:

@@ -43,6 +43,7 @@ from palpate.config import NonNegativeFloat, PositiveFloat, PositiveInt, Validat
 from palpate.errors import PlanningError
 from palpate.geometry.bezier import approach_curve, bezier_length, bezier_point
 from palpate.geometry.rotations import quat_to_matrix
+from palpate.inputs import MAX_COORDINATE_M, UNIT_TOLERANCE, bounded, coordinates
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -414,10 +415,15 @@ class TouchPlanner:
 
     def add_touch(self, position_m: ArrayLike, predicted_contact_m: ArrayLike, approach_direction: ArrayLike) -> None:
         """A touch at position_m (3,) m, aimed at predicted_contact_m (3,) m (NaN: no target), made
-        moving along approach_direction (3,), the v_n of the next curve."""
-        position, predicted = np.array(position_m), np.array(predicted_contact_m)
+        moving along approach_direction (3,), the v_n of the next curve (unit, or zero for none).
+
+        InputError (naming the TouchEvent field, the planner unchanged) for positions beyond the
+        bounds of palpate.inputs or a direction longer than a unit vector."""
+        position = np.array(coordinates(position_m, "position_m"))
+        predicted = np.array(coordinates(predicted_contact_m, "predicted_contact_m", allow_nan=True))
+        approach = np.array(bounded(approach_direction, "approach_direction", 1.0 + UNIT_TOLERANCE))
         self.contacts.append(position)
-        self.approach = np.array(approach_direction)
+        self.approach = approach
         if np.all(np.isfinite(predicted)) and np.linalg.norm(position - predicted) > self.config.unreached_miss_m:
             self.unreached.append(predicted)
 
@@ -446,6 +452,10 @@ class TouchPlanner:
         """
         if region != "local" or num_contacts != len(self.contacts) or self.planned_for == len(self.contacts):
             return None
+        # a surface the planner cannot use is refused before anything changes (InputError)
+        coordinates(vertices_m, "vertices_m")
+        bounded(vertex_normals, "vertex_normals", 1.0 + UNIT_TOLERANCE)
+        bounded(vertex_variance, "vertex_variance", MAX_COORDINATE_M**2, "m^2", lower=0.0)
         self.planned_for = len(self.contacts)
         if fingertip is None:
             raise PlanningError("no fingertip pose received yet; the simulation or driver must publish one")

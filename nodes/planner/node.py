@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import numpy as np
+
+from palpate.inputs import coordinates, unit_quaternion
 from palpate.messages.schemas import Pose, SurfaceMesh, TouchEvent, TouchTarget
 from palpate.nodes.planner.core import PlannerConfig, TouchPlanner
 from palpate.runtime.spec import Context, NodeSpec, Port
@@ -13,23 +16,23 @@ class PlannerNode:
     def __init__(self, config: PlannerConfig, ctx: Context):
         self.ctx = ctx
         self.core = TouchPlanner(config)
-        self.pose: Pose | None = None
+        self.fingertip: tuple[np.ndarray, np.ndarray] | None = None  # centre (3,) m, quaternion wxyz (4,)
 
     def on_touches(self, message: TouchEvent) -> None:
         self.core.add_touch(message.position_m, message.predicted_contact_m, message.approach_direction)
 
     def on_pose(self, message: Pose) -> None:
-        self.pose = message
+        position = coordinates(message.position_m, "position_m")
+        self.fingertip = (position, unit_quaternion(message.quaternion_wxyz, "quaternion_wxyz"))
 
     def on_surface(self, message: SurfaceMesh) -> None:
-        fingertip = None if self.pose is None else (self.pose.position_m, self.pose.quaternion_wxyz)
         plan = self.core.plan(
             message.region,
             message.num_contacts,
             message.vertices_m,
             message.vertex_normals,
             message.vertex_variance,
-            fingertip,
+            self.fingertip,
             self.ctx.rng,
         )
         if plan is None:

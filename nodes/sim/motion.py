@@ -23,7 +23,6 @@ after 10 s and 100 s.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from dataclasses import dataclass
@@ -34,6 +33,7 @@ import numpy as np
 
 from palpate.config import Fraction, NonNegativeFloat, PositiveFloat, PositiveInt, Range, Validated
 from palpate.geometry.mesh_query import ExactContactSensor
+from palpate.jsonio import dumps as json_dumps
 from palpate.nodes.sim.core import Simulation, capsule_spheres, sphere_centres
 from palpate.nodes.sim.effectors import LONG_FINGERS, FingerConfig, HandConfig, finger_joint_names
 from palpate.nodes.sim.objects import ObjectModel, load_object, sample_surface
@@ -446,7 +446,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     effectors = ["finger", "hand"] if args.effector == "both" else [args.effector]
     for effector in effectors:
-        print(json.dumps(exploration_report(effector, args.seed, tuple(args.seconds))))
+        print(json_dumps(exploration_report(effector, args.seed, tuple(args.seconds))))
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ import numpy as np
 
 from palpate.config import PositiveFloat, Validated
 from palpate.errors import ConfigError
+from palpate.inputs import MAX_RATE, bounded
 from palpate.messages import topics
 from palpate.messages.schemas import (
     CartesianVelocityCommand,
@@ -83,7 +84,9 @@ class SimNode:
         self.period_ns = self.session.period_ns  # the runtime puts it in every Clock
 
     def on_velocity(self, message: CartesianVelocityCommand) -> None:
-        self.sim.set_velocity(message.linear_m_s, message.angular_rad_s)
+        linear = bounded(message.linear_m_s, "linear_m_s", MAX_RATE, "m/s")
+        angular = bounded(message.angular_rad_s, "angular_rad_s", MAX_RATE, "rad/s")
+        self.sim.set_velocity(linear, angular)
 
     def on_joint_commands(self, message: JointCommand) -> None:
         self.session.joint_command(message.names, message.positions_rad)

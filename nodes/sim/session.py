@@ -6,7 +6,7 @@
 - Scripted motion (hand and finger scenes that follow the built-in exploration): before each tick's
   steps the joint targets become the motion's targets at the current simulated time.
 - Joint commands name their joints: the values are put in the simulator's joint order; a command
-  that lacks one of the simulator's joints is refused (ConfigError) and changes nothing.
+  that lacks one of the simulator's joints is refused (InputError) and changes nothing.
 - The fingertip pose's linear velocity is the finite difference of its position over one tick
   (zero at tick 0); its angular velocity is reported as zero.
 """
@@ -20,8 +20,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from palpate.description.names import match_names
-from palpate.errors import ConfigError
+from palpate.inputs import select_named
 
 FloatArray = NDArray[np.float64]
 
@@ -88,12 +87,7 @@ class SimSession:
     def joint_command(self, names: Sequence[str], positions_rad: ArrayLike) -> FloatArray:
         """Set the joint targets from a command (names and positions in the command's order); returns
         them in the simulator's joint order."""
-        match = match_names(self.sim.joint_names, names)
-        if match.missing:
-            raise ConfigError(
-                f"joint command lacks joints {list(match.missing)}; it must name every joint of the effector"
-            )
-        q = np.asarray(positions_rad, dtype=np.float64)[match.index]
+        q = select_named(names, positions_rad, self.sim.joint_names, "names")
         self.sim.set_joint_targets(q)
         return q
 

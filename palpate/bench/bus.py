@@ -24,7 +24,6 @@ acknowledgements), which is per tick rather than per message.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import subprocess
@@ -39,6 +38,7 @@ from typing import Any, Protocol
 import numpy as np
 import zmq
 
+from palpate import jsonio
 from palpate.errors import BenchmarkError
 from palpate.messages import codec
 from palpate.messages.schemas import ParticleSetSummary
@@ -486,7 +486,7 @@ def main(args: argparse.Namespace) -> int:
         f"1 MB throughput {out['throughput_1mb_gbps']:.2f} GB/s (goal >= 1)"
     )
     if args.json:
-        print(json.dumps(out, sort_keys=True, allow_nan=False))
+        print(jsonio.dumps(out, sort_keys=True))
     return 0
 
 

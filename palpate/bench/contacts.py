@@ -28,7 +28,6 @@ Method, per object (probe radius r = 8 mm, sensor tolerance 0.1 mm):
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -40,6 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from palpate import jsonio
 from palpate.errors import BenchmarkError
 from palpate.paths import YCB_DIR_ENV, ycb_dir
 from palpate.text_table import Column, fixed_width_table
@@ -408,5 +408,5 @@ def main(args: argparse.Namespace) -> int:
             "seconds": time.perf_counter() - start,
             "rows": rows,
         }
-        print(json.dumps(out, sort_keys=True, allow_nan=False))
+        print(jsonio.dumps(out, sort_keys=True))
     return 0 if out["pass"] else 1

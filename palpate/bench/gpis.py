@@ -20,7 +20,6 @@ says which) CPU time is the time on one core, and it is not inflated by other jo
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -30,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from palpate import jsonio
 from palpate.errors import BenchmarkError
 from palpate.text_table import Column, fixed_width_table
 
@@ -278,5 +278,5 @@ def main(args: argparse.Namespace) -> int:
             "goal": goal,
             "pass": passed,
         }
-        print(json.dumps(out, sort_keys=True, allow_nan=False))
+        print(jsonio.dumps(out, sort_keys=True))
     return 0 if passed else 1

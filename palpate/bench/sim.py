@@ -39,8 +39,10 @@ from typing import Any
 
 import numpy as np
 
+from palpate import jsonio
 from palpate.config import NonNegativeFloat, Validated, load
-from palpate.errors import BenchmarkError
+from palpate.errors import BenchmarkError, InputError
+from palpate.inputs import contact_arrays
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, JointState, Pose
 from palpate.paths import LAUNCH_DIR, ycb_dir
 from palpate.runtime.spec import Context, NodeSpec, Port
@@ -70,7 +72,7 @@ class _TickTimes:
 
     def close(self, extra: Mapping[str, Any]) -> None:
         if self.path:
-            Path(self.path).write_text(json.dumps({"stamps_ns": self.stamps_ns, "wall_s": self.wall_s, **extra}))
+            jsonio.write(self.path, {"stamps_ns": self.stamps_ns, "wall_s": self.wall_s, **extra})
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -106,10 +108,14 @@ class ProbeDriver:
         self.ticks_in_contact = 0
 
     def on_contacts(self, message: ContactSet) -> None:
-        self.touching = len(message.normals) > 0
+        _, normals, _ = contact_arrays(message.positions_m, message.normals, message.forces_n)
+        n = normals.mean(axis=0) if len(normals) else np.zeros(3)
+        length = float(np.linalg.norm(n))
+        if len(normals) and not length > 1e-6:  # opposite normals cancel: no direction to press along
+            raise InputError("normals", "the contact normals cancel out; no direction to press along")
+        self.touching = len(normals) > 0
         if self.touching:
-            n = np.asarray(message.normals, dtype=np.float64).mean(axis=0)
-            self.normal = n / np.linalg.norm(n)
+            self.normal = n / length
             self.contacts += len(message.normals)
             self.ticks_in_contact += 1
 
@@ -432,7 +438,7 @@ def main(args: argparse.Namespace) -> int:
             "scenes": {row["scene"]: {k: v for k, v in row.items() if k != "scene"} for row in rows},
             "runtime_overhead_max": max(row["runtime_overhead"] for row in rows),
         }
-        print(json.dumps(out, sort_keys=True, allow_nan=False))
+        print(jsonio.dumps(out, sort_keys=True))
     return 0
 
 

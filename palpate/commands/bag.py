@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
+from palpate import jsonio
 from palpate.errors import RecordError
 from palpate.record import mcap_io, recorder
 from palpate.record.bag import Player, PlayOptions, describe
@@ -77,7 +77,7 @@ def run_replay(args: argparse.Namespace) -> int:
 def run_info(args: argparse.Namespace) -> int:
     summary = mcap_io.summarize(args.file)
     if args.json:
-        print(json.dumps(summary.as_json(), sort_keys=False))
+        print(jsonio.dumps(summary.as_json()))
     else:
         print(describe(summary, args.file))
     return 0

@@ -21,6 +21,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "sim": ("palpate.bench.sim:main", "simulation steps/s and real-time factor: bare mj_step, in-process, graph"),
     "contacts": ("palpate.bench.contacts:main", "exact-mesh contact accuracy (position, normal, phantom) on YCB"),
     "gpis": ("palpate.bench.gpis:main", "GPIS update + local surface ms against contacts and grid step"),
+    "fuzz": ("palpate.bench.fuzz:main", "schema-valid extremes and malformed payloads into every node: crashes = 0"),
 }
 
 

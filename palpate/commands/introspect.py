@@ -8,7 +8,6 @@ log or a single hardware driver, and they keep looking for new publishers every 
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 import time
@@ -20,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from palpate import jsonio
 from palpate.errors import MessageError
 from palpate.messages import codec
 from palpate.messages.base import Message
@@ -93,7 +93,7 @@ def topic_table(manifests: list[bus.Manifest]) -> dict[str, dict[str, Any]]:
 def run_topic_list(args: argparse.Namespace) -> int:
     table = topic_table(bus.read_manifests(_bus_dir(args)))
     if args.json:
-        print(json.dumps(table))
+        print(jsonio.dumps(table))
         return 0
     if not table:
         print(f"no publishers on bus {_bus_dir(args)}")
@@ -110,7 +110,7 @@ def run_node_list(args: argparse.Namespace) -> int:
     manifests = bus.read_manifests(_bus_dir(args))
     if args.json:
         print(
-            json.dumps(
+            jsonio.dumps(
                 {
                     m.node: {"pid": m.pid, "endpoint": m.endpoint, "publishes": m.publishes, "subscribes": m.subscribes}
                     for m in manifests

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from palpate.errors import LaunchError
 from palpate.launch.graph import Graph, resolve
 from palpate.launch.loader import load_launch, parse_cli_args
 from palpate.launch.supervisor import Supervisor
@@ -29,6 +30,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="replace the publishers of the log's topics by the log",
     )
     p.add_argument("--bus", type=Path, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
+    p.add_argument(
+        "--spec",
+        metavar="NODE",
+        help="print the process spec of NODE as JSON (what an external node's driver needs) and start nothing",
+    )
     p.set_defaults(func=run_launch)
 
     d = sub.add_parser(
@@ -50,6 +56,12 @@ def load_graph(path: Path, overrides: list[str], bus_dir: Path | None, replay: P
 
 def run_launch(args: argparse.Namespace) -> int:
     graph = load_graph(args.file, args.args, args.bus, args.replay)
+    if args.spec is not None:
+        specs = {s.name: s for s in graph.process_specs(extra_subscribers=1 if args.record else 0)}
+        if args.spec not in specs:
+            raise LaunchError(f"no node {args.spec!r} in {args.file}; nodes: {', '.join(sorted(specs))}")
+        print(json.dumps(json.loads(specs[args.spec].to_json()), indent=1, sort_keys=True))
+        return 0
     if args.dry_run:
         try:
             print(describe(graph))
@@ -149,13 +161,17 @@ def demo_summary(result: dict[str, Any]) -> str:
             f"rotation {m['rotation_deg']:.0f} deg, surface RMSE {_mm(m.get('rmse_mm'))} over the confident "
             f"{_pct(m.get('confident_fraction'))} of the estimate (whole estimate: estimate->truth "
             f"{_mm(m.get('rmse_estimate_to_truth_mm'))}, truth->estimate {_mm(m.get('rmse_truth_to_estimate_mm'))}), "
-            f"prediction miss {_mm(m.get('prediction_miss_mm'))}, fingertip-normal angle {m['angle_deg']:.1f} deg"
+            f"prediction miss {_mm(m.get('prediction_miss_mm'))}, fingertip-normal angle {_deg(m.get('angle_deg'))}"
         )
     return "\n".join(lines)
 
 
 def _pct(value: object) -> str:
     return "n/a" if value is None or value != value else f"{100 * float(value):.0f} %"  # type: ignore[arg-type]
+
+
+def _deg(value: object) -> str:
+    return "n/a" if value is None or value != value else f"{float(value):.1f} deg"  # type: ignore[arg-type]
 
 
 def _mm(value: object) -> str:

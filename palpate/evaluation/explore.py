@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from palpate import jsonio
 from palpate.config import load
 from palpate.errors import ConfigError, MeshError
 from palpate.paths import LAUNCH_DIR
@@ -446,7 +447,7 @@ def main(args: argparse.Namespace) -> int:
         log = (out / "runs.jsonl").open("w")
 
         def keep(row: dict[str, Any]) -> None:
-            log.write(json.dumps(row, default=_json_default) + "\n")
+            log.write(jsonio.dumps(row) + "\n")
             log.flush()
 
         try:
@@ -478,13 +479,5 @@ def main(args: argparse.Namespace) -> int:
         print(f"run failed: {r['object']} {r['strategy']} run {r['run']}: {r['error']}", file=sys.stderr)
     print(f"wrote {out}/runs.csv, runs.jsonl, tables.md, coverage_vs_travel.png, travel_per_object.png")
     if args.json:
-        print(json.dumps(report.summary_json(results, strategies, baseline, method)))
+        print(jsonio.dumps(report.summary_json(results, strategies, baseline, method)))
     return 1 if errors else 0
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

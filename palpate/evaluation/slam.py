@@ -28,7 +28,6 @@ graph's listener, at each snapshot time. Scores (docs/slam.md has the exact defi
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import multiprocessing
 import os
@@ -43,6 +42,7 @@ from typing import Annotated, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from palpate import jsonio
 from palpate.config import NonEmpty, NonNegativeFloat, PositiveFloat, PositiveInt, Validated
 from palpate.errors import ConfigError
 from palpate.paths import LAUNCH_DIR
@@ -511,7 +511,7 @@ def main(args: argparse.Namespace) -> int:
         f"Rubik's cube after {config.duration_s:g} s of exploration (seed {config.seeds[0]}, K={config.n_particles}, "
         f"{args.resolution_mm:g} mm cells, sigma {config.sigma_deg:g} deg)",
     )
-    (args.out / "slam_summary.json").write_text(json.dumps({"summary": summary, "timing": timing, **out}, indent=1))
+    jsonio.write(args.out / "slam_summary.json", {"summary": summary, "timing": timing, **out}, indent=1)
     print(format_table(summary))
     print()
     for t in timing:
@@ -522,7 +522,7 @@ def main(args: argparse.Namespace) -> int:
         )
     print(f"wrote {args.out / 'slam_rows.csv'}, {args.out / 'slam_summary.json'}, {png} ({out['total_wall_s']:.0f} s)")
     if args.json:
-        print(json.dumps(out))
+        print(jsonio.dumps(out))
     return 0
 
 

@@ -11,7 +11,6 @@ planner, per contact), CPU seconds per run, and how many runs completed.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -21,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from palpate import jsonio
 from palpate.errors import ConfigError
 from palpate.evaluation.explore import (
     Episode,
@@ -192,7 +192,7 @@ def main(args: argparse.Namespace) -> int:
     with (out / "runs.jsonl").open("w") as f:
         for (setting, _), row in zip(pairs, results, strict=True):
             slim = {k: v for k, v in row.items() if k != "touches"}
-            f.write(json.dumps({"setting": setting.name, **slim}, default=str) + "\n")
+            f.write(jsonio.dumps({"setting": setting.name, **slim}) + "\n")
     text = (
         f"# Exploration sweep\n\nObjects: {', '.join(c.name for c in cases)}; strategies {', '.join(strategies)}; "
         f"{runs} run(s) each; {elapsed / 60:.1f} min wall with {args.workers} workers.\n\n" + table(rows) + "\n"
@@ -202,5 +202,5 @@ def main(args: argparse.Namespace) -> int:
     print(text)
     print(f"wrote {out}/sweep.md, sweep.png, runs.jsonl")
     if args.json:
-        print(json.dumps(rows, default=lambda v: None if isinstance(v, float) and not math.isfinite(v) else v))
+        print(jsonio.dumps(rows))
     return 0

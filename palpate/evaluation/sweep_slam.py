@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import sys
 import time
 import tracemalloc
@@ -27,6 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from palpate import jsonio
 from palpate.config import load
 from palpate.errors import ConfigError
 from palpate.evaluation.slam import SLAM_LAUNCH, BoxTruth, Scorer, SlamEvalConfig
@@ -366,9 +366,9 @@ def main(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     png = args.out / "slam_sweep.png"
     plot(png, rows, f"Rubik's cube, {duration:g} s of exploration, sigma 1.5 deg (seed {args.seed})")
-    (args.out / "slam_sweep.json").write_text(json.dumps(rows, indent=1))
+    jsonio.write(args.out / "slam_sweep.json", rows, indent=1)
     print(format_table(rows))
     print(f"wrote {args.out / 'slam_sweep.json'} and {png} ({time.perf_counter() - t0:.0f} s)")
     if args.json:
-        print(json.dumps({"duration_s": duration, "seed": args.seed, "rows": rows}))
+        print(jsonio.dumps({"duration_s": duration, "seed": args.seed, "rows": rows}))
     return 0

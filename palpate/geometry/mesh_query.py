@@ -43,6 +43,9 @@ WEAK_SIGN_COS = 0.1
 WEAK_PSEUDO_NORMAL = 0.3
 #: Queries below this count run Open3D single-threaded.
 SMALL_BATCH = 64
+#: Largest face-ring table (faces x 3 x the largest vertex degree) built, 16.8 M entries (YCB meshes:
+#: at most 1.5 M); a mesh that needs more (thousands of faces fanning around one vertex) is refused.
+MAX_RING_ENTRIES = 1 << 24
 #: Queries of at most this many points take the scalar path (same maths, far less numpy overhead).
 FEW_POINTS = 4
 
@@ -149,6 +152,11 @@ def face_rings(mesh: trimesh.Trimesh) -> np.ndarray:
     faces = np.asarray(mesh.faces, dtype=np.int64)
     own = np.arange(len(faces))
     vertex_faces = np.asarray(mesh.vertex_faces, dtype=np.int64)  # (V, max degree), -1 padded
+    if len(faces) * 3 * vertex_faces.shape[1] > MAX_RING_ENTRIES:
+        raise MeshError(
+            f"{len(faces)} faces with a vertex shared by {vertex_faces.shape[1]} of them: the face rings would "
+            f"hold {len(faces) * 3 * vertex_faces.shape[1]} entries (at most {MAX_RING_ENTRIES}); remesh it"
+        )
     ring = vertex_faces[faces].reshape(len(faces), -1)
     ring = np.where(ring < 0, own[:, None], ring)
     # drop duplicates within a row: sort, mark repeats as the face itself, keep it first

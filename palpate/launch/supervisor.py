@@ -9,7 +9,6 @@ exits non-zero unless the node is set to respawn (up to `max_restarts`).
 from __future__ import annotations
 
 import ctypes
-import json
 import os
 import shutil
 import signal
@@ -25,6 +24,7 @@ from pathlib import Path
 from types import FrameType
 from typing import IO
 
+from palpate import jsonio
 from palpate.launch.graph import Graph, GraphNode
 from palpate.runtime import bus
 from palpate.runtime.spec import NodeProcessSpec
@@ -40,6 +40,21 @@ def _die_with_parent() -> None:
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
     except OSError:
         pass
+
+
+def external_spec_path(bus_dir: str | Path, name: str) -> Path:
+    """Where the launcher puts the process spec of external node `name` (docs/runtime.md, "External nodes")."""
+    return Path(bus_dir) / "external" / f"{name}.json"
+
+
+def write_external_spec(bus_dir: str | Path, spec: NodeProcessSpec) -> Path:
+    """Write `spec` for the driver that plays external node `spec.name` (atomically: write, then rename)."""
+    path = external_spec_path(bus_dir, spec.name)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(spec.to_json())
+    tmp.replace(path)
+    return path
 
 
 @dataclass
@@ -65,9 +80,11 @@ class Supervisor:
         self.children: list[Child] = []
         self.lock = threading.Lock()
         self.stop_signal = 0
+        self.external_specs: list[Path] = []
         for spec in process_specs:
             node = graph.by_name[spec.name]
-            if node.external:
+            if node.external:  # not started here: its driver reads what the launcher would have passed it
+                self.external_specs.append(write_external_spec(graph.bus_dir, spec))
                 continue
             path = self.run_dir / f"{spec.name}.json"
             path.write_text(spec.to_json())
@@ -78,7 +95,7 @@ class Supervisor:
         path = self.run_dir / name
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
         with os.fdopen(fd, "w") as f:
-            json.dump(values, f)
+            f.write(jsonio.dumps(values))
         return path
 
     def _start(self, child: Child) -> None:
@@ -179,6 +196,8 @@ class Supervisor:
 
     def shutdown(self) -> None:
         """SIGTERM every live child, wait its timeout, SIGKILL what is left, reap all."""
+        for path in self.external_specs:
+            path.unlink(missing_ok=True)
         live = [c for c in self.children if c.proc is not None and c.proc.poll() is None]
         for child in live:
             assert child.proc is not None

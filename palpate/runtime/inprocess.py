@@ -22,10 +22,9 @@ from dataclasses import dataclass, field
 from typing import Any, cast
 
 from palpate.config import load
-from palpate.errors import MessageError, PalpateError
 from palpate.messages import codec
 from palpate.messages.base import Message
-from palpate.runtime.node import NodeContext
+from palpate.runtime.node import NodeContext, deliver
 from palpate.runtime.spec import ClockSource, NodeLike, NodeProcessSpec, NodeSpec
 
 #: Called for every message published: (tick, node name, topic, message).
@@ -114,12 +113,7 @@ class InProcessGraph:
         ports = {topic: port for port, topic in member.process.subscribes.items()}
         for _, _, topic, message in batch:
             member.ctx.counters["messages_in"] += 1
-            try:
-                getattr(member.obj, f"on_{ports[topic]}")(message)
-            except MessageError:
-                member.ctx.counters["decode_errors"] += 1
-            except PalpateError:
-                member.ctx.counters["input_errors"] += 1
+            deliver(member.ctx, member.obj, ports[topic], topic, message)
 
     def _collect_stop(self, member: _Member) -> None:
         if member.ctx.stop_requested and not self.stop_reason:

@@ -76,6 +76,7 @@ class NodeContext:
         self.timings: dict[str, float] = {}
         self.stop_requested = ""
         self._send = send
+        self._rejections: dict[tuple[str, str], int] = {}
         self.log = logging.getLogger(f"palpate.{name}")
 
     def publish(self, port: str, message: Message) -> None:
@@ -91,6 +92,38 @@ class NodeContext:
 
     def count(self, name: str, n: int = 1) -> None:
         self.counters[name] = self.counters.get(name, 0) + n
+
+    def reject_input(self, topic: str, message: Message, error: PalpateError) -> None:
+        """Count a message the node refused (its handler raised `error`) in `input_errors` and log it.
+
+        One line names node, topic, field and reason; per (topic, field) the first 10 rejections are
+        logged, then every 100th, each with the running count.
+        """
+        self.counters["input_errors"] += 1
+        field = getattr(error, "field", "")
+        where = f"{message.TYPE}.{field}" if field else message.TYPE
+        n = self._rejections[topic, where] = self._rejections.get((topic, where), 0) + 1
+        if n <= _LOG_FIRST_ERRORS or n % 100 == 0:
+            reason = getattr(error, "reason", str(error))
+            self.log.warning(
+                "node %s, topic %s: input rejected, field %s: %s (%d so far)", self.name, topic, where, reason, n
+            )
+
+
+def deliver(ctx: NodeContext, node: NodeLike, port: str, topic: str, message: Message) -> bool:
+    """Hand one decoded message to the node's ``on_<port>`` handler; False when the node rejected it.
+
+    A PalpateError from the handler (an InputError naming the field, or a core's EstimationError or
+    PlanningError) means the message was schema-valid but unusable: it is counted and logged by
+    `NodeContext.reject_input`, and the node keeps the state it had. Handlers validate before they
+    change state. Any other exception is a bug in the node and propagates.
+    """
+    try:
+        getattr(node, f"on_{port}")(message)
+    except PalpateError as exc:
+        ctx.reject_input(topic, message, exc)
+        return False
+    return True
 
 
 class NodeRunner:
@@ -235,12 +268,7 @@ class NodeRunner:
                 self._bad_input(topic, str(exc))
                 continue
             self.ctx.counters["messages_in"] += 1
-            handler = getattr(self.node, f"on_{self.port_of_topic[topic]}")
-            try:
-                handler(message)
-            except PalpateError as exc:  # bad input the node detected (zero normal, NaN angle, ...)
-                self.ctx.counters["input_errors"] += 1
-                log.warning("node %s, topic %s: input rejected: %s", self.process.name, topic, exc)
+            deliver(self.ctx, self.node, self.port_of_topic[topic], topic, message)
 
     # --- main loops ----------------------------------------------------------------------------------
     def run(self) -> int:

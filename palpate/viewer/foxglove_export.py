@@ -30,7 +30,6 @@ are left out (JSON has no NaN).
 from __future__ import annotations
 
 import importlib
-import json
 import math
 from collections import Counter
 from collections.abc import Iterable, Iterator
@@ -41,6 +40,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from palpate import jsonio
 from palpate.errors import MessageError, RecordError
 from palpate.geometry.bezier import bezier_point
 from palpate.geometry.rotations import align_axis, matrix_to_quat
@@ -140,7 +140,7 @@ class Exported(NamedTuple):
 
 
 def _json(name: str, document: dict[str, Any]) -> Schema:
-    return Schema(name, "jsonschema", json.dumps(document, sort_keys=True).encode(), "json")
+    return Schema(name, "jsonschema", jsonio.dumps(document, sort_keys=True).encode(), "json")
 
 
 TOUCH_METRICS = _json("palpate.TouchMetrics", _TOUCH_METRICS_SCHEMA)
@@ -148,7 +148,7 @@ STATUS = _json("palpate.NodeStatus", _STATUS_SCHEMA)
 
 
 def _encode_json(values: dict[str, Any]) -> bytes:
-    return json.dumps(values, sort_keys=True, allow_nan=False).encode()
+    return jsonio.dumps(values, sort_keys=True).encode()
 
 
 def _finite(names: Iterable[str], values: Iterable[float]) -> dict[str, float]:

@@ -1,4 +1,5 @@
-"""A node fed garbage keeps running: 1000 random frames are 1000 counted decode errors, NaN is refused by name.
+"""A node fed garbage keeps running: 1000 random frames are 1000 counted decode errors, NaN is refused by
+name, and the fuzzer's schema-valid extremes are counted input errors.
 
 The test plays the rest of the graph by hand: it binds the publisher the node subscribes to, acts as
 the clock source of a lockstep graph (so every buffered frame is decoded, none superseded), and
@@ -20,6 +21,7 @@ import numpy as np
 import pytest
 import zmq
 
+from palpate.bench import fuzz
 from palpate.launch.node_types import node_spec_reference
 from palpate.messages import codec, topics
 from palpate.messages.schemas import Clock, ContactSet, LockstepAck, NodeStatus, RunControl
@@ -223,3 +225,39 @@ def test_wrong_type_or_version_on_a_topic_is_rejected(tmp_path: Path, payload: b
         assert node.stop() == 0
     assert counters(node.statuses[-1])["decode_errors"] == 1
     assert reason in text(node.log)
+
+
+@pytest.mark.parametrize("node_type", ["controller", "mapper"])
+def test_a_node_process_survives_the_fuzzer_and_counts_what_it_refused(tmp_path: Path, node_type: str) -> None:
+    """The issue's check with real processes: 300 fuzz frames per input topic (schema-valid extremes and
+    malformed payloads) into the two nodes that died of them; the node acknowledges every tick, every
+    frame is counted once (decoded and handled, refused as undecodable, or refused as unusable), and a
+    refused input is logged with node, topic, field and reason."""
+    target = next(t for t in fuzz.targets(one_per_type=True) if t.process.type == node_type)
+    inputs = dict(target.process.subscribes)
+    frames = 300
+    with node_process(
+        tmp_path,
+        name=node_type,
+        node_type=node_type,
+        params=target.process.params,
+        publishes=dict(target.process.publishes),
+        subscribes=inputs,
+        wanted={**dict.fromkeys(inputs.values(), 1), topics.CLOCK: 1, topics.GRAPH_CONTROL: 1},
+        timeout_s=30.0,
+    ) as node:
+        rng = np.random.default_rng(15)
+        generators = {port: fuzz.FrameGenerator(target.spec.inputs[port].message, rng) for port in inputs}
+        for tick in range(frames):
+            for port, topic in inputs.items():
+                node.send(topic, generators[port].payload()[0])
+            node.tick(tick)
+        assert node.proc.poll() is None, f"the node died:\n{text(node.log)}"
+        assert node.stop() == 0
+    final = counters(node.statuses[-1])
+    assert final["messages_in"] + final["decode_errors"] == frames * len(inputs)
+    assert final["decode_errors"] > 0.2 * frames and final["input_errors"] > 0.1 * frames
+    assert final["messages_in"] > final["input_errors"]  # some input was good enough to use
+    out = text(node.log)
+    assert f"node {node_type}, topic " in out and ": input rejected, field " in out
+    assert "Traceback" not in out

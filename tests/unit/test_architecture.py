@@ -31,6 +31,8 @@ LIBRARY = (
     "palpate.geometry",
     "palpate.description",
     "palpate.metrics",
+    "palpate.inputs",  # the checks of values that arrive in messages
+    "palpate.jsonio",  # strict JSON output
     "palpate.launch_files",  # data: the shipped YAML launch files
 )
 #: What each layer may import from palpate (besides itself); a prefix matches its sub-modules.

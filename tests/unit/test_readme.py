@@ -104,7 +104,7 @@ def test_every_readme_command_parses() -> None:
     for command in command_lines():
         for argv in expand(command):
             try:
-                parser.parse_args(argv)
+                cli.parse(parser, argv)
             except SystemExit:
                 pytest.fail(f"README command `palpate {' '.join(argv)}` does not parse")
 

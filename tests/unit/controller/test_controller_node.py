@@ -5,10 +5,12 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import pytest
 
+from palpate.errors import InputError
 from palpate.messages import codec
 from palpate.messages.base import Message
-from palpate.messages.schemas import ContactSet, Pose
+from palpate.messages.schemas import ContactSet, Pose, TouchTarget
 from palpate.nodes.controller.node import ControllerNode, ControllerNodeConfig
 
 
@@ -62,3 +64,45 @@ def test_initial_approach_that_finds_no_surface_stops_with_the_target_and_the_la
     assert "initial approach" in ctx.stop_reason
     assert "[0.0, 0.0, 0.0]" in ctx.stop_reason and "target:=" in ctx.stop_reason
     assert 0.059 < -position[2] + 0.05 < 0.062  # it went 1 cm past the target before giving up
+
+
+def _target(position: list[float], normal: list[float]) -> TouchTarget:
+    return TouchTarget(
+        stamp_ns=0,
+        strategy="igef",
+        position_m=np.array(position),
+        normal=np.array(normal),
+        predicted_contact_m=np.array(position),
+        score=1.0,
+        candidates_m=np.zeros((0, 3)),
+        candidate_scores=np.zeros(0),
+    )
+
+
+def test_bad_poses_and_targets_are_refused_and_change_nothing() -> None:
+    """The issue's crashes (a zero or 1e-200 quaternion, extreme targets) are InputErrors naming the field;
+    a node that received them publishes exactly what a node that never did publishes."""
+    config = ControllerNodeConfig(initial_target_m=(0.0, 0.0, 0.0))
+    clean, fed = ControllerNode(config, FakeCtx()), ControllerNode(config, FakeCtx())
+    bad_poses = [[0.0, 0.0, 0.0, 0.0], [1e-200, 0.0, 0.0, 0.0], [1e200, 0.0, 0.0, 0.0]]
+    bad_targets = [([1e300, 0.0, 0.0], [0.0, 0.0, 1.0]), ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0])]
+    position = np.array([0.0, 0.0, 0.05])
+    for tick in range(30):
+        for node in (clean, fed):
+            node.on_pose(_pose(position))
+            if tick == 10:
+                node.on_target(_target([0.01, 0.0, 0.0], [0.0, 0.0, 1.0]))
+        for q in bad_poses:
+            bad = _pose(position)
+            object.__setattr__(bad, "quaternion_wxyz", np.array(q))
+            with pytest.raises(InputError, match=r"^quaternion_wxyz: norm"):
+                fed.on_pose(bad)
+        for p, n in bad_targets:
+            with pytest.raises(InputError, match=r"^(position_m|normal): "):
+                fed.on_target(_target(p, n))
+        for node in (clean, fed):
+            node.on_tick(tick * 10_000_000)
+        position = position + 0.01 * np.asarray(clean.ctx.published[-1][1].linear_m_s)
+    assert len(clean.ctx.published) == len(fed.ctx.published) > 30
+    for (port_a, a), (port_b, b) in zip(clean.ctx.published, fed.ctx.published, strict=True):
+        assert port_a == port_b and a == b

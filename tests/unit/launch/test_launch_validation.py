@@ -208,6 +208,27 @@ def test_parse_cli_args() -> None:
         parse_cli_args(["a=1"])
 
 
+def test_arguments_may_follow_options_in_any_order(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`palpate launch FILE --bus DIR NAME:=VALUE`: the order users type (issue 15)."""
+    for argv in (
+        ["launch", str(DATA / "with_args.yaml"), "--bus", str(tmp_path), "edge_m:=0.07", "--dry-run"],
+        ["launch", "--dry-run", str(DATA / "with_args.yaml"), "edge_m:=0.07", "--bus", str(tmp_path)],
+    ):
+        assert main(argv) == 0
+        out = capsys.readouterr().out
+        assert f"bus {tmp_path})" in out
+    # the late argument reaches the launch file: a bad value after --bus is the launch file's error
+    assert main(["launch", str(DATA / "with_args.yaml"), "--bus", str(tmp_path), "edge_m:=wide", "--dry-run"]) == 2
+    assert "params.edge_m: expected a finite number > 0, got 'wide'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        main(["launch", str(DATA / "with_args.yaml"), "--bus", str(tmp_path), "edge_m:=0.07", "--nope"])
+    assert exit_info.value.code == 2
+    assert "unrecognized arguments: --nope" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # a command without NAME:=VALUE arguments takes none after its options
+        main(["topic", "list", "--bus", str(tmp_path), "edge_m:=0.07"])
+    assert "unrecognized arguments: edge_m:=0.07" in capsys.readouterr().err
+
+
 def test_includes_bring_their_nodes_with_their_arguments(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     graph = load(DATA / "include_parent.yaml", tmp_path, ["duration_s:=0.3"])
     assert [n.name for n in graph.nodes] == ["left_stats", "right_stats", "cube"]

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from palpate.description import load_hand
-from palpate.errors import EstimationError
+from palpate.errors import InputError
 from palpate.nodes.mapper.core import Mapper, MapperConfig, MapperCounters
 from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain
 from palpate.nodes.mapper.session import MapperSession
@@ -63,7 +63,7 @@ def test_reading_is_put_in_the_chain_order_and_other_joints_are_ignored(chain: K
 def test_reading_without_a_chain_joint_is_refused_and_the_previous_one_kept(chain: KinematicChain) -> None:
     session, mapper = _session(chain)
     session.joint_reading(chain.joint_names, np.arange(4.0), 0)
-    with pytest.raises(EstimationError, match=r"lacks the chain's joints \['index_pip'\]"):
+    with pytest.raises(InputError, match=r"names: lacks 1 of the 4 names needed: 'index_pip'"):
         session.joint_reading(["index_mcp_abd", "index_mcp_flex", "index_dip"], np.zeros(3), 10 * MS)
     session.tick(10 * MS)
     np.testing.assert_array_equal(mapper.calls[0][0], np.arange(4.0))

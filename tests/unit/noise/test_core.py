@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from palpate.config import load
-from palpate.errors import ConfigError
+from palpate.errors import ConfigError, InputError
 from palpate.nodes.noise.core import (
     ContactNoise,
     ContactNoiseConfig,
@@ -101,8 +101,10 @@ def test_config_errors_name_the_key_and_value() -> None:
         JointNoiseConfig(sigma_deg=-1.0)
     with pytest.raises(ConfigError, match=r"<launch>.sigma: unknown key 'sigma'; known keys: bias_deg, per_joint"):
         load(JointNoiseConfig, {"sigma": 1.0}, "<launch>")
-    with pytest.raises(ConfigError, match=r"per_joint_sigma_deg names unknown joint\(s\) \['thumb'\]"):
+    with pytest.raises(InputError, match=r"names: lacks joint\(s\) \['thumb'\] that the noise node's per_joint_sigma"):
         JointNoise(JointNoiseConfig(per_joint_sigma_deg={"thumb": 1.0}), JOINTS, np.random.default_rng(0))
+    with pytest.raises(InputError, match=r"names: repeated name\(s\) 'pip'"):
+        JointNoise(JointNoiseConfig(), ("pip", "dip", "pip"), np.random.default_rng(0))
     with pytest.raises(ConfigError, match=r"JointNoiseConfig.bias_deg.pip: expected a finite number, got 'x'"):
         load(JointNoiseConfig, {"bias_deg": {"pip": "x"}})
     with pytest.raises(ValueError, match=r"shape \(\.\.\., 4\)"):
@@ -122,7 +124,7 @@ def test_stream_builds_its_model_from_the_first_reading_names() -> None:
         assert stream.apply(JOINTS, q).tobytes() == reference.apply(q).tobytes()
     assert stream.model is not None and stream.model.joint_names == JOINTS
     np.testing.assert_array_equal(stream.model.sigma_rad, np.radians([0.0, 0.0, 2.0, 0.0]))
-    with pytest.raises(ConfigError, match=r"per_joint_sigma_deg names unknown joint\(s\) \['pip'\]"):
+    with pytest.raises(InputError, match=r"lacks joint\(s\) \['pip'\] that the noise node's per_joint_sigma_deg"):
         JointStreamNoise(config, np.random.default_rng(0)).apply(["a", "b"], np.zeros(2))
 
 

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from palpate.errors import ConfigError
+from palpate.errors import ConfigError, InputError
 from palpate.launch.graph import resolve
 from palpate.launch.loader import load_launch, parse_cli_args
 from palpate.messages import codec
@@ -156,3 +156,43 @@ def test_same_seed_gives_the_same_stream_in_two_in_process_runs(tmp_path: Path) 
     for a, b in zip(first, second, strict=True):
         assert a.tobytes() == b.tobytes()
     assert not np.array_equal(np.concatenate(first), np.concatenate(other[: len(first)]))
+
+
+def test_bad_readings_are_refused_and_do_not_fix_the_joint_list() -> None:
+    """The issue's crashes: the noise model came from the first reading, so any later reading with other
+    names raised ValueError. Names now travel with every reading; a reading with repeated or empty names
+    (or lacking a joint the config names) is refused, and the next good one is handled as usual."""
+    ctx = FakeCtx(seed=9)
+    node = NoiseNode(NoiseNodeConfig(sigma_deg=1.0, per_joint_sigma_deg={"pip": 0.0}), ctx)
+    bad = [
+        (["pip", "pip"], r"^names: repeated name\(s\) 'pip'"),
+        (["pip", ""], r"^names: entry 1 is an empty name"),
+        (["dip"], r"^names: lacks joint\(s\) \['pip'\] that the noise node's per_joint_sigma_deg names"),
+    ]
+    for names, reason in bad:
+        with pytest.raises(InputError, match=reason):
+            node.on_joint_states(
+                JointState(
+                    stamp_ns=0, names=names, positions_rad=np.zeros(len(names)), velocities_rad_s=np.zeros(len(names))
+                )
+            )
+    assert not ctx.published
+    node.on_joint_states(_joints(np.array([0.1, 0.2, 0.3, 0.4])))
+    many = [f"j{i}" for i in range(50_000)] + ["pip"]
+    node.on_joint_states(
+        JointState(stamp_ns=1, names=many, positions_rad=np.zeros(len(many)), velocities_rad_s=np.zeros(len(many)))
+    )
+    node.on_joint_states(_joints(np.array([0.1, 0.2, 0.3, 0.4])))
+    assert [len(m.names) for _, m in ctx.published] == [4, 50_001, 4]
+    assert ctx.published[1][1].positions_rad[-1] == 0.0  # 'pip' has sigma 0, wherever it sits
+    with pytest.raises(InputError, match=r"^normals: row 0 has norm 0, not 1"):
+        NoiseNode(NoiseNodeConfig(joints=False, contacts=True), ctx).on_contacts(
+            ContactSet(
+                stamp_ns=0,
+                positions_m=np.zeros((1, 3)),
+                local_positions_m=np.zeros((1, 3)),
+                normals=np.zeros((1, 3)),
+                forces_n=np.ones(1),
+                links=["tip"],
+            )
+        )

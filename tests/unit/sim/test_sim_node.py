@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from palpate.config import load
-from palpate.errors import ConfigError, LaunchError, NonFiniteError, SimulationDivergedError
+from palpate.errors import ConfigError, InputError, LaunchError, NonFiniteError, SimulationDivergedError
 from palpate.launch.graph import Graph, resolve
 from palpate.launch.loader import load_launch
 from palpate.messages import codec, topics
@@ -174,7 +174,7 @@ def test_finger_scene_publishes_joint_states_on_sensor_and_truth_topics(tmp_path
         assert a.names == b.names == names
         np.testing.assert_array_equal(a.positions_rad, b.positions_rad)
     assert sensed[-1].positions_rad[0] > 0.05  # the reversed names were mapped: mcp flexion (0.4) moves
-    with pytest.raises(ConfigError, match="joint command lacks joints"):
+    with pytest.raises(InputError, match=r"names: lacks 2 of the 4 names needed: 'index_pip', 'index_dip'"):
         node.on_joint_commands(JointCommand(stamp_ns=0, names=names[:2], positions_rad=np.zeros(2)))
 
 

@@ -1,0 +1,197 @@
+"""Checks of values that arrive in messages: the one place where nodes decide what input they refuse.
+
+The codec guarantees a message's schema (types, shapes, dtypes, finite floats). It cannot know that a
+quaternion of norm 0 is no rotation, that a joint state lacks the joints a mapper needs, or that a
+position of 1e300 m is garbage. These functions do, for every node alike: each returns the value
+ready to use (normalised, reordered, cleaned) or raises InputError naming the message field and the
+reason. The runtime counts an InputError in the node's ``input_errors`` and logs it once with node,
+topic, field and reason; a handler calls these before it changes any state, so the node goes on with
+the state it had (docs/runtime.md, "Bad input").
+
+Checks do not change values: an accepted array comes back as float64 with the same numbers (a unit
+vector within the tolerance is not renormalised here; consumers that need exact unit length
+normalise, as ``quat_to_matrix`` does), so adding a check never moves a result.
+
+The bounds are sanity bounds against garbage (uninitialised memory, a unit mistake), far outside any
+tabletop robot, not workspaces: a node with a real workspace (the mapper's grid) checks that as well.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from palpate.description.names import match_names
+from palpate.errors import InputError
+from palpate.geometry.rotations import quat_to_matrix
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: Largest coordinate accepted, metres: a kilometre from the world origin. Squares and products of
+#: such coordinates stay exact to far below a micrometre in float64; garbage (1e300) would overflow.
+MAX_COORDINATE_M = 1e3
+#: Largest speed (m/s), angular speed (rad/s) or joint rate accepted in a message: a thousand units.
+MAX_RATE = 1e3
+#: A unit vector or unit quaternion may deviate from norm 1 by this fraction (float32 senders, drift);
+#: it is then normalised. A larger deviation (norm 0, 1e-200, 2) means the sender has no valid value.
+UNIT_TOLERANCE = 1e-2
+#: Largest contact force accepted, newtons.
+MAX_FORCE_N = 1e6
+
+
+def coordinates(
+    values: ArrayLike, field: str, limit_m: float = MAX_COORDINATE_M, *, allow_nan: bool = False
+) -> FloatArray:
+    """`values` (any shape) as float64 when every coordinate is within +-limit_m, else InputError.
+
+    allow_nan: NaN entries pass (a field where NaN means "none", such as a TouchEvent's predicted
+    contact before the first target); infinity never does.
+    """
+    a = np.asarray(values, dtype=np.float64)
+    check = a[~np.isnan(a)] if allow_nan else a
+    if check.size and not float(np.max(np.abs(check))) <= limit_m:
+        raise InputError(field, f"coordinate {_largest(check):.6g} m lies beyond {limit_m:g} m of the origin")
+    return a
+
+
+def bounded(values: ArrayLike, field: str, limit: float, unit: str = "", *, lower: float | None = None) -> FloatArray:
+    """`values` (any shape) as float64 when every element lies in [-limit, limit] (or [lower, limit]),
+    else InputError."""
+    a = np.asarray(values, dtype=np.float64)
+    low = -limit if lower is None else lower
+    if a.size and not (float(np.min(a)) >= low and float(np.max(a)) <= limit):
+        bad = float(np.min(a)) if not float(np.min(a)) >= low else float(np.max(a))
+        units = f" {unit}" if unit else ""
+        raise InputError(field, f"value {bad:.6g}{units} is outside [{low:g}, {limit:g}]{units}")
+    return a
+
+
+def unit_vectors(values: ArrayLike, field: str, tolerance: float = UNIT_TOLERANCE) -> FloatArray:
+    """`values` (..., k) as float64 when every row's norm is within 1 +- tolerance, else InputError."""
+    a = np.asarray(values, dtype=np.float64)
+    if a.size == 0:
+        return a
+    norms = _norms(a)
+    bad = np.flatnonzero(~(np.abs(norms - 1.0) <= tolerance).ravel())
+    if bad.size:
+        row = int(bad[0])
+        raise InputError(
+            field,
+            f"row {row} has norm {norms.ravel()[row]:.6g}, not 1 (+-{tolerance:g}); send unit vectors"
+            if a.ndim > 1
+            else f"norm {norms.ravel()[row]:.6g}, not 1 (+-{tolerance:g}); send a unit vector",
+        )
+    return a
+
+
+def unit_quaternion(q_wxyz: ArrayLike, field: str, tolerance: float = UNIT_TOLERANCE) -> FloatArray:
+    """A quaternion (w, x, y, z) (4,) as float64 when its norm is within 1 +- tolerance, else InputError.
+
+    An uninitialised IMU sends (0, 0, 0, 0); that is no rotation, and normalising a norm of 1e-200
+    would invent one.
+    """
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    if q.shape != (4,):
+        raise InputError(field, f"a quaternion has 4 components (w, x, y, z), got shape {q.shape}")
+    norm = float(_norms(q))
+    if not abs(norm - 1.0) <= tolerance:
+        raise InputError(field, f"norm {norm:.6g} is not that of a unit quaternion (w, x, y, z), 1 +- {tolerance:g}")
+    return q
+
+
+def fingertip_pose(position_m: ArrayLike, quaternion_wxyz: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """A Pose's position (3,) m (a copy) and orientation as a rotation matrix (3, 3), checked."""
+    r = coordinates(position_m, "position_m")
+    q = unit_quaternion(quaternion_wxyz, "quaternion_wxyz")
+    return np.array(r), quat_to_matrix(q)
+
+
+def contact_arrays(
+    positions_m: ArrayLike, normals: ArrayLike, forces_n: ArrayLike
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """A ContactSet's positions (n, 3) m, unit normals (n, 3) and forces (n,) N in [0, MAX_FORCE_N], checked."""
+    forces = bounded(forces_n, "forces_n", MAX_FORCE_N, "N", lower=0.0)
+    return coordinates(positions_m, "positions_m"), unit_vectors(normals, "normals"), forces
+
+
+def unique_names(names: Sequence[str], field: str) -> list[str]:
+    """`names` as a list when none is empty or repeated, else InputError."""
+    out = list(names)
+    if len(set(out)) != len(out):
+        repeated = sorted(name for name, count in Counter(out).items() if count > 1)
+        raise InputError(field, f"repeated name(s) {_few(repeated)}: each name must appear once")
+    if "" in out:
+        raise InputError(field, f"entry {out.index('')} is an empty name")
+    return out
+
+
+def select_named(names: Sequence[str], values: ArrayLike, wanted: Sequence[str], field: str) -> FloatArray:
+    """The entries of `values` (n, ...) named `wanted`, in that order, from a message's `names` (n,).
+
+    Names the node does not need are ignored; a wanted name that is missing or repeated is an
+    InputError (a reading of a subset of the joints, or an ambiguous one).
+    """
+    match = match_names(wanted, names)
+    if match.missing:
+        missing = list(match.missing)
+        raise InputError(field, f"lacks {len(missing)} of the {len(wanted)} names needed: {_few(missing)}")
+    ambiguous = sorted(set(match.repeated) & set(wanted))
+    if ambiguous:
+        raise InputError(field, f"repeats needed name(s) {_few(ambiguous)}: each name must appear once")
+    return np.asarray(np.asarray(values, dtype=np.float64)[match.index], dtype=np.float64)
+
+
+def triangle_mesh(
+    vertices: ArrayLike,
+    faces: ArrayLike,
+    *,
+    solid: bool,
+    vertices_field: str = "vertices_m",
+    faces_field: str = "faces",
+) -> tuple[FloatArray, NDArray[np.integer]]:
+    """A mesh (vertices (v, 3) m, faces (f, 3)) whose faces index its vertices, else InputError.
+
+    Refused: coordinates beyond MAX_COORDINATE_M, faces indexing outside the vertices. With `solid`
+    (a mesh the node measures against, such as the true object) its triangles without area are dropped
+    (they bound nothing, and closest-point formulas divide by their edge lengths) and a mesh without a
+    triangle left is refused; otherwise (an estimate, which may be empty) the faces are kept as sent.
+    """
+    V = coordinates(vertices, vertices_field)
+    F = np.asarray(faces)
+    if F.size and (int(F.min()) < 0 or int(F.max()) >= len(V)):
+        bad = int(F.min()) if int(F.min()) < 0 else int(F.max())
+        raise InputError(faces_field, f"vertex index {bad} is outside 0..{len(V) - 1}")
+    if not solid:
+        return V, F
+    A, B, C = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    cross = np.cross(B - A, C - A)
+    # squared lengths, as the formulas use them: a sliver whose square underflows counts as no area
+    keep = (_squares(cross) > 0.0) & (_squares(B - A) > 0.0) & (_squares(C - B) > 0.0) & (_squares(A - C) > 0.0)
+    if not keep.any():
+        raise InputError(faces_field, f"none of the {len(F)} triangles has an area")
+    return V, F if keep.all() else F[keep]
+
+
+def _squares(rows: FloatArray) -> FloatArray:
+    return np.asarray(np.einsum("ij,ij->i", rows, rows), dtype=np.float64)
+
+
+def _norms(a: FloatArray) -> FloatArray:
+    """Euclidean norms along the last axis, scaled so that 1e200 or 1e-200 components do not over/underflow."""
+    scale = np.max(np.abs(a), axis=-1)
+    safe = np.where(scale > 0, scale, 1.0)
+    with np.errstate(over="ignore"):  # a norm beyond the largest double is infinite, and refused
+        return np.asarray(scale * np.linalg.norm(a / safe[..., None], axis=-1), dtype=np.float64)
+
+
+def _largest(a: FloatArray) -> float:
+    return float(a.ravel()[int(np.argmax(np.abs(a).ravel()))])
+
+
+def _few(names: Sequence[str], limit: int = 5) -> str:
+    shown = ", ".join(repr(n) for n in names[:limit])
+    return shown + (f" and {len(names) - limit} more" if len(names) > limit else "")

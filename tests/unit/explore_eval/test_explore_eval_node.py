@@ -1,0 +1,80 @@
+"""Exploration evaluator node: a true mesh it cannot measure against is refused naming the field (the
+previous one stays); zero-area triangles are dropped; an estimate must index its own vertices."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from palpate.errors import InputError
+from palpate.messages.schemas import ObjectTruth, SurfaceMesh
+from palpate.nodes.explore_eval.node import ExploreEvalNode, ExploreEvalNodeConfig
+from palpate.runtime.node import NodeContext
+
+
+def truth(vertices: np.ndarray, faces: np.ndarray, name: str = "box") -> ObjectTruth:
+    return ObjectTruth(
+        stamp_ns=0,
+        name=name,
+        source="primitive",
+        position_m=np.zeros(3),
+        quaternion_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
+        vertices_m=vertices,
+        faces=faces.astype(np.int32),
+    )
+
+
+def test_bad_true_meshes_are_refused_and_slivers_dropped() -> None:
+    ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
+    node = ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx)
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    V, F = np.asarray(box.vertices), np.asarray(box.faces)
+    with_sliver = np.vstack([F, [[0, 0, 1]]])
+    node.on_truth_object(truth(V, with_sliver))
+    assert node.evaluator is not None and len(node.evaluator.faces) == len(F)
+    first = node.evaluator
+    cases = [
+        (truth(V, np.vstack([F, [[0, 1, len(V)]]])), rf"^faces: vertex index {len(V)} is outside 0..{len(V) - 1}"),
+        (truth(V, np.zeros((3, 3))), r"^faces: none of the 3 triangles has an area"),
+        (truth(V, np.zeros((0, 3))), r"^faces: none of the 0 triangles has an area"),
+        (truth(V * 1e6, F), r"^vertices_m: coordinate -?25000 m lies beyond"),
+    ]
+    for message, reason in cases:
+        with pytest.raises(InputError, match=reason):
+            node.on_truth_object(message)
+        assert node.evaluator is first
+    estimate = SurfaceMesh(
+        stamp_ns=0,
+        region="global",
+        num_contacts=1,
+        vertices_m=V,
+        faces=np.array([[0, 1, 99]], dtype=np.int32),
+        vertex_normals=np.zeros_like(V),
+        vertex_variance=np.zeros(len(V)),
+    )
+    with pytest.raises(InputError, match=r"^faces: vertex index 99 is outside"):
+        node.on_surface(estimate)
+
+
+def test_results_without_a_milestone_write_null_not_nan(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 15: `"rmse_mm": NaN` in explore_result when a milestone is not reached; JSON has no NaN."""
+    ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
+    results = tmp_path / "out" / "explore.json"
+    node = ExploreEvalNode(ExploreEvalNodeConfig(results_path=str(results)), ctx)
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    node.on_truth_object(truth(np.asarray(box.vertices), np.asarray(box.faces)))
+    node.close()
+
+    def refuse(name: str) -> None:
+        raise ValueError(f"not JSON: {name}")
+
+    written = json.loads(results.read_text(), parse_constant=refuse)
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("explore_result: "))
+    printed = json.loads(line.removeprefix("explore_result: "), parse_constant=refuse)
+    for result in (written, printed):
+        milestone = result["milestones"]["80"]
+        assert milestone["reached"] is False and milestone["rmse_mm"] is None and milestone["angle_deg"] is None

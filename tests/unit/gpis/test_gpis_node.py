@@ -1,0 +1,53 @@
+"""GPIS node: a touch it cannot use (beyond the sanity bounds, a normal that is no unit vector, or too far
+from the contacts for the kernel) is refused before the GP changes; a request must name 'global'."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from palpate.errors import InputError
+from palpate.messages.base import Message
+from palpate.messages.schemas import SurfaceMesh, SurfaceRequest, TouchEvent
+from palpate.nodes.gpis.node import GPISNode, GPISNodeConfig
+from palpate.runtime.node import NodeContext
+
+
+def touch(position: list[float], normal: list[float]) -> TouchEvent:
+    return TouchEvent(
+        stamp_ns=0,
+        index=0,
+        position_m=np.array(position),
+        normal=np.array(normal),
+        approach_direction=np.array([0.0, 0.0, -1.0]),
+        predicted_contact_m=np.full(3, np.nan),
+        missed=False,
+        travelled_m=0.0,
+        rotation_deg=0.0,
+    )
+
+
+def test_unusable_touches_leave_the_gp_unchanged() -> None:
+    sent: list[Message] = []
+    ctx = NodeContext("gpis", 0, lambda topic, message: sent.append(message), {"surface": "surface/mesh"})
+    node = GPISNode(GPISNodeConfig(), ctx)
+    node.on_touches(touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]))
+    factor = node.gp.cholesky_factor()
+    cases = [
+        (touch([0.0, 0.0, 1e300], [0.0, 0.0, 1.0]), r"^position_m: coordinate 1e\+300 m lies beyond"),
+        (touch([0.01, 0.0, 0.03], [0.0, 0.0, 1e-200]), r"^normal: norm 1e-200, not 1"),
+        (touch([0.01, 0.0, 0.03], [0.0, 0.0, 0.0]), r"^normal: norm 0, not 1"),
+        # R_m = 0.5 m: the local grid around a touch 0.45 m away would reach 0.55 m from the first one
+        (touch([0.45, 0.0, 0.03], [1.0, 0.0, 0.0]), r"^position_m: the GPIS cannot add this touch to its 1 contacts"),
+    ]
+    for message, reason in cases:
+        with pytest.raises(InputError, match=reason):
+            node.on_touches(message)
+        assert node.gp.n_contacts == 1
+        np.testing.assert_array_equal(node.gp.cholesky_factor(), factor)
+    node.on_touches(touch([0.3, 0.0, 0.03], [1.0, 0.0, 0.0]))  # 0.3 m away still fits
+    assert node.gp.n_contacts == 2 and len(sent) == 2
+    with pytest.raises(InputError, match=r"^region: 'local' is no region a request can name; use 'global'"):
+        node.on_request(SurfaceRequest(stamp_ns=0, region="local"))
+    node.on_request(SurfaceRequest(stamp_ns=0, region="global"))
+    assert isinstance(sent[-1], SurfaceMesh) and sent[-1].region == "global"

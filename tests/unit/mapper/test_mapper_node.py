@@ -1,0 +1,78 @@
+"""Mapper node: a joint reading without the finger's joints (the issue's subset, duplicated, unknown, empty
+or 50,000-joint readings) is refused naming the field, and the map is then exactly that of a clean run."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from palpate.config import load
+from palpate.errors import InputError
+from palpate.launch.graph import resolve
+from palpate.launch.loader import load_launch
+from palpate.messages.base import Message
+from palpate.messages.schemas import ContactSet, JointState
+from palpate.nodes.mapper.node import MapperNode, MapperNodeConfig
+from palpate.paths import LAUNCH_DIR
+from palpate.runtime.node import NodeContext
+
+
+def mapper(file: str) -> tuple[MapperNode, list[tuple[str, Message]]]:
+    process = next(p for p in resolve(load_launch(LAUNCH_DIR / file)).process_specs() if p.type == "mapper")
+    sent: list[tuple[str, Message]] = []
+    ctx = NodeContext("mapper", 1, lambda topic, message: sent.append((topic, message)), dict(process.publishes))
+    config: Any = load(MapperNodeConfig, process.params)
+    return MapperNode(config, ctx), sent
+
+
+def reading(names: list[str], q: np.ndarray, stamp_ns: int) -> JointState:
+    return JointState(stamp_ns=stamp_ns, names=names, positions_rad=q, velocities_rad_s=np.zeros(len(names)))
+
+
+def contacts(links: list[str], local: np.ndarray, stamp_ns: int) -> ContactSet:
+    n = len(links)
+    return ContactSet(
+        stamp_ns=stamp_ns,
+        positions_m=np.zeros((n, 3)),
+        local_positions_m=local,
+        normals=np.tile([0.0, 0.0, 1.0], (n, 1)),
+        forces_n=np.ones(n),
+        links=links,
+    )
+
+
+@pytest.mark.parametrize("file", ["map_known.yaml", "fastslam.yaml"])
+def test_readings_without_the_joints_are_refused_and_change_nothing(file: str) -> None:
+    clean, clean_out = mapper(file)
+    fed, fed_out = mapper(file)
+    joints = list(clean.chain.joint_names)
+    tip = clean.chain.link_names[-1]
+    bad = [
+        ([], "lacks 4 of the 4"),
+        (joints[:2], "lacks 2 of the 4"),
+        ([*joints, joints[0]], "repeats needed name"),
+        (["", "", "", ""], "lacks 4 of the 4"),
+        ([f"joint_{i}" for i in range(50_000)], "lacks 4 of the 4"),
+    ]
+    rng = np.random.default_rng(0)
+    for tick in range(20):
+        stamp = tick * 10_000_000
+        q = np.radians([0.0, 20.0, 30.0, 10.0]) + 0.01 * rng.standard_normal(4)
+        touch = contacts([tip], np.array([[0.0, 0.0, -0.008]]), stamp)
+        for node in (clean, fed):
+            node.on_joint_states(reading(joints[::-1], q[::-1], stamp))  # any order: the names say which is which
+            node.on_contacts(touch)
+        for names, reason in bad:
+            with pytest.raises(InputError, match=rf"^names: {reason}"):
+                fed.on_joint_states(reading(names, np.zeros(len(names)), stamp))
+        with pytest.raises(InputError, match=r"^local_positions_m: coordinate 1e\+300 m"):
+            fed.on_contacts(contacts([tip], np.array([[0.0, 1e300, 0.0]]), stamp))
+        for node in (clean, fed):
+            node.on_tick(stamp)
+    assert clean.core.counters.updates == fed.core.counters.updates == 20
+    assert clean.core.counters.contacts == 20
+    assert len(clean_out) == len(fed_out) > 0
+    for (topic_a, a), (topic_b, b) in zip(clean_out, fed_out, strict=True):
+        assert topic_a == topic_b and a == b

@@ -1,0 +1,79 @@
+"""Planner node: a touch, pose or surface it cannot use is refused naming the field, before the planner
+changes (a refused surface does not use up the plan of its contact)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from palpate.errors import InputError
+from palpate.messages.base import Message
+from palpate.messages.schemas import Pose, SurfaceMesh, TouchEvent, TouchTarget
+from palpate.nodes.planner.core import PlannerConfig
+from palpate.nodes.planner.node import PlannerNode
+from palpate.runtime.node import NodeContext
+
+
+def touch(position: list[float], approach: list[float]) -> TouchEvent:
+    return TouchEvent(
+        stamp_ns=0,
+        index=0,
+        position_m=np.array(position),
+        normal=np.array([0.0, 0.0, 1.0]),
+        approach_direction=np.array(approach),
+        predicted_contact_m=np.full(3, np.nan),
+        missed=False,
+        travelled_m=0.0,
+        rotation_deg=0.0,
+    )
+
+
+def pose(q: list[float]) -> Pose:
+    return Pose(
+        stamp_ns=0,
+        frame="fingertip",
+        position_m=np.array([0.0, 0.0, 0.008]),
+        quaternion_wxyz=np.array(q),
+        linear_velocity_m_s=np.zeros(3),
+        angular_velocity_rad_s=np.zeros(3),
+    )
+
+
+def plane(variance: float) -> SurfaceMesh:
+    """The plane z = 0 within 5 cm of the origin, 2.5 mm apart, normals +z."""
+    x = np.arange(-0.05, 0.0501, 0.0025)
+    X, Y = np.meshgrid(x, x, indexing="ij")
+    V = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
+    n = len(x)
+    quads = [(i * n + j, (i + 1) * n + j, i * n + j + 1) for i in range(n - 1) for j in range(n - 1)]
+    return SurfaceMesh(
+        stamp_ns=0,
+        region="local",
+        num_contacts=1,
+        vertices_m=V,
+        faces=np.array(quads, dtype=np.int32),
+        vertex_normals=np.tile([0.0, 0.0, 1.0], (len(V), 1)),
+        vertex_variance=np.full(len(V), variance),
+    )
+
+
+def test_unusable_inputs_are_refused_and_the_plan_still_comes() -> None:
+    sent: list[Message] = []
+    ctx = NodeContext("planner", 0, lambda topic, message: sent.append(message), {"target": "planner/target"})
+    node = PlannerNode(PlannerConfig(strategy="gpv"), ctx)
+    with pytest.raises(InputError, match=r"^approach_direction: value -2 is outside \[-1.01, 1.01\]"):
+        node.on_touches(touch([0.0, 0.0, 0.0], [0.0, 0.0, -2.0]))
+    with pytest.raises(InputError, match=r"^position_m: coordinate"):
+        node.on_touches(touch([0.0, -1e30, 0.0], [0.0, 0.0, -1.0]))
+    assert node.core.contacts == []
+    node.on_touches(touch([0.0, 0.0, 0.0], [0.0, 0.0, -1.0]))
+    with pytest.raises(InputError, match=r"^quaternion_wxyz: norm 0 is not that of a unit quaternion"):
+        node.on_pose(pose([0.0, 0.0, 0.0, 0.0]))
+    node.on_pose(pose([0.0, 1.0, 0.0, 0.0]))
+    with pytest.raises(InputError, match=r"^vertex_variance: value -1 m\^2 is outside \[0, 1e\+06\] m\^2"):
+        node.on_surface(plane(-1.0))
+    assert not sent and node.core.planned_for == 0
+    node.on_surface(plane(1e-6))
+    [target] = sent
+    assert isinstance(target, TouchTarget) and target.strategy == "gpv"
+    assert target.position_m[2] == 0.0 and np.all(np.abs(target.position_m) <= 0.05)  # a vertex of the plane

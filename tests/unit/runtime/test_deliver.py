@@ -1,0 +1,91 @@
+"""The runtime's delivery of a message to a handler: a rejected input is counted, logged once with node,
+topic, field and reason (rate-limited per topic and field), and the node keeps its state; a bug propagates."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from palpate.errors import EstimationError, InputError
+from palpate.messages.base import Message
+from palpate.messages.schemas import Pose
+from palpate.runtime.node import NodeContext, deliver
+
+
+def pose(q: list[float]) -> Pose:
+    return Pose(
+        stamp_ns=0,
+        frame="fingertip",
+        position_m=np.zeros(3),
+        quaternion_wxyz=np.array(q),
+        linear_velocity_m_s=np.zeros(3),
+        angular_velocity_rad_s=np.zeros(3),
+    )
+
+
+class Keeper:
+    """A node that keeps the last pose whose quaternion has norm 1."""
+
+    def __init__(self) -> None:
+        self.q = np.array([1.0, 0.0, 0.0, 0.0])
+
+    def on_pose(self, message: Pose) -> None:
+        if abs(float(np.linalg.norm(message.quaternion_wxyz)) - 1.0) > 0.01:
+            raise InputError("quaternion_wxyz", "not a unit quaternion")
+        self.q = np.array(message.quaternion_wxyz)
+
+    def on_other(self, message: Message) -> None:
+        raise EstimationError("the estimator cannot use it")
+
+    def on_bug(self, message: Message) -> None:
+        raise KeyError("index_mcp_abd")
+
+    def on_tick(self, stamp_ns: int) -> None:
+        """Nothing per tick."""
+
+
+def context() -> NodeContext:
+    return NodeContext("ctrl", 0, lambda topic, message: None, {})
+
+
+def test_rejected_input_is_counted_and_logged_with_node_topic_field_and_reason(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    ctx, node = context(), Keeper()
+    with caplog.at_level(logging.WARNING):
+        assert deliver(ctx, node, "pose", "sensors/effector_pose", pose([0.0, 1.0, 0.0, 0.0]))
+        assert not deliver(ctx, node, "pose", "sensors/effector_pose", pose([0.0, 0.0, 0.0, 0.0]))
+    assert ctx.counters["input_errors"] == 1
+    np.testing.assert_array_equal(node.q, [0.0, 1.0, 0.0, 0.0])  # the state before the bad message
+    [record] = caplog.records
+    assert record.getMessage() == (
+        "node ctrl, topic sensors/effector_pose: input rejected, field Pose.quaternion_wxyz: "
+        "not a unit quaternion (1 so far)"
+    )
+
+
+def test_other_palpate_errors_are_rejections_without_a_field(caplog: pytest.LogCaptureFixture) -> None:
+    ctx = context()
+    with caplog.at_level(logging.WARNING):
+        assert not deliver(ctx, Keeper(), "other", "x", pose([1.0, 0.0, 0.0, 0.0]))
+    assert ctx.counters["input_errors"] == 1
+    assert "topic x: input rejected, field Pose: the estimator cannot use it (1 so far)" in caplog.text
+
+
+def test_a_bug_in_a_handler_propagates() -> None:
+    with pytest.raises(KeyError):
+        deliver(context(), Keeper(), "bug", "x", pose([1.0, 0.0, 0.0, 0.0]))
+
+
+def test_the_log_is_rate_limited_per_topic_and_field(caplog: pytest.LogCaptureFixture) -> None:
+    ctx, node = context(), Keeper()
+    with caplog.at_level(logging.WARNING):
+        for _ in range(250):
+            deliver(ctx, node, "pose", "a", pose([0.0, 0.0, 0.0, 0.0]))
+        deliver(ctx, node, "pose", "b", pose([0.0, 0.0, 0.0, 0.0]))  # another topic: logged at once
+    assert ctx.counters["input_errors"] == 251
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 10 + 2 + 1  # first 10, then the 100th and 200th, then topic b's first
+    assert lines[-2].endswith("(200 so far)") and lines[-1].startswith("node ctrl, topic b:")

@@ -1,0 +1,142 @@
+"""palpate.inputs: each check accepts what a sane sender sends, unchanged, and refuses garbage naming the field."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from palpate.errors import InputError, PalpateError
+from palpate.inputs import (
+    MAX_COORDINATE_M,
+    bounded,
+    contact_arrays,
+    coordinates,
+    fingertip_pose,
+    select_named,
+    triangle_mesh,
+    unique_names,
+    unit_quaternion,
+    unit_vectors,
+)
+
+
+def test_input_error_names_field_and_reason() -> None:
+    error = InputError("quaternion_wxyz", "norm 0")
+    assert isinstance(error, PalpateError)
+    assert (error.field, error.reason, str(error)) == ("quaternion_wxyz", "norm 0", "quaternion_wxyz: norm 0")
+
+
+def test_coordinates_pass_unchanged_up_to_the_bound() -> None:
+    a = np.array([[0.1, -0.2, MAX_COORDINATE_M], [np.nextafter(0.0, 1.0), -MAX_COORDINATE_M, 0.0]])
+    out = coordinates(a, "positions_m")
+    assert out.tobytes() == a.tobytes()
+    assert coordinates(np.zeros((0, 3)), "positions_m").shape == (0, 3)
+
+
+@pytest.mark.parametrize("bad", [1e300, -1e30, np.nextafter(MAX_COORDINATE_M, np.inf), np.inf, np.nan])
+def test_coordinates_beyond_the_bound_are_refused(bad: float) -> None:
+    with pytest.raises(InputError, match=r"^positions_m: coordinate .* m lies beyond 1000 m of the origin") as info:
+        coordinates([[0.0, 0.0, 0.0], [0.0, bad, 0.0]], "positions_m")
+    assert info.value.field == "positions_m"
+
+
+def test_nan_means_none_only_where_allowed() -> None:
+    assert np.isnan(coordinates([np.nan] * 3, "predicted_contact_m", allow_nan=True)).all()
+    with pytest.raises(InputError, match="predicted_contact_m"):
+        coordinates([np.nan, np.inf, 0.0], "predicted_contact_m", allow_nan=True)
+    with pytest.raises(InputError, match="predicted_contact_m"):
+        coordinates([np.nan, 0.0, 0.0], "predicted_contact_m")
+
+
+def test_bounded_with_and_without_a_lower_bound() -> None:
+    assert bounded([-3.0, 3.0], "linear_m_s", 3.0).tolist() == [-3.0, 3.0]
+    with pytest.raises(InputError, match=r"^linear_m_s: value 3.5 m/s is outside \[-3, 3\] m/s$"):
+        bounded([0.0, 3.5], "linear_m_s", 3.0, "m/s")
+    with pytest.raises(InputError, match=r"^forces_n: value -1 N is outside \[0, 10\] N$"):
+        bounded([2.0, -1.0], "forces_n", 10.0, "N", lower=0.0)
+
+
+def test_unit_vectors_within_tolerance_pass_unchanged() -> None:
+    n = np.array([[0.0, 0.0, 1.0], [0.6, 0.8, 0.0], [0.0, 1.005, 0.0]])
+    assert unit_vectors(n, "normals").tobytes() == n.tobytes()
+
+
+@pytest.mark.parametrize("row", [[0.0, 0.0, 0.0], [1e-200, 0.0, 0.0], [0.0, 2.0, 0.0], [1e200, 1e200, 0.0]])
+def test_non_unit_vectors_are_refused_with_their_norm(row: list[float]) -> None:
+    with pytest.raises(InputError, match=r"^normals: row 1 has norm .*, not 1 \(\+-0.01\); send unit vectors"):
+        unit_vectors([[1.0, 0.0, 0.0], row], "normals")
+
+
+def test_unit_quaternion() -> None:
+    q = np.array([0.0, 1.0, 0.0, 0.0])
+    assert unit_quaternion(q, "quaternion_wxyz").tobytes() == q.tobytes()
+    for bad in ([0.0, 0.0, 0.0, 0.0], [1e-200, 0.0, 0.0, 0.0], [1e200, 0.0, 0.0, 0.0], [0.5, 0.5, 0.0, 0.0]):
+        with pytest.raises(InputError, match=r"^quaternion_wxyz: norm .* is not that of a unit quaternion"):
+            unit_quaternion(bad, "quaternion_wxyz")
+
+
+def test_fingertip_pose_matches_quat_to_matrix_and_refuses_zero() -> None:
+    r, R = fingertip_pose([0.1, 0.2, 0.3], [0.0, 1.0, 0.0, 0.0])
+    np.testing.assert_array_equal(r, [0.1, 0.2, 0.3])
+    np.testing.assert_allclose(R, np.diag([1.0, -1.0, -1.0]), atol=1e-15)
+    with pytest.raises(InputError, match="quaternion_wxyz"):
+        fingertip_pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0])
+    with pytest.raises(InputError, match="position_m"):
+        fingertip_pose([0.0, 1e300, 0.0], [1.0, 0.0, 0.0, 0.0])
+
+
+def test_contact_arrays() -> None:
+    p, n, f = contact_arrays(np.zeros((2, 3)), [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]], [0.0, 3.0])
+    assert p.shape == n.shape == (2, 3) and f.tolist() == [0.0, 3.0]
+    with pytest.raises(InputError, match=r"^forces_n"):
+        contact_arrays(np.zeros((1, 3)), [[0.0, 0.0, 1.0]], [-0.5])
+    with pytest.raises(InputError, match=r"^normals"):
+        contact_arrays(np.zeros((1, 3)), [[0.0, 0.0, 0.0]], [1.0])
+
+
+def test_unique_names() -> None:
+    assert unique_names(("a", "b"), "names") == ["a", "b"]
+    with pytest.raises(InputError, match=r"^names: repeated name\(s\) 'a': each name must appear once"):
+        unique_names(["a", "b", "a"], "names")
+    with pytest.raises(InputError, match=r"^names: entry 1 is an empty name"):
+        unique_names(["a", ""], "names")
+
+
+def test_select_named_reorders_and_ignores_extra_names() -> None:
+    q = select_named(["x", "c", "a", "b"], np.array([9.0, 3.0, 1.0, 2.0]), ["a", "b", "c"], "names")
+    assert q.tolist() == [1.0, 2.0, 3.0]
+
+
+@pytest.mark.parametrize(
+    ("names", "reason"),
+    [
+        ([], "lacks 3 of the 3 names needed: 'a', 'b', 'c'"),
+        (["a", "b"], "lacks 1 of the 3 names needed: 'c'"),
+        (["a", "b", "c", "a"], r"repeats needed name\(s\) 'a'"),
+        (["", "", ""], "lacks 3 of the 3"),
+        ([f"j{i}" for i in range(50_000)], "lacks 3 of the 3"),
+    ],
+    ids=["empty", "subset", "duplicated", "empty-names", "50000-unknown"],
+)
+def test_select_named_refuses_readings_without_the_joints(names: list[str], reason: str) -> None:
+    with pytest.raises(InputError, match=rf"^names: {reason}"):
+        select_named(names, np.zeros(len(names)), ["a", "b", "c"], "names")
+
+
+def test_triangle_mesh() -> None:
+    V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    F = np.array([[0, 1, 2], [0, 1, 1], [0, 2, 3]], dtype=np.int32)
+    _, F2 = triangle_mesh(V, F, solid=True)
+    assert F2.tolist() == [[0, 1, 2], [0, 2, 3]] and F2.dtype == np.int32  # the sliver is dropped
+    assert len(triangle_mesh(V, F, solid=False)[1]) == 3  # an estimate keeps its faces as sent
+    assert len(triangle_mesh(np.zeros((0, 3)), np.zeros((0, 3), np.int32), solid=False)[1]) == 0
+    with pytest.raises(InputError, match=r"^faces: vertex index 4 is outside 0..3"):
+        triangle_mesh(V, [[0, 1, 4]], solid=False)
+    with pytest.raises(InputError, match=r"^faces: vertex index -1 is outside 0..3"):
+        triangle_mesh(V, [[0, 1, -1]], solid=True)
+    with pytest.raises(InputError, match=r"^faces: none of the 1 triangles has an area"):
+        triangle_mesh(V, [[0, 0, 0]], solid=True)
+    with pytest.raises(InputError, match=r"^faces: none of the 1 triangles has an area"):  # squares underflow
+        triangle_mesh(np.array([[0.0, 0.0, 0.0], [1e-170, 0.0, 0.0], [0.0, 1e-170, 0.0]]), [[0, 1, 2]], solid=True)
+    with pytest.raises(InputError, match=r"^vertices_m: coordinate"):
+        triangle_mesh(V * 1e10, F, solid=True)
