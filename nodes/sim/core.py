@@ -38,7 +38,7 @@ import mujoco
 import numpy as np
 
 from palpate.errors import ConfigError, SimulationDivergedError
-from palpate.geometry.mesh_query import ExactContactSensor
+from palpate.geometry.mesh_query import ExactContactSensor, WarmClosest
 from palpate.nodes.sim.effectors import FingerConfig, HandConfig
 from palpate.nodes.sim.objects import ObjectModel, load_object
 from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model, uses_exact_contacts
@@ -168,6 +168,9 @@ class Simulation:
             self._probe_cache_p = np.zeros(3)
             self._probe_cache_d = -np.inf  # no query yet: the bound never skips
             self._probe_cache_hit: tuple[np.ndarray, float, np.ndarray] | None = None
+            self._R = np.zeros(9)  # rotation matrix of the probe, row-major (mju_quat2Mat's buffer)
+            assert self._sensor is not None
+            self._warm: WarmClosest | None = WarmClosest(self._sensor)
         else:
             cfg = scene.effector_config()
             assert isinstance(cfg, HandConfig | FingerConfig)
@@ -285,16 +288,23 @@ class Simulation:
         """``n`` probe steps. Stretches that surely stay clear of the object (by the 1-Lipschitz bound
         on the signed distance) run as one ``mj_step`` call; the others are checked step by step."""
         m, d = self.model, self.data
+        qpos, qvel = d.qpos, d.qvel
         speed_per_step = float(np.linalg.norm(self._cmd_lin)) * self._dt
+        turning = bool(self._cmd_ang.any())
+        R = self._R.reshape(3, 3)
         remaining = n
+        projected = False
         while remaining > 0:
-            R = _quat_to_mat(d.qpos[3:7])
-            d.qvel[0:3] = self._cmd_lin  # free joint: linear velocity in the world frame
-            # angular velocity in the body frame; constant during a batch since the probe's inertia
-            # is isotropic (a sphere) and it rotates about a fixed axis
-            d.qvel[3:6] = R.T @ self._cmd_ang
-            bound = self._probe_cache_d - float(np.linalg.norm(d.qpos[0:3] - self._probe_cache_p))
-            margin = bound - self._probe_radius - self._tol
+            qvel[0:3] = self._cmd_lin  # free joint: linear velocity in the world frame
+            if turning:
+                # angular velocity in the body frame; constant during a batch since the probe's inertia
+                # is isotropic (a sphere) and it rotates about a fixed axis
+                mujoco.mju_quat2Mat(self._R, qpos[3:7])
+                qvel[3:6] = R.T @ self._cmd_ang
+            else:
+                qvel[3:6] = 0.0
+            offset = qpos[0:3] - self._probe_cache_p
+            margin = self._probe_cache_d - math.sqrt(offset.dot(offset)) - self._probe_radius - self._tol
             free = 0
             if math.isfinite(margin) and margin > 0:
                 free = remaining if speed_per_step == 0 else min(remaining, int(margin / speed_per_step))
@@ -302,51 +312,55 @@ class Simulation:
                 mujoco.mj_step(m, d, nstep=free)
                 self._steps += free
                 remaining -= free
+                projected = False
                 continue
             mujoco.mj_step(m, d)
             self._steps += 1
             remaining -= 1
-            if np.all(np.isfinite(d.qpos)):
-                self._probe_project()
+            projected = math.isfinite(sum(qpos.tolist())) and self._probe_project()
+        if projected and self._probe_cache_hit is not None:
+            # drop the inward velocity of the last projection (every step above sets the command anew)
+            normal = self._probe_cache_hit[2]
+            inward = float(qvel[0:3] @ normal)
+            if inward < 0.0:
+                qvel[0:3] -= inward * normal
 
-    def _probe_project(self) -> None:
-        """Push the probe out of the surface along the contact normal and drop its inward velocity.
+    def _probe_project(self) -> bool:
+        """Push the probe out of the surface along the contact normal; True when it was pushed (the
+        caller then drops its inward velocity).
 
         One projection per step: in a concave corner a second surface may still be penetrated by at
         most one step of motion, which the next step corrects.
         """
-        d = self.data
         hit = self._probe_closest()
         r = self._probe_radius
         if hit is None or hit[1] >= r:
-            return
+            return False
         point, _, normal = hit
-        d.qpos[0:3] = point + r * normal
-        inward = float(d.qvel[0:3] @ normal)
-        if inward < 0.0:
-            d.qvel[0:3] -= inward * normal
+        self.data.qpos[0:3] = point + r * normal
+        return True
 
     def _probe_closest(self) -> tuple[np.ndarray, float, np.ndarray] | None:
         """Closest surface point, signed centre distance and contact normal; None if surely apart."""
-        assert self._sensor is not None
+        assert self._warm is not None and self._sensor is not None
         p = np.array(self.data.qpos[0:3], dtype=np.float64)
         if self._probe_cache_hit is not None and np.array_equal(p, self._probe_cache_p):
             return self._probe_cache_hit
         # The signed distance is 1-Lipschitz: skip the query while it cannot be within reach.
-        bound = self._probe_cache_d - float(np.linalg.norm(p - self._probe_cache_p))
+        offset = p - self._probe_cache_p
+        bound = self._probe_cache_d - math.sqrt(offset.dot(offset))
         if bound > self._probe_radius + self._tol:
             return None
-        hit = self._sensor.closest(p[None, :])
-        point = np.asarray(hit.points_m, dtype=np.float64)[0]
-        dist = float(np.asarray(hit.distance_m)[0])
+        found, dist, face = self._warm.query(p)  # the exact query, warm-started from the last answer
+        point = np.array(found)
         # Contact normal of a sphere: from the surface point to the centre (equals the surface normal
         # on faces, and is the true contact normal on edges and vertices); inside, the mesh normal.
-        normal = np.asarray(hit.normals, dtype=np.float64)[0]
+        normal = self._sensor.face_normals[face]
         offset = p - point
-        length = float(np.linalg.norm(offset))
+        length = math.sqrt(offset.dot(offset))
         if dist > 0 and length > 1e-9:
             normal = offset / length
-        result = (point, dist, normal / np.linalg.norm(normal))
+        result = (point, dist, normal / math.sqrt(normal.dot(normal)))
         self._probe_cache_p, self._probe_cache_d, self._probe_cache_hit = p, dist, result
         return result
 

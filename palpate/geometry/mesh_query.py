@@ -261,10 +261,14 @@ class ExactContactSensor:
         local = vertices - self._centre
         self._triangles = local[faces]  # (F, 3, 3) float64
         self._face_normals = np.asarray(mesh.face_normals, dtype=np.float64)
+        #: Outward unit normal of each face (F, 3).
+        self.face_normals = self._face_normals
         corner, edge = pseudo_normals(mesh)
         # pseudo-normal per face and region code: FACE, VERTEX_A..C, EDGE_AB..CA -> (F, 7, 3)
         self._sign_normals = np.concatenate([self._face_normals[:, None], corner, edge], axis=1)
         self._ring = face_rings(mesh)
+        self._centre_list: list[float] = self._centre.tolist()
+        self._index: tuple[Any, np.ndarray, float] | None = None
         # lower bound of a face's distance for the few-point path, as planes g . p - h (F, 4): the face's
         # plane (unit normal), then per edge AB, BC, CA its outward unit normal within that plane.
         # Zero rows on degenerate faces (no pruning there).
@@ -359,23 +363,9 @@ class ExactContactSensor:
                     best, pick = squared, (k, region, wb, wc)
             k, region, wb, wc = pick
             face = int(ring[k])
-            (ax, ay, az), (bx, by, bz), (cx, cy, cz) = self._triangle_list(face)
-            q = (
-                ax + wb * (bx - ax) + wc * (cx - ax),
-                ay + wb * (by - ay) + wc * (cy - ay),
-                az + wb * (bz - az) + wc * (cz - az),
-            )
-            ox, oy, oz = p[0] - q[0], p[1] - q[1], p[2] - q[2]
-            dist = math.sqrt(ox * ox + oy * oy + oz * oz)
-            # sign from the pseudo-normal of the feature holding q; ray parity where it is weak
-            nx, ny, nz = self._sign_normals[face, region].tolist()
-            side = ox * nx + oy * ny + oz * nz
-            strength = math.sqrt(nx * nx + ny * ny + nz * nz)
-            inside = side < 0.0
-            if strength < WEAK_PSEUDO_NORMAL or abs(side) < WEAK_SIGN_COS * dist * strength:
-                inside = bool(self._scene.occupied(np.array([p]))[0])
+            q, signed = self._finish_scalar(p, face, region, wb, wc)
             points.append(q)
-            distance.append(-dist if inside else dist)
+            distance.append(signed)
             faces.append(face)
         face_ids = np.array(faces, dtype=np.int64)
         return ClosestPoints(
@@ -384,6 +374,33 @@ class ExactContactSensor:
             normals=self._face_normals[face_ids],
             face_ids=face_ids,
         )
+
+    def _finish_scalar(
+        self, p: list[float], face: int, region: int, wb: float, wc: float
+    ) -> tuple[tuple[float, float, float], float]:
+        """Closest point q (shifted frame) and signed distance of ``p`` whose projection onto ``face`` is
+        (region, wb, wc): the sign from the pseudo-normal of the feature holding q, ray parity where it
+        is weak (see the module docstring)."""
+        (ax, ay, az), (bx, by, bz), (cx, cy, cz) = self._triangle_list(face)
+        q = (
+            ax + wb * (bx - ax) + wc * (cx - ax),
+            ay + wb * (by - ay) + wc * (cy - ay),
+            az + wb * (bz - az) + wc * (cz - az),
+        )
+        ox, oy, oz = p[0] - q[0], p[1] - q[1], p[2] - q[2]
+        dist = math.sqrt(ox * ox + oy * oy + oz * oz)
+        nx, ny, nz = self._sign_normal_list(face, region)
+        side = ox * nx + oy * ny + oz * nz
+        strength = math.sqrt(nx * nx + ny * ny + nz * nz)
+        inside = side < 0.0
+        if strength < WEAK_PSEUDO_NORMAL or abs(side) < WEAK_SIGN_COS * dist * strength:
+            inside = bool(self._scene.occupied(np.array([p]))[0])
+        return q, -dist if inside else dist
+
+    def _sign_normal_list(self, face: int, region: int) -> list[float]:
+        """The pseudo-normal of ``face``'s feature ``region`` as Python floats."""
+        normal: list[float] = self._sign_normals[face, region].tolist()
+        return normal
 
     def _triangle_list(self, face: int) -> list[list[float]]:
         """Corners a, b, c of ``face`` (shifted frame) as Python floats."""
@@ -408,6 +425,17 @@ class ExactContactSensor:
         ox, oy, oz = x - wb * abx - wc * acx, y - wb * aby - wc * acy, z - wb * abz - wc * acz  # p - q
         return ox * ox + oy * oy + oz * oz, region, wb, wc
 
+    def face_index(self) -> tuple[Any, np.ndarray, float]:
+        """A k-d tree of the face centroids (shifted frame), each face's radius about its centroid (F,)
+        and the largest radius: every point of face f lies within radius[f] of centroid[f]. Built once."""
+        if self._index is None:
+            from scipy.spatial import cKDTree
+
+            centroids = self._triangles.mean(axis=1)
+            radius = np.linalg.norm(self._triangles - centroids[:, None, :], axis=2).max(axis=1)
+            self._index = (cKDTree(centroids), radius, float(radius.max()))
+        return self._index
+
     def closest_float32(self, points_m: np.ndarray) -> np.ndarray:
         """Open3D's raw float32 closest points (n, 3), world frame, without the float64 refinement."""
         local = self._check(points_m)
@@ -424,3 +452,139 @@ class ExactContactSensor:
         """
         closest = self.closest(centres_m)
         return closest.distance_m <= radius_m + tolerance_m, closest
+
+
+class WarmClosest:
+    """The exact closest point of one query point that moves a little between queries (a fingertip).
+
+    The answer is :meth:`ExactContactSensor.closest`'s for that point, bit for bit: the same face,
+    projected in float64 by the same scalar arithmetic (compiled: ``closest_kernels``), with the same
+    sign rule. Only the search differs. Instead of Open3D's search over the whole mesh and a Python
+    loop over that face's ring, each query searches a *patch* in compiled code, warm-started from the
+    last answer's face:
+
+    - The patch, built at a point p0, holds every face whose distance to p0 is at most e + 2 reach
+      (e: the distance from p0 to any face, an upper bound of the distance d(p0) to the surface). For a
+      query point p within ``reach_m`` of p0 the closest face is in it: d(p) <= e + |p - p0|, and a
+      face at distance d(p) from p lies within d(p) + |p - p0| <= e + 2 reach of p0. Faces come from a
+      k-d tree of the face centroids (a face lies within its radius of its centroid), kept by the
+      lower bound below. The patch is rebuilt when p leaves the ball of radius reach about p0.
+    - A query projects p onto the last answer's face (an upper bound of d(p)) and then onto every
+      patch face whose lower bound (its plane, then how far p lies outside its edges: the bound of the
+      few-point path, with the same slack) can reach the best so far.
+    - Exact ties (faces at the same squared distance to the last bit: a vertex or edge they share)
+      are settled as the sensor's search settles them: Open3D's face if it is one of them, else the
+      lowest id in that face's ring. That costs one Open3D call, only on ties.
+    - Far from the surface (e + 2 reach > ``max_distance_m``), or where a patch would hold more than
+      ``max_patch_faces`` faces, the query is the sensor's own.
+
+    The one way the answers could differ: where Open3D's float32 search picks a face whose ring misses
+    the true closest face (a near-tie of non-adjacent faces within float32 rounding, about 1e-8 m),
+    the sensor answers with the best face of that ring and this search with the true closest.
+    """
+
+    def __init__(
+        self,
+        sensor: ExactContactSensor,
+        reach_m: float = 0.002,
+        max_distance_m: float = 0.03,
+        max_patch_faces: int = 4096,
+    ) -> None:
+        if not reach_m > 0.0 or not max_distance_m > 0.0:
+            raise ValueError(f"reach_m and max_distance_m must be > 0, got {reach_m!r} and {max_distance_m!r}")
+        from palpate.geometry import closest_kernels  # numba: compiled on first use, then cached on disk
+
+        self._kernels = closest_kernels
+        self.sensor = sensor
+        self.reach_m = float(reach_m)
+        self.max_distance_m = float(max_distance_m)
+        self.max_patch_faces = int(max_patch_faces)
+        self._face = -1  # the last answer's face (-1: none yet)
+        self._p0 = (math.inf, math.inf, math.inf)  # where the patch was built (shifted frame)
+        self._faces: NDArray[np.int64] | None = None  # patch faces, ascending
+        self._ties = np.zeros(1, dtype=np.int64)
+        #: How many queries built a patch, searched one, settled a tie or took the sensor's own search.
+        self.counts = {"builds": 0, "patch": 0, "ties": 0, "full": 0}
+
+    def query(self, point_m: ArrayLike) -> tuple[tuple[float, float, float], float, int]:
+        """Closest surface point (3 floats, world frame, metres), signed distance (m, < 0 inside) and
+        face id of one finite point (3,)."""
+        s = self.sensor
+        x, y, z = np.asarray(point_m, dtype=np.float64).reshape(3).tolist()
+        if not math.isfinite(x + y + z):
+            raise ValueError("query point must be finite (got NaN or infinity)")
+        cx, cy, cz = s._centre_list
+        px, py, pz = x - cx, y - cy, z - cz  # shifted frame, as ExactContactSensor._check computes it
+        x0, y0, z0 = self._p0
+        if self._faces is None or (px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2 > self.reach_m**2:
+            self._build(px, py, pz)
+        if self._faces is None:
+            self.counts["full"] += 1
+            hit = s.closest(np.array([[x, y, z]]))
+            self._face = int(hit.face_ids[0])
+            q = hit.points_m[0].tolist()
+            return (q[0], q[1], q[2]), float(hit.distance_m[0]), self._face
+        self.counts["patch"] += 1
+        k = self._kernels
+        face, _, region, wb, wc, count = k.patch_search(
+            s._triangles, s._bound_planes, s._bound_offsets, self._faces, self._face, px, py, pz, self._ties
+        )
+        answer = self._finish(face, region, wb, wc, px, py, pz)
+        if count > 1:  # tied faces: any of them serves when they give the same point and sign
+            ties = self._ties[:count].tolist()
+            for h in ties:
+                _, h_region, h_wb, h_wc = k.project(s._triangles, h, px, py, pz)
+                if self._finish(h, h_region, h_wb, h_wc, px, py, pz) != answer:
+                    face = self._break_tie([px, py, pz], ties)
+                    _, region, wb, wc = k.project(s._triangles, face, px, py, pz)
+                    answer = self._finish(face, region, wb, wc, px, py, pz)
+                    break
+        self._face = face
+        qx, qy, qz, dist, inside, weak = answer
+        if weak:
+            inside = bool(s._scene.occupied(np.array([[px, py, pz]]))[0])
+        return (qx + cx, qy + cy, qz + cz), -dist if inside else dist, face
+
+    def _finish(
+        self, face: int, region: int, wb: float, wc: float, px: float, py: float, pz: float
+    ) -> tuple[float, float, float, float, bool, bool]:
+        """closest_kernels.finish on this sensor: q, unsigned distance, inside, weak sign."""
+        s = self.sensor
+        answer: tuple[float, float, float, float, bool, bool] = self._kernels.finish(
+            s._triangles, s._sign_normals, face, region, wb, wc, px, py, pz, WEAK_PSEUDO_NORMAL, WEAK_SIGN_COS
+        )
+        return answer
+
+    def _break_tie(self, p: list[float], ties: list[int]) -> int:
+        """The face the sensor's search picks among faces at the same squared distance: Open3D's face
+        if it is one of them, else the lowest id of them in that face's ring (``_closest_few``)."""
+        self.counts["ties"] += 1
+        found = self.sensor._scene.closest_face_ids(np.array([p]))[0]
+        if found in ties:
+            return int(found)
+        ring = set(self.sensor._ring[found].tolist())
+        return min((t for t in ties if t in ring), default=min(ties))
+
+    def _build(self, px: float, py: float, pz: float) -> None:
+        """The patch about p (shifted frame); the first query seeds the warm face with Open3D's."""
+        s = self.sensor
+        self._faces = None
+        if self._face < 0:
+            self._face = s._scene.closest_face_ids(np.array([[px, py, pz]]))[0]
+        upper, _, _, _ = self._kernels.project(s._triangles, self._face, px, py, pz)
+        radius = math.sqrt(upper) + 2.0 * self.reach_m
+        if radius > self.max_distance_m:
+            return
+        tree, _, largest = s.face_index()
+        near = np.asarray(tree.query_ball_point([px, py, pz], radius + largest), dtype=np.int64)
+        if len(near) > self.max_patch_faces:
+            return
+        near.sort()
+        bounds = s._bound_planes[near] @ np.array([px, py, pz]) - s._bound_offsets[near]  # (K, 4)
+        outside = np.maximum(bounds[:, 1:].max(axis=1), 0.0)
+        keep = bounds[:, 0] ** 2 + outside**2 <= radius * radius * (1.0 + 1e-9) + 1e-24
+        self._faces = np.ascontiguousarray(near[keep])
+        if len(self._ties) < len(self._faces) + 1:
+            self._ties = np.zeros(2 * len(self._faces) + 1, dtype=np.int64)
+        self._p0 = (px, py, pz)
+        self.counts["builds"] += 1

@@ -7,7 +7,19 @@ from pathlib import Path
 
 import palpate.geometry
 
-ALLOWED = {"__future__", "math", "dataclasses", "functools", "typing", "numpy", "scipy", "open3d", "trimesh", "skimage"}
+ALLOWED = {
+    "__future__",
+    "math",
+    "dataclasses",
+    "functools",
+    "typing",
+    "numpy",
+    "scipy",
+    "open3d",
+    "trimesh",
+    "skimage",
+    "numba",
+}
 ALLOWED_PALPATE = {"palpate.errors", "palpate.geometry"}
 
 

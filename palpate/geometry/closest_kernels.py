@@ -1,0 +1,143 @@
+"""Compiled (numba) kernels of the warm-started closest-point query (``mesh_query.WarmClosest``).
+
+Each kernel is the line-by-line twin of the Python-scalar code of
+:class:`palpate.geometry.mesh_query.ExactContactSensor` (``closest_region``, ``_project_scalar``,
+``_finish_scalar``): the same floating-point operations in the same order, compiled without
+fast-math, so their results are bitwise equal (tests/unit/geometry/test_warm_closest.py checks it).
+What changes is the cost: a patch of a few hundred faces is searched in about a microsecond instead
+of 3 us per face in Python. Compiled once per machine and cached on disk (``cache=True``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+# Region codes, as in mesh_query (FACE, VERTEX_A, VERTEX_B, VERTEX_C, EDGE_AB, EDGE_BC, EDGE_CA).
+_FACE, _VERTEX_A, _VERTEX_B, _VERTEX_C, _EDGE_AB, _EDGE_BC, _EDGE_CA = range(7)
+
+
+@numba.njit(cache=True)
+def closest_region(d1: float, d2: float, d3: float, d4: float, d5: float, d6: float) -> tuple[int, float, float]:
+    """Twin of :func:`palpate.geometry.mesh_query.closest_region` (Ericson 5.1.5)."""
+    if d1 <= 0.0 and d2 <= 0.0:
+        return _VERTEX_A, 0.0, 0.0
+    if d3 >= 0.0 and d4 <= d3:
+        return _VERTEX_B, 1.0, 0.0
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        return _EDGE_AB, d1 / (d1 - d3), 0.0
+    if d6 >= 0.0 and d5 <= d6:
+        return _VERTEX_C, 0.0, 1.0
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        return _EDGE_CA, 0.0, d2 / (d2 - d6)
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and d4 >= d3 and d5 >= d6:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return _EDGE_BC, 1.0 - t, t
+    denom = 1.0 / (va + vb + vc)
+    return _FACE, vb * denom, vc * denom
+
+
+@numba.njit(cache=True)
+def project(triangles: np.ndarray, face: int, px: float, py: float, pz: float) -> tuple[float, int, float, float]:
+    """Twin of ``ExactContactSensor._project_scalar``: squared distance, region and weights (wb, wc)
+    of p projected onto ``triangles[face]`` (F, 3, 3), shifted frame."""
+    ax, ay, az = triangles[face, 0, 0], triangles[face, 0, 1], triangles[face, 0, 2]
+    bx, by, bz = triangles[face, 1, 0], triangles[face, 1, 1], triangles[face, 1, 2]
+    cx, cy, cz = triangles[face, 2, 0], triangles[face, 2, 1], triangles[face, 2, 2]
+    abx, aby, abz, acx, acy, acz = bx - ax, by - ay, bz - az, cx - ax, cy - ay, cz - az
+    x, y, z = px - ax, py - ay, pz - az  # ap
+    bpx, bpy, bpz = px - bx, py - by, pz - bz
+    cpx, cpy, cpz = px - cx, py - cy, pz - cz
+    region, wb, wc = closest_region(
+        abx * x + aby * y + abz * z,
+        acx * x + acy * y + acz * z,
+        abx * bpx + aby * bpy + abz * bpz,
+        acx * bpx + acy * bpy + acz * bpz,
+        abx * cpx + aby * cpy + abz * cpz,
+        acx * cpx + acy * cpy + acz * cpz,
+    )
+    ox, oy, oz = x - wb * abx - wc * acx, y - wb * aby - wc * acy, z - wb * abz - wc * acz  # p - q
+    return ox * ox + oy * oy + oz * oz, region, wb, wc
+
+
+@numba.njit(cache=True)
+def patch_search(
+    triangles: np.ndarray,
+    planes: np.ndarray,
+    offsets: np.ndarray,
+    faces: np.ndarray,
+    start: int,
+    px: float,
+    py: float,
+    pz: float,
+    ties: np.ndarray,
+) -> tuple[int, float, int, float, float, int]:
+    """The closest of ``faces`` (K,) to p, starting from face ``start`` (its projection bounds the rest).
+
+    planes (F, 4, 3) and offsets (F, 4): the lower-bound planes of ``ExactContactSensor`` (a face is
+    projected only when plane^2 + max(0, max_e out_e)^2 can reach the best so far, with the slack of
+    ``_closest_few``). Returns face, squared distance, region, wb, wc and the number of faces at
+    exactly that squared distance, whose ids fill ``ties`` (length >= K + 1) in the order found.
+    """
+    best, region, wb, wc = project(triangles, start, px, py, pz)
+    face = start
+    ties[0] = start
+    count = 1
+    for k in range(faces.shape[0]):
+        h = faces[k]
+        if h == start:
+            continue
+        plane = planes[h, 0, 0] * px + planes[h, 0, 1] * py + planes[h, 0, 2] * pz - offsets[h, 0]
+        outside = 0.0
+        for e in range(1, 4):
+            out = planes[h, e, 0] * px + planes[h, e, 1] * py + planes[h, e, 2] * pz - offsets[h, e]
+            if out > outside:
+                outside = out
+        if plane * plane + outside * outside > best * (1.0 + 1e-9) + 1e-24:
+            continue
+        squared, h_region, h_wb, h_wc = project(triangles, h, px, py, pz)
+        if squared < best:
+            best, face, region, wb, wc = squared, h, h_region, h_wb, h_wc
+            ties[0] = h
+            count = 1
+        elif squared == best:
+            ties[count] = h
+            count += 1
+    return face, best, region, wb, wc, count
+
+
+@numba.njit(cache=True)
+def finish(
+    triangles: np.ndarray,
+    sign_normals: np.ndarray,
+    face: int,
+    region: int,
+    wb: float,
+    wc: float,
+    px: float,
+    py: float,
+    pz: float,
+    weak_pseudo_normal: float,
+    weak_sign_cos: float,
+) -> tuple[float, float, float, float, bool, bool]:
+    """Twin of ``ExactContactSensor._finish_scalar`` up to the ray-parity fallback: the closest point q
+    (shifted frame), the unsigned distance, inside by the pseudo-normal, and whether that sign is weak
+    (then the caller decides by ray parity)."""
+    ax, ay, az = triangles[face, 0, 0], triangles[face, 0, 1], triangles[face, 0, 2]
+    bx, by, bz = triangles[face, 1, 0], triangles[face, 1, 1], triangles[face, 1, 2]
+    cx, cy, cz = triangles[face, 2, 0], triangles[face, 2, 1], triangles[face, 2, 2]
+    qx = ax + wb * (bx - ax) + wc * (cx - ax)
+    qy = ay + wb * (by - ay) + wc * (cy - ay)
+    qz = az + wb * (bz - az) + wc * (cz - az)
+    ox, oy, oz = px - qx, py - qy, pz - qz
+    dist = math.sqrt(ox * ox + oy * oy + oz * oz)
+    nx, ny, nz = sign_normals[face, region, 0], sign_normals[face, region, 1], sign_normals[face, region, 2]
+    side = ox * nx + oy * ny + oz * nz
+    strength = math.sqrt(nx * nx + ny * ny + nz * nz)
+    weak = strength < weak_pseudo_normal or abs(side) < weak_sign_cos * dist * strength
+    return qx, qy, qz, dist, side < 0.0, weak
