@@ -141,3 +141,72 @@ def finish(
     strength = math.sqrt(nx * nx + ny * ny + nz * nz)
     weak = strength < weak_pseudo_normal or abs(side) < weak_sign_cos * dist * strength
     return qx, qy, qz, dist, side < 0.0, weak
+
+
+@numba.njit(cache=True)
+def warm_query(
+    triangles: np.ndarray,
+    sign_normals: np.ndarray,
+    faces: np.ndarray,
+    planes: np.ndarray,
+    offsets: np.ndarray,
+    lower0: np.ndarray,
+    moved: float,
+    start: int,
+    px: float,
+    py: float,
+    pz: float,
+    weak_pseudo_normal: float,
+    weak_sign_cos: float,
+    ties: np.ndarray,
+) -> tuple[int, int, float, float, float, float, bool, bool]:
+    """One query of ``mesh_query.WarmClosest`` on its patch: search, tie check and finish in one call.
+
+    faces (K,): patch faces sorted by ``lower0`` (K,), a lower bound of each face's distance from the
+    point where the patch was built, which lies ``moved`` from p; planes (K, 4, 3) and offsets (K, 4):
+    their lower-bound planes. A face is skipped when either bound (lower0 - moved, 1-Lipschitz, or
+    the plane bound at p) cannot reach the best so far; the sorted ``lower0`` ends the loop early.
+    Returns (status, face, qx, qy, qz, distance, inside, weak): status 0 when the answer is settled,
+    1 when faces at the same squared distance give different points or signs (their ids fill ``ties``,
+    how many is the face slot; the caller settles the tie).
+    """
+    best, region, wb, wc = project(triangles, start, px, py, pz)
+    face = start
+    ties[0] = start
+    count = 1
+    for k in range(faces.shape[0]):
+        slack = best * (1.0 + 1e-9) + 1e-24
+        reach = lower0[k] - moved
+        if reach > 0.0 and reach * reach > slack * (1.0 + 1e-9):
+            break  # sorted: every further face is at least as far
+        h = faces[k]
+        if h == start:
+            continue
+        plane = planes[k, 0, 0] * px + planes[k, 0, 1] * py + planes[k, 0, 2] * pz - offsets[k, 0]
+        outside = 0.0
+        for e in range(1, 4):
+            out = planes[k, e, 0] * px + planes[k, e, 1] * py + planes[k, e, 2] * pz - offsets[k, e]
+            if out > outside:
+                outside = out
+        if plane * plane + outside * outside > slack:
+            continue
+        squared, h_region, h_wb, h_wc = project(triangles, h, px, py, pz)
+        if squared < best:
+            best, face, region, wb, wc = squared, h, h_region, h_wb, h_wc
+            ties[0] = h
+            count = 1
+        elif squared == best:
+            ties[count] = h
+            count += 1
+    qx, qy, qz, dist, inside, weak = finish(
+        triangles, sign_normals, face, region, wb, wc, px, py, pz, weak_pseudo_normal, weak_sign_cos
+    )
+    for i in range(count):  # tied faces: any of them serves when they give the same point and sign
+        h = ties[i]
+        if h == face:
+            continue
+        _, h_region, h_wb, h_wc = project(triangles, h, px, py, pz)
+        other = finish(triangles, sign_normals, h, h_region, h_wb, h_wc, px, py, pz, weak_pseudo_normal, weak_sign_cos)
+        if other[0] != qx or other[1] != qy or other[2] != qz or other[4] != inside or other[5] != weak:
+            return 1, count, qx, qy, qz, dist, inside, weak
+    return 0, face, qx, qy, qz, dist, inside, weak

@@ -501,7 +501,10 @@ class WarmClosest:
         self.max_patch_faces = int(max_patch_faces)
         self._face = -1  # the last answer's face (-1: none yet)
         self._p0 = (math.inf, math.inf, math.inf)  # where the patch was built (shifted frame)
-        self._faces: NDArray[np.int64] | None = None  # patch faces, ascending
+        self._faces: NDArray[np.int64] | None = None  # patch faces, by their lower bound at p0
+        self._planes = np.zeros((0, 4, 3))  # their bound planes (K, 4, 3), offsets (K, 4), bounds at p0 (K,)
+        self._offsets = np.zeros((0, 4))
+        self._lower0 = np.zeros(0)
         self._ties = np.zeros(1, dtype=np.int64)
         #: How many queries built a patch, searched one, settled a tie or took the sensor's own search.
         self.counts = {"builds": 0, "patch": 0, "ties": 0, "full": 0}
@@ -526,21 +529,29 @@ class WarmClosest:
             return (q[0], q[1], q[2]), float(hit.distance_m[0]), self._face
         self.counts["patch"] += 1
         k = self._kernels
-        face, _, region, wb, wc, count = k.patch_search(
-            s._triangles, s._bound_planes, s._bound_offsets, self._faces, self._face, px, py, pz, self._ties
+        x0, y0, z0 = self._p0
+        moved = math.sqrt((px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2)
+        status, face, qx, qy, qz, dist, inside, weak = k.warm_query(
+            s._triangles,
+            s._sign_normals,
+            self._faces,
+            self._planes,
+            self._offsets,
+            self._lower0,
+            moved * (1.0 + 1e-12) + 1e-18,  # rounded up: the bound stays a bound
+            self._face,
+            px,
+            py,
+            pz,
+            WEAK_PSEUDO_NORMAL,
+            WEAK_SIGN_COS,
+            self._ties,
         )
-        answer = self._finish(face, region, wb, wc, px, py, pz)
-        if count > 1:  # tied faces: any of them serves when they give the same point and sign
-            ties = self._ties[:count].tolist()
-            for h in ties:
-                _, h_region, h_wb, h_wc = k.project(s._triangles, h, px, py, pz)
-                if self._finish(h, h_region, h_wb, h_wc, px, py, pz) != answer:
-                    face = self._break_tie([px, py, pz], ties)
-                    _, region, wb, wc = k.project(s._triangles, face, px, py, pz)
-                    answer = self._finish(face, region, wb, wc, px, py, pz)
-                    break
+        if status == 1:  # tied faces that give different points: settle as the sensor's search does
+            face = self._break_tie([px, py, pz], self._ties[:face].tolist())
+            _, region, wb, wc = k.project(s._triangles, face, px, py, pz)
+            qx, qy, qz, dist, inside, weak = self._finish(face, region, wb, wc, px, py, pz)
         self._face = face
-        qx, qy, qz, dist, inside, weak = answer
         if weak:
             inside = bool(s._scene.occupied(np.array([[px, py, pz]]))[0])
         return (qx + cx, qy + cy, qz + cz), -dist if inside else dist, face
@@ -580,10 +591,16 @@ class WarmClosest:
         if len(near) > self.max_patch_faces:
             return
         near.sort()
-        bounds = s._bound_planes[near] @ np.array([px, py, pz]) - s._bound_offsets[near]  # (K, 4)
+        planes, offsets = s._bound_planes[near], s._bound_offsets[near]
+        bounds = planes @ np.array([px, py, pz]) - offsets  # (K, 4)
         outside = np.maximum(bounds[:, 1:].max(axis=1), 0.0)
-        keep = bounds[:, 0] ** 2 + outside**2 <= radius * radius * (1.0 + 1e-9) + 1e-24
-        self._faces = np.ascontiguousarray(near[keep])
+        lower = np.sqrt(bounds[:, 0] ** 2 + outside**2) * (1.0 - 1e-12)  # rounded down: stays a lower bound
+        order = np.argsort(lower, kind="stable")
+        order = order[lower[order] <= radius * (1.0 + 1e-9)]
+        self._faces = np.ascontiguousarray(near[order])
+        self._planes = np.ascontiguousarray(planes[order])
+        self._offsets = np.ascontiguousarray(offsets[order])
+        self._lower0 = np.ascontiguousarray(lower[order])
         if len(self._ties) < len(self._faces) + 1:
             self._ties = np.zeros(2 * len(self._faces) + 1, dtype=np.int64)
         self._p0 = (px, py, pz)
