@@ -188,6 +188,14 @@ class Simulation:
 
     # --- commands ----------------------------------------------------------------------------------
     @property
+    def exact_contact_spheres(self) -> int:
+        """Spheres whose contacts the exact mesh query senses (the probe; the capsule spheres of a hand
+        or finger on a non-convex object); 0 when MuJoCo's own contacts serve."""
+        if not self._exact:
+            return 0
+        return 1 if self.scene.effector == "probe" else len(self._sph_geom)
+
+    @property
     def time_s(self) -> float:
         """Simulated time since the start, seconds."""
         return self._steps * self._dt
@@ -343,8 +351,8 @@ class Simulation:
     def _probe_closest(self) -> tuple[np.ndarray, float, np.ndarray] | None:
         """Closest surface point, signed centre distance and contact normal; None if surely apart."""
         assert self._warm is not None and self._sensor is not None
-        p = np.array(self.data.qpos[0:3], dtype=np.float64)
-        if self._probe_cache_hit is not None and np.array_equal(p, self._probe_cache_p):
+        p = self.data.qpos[0:3].copy()
+        if self._probe_cache_hit is not None and p.tolist() == self._probe_cache_p.tolist():
             return self._probe_cache_hit
         # The signed distance is 1-Lipschitz: skip the query while it cannot be within reach.
         offset = p - self._probe_cache_p
@@ -555,6 +563,31 @@ class Simulation:
                 f"diverged: use a smaller time step, e.g. timestep_s: {dt / 2:g}"
             )
         return array
+
+
+def model_sizes(model: mujoco.MjModel) -> dict[str, int]:
+    """What a scene's MuJoCo model holds: bodies (the world excluded), geoms, degrees of freedom,
+    actuators, and the geom pairs MuJoCo's collision detection considers (``contact_pairs``): pairs of
+    geoms on different bodies whose contype and conaffinity match, less parent-child pairs (unless the
+    parent is the world) and pairs of two static bodies, plus explicit ``<pair>`` elements."""
+    contype = np.asarray(model.geom_contype, dtype=np.int64)
+    affinity = np.asarray(model.geom_conaffinity, dtype=np.int64)
+    body = np.asarray(model.geom_bodyid)
+    weld = np.asarray(model.body_weldid)[body]
+    parent = np.asarray(model.body_parentid)
+    g1, g2 = np.triu_indices(model.ngeom, k=1)
+    b1, b2 = body[g1], body[g2]
+    match = ((contype[g1] & affinity[g2]) | (contype[g2] & affinity[g1])) != 0
+    family = ((parent[b1] == b2) & (b2 != 0)) | ((parent[b2] == b1) & (b1 != 0))
+    static = (weld[g1] == 0) & (weld[g2] == 0)
+    pairs = int(np.count_nonzero(match & (b1 != b2) & ~family & ~static)) + int(model.npair)
+    return {
+        "bodies": int(model.nbody) - 1,
+        "geoms": int(model.ngeom),
+        "dof": int(model.nv),
+        "actuators": int(model.nu),
+        "contact_pairs": pairs,
+    }
 
 
 def bare_step_rate(model: mujoco.MjModel, seconds: float = 1.0, batch: int = 100) -> float:

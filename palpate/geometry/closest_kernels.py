@@ -210,3 +210,39 @@ def warm_query(
         if other[0] != qx or other[1] != qy or other[2] != qz or other[4] != inside or other[5] != weak:
             return 1, count, qx, qy, qz, dist, inside, weak
     return 0, face, qx, qy, qz, dist, inside, weak
+
+
+@numba.njit(cache=True)
+def build_patch(
+    planes: np.ndarray, offsets: np.ndarray, near: np.ndarray, px: float, py: float, pz: float, radius: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The patch of ``mesh_query.WarmClosest``: of the faces ``near`` (K0,), those whose lower bound at
+    p (plane, then edges; rounded down) is at most ``radius``, sorted by that bound. Returns their ids
+    (K,), bound planes (K, 4, 3), offsets (K, 4) and bounds (K,)."""
+    count = near.shape[0]
+    lower = np.empty(count)
+    for i in range(count):
+        h = near[i]
+        plane = planes[h, 0, 0] * px + planes[h, 0, 1] * py + planes[h, 0, 2] * pz - offsets[h, 0]
+        outside = 0.0
+        for e in range(1, 4):
+            out = planes[h, e, 0] * px + planes[h, e, 1] * py + planes[h, e, 2] * pz - offsets[h, e]
+            if out > outside:
+                outside = out
+        lower[i] = math.sqrt(plane * plane + outside * outside) * (1.0 - 1e-12)
+    order = np.argsort(lower, kind="mergesort")
+    kept = 0
+    while kept < count and lower[order[kept]] <= radius * (1.0 + 1e-9):
+        kept += 1
+    faces = np.empty(kept, dtype=np.int64)
+    patch_planes = np.empty((kept, 4, 3))
+    patch_offsets = np.empty((kept, 4))
+    patch_lower = np.empty(kept)
+    for k in range(kept):
+        i = order[k]
+        h = near[i]
+        faces[k] = h
+        patch_planes[k] = planes[h]
+        patch_offsets[k] = offsets[h]
+        patch_lower[k] = lower[i]
+    return faces, patch_planes, patch_offsets, patch_lower

@@ -513,7 +513,8 @@ class WarmClosest:
         """Closest surface point (3 floats, world frame, metres), signed distance (m, < 0 inside) and
         face id of one finite point (3,)."""
         s = self.sensor
-        x, y, z = np.asarray(point_m, dtype=np.float64).reshape(3).tolist()
+        point = point_m if type(point_m) is np.ndarray and point_m.shape == (3,) else np.asarray(point_m, np.float64)
+        x, y, z = (float(v) for v in point.reshape(3).tolist())
         if not math.isfinite(x + y + z):
             raise ValueError("query point must be finite (got NaN or infinity)")
         cx, cy, cz = s._centre_list
@@ -590,17 +591,10 @@ class WarmClosest:
         near = np.asarray(tree.query_ball_point([px, py, pz], radius + largest), dtype=np.int64)
         if len(near) > self.max_patch_faces:
             return
-        near.sort()
-        planes, offsets = s._bound_planes[near], s._bound_offsets[near]
-        bounds = planes @ np.array([px, py, pz]) - offsets  # (K, 4)
-        outside = np.maximum(bounds[:, 1:].max(axis=1), 0.0)
-        lower = np.sqrt(bounds[:, 0] ** 2 + outside**2) * (1.0 - 1e-12)  # rounded down: stays a lower bound
-        order = np.argsort(lower, kind="stable")
-        order = order[lower[order] <= radius * (1.0 + 1e-9)]
-        self._faces = np.ascontiguousarray(near[order])
-        self._planes = np.ascontiguousarray(planes[order])
-        self._offsets = np.ascontiguousarray(offsets[order])
-        self._lower0 = np.ascontiguousarray(lower[order])
+        faces, planes, offsets, lower = self._kernels.build_patch(
+            s._bound_planes, s._bound_offsets, near, px, py, pz, radius
+        )
+        self._faces, self._planes, self._offsets, self._lower0 = faces, planes, offsets, lower
         if len(self._ties) < len(self._faces) + 1:
             self._ties = np.zeros(2 * len(self._faces) + 1, dtype=np.int64)
         self._p0 = (px, py, pz)
