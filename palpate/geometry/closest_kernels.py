@@ -1,11 +1,13 @@
-"""Compiled (numba) kernels of the warm-started closest-point query (``mesh_query.WarmClosest``).
+"""Compiled (numba) scalar kernels of the exact closest-point queries of ``palpate.geometry.mesh_query``.
 
-Each kernel is the line-by-line twin of the Python-scalar code of
-:class:`palpate.geometry.mesh_query.ExactContactSensor` (``closest_region``, ``_project_scalar``,
-``_finish_scalar``): the same floating-point operations in the same order, compiled without
-fast-math, so their results are bitwise equal (tests/unit/geometry/test_warm_closest.py checks it).
-What changes is the cost: a patch of a few hundred faces is searched in about a microsecond instead
-of 3 us per face in Python. Compiled once per machine and cached on disk (``cache=True``).
+One point against one triangle (Ericson's Voronoi regions, the pseudo-normal sign), the bound that
+prunes faces, and the warm-started patch search of ``WarmClosest``. ``ExactContactSensor``'s
+few-point path and ``WarmClosest`` both call these, so they compute the same bits; the vectorised
+numpy path (``closest_points_on_triangles``) agrees with them to rounding (about 1e-17 m,
+tests/unit/geometry/test_mesh_query_few_points.py). Compiled without fast-math (no reassociation,
+no fused multiply-add), once per machine, and cached on disk beside this module (``cache=True``):
+one point and one triangle cost about a microsecond from Python, a patch of a few hundred faces a
+few microseconds.
 """
 
 from __future__ import annotations
@@ -21,7 +23,12 @@ _FACE, _VERTEX_A, _VERTEX_B, _VERTEX_C, _EDGE_AB, _EDGE_BC, _EDGE_CA = range(7)
 
 @numba.njit(cache=True)
 def closest_region(d1: float, d2: float, d3: float, d4: float, d5: float, d6: float) -> tuple[int, float, float]:
-    """Twin of :func:`palpate.geometry.mesh_query.closest_region` (Ericson 5.1.5)."""
+    """Region of the closest point of a triangle and its weights (Ericson 5.1.5).
+
+    d1 = ab.ap, d2 = ac.ap, d3 = ab.bp, d4 = ac.bp, d5 = ab.cp, d6 = ac.cp. Returns the region code
+    and the weights (wb, wc) of the closest point q = a + wb ab + wc ac; the same priority order and
+    formulas as the vectorised ``closest_points_on_triangles``.
+    """
     if d1 <= 0.0 and d2 <= 0.0:
         return _VERTEX_A, 0.0, 0.0
     if d3 >= 0.0 and d4 <= d3:
@@ -44,8 +51,8 @@ def closest_region(d1: float, d2: float, d3: float, d4: float, d5: float, d6: fl
 
 @numba.njit(cache=True)
 def project(triangles: np.ndarray, face: int, px: float, py: float, pz: float) -> tuple[float, int, float, float]:
-    """Twin of ``ExactContactSensor._project_scalar``: squared distance, region and weights (wb, wc)
-    of p projected onto ``triangles[face]`` (F, 3, 3), shifted frame."""
+    """Squared distance, region and weights (wb, wc) of p projected onto ``triangles[face]``
+    (triangles (F, 3, 3), p in the same frame)."""
     ax, ay, az = triangles[face, 0, 0], triangles[face, 0, 1], triangles[face, 0, 2]
     bx, by, bz = triangles[face, 1, 0], triangles[face, 1, 1], triangles[face, 1, 2]
     cx, cy, cz = triangles[face, 2, 0], triangles[face, 2, 1], triangles[face, 2, 2]
@@ -66,49 +73,16 @@ def project(triangles: np.ndarray, face: int, px: float, py: float, pz: float) -
 
 
 @numba.njit(cache=True)
-def patch_search(
-    triangles: np.ndarray,
-    planes: np.ndarray,
-    offsets: np.ndarray,
-    faces: np.ndarray,
-    start: int,
-    px: float,
-    py: float,
-    pz: float,
-    ties: np.ndarray,
-) -> tuple[int, float, int, float, float, int]:
-    """The closest of ``faces`` (K,) to p, starting from face ``start`` (its projection bounds the rest).
-
-    planes (F, 4, 3) and offsets (F, 4): the lower-bound planes of ``ExactContactSensor`` (a face is
-    projected only when plane^2 + max(0, max_e out_e)^2 can reach the best so far, with the slack of
-    ``_closest_few``). Returns face, squared distance, region, wb, wc and the number of faces at
-    exactly that squared distance, whose ids fill ``ties`` (length >= K + 1) in the order found.
-    """
-    best, region, wb, wc = project(triangles, start, px, py, pz)
-    face = start
-    ties[0] = start
-    count = 1
-    for k in range(faces.shape[0]):
-        h = faces[k]
-        if h == start:
-            continue
-        plane = planes[h, 0, 0] * px + planes[h, 0, 1] * py + planes[h, 0, 2] * pz - offsets[h, 0]
-        outside = 0.0
-        for e in range(1, 4):
-            out = planes[h, e, 0] * px + planes[h, e, 1] * py + planes[h, e, 2] * pz - offsets[h, e]
-            if out > outside:
-                outside = out
-        if plane * plane + outside * outside > best * (1.0 + 1e-9) + 1e-24:
-            continue
-        squared, h_region, h_wb, h_wc = project(triangles, h, px, py, pz)
-        if squared < best:
-            best, face, region, wb, wc = squared, h, h_region, h_wb, h_wc
-            ties[0] = h
-            count = 1
-        elif squared == best:
-            ties[count] = h
-            count += 1
-    return face, best, region, wb, wc, count
+def bound_squared(planes: np.ndarray, offsets: np.ndarray, i: int, px: float, py: float, pz: float) -> float:
+    """Lower bound of the squared distance from p to face row ``i`` of planes (N, 4, 3) and offsets
+    (N, 4) (``ExactContactSensor``'s bound planes): plane^2 + max(0, max_e out_e)^2."""
+    plane = planes[i, 0, 0] * px + planes[i, 0, 1] * py + planes[i, 0, 2] * pz - offsets[i, 0]
+    outside = 0.0
+    for e in range(1, 4):
+        out = planes[i, e, 0] * px + planes[i, e, 1] * py + planes[i, e, 2] * pz - offsets[i, e]
+        if out > outside:
+            outside = out
+    return plane * plane + outside * outside
 
 
 @numba.njit(cache=True)
@@ -125,9 +99,10 @@ def finish(
     weak_pseudo_normal: float,
     weak_sign_cos: float,
 ) -> tuple[float, float, float, float, bool, bool]:
-    """Twin of ``ExactContactSensor._finish_scalar`` up to the ray-parity fallback: the closest point q
-    (shifted frame), the unsigned distance, inside by the pseudo-normal, and whether that sign is weak
-    (then the caller decides by ray parity)."""
+    """The closest point q of p whose projection onto ``face`` is (region, wb, wc), the unsigned
+    distance, inside by the pseudo-normal of the feature holding q (``sign_normals`` (F, 7, 3)), and
+    whether that sign is weak (the pseudo-normal is short, or nearly orthogonal to p - q: then the
+    caller decides by ray parity)."""
     ax, ay, az = triangles[face, 0, 0], triangles[face, 0, 1], triangles[face, 0, 2]
     bx, by, bz = triangles[face, 1, 0], triangles[face, 1, 1], triangles[face, 1, 2]
     cx, cy, cz = triangles[face, 2, 0], triangles[face, 2, 1], triangles[face, 2, 2]
@@ -182,13 +157,7 @@ def warm_query(
         h = faces[k]
         if h == start:
             continue
-        plane = planes[k, 0, 0] * px + planes[k, 0, 1] * py + planes[k, 0, 2] * pz - offsets[k, 0]
-        outside = 0.0
-        for e in range(1, 4):
-            out = planes[k, e, 0] * px + planes[k, e, 1] * py + planes[k, e, 2] * pz - offsets[k, e]
-            if out > outside:
-                outside = out
-        if plane * plane + outside * outside > slack:
+        if bound_squared(planes, offsets, k, px, py, pz) > slack:
             continue
         squared, h_region, h_wb, h_wc = project(triangles, h, px, py, pz)
         if squared < best:
@@ -222,14 +191,7 @@ def build_patch(
     count = near.shape[0]
     lower = np.empty(count)
     for i in range(count):
-        h = near[i]
-        plane = planes[h, 0, 0] * px + planes[h, 0, 1] * py + planes[h, 0, 2] * pz - offsets[h, 0]
-        outside = 0.0
-        for e in range(1, 4):
-            out = planes[h, e, 0] * px + planes[h, e, 1] * py + planes[h, e, 2] * pz - offsets[h, e]
-            if out > outside:
-                outside = out
-        lower[i] = math.sqrt(plane * plane + outside * outside) * (1.0 - 1e-12)
+        lower[i] = math.sqrt(bound_squared(planes, offsets, near[i], px, py, pz)) * (1.0 - 1e-12)
     order = np.argsort(lower, kind="mergesort")
     kept = 0
     while kept < count and lower[order[kept]] <= radius * (1.0 + 1e-9):

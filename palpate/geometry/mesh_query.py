@@ -91,30 +91,17 @@ def closest_points_on_triangles(
 
 
 def closest_region(d1: float, d2: float, d3: float, d4: float, d5: float, d6: float) -> tuple[int, float, float]:
-    """Scalar twin of :func:`closest_points_on_triangles` for one point and triangle.
+    """Scalar twin of :func:`closest_points_on_triangles` for one point and triangle (compiled:
+    ``closest_kernels.closest_region``).
 
     d1 = ab.ap, d2 = ac.ap, d3 = ab.bp, d4 = ac.bp, d5 = ab.cp, d6 = ac.cp (Ericson 5.1.5). Returns the
     region code and the weights (wb, wc) of the closest point q = a + wb ab + wc ac; same priority
     order and formulas as the vectorised kernel.
     """
-    if d1 <= 0.0 and d2 <= 0.0:
-        return VERTEX_A, 0.0, 0.0
-    if d3 >= 0.0 and d4 <= d3:
-        return VERTEX_B, 1.0, 0.0
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        return EDGE_AB, d1 / (d1 - d3), 0.0
-    if d6 >= 0.0 and d5 <= d6:
-        return VERTEX_C, 0.0, 1.0
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        return EDGE_CA, 0.0, d2 / (d2 - d6)
-    va = d3 * d6 - d5 * d4
-    if va <= 0.0 and d4 >= d3 and d5 >= d6:
-        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        return EDGE_BC, 1.0 - t, t
-    denom = 1.0 / (va + vb + vc)
-    return FACE, vb * denom, vc * denom
+    from palpate.geometry import closest_kernels
+
+    region, wb, wc = closest_kernels.closest_region(d1, d2, d3, d4, d5, d6)
+    return int(region), float(wb), float(wc)
 
 
 def pseudo_normals(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
@@ -267,6 +254,9 @@ class ExactContactSensor:
         # pseudo-normal per face and region code: FACE, VERTEX_A..C, EDGE_AB..CA -> (F, 7, 3)
         self._sign_normals = np.concatenate([self._face_normals[:, None], corner, edge], axis=1)
         self._ring = face_rings(mesh)
+        from palpate.geometry import closest_kernels  # numba: compiled on first use, then cached on disk
+
+        self._kernels = closest_kernels
         self._centre_list: list[float] = self._centre.tolist()
         self._index: tuple[Any, np.ndarray, float] | None = None
         # lower bound of a face's distance for the few-point path, as planes g . p - h (F, 4): the face's
@@ -358,7 +348,7 @@ class ExactContactSensor:
                 # slack above the bound's rounding (~1e-17 m), so faces that may tie are projected
                 if k and plane * plane + outside * outside > best * (1.0 + 1e-9) + 1e-24:
                     continue
-                squared, region, wb, wc = self._project_scalar(p, int(ring[k]))
+                squared, region, wb, wc = self._kernels.project(self._triangles, int(ring[k]), p[0], p[1], p[2])
                 if squared < best:
                     best, pick = squared, (k, region, wb, wc)
             k, region, wb, wc = pick
@@ -381,49 +371,22 @@ class ExactContactSensor:
         """Closest point q (shifted frame) and signed distance of ``p`` whose projection onto ``face`` is
         (region, wb, wc): the sign from the pseudo-normal of the feature holding q, ray parity where it
         is weak (see the module docstring)."""
-        (ax, ay, az), (bx, by, bz), (cx, cy, cz) = self._triangle_list(face)
-        q = (
-            ax + wb * (bx - ax) + wc * (cx - ax),
-            ay + wb * (by - ay) + wc * (cy - ay),
-            az + wb * (bz - az) + wc * (cz - az),
+        qx, qy, qz, dist, inside, weak = self._kernels.finish(
+            self._triangles,
+            self._sign_normals,
+            face,
+            region,
+            wb,
+            wc,
+            p[0],
+            p[1],
+            p[2],
+            WEAK_PSEUDO_NORMAL,
+            WEAK_SIGN_COS,
         )
-        ox, oy, oz = p[0] - q[0], p[1] - q[1], p[2] - q[2]
-        dist = math.sqrt(ox * ox + oy * oy + oz * oz)
-        nx, ny, nz = self._sign_normal_list(face, region)
-        side = ox * nx + oy * ny + oz * nz
-        strength = math.sqrt(nx * nx + ny * ny + nz * nz)
-        inside = side < 0.0
-        if strength < WEAK_PSEUDO_NORMAL or abs(side) < WEAK_SIGN_COS * dist * strength:
+        if weak:
             inside = bool(self._scene.occupied(np.array([p]))[0])
-        return q, -dist if inside else dist
-
-    def _sign_normal_list(self, face: int, region: int) -> list[float]:
-        """The pseudo-normal of ``face``'s feature ``region`` as Python floats."""
-        normal: list[float] = self._sign_normals[face, region].tolist()
-        return normal
-
-    def _triangle_list(self, face: int) -> list[list[float]]:
-        """Corners a, b, c of ``face`` (shifted frame) as Python floats."""
-        return self._triangles[face].tolist()
-
-    def _project_scalar(self, p: list[float], face: int) -> tuple[float, int, float, float]:
-        """Squared distance, region and weights (wb, wc) of point ``p`` (shifted frame) projected onto
-        ``face`` (Ericson 5.1.5 via :func:`closest_region`)."""
-        (ax, ay, az), (bx, by, bz), (cx, cy, cz) = self._triangle_list(face)
-        abx, aby, abz, acx, acy, acz = bx - ax, by - ay, bz - az, cx - ax, cy - ay, cz - az
-        x, y, z = p[0] - ax, p[1] - ay, p[2] - az  # ap
-        bpx, bpy, bpz = p[0] - bx, p[1] - by, p[2] - bz
-        cpx, cpy, cpz = p[0] - cx, p[1] - cy, p[2] - cz
-        region, wb, wc = closest_region(
-            abx * x + aby * y + abz * z,
-            acx * x + acy * y + acz * z,
-            abx * bpx + aby * bpy + abz * bpz,
-            acx * bpx + acy * bpy + acz * bpz,
-            abx * cpx + aby * cpy + abz * cpz,
-            acx * cpx + acy * cpy + acz * cpz,
-        )
-        ox, oy, oz = x - wb * abx - wc * acx, y - wb * aby - wc * acy, z - wb * abz - wc * acz  # p - q
-        return ox * ox + oy * oy + oz * oz, region, wb, wc
+        return (qx, qy, qz), -dist if inside else dist
 
     def face_index(self) -> tuple[Any, np.ndarray, float]:
         """A k-d tree of the face centroids (shifted frame), each face's radius about its centroid (F,)
@@ -492,9 +455,7 @@ class WarmClosest:
     ) -> None:
         if not reach_m > 0.0 or not max_distance_m > 0.0:
             raise ValueError(f"reach_m and max_distance_m must be > 0, got {reach_m!r} and {max_distance_m!r}")
-        from palpate.geometry import closest_kernels  # numba: compiled on first use, then cached on disk
-
-        self._kernels = closest_kernels
+        self._kernels = sensor._kernels
         self.sensor = sensor
         self.reach_m = float(reach_m)
         self.max_distance_m = float(max_distance_m)
@@ -551,21 +512,13 @@ class WarmClosest:
         if status == 1:  # tied faces that give different points: settle as the sensor's search does
             face = self._break_tie([px, py, pz], self._ties[:face].tolist())
             _, region, wb, wc = k.project(s._triangles, face, px, py, pz)
-            qx, qy, qz, dist, inside, weak = self._finish(face, region, wb, wc, px, py, pz)
+            (qx, qy, qz), signed = s._finish_scalar([px, py, pz], face, region, wb, wc)
+        else:
+            if weak:  # ray parity, as the sensor decides
+                inside = bool(s._scene.occupied(np.array([[px, py, pz]]))[0])
+            signed = -dist if inside else dist
         self._face = face
-        if weak:
-            inside = bool(s._scene.occupied(np.array([[px, py, pz]]))[0])
-        return (qx + cx, qy + cy, qz + cz), -dist if inside else dist, face
-
-    def _finish(
-        self, face: int, region: int, wb: float, wc: float, px: float, py: float, pz: float
-    ) -> tuple[float, float, float, float, bool, bool]:
-        """closest_kernels.finish on this sensor: q, unsigned distance, inside, weak sign."""
-        s = self.sensor
-        answer: tuple[float, float, float, float, bool, bool] = self._kernels.finish(
-            s._triangles, s._sign_normals, face, region, wb, wc, px, py, pz, WEAK_PSEUDO_NORMAL, WEAK_SIGN_COS
-        )
-        return answer
+        return (qx + cx, qy + cy, qz + cz), signed, face
 
     def _break_tie(self, p: list[float], ties: list[int]) -> int:
         """The face the sensor's search picks among faces at the same squared distance: Open3D's face
