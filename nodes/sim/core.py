@@ -38,7 +38,7 @@ import mujoco
 import numpy as np
 
 from palpate.errors import ConfigError, SimulationDivergedError
-from palpate.geometry.mesh_query import ExactContactSensor, WarmClosest
+from palpate.geometry.mesh_query import FEW_POINTS, ClosestPoints, ExactContactSensor, WarmClosest
 from palpate.nodes.sim.effectors import FingerConfig, HandConfig
 from palpate.nodes.sim.objects import ObjectModel, load_object
 from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model, uses_exact_contacts
@@ -390,6 +390,7 @@ class Simulation:
         self._sph_body = self.model.geom_bodyid[self._sph_geom]
         self._sph_cache_p = np.zeros((len(self._sph_geom), 3))
         self._sph_cache_d = np.full(len(self._sph_geom), -np.inf)  # no query yet: the bound never skips
+        self._sph_warm: dict[int, WarmClosest] = {}  # each sphere's warm-started query, made on first use
 
     def _sphere_centres(self) -> np.ndarray:
         return sphere_centres(self.data, self._sph_geom, self._sph_offset)
@@ -404,7 +405,7 @@ class Simulation:
         if len(near) == 0:
             empty = np.zeros((0, 3))
             return np.zeros(0, dtype=np.int64), empty, empty, np.zeros(0), empty
-        hit = self._sensor.closest(P[near])
+        hit = self._sphere_closest(P, near)
         dist = np.asarray(hit.distance_m, dtype=np.float64)
         self._sph_cache_p[near] = P[near]
         self._sph_cache_d[near] = dist
@@ -416,6 +417,31 @@ class Simulation:
             np.asarray(hit.points_m, dtype=np.float64)[touching],
             dist[touching],
             np.asarray(hit.normals, dtype=np.float64)[touching],
+        )
+
+    def _sphere_closest(self, P: np.ndarray, near: np.ndarray) -> ClosestPoints:
+        """The sensor's answer for the spheres ``near`` (indices into centres P (K, 3)). Up to
+        FEW_POINTS spheres, where the sensor answers point by point, each sphere's own warm-started
+        query gives the same bits (its face too: ``same_face``) for less; more go to the sensor in one
+        batch, whose vectorised path rounds differently."""
+        assert self._sensor is not None
+        if len(near) > FEW_POINTS:
+            return self._sensor.closest(P[near])
+        points, distances, faces = [], [], []
+        for k in near.tolist():
+            warm = self._sph_warm.get(k)
+            if warm is None:
+                warm = self._sph_warm[k] = WarmClosest(self._sensor, same_face=True)
+            point, distance, face = warm.query(P[k])
+            points.append(point)
+            distances.append(distance)
+            faces.append(face)
+        face_ids = np.array(faces, dtype=np.int64)
+        return ClosestPoints(
+            points_m=np.array(points, dtype=np.float64).reshape(-1, 3),
+            distance_m=np.array(distances, dtype=np.float64),
+            normals=self._sensor.face_normals[face_ids],
+            face_ids=face_ids,
         )
 
     def _sphere_forces(self, idx: np.ndarray, points: np.ndarray, dist: np.ndarray, normals: np.ndarray) -> np.ndarray:

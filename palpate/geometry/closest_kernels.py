@@ -134,6 +134,7 @@ def warm_query(
     weak_pseudo_normal: float,
     weak_sign_cos: float,
     ties: np.ndarray,
+    same_face: bool,
 ) -> tuple[int, int, float, float, float, float, bool, bool]:
     """One query of ``mesh_query.WarmClosest`` on its patch: search, tie check and finish in one call.
 
@@ -142,8 +143,9 @@ def warm_query(
     their lower-bound planes. A face is skipped when either bound (lower0 - moved, 1-Lipschitz, or
     the plane bound at p) cannot reach the best so far; the sorted ``lower0`` ends the loop early.
     Returns (status, face, qx, qy, qz, distance, inside, weak): status 0 when the answer is settled,
-    1 when faces at the same squared distance give different points or signs (their ids fill ``ties``,
-    how many is the face slot; the caller settles the tie).
+    1 when faces at the same squared distance give different points or signs, or with ``same_face``
+    when there are such faces at all (their ids fill ``ties``, how many is the face slot; the caller
+    settles the tie).
     """
     best, region, wb, wc = project(triangles, start, px, py, pz)
     face = start
@@ -170,6 +172,8 @@ def warm_query(
     qx, qy, qz, dist, inside, weak = finish(
         triangles, sign_normals, face, region, wb, wc, px, py, pz, weak_pseudo_normal, weak_sign_cos
     )
+    if same_face and count > 1:  # the caller needs the sensor's very face: it settles every tie
+        return 1, count, qx, qy, qz, dist, inside, weak
     for i in range(count):  # tied faces: any of them serves when they give the same point and sign
         h = ties[i]
         if h == face:

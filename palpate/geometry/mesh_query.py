@@ -436,8 +436,10 @@ class WarmClosest:
       patch face whose lower bound (its plane, then how far p lies outside its edges: the bound of the
       few-point path, with the same slack) can reach the best so far.
     - Exact ties (faces at the same squared distance to the last bit: a vertex or edge they share)
-      are settled as the sensor's search settles them: Open3D's face if it is one of them, else the
-      lowest id in that face's ring. That costs one Open3D call, only on ties.
+      whose faces give different points or signs are settled as the sensor's search settles them:
+      Open3D's face if it is one of them, else the lowest id in that face's ring (one Open3D call).
+      Ties whose faces give the same point and sign keep the first face found, unless ``same_face``
+      asks for the sensor's face (and its normal) on every tie.
     - Far from the surface (e + 2 reach > ``max_distance_m``), or where a patch would hold more than
       ``max_patch_faces`` faces, the query is the sensor's own.
 
@@ -452,6 +454,7 @@ class WarmClosest:
         reach_m: float = 0.002,
         max_distance_m: float = 0.03,
         max_patch_faces: int = 4096,
+        same_face: bool = False,
     ) -> None:
         if not reach_m > 0.0 or not max_distance_m > 0.0:
             raise ValueError(f"reach_m and max_distance_m must be > 0, got {reach_m!r} and {max_distance_m!r}")
@@ -460,6 +463,9 @@ class WarmClosest:
         self.reach_m = float(reach_m)
         self.max_distance_m = float(max_distance_m)
         self.max_patch_faces = int(max_patch_faces)
+        #: Settle every tie as the sensor does, so that the face (and its normal) is the sensor's too;
+        #: without it a tie whose faces give the same point and sign keeps any of them.
+        self.same_face = bool(same_face)
         self._face = -1  # the last answer's face (-1: none yet)
         self._p0 = (math.inf, math.inf, math.inf)  # where the patch was built (shifted frame)
         self._faces: NDArray[np.int64] | None = None  # patch faces, by their lower bound at p0
@@ -508,6 +514,7 @@ class WarmClosest:
             WEAK_PSEUDO_NORMAL,
             WEAK_SIGN_COS,
             self._ties,
+            self.same_face,
         )
         if status == 1:  # tied faces that give different points: settle as the sensor's search does
             face = self._break_tie([px, py, pz], self._ties[:face].tolist())
