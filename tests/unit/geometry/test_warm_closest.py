@@ -139,3 +139,21 @@ def test_compiled_projection_is_bitwise_plain_python() -> None:
         assert got == _project_py(tri[i], [x, y, z])
         regions.add(got[1])
     assert regions == set(range(7))
+
+
+def test_same_face_gives_the_sensors_face_on_every_tie() -> None:
+    mesh = load_object(ObjectSpec(kind="torus", size_m=(0.04, 0.012))).mesh
+    sensor = ExactContactSensor(mesh)
+    points = _walks(mesh, np.random.default_rng(5), 5, 120, 0.008)
+    warm, loose = WarmClosest(sensor, same_face=True), WarmClosest(sensor)
+    differ = 0
+    for p in points:
+        expected = sensor.closest(p[None, :])
+        point, distance, face = warm.query(p)
+        assert (point, distance, face) == (
+            tuple(expected.points_m[0].tolist()),
+            float(expected.distance_m[0]),
+            int(expected.face_ids[0]),
+        )
+        differ += loose.query(p)[2] != face
+    assert differ > 0  # without it, ties with one point keep another face (a vertex's faces)
