@@ -241,6 +241,86 @@ def decode(payload: bytes | memoryview, expected: type[M] | None = None) -> M:
     return _build(cls, fields, blob)  # type: ignore[return-value]
 
 
+def transfer(message: M) -> M:
+    """What a subscriber of `message` receives, ``decode(encode(message))``, without the bytes.
+
+    For the in-process executor. The same field values of the same types: floats as float, string
+    lists as new lists, arrays of the schema's dtype, C-ordered and read-only. Each array is a view of
+    an immutable bytes copy, so nobody can change what a subscriber sees; an array that already is
+    such a view (received, or transferred before, and published again unchanged) is passed on without
+    a copy. Anything the fast path does not accept (a wrong type, shape or dtype, a non-finite value)
+    goes through `encode` and `decode`, which raise the named error, so errors are the codec's.
+    """
+    cls = type(message)
+    plan = _plan_of(cls)
+    values = _transfer_values(plan, message.__dict__)
+    if values is None:
+        return decode(encode(message), cls)
+    if plan.plain_init:  # as _build
+        out = object.__new__(cls)
+        out.__dict__.update(values)
+        return out
+    return cls(**values)
+
+
+def _transfer_values(plan: _Plan, fields: Mapping[str, Any]) -> dict[str, Any] | None:
+    """Field values for `transfer` when every field is well-formed, else None."""
+    values: dict[str, Any] = {}
+    value: Any
+    for f in plan.fields:
+        value = fields[f.name]
+        kind = f.kind
+        if kind == "array":
+            value = _immutable_array(f, value)
+            if value is None:
+                return None
+        elif kind == "float":
+            if type(value) is not float and type(value) is not int:
+                return None
+            value = float(value)
+            if f.check_finite and not math.isfinite(value):
+                return None
+        elif kind == "str_list":
+            if type(value) is not list and type(value) is not tuple:
+                return None
+            for item in value:
+                if type(item) is not str:
+                    return None
+            value = list(value)
+        elif type(value) is not _EXACT_TYPE[kind]:
+            return None
+        values[f.name] = value
+    if plan.dims and not _dims_agree(plan, values):
+        return None
+    return values
+
+
+def _immutable_array(f: _FieldPlan, value: Any) -> np.ndarray | None:
+    """`value` as a read-only view of a bytes object (itself when it already is one), or None when it
+    does not fit the field (dtype, rank, fixed axes, finiteness)."""
+    if type(value) is np.ndarray and value.dtype == f.dtype and value.flags.c_contiguous and _views_bytes(value):
+        arr = value
+    else:
+        try:
+            arr = np.ascontiguousarray(value, dtype=f.dtype)  # as encode converts it
+        except (TypeError, ValueError):
+            return None
+        arr = np.frombuffer(arr.tobytes(), f.dtype).reshape(arr.shape)
+    if not _shape_fits(f, arr.shape):
+        return None
+    if f.check_finite and arr.size and not _all_finite(arr):
+        return None
+    return arr
+
+
+def _views_bytes(arr: np.ndarray) -> bool:
+    """True when `arr` is a read-only view of a bytes object (which nothing can change)."""
+    base = arr.base
+    while type(base) is np.ndarray:
+        base = base.base
+    return type(base) is bytes and not arr.flags.writeable
+
+
 def _split_small(view: memoryview) -> tuple[Any, memoryview] | None:
     """Header and blob of a small payload in one msgpack call, or None to take the general path.
 

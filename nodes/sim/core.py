@@ -38,7 +38,7 @@ import mujoco
 import numpy as np
 
 from palpate.errors import ConfigError, SimulationDivergedError
-from palpate.geometry.mesh_query import ExactContactSensor
+from palpate.geometry.mesh_query import FEW_POINTS, ClosestPoints, ExactContactSensor, WarmClosest
 from palpate.nodes.sim.effectors import FingerConfig, HandConfig
 from palpate.nodes.sim.objects import ObjectModel, load_object
 from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model, uses_exact_contacts
@@ -170,6 +170,9 @@ class Simulation:
             self._probe_cache_p = np.zeros(3)
             self._probe_cache_d = -np.inf  # no query yet: the bound never skips
             self._probe_cache_hit: tuple[np.ndarray, float, np.ndarray] | None = None
+            self._R = np.zeros(9)  # rotation matrix of the probe, row-major (mju_quat2Mat's buffer)
+            assert self._sensor is not None
+            self._warm: WarmClosest | None = WarmClosest(self._sensor)
         else:
             cfg = scene.effector_config()
             assert isinstance(cfg, HandConfig | FingerConfig)
@@ -186,6 +189,14 @@ class Simulation:
         self._fresh = True
 
     # --- commands ----------------------------------------------------------------------------------
+    @property
+    def exact_contact_spheres(self) -> int:
+        """Spheres whose contacts the exact mesh query senses (the probe; the capsule spheres of a hand
+        or finger on a non-convex object); 0 when MuJoCo's own contacts serve."""
+        if not self._exact:
+            return 0
+        return 1 if self.scene.effector == "probe" else len(self._sph_geom)
+
     @property
     def time_s(self) -> float:
         """Simulated time since the start, seconds."""
@@ -287,16 +298,23 @@ class Simulation:
         """``n`` probe steps. Stretches that surely stay clear of the object (by the 1-Lipschitz bound
         on the signed distance) run as one ``mj_step`` call; the others are checked step by step."""
         m, d = self.model, self.data
+        qpos, qvel = d.qpos, d.qvel
         speed_per_step = float(np.linalg.norm(self._cmd_lin)) * self._dt
+        turning = bool(self._cmd_ang.any())
+        R = self._R.reshape(3, 3)
         remaining = n
+        projected = False
         while remaining > 0:
-            R = _quat_to_mat(d.qpos[3:7])
-            d.qvel[0:3] = self._cmd_lin  # free joint: linear velocity in the world frame
-            # angular velocity in the body frame; constant during a batch since the probe's inertia
-            # is isotropic (a sphere) and it rotates about a fixed axis
-            d.qvel[3:6] = R.T @ self._cmd_ang
-            bound = self._probe_cache_d - float(np.linalg.norm(d.qpos[0:3] - self._probe_cache_p))
-            margin = bound - self._probe_radius - self._tol
+            qvel[0:3] = self._cmd_lin  # free joint: linear velocity in the world frame
+            if turning:
+                # angular velocity in the body frame; constant during a batch since the probe's inertia
+                # is isotropic (a sphere) and it rotates about a fixed axis
+                mujoco.mju_quat2Mat(self._R, qpos[3:7])
+                qvel[3:6] = R.T @ self._cmd_ang
+            else:
+                qvel[3:6] = 0.0
+            offset = qpos[0:3] - self._probe_cache_p
+            margin = self._probe_cache_d - math.sqrt(offset.dot(offset)) - self._probe_radius - self._tol
             free = 0
             if math.isfinite(margin) and margin > 0:
                 free = remaining if speed_per_step == 0 else min(remaining, int(margin / speed_per_step))
@@ -304,51 +322,55 @@ class Simulation:
                 mujoco.mj_step(m, d, nstep=free)
                 self._steps += free
                 remaining -= free
+                projected = False
                 continue
             mujoco.mj_step(m, d)
             self._steps += 1
             remaining -= 1
-            if np.all(np.isfinite(d.qpos)):
-                self._probe_project()
+            projected = math.isfinite(sum(qpos.tolist())) and self._probe_project()
+        if projected and self._probe_cache_hit is not None:
+            # drop the inward velocity of the last projection (every step above sets the command anew)
+            normal = self._probe_cache_hit[2]
+            inward = float(qvel[0:3] @ normal)
+            if inward < 0.0:
+                qvel[0:3] -= inward * normal
 
-    def _probe_project(self) -> None:
-        """Push the probe out of the surface along the contact normal and drop its inward velocity.
+    def _probe_project(self) -> bool:
+        """Push the probe out of the surface along the contact normal; True when it was pushed (the
+        caller then drops its inward velocity).
 
         One projection per step: in a concave corner a second surface may still be penetrated by at
         most one step of motion, which the next step corrects.
         """
-        d = self.data
         hit = self._probe_closest()
         r = self._probe_radius
         if hit is None or hit[1] >= r:
-            return
+            return False
         point, _, normal = hit
-        d.qpos[0:3] = point + r * normal
-        inward = float(d.qvel[0:3] @ normal)
-        if inward < 0.0:
-            d.qvel[0:3] -= inward * normal
+        self.data.qpos[0:3] = point + r * normal
+        return True
 
     def _probe_closest(self) -> tuple[np.ndarray, float, np.ndarray] | None:
         """Closest surface point, signed centre distance and contact normal; None if surely apart."""
-        assert self._sensor is not None
-        p = np.array(self.data.qpos[0:3], dtype=np.float64)
-        if self._probe_cache_hit is not None and np.array_equal(p, self._probe_cache_p):
+        assert self._warm is not None and self._sensor is not None
+        p = self.data.qpos[0:3].copy()
+        if self._probe_cache_hit is not None and p.tolist() == self._probe_cache_p.tolist():
             return self._probe_cache_hit
         # The signed distance is 1-Lipschitz: skip the query while it cannot be within reach.
-        bound = self._probe_cache_d - float(np.linalg.norm(p - self._probe_cache_p))
+        offset = p - self._probe_cache_p
+        bound = self._probe_cache_d - math.sqrt(offset.dot(offset))
         if bound > self._probe_radius + self._tol:
             return None
-        hit = self._sensor.closest(p[None, :])
-        point = np.asarray(hit.points_m, dtype=np.float64)[0]
-        dist = float(np.asarray(hit.distance_m)[0])
+        found, dist, face = self._warm.query(p)  # the exact query, warm-started from the last answer
+        point = np.array(found)
         # Contact normal of a sphere: from the surface point to the centre (equals the surface normal
         # on faces, and is the true contact normal on edges and vertices); inside, the mesh normal.
-        normal = np.asarray(hit.normals, dtype=np.float64)[0]
+        normal = self._sensor.face_normals[face]
         offset = p - point
-        length = float(np.linalg.norm(offset))
+        length = math.sqrt(offset.dot(offset))
         if dist > 0 and length > 1e-9:
             normal = offset / length
-        result = (point, dist, normal / np.linalg.norm(normal))
+        result = (point, dist, normal / math.sqrt(normal.dot(normal)))
         self._probe_cache_p, self._probe_cache_d, self._probe_cache_hit = p, dist, result
         return result
 
@@ -370,6 +392,7 @@ class Simulation:
         self._sph_body = self.model.geom_bodyid[self._sph_geom]
         self._sph_cache_p = np.zeros((len(self._sph_geom), 3))
         self._sph_cache_d = np.full(len(self._sph_geom), -np.inf)  # no query yet: the bound never skips
+        self._sph_warm: dict[int, WarmClosest] = {}  # each sphere's warm-started query, made on first use
 
     def _sphere_centres(self) -> np.ndarray:
         return sphere_centres(self.data, self._sph_geom, self._sph_offset)
@@ -384,7 +407,7 @@ class Simulation:
         if len(near) == 0:
             empty = np.zeros((0, 3))
             return np.zeros(0, dtype=np.int64), empty, empty, np.zeros(0), empty
-        hit = self._sensor.closest(P[near])
+        hit = self._sphere_closest(P, near)
         dist = np.asarray(hit.distance_m, dtype=np.float64)
         self._sph_cache_p[near] = P[near]
         self._sph_cache_d[near] = dist
@@ -396,6 +419,31 @@ class Simulation:
             np.asarray(hit.points_m, dtype=np.float64)[touching],
             dist[touching],
             np.asarray(hit.normals, dtype=np.float64)[touching],
+        )
+
+    def _sphere_closest(self, P: np.ndarray, near: np.ndarray) -> ClosestPoints:
+        """The sensor's answer for the spheres ``near`` (indices into centres P (K, 3)). Up to
+        FEW_POINTS spheres, where the sensor answers point by point, each sphere's own warm-started
+        query gives the same bits (its face too: ``same_face``) for less; more go to the sensor in one
+        batch, whose vectorised path rounds differently."""
+        assert self._sensor is not None
+        if len(near) > FEW_POINTS:
+            return self._sensor.closest(P[near])
+        points, distances, faces = [], [], []
+        for k in near.tolist():
+            warm = self._sph_warm.get(k)
+            if warm is None:
+                warm = self._sph_warm[k] = WarmClosest(self._sensor, same_face=True)
+            point, distance, face = warm.query(P[k])
+            points.append(point)
+            distances.append(distance)
+            faces.append(face)
+        face_ids = np.array(faces, dtype=np.int64)
+        return ClosestPoints(
+            points_m=np.array(points, dtype=np.float64).reshape(-1, 3),
+            distance_m=np.array(distances, dtype=np.float64),
+            normals=self._sensor.face_normals[face_ids],
+            face_ids=face_ids,
         )
 
     def _sphere_forces(self, idx: np.ndarray, points: np.ndarray, dist: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -543,6 +591,31 @@ class Simulation:
                 f"diverged: use a smaller time step, e.g. timestep_s: {dt / 2:g}"
             )
         return array
+
+
+def model_sizes(model: mujoco.MjModel) -> dict[str, int]:
+    """What a scene's MuJoCo model holds: bodies (the world excluded), geoms, degrees of freedom,
+    actuators, and the geom pairs MuJoCo's collision detection considers (``contact_pairs``): pairs of
+    geoms on different bodies whose contype and conaffinity match, less parent-child pairs (unless the
+    parent is the world) and pairs of two static bodies, plus explicit ``<pair>`` elements."""
+    contype = np.asarray(model.geom_contype, dtype=np.int64)
+    affinity = np.asarray(model.geom_conaffinity, dtype=np.int64)
+    body = np.asarray(model.geom_bodyid)
+    weld = np.asarray(model.body_weldid)[body]
+    parent = np.asarray(model.body_parentid)
+    g1, g2 = np.triu_indices(model.ngeom, k=1)
+    b1, b2 = body[g1], body[g2]
+    match = ((contype[g1] & affinity[g2]) | (contype[g2] & affinity[g1])) != 0
+    family = ((parent[b1] == b2) & (b2 != 0)) | ((parent[b2] == b1) & (b1 != 0))
+    static = (weld[g1] == 0) & (weld[g2] == 0)
+    pairs = int(np.count_nonzero(match & (b1 != b2) & ~family & ~static)) + int(model.npair)
+    return {
+        "bodies": int(model.nbody) - 1,
+        "geoms": int(model.ngeom),
+        "dof": int(model.nv),
+        "actuators": int(model.nu),
+        "contact_pairs": pairs,
+    }
 
 
 def bare_step_rate(model: mujoco.MjModel, seconds: float = 1.0, batch: int = 100) -> float:

@@ -23,6 +23,9 @@ Method, per object (probe radius r = 8 mm, sensor tolerance 0.1 mm):
   hull but outside the mesh (holes, cups, between tines) - where MuJoCo's hull collision would
   report contact. A free probe is one whose reference distance exceeds r + tol + 1 um and which is
   outside (generalised winding number < 0.5). Any reported touch there is a phantom contact.
+- The simulated probe's own query, ``WarmClosest`` (warm-started from the last answer), on the same
+  touches and free probes: its largest deviation from the sensor's points, and its missed and phantom
+  contacts; and its time per query along slides of 0.1 mm steps.
 """
 
 from __future__ import annotations
@@ -57,6 +60,9 @@ MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb")
 #: Touches per object (--quick: QUICK_TOUCHES).
 TOUCHES = 1000
 QUICK_TOUCHES = 200
+#: The warm-started query answers as the sensor does, bit for bit (tests/unit/geometry/test_warm_closest.py);
+#: the benchmark allows rounding.
+WARM_DEVIATION_MAX_M = 1e-12
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -241,6 +247,8 @@ def bench_mesh(
     free = free[reference.winding_number(free) < 0.5]
     free_touching, _ = sensor.touch(free, r, tol)
 
+    warm = _warm_check(sensor, centres, free, got, p[outside], n[outside], r, tol)
+
     single = centres[: cfg.timed_single_queries]
     start = time.perf_counter()
     for c in single:
@@ -267,6 +275,46 @@ def bench_mesh(
         "concave_touches": int((~clean[outside]).sum()),
         "batch_query_us": 1e6 * batch_s / max(len(centres), 1),
         "single_query_us": 1e6 * single_s,
+        **warm,
+    }
+
+
+def _warm_check(
+    sensor: ExactContactSensor,
+    centres: np.ndarray,
+    free: np.ndarray,
+    got: Any,
+    points: np.ndarray,
+    normals: np.ndarray,
+    r: float,
+    tol: float,
+) -> dict[str, Any]:
+    """The simulated probe's query (``WarmClosest``, warm-started) on the same touches and free probes:
+    its largest deviation from the sensor (m), its missed and phantom contacts, and its time per query
+    along 50-step slides (0.1 mm per step, as the probe moves at 5 cm/s) from the first 20 touches."""
+    from palpate.geometry.mesh_query import WarmClosest
+
+    warm = WarmClosest(sensor)
+    deviation, missed, phantom = 0.0, 0, 0
+    for c, expected in zip(centres, got.points_m, strict=True):
+        point, distance, _ = warm.query(c)
+        deviation = max(deviation, float(np.abs(np.array(point) - expected).max()))
+        missed += distance > r + tol
+    for c in free:
+        phantom += warm.query(c)[1] <= r + tol
+    tangent = np.cross(normals[:20], [0.0, 0.0, 1.0])
+    tangent[np.linalg.norm(tangent, axis=1) < 1e-6] = [1.0, 0.0, 0.0]
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    walk = (centres[:20, None, :] + 1e-4 * np.arange(50)[None, :, None] * tangent[:, None, :]).reshape(-1, 3)
+    slide = WarmClosest(sensor)
+    start = time.perf_counter()
+    for c in walk:
+        slide.query(c)
+    return {
+        "warm_deviation_max_m": deviation,
+        "warm_missed_contacts": int(missed),
+        "warm_phantom_contacts": int(phantom),
+        "warm_slide_query_us": 1e6 * (time.perf_counter() - start) / max(len(walk), 1),
     }
 
 
@@ -298,6 +346,7 @@ def summary(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     position = max((row["position_p95_mm"] for row in rows), default=0.0)
     normal = max((row["normal_p95_deg"] for row in rows), default=0.0)
     phantoms = sum(row["phantom_contacts"] for row in rows)
+    warm = max((row["warm_deviation_max_m"] for row in rows), default=0.0)
     return {
         "objects": len(rows),
         "touches": sum(row["touches"] for row in rows),
@@ -308,7 +357,17 @@ def summary(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "missed_contacts": sum(row["missed_contacts"] for row in rows),
         "batch_query_us_mean": float(np.mean([row["batch_query_us"] for row in rows])) if rows else 0.0,
         "single_query_us_mean": float(np.mean([row["single_query_us"] for row in rows])) if rows else 0.0,
-        "pass": bool(position <= 0.5 and normal <= 5.0 and phantoms == 0),
+        "warm_deviation_max_m": warm,
+        "warm_missed_contacts": sum(row["warm_missed_contacts"] for row in rows),
+        "warm_phantom_contacts": sum(row["warm_phantom_contacts"] for row in rows),
+        "warm_slide_query_us_mean": float(np.mean([row["warm_slide_query_us"] for row in rows])) if rows else 0.0,
+        "pass": bool(
+            position <= 0.5
+            and normal <= 5.0
+            and phantoms == 0
+            and warm <= WARM_DEVIATION_MAX_M
+            and not any(row["warm_missed_contacts"] + row["warm_phantom_contacts"] for row in rows)
+        ),
     }
 
 
@@ -334,7 +393,10 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
         f"worst p95 position {s['position_p95_mm_max']:.2e} mm (goal <= 0.5), worst p95 normal "
         f"{s['normal_p95_deg_max']:.2e} deg (goal <= 5), phantom contacts {s['phantom_contacts']} (goal 0), "
         f"missed {s['missed_contacts']}; query {s['batch_query_us_mean']:.2f} us batched, "
-        f"{s['single_query_us_mean']:.0f} us single: {'PASS' if s['pass'] else 'FAIL'}"
+        f"{s['single_query_us_mean']:.0f} us single; the sim probe's warm-started query: largest deviation "
+        f"{s['warm_deviation_max_m']:.1e} m, missed {s['warm_missed_contacts']}, phantom "
+        f"{s['warm_phantom_contacts']}, {s['warm_slide_query_us_mean']:.0f} us per query sliding: "
+        f"{'PASS' if s['pass'] else 'FAIL'}"
     )
     return "\n".join(lines)
 

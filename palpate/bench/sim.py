@@ -46,6 +46,7 @@ from palpate.inputs import contact_arrays
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, JointState, Pose
 from palpate.paths import LAUNCH_DIR, ycb_dir
 from palpate.runtime.spec import Context, NodeSpec, Port
+from palpate.runtime.timing import TIMING_ENV, breakdown
 from palpate.text_table import Column, fixed_width_table
 
 PROBE_LAUNCH = LAUNCH_DIR / "probe.yaml"
@@ -292,33 +293,62 @@ def rate_from_timing(path: Path, warmup_s: float) -> dict[str, float]:
     return {"sim_s": sim_s, "wall_s": wall_s, "rtf": sim_s / wall_s, "contacts": float(data.get("contacts", 0))}
 
 
-def run_in_process(launch: Path, args: Sequence[str], timing: Path) -> None:
-    """Run the launch graph with the in-process executor, in this process."""
+def run_in_process(launch: Path, args: Sequence[str], timing: Path, warmup_s: float = 0.0) -> None:
+    """Run the launch graph with the in-process executor, in this process; where the ticks after
+    ``warmup_s`` spent their wall time (``InProcessGraph(profile=True)``) goes to ``<timing>.parts.json``."""
     from palpate.launch.graph import resolve
     from palpate.launch.loader import load_launch, parse_cli_args
     from palpate.runtime.inprocess import InProcessGraph
 
     graph = resolve(load_launch(launch, parse_cli_args([*args, f"timing:={timing}"])), bus_dir=timing.parent / "bus")
-    InProcessGraph(graph.in_process_members()).run()
+    period_s = float(graph.by_name["sim"].params.get("tick_period_s", 0.01))
+    runner = InProcessGraph(graph.in_process_members(), profile=True)
+    runner.profile_from_tick = math.ceil(warmup_s / period_s)
+    ticks = runner.run()
+    measured = max(1, ticks - runner.profile_from_tick)
+    parts = {name: 1000.0 * seconds / measured for name, seconds in sorted((runner.timing or {}).items())}
+    _parts_path(timing).write_text(json.dumps({"ticks": measured, "ms_per_tick": parts}))
 
 
-def run_in_process_fresh(launch: Path, args: Sequence[str], timing: Path, timeout_s: float) -> None:
+def _parts_path(timing: Path) -> Path:
+    return timing.with_suffix(".parts.json")
+
+
+def run_in_process_fresh(
+    launch: Path, args: Sequence[str], timing: Path, timeout_s: float, warmup_s: float = 0.0
+) -> dict[str, Any]:
     """:func:`run_in_process` in a fresh Python process with the node processes' allocator settings,
-    so that both tiers start alike; BenchmarkError with its output on failure."""
-    command = [sys.executable, "-m", "palpate.bench.sim", "inprocess", str(launch), str(timing), *args]
+    so that both tiers start alike; returns the ms per tick of each part after the warm-up.
+    BenchmarkError with its output on failure."""
+    command = [sys.executable, "-m", "palpate.bench.sim", "inprocess", str(launch), str(timing), str(warmup_s), *args]
     _run_checked(command, timing, timeout_s)
+    parts: dict[str, Any] = json.loads(_parts_path(timing).read_text())
+    return parts
 
 
-def run_launched(launch: Path, args: Sequence[str], timing: Path, timeout_s: float) -> None:
-    """``palpate launch`` the graph (one process per node); BenchmarkError with its output on failure."""
+def run_launched(
+    launch: Path, args: Sequence[str], timing: Path, timeout_s: float, warmup_s: float = 0.0
+) -> dict[str, Any]:
+    """``palpate launch`` the graph (one process per node) with per-tick timing on
+    (``palpate.runtime.timing``); returns its breakdown after the warm-up. BenchmarkError with its
+    output on failure."""
     command = [sys.executable, "-m", "palpate.cli", "launch", str(launch), *args, f"timing:={timing}"]
     command += ["--bus", str(timing.parent / f"bus-{timing.stem}")]
-    _run_checked(command, timing, timeout_s)
+    folder = timing.parent / f"ticks-{timing.stem}"
+    _run_checked(command, timing, timeout_s, {TIMING_ENV: str(folder)})
+    return breakdown(folder, first_tick=math.ceil(warmup_s / 0.01))
 
 
-def _run_checked(command: Sequence[str], timing: Path, timeout_s: float) -> None:
+def _run_checked(command: Sequence[str], timing: Path, timeout_s: float, env: Mapping[str, str] | None = None) -> None:
     try:
-        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s, check=False)
+        done = subprocess.run(
+            command,
+            capture_output=True,
+            text=True,
+            timeout=timeout_s,
+            check=False,
+            env={**os.environ, **(env or {})},
+        )
     except subprocess.TimeoutExpired as exc:
         raise BenchmarkError(f"{' '.join(command)} did not finish in {timeout_s:.0f} s") from exc
     if done.returncode != 0 or not timing.is_file():
@@ -326,26 +356,35 @@ def _run_checked(command: Sequence[str], timing: Path, timeout_s: float) -> None
         raise BenchmarkError(f"{' '.join(command)} exited with code {done.returncode}:\n{tail}")
 
 
-def bare_rate(launch: Path, args: Sequence[str], seconds: float) -> tuple[float, float]:
-    """Bare mj_step steps per second on the scene's model, and its time step."""
+def bare_rate(launch: Path, args: Sequence[str], seconds: float) -> tuple[float, float, dict[str, int]]:
+    """Bare mj_step steps per second on the scene's model, its time step and its sizes (model_sizes)."""
     from palpate.launch.graph import resolve
     from palpate.launch.loader import load_launch, parse_cli_args
-    from palpate.nodes.sim.core import Simulation, bare_step_rate
+    from palpate.nodes.sim.core import Simulation, bare_step_rate, model_sizes
     from palpate.nodes.sim.scene import SceneConfig
 
     with tempfile.TemporaryDirectory() as bus_dir:
         graph = resolve(load_launch(launch, parse_cli_args(list(args))), bus_dir=Path(bus_dir))
     sim = Simulation(load(SceneConfig, graph.by_name["sim"].params["scene"], "scene"))
-    return bare_step_rate(sim.model, seconds), sim.timestep_s
+    sizes = {**model_sizes(sim.model), "exact_contact_spheres": sim.exact_contact_spheres}
+    return bare_step_rate(sim.model, seconds), sim.timestep_s, sizes
+
+
+#: Goals of issue 14: every scene in-process at 1/10 of bare mj_step or faster; the probe graph at
+#: 10 times real time or faster.
+GOAL_INPROCESS_OVER_BARE = 0.1
+GOAL_PROBE_GRAPH_RTF = 10.0
 
 
 def bench_scene(scene: str, obj: Mapping[str, Any], config: SimBenchConfig, workdir: Path) -> dict[str, Any]:
-    """One row: bare, in-process and graph rates for ``scene``; the tiers alternate (ABBA...) over
-    ``config.rounds`` rounds and the best round of each counts (a shared machine only slows runs down)."""
+    """One row: bare, in-process and graph rates for ``scene``, the model's sizes and where a tick's
+    time goes in each tier; the tiers alternate (ABBA...) over ``config.rounds`` rounds and the best
+    round of each counts (a shared machine only slows runs down), with that round's breakdown."""
     launch, args = scene_launch(scene, obj, config, workdir)
-    bare_steps, dt = bare_rate(launch, args, config.bare_seconds)
+    bare_steps, dt, sizes = bare_rate(launch, args, config.bare_seconds)
     rtf: dict[str, list[float]] = {"inprocess": [], "graph": []}
     totals: dict[str, list[float]] = {"inprocess": [], "graph": []}
+    parts: dict[str, list[dict[str, Any]]] = {"inprocess": [], "graph": []}
     contacts = 0.0
     for round_index in range(config.rounds):
         tiers = ("inprocess", "graph") if round_index % 2 == 0 else ("graph", "inprocess")
@@ -353,21 +392,24 @@ def bench_scene(scene: str, obj: Mapping[str, Any], config: SimBenchConfig, work
             timing = workdir / f"{scene}-{tier}-{round_index}.json"
             start = time.perf_counter()
             runner = run_in_process_fresh if tier == "inprocess" else run_launched
-            runner(launch, args, timing, 180.0 + 20.0 * config.duration_s)
+            parts[tier].append(runner(launch, args, timing, 180.0 + 20.0 * config.duration_s, config.warmup_s))
             totals[tier].append(time.perf_counter() - start)
             rate = rate_from_timing(timing, config.warmup_s)
             rtf[tier].append(rate["rtf"])
             contacts = rate["contacts"]
-    inproc, graph = max(rtf["inprocess"]), max(rtf["graph"])
-    return {
+    best = {tier: int(np.argmax(values)) for tier, values in rtf.items()}
+    inproc, graph = rtf["inprocess"][best["inprocess"]], rtf["graph"][best["graph"]]
+    row: dict[str, Any] = {
         "scene": scene,
         "timestep_s": dt,
-        "bare_steps_per_s": bare_steps,
+        **sizes,
+        "bare_steps_s": bare_steps,
         "bare_rtf": bare_steps * dt,
-        "inprocess_steps_per_s": inproc / dt,
+        "inprocess_steps_s": inproc / dt,
         "inprocess_rtf": inproc,
-        "graph_steps_per_s": graph / dt,
+        "graph_steps_s": graph / dt,
         "graph_rtf": graph,
+        "inprocess_over_bare": inproc / dt / bare_steps,
         "runtime_overhead": inproc / graph,
         "bare_over_graph": bare_steps * dt / graph,
         "measured_sim_s": config.duration_s - config.warmup_s,
@@ -376,7 +418,15 @@ def bench_scene(scene: str, obj: Mapping[str, Any], config: SimBenchConfig, work
         "graph_rtf_rounds": rtf["graph"],
         "inprocess_total_s": min(totals["inprocess"]),
         "graph_total_s": min(totals["graph"]),
+        "inprocess_breakdown_ms": parts["inprocess"][best["inprocess"]]["ms_per_tick"],
+        "graph_breakdown_ms": parts["graph"][best["graph"]],
     }
+    goals = {"inprocess_over_bare": row["inprocess_over_bare"] >= GOAL_INPROCESS_OVER_BARE}
+    if scene == "probe":
+        goals["graph_rtf"] = graph >= GOAL_PROBE_GRAPH_RTF
+    row["goals_met"] = goals
+    row["pass"] = all(goals.values())
+    return row
 
 
 def table(rows: Sequence[Mapping[str, Any]]) -> str:
@@ -384,15 +434,53 @@ def table(rows: Sequence[Mapping[str, Any]]) -> str:
     columns = [
         Column("scene", 8, "scene", align="<"),
         Column("dt ms", 6, lambda r: 1000 * r["timestep_s"], ".1f"),
-        Column("bare steps/s", 14, "bare_steps_per_s", ".0f"),
-        Column("in-proc steps/s", 17, "inprocess_steps_per_s", ".0f"),
-        Column("graph steps/s", 15, "graph_steps_per_s", ".0f"),
+        Column("bare steps/s", 14, "bare_steps_s", ".0f"),
+        Column("in-proc steps/s", 17, "inprocess_steps_s", ".0f"),
+        Column("graph steps/s", 15, "graph_steps_s", ".0f"),
         Column("graph RTF", 11, "graph_rtf", ".2f"),
+        Column("in-proc/bare", 14, lambda r: r["bare_steps_s"] and r["inprocess_steps_s"] / r["bare_steps_s"], ".3f"),
         Column("overhead", 10, "runtime_overhead", ".2f"),
-        Column("bare/graph", 12, "bare_over_graph", ".1f"),
         Column("contacts", 10, "contacts", ".0f"),
     ]
     return fixed_width_table(columns, rows)
+
+
+def sizes_table(rows: Sequence[Mapping[str, Any]]) -> str:
+    """The MuJoCo model of each scene: bodies (world excluded), geoms, degrees of freedom, the geom pairs
+    MuJoCo's collision detection considers, and the spheres of the exact-mesh contact sensing."""
+    columns = [
+        Column("scene", 8, "scene", align="<"),
+        Column("bodies", 8, "bodies", "d"),
+        Column("geoms", 7, "geoms", "d"),
+        Column("DoF", 5, "dof", "d"),
+        Column("actuators", 11, "actuators", "d"),
+        Column("contact pairs", 15, "contact_pairs", "d"),
+        Column("exact spheres", 15, "exact_contact_spheres", "d"),
+    ]
+    return fixed_width_table(columns, rows)
+
+
+def breakdown_text(row: Mapping[str, Any]) -> str:
+    """Where one tick's wall time goes (ms per tick), in-process and as a launched graph."""
+    inproc = row["inprocess_breakdown_ms"]
+    graph = row["graph_breakdown_ms"]
+    lines = [f"  {row['scene']}: one {1000 * 0.01:g} ms tick, ms of wall time"]
+    lines.append(
+        "    in-process: "
+        + ", ".join(f"{name} {value:.3f}" for name, value in inproc.items())
+        + " (transfer is inside step and the handlers)"
+    )
+    per_node = ", ".join(
+        f"{name} hop {graph['clock_hop_ms'][name]:.3f} wait {graph['wait_ms'][name]:.3f} "
+        f"handle {graph['handle_ms'][name]:.3f}"
+        for name in graph["handle_ms"]
+    )
+    lines.append(
+        f"    graph: tick {graph['tick_ms']:.3f} = step {graph['step_ms']:.3f} (sim, building messages) + Clock "
+        f"round trip {graph['round_trip_ms']:.3f} + commands {graph['source_dispatch_ms']:.3f} + rest; "
+        f"encode {graph['encode_ms']:.3f} (all nodes); ack hop {graph['ack_hop_ms']:.3f}; {per_node}"
+    )
+    return "\n".join(lines)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -403,7 +491,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    """`palpate bench sim [--quick] [--json] [--scenes ...] [--duration S]`."""
+    """`palpate bench sim [--quick] [--json] [--scenes ...] [--duration S]`; exit code 1 when a goal is missed."""
     config = QUICK if args.quick else SimBenchConfig()
     if getattr(args, "duration", None):
         config = replace(config, duration_s=args.duration, warmup_s=min(config.warmup_s, args.duration / 4))
@@ -423,10 +511,21 @@ def main(args: argparse.Namespace) -> int:
         for scene in scenes:
             print(f"  {scene} ...", file=sys.stderr, flush=True)
             rows.append(bench_scene(scene, obj, config, Path(tmp)))
+    print(sizes_table(rows))
+    print()
     print(table(rows))
     print(
-        "overhead = in-process / graph rate (processes, sockets, lockstep); bare/graph = everything on top "
-        "of mj_step (exact-mesh contacts, scripted motion, node wrappers, messages, runtime)"
+        "overhead = in-process / graph rate (processes, sockets, lockstep); in-proc/bare = in-process rate over "
+        "the bare mj_step rate of the same model"
+    )
+    print("where a tick goes (best round of each tier):")
+    for row in rows:
+        print(breakdown_text(row))
+    passed = all(row["pass"] for row in rows)
+    print(
+        f"goals (issue 14): in-process >= {GOAL_INPROCESS_OVER_BARE:g} x bare in every scene, probe graph RTF >= "
+        f"{GOAL_PROBE_GRAPH_RTF:g}: "
+        + "; ".join(f"{row['scene']} {'met' if row['pass'] else 'MISSED'}" for row in rows)
     )
     if args.json:
         out = {
@@ -435,22 +534,25 @@ def main(args: argparse.Namespace) -> int:
             "warmup_s": config.warmup_s,
             "rounds": config.rounds,
             "quick": bool(args.quick),
+            "load_average_1min": os.getloadavg()[0],
+            "goals": {"inprocess_over_bare_min": GOAL_INPROCESS_OVER_BARE, "probe_graph_rtf_min": GOAL_PROBE_GRAPH_RTF},
             "scenes": {row["scene"]: {k: v for k, v in row.items() if k != "scene"} for row in rows},
             "runtime_overhead_max": max(row["runtime_overhead"] for row in rows),
+            "pass": passed,
         }
         print(jsonio.dumps(out, sort_keys=True))
-    return 0
+    return 0 if passed else 1
 
 
 def _inprocess_main(argv: Sequence[str]) -> int:
-    """``python -m palpate.bench.sim inprocess LAUNCH TIMING [name:=value ...]`` (used by the benchmark)."""
-    if len(argv) < 3 or argv[0] != "inprocess":
-        print("usage: python -m palpate.bench.sim inprocess LAUNCH TIMING [name:=value ...]", file=sys.stderr)
+    """``python -m palpate.bench.sim inprocess LAUNCH TIMING WARMUP_S [name:=value ...]`` (used by the benchmark)."""
+    if len(argv) < 4 or argv[0] != "inprocess":
+        print("usage: python -m palpate.bench.sim inprocess LAUNCH TIMING WARMUP_S [name:=value ...]", file=sys.stderr)
         return 64
     from palpate.runtime import memory
 
     memory.keep_freed_buffers()  # as node processes do
-    run_in_process(Path(argv[1]), argv[3:], Path(argv[2]))
+    run_in_process(Path(argv[1]), argv[4:], Path(argv[2]), float(argv[3]))
     return 0
 
 

@@ -94,30 +94,17 @@ def closest_points_on_triangles(
 
 
 def closest_region(d1: float, d2: float, d3: float, d4: float, d5: float, d6: float) -> tuple[int, float, float]:
-    """Scalar twin of :func:`closest_points_on_triangles` for one point and triangle.
+    """Scalar twin of :func:`closest_points_on_triangles` for one point and triangle (compiled:
+    ``closest_kernels.closest_region``).
 
     d1 = ab.ap, d2 = ac.ap, d3 = ab.bp, d4 = ac.bp, d5 = ab.cp, d6 = ac.cp (Ericson 5.1.5). Returns the
     region code and the weights (wb, wc) of the closest point q = a + wb ab + wc ac; same priority
     order and formulas as the vectorised kernel.
     """
-    if d1 <= 0.0 and d2 <= 0.0:
-        return VERTEX_A, 0.0, 0.0
-    if d3 >= 0.0 and d4 <= d3:
-        return VERTEX_B, 1.0, 0.0
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        return EDGE_AB, d1 / (d1 - d3), 0.0
-    if d6 >= 0.0 and d5 <= d6:
-        return VERTEX_C, 0.0, 1.0
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        return EDGE_CA, 0.0, d2 / (d2 - d6)
-    va = d3 * d6 - d5 * d4
-    if va <= 0.0 and d4 >= d3 and d5 >= d6:
-        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        return EDGE_BC, 1.0 - t, t
-    denom = 1.0 / (va + vb + vc)
-    return FACE, vb * denom, vc * denom
+    from palpate.geometry import closest_kernels
+
+    region, wb, wc = closest_kernels.closest_region(d1, d2, d3, d4, d5, d6)
+    return int(region), float(wb), float(wc)
 
 
 def pseudo_normals(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
@@ -269,10 +256,17 @@ class ExactContactSensor:
         local = vertices - self._centre
         self._triangles = local[faces]  # (F, 3, 3) float64
         self._face_normals = np.asarray(mesh.face_normals, dtype=np.float64)
+        #: Outward unit normal of each face (F, 3).
+        self.face_normals = self._face_normals
         corner, edge = pseudo_normals(mesh)
         # pseudo-normal per face and region code: FACE, VERTEX_A..C, EDGE_AB..CA -> (F, 7, 3)
         self._sign_normals = np.concatenate([self._face_normals[:, None], corner, edge], axis=1)
         self._ring = face_rings(mesh)
+        from palpate.geometry import closest_kernels  # numba: compiled on first use, then cached on disk
+
+        self._kernels = closest_kernels
+        self._centre_list: list[float] = self._centre.tolist()
+        self._index: tuple[Any, np.ndarray, float] | None = None
         # lower bound of a face's distance for the few-point path, as planes g . p - h (F, 4): the face's
         # plane (unit normal), then per edge AB, BC, CA its outward unit normal within that plane.
         # Zero rows on degenerate faces (no pruning there).
@@ -362,28 +356,14 @@ class ExactContactSensor:
                 # slack above the bound's rounding (~1e-17 m), so faces that may tie are projected
                 if k and plane * plane + outside * outside > best * (1.0 + 1e-9) + 1e-24:
                     continue
-                squared, region, wb, wc = self._project_scalar(p, int(ring[k]))
+                squared, region, wb, wc = self._kernels.project(self._triangles, int(ring[k]), p[0], p[1], p[2])
                 if squared < best:
                     best, pick = squared, (k, region, wb, wc)
             k, region, wb, wc = pick
             face = int(ring[k])
-            (ax, ay, az), (bx, by, bz), (cx, cy, cz) = self._triangle_list(face)
-            q = (
-                ax + wb * (bx - ax) + wc * (cx - ax),
-                ay + wb * (by - ay) + wc * (cy - ay),
-                az + wb * (bz - az) + wc * (cz - az),
-            )
-            ox, oy, oz = p[0] - q[0], p[1] - q[1], p[2] - q[2]
-            dist = math.sqrt(ox * ox + oy * oy + oz * oz)
-            # sign from the pseudo-normal of the feature holding q; ray parity where it is weak
-            nx, ny, nz = self._sign_normals[face, region].tolist()
-            side = ox * nx + oy * ny + oz * nz
-            strength = math.sqrt(nx * nx + ny * ny + nz * nz)
-            inside = side < 0.0
-            if strength < WEAK_PSEUDO_NORMAL or abs(side) < WEAK_SIGN_COS * dist * strength:
-                inside = bool(self._scene.occupied(np.array([p]))[0])
+            q, signed = self._finish_scalar(p, face, region, wb, wc)
             points.append(q)
-            distance.append(-dist if inside else dist)
+            distance.append(signed)
             faces.append(face)
         face_ids = np.array(faces, dtype=np.int64)
         return ClosestPoints(
@@ -393,28 +373,39 @@ class ExactContactSensor:
             face_ids=face_ids,
         )
 
-    def _triangle_list(self, face: int) -> list[list[float]]:
-        """Corners a, b, c of ``face`` (shifted frame) as Python floats."""
-        return self._triangles[face].tolist()
-
-    def _project_scalar(self, p: list[float], face: int) -> tuple[float, int, float, float]:
-        """Squared distance, region and weights (wb, wc) of point ``p`` (shifted frame) projected onto
-        ``face`` (Ericson 5.1.5 via :func:`closest_region`)."""
-        (ax, ay, az), (bx, by, bz), (cx, cy, cz) = self._triangle_list(face)
-        abx, aby, abz, acx, acy, acz = bx - ax, by - ay, bz - az, cx - ax, cy - ay, cz - az
-        x, y, z = p[0] - ax, p[1] - ay, p[2] - az  # ap
-        bpx, bpy, bpz = p[0] - bx, p[1] - by, p[2] - bz
-        cpx, cpy, cpz = p[0] - cx, p[1] - cy, p[2] - cz
-        region, wb, wc = closest_region(
-            abx * x + aby * y + abz * z,
-            acx * x + acy * y + acz * z,
-            abx * bpx + aby * bpy + abz * bpz,
-            acx * bpx + acy * bpy + acz * bpz,
-            abx * cpx + aby * cpy + abz * cpz,
-            acx * cpx + acy * cpy + acz * cpz,
+    def _finish_scalar(
+        self, p: list[float], face: int, region: int, wb: float, wc: float
+    ) -> tuple[tuple[float, float, float], float]:
+        """Closest point q (shifted frame) and signed distance of ``p`` whose projection onto ``face`` is
+        (region, wb, wc): the sign from the pseudo-normal of the feature holding q, ray parity where it
+        is weak (see the module docstring)."""
+        qx, qy, qz, dist, inside, weak = self._kernels.finish(
+            self._triangles,
+            self._sign_normals,
+            face,
+            region,
+            wb,
+            wc,
+            p[0],
+            p[1],
+            p[2],
+            WEAK_PSEUDO_NORMAL,
+            WEAK_SIGN_COS,
         )
-        ox, oy, oz = x - wb * abx - wc * acx, y - wb * aby - wc * acy, z - wb * abz - wc * acz  # p - q
-        return ox * ox + oy * oy + oz * oz, region, wb, wc
+        if weak:
+            inside = bool(self._scene.occupied(np.array([p]))[0])
+        return (qx, qy, qz), -dist if inside else dist
+
+    def face_index(self) -> tuple[Any, np.ndarray, float]:
+        """A k-d tree of the face centroids (shifted frame), each face's radius about its centroid (F,)
+        and the largest radius: every point of face f lies within radius[f] of centroid[f]. Built once."""
+        if self._index is None:
+            from scipy.spatial import cKDTree
+
+            centroids = self._triangles.mean(axis=1)
+            radius = np.linalg.norm(self._triangles - centroids[:, None, :], axis=2).max(axis=1)
+            self._index = (cKDTree(centroids), radius, float(radius.max()))
+        return self._index
 
     def closest_float32(self, points_m: np.ndarray) -> np.ndarray:
         """Open3D's raw float32 closest points (n, 3), world frame, without the float64 refinement."""
@@ -432,3 +423,147 @@ class ExactContactSensor:
         """
         closest = self.closest(centres_m)
         return closest.distance_m <= radius_m + tolerance_m, closest
+
+
+class WarmClosest:
+    """The exact closest point of one query point that moves a little between queries (a fingertip).
+
+    The answer is :meth:`ExactContactSensor.closest`'s for that point, bit for bit: the same face,
+    projected in float64 by the same scalar arithmetic (compiled: ``closest_kernels``), with the same
+    sign rule. Only the search differs. Instead of Open3D's search over the whole mesh and a Python
+    loop over that face's ring, each query searches a *patch* in compiled code, warm-started from the
+    last answer's face:
+
+    - The patch, built at a point p0, holds every face whose distance to p0 is at most e + 2 reach
+      (e: the distance from p0 to any face, an upper bound of the distance d(p0) to the surface). For a
+      query point p within ``reach_m`` of p0 the closest face is in it: d(p) <= e + |p - p0|, and a
+      face at distance d(p) from p lies within d(p) + |p - p0| <= e + 2 reach of p0. Faces come from a
+      k-d tree of the face centroids (a face lies within its radius of its centroid), kept by the
+      lower bound below. The patch is rebuilt when p leaves the ball of radius reach about p0.
+    - A query projects p onto the last answer's face (an upper bound of d(p)) and then onto every
+      patch face whose lower bound (its plane, then how far p lies outside its edges: the bound of the
+      few-point path, with the same slack) can reach the best so far.
+    - Exact ties (faces at the same squared distance to the last bit: a vertex or edge they share)
+      whose faces give different points or signs are settled as the sensor's search settles them:
+      Open3D's face if it is one of them, else the lowest id in that face's ring (one Open3D call).
+      Ties whose faces give the same point and sign keep the first face found, unless ``same_face``
+      asks for the sensor's face (and its normal) on every tie.
+    - Far from the surface (e + 2 reach > ``max_distance_m``), or where a patch would hold more than
+      ``max_patch_faces`` faces, the query is the sensor's own.
+
+    The one way the answers could differ: where Open3D's float32 search picks a face whose ring misses
+    the true closest face (a near-tie of non-adjacent faces within float32 rounding, about 1e-8 m),
+    the sensor answers with the best face of that ring and this search with the true closest.
+    """
+
+    def __init__(
+        self,
+        sensor: ExactContactSensor,
+        reach_m: float = 0.002,
+        max_distance_m: float = 0.03,
+        max_patch_faces: int = 4096,
+        same_face: bool = False,
+    ) -> None:
+        if not reach_m > 0.0 or not max_distance_m > 0.0:
+            raise ValueError(f"reach_m and max_distance_m must be > 0, got {reach_m!r} and {max_distance_m!r}")
+        self._kernels = sensor._kernels
+        self.sensor = sensor
+        self.reach_m = float(reach_m)
+        self.max_distance_m = float(max_distance_m)
+        self.max_patch_faces = int(max_patch_faces)
+        #: Settle every tie as the sensor does, so that the face (and its normal) is the sensor's too;
+        #: without it a tie whose faces give the same point and sign keeps any of them.
+        self.same_face = bool(same_face)
+        self._face = -1  # the last answer's face (-1: none yet)
+        self._p0 = (math.inf, math.inf, math.inf)  # where the patch was built (shifted frame)
+        self._faces: NDArray[np.int64] | None = None  # patch faces, by their lower bound at p0
+        self._planes = np.zeros((0, 4, 3))  # their bound planes (K, 4, 3), offsets (K, 4), bounds at p0 (K,)
+        self._offsets = np.zeros((0, 4))
+        self._lower0 = np.zeros(0)
+        self._ties = np.zeros(1, dtype=np.int64)
+        #: How many queries built a patch, searched one, settled a tie or took the sensor's own search.
+        self.counts = {"builds": 0, "patch": 0, "ties": 0, "full": 0}
+
+    def query(self, point_m: ArrayLike) -> tuple[tuple[float, float, float], float, int]:
+        """Closest surface point (3 floats, world frame, metres), signed distance (m, < 0 inside) and
+        face id of one finite point (3,)."""
+        s = self.sensor
+        point = point_m if type(point_m) is np.ndarray and point_m.shape == (3,) else np.asarray(point_m, np.float64)
+        x, y, z = (float(v) for v in point.reshape(3).tolist())
+        if not math.isfinite(x + y + z):
+            raise ValueError("query point must be finite (got NaN or infinity)")
+        cx, cy, cz = s._centre_list
+        px, py, pz = x - cx, y - cy, z - cz  # shifted frame, as ExactContactSensor._check computes it
+        x0, y0, z0 = self._p0
+        if self._faces is None or (px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2 > self.reach_m**2:
+            self._build(px, py, pz)
+        if self._faces is None:
+            self.counts["full"] += 1
+            hit = s.closest(np.array([[x, y, z]]))
+            self._face = int(hit.face_ids[0])
+            q = hit.points_m[0].tolist()
+            return (q[0], q[1], q[2]), float(hit.distance_m[0]), self._face
+        self.counts["patch"] += 1
+        k = self._kernels
+        x0, y0, z0 = self._p0
+        moved = math.sqrt((px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2)
+        status, face, qx, qy, qz, dist, inside, weak = k.warm_query(
+            s._triangles,
+            s._sign_normals,
+            self._faces,
+            self._planes,
+            self._offsets,
+            self._lower0,
+            moved * (1.0 + 1e-12) + 1e-18,  # rounded up: the bound stays a bound
+            self._face,
+            px,
+            py,
+            pz,
+            WEAK_PSEUDO_NORMAL,
+            WEAK_SIGN_COS,
+            self._ties,
+            self.same_face,
+        )
+        if status == 1:  # tied faces that give different points: settle as the sensor's search does
+            face = self._break_tie([px, py, pz], self._ties[:face].tolist())
+            _, region, wb, wc = k.project(s._triangles, face, px, py, pz)
+            (qx, qy, qz), signed = s._finish_scalar([px, py, pz], face, region, wb, wc)
+        else:
+            if weak:  # ray parity, as the sensor decides
+                inside = bool(s._scene.occupied(np.array([[px, py, pz]]))[0])
+            signed = -dist if inside else dist
+        self._face = face
+        return (qx + cx, qy + cy, qz + cz), signed, face
+
+    def _break_tie(self, p: list[float], ties: list[int]) -> int:
+        """The face the sensor's search picks among faces at the same squared distance: Open3D's face
+        if it is one of them, else the lowest id of them in that face's ring (``_closest_few``)."""
+        self.counts["ties"] += 1
+        found = self.sensor._scene.closest_face_ids(np.array([p]))[0]
+        if found in ties:
+            return int(found)
+        ring = set(self.sensor._ring[found].tolist())
+        return min((t for t in ties if t in ring), default=min(ties))
+
+    def _build(self, px: float, py: float, pz: float) -> None:
+        """The patch about p (shifted frame); the first query seeds the warm face with Open3D's."""
+        s = self.sensor
+        self._faces = None
+        if self._face < 0:
+            self._face = s._scene.closest_face_ids(np.array([[px, py, pz]]))[0]
+        upper, _, _, _ = self._kernels.project(s._triangles, self._face, px, py, pz)
+        radius = math.sqrt(upper) + 2.0 * self.reach_m
+        if radius > self.max_distance_m:
+            return
+        tree, _, largest = s.face_index()
+        near = np.asarray(tree.query_ball_point([px, py, pz], radius + largest), dtype=np.int64)
+        if len(near) > self.max_patch_faces:
+            return
+        faces, planes, offsets, lower = self._kernels.build_patch(
+            s._bound_planes, s._bound_offsets, near, px, py, pz, radius
+        )
+        self._faces, self._planes, self._offsets, self._lower0 = faces, planes, offsets, lower
+        if len(self._ties) < len(self._faces) + 1:
+            self._ties = np.zeros(2 * len(self._faces) + 1, dtype=np.int64)
+        self._p0 = (px, py, pz)
+        self.counts["builds"] += 1

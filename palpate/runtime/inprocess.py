@@ -10,13 +10,15 @@ calls them in the order the lockstep protocol guarantees (see palpate/runtime/no
   last, the clock source handles its inputs.
 - a stop request ends the run after the tick in which it was made.
 
-Messages go through the codec (encode then decode), so nodes see exactly what they would see on the
-bus. A test runs a launch file both ways and compares the contacts. The executor takes the nodes
-already resolved (a launch file's `Graph.in_process_members()`), so the runtime needs no launcher.
+Messages go through the codec (`codec.transfer`: what `decode(encode(message))` gives, without the
+bytes), so nodes see exactly what they would see on the bus. A test runs a launch file both ways and
+compares the contacts. The executor takes the nodes already resolved (a launch file's
+`Graph.in_process_members()`), so the runtime needs no launcher.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, cast
@@ -39,14 +41,32 @@ class _Member:
     ctx: NodeContext
     obj: NodeLike
     inbox: list[tuple[int, int, str, Message]] = field(default_factory=list)
+    #: The last message this node sent and what subscribers got (a message sent on two topics is
+    #: transferred once); forgotten after every tick.
+    last_sent: tuple[Message | None, Message | None] = (None, None)
 
 
 class InProcessGraph:
     """A graph whose nodes run as objects in this process, in lockstep order."""
 
-    def __init__(self, nodes: Sequence[tuple[NodeSpec[Any], NodeProcessSpec]], *, listener: Listener | None = None):
-        """`nodes`: each node's spec and process spec, in graph rank order (the clock source first)."""
+    def __init__(
+        self,
+        nodes: Sequence[tuple[NodeSpec[Any], NodeProcessSpec]],
+        *,
+        listener: Listener | None = None,
+        profile: bool = False,
+    ):
+        """`nodes`: each node's spec and process spec, in graph rank order (the clock source first).
+
+        With `profile`, `timing` accumulates wall seconds per part of a tick: ``step`` (the clock
+        source's step, its publishing included), ``transfer`` (delivering messages), and per node
+        ``<name>.inputs`` (its handlers) and ``<name>.on_tick`` (publishing included).
+        """
         self.listener = listener
+        self.timing: dict[str, float] | None = {} if profile else None
+        #: With `profile`: the first tick timed (ticks before it warm up).
+        self.profile_from_tick = 0
+        self._timing_now: dict[str, float] | None = None
         self.seq = 0
         self.tick = -1
         self.stop_reason = ""
@@ -70,11 +90,18 @@ class InProcessGraph:
 
     def _sender(self, rank: int) -> Callable[[str, Message], None]:
         def send(topic: str, message: Message) -> None:
-            decoded = codec.decode(codec.encode(message), type(message))
+            sender = self.members[rank]
+            last, decoded = sender.last_sent
+            if last is not message or decoded is None:
+                timing = self._timing_now
+                start = time.perf_counter() if timing is not None else 0.0
+                decoded = codec.transfer(message)  # = decode(encode(message)), without the bytes
+                sender.last_sent = (message, decoded)
+                if timing is not None:
+                    _add(timing, "transfer", start)
             self.seq += 1
             for member in self.subscribers.get(topic, []):
                 member.inbox.append((rank, self.seq, topic, decoded))
-            sender = self.members[rank]
             sender.ctx.counters["messages_out"] += 1
             if self.listener is not None:
                 self.listener(self.tick, sender.process.name, topic, decoded)
@@ -87,16 +114,34 @@ class InProcessGraph:
         while max_ticks is None or ticks < max_ticks:
             self.tick = ticks
             self.clock.ctx.tick = ticks
+            timing = self.timing if ticks >= self.profile_from_tick else None
+            self._timing_now = timing
+            start = time.perf_counter() if timing is not None else 0.0
             stamp = cast(ClockSource, self.clock.obj).step()  # the launcher checked: process.clock_source
+            if timing is not None:
+                _add(timing, "step", start)
             if stamp is None:
                 break
             for member in [self.clock, *self.followers]:
                 member.ctx.stamp_ns, member.ctx.tick = stamp, ticks
+                member.last_sent = (None, None)
             for member in self.followers:
-                self._dispatch(member)
-                member.obj.on_tick(stamp)
+                if timing is None:
+                    self._dispatch(member)
+                    member.obj.on_tick(stamp)
+                else:
+                    name = member.process.name
+                    start = time.perf_counter()
+                    self._dispatch(member)
+                    _add(timing, f"{name}.inputs", start)
+                    start = time.perf_counter()
+                    member.obj.on_tick(stamp)
+                    _add(timing, f"{name}.on_tick", start)
                 self._collect_stop(member)
+            start = time.perf_counter() if timing is not None else 0.0
             self._dispatch(self.clock)
+            if timing is not None:
+                _add(timing, f"{self.clock.process.name}.inputs", start)
             self._collect_stop(self.clock)
             ticks += 1
             if self.stop_reason:
@@ -122,3 +167,8 @@ class InProcessGraph:
     def node(self, name: str) -> Any:
         """The node object called `name` (for reading results after a run)."""
         return next(m.obj for m in self.members if m.process.name == name)
+
+
+def _add(timing: dict[str, float], name: str, start: float) -> None:
+    """Add the wall seconds since ``start`` to ``timing[name]``."""
+    timing[name] = timing.get(name, 0.0) + time.perf_counter() - start

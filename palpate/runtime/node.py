@@ -41,7 +41,7 @@ from palpate.errors import MessageError, PalpateError
 from palpate.messages import codec, topics
 from palpate.messages.base import Message
 from palpate.messages.schemas import Clock, LockstepAck, NodeStatus, RunControl
-from palpate.runtime import bus, memory
+from palpate.runtime import bus, memory, timing
 from palpate.runtime.spec import ClockSource, NodeLike, NodeProcessSpec, NodeSpec
 
 STOP_TOPIC = topics.GRAPH_CONTROL
@@ -175,14 +175,28 @@ class NodeRunner:
             curve_public=process.curve.get("public", ""),
         )
         self.manifest_path = manifest.write(process.bus_dir)
+        self.timer = timing.recorder(process.name)  # per-tick timestamps when $PALPATE_TICK_TIMING is set
+        self._last_sent: tuple[Message | None, bytes] = (None, b"")  # a message published on two topics
 
     # --- sending -------------------------------------------------------------------------------------
     def _send(self, topic: str, message: Message) -> None:
-        self.pub.send_multipart([topic.encode(), codec.encode(message)], copy=False)
+        last, payload = self._last_sent
+        if last is not message:  # the same message on a second topic is encoded once
+            payload = self._encode(message)
+            self._last_sent = (message, payload)
+        self.pub.send_multipart([topic.encode(), payload], copy=False)
         self.ctx.counters["messages_out"] += 1
 
     def _send_internal(self, topic: str, message: Message) -> None:
-        self.pub.send_multipart([topic.encode(), codec.encode(message)])
+        self.pub.send_multipart([topic.encode(), self._encode(message)])
+
+    def _encode(self, message: Message) -> bytes:
+        if self.timer is None:
+            return codec.encode(message)
+        start = time.perf_counter()
+        payload = codec.encode(message)
+        self.timer.add("encode_s", time.perf_counter() - start)
+        return payload
 
     def publish_status(self, state: str, message: str = "") -> None:
         """Counters and metrics on `status`; wall-clock timings only in real-time mode (a lockstep status,
@@ -227,6 +241,8 @@ class NodeRunner:
             clock = self._decode_internal(topic, payload, Clock)
             if clock is not None:
                 self.clock_ticks.append(clock)
+                if self.timer is not None:
+                    self.timer.mark(clock.tick, "clock_received")
         elif topic == topics.LOCKSTEP_ACK:
             ack = self._decode_internal(topic, payload, LockstepAck)
             if ack is not None:
@@ -297,6 +313,8 @@ class NodeRunner:
             close = getattr(self.node, "close", None)
             if close is not None:
                 close()
+            if self.timer is not None:
+                self.timer.write(self.spec.clock_source)
             self.manifest_path.unlink(missing_ok=True)
             time.sleep(0.05)  # let the last status leave
             self.pub.close(linger=1000)
@@ -333,18 +351,31 @@ class NodeRunner:
             self._wait_for_acks(self.process.lockstep_nodes, -1)
         start = time.monotonic()
         tick = 0
+        timer = self.timer
         while not self.interrupted:
             self.ctx.tick = tick
+            if timer is not None:
+                timer.tick = tick
+                timer.mark(tick, "step")
             stamp = step()
             if stamp is None:
                 break
+            self._last_sent = (None, b"")
+            if timer is not None:
+                timer.mark(tick, "stepped")
             self.ctx.stamp_ns = stamp
+            if timer is not None:
+                timer.mark(tick, "clock_sent")  # just before: the hop includes encoding the Clock
             self._send_internal(
                 topics.CLOCK, Clock(stamp_ns=stamp, tick=tick, period_ns=period_ns, lockstep=self.lockstep)
             )
             if self.lockstep:
                 self._wait_for_acks(self.process.lockstep_nodes, tick)
+                if timer is not None:
+                    timer.mark(tick, "acked")
                 self.dispatch()
+                if timer is not None:
+                    timer.mark(tick, "dispatched")
             else:
                 wake = start + (tick + 1) * period_ns * 1e-9
                 while (left := wake - time.monotonic()) > 0 and not self.interrupted:
@@ -360,6 +391,7 @@ class NodeRunner:
 
     def _run_follower(self) -> None:
         tick = 0
+        timer = self.timer
         while not self.interrupted:
             if self.lockstep:
                 if not self._ready(tick):
@@ -367,11 +399,19 @@ class NodeRunner:
                         break
                     self._receive(100)
                     continue
+                if timer is not None:
+                    timer.tick = tick
+                    timer.mark(tick, "ready")
                 clock = self.clock_ticks.popleft()
                 self.ctx.stamp_ns, self.ctx.tick = clock.stamp_ns, clock.tick
                 self.dispatch()
+                if timer is not None:
+                    timer.mark(tick, "dispatched")
                 self.node.on_tick(clock.stamp_ns)
                 self._after_tick()
+                self._last_sent = (None, b"")
+                if timer is not None:
+                    timer.mark(tick, "ack_sent")  # just before: the hop includes encoding the acknowledgement
                 self._send_internal(
                     topics.LOCKSTEP_ACK,
                     LockstepAck(stamp_ns=clock.stamp_ns, node=self.process.name, tick=tick),

@@ -6,12 +6,16 @@ import json
 import re
 from pathlib import Path
 
+import pytest
+
 from palpate.paths import REPO_ROOT
+from palpate.runtime.timing import TIMING_ENV, breakdown
 from tests.integration.launch_helpers import launched, node_pids, text
 
 
-def test_probe_graph_runs_to_completion(tmp_path: Path) -> None:
+def test_probe_graph_runs_to_completion(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     bus_dir, log, timing = tmp_path / "bus", tmp_path / "launch.log", tmp_path / "timing.json"
+    monkeypatch.setenv(TIMING_ENV, str(tmp_path / "ticks"))  # every node records its ticks
     args = ("duration_s:=1", "start:=[0.0, 0.0, 0.03]", f"timing:={timing}")
     with launched(REPO_ROOT / "launch" / "probe.yaml", bus_dir, log, *args) as proc:
         assert proc.wait(timeout=60) == 0, text(log)
@@ -25,3 +29,8 @@ def test_probe_graph_runs_to_completion(tmp_path: Path) -> None:
     assert data["stamps_ns"] == [k * 10_000_000 for k in range(101)]
     assert all(b >= a for a, b in zip(data["wall_s"], data["wall_s"][1:], strict=False))
     assert node_pids(bus_dir) == {}  # every node exited and removed its manifest
+    parts = breakdown(tmp_path / "ticks", first_tick=10)  # ticks 10-100 (the step after 100 ends the run)
+    assert parts["ticks"] == 91 and set(parts["handle_ms"]) == {"driver", "noise"}
+    # the parts of a tick fit in it: the clock source's step and its round trip
+    assert 0 < parts["step_ms"] + parts["round_trip_ms"] <= parts["tick_ms"]
+    assert all(v >= 0 for v in (*parts["clock_hop_ms"].values(), *parts["handle_ms"].values(), parts["encode_ms"]))

@@ -53,7 +53,7 @@ ZMQ_ALLOWED = {
 ROOT_NAMES = {"palpate", "palpate.__version__"}
 #: The geometry layer is stricter than the library layer: third-party numerics and palpate.errors only.
 GEOMETRY_LIBRARIES = {"__future__", "math", "dataclasses", "functools", "typing", "numpy", "scipy", "open3d"}
-GEOMETRY_LIBRARIES |= {"trimesh", "skimage"}
+GEOMETRY_LIBRARIES |= {"trimesh", "skimage", "numba"}
 
 
 @dataclass(frozen=True)

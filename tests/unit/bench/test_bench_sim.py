@@ -104,20 +104,107 @@ def test_object_falls_back_to_a_box_without_ycb(monkeypatch: pytest.MonkeyPatch,
     assert obj == {"kind": "box"} and "YCB meshes not found" in note
 
 
-def test_table_has_a_row_per_scene() -> None:
-    row = {
-        "scene": "probe",
+def _row(scene: str) -> dict[str, Any]:
+    return {
+        "scene": scene,
         "timestep_s": 0.002,
-        "bare_steps_per_s": 1e5,
-        "inprocess_steps_per_s": 3000.0,
-        "graph_steps_per_s": 2000.0,
+        "bodies": 2,
+        "geoms": 3,
+        "dof": 6,
+        "actuators": 0,
+        "contact_pairs": 0,
+        "exact_contact_spheres": 1,
+        "bare_steps_s": 1e5,
+        "inprocess_steps_s": 3000.0,
+        "graph_steps_s": 2000.0,
         "graph_rtf": 4.0,
         "runtime_overhead": 1.5,
-        "bare_over_graph": 50.0,
         "contacts": 10.0,
+        "inprocess_breakdown_ms": {"step": 0.3, "driver.inputs": 0.05, "transfer": 0.02},
+        "graph_breakdown_ms": {
+            "tick_ms": 2.0,
+            "step_ms": 0.4,
+            "encode_ms": 0.1,
+            "round_trip_ms": 1.2,
+            "ack_hop_ms": 0.2,
+            "source_dispatch_ms": 0.05,
+            "clock_hop_ms": {"driver": 0.3},
+            "wait_ms": {"driver": 0.01},
+            "handle_ms": {"driver": 0.5},
+        },
     }
-    lines = bench_sim.table([row, {**row, "scene": "hand"}]).splitlines()
-    assert len(lines) == 4 and lines[2].split()[0] == "probe" and lines[3].split()[0] == "hand"
+
+
+def test_tables_have_a_row_per_scene_and_the_breakdown_names_every_part() -> None:
+    rows = [_row("probe"), _row("hand")]
+    for text in (bench_sim.table(rows), bench_sim.sizes_table(rows)):
+        lines = text.splitlines()
+        assert len(lines) == 4 and lines[2].split()[0] == "probe" and lines[3].split()[0] == "hand"
+    assert bench_sim.table(rows).splitlines()[2].split()[6] == "0.030"  # in-process / bare
+    text = bench_sim.breakdown_text(rows[0])
+    for part in ("step 0.300", "driver.inputs 0.050", "round trip 1.200", "ack hop 0.200", "driver hop 0.300"):
+        assert part in text
+
+
+def test_model_sizes_count_what_each_scene_builds() -> None:
+    from palpate.config import load
+    from palpate.nodes.sim.core import Simulation, model_sizes
+    from palpate.nodes.sim.scene import SceneConfig
+
+    sizes = {}
+    for effector in bench_sim.SCENES:
+        for kind in ("box", "torus"):
+            sim = Simulation(load(SceneConfig, {"effector": effector, "object": {"kind": kind}}, "scene"))
+            sizes[effector, kind] = (model_sizes(sim.model), sim.exact_contact_spheres)
+    probe, spheres = sizes["probe", "box"]
+    assert probe == {"bodies": 2, "geoms": 3, "dof": 6, "actuators": 0, "contact_pairs": 0} and spheres == 1
+    finger, spheres = sizes["finger", "box"]
+    # object, metacarpal and three phalanges; the metacarpal is fixed, so only the phalanges meet the box
+    assert finger == {"bodies": 5, "geoms": 5, "dof": 4, "actuators": 4, "contact_pairs": 3} and spheres == 0
+    hand, _ = sizes["hand", "box"]
+    assert (hand["bodies"], hand["dof"], hand["contact_pairs"]) == (17, 21, 15)  # 15 moving segments
+    for effector in ("finger", "hand"):  # on a torus the exact sensor senses capsule spheres, MuJoCo nothing
+        model, spheres = sizes[effector, "torus"]
+        assert model["contact_pairs"] == 0 and spheres > 10 * (model["dof"] // 4)
+
+
+def test_breakdown_of_a_timed_graph(tmp_path: Path) -> None:
+    from palpate.runtime.timing import breakdown
+
+    source = {
+        str(t): {
+            "step": t,
+            "stepped": t + 0.2,
+            "encode_s": 0.01,
+            "clock_sent": t + 0.21,
+            "acked": t + 0.61,
+            "dispatched": t + 0.62,
+        }
+        for t in range(5)
+    }
+    follower = {
+        str(t): {"clock_received": t + 0.31, "ready": t + 0.32, "encode_s": 0.02, "ack_sent": t + 0.52}
+        for t in range(5)
+    }
+    (tmp_path / "sim.json").write_text(json.dumps({"node": "sim", "clock_source": True, "ticks": source}))
+    (tmp_path / "driver.json").write_text(json.dumps({"node": "driver", "clock_source": False, "ticks": follower}))
+    out = breakdown(tmp_path, first_tick=1)
+    assert out["ticks"] == 3  # ticks 1-3: tick 4 has no successor to end it
+    for key, want in (
+        ("tick_ms", 1000),
+        ("step_ms", 190),
+        ("encode_ms", 30),
+        ("round_trip_ms", 400),
+        ("ack_hop_ms", 90),
+        ("source_dispatch_ms", 10),
+    ):
+        assert out[key] == pytest.approx(want), key
+    assert out["clock_hop_ms"]["driver"] == pytest.approx(100)
+    assert out["wait_ms"]["driver"] == pytest.approx(10)
+    assert out["handle_ms"]["driver"] == pytest.approx(200)
+    (tmp_path / "other.json").write_text(json.dumps({"node": "x", "clock_source": True, "ticks": {}}))
+    with pytest.raises(ValueError, match="one clock source"):
+        breakdown(tmp_path)
 
 
 # --- contacts -------------------------------------------------------------------------------------------
@@ -131,3 +218,23 @@ def test_both_benchmarks_are_sub_commands() -> None:
     assert (args.objects, args.touches, args.json) == (Path("x"), 5, True)
     args = parser.parse_args(["bench", "sim", "--quick", "--scenes", "probe", "hand"])
     assert args.quick and args.scenes == ["probe", "hand"]
+
+
+def test_in_process_run_reports_where_its_ticks_go(tmp_path: Path) -> None:
+    timing = tmp_path / "t.json"
+    args = ["object:=box", "start:=[0.0, 0.0, 0.03]", "duration_s:=0.3"]
+    bench_sim.run_in_process(bench_sim.PROBE_LAUNCH, args, timing, warmup_s=0.1)
+    parts = json.loads(timing.with_suffix(".parts.json").read_text())
+    assert parts["ticks"] == 31 - 10  # ticks 10-30 of 31
+    ms = parts["ms_per_tick"]
+    assert {
+        "step",
+        "transfer",
+        "driver.inputs",
+        "driver.on_tick",
+        "noise.inputs",
+        "noise.on_tick",
+        "sim.inputs",
+    } == set(ms)
+    assert all(v > 0 for v in ms.values())
+    assert ms["transfer"] < ms["step"] + ms["driver.on_tick"] + ms["noise.inputs"]  # inside them

@@ -444,3 +444,66 @@ def test_property_fast_and_checked_decoding_paths_agree(message: Message) -> Non
     checked = codec._build_checked(type(message), header["fields"], memoryview(blob))
     same_bytes(checked, codec.decode(payload))
     same_bytes(checked, message)
+
+
+# --- transfer: what the in-process executor delivers -------------------------------------------------
+
+
+def _same_as_received(sent: Message, got: Message) -> None:
+    """`got` is what a subscriber decodes from `sent`: equal bits, the same Python types, arrays read-only."""
+    expected = codec.decode(codec.encode(sent), type(sent))
+    same_bytes(got, expected)
+    for name, spec in type(sent).field_specs().items():
+        x, y = getattr(got, name), getattr(expected, name)
+        assert type(x) is type(y), name
+        if spec.kind == "array":
+            assert not x.flags.writeable and x.flags.c_contiguous, name
+            with pytest.raises(ValueError):
+                x.flags.writeable = True  # a view of immutable bytes: nobody can change what was sent
+        elif spec.kind == "str_list":
+            assert x is not getattr(sent, name), name
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(messages())
+def test_property_transfer_delivers_what_decoding_the_payload_does(message: Message) -> None:
+    _same_as_received(message, codec.transfer(message))
+
+
+@pytest.mark.parametrize("type_name", ALL_TYPES)
+def test_transfer_of_received_arrays_shares_them_and_of_sent_arrays_copies_them(type_name: str) -> None:
+    cls = REGISTRY[type_name]
+    message = example(cls, np.random.default_rng(3), {d: 2 for d in "nmkjv"})
+    first = codec.transfer(message)
+    _same_as_received(message, first)
+    again = codec.transfer(first)  # republished unchanged: no copy
+    received = codec.decode(codec.encode(message), cls)
+    for name, spec in cls.field_specs().items():
+        if spec.kind == "array":
+            assert getattr(first, name) is not getattr(message, name)
+            assert getattr(again, name) is getattr(first, name)
+            # a received array is a view of the socket's buffer, not of bytes: copied (its buffer is reused)
+            if getattr(received, name).size:
+                assert not np.shares_memory(codec.transfer(received).__dict__[name], getattr(received, name))
+
+
+def test_transfer_raises_the_codecs_errors() -> None:
+    with pytest.raises(NonFiniteError):
+        codec.transfer(
+            Pose(
+                stamp_ns=1,
+                frame="f",
+                position_m=np.array([np.nan, 0.0, 0.0]),
+                quaternion_wxyz=np.array([1.0, 0, 0, 0]),
+                linear_velocity_m_s=np.zeros(3),
+                angular_velocity_rad_s=np.zeros(3),
+            )
+        )
+    bad = contact_set(3)
+    object.__setattr__(bad, "forces_n", np.ones(2))  # disagrees with n = 3
+    with pytest.raises(MalformedMessageError):
+        codec.transfer(bad)
+    odd = contact_set(2)
+    object.__setattr__(odd, "stamp_ns", 5.0)  # a float in an int field
+    with pytest.raises(MessageError):
+        codec.transfer(odd)
