@@ -268,7 +268,10 @@ def _value(hint: Any, value: Any, where: str, path: KeyPath, *, convert: bool, m
         what = " ".join(["an integer" if base is int else "a finite number", *map(str, bounds)])
         if isinstance(value, bool) or not isinstance(value, kind):
             raise fail(what)
-        x = base(value)
+        try:
+            x = base(value)
+        except OverflowError:  # an integer too large for a float
+            raise fail(what) from None
         if not (math.isfinite(x) and all(b.admits(x) for b in bounds)):
             raise fail(what)
         return x if convert else value

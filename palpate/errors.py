@@ -28,6 +28,12 @@ class NonFiniteError(MessageError):
     """A field that must be finite holds NaN or infinity."""
 
 
+class OutputError(MessageError):
+    """A node tried to publish a message that breaks its own schema: a bug in that node, not bad input.
+    The runtime counts it in ``output_errors`` and lets it end the node (it is never taken for a
+    rejected input)."""
+
+
 class InputError(PalpateError):
     """A message decoded (it matches its schema) but holds values a node cannot use: a zero quaternion,
     a joint state without the joints the node needs, a target farther than any workspace.

@@ -37,7 +37,7 @@ MAX_COORDINATE_M = 1e3
 #: Largest speed (m/s), angular speed (rad/s) or joint rate accepted in a message: a thousand units.
 MAX_RATE = 1e3
 #: A unit vector or unit quaternion may deviate from norm 1 by this fraction (float32 senders, drift);
-#: it is then normalised. A larger deviation (norm 0, 1e-200, 2) means the sender has no valid value.
+#: the consumer normalises it. A larger deviation (norm 0, 1e-200, 2) means the sender has no valid value.
 UNIT_TOLERANCE = 1e-2
 #: Largest contact force accepted, newtons.
 MAX_FORCE_N = 1e6
@@ -85,6 +85,18 @@ def unit_vectors(values: ArrayLike, field: str, tolerance: float = UNIT_TOLERANC
             if a.ndim > 1
             else f"norm {norms.ravel()[row]:.6g}, not 1 (+-{tolerance:g}); send a unit vector",
         )
+    return a
+
+
+def unit_or_zero(values: ArrayLike, field: str, tolerance: float = UNIT_TOLERANCE) -> FloatArray:
+    """A direction (3,) as float64 whose norm is 1 +- tolerance, or exactly zero ("no direction"), else
+    InputError."""
+    a = np.asarray(values, dtype=np.float64)
+    if a.shape != (3,):
+        raise InputError(field, f"shape {a.shape}, not (3,)")
+    norm = float(_norms(a).ravel()[0])
+    if not (norm == 0.0 or abs(norm - 1.0) <= tolerance):
+        raise InputError(field, f"norm {norm:.6g}, neither 0 nor 1 (+-{tolerance:g}); send a unit vector or zeros")
     return a
 
 

@@ -82,6 +82,11 @@ class Node:
 
     def __init__(self, spec: dict[str, Any], types: dict[str, str]) -> None:
         """types: topic -> message type of every topic this node publishes (for its manifest)."""
+        if spec.get("curve"):
+            raise SystemExit(
+                f"node {spec['name']!r} has CurveZMQ keys: these example drivers speak plain ZeroMQ only "
+                "(a keyed driver needs a Curve server and a ZAP allow-list, docs/runtime.md)"
+            )
         self.spec = spec
         self.name = spec["name"]
         lockstep = spec["mode"] == "lockstep"

@@ -457,6 +457,10 @@ class ControlStep:
     failed: bool
 
 
+#: Closest the fingertip may start to the initial target and still have an approach direction, metres.
+MIN_APPROACH_M = 1e-9
+
+
 class TouchLoop:
     """Algorithm 1's controller side: approach the initial target, follow the curve to each target,
     stop on a new touch and announce it. Feed it the fingertip pose and contacts once per tick."""
@@ -514,6 +518,10 @@ class TouchLoop:
         """One tick: fingertip position r (3,) m and orientation R (3, 3); this tick's contacts: positions
         (n, 3) m, measured normals (n, 3) and normal forces (n,) N (n = 0: no contact)."""
         if not self.started:
+            if float(np.linalg.norm(self.initial_target_m - r)) < MIN_APPROACH_M:
+                # a fingertip reported at the initial target itself (an uninitialised driver's zero pose
+                # with the default target) gives no direction to approach along: wait for the next pose
+                return ControlStep(np.zeros(3), np.zeros(3), None, failed=False)
             self.controller.initial_approach(r, self.initial_target_m)
             self.started = True
         armed = self.arming.update(stamp_ns, positions_m, forces_n)

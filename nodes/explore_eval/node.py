@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from palpate.config import Validated
+from palpate.errors import InputError
 from palpate.inputs import coordinates, fingertip_pose, triangle_mesh
 from palpate.jsonio import dumps as json_dumps
 from palpate.jsonio import write as write_json
@@ -38,6 +39,7 @@ class ExploreEvalNode:
 
     def __init__(self, config: ExploreEvalNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
+        self.name = ""  # the object's name, from its truth message
         self.evaluator: ExplorationEvaluator | None = None
         self.run: RunControl | None = None
         self.fingertip_axis: np.ndarray | None = None  # the fingertip's poking axis R[:, 2] (3,)
@@ -47,6 +49,11 @@ class ExploreEvalNode:
 
     def on_truth_object(self, message: ObjectTruth) -> None:
         vertices, faces = triangle_mesh(message.vertices_m, message.faces, solid=True)
+        if self.evaluator is not None:  # one object per run: a repeat must not wipe the records so far
+            same = message.name == self.name and np.array_equal(vertices, self.evaluator.vertices_m)
+            if same:
+                return
+            raise InputError("name", f"a second object {message.name!r} during the run on {self.name!r}")
         self.name = message.name
         self.evaluator = ExplorationEvaluator(np.array(vertices), np.array(faces), self.config.eval)
         self.run = RunControl(self.evaluator)
@@ -56,7 +63,7 @@ class ExploreEvalNode:
 
     def on_touches(self, message: TouchEvent) -> None:
         if self.run is None:
-            return
+            raise InputError("index", f"touch {message.index} came before the object's truth; it is not scored")
         position = coordinates(message.position_m, "position_m")
         predicted = coordinates(message.predicted_contact_m, "predicted_contact_m", allow_nan=True)
         request = self.run.touch(

@@ -31,7 +31,7 @@ from palpate.config import (
     Range,
     Validated,
 )
-from palpate.errors import EstimationError
+from palpate.errors import ConfigError, EstimationError
 from palpate.nodes.mapper.fastslam import FastSlam
 from palpate.nodes.mapper.grid import L_FREE, L_OCC, GridSpec, LogOddsGrids, SparseMap
 from palpate.nodes.mapper.kinematics import KinematicChain
@@ -82,6 +82,12 @@ class MapperConfig(Validated):
     def __post_init__(self) -> None:
         super().__post_init__()
         GridSpec.from_bounds(self.region_min_m, self.region_max_m, self.resolution_m)  # validates
+        if self.chunk_edge & (self.chunk_edge - 1):
+            raise ConfigError(f"chunk_edge must be a power of two, got {self.chunk_edge!r}", ("chunk_edge",))
+        if not self.l_min < 0.0:
+            raise ConfigError(f"l_min must be < 0 (a clamp below the prior), got {self.l_min!r}", ("l_min",))
+        if not self.l_max > 0.0:
+            raise ConfigError(f"l_max must be > 0 (a clamp above the prior), got {self.l_max!r}", ("l_max",))
 
 
 @dataclass
@@ -149,7 +155,8 @@ class Mapper:
         in those links' frames (metres).
 
         Raises EstimationError (state unchanged) on a wrong shape, a non-finite value or a link
-        index outside the chain; the node counts it and goes on.
+        index outside the chain. The node's handlers refuse such messages before they reach here
+        (MapperSession, palpate.inputs), so in a node this is a last guard that ends the process.
         """
         t0 = time.perf_counter()
         q = np.asarray(q_rad, dtype=np.float64)

@@ -9,7 +9,6 @@ lengths and joint axes, never the simulator's state.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -107,10 +106,9 @@ class MapperNode:
         )
 
 
-def _ports(params: Mapping[str, Any]) -> tuple[dict[str, Port], dict[str, Port]]:
+def _ports(config: MapperNodeConfig) -> tuple[dict[str, Port], dict[str, Port]]:
     outputs = {"map": Port(OccupancyGrid)}
-    mode = (params.get("mapper") or {}).get("mode", "fastslam")
-    if mode == "fastslam":
+    if config.mapper.mode == "fastslam":
         outputs["weighted_map"] = Port(OccupancyGrid, topic="map/occupancy_weighted")
         outputs["particles"] = Port(ParticleSetSummary)
     return {"joint_states": Port(JointState), "contacts": Port(ContactSet)}, outputs
@@ -125,7 +123,7 @@ SPEC = NodeSpec(
     name="mapper",
     config=MapperNodeConfig,
     factory=MapperNode,
-    ports_from_params=_ports,
+    ports_from_config=_ports,
     facts=_facts,
     doc="Haptic SLAM mapper of paper 000: occupancy grid at a known pose, or FastSLAM with K particles.",
 )

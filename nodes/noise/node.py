@@ -8,9 +8,7 @@ sim + noise.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 from palpate.messages import topics
 from palpate.messages.schemas import ContactSet, JointState
@@ -65,13 +63,13 @@ class NoiseNode:
         """Noise is applied per message."""
 
 
-def _ports(params: Mapping[str, Any]) -> tuple[dict[str, Port], dict[str, Port]]:
+def _ports(config: NoiseNodeConfig) -> tuple[dict[str, Port], dict[str, Port]]:
     inputs: dict[str, Port] = {}
     outputs: dict[str, Port] = {}
-    if params.get("joints", True):
+    if config.joints:
         inputs["joint_states"] = Port(JointState)
         outputs["noisy_joint_states"] = Port(JointState, topic=topics.NOISY_JOINT_STATES)
-    if params.get("contacts", False):
+    if config.contacts:
         inputs["contacts"] = Port(ContactSet)
         outputs["noisy_contacts"] = Port(ContactSet, topic=topics.NOISY_CONTACTS)
     return inputs, outputs
@@ -81,6 +79,6 @@ SPEC = NodeSpec(
     name="noise",
     config=NoiseNodeConfig,
     factory=NoiseNode,
-    ports_from_params=_ports,
+    ports_from_config=_ports,
     doc="Proprioceptive noise on joint angles (and optionally contacts), seeded from the launch file.",
 )

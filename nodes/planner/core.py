@@ -43,7 +43,7 @@ from palpate.config import NonNegativeFloat, PositiveFloat, PositiveInt, Validat
 from palpate.errors import PlanningError
 from palpate.geometry.bezier import approach_curve, bezier_length, bezier_point
 from palpate.geometry.rotations import quat_to_matrix
-from palpate.inputs import MAX_COORDINATE_M, UNIT_TOLERANCE, bounded, coordinates
+from palpate.inputs import MAX_COORDINATE_M, UNIT_TOLERANCE, bounded, coordinates, unit_or_zero
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -418,10 +418,10 @@ class TouchPlanner:
         moving along approach_direction (3,), the v_n of the next curve (unit, or zero for none).
 
         InputError (naming the TouchEvent field, the planner unchanged) for positions beyond the
-        bounds of palpate.inputs or a direction longer than a unit vector."""
+        bounds of palpate.inputs or a direction that is neither unit nor zero."""
         position = np.array(coordinates(position_m, "position_m"))
         predicted = np.array(coordinates(predicted_contact_m, "predicted_contact_m", allow_nan=True))
-        approach = np.array(bounded(approach_direction, "approach_direction", 1.0 + UNIT_TOLERANCE))
+        approach = np.array(unit_or_zero(approach_direction, "approach_direction"))
         self.contacts.append(position)
         self.approach = approach
         if np.all(np.isfinite(predicted)) and np.linalg.norm(position - predicted) > self.config.unreached_miss_m:

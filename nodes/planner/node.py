@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from palpate.errors import PlanningError
 from palpate.inputs import coordinates, unit_quaternion
 from palpate.messages.schemas import Pose, SurfaceMesh, TouchEvent, TouchTarget
 from palpate.nodes.planner.core import PlannerConfig, TouchPlanner
@@ -26,15 +27,23 @@ class PlannerNode:
         self.fingertip = (position, unit_quaternion(message.quaternion_wxyz, "quaternion_wxyz"))
 
     def on_surface(self, message: SurfaceMesh) -> None:
-        plan = self.core.plan(
-            message.region,
-            message.num_contacts,
-            message.vertices_m,
-            message.vertex_normals,
-            message.vertex_variance,
-            self.fingertip,
-            self.ctx.rng,
-        )
+        try:
+            plan = self.core.plan(
+                message.region,
+                message.num_contacts,
+                message.vertices_m,
+                message.vertex_normals,
+                message.vertex_variance,
+                self.fingertip,
+                self.ctx.rng,
+            )
+        except PlanningError as exc:
+            # the contact is planned for and no other surface will come for it: without a target the
+            # fingertip would wait for ever, so the run ends here with the reason (an InputError, a
+            # surface refused before anything changed, still propagates as a rejected input)
+            self.ctx.count("planning_failed")
+            self.ctx.request_stop(f"planner: {exc}")
+            return
         if plan is None:
             return
         choice = plan.selection

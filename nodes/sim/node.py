@@ -8,7 +8,6 @@ joint angles, the object and its mesh) goes on `truth/` topics, which only evalu
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -154,13 +153,9 @@ class SimNode:
         )
 
 
-def _ports(params: Mapping[str, Any]) -> tuple[dict[str, Port], dict[str, Port]]:
-    """Ports for the scene in `params`: only what the effector needs."""
-    scene = params.get("scene")
-    if not scene:
-        effector = _default_scene().effector
-    else:
-        effector = scene.get("effector", "finger") if isinstance(scene, Mapping) else "finger"
+def _ports(config: SimNodeConfig) -> tuple[dict[str, Port], dict[str, Port]]:
+    """Ports for the configured scene: only what the effector needs."""
+    effector = config.scene.effector
     outputs = {
         "pose": Port(Pose),
         "contacts": Port(ContactSet),
@@ -170,7 +165,7 @@ def _ports(params: Mapping[str, Any]) -> tuple[dict[str, Port], dict[str, Port]]
         return {"velocity": Port(CartesianVelocityCommand)}, outputs
     outputs["joint_states"] = Port(JointState)
     outputs["truth_joint_states"] = Port(JointState, topic=topics.TRUTH_JOINT_STATES)
-    inputs = {} if params.get("scripted_motion", True) else {"joint_commands": Port(JointCommand)}
+    inputs = {} if config.scripted_motion else {"joint_commands": Port(JointCommand)}
     return inputs, outputs
 
 
@@ -184,7 +179,7 @@ SPEC = NodeSpec(
     config=SimNodeConfig,
     factory=SimNode,
     clock_source=True,
-    ports_from_params=_ports,
+    ports_from_config=_ports,
     facts=_facts,
     doc="MuJoCo simulation (hand, finger or probe on a primitive or mesh): the graph's clock source.",
 )

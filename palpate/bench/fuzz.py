@@ -50,7 +50,7 @@ import numpy as np
 
 from palpate import jsonio
 from palpate.config import load
-from palpate.errors import MessageError
+from palpate.errors import MessageError, OutputError
 from palpate.messages import codec
 from palpate.messages.base import REGISTRY, FieldSpec, Message
 from palpate.text_table import Column, fixed_width_table
@@ -465,7 +465,7 @@ class _Harness:
         def publish(port: str, message: Message) -> None:
             try:
                 validate(port, message)
-            except MessageError:
+            except OutputError:
                 report.bad_outputs += 1
                 raise
 
@@ -663,4 +663,4 @@ def main(args: argparse.Namespace) -> int:
     print(f"crashes: {out['crashes']} in {out['frames']} frames ({out['seconds']:.0f} s)")
     if args.json:
         print(jsonio.dumps(out, sort_keys=True))
-    return 0 if out["crashes"] == 0 else 1
+    return 0 if out["crashes"] == 0 and out["bad_outputs"] == 0 else 1

@@ -180,13 +180,17 @@ def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
         if key in f and not isinstance(f[key], kind):
             raise LaunchError(f"{entry.at(key)}: {key} must be a string, got {f[key]!r}")
     try:
-        spec = load_node_type(node_type).with_params(f.get("params") or {})
+        spec = load_node_type(node_type)
     except LaunchError as exc:
         raise LaunchError(f"{entry.at('type')}: {exc}") from exc
     params = f.get("params") or {}
     if not isinstance(params, dict):
         raise LaunchError(f"{entry.at('params')}: params must be a mapping")
     config = _check_params(entry, spec, params)
+    try:
+        spec = spec.with_config(config)  # ports that depend on the (validated) configuration
+    except LaunchError as exc:
+        raise LaunchError(f"{entry.at('params')}: {exc}") from exc
     remaps = f.get("remaps") or {}
     if not isinstance(remaps, dict):
         raise LaunchError(f"{entry.at('remaps')}: remaps must be a mapping port: topic")

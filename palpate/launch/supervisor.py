@@ -48,11 +48,17 @@ def external_spec_path(bus_dir: str | Path, name: str) -> Path:
 
 
 def write_external_spec(bus_dir: str | Path, spec: NodeProcessSpec) -> Path:
-    """Write `spec` for the driver that plays external node `spec.name` (atomically: write, then rename)."""
+    """Write `spec` for the driver that plays external node `spec.name` (atomically: write, then rename).
+
+    The spec may hold the node's CurveZMQ secret key: the folder is 0700 and the file 0600."""
     path = external_spec_path(bus_dir, spec.name)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    path.parent.chmod(0o700)
     tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(spec.to_json())
+    tmp.unlink(missing_ok=True)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(spec.to_json())
     tmp.replace(path)
     return path
 

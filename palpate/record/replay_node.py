@@ -7,7 +7,7 @@ and returns the tick's recorded stamp, so the runtime then publishes ``Clock`` w
 downstream see the inputs they saw in the recorded run, tick for tick, and in lockstep they
 produce the same outputs.
 
-Ports: one output per replayed topic, named after the topic (``ports_from_params``); params
+Ports: one output per replayed topic, named after the topic (``ports_from_config``); params
 ``path`` (the log) and ``topics`` (default: every data topic of the log). ``order`` gives each
 topic the rank its publisher had in the recorded graph: a tick's messages go out sorted by it, as
 the recorded subscribers dispatched them.
@@ -18,7 +18,6 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from palpate.config import Validated
 from palpate.errors import LaunchError, MessageError, RecordError
@@ -51,16 +50,13 @@ def log_topics(path: str | Path, wanted: tuple[str, ...] | list[str] = ()) -> di
     return {t: data[t] for t in wanted} if wanted else data
 
 
-def ports_from_params(params: Mapping[str, Any]) -> tuple[Mapping[str, Port], Mapping[str, Port]]:
+def ports_from_config(config: ReplayConfig) -> tuple[Mapping[str, Port], Mapping[str, Port]]:
     """One output port per replayed topic (port name = topic), typed from the log's schemas."""
-    path = params.get("path")
-    if not isinstance(path, str) or not path:
+    path = config.path
+    if not path:
         raise LaunchError("node type 'replay' needs a 'path' parameter naming an MCAP log")
-    wanted = params.get("topics") or ()
-    if not isinstance(wanted, list | tuple) or not all(isinstance(t, str) for t in wanted):
-        raise LaunchError("replay parameter 'topics' must be a list of topic names")
     outputs = {}
-    for topic, type_name in log_topics(path, list(wanted)).items():
+    for topic, type_name in log_topics(path, list(config.topics)).items():
         cls = REGISTRY.get(type_name)
         if cls is None:
             raise LaunchError(f"replay log {path}: topic {topic!r} carries {type_name!r}, unknown to this build")
@@ -119,5 +115,5 @@ SPEC = NodeSpec(
     factory=ReplayNode,
     clock_source=True,
     doc="Clock source replaying the recorded ticks of an MCAP log (params: path, topics).",
-    ports_from_params=ports_from_params,
+    ports_from_config=ports_from_config,
 )

@@ -37,7 +37,7 @@ import numpy as np
 import zmq
 
 from palpate.config import load
-from palpate.errors import MessageError, PalpateError
+from palpate.errors import MessageError, OutputError, PalpateError
 from palpate.messages import codec, topics
 from palpate.messages.base import Message
 from palpate.messages.schemas import Clock, LockstepAck, NodeStatus, RunControl
@@ -83,7 +83,13 @@ class NodeContext:
         """Validate and send `message` on the topic wired to output `port`."""
         if port not in self.outputs:
             raise KeyError(f"node {self.name!r} has no output port {port!r}; ports: {sorted(self.outputs)}")
-        codec.validate(message)
+        try:
+            codec.validate(message)
+        except MessageError as exc:
+            self.counters["output_errors"] = self.counters.get("output_errors", 0) + 1
+            raise OutputError(
+                f"node {self.name!r} published an invalid {message.TYPE} on port {port!r}: {exc}"
+            ) from exc
         self._send(self.outputs[port], message)
 
     def request_stop(self, reason: str) -> None:
@@ -101,12 +107,12 @@ class NodeContext:
         """
         self.counters["input_errors"] += 1
         field = getattr(error, "field", "")
-        where = f"{message.TYPE}.{field}" if field else message.TYPE
+        where = f"field {message.TYPE}.{field}" if field else message.TYPE
         n = self._rejections[topic, where] = self._rejections.get((topic, where), 0) + 1
         if n <= _LOG_FIRST_ERRORS or n % 100 == 0:
             reason = getattr(error, "reason", str(error))
             self.log.warning(
-                "node %s, topic %s: input rejected, field %s: %s (%d so far)", self.name, topic, where, reason, n
+                "node %s, topic %s: input rejected, %s: %s (%d so far)", self.name, topic, where, reason, n
             )
 
 
@@ -116,10 +122,13 @@ def deliver(ctx: NodeContext, node: NodeLike, port: str, topic: str, message: Me
     A PalpateError from the handler (an InputError naming the field, or a core's EstimationError or
     PlanningError) means the message was schema-valid but unusable: it is counted and logged by
     `NodeContext.reject_input`, and the node keeps the state it had. Handlers validate before they
-    change state. Any other exception is a bug in the node and propagates.
+    change state. Any other exception, and an OutputError (the node's own message broke its schema),
+    is a bug in the node and propagates.
     """
     try:
         getattr(node, f"on_{port}")(message)
+    except OutputError:
+        raise
     except PalpateError as exc:
         ctx.reject_input(topic, message, exc)
         return False
@@ -135,6 +144,7 @@ class NodeRunner:
         self.lockstep = process.mode == "lockstep"
         self.start_timeout_s = start_timeout_s
         self.ack_timeout_s = 120.0
+        config: Any = load(spec.config, process.params, f"node {process.name!r} params")  # before any socket
         self.zmq: zmq.Context[Any] = zmq.Context.instance()
         # a Curve publisher admits only the client keys the launcher lists (a ZAP handler in this process)
         self.allow = bus.ClientAllowList(self.zmq) if process.curve else None
@@ -149,16 +159,21 @@ class NodeRunner:
         # hello/<name> tells each publisher that this very node is connected (tools that subscribe
         # to topics by name cannot stand in for it in the start-up count)
         wanted = sorted({*process.subscribes.values(), *_INTERNAL, hello_topic(process.name)})
-        self.sub = bus.make_subscriber(self.zmq, process.connect, wanted, lockstep=self.lockstep, curve=process.curve)
+        try:
+            self.sub = bus.make_subscriber(
+                self.zmq, process.connect, wanted, lockstep=self.lockstep, curve=process.curve
+            )
+            self.ctx = NodeContext(process.name, process.seed, self._send, dict(process.publishes))
+            self.node: NodeLike = spec.factory(config, self.ctx)
+        except BaseException:  # the node never ran: leave no socket, ipc file or ZAP thread behind
+            self._close_sockets(linger_ms=0)
+            raise
         self.counter = bus.SubscriptionCounter()
         self.poller = zmq.Poller()
         self.poller.register(self.sub, zmq.POLLIN)
         self.poller.register(self.pub, zmq.POLLIN)
         self.port_of_topic = {topic: port for port, topic in process.subscribes.items()}
         self.input_types = {topic: spec.inputs[port].message for port, topic in process.subscribes.items()}
-        self.ctx = NodeContext(process.name, process.seed, self._send, dict(process.publishes))
-        config: Any = load(spec.config, process.params, f"node {process.name!r} params")
-        self.node: NodeLike = spec.factory(config, self.ctx)
         self.buffer: list[tuple[int, int, str, bytes]] = []
         self.seq = 0
         self.acks: dict[str, int] = {}
@@ -310,18 +325,25 @@ class NodeRunner:
             self.publish_status("error", str(exc))
             return 2
         finally:
-            close = getattr(self.node, "close", None)
-            if close is not None:
-                close()
-            if self.timer is not None:
-                self.timer.write(self.spec.clock_source)
-            self.manifest_path.unlink(missing_ok=True)
-            time.sleep(0.05)  # let the last status leave
-            self.pub.close(linger=1000)
+            try:
+                close = getattr(self.node, "close", None)
+                if close is not None:
+                    close()
+                if self.timer is not None:
+                    self.timer.write(self.spec.clock_source)
+            finally:  # even when the node's close() fails: no stale manifest, socket or ipc file
+                self.manifest_path.unlink(missing_ok=True)
+                time.sleep(0.05)  # let the last status leave
+                self._close_sockets(linger_ms=1000)
+
+    def _close_sockets(self, linger_ms: int) -> None:
+        """Close the sockets this runner opened, remove its ipc file and stop its ZAP handler."""
+        self.pub.close(linger=linger_ms)
+        if hasattr(self, "sub"):
             self.sub.close()
-            bus.remove_ipc_file(self.process.endpoint)  # the context is never terminated: zmq would leave it
-            if self.allow is not None:
-                self.allow.close()
+        bus.remove_ipc_file(self.process.endpoint)  # the context is never terminated: zmq would leave it
+        if self.allow is not None:
+            self.allow.close()
 
     def _start_up(self) -> None:
         deadline = time.monotonic() + self.start_timeout_s

@@ -11,7 +11,7 @@ from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
-from palpate.config import KeyPath
+from palpate.config import KeyPath, load
 from palpate.messages.base import Message
 
 C = TypeVar("C")
@@ -115,19 +115,26 @@ class NodeSpec(Generic[C]):
     outputs: Mapping[str, Port] = field(default_factory=dict)
     clock_source: bool = False
     doc: str = ""
-    #: For nodes whose ports depend on their parameters (a replayed log): params -> (inputs, outputs).
-    ports_from_params: Callable[[Mapping[str, Any]], tuple[Mapping[str, Port], Mapping[str, Port]]] | None = None
+    #: For nodes whose ports depend on their configuration (a replayed log, the sim's effector): the
+    #: validated config -> (inputs, outputs).
+    ports_from_config: Callable[[C], tuple[Mapping[str, Port], Mapping[str, Port]]] | None = None
     #: Facts about the world that the node's config states: config -> {fact: (value, key path of the
     #: params that state it)}, e.g. where the hand is mounted. The launcher checks that every node of a
     #: graph that states a fact states the same value (a simulator and the mappers of its finger).
     facts: Callable[[C], Mapping[str, tuple[Any, KeyPath]]] | None = None
 
-    def with_params(self, params: Mapping[str, Any]) -> NodeSpec[C]:
-        """This spec with its ports resolved for `params` (itself when its ports are fixed)."""
-        if self.ports_from_params is None:
+    def with_config(self, config: C) -> NodeSpec[C]:
+        """This spec with its ports resolved for `config` (itself when its ports are fixed)."""
+        if self.ports_from_config is None:
             return self
-        inputs, outputs = self.ports_from_params(params)
-        return dataclasses.replace(self, inputs=inputs, outputs=outputs, ports_from_params=None)
+        inputs, outputs = self.ports_from_config(config)
+        return dataclasses.replace(self, inputs=inputs, outputs=outputs, ports_from_config=None)
+
+    def with_params(self, params: Mapping[str, Any]) -> NodeSpec[C]:
+        """`with_config` of the config that `params` give (ConfigError when they are invalid)."""
+        if self.ports_from_config is None:
+            return self
+        return self.with_config(load(self.config, params, f"node type {self.name!r} params"))
 
 
 @dataclass(frozen=True, kw_only=True)

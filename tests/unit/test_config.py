@@ -456,3 +456,10 @@ def test_valid_values_round_trip_through_yaml(cls: type, data: st.DataObject) ->
     _assert_kept(params, written)
     again = load(cls, yaml.safe_load(yaml.safe_dump(written)))
     assert again == config
+
+
+def test_an_integer_too_large_for_a_float_is_a_config_error() -> None:
+    from palpate.nodes.planner.core import PlannerConfig
+
+    with pytest.raises(ConfigError, match=r"sigma1_m: expected a finite number > 0, got 1000"):
+        load(PlannerConfig, {"sigma1_m": 10**400}, "planner")

@@ -196,3 +196,14 @@ def test_an_initial_approach_into_nothing_fails() -> None:
     step = loop.step(0, r, R_DOWN, *NONE)
     assert step.failed and not step.linear_m_s.any()
     assert r[2] == pytest.approx(-0.02, abs=0.05 * DT_S)  # 1 cm past the initial target
+
+
+def test_a_pose_at_the_initial_target_waits_instead_of_failing() -> None:
+    """An uninitialised driver reports the fingertip at (0, 0, 0), the default initial target: no
+    approach direction exists, so the loop waits (zero command) and starts on the next real pose."""
+    loop = TouchLoop(TouchConfig(tip_radius_m=0.0), ControllerConfig(), initial_target_m=(0.0, 0.0, 0.0))
+    step = loop.step(0, np.zeros(3), R_DOWN, *NONE)
+    assert not loop.started and not step.linear_m_s.any() and not step.failed and step.touch is None
+    step = loop.step(TICK_NS, np.array([0.0, 0.0, 0.02]), R_DOWN, *NONE)
+    assert loop.started
+    np.testing.assert_allclose(step.linear_m_s / np.linalg.norm(step.linear_m_s), [0.0, 0.0, -1.0])

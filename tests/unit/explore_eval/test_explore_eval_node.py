@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from palpate.errors import InputError
-from palpate.messages.schemas import ObjectTruth, SurfaceMesh
+from palpate.messages.schemas import ObjectTruth, SurfaceMesh, TouchEvent
 from palpate.nodes.explore_eval.node import ExploreEvalNode, ExploreEvalNodeConfig
 from palpate.runtime.node import NodeContext
 
@@ -78,3 +78,32 @@ def test_results_without_a_milestone_write_null_not_nan(tmp_path: Path, capsys: 
     for result in (written, printed):
         milestone = result["milestones"]["80"]
         assert milestone["reached"] is False and milestone["rmse_mm"] is None and milestone["angle_deg"] is None
+
+
+def test_a_repeated_truth_keeps_the_records_and_another_object_is_refused() -> None:
+    ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
+    node = ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx)
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    V, F = np.asarray(box.vertices), np.asarray(box.faces)
+    touch = TouchEvent(
+        stamp_ns=0,
+        index=0,
+        position_m=np.array([0.0, 0.0, 0.025]),
+        normal=np.array([0.0, 0.0, 1.0]),
+        approach_direction=np.array([0.0, 0.0, -1.0]),
+        predicted_contact_m=np.full(3, np.nan),
+        missed=False,
+        travelled_m=0.0,
+        rotation_deg=0.0,
+    )
+    with pytest.raises(InputError, match=r"^index: touch 0 came before the object's truth"):
+        node.on_touches(touch)
+    node.on_truth_object(truth(V, F))
+    first = node.evaluator
+    node.on_touches(touch)
+    assert first is not None and first.tracker.contacts == 1
+    node.on_truth_object(truth(V, F))  # latched or re-published: nothing changes
+    assert node.evaluator is first and first.tracker.contacts == 1
+    with pytest.raises(InputError, match=r"^name: a second object 'ball' during the run on 'box'"):
+        node.on_truth_object(truth(V * 0.5, F, name="ball"))
+    assert node.evaluator is first

@@ -100,6 +100,8 @@ BAD = [
     ("mount_object_missing.yaml", [], "node 'sim': does_not_exist.stl: mesh file not found"),
     ("mount_unknown_finger.yaml", [], "node 'mapper': params.mount.finger: expected one of ['index', 'middle', "),
     ("mount_thumb_on_finger.yaml", [], "params.mount: finger = 'thumb': the single-finger effector is a long finger"),
+    ("mapper_not_a_mapping.yaml", [], "node 'mapper': params.mapper: expected a mapping of MapperConfig keys, got 3"),
+    ("sim_scene_not_a_mapping.yaml", [], "node 'sim': params.scene: expected a mapping of SceneConfig keys, got [1]"),
 ]
 
 

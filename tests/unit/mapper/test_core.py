@@ -38,6 +38,10 @@ def _contact_step(rec: TappingRecord) -> int:
         ({"resolution_m": 0.0}, "resolution_m"),
         ({"region_max_m": (0.12, -0.07, 0.06)}, "must exceed"),
         ({"free_margin_m": -0.001}, "free_margin_m"),
+        ({"chunk_edge": 6}, "chunk_edge must be a power of two, got 6"),
+        ({"l_min": 0.5}, "l_min must be < 0"),
+        ({"l_max": -1.0}, "l_max must be > 0"),
+        ({"l_max": math.inf}, "l_max"),
     ],
 )
 def test_bad_config_values_are_quoted(changes: dict[str, object], message: str) -> None:

@@ -61,8 +61,10 @@ def test_unusable_inputs_are_refused_and_the_plan_still_comes() -> None:
     sent: list[Message] = []
     ctx = NodeContext("planner", 0, lambda topic, message: sent.append(message), {"target": "planner/target"})
     node = PlannerNode(PlannerConfig(strategy="gpv"), ctx)
-    with pytest.raises(InputError, match=r"^approach_direction: value -2 is outside \[-1.01, 1.01\]"):
+    with pytest.raises(InputError, match=r"^approach_direction: norm 2, neither 0 nor 1 \(\+-0.01\)"):
         node.on_touches(touch([0.0, 0.0, 0.0], [0.0, 0.0, -2.0]))
+    with pytest.raises(InputError, match=r"^approach_direction: norm 1.73205, neither 0 nor 1"):
+        node.on_touches(touch([0.0, 0.0, 0.0], [1.0, 1.0, 1.0]))  # each component within [-1, 1]
     with pytest.raises(InputError, match=r"^position_m: coordinate"):
         node.on_touches(touch([0.0, -1e30, 0.0], [0.0, 0.0, -1.0]))
     assert node.core.contacts == []
@@ -77,3 +79,16 @@ def test_unusable_inputs_are_refused_and_the_plan_still_comes() -> None:
     [target] = sent
     assert isinstance(target, TouchTarget) and target.strategy == "gpv"
     assert target.position_m[2] == 0.0 and np.all(np.abs(target.position_m) <= 0.05)  # a vertex of the plane
+
+
+def test_a_contact_that_cannot_be_planned_for_ends_the_run_with_the_reason() -> None:
+    """No surface near the last contact: the contact's one plan is used up, so the node does not wait
+    for ever (the run would stall) but asks the graph to stop, naming why, and counts it."""
+    sent: list[Message] = []
+    ctx = NodeContext("planner", 0, lambda topic, message: sent.append(message), {"target": "planner/target"})
+    node = PlannerNode(PlannerConfig(strategy="igef"), ctx)
+    node.on_touches(touch([1.0, 1.0, 0.0], [0.0, 0.0, -1.0]))  # 1.4 m from every vertex of the plane
+    node.on_pose(pose([0.0, 1.0, 0.0, 0.0]))
+    node.on_surface(plane(1e-6))
+    assert not sent and ctx.counters["planning_failed"] == 1
+    assert ctx.stop_requested.startswith("planner: no candidate target within")

@@ -60,10 +60,10 @@ def test_a_touch_that_landed_away_from_its_target_remembers_the_target() -> None
     planner = TouchPlanner(PlannerConfig(unreached_miss_m=0.005))
     planner.add_touch([0.0, 0.0, 0.0], [np.nan] * 3, [0.0, 0.0, -1.0])  # no target
     planner.add_touch([0.01, 0.0, 0.0], [0.0149, 0.0, 0.0], [0.0, 0.0, -1.0])  # 4.9 mm off: reached
-    planner.add_touch([0.02, 0.0, 0.0], [0.0251, 0.0, 0.0], [0.3, 0.0, -1.0])  # 5.1 mm off: unreached
+    planner.add_touch([0.02, 0.0, 0.0], [0.0251, 0.0, 0.0], [0.6, 0.0, -0.8])  # 5.1 mm off: unreached
     assert len(planner.contacts) == 3
     np.testing.assert_array_equal(np.array(planner.unreached), [[0.0251, 0.0, 0.0]])
-    np.testing.assert_array_equal(planner.approach, [0.3, 0.0, -1.0])
+    np.testing.assert_array_equal(planner.approach, [0.6, 0.0, -0.8])
 
 
 def test_a_target_within_min_hop_of_the_fingertip_or_near_an_unreached_target_is_not_chosen() -> None:

@@ -16,7 +16,7 @@ from palpate.messages.base import Message
 from palpate.messages.schemas import ContactSet
 from palpate.paths import REPO_ROOT
 from palpate.record.launch_support import replace_publishers_with_log
-from palpate.record.replay_node import ReplayConfig, ReplayNode, ports_from_params
+from palpate.record.replay_node import ReplayConfig, ReplayNode, ports_from_config
 from tests.unit.record.synthetic import PERIOD_NS, canonical_log, lockstep_streams, write_log
 
 DEMO = REPO_ROOT / "launch" / "demo_minimal.yaml"
@@ -47,15 +47,15 @@ def log_path(tmp_path: Path) -> Path:
 
 
 def test_ports_are_the_logs_data_topics(log_path: Path) -> None:
-    inputs, outputs = ports_from_params({"path": str(log_path)})
+    inputs, outputs = ports_from_config(ReplayConfig(path=str(log_path)))
     assert inputs == {} and set(outputs) == {topics.CONTACTS, topics.SURFACE_MESH}
     assert outputs[topics.CONTACTS].message is ContactSet and outputs[topics.CONTACTS].topic == topics.CONTACTS
-    _, only = ports_from_params({"path": str(log_path), "topics": [topics.CONTACTS]})
+    _, only = ports_from_config(ReplayConfig(path=str(log_path), topics=(topics.CONTACTS,)))
     assert set(only) == {topics.CONTACTS}
     with pytest.raises(LaunchError, match="no topic 'nope'"):
-        ports_from_params({"path": str(log_path), "topics": ["nope"]})
+        ports_from_config(ReplayConfig(path=str(log_path), topics=("nope",)))
     with pytest.raises(LaunchError, match="cannot open log"):
-        ports_from_params({"path": str(log_path.with_name("missing.mcap"))})
+        ports_from_config(ReplayConfig(path=str(log_path.with_name("missing.mcap"))))
 
 
 def test_each_step_publishes_one_recorded_tick_and_returns_its_stamp(log_path: Path) -> None:

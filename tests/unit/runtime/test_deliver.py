@@ -8,7 +8,7 @@ import logging
 import numpy as np
 import pytest
 
-from palpate.errors import EstimationError, InputError
+from palpate.errors import EstimationError, InputError, OutputError
 from palpate.messages.base import Message
 from palpate.messages.schemas import Pose
 from palpate.runtime.node import NodeContext, deliver
@@ -71,7 +71,7 @@ def test_other_palpate_errors_are_rejections_without_a_field(caplog: pytest.LogC
     with caplog.at_level(logging.WARNING):
         assert not deliver(ctx, Keeper(), "other", "x", pose([1.0, 0.0, 0.0, 0.0]))
     assert ctx.counters["input_errors"] == 1
-    assert "topic x: input rejected, field Pose: the estimator cannot use it (1 so far)" in caplog.text
+    assert "topic x: input rejected, Pose: the estimator cannot use it (1 so far)" in caplog.text
 
 
 def test_a_bug_in_a_handler_propagates() -> None:
@@ -89,3 +89,32 @@ def test_the_log_is_rate_limited_per_topic_and_field(caplog: pytest.LogCaptureFi
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 10 + 2 + 1  # first 10, then the 100th and 200th, then topic b's first
     assert lines[-2].endswith("(200 so far)") and lines[-1].startswith("node ctrl, topic b:")
+
+
+class Echo:
+    """A node that publishes what it receives: an invalid message is its own bug, not bad input."""
+
+    def __init__(self, ctx: NodeContext) -> None:
+        self.ctx = ctx
+
+    def on_pose(self, message: Pose) -> None:
+        self.ctx.publish("out", message)
+
+    def on_tick(self, stamp_ns: int) -> None:
+        """Nothing per tick."""
+
+
+def test_an_invalid_output_is_counted_as_the_nodes_bug_and_propagates() -> None:
+    sent: list[Message] = []
+    ctx = NodeContext("echo", 0, lambda topic, message: sent.append(message), {"out": "echo/pose"})
+    broken = Pose(
+        stamp_ns=0,
+        frame="fingertip",
+        position_m=np.array([np.nan, 0.0, 0.0]),
+        quaternion_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
+        linear_velocity_m_s=np.zeros(3),
+        angular_velocity_rad_s=np.zeros(3),
+    )
+    with pytest.raises(OutputError, match=r"node 'echo' published an invalid Pose on port 'out'"):
+        deliver(ctx, Echo(ctx), "pose", "in/pose", broken)
+    assert not sent and ctx.counters["output_errors"] == 1 and ctx.counters["input_errors"] == 0

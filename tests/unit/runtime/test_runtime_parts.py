@@ -2,17 +2,21 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import stat
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
-from palpate.errors import BusError, LaunchError
+from palpate.config import Validated
+from palpate.errors import BusError, ConfigError, EstimationError, LaunchError
 from palpate.launch.node_types import NODE_TYPES, load_node_type
+from palpate.launch.supervisor import external_spec_path, write_external_spec
 from palpate.messages import codec
 from palpate.messages.schemas import ContactSet, TouchEvent
 from palpate.runtime import bus
@@ -58,6 +62,27 @@ def test_process_spec_json_round_trip() -> None:
     )
     assert NodeProcessSpec.from_json(spec.to_json()) == spec
     assert json.loads(spec.to_json())["mode"] == "lockstep"
+
+
+def test_an_external_spec_with_its_secret_key_is_readable_by_its_owner_only(tmp_path: Path) -> None:
+    spec = NodeProcessSpec(
+        name="noise",
+        type="noise",
+        node_spec="palpate.nodes.noise.node:SPEC",
+        params={},
+        bus_dir=str(tmp_path),
+        endpoint="tcp://127.0.0.1:5555",
+        publishes={},
+        subscribes={},
+        connect=[],
+        expected_subscribers={},
+        curve={"public": "p", "secret": "s", "server_public": "q"},
+    )
+    path = write_external_spec(tmp_path, spec)
+    assert path == external_spec_path(tmp_path, "noise") and NodeProcessSpec.from_json(path.read_text()) == spec
+    assert (path.stat().st_mode & 0o777, path.parent.stat().st_mode & 0o777) == (0o600, 0o700)
+    write_external_spec(tmp_path, spec)  # a second launch replaces it
+    assert path.stat().st_mode & 0o777 == 0o600
 
 
 def test_manifests_list_live_publishers_only(tmp_path: Path) -> None:
@@ -172,3 +197,37 @@ def test_in_process_graph_refuses_nodes_out_of_rank_order(tmp_path: Path) -> Non
     assert InProcessGraph(members).run(max_ticks=2) == 2
     with pytest.raises(ValueError, match="rank order"):
         InProcessGraph(members[::-1])
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class NoParams(Validated):
+    """No parameters."""
+
+
+def refuse_to_start(config: NoParams, ctx: Any) -> Any:
+    raise EstimationError("this node cannot start")
+
+
+def test_a_node_that_fails_to_start_leaves_no_socket_file(tmp_path: Path) -> None:
+    from palpate.runtime.node import NodeRunner
+
+    endpoint = f"ipc://{tmp_path}/refuser.pub"
+    process = NodeProcessSpec(
+        name="refuser",
+        type="refuser",
+        node_spec="tests:unused",
+        params={},
+        bus_dir=str(tmp_path),
+        endpoint=endpoint,
+        publishes={},
+        subscribes={},
+        connect=[],
+        mode="realtime",
+    )
+    spec = NodeSpec(name="refuser", config=NoParams, factory=refuse_to_start)
+    with pytest.raises(EstimationError, match="cannot start"):
+        NodeRunner(spec, process)
+    assert not (tmp_path / "refuser.pub").exists()
+    with pytest.raises(ConfigError, match="unknown key 'speed'"):  # checked before any socket is bound
+        NodeRunner(spec, dataclasses.replace(process, params={"speed": 1}))
+    assert not (tmp_path / "refuser.pub").exists()
