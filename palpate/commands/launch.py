@@ -57,7 +57,14 @@ def load_graph(path: Path, overrides: list[str], bus_dir: Path | None, replay: P
 def run_launch(args: argparse.Namespace) -> int:
     graph = load_graph(args.file, args.args, args.bus, args.replay)
     if args.spec is not None:
-        specs = {s.name: s for s in graph.process_specs(extra_subscribers=1 if args.record else 0)}
+        recorder_keys = recorder_curve_keys(graph) if args.record else {}
+        specs = {
+            s.name: s
+            for s in graph.process_specs(
+                extra_subscribers=1 if args.record else 0,
+                extra_curve_clients=[recorder_keys["public"]] if recorder_keys else [],
+            )
+        }
         if args.spec not in specs:
             raise LaunchError(f"no node {args.spec!r} in {args.file}; nodes: {', '.join(sorted(specs))}")
         print(json.dumps(json.loads(specs[args.spec].to_json()), indent=1, sort_keys=True))
@@ -71,10 +78,17 @@ def run_launch(args: argparse.Namespace) -> int:
     return run_graph(graph, record=args.record)
 
 
+def recorder_curve_keys(graph: Graph) -> dict[str, str]:
+    """The recorder's own key pair in a keyed graph ({} otherwise), which every keyed publisher admits:
+    derived from the graph's secret keys, so `--spec NAME --record` gives a remote node the same one."""
+    if not graph.keyed:
+        return {}
+    return bus.derived_curve_keys("palpate recorder", [n.curve["secret"] for n in graph.nodes if n.curve.get("secret")])
+
+
 def run_graph(graph: Graph, record: Path | None = None) -> int:
     """Start the graph's processes (and a recorder), supervise them, return the exit code."""
-    # a recorder of a keyed graph gets its own key pair, which every keyed publisher admits
-    recorder_keys = bus.make_curve_keys() if record is not None and graph.keyed else {}
+    recorder_keys = recorder_curve_keys(graph) if record is not None else {}
     specs = graph.process_specs(
         extra_subscribers=1 if record else 0,
         extra_curve_clients=[recorder_keys["public"]] if recorder_keys else [],

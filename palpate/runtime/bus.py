@@ -21,6 +21,7 @@ CurveZMQ publisher admits only the client keys the launcher lists (`ClientAllowL
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import logging
 import os
@@ -34,6 +35,7 @@ from typing import Any, NamedTuple
 
 import zmq
 from zmq.auth.thread import ThreadAuthenticator
+from zmq.utils import z85
 from zmq.utils.monitor import recv_monitor_message
 
 from palpate.errors import BusError
@@ -170,6 +172,17 @@ def make_curve_keys(server_public: str | None = None) -> dict[str, str]:
     keys = {"public": public.decode(), "secret": secret.decode()}
     keys["server_public"] = server_public or keys["public"]
     return keys
+
+
+def derived_curve_keys(label: str, secrets: Sequence[str]) -> dict[str, str]:
+    """A CurveZMQ key pair that is a function of ``label`` and the graph's secret keys (z85): the same
+    pair wherever the same key files are read (a launch and its ``--spec`` for a remote node agree on
+    the recorder's key without exchanging it), unknown to anyone without those secrets."""
+    if not zmq.has("curve"):
+        raise RuntimeError("this libzmq was built without CurveZMQ support")
+    material = "\n".join([label, *sorted(secrets)]).encode()
+    secret = z85.encode(hashlib.sha256(material).digest())
+    return {"public": zmq.curve_public(secret).decode(), "secret": secret.decode()}
 
 
 def client_curve(server_public: str, client_keys: Mapping[str, str] | None = None) -> dict[str, str]:

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
@@ -390,3 +391,34 @@ def test_curve_keys_must_agree_across_links(tmp_path: Path) -> None:
         LaunchError, match=r"curve.yaml:5: node 'cube' connects to 'stats', which publishes with another"
     ):
         load(graph(graph_key, other_key), tmp_path)
+
+
+def test_a_remote_nodes_spec_admits_the_recorder_the_launch_will_start(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`--spec NAME --record` must list the recorder's public key that `launch --record` gives the
+    recorder, or a keyed remote node refuses the recorder and never counts its subscriptions."""
+    import zmq
+
+    from palpate.commands.keys import write_keys
+    from palpate.commands.launch import recorder_curve_keys
+    from palpate.runtime.bus import make_curve_keys
+
+    key = tmp_path / "graph.key"
+    write_keys(key, make_curve_keys())
+    path = tmp_path / "curve.yaml"
+    path.write_text(
+        f"nodes:\n  - name: cube\n    type: cube_contacts\n    host: 127.0.0.1\n    curve_keys: {key}\n"
+        f"  - name: stats\n    type: contact_stats\n    host: 127.0.0.1\n    curve_keys: {key}\n    external: true\n"
+    )
+    recorder = recorder_curve_keys(load(path, tmp_path))
+    assert recorder == recorder_curve_keys(load(path, tmp_path))  # the same in every process
+    assert zmq.curve_public(recorder["secret"].encode()).decode() == recorder["public"]
+    assert main(["launch", str(path), "--bus", str(tmp_path), "--spec", "stats", "--record", "x.mcap"]) == 0
+    spec = json.loads(capsys.readouterr().out)
+    assert recorder["public"] in spec["curve_clients"]
+    assert main(["launch", str(path), "--bus", str(tmp_path), "--spec", "stats"]) == 0
+    assert recorder["public"] not in json.loads(capsys.readouterr().out)["curve_clients"]
+    key.unlink()
+    write_keys(key, make_curve_keys())  # other graph keys, another recorder key
+    assert recorder_curve_keys(load(path, tmp_path))["public"] != recorder["public"]
