@@ -13,7 +13,7 @@ from typing import Annotated, Any
 
 import numpy as np
 
-from palpate.config import PositiveFloat, PositiveInt, Range, Validated
+from palpate.config import NonNegativeFloat, PositiveFloat, PositiveInt, Range, Validated
 from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.metrics.exploration import (
     CoverageTracker,
@@ -41,6 +41,12 @@ class EvalConfig(Validated):
     #: GP-V covered only 48-77 % of the large YCB cups within 15 m.
     max_contacts: PositiveInt = 800
     max_travel_m: PositiveFloat = 20.0
+    #: Budgets that fit the object: at least this many contacts, and this much travel, per contact of
+    #: the object's covering bound (``covering_bound_contacts`` at the goal), so that a large object (a
+    #: coffee can's bound is about 530 contacts) is not cut off by budgets sized for the others
+    #: (IGEF needs 1.5-2.5 times the bound). 0 keeps the fixed budgets above.
+    contacts_per_bound: NonNegativeFloat = 2.5
+    travel_per_bound_m: NonNegativeFloat = 0.05
     #: Simulated time without a touch after which the run ends as stalled (the fingertip stuck against
     #: the object without a touch event, or a planner error), seconds.
     max_idle_s: PositiveFloat = 30.0
@@ -180,6 +186,21 @@ class ExplorationEvaluator:
     def area_m2(self) -> float:
         return self.tracker.area_m2
 
+    @property
+    def covering_bound(self) -> float:
+        """The fewest 6 mm discs that cover the goal's share of the true surface (contacts)."""
+        return covering_bound_contacts(self.area_m2, self.config.coverage_goal, self.config.radius_m)
+
+    @property
+    def contact_budget(self) -> int:
+        """max(max_contacts, contacts_per_bound * covering bound)."""
+        return max(self.config.max_contacts, math.ceil(self.config.contacts_per_bound * self.covering_bound))
+
+    @property
+    def travel_budget_m(self) -> float:
+        """max(max_travel_m, travel_per_bound_m * covering bound), metres."""
+        return max(self.config.max_travel_m, self.config.travel_per_bound_m * self.covering_bound)
+
     def add_touch(
         self,
         position_m: np.ndarray,
@@ -212,9 +233,9 @@ class ExplorationEvaluator:
                 reached.append(fraction)
         if record.coverage >= self.config.coverage_goal:
             self.finished = "goal"
-        elif len(self.touches) >= self.config.max_contacts:
+        elif len(self.touches) >= self.contact_budget:
             self.finished = "contact budget"
-        elif travel_m >= self.config.max_travel_m:
+        elif travel_m >= self.travel_budget_m:
             self.finished = "travel budget"
         return reached
 
@@ -275,7 +296,9 @@ class ExplorationEvaluator:
             "coverage": self.tracker.coverage,
             "vertex_coverage": self.tracker.vertex_coverage,
             "area_m2": self.area_m2,
-            "covering_bound_contacts": covering_bound_contacts(self.area_m2, goal, self.config.radius_m),
+            "covering_bound_contacts": self.covering_bound,
+            "contact_budget": self.contact_budget,
+            "travel_budget_m": self.travel_budget_m,
             "milestones": {f"{int(100 * f)}": asdict(m) for f, m in sorted(self.milestones.items())},
             "touches": [asdict(t) for t in self.touches],
         }

@@ -50,3 +50,28 @@ def test_milestone_headline_is_the_confident_one_sided_rmse() -> None:
     assert 0.2 < m.rmse_mm < 0.6
     assert m.rmse_estimate_to_truth_mm == pytest.approx(m.rmse_mm, rel=1e-9)
     assert m.confident_fraction == pytest.approx(1.0)
+
+
+def test_budgets_grow_with_the_objects_covering_bound() -> None:
+    """A 5 cm cube keeps the fixed budgets; a 50 cm cube (bound ~4000 contacts) gets 2.5x its bound."""
+    small = ExplorationEvaluator(*_cube(0.05), EvalConfig(coverage_samples=1000))
+    assert small.covering_bound < 800 / 2.5 and small.contact_budget == 800 and small.travel_budget_m == 20.0
+    big = ExplorationEvaluator(*_cube(0.5), EvalConfig(coverage_samples=1000))
+    bound = 1.2092 * 0.8 * 6 * 0.5**2 / (np.pi * 0.006**2)  # COVERING_DENSITY * goal * area / (pi r^2)
+    assert big.covering_bound == pytest.approx(bound, rel=1e-4)
+    assert big.contact_budget == int(np.ceil(2.5 * big.covering_bound))
+    assert big.travel_budget_m == pytest.approx(0.05 * big.covering_bound)
+    fixed = ExplorationEvaluator(*_cube(0.5), EvalConfig(coverage_samples=1000, contacts_per_bound=0.0))
+    assert fixed.contact_budget == 800
+    summary = big.summary()
+    assert summary["contact_budget"] == big.contact_budget and summary["travel_budget_m"] == big.travel_budget_m
+
+
+def test_a_run_ends_at_the_scaled_contact_budget() -> None:
+    config = EvalConfig(coverage_samples=1000, max_contacts=3, contacts_per_bound=0.0)
+    ev = ExplorationEvaluator(*_cube(0.05), config)
+    far = np.array([0.025, 0.0, 0.0])
+    for k in range(3):
+        assert ev.finished == ""
+        ev.add_touch(far, np.full(3, np.nan), 0.01 * k, 0.0, np.array([-1.0, 0.0, 0.0]))
+    assert ev.finished == "contact budget"
