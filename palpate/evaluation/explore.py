@@ -373,8 +373,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="RUNS.jsonl",
         help="no runs: remake the CSV, tables and plots from a runs.jsonl",
     )
-    parser.add_argument("--max-contacts", type=int, help="contact budget per run (default: EvalConfig's)")
-    parser.add_argument("--max-travel-m", type=float, help="travel budget per run, metres (default: EvalConfig's)")
+    parser.add_argument(
+        "--max-contacts", type=int, help="contact budget per run (default: max(800, 2.5 x the object's covering bound))"
+    )
+    parser.add_argument(
+        "--max-travel-m", type=float, help="travel budget per run, metres (default: max(20, 0.05 x covering bound))"
+    )
     parser.add_argument(
         "--set",
         action="append",
@@ -399,10 +403,12 @@ def parse_sets(items: Sequence[str]) -> dict[str, Any]:
 def eval_params(args: argparse.Namespace) -> dict[str, Any]:
     """Node parameter overrides of an evaluation: budgets, no per-run printing, and --set."""
     params: dict[str, Any] = {"eval.report": False}
-    if args.max_contacts is not None:
+    if args.max_contacts is not None:  # a budget given is the budget, whatever the object's size
         params["eval.eval.max_contacts"] = args.max_contacts
+        params["eval.eval.contacts_per_bound"] = 0.0
     if args.max_travel_m is not None:
         params["eval.eval.max_travel_m"] = args.max_travel_m
+        params["eval.eval.travel_per_bound_m"] = 0.0
     params.update(parse_sets(args.set))
     return params
 

@@ -91,3 +91,16 @@ def test_parameter_overrides_are_checked() -> None:
     assert next(n for n in launch.nodes if n.fields["name"] == "controller").fields["params"]["controller"] == {
         "v0_m_s": 0.1
     }
+
+
+def test_a_budget_given_on_the_command_line_is_not_scaled_by_the_object() -> None:
+    import argparse
+
+    from palpate.evaluation.explore import eval_params
+
+    given = eval_params(argparse.Namespace(max_contacts=30, max_travel_m=None, set=[]))
+    assert given["eval.eval.max_contacts"] == 30 and given["eval.eval.contacts_per_bound"] == 0.0
+    assert "eval.eval.travel_per_bound_m" not in given
+    assert "eval.eval.contacts_per_bound" not in eval_params(
+        argparse.Namespace(max_contacts=None, max_travel_m=None, set=[])
+    )
