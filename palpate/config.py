@@ -107,6 +107,7 @@ Fraction = Range(ge=0.0, le=1.0)
 PositiveFloat = Annotated[float, Positive]
 NonNegativeFloat = Annotated[float, NonNegative]
 PositiveInt = Annotated[int, Range(ge=1)]
+NonNegativeInt = Annotated[int, NonNegative]
 
 
 # --- entry points ------------------------------------------------------------------------------------

@@ -13,7 +13,7 @@ from typing import Annotated, Any
 
 import numpy as np
 
-from palpate.config import NonNegativeFloat, PositiveFloat, PositiveInt, Range, Validated
+from palpate.config import NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt, Range, Validated
 from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.metrics.exploration import (
     CoverageTracker,
@@ -24,6 +24,7 @@ from palpate.metrics.exploration import (
     surface_rmse,
     triangle_areas,
 )
+from palpate.metrics.shape import ShapeScorer
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -54,6 +55,10 @@ class EvalConfig(Validated):
     #: The headline surface RMSE is taken over the part of the estimate whose GP standard deviation is
     #: at most this, metres: the surface the estimate claims to know (see ``Milestone``).
     confident_sigma_m: PositiveFloat = 0.001
+    #: Whole-shape scores (Chamfer distance, F-scores, palpate.metrics.shape) of the whole estimate
+    #: every this many contacts, at each milestone and at the end; 0: only at milestones and the end.
+    shape_every_contacts: NonNegativeInt = 10
+    shape_samples: PositiveInt = 5000
 
 
 @dataclass
@@ -79,6 +84,25 @@ class Milestone:
     rmse_symmetric_mm: float = math.nan
     rmse_estimate_to_truth_mm: float = math.nan
     rmse_truth_to_estimate_mm: float = math.nan
+    #: Whole-shape scores of the same estimate (palpate.metrics.shape).
+    chamfer_mm: float = math.nan
+    fscore_2mm: float = math.nan
+
+
+@dataclass
+class ShapePoint:
+    """Whole-shape scores of the estimate after ``contacts`` contacts and ``travel_cm`` of travel."""
+
+    contacts: int
+    travel_cm: float
+    coverage: float
+    chamfer_mm: float
+    accuracy_mm: float
+    completeness_mm: float
+    fscore_1mm: float
+    fscore_2mm: float
+    fscore_5mm: float
+    fscore_10mm: float
 
 
 @dataclass(frozen=True)
@@ -118,6 +142,7 @@ class RunControl:
     def __init__(self, evaluator: ExplorationEvaluator) -> None:
         self.evaluator = evaluator
         self.pending: list[float] = []  # milestones waiting for their whole-object surface
+        self.shape_pending = False  # a shape checkpoint waits for its whole-object surface
         self.final_requested = False
         self.last_touch_ns = 0
 
@@ -139,8 +164,11 @@ class RunControl:
         self.last_touch_ns = stamp_ns
         axis = np.array([0.0, 0.0, -1.0]) if fingertip_axis is None else fingertip_axis
         reached = ev.add_touch(position_m, predicted_m, travel_m, rotation_deg, axis, missed)
-        if reached or ev.finished:
+        every = ev.config.shape_every_contacts
+        checkpoint = every > 0 and len(ev.touches) % every == 0
+        if reached or ev.finished or checkpoint:
             self.pending.extend(reached)
+            self.shape_pending = True
             self.final_requested = bool(ev.finished)
             return True
         return False
@@ -148,10 +176,12 @@ class RunControl:
     def surface(self, vertices_m: np.ndarray, faces: np.ndarray, vertex_variance: np.ndarray) -> bool:
         """A whole-object estimate arrived (vertices (v, 3) m, faces (f, 3), GP variance (v,) m^2): score the
         milestones waiting for it. True when the run is over (this was the surface asked for at the end)."""
+        shape = self.evaluator.shape(vertices_m, faces) if self.shape_pending or self.pending else None
+        self.shape_pending = False
         if self.pending:
             rmse = self.evaluator.rmse(vertices_m, faces, vertex_variance)
             for fraction in self.pending:
-                self.evaluator.set_rmse(fraction, rmse)
+                self.evaluator.set_rmse(fraction, rmse, shape)
             self.pending = []
         return self.final_requested
 
@@ -180,6 +210,8 @@ class ExplorationEvaluator:
         self.sensor = _sensor(self.vertices_m, self.faces)
         self.touches: list[TouchRecord] = []
         self.milestones: dict[float, Milestone] = {}
+        self.shape_series: list[ShapePoint] = []
+        self._shape_scorer: ShapeScorer | None = None  # built on the first estimate
         self.finished = ""
 
     @property
@@ -261,9 +293,37 @@ class ExplorationEvaluator:
             vertex_coverage=self.tracker.vertex_coverage,
         )
 
-    def set_rmse(self, fraction: float, scores: SurfaceScores) -> None:
+    def shape(self, vertices_m: np.ndarray, faces: np.ndarray) -> ShapePoint:
+        """Whole-shape scores of an estimated mesh (vertices (v, 3) m, faces (f, 3)) now: appended to
+        ``shape_series`` (once per contact count) and returned."""
+        if self._shape_scorer is None:
+            truth = (self.vertices_m, self.faces)
+            self._shape_scorer = ShapeScorer(truth, self.config.shape_samples, rng=np.random.default_rng(0))
+        scores = self._shape_scorer.score((vertices_m, faces)).as_dict()
+        last = self.touches[-1] if self.touches else None
+        point = ShapePoint(
+            contacts=len(self.touches),
+            travel_cm=last.travel_cm if last else 0.0,
+            coverage=self.tracker.coverage,
+            chamfer_mm=scores["chamfer_mm"],
+            accuracy_mm=scores["accuracy_mm"],
+            completeness_mm=scores["completeness_mm"],
+            fscore_1mm=scores["fscore_1mm"],
+            fscore_2mm=scores["fscore_2mm"],
+            fscore_5mm=scores["fscore_5mm"],
+            fscore_10mm=scores["fscore_10mm"],
+        )
+        if self.shape_series and self.shape_series[-1].contacts == point.contacts:
+            self.shape_series[-1] = point
+        else:
+            self.shape_series.append(point)
+        return point
+
+    def set_rmse(self, fraction: float, scores: SurfaceScores, shape: ShapePoint | None = None) -> None:
         """Attach the surface scores of the estimate published when `fraction` was reached."""
         m = self.milestones[fraction]
+        if shape is not None:
+            m.chamfer_mm, m.fscore_2mm = shape.chamfer_mm, shape.fscore_2mm
         m.rmse_mm = 1000.0 * scores.confident.estimate_to_truth_m
         m.confident_fraction = scores.confident_fraction
         m.rmse_symmetric_mm = 1000.0 * scores.whole.symmetric_m
@@ -300,6 +360,7 @@ class ExplorationEvaluator:
             "contact_budget": self.contact_budget,
             "travel_budget_m": self.travel_budget_m,
             "milestones": {f"{int(100 * f)}": asdict(m) for f, m in sorted(self.milestones.items())},
+            "shape": [asdict(p) for p in self.shape_series],
             "touches": [asdict(t) for t in self.touches],
         }
 

@@ -47,7 +47,7 @@ from palpate.inputs import MAX_COORDINATE_M, UNIT_TOLERANCE, bounded, coordinate
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
-Strategy = Literal["igef", "gpv", "random", "coverage"]
+Strategy = Literal["igef", "gpv", "random", "area"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -96,14 +96,14 @@ class PlannerConfig(Validated):
     unreached_miss_m: NonNegativeFloat = 0.005
     #: Fingertip radius, metres (the controller's tip_radius_m): the curves guide the fingertip centre.
     tip_radius_m: NonNegativeFloat = 0.008
-    #: Coverage strategy (not in the paper, see ``coverage_scores``): the radius one touch explores
+    #: Area strategy (not in the paper, see ``area_scores``): the radius one touch explores
     #: (the evaluation's 6 mm), and the fixed cost of a touch in metres of travel, which makes a touch
     #: that explores more worth a longer path.
-    coverage_radius_m: PositiveFloat = 0.006
-    coverage_touch_cost_m: NonNegativeFloat = 0.02
+    area_radius_m: PositiveFloat = 0.006
+    area_touch_cost_m: NonNegativeFloat = 0.02
     #: Extra weight of an unexplored patch per explored fraction of its surroundings (2 rho): holes and
     #: the rim of the explored region first, so that no patch is left for a long trip back.
-    coverage_hole_weight: NonNegativeFloat = 2.0
+    area_hole_weight: NonNegativeFloat = 2.0
 
     @property
     def radius_m(self) -> float:
@@ -247,7 +247,7 @@ def igef_terms(
     return np.stack([psi1, psi2, psi3, psi4], axis=1)
 
 
-def coverage_scores(
+def area_scores(
     candidates_m: FloatArray,
     normals: FloatArray,
     contacts_m: FloatArray,
@@ -256,7 +256,7 @@ def coverage_scores(
     R_z: FloatArray,
     config: PlannerConfig,
 ) -> FloatArray:
-    """Coverage strategy (not in the paper): new explored area per unit of travel, for every candidate (m,).
+    """Area strategy (not in the paper): new explored area per unit of travel, for every candidate (m,).
 
     The candidates, thinned to about ``candidate_step_m`` apart on the estimated surface, stand for
     equal patches of it. A patch is explored when a contact lies within the coverage radius rho of it.
@@ -266,27 +266,27 @@ def coverage_scores(
         score(s) = G(s) * Psi4(s) / (Len(s) + L0)
 
     with Len(s) the Eq. 15 path (IGEF's Psi2 curve), Psi4 IGEF's rotation factor (Eq. 11) and L0 the
-    fixed cost of a touch. beta (``coverage_hole_weight``) favours the holes and the rim of the explored
+    fixed cost of a touch. beta (``area_hole_weight``) favours the holes and the rim of the explored
     region, so that no unexplored patch is left behind for a long trip back. When no candidate explores
     anything (the local surface is covered), the score is the distance to the nearest contact per unit
     of travel, which leads out of the covered region.
     candidates_m, normals (unit): (m, 3); contacts_m: (n, 3); r, v_n, R_z as in igef_terms.
     """
-    rho = config.coverage_radius_m
+    rho = config.area_radius_m
     explored_by, _ = cKDTree(contacts_m).query(candidates_m)  # distance to the nearest contact (m,)
     is_unexplored = explored_by > rho
     unexplored = candidates_m[is_unexplored]
     curves = approach_curve(r, v_n, candidates_m, normals, scale=config.psi2_control_scale)
-    cost = bezier_length(curves) + config.coverage_touch_cost_m
+    cost = bezier_length(curves) + config.area_touch_cost_m
     psi4 = np.exp(-(1.0 + normals @ R_z) / config.sigma_alpha**2)  # Eq. 11
     if len(unexplored):
         unexplored_tree = cKDTree(unexplored)
         weight = np.ones(len(unexplored))
-        if config.coverage_hole_weight > 0.0 and len(unexplored) < len(candidates_m):
+        if config.area_hole_weight > 0.0 and len(unexplored) < len(candidates_m):
             around = cKDTree(candidates_m).query_ball_point(unexplored, 2.0 * rho, return_length=True)
             explored = cKDTree(candidates_m[~is_unexplored])
             explored_around = explored.query_ball_point(unexplored, 2.0 * rho, return_length=True)
-            weight += config.coverage_hole_weight * explored_around / np.maximum(around, 1)
+            weight += config.area_hole_weight * explored_around / np.maximum(around, 1)
         pairs = cKDTree(candidates_m).sparse_distance_matrix(unexplored_tree, rho, output_type="ndarray")
         gain = np.bincount(pairs["i"], weights=weight[pairs["j"]], minlength=len(candidates_m))
         if gain.max() > 0.0:
@@ -422,8 +422,8 @@ class Planner:
             psi[valid] = igef_terms(S[valid], Nrm[valid], C, r_, v, z, cfg)
             scores[valid] = psi[valid].prod(axis=1)  # Eq. 12: Psi = prod Psi_n
             index = int(valid[np.argmax(scores[valid])])
-        elif cfg.strategy == "coverage":
-            scores[valid] = coverage_scores(S[valid], Nrm[valid], C, r_, v, z, cfg)
+        elif cfg.strategy == "area":
+            scores[valid] = area_scores(S[valid], Nrm[valid], C, r_, v, z, cfg)
             index = int(valid[np.argmax(scores[valid])])
         elif cfg.strategy == "gpv":
             if not np.all(np.isfinite(Q[valid])):

@@ -75,3 +75,18 @@ def test_a_run_ends_at_the_scaled_contact_budget() -> None:
         assert ev.finished == ""
         ev.add_touch(far, np.full(3, np.nan), 0.01 * k, 0.0, np.array([-1.0, 0.0, 0.0]))
     assert ev.finished == "contact budget"
+
+
+def test_shape_scores_of_the_estimate_join_the_series_and_the_milestone() -> None:
+    V, F = _cube(0.05)
+    ev = ExplorationEvaluator(V, F, EvalConfig(coverage_samples=1000, shape_samples=2000))
+    ev.add_touch(np.array([0.025, 0.0, 0.0]), np.full(3, np.nan), 0.0, 0.0, np.array([-1.0, 0.0, 0.0]))
+    perfect = ev.shape(V, F)
+    assert perfect.contacts == 1 and perfect.chamfer_mm < 1e-4 and perfect.fscore_2mm == 1.0
+    shifted = ev.shape(V + np.array([0.003, 0.0, 0.0]), F)  # the same contact count: replaces the point
+    assert len(ev.shape_series) == 1 and ev.shape_series[0] is shifted
+    assert 0.0 < shifted.fscore_2mm < 1.0 and shifted.chamfer_mm > 0.5
+    ev.close_incomplete()
+    ev.set_rmse(0.5, ev.rmse(V, F, np.zeros(len(V))), shifted)
+    assert ev.milestones[0.5].fscore_2mm == shifted.fscore_2mm
+    assert ev.summary()["shape"][0]["fscore_2mm"] == shifted.fscore_2mm

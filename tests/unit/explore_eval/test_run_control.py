@@ -20,6 +20,7 @@ class FakeEvaluator:
         self.finished = ""
         self.touches: list[tuple[Any, ...]] = []
         self.scored: list[tuple[float, Any]] = []
+        self.shapes: list[int] = []  # contacts at each shape scoring
 
     def add_touch(self, *args: Any) -> list[float]:
         self.touches.append(args)
@@ -29,7 +30,12 @@ class FakeEvaluator:
     def rmse(self, vertices_m: np.ndarray, faces: np.ndarray, vertex_variance: np.ndarray) -> Any:
         return ("scores of", len(vertices_m))
 
-    def set_rmse(self, fraction: float, scores: Any) -> None:
+    def shape(self, vertices_m: np.ndarray, faces: np.ndarray) -> Any:
+        self.shapes.append(len(self.touches))
+        return ("shape of", len(vertices_m))
+
+    def set_rmse(self, fraction: float, scores: Any, shape: Any = None) -> None:
+        assert shape == ("shape of", scores[1])  # the milestone's shape scores are of the same estimate
         self.scored.append((fraction, scores))
 
 
@@ -68,7 +74,19 @@ def test_a_budget_that_ends_the_run_without_a_milestone_also_asks_for_the_surfac
     ev = FakeEvaluator([([], "contact budget")])
     run = RunControl(ev)  # type: ignore[arg-type]
     assert touch(run, S_NS)
-    assert run.surface(*surface(3)) and ev.scored == []
+    assert run.surface(*surface(3)) and ev.scored == [] and ev.shapes == [1]
+
+
+def test_every_nth_contact_asks_for_the_surface_for_its_shape_scores() -> None:
+    ev = FakeEvaluator([([], "")] * 5 + [([0.5], "")], EvalConfig(shape_every_contacts=3))
+    run = RunControl(ev)  # type: ignore[arg-type]
+    asked = [touch(run, k * S_NS) for k in range(1, 4)]
+    assert asked == [False, False, True]
+    assert not run.surface(*surface(5)) and ev.shapes == [3] and ev.scored == []
+    assert not run.surface(*surface(5)) and ev.shapes == [3]  # nothing waiting: nothing scored
+    assert [touch(run, k * S_NS) for k in range(4, 7)] == [False, False, True]
+    run.surface(*surface(6))
+    assert ev.shapes == [3, 6] and ev.scored == [(0.5, ("scores of", 6))]
 
 
 def test_a_run_without_a_touch_for_max_idle_s_finishes_as_stalled() -> None:

@@ -1,11 +1,11 @@
-"""The coverage strategy: new explored area per unit of travel, checked on a plane against a slow count."""
+"""The area strategy: new explored area per unit of travel, checked on a plane against a slow count."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from palpate.geometry.bezier import approach_curve, bezier_length
-from palpate.nodes.planner.core import Planner, PlannerConfig, coverage_scores
+from palpate.nodes.planner.core import Planner, PlannerConfig, area_scores
 
 UP = np.array([0.0, 0.0, 1.0])
 DOWN = -UP
@@ -20,7 +20,7 @@ def plane_grid(step: float = 0.005, half: float = 0.05) -> tuple[np.ndarray, np.
 
 def slow_scores(S: np.ndarray, N: np.ndarray, C: np.ndarray, config: PlannerConfig) -> np.ndarray:
     """The docstring's formula with loops."""
-    rho, beta = config.coverage_radius_m, config.coverage_hole_weight
+    rho, beta = config.area_radius_m, config.area_hole_weight
     nearest = np.array([min(np.linalg.norm(s - c) for c in C) for s in S])
     unexplored = nearest > rho
     out = np.zeros(len(S))
@@ -32,7 +32,7 @@ def slow_scores(S: np.ndarray, N: np.ndarray, C: np.ndarray, config: PlannerConf
                 around = [j for j in range(len(S)) if np.linalg.norm(S[j] - S[q]) <= 2 * rho]
                 share = sum(not unexplored[j] for j in around) / len(around)
                 gain += 1.0 + beta * share
-        out[k] = gain / (cost + config.coverage_touch_cost_m)  # Psi4 = 1: the fingertip already faces -n
+        out[k] = gain / (cost + config.area_touch_cost_m)  # Psi4 = 1: the fingertip already faces -n
     return out
 
 
@@ -40,16 +40,16 @@ def test_scores_match_the_slow_formula() -> None:
     S, N = plane_grid(half=0.025)
     C = np.array([[0.0, 0.0, 0.0], [0.005, 0.0, 0.0], [-0.01, 0.01, 0.0]])
     for beta in (0.0, 2.0):
-        config = PlannerConfig(strategy="coverage", coverage_hole_weight=beta)
-        fast = coverage_scores(S, N, C, C[-1], DOWN, DOWN, config)
+        config = PlannerConfig(strategy="area", area_hole_weight=beta)
+        fast = area_scores(S, N, C, C[-1], DOWN, DOWN, config)
         np.testing.assert_allclose(fast, slow_scores(S, N, C, config), rtol=1e-12)
 
 
 def test_a_touch_in_explored_area_scores_nothing_and_the_best_hop_leaves_the_explored_disc() -> None:
     S, N = plane_grid()
     C = np.zeros((1, 3))
-    config = PlannerConfig(strategy="coverage")
-    scores = coverage_scores(S, N, C, C[-1], DOWN, DOWN, config)
+    config = PlannerConfig(strategy="area")
+    scores = area_scores(S, N, C, C[-1], DOWN, DOWN, config)
     distance = np.linalg.norm(S, axis=1)
     assert scores[distance <= 0.001].max() == 0.0  # the contact itself explores nothing new
     best = S[np.argmax(scores)]
@@ -63,8 +63,8 @@ def test_holes_in_the_explored_region_come_first_with_a_hole_weight() -> None:
     angles = np.linspace(0.0, 2 * np.pi, 12, endpoint=False)
     ring = np.column_stack([0.012 * np.cos(angles), 0.012 * np.sin(angles), np.zeros(12)])
     C = np.vstack([ring, [[0.012, 0.0, 0.0]]])  # the last contact on the ring
-    weighted = coverage_scores(S, N, C, C[-1], DOWN, DOWN, PlannerConfig(coverage_hole_weight=4.0))
-    plain = coverage_scores(S, N, C, C[-1], DOWN, DOWN, PlannerConfig(coverage_hole_weight=0.0))
+    weighted = area_scores(S, N, C, C[-1], DOWN, DOWN, PlannerConfig(area_hole_weight=4.0))
+    plain = area_scores(S, N, C, C[-1], DOWN, DOWN, PlannerConfig(area_hole_weight=0.0))
     centre = int(np.argmin(np.linalg.norm(S, axis=1)))
     outside = int(np.argmin(np.linalg.norm(S - [0.024, 0.0, 0.0], axis=1)))  # as far from the last contact
     assert weighted[centre] / weighted[outside] > plain[centre] / plain[outside]
@@ -74,7 +74,7 @@ def test_holes_in_the_explored_region_come_first_with_a_hole_weight() -> None:
 def test_a_covered_surface_leads_out_of_the_covered_region() -> None:
     S, N = plane_grid(half=0.02)
     C = S[::2].copy()  # a checkerboard of contacts: every patch within 6 mm of one
-    scores = coverage_scores(S, N, C, C[-1], DOWN, DOWN, PlannerConfig(strategy="coverage"))
+    scores = area_scores(S, N, C, C[-1], DOWN, DOWN, PlannerConfig(strategy="area"))
     nearest = np.min(np.linalg.norm(S[:, None] - C[None], axis=2), axis=1)
     assert nearest.max() <= 0.006 and scores.max() > 0.0
     assert nearest[np.argmax(scores)] > 0.0  # not a contact itself: further from the contacts
@@ -83,7 +83,7 @@ def test_a_covered_surface_leads_out_of_the_covered_region() -> None:
 def test_the_planner_selects_by_coverage() -> None:
     S, N = plane_grid()
     C = np.zeros((1, 3))
-    planner = Planner(PlannerConfig(strategy="coverage"))
+    planner = Planner(PlannerConfig(strategy="area"))
     choice = planner.select(S, N, np.zeros(len(S)), C, C[-1], DOWN, DOWN, np.random.default_rng(0))
     assert choice.psi is None and choice.score == choice.scores.max() > 0.0
     assert 0.006 < np.linalg.norm(choice.target_m) <= 0.015
