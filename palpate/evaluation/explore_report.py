@@ -282,34 +282,56 @@ def _json_number(value: float) -> float | None:
     return None if not math.isfinite(value) else round(float(value), 4)
 
 
-def plot_coverage_vs_travel(path: Path, results: Sequence[Mapping[str, Any]], object_name: str) -> None:
-    """Coverage against travelled distance for every strategy (and run) on one object (paper Fig. 7a)."""
+#: Line colour of each strategy in the plots.
+STRATEGY_COLOURS = {"igef": "tab:blue", "gpv": "tab:orange", "random": "tab:gray", "area": "tab:green"}
+
+
+def plot_against_travel(
+    path: Path,
+    results: Sequence[Mapping[str, Any]],
+    object_name: str,
+    series: tuple[str, str],
+    ylabel: str,
+    levels: Sequence[float],
+    title: str,
+    scale: float = 1.0,
+) -> None:
+    """One line per run of ``object_name``: ``series`` = (list field of a result, value field of its
+    items) times ``scale``, against the items' ``travel_cm``; dashed lines at ``levels``."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
-    colours = {"igef": "tab:blue", "gpv": "tab:orange", "random": "tab:gray"}
+    field, value = series
     labelled: set[str] = set()
     for r in results:
-        if r["object"] != object_name or not r.get("touches"):
+        if r["object"] != object_name or not r.get(field):
             continue
         s = r["strategy"]
-        travel = [t["travel_cm"] for t in r["touches"]]
-        coverage = [100.0 * t["coverage"] for t in r["touches"]]
-        ax.plot(travel, coverage, color=colours.get(s, "k"), alpha=0.8, label=None if s in labelled else s.upper())
+        travel = [t["travel_cm"] for t in r[field]]
+        ys = [scale * t[value] for t in r[field]]
+        colour = STRATEGY_COLOURS.get(s, "k")
+        ax.plot(travel, ys, color=colour, alpha=0.8, label=None if s in labelled else s.upper())
         labelled.add(s)
-    for level in (50, 80):
+    for level in levels:
         ax.axhline(level, color="0.6", linewidth=0.8, linestyle="--")
     ax.set_xlabel("travelled distance (cm)")
-    ax.set_ylabel("coverage (% of the true surface within 6 mm of a contact)")
-    ax.set_title(f"{object_name}: exploration progress")
+    ax.set_ylabel(ylabel)
+    ax.set_title(f"{object_name}: {title}")
     ax.legend()
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_coverage_vs_travel(path: Path, results: Sequence[Mapping[str, Any]], object_name: str) -> None:
+    """Coverage against travelled distance for every strategy (and run) on one object (paper Fig. 7a)."""
+    ylabel = "coverage (% of the true surface within 6 mm of a contact)"
+    title = "exploration progress"
+    plot_against_travel(path, results, object_name, ("touches", "coverage"), ylabel, (50, 80), title, scale=100.0)
 
 
 def plot_travel_per_object(

@@ -127,29 +127,8 @@ def shape_table(summary: Mapping[str, Mapping[str, float | int]]) -> str:
 
 def plot_fscore_vs_travel(path: Path, results: Sequence[Row], object_name: str) -> None:
     """F-score@2 mm of the whole estimate against travelled distance, every strategy, one object."""
-    import matplotlib
+    from palpate.evaluation.explore_report import plot_against_travel
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.5, 4.2))
-    colours = {"igef": "tab:blue", "gpv": "tab:orange", "random": "tab:gray", "area": "tab:green"}
-    labelled: set[str] = set()
-    for r in results:
-        if r["object"] != object_name or not r.get("shape"):
-            continue
-        s = r["strategy"]
-        travel = [p["travel_cm"] for p in r["shape"]]
-        fscore = [p["fscore_2mm"] for p in r["shape"]]
-        ax.plot(travel, fscore, color=colours.get(s, "k"), alpha=0.8, label=None if s in labelled else s.upper())
-        labelled.add(s)
-    ax.axhline(FSCORE_GOAL, color="0.6", linewidth=0.8, linestyle="--")
-    ax.set_xlabel("travelled distance (cm)")
-    ax.set_ylabel("F-score@2 mm of the whole estimate")
-    ax.set_ylim(0.0, 1.02)
-    ax.set_title(f"{object_name}: shape quality against effort")
-    ax.legend()
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    ylabel = "F-score@2 mm of the whole estimate"
+    title = "shape quality against effort"
+    plot_against_travel(path, results, object_name, ("shape", "fscore_2mm"), ylabel, (FSCORE_GOAL,), title)
