@@ -22,13 +22,20 @@ Factorisation: K~ = L L^T grows by a block Cholesky update per contact (or per b
 
 never a refit from scratch. z = L^{-1} (y - m_obs) grows with it (z2 = L22^{-1} (y2 - X^T z1)), and
 alpha = L^{-T} z is recomputed lazily (one triangular solve) when a mean or gradient is asked for.
+L lives in a buffer with spare capacity that grows geometrically (``factor.GrowingCholesky``): the
+new block rows are written in place, and the solves run on the buffer itself, bit for bit the
+solves of a contiguous L.
+
+This is the exact GP: the reference, and the default for small problems. ``local.LocalGPIS`` blends
+exact GPs over local regions and scales to thousands of contacts; ``make_estimator`` picks one from
+GPISConfig.estimator.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Protocol
 
 import numpy as np
 import scipy.linalg
@@ -36,12 +43,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from palpate.config import NonNegativeFloat, OneOf, Positive, PositiveFloat, Validated
 from palpate.errors import ConfigError, EstimationError
+from palpate.nodes.gpis.factor import GrowingCholesky
 from palpate.nodes.gpis.kernels import ROWS_PER_POINT, GaussianKernel, IsotropicKernel, ThinPlateKernel
 
 FloatArray = NDArray[np.float64]
 
 KERNELS = ("thin_plate", "gaussian")
 PRIORS = ("sphere", "zero")
+ESTIMATORS = ("exact", "local", "auto")
 
 #: Object size (m) that the default config is tuned for (YCB objects are at most 0.23 m across).
 REFERENCE_SIZE_M = 0.2
@@ -74,6 +83,12 @@ class GPISConfig(Validated):
         The thin-plate fit barely depends on it (box test: same error for r0 = 1, 2, 5 cm); the
         Gaussian kernel reverts to the prior within a few length scales of the contacts, so there a
         sphere that bulges out of the object leaves spurious surface (measured: 3 cm errors).
+    estimator: "exact" (one GP over every contact: the reference, O(n^2) per touch and in memory),
+        "local" (``local.LocalGPIS``: exact GPs over voxels of edge local_cell_m, each holding the
+        contacts within local_cell_m + local_margin_m, blended smoothly; cost per touch set by the
+        local density, not the history) or "auto": exact up to auto_local_above_contacts contacts,
+        then local (rebuilt once from every contact). docs/exploration.md says when to pick which.
+    local_far_cell_m: the local estimator's far-field GP keeps one contact per voxel of this edge.
     """
 
     kernel: Annotated[str, OneOf(KERNELS)] = "thin_plate"
@@ -87,6 +102,11 @@ class GPISConfig(Validated):
     prior: Annotated[str, OneOf(PRIORS)] = "sphere"
     prior_radius_m: PositiveFloat = 0.02
     prior_scale: PositiveFloat = 1.0
+    estimator: Annotated[str, OneOf(ESTIMATORS)] = "auto"
+    auto_local_above_contacts: Annotated[int, Positive] = 1000
+    local_cell_m: PositiveFloat = 0.01
+    local_margin_m: NonNegativeFloat = 0.005
+    local_far_cell_m: PositiveFloat = 0.02
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -100,7 +120,8 @@ class GPISConfig(Validated):
     def for_object_size(cls, size_m: float, **overrides: object) -> GPISConfig:
         """The defaults with every length scaled by s = size_m / REFERENCE_SIZE_M (0.2 m).
 
-        R_m, length_scale_m, value_noise_m and prior_radius_m scale by s, thin_plate_scale by 1 / s;
+        R_m, length_scale_m, value_noise_m, prior_radius_m and the local estimator's cells scale by s,
+        thin_plate_scale by 1 / s;
         gradient_noise (on unit normals) and jitter do not change. Then K + noise transforms as
         D (K + noise) D with D = diag(s, 1, 1, 1) per contact, and the posterior mean of the scaled
         object is exactly s times the reference one (variance s^2 times). Overrides apply last.
@@ -115,6 +136,9 @@ class GPISConfig(Validated):
             length_scale_m=base.length_scale_m * s,
             value_noise_m=base.value_noise_m * s,
             prior_radius_m=base.prior_radius_m * s,
+            local_cell_m=base.local_cell_m * s,
+            local_margin_m=base.local_margin_m * s,
+            local_far_cell_m=base.local_far_cell_m * s,
         )
         return dataclasses.replace(scaled, **overrides)  # type: ignore[arg-type]
 
@@ -164,6 +188,29 @@ def _unit_normals(normals: ArrayLike, count: int) -> FloatArray:
     return n / norms[:, None]
 
 
+class SurfaceEstimator(Protocol):
+    """What the surface mesher, the node and the benchmark need from a GPIS (exact or local)."""
+
+    config: GPISConfig
+    kernel: IsotropicKernel
+
+    @property
+    def n_contacts(self) -> int: ...
+
+    @property
+    def positions_m(self) -> FloatArray: ...
+
+    def add_contact(self, position_m: ArrayLike, normal: ArrayLike) -> None: ...
+
+    def add_contacts(self, positions_m: ArrayLike, normals: ArrayLike) -> None: ...
+
+    def mean(self, x: ArrayLike) -> FloatArray: ...
+
+    def gradient(self, x: ArrayLike) -> FloatArray: ...
+
+    def variance(self, x: ArrayLike) -> FloatArray: ...
+
+
 class GPIS:
     """Incrementally factorised GPIS. Positions in metres; normals are outward unit vectors.
 
@@ -176,9 +223,10 @@ class GPIS:
         self._centre: FloatArray | None = None
         if prior_centre_m is not None:
             self._centre = _points(prior_centre_m, "prior_centre_m")[0].copy()
+        self._given_centre = self._centre
         self._P = np.zeros((0, 3))
         self._N = np.zeros((0, 3))
-        self._L = np.zeros((0, 0))  # lower Cholesky factor of K + noise, (4n, 4n), C-contiguous
+        self._L = GrowingCholesky()  # lower Cholesky factor of K + noise, (4n, 4n), in a larger buffer
         self._z = np.zeros(0)  # L^{-1} (y - m_obs), (4n,)
         self._alpha: FloatArray | None = None  # K~^{-1} (y - m_obs) as (n, 4), computed lazily
         cfg, kern = self.config, self.kernel
@@ -215,7 +263,12 @@ class GPIS:
 
     def cholesky_factor(self) -> FloatArray:
         """The incrementally grown lower factor L (4n, 4n) of K + noise, a copy."""
-        return self._L.copy()
+        return self._L.view().copy()
+
+    @property
+    def factor_bytes(self) -> int:
+        """Memory held by the factor's buffer (bytes), spare capacity included."""
+        return self._L.nbytes
 
     def observation_covariance(self) -> FloatArray:
         """K + noise (4n, 4n) recomputed from scratch (for checks; the GP itself never does this)."""
@@ -244,7 +297,7 @@ class GPIS:
         if centre is None and self.config.prior == "sphere":
             centre = P[0] - self.config.prior_radius_m * N[0]
         n_old, b = self.n_contacts, len(P)
-        m_old, m_add = ROWS_PER_POINT * n_old, ROWS_PER_POINT * b
+        m_add = ROWS_PER_POINT * b
 
         # Residual targets y - m_obs: value rows 0 - m(c_p), gradient rows c_n - grad m(c_p).
         targets = np.empty((b, ROWS_PER_POINT))
@@ -256,7 +309,7 @@ class GPIS:
         K22[np.diag_indices_from(K22)] += np.tile(self._diag, b)
         if n_old:
             K12 = self.kernel.observation_cov(self._P, P)  # (4 n_old, 4 b)
-            X = scipy.linalg.solve_triangular(self._L, K12, lower=True, check_finite=False)  # L11 X = K12
+            X = self._L.solve(K12)  # L11 X = K12
             S = K22 - X.T @ X  # Schur complement K22 - K21 K11^{-1} K12
         else:
             X = np.zeros((0, m_add))
@@ -276,18 +329,25 @@ class GPIS:
             ) from exc
         z2 = scipy.linalg.solve_triangular(L22, y2 - X.T @ self._z, lower=True, check_finite=False)
 
-        L = np.empty((m_old + m_add, m_old + m_add))
-        L[:m_old, :m_old] = self._L
-        L[:m_old, m_old:] = 0.0
-        L[m_old:, :m_old] = X.T
-        L[m_old:, m_old:] = L22
-        # Commit (nothing above mutated self).
+        # Commit (nothing above mutated self): L = [L11 0; X^T L22], written in place.
+        self._L.append(X.T, L22)
         self._centre = centre
-        self._L = L
         self._z = np.concatenate([self._z, z2])
         self._P = np.vstack([self._P, P])
         self._N = np.vstack([self._N, N])
         self._alpha = None
+
+    def truncate(self, n_contacts: int) -> None:
+        """Keep the first n_contacts contacts only (exact: the factor's leading block is their factor)."""
+        if not 0 <= n_contacts <= self.n_contacts:
+            raise EstimationError(f"cannot keep {n_contacts} of {self.n_contacts} contacts")
+        rows = ROWS_PER_POINT * n_contacts
+        self._L.truncate(rows)
+        self._z = self._z[:rows].copy()
+        self._P, self._N = self._P[:n_contacts].copy(), self._N[:n_contacts].copy()
+        self._alpha = None
+        if n_contacts == 0 and self._given_centre is None:
+            self._centre = None
 
     # --- queries -----------------------------------------------------------------------------------
     def mean(self, x: ArrayLike) -> FloatArray:
@@ -317,7 +377,7 @@ class GPIS:
         if self.n_contacts:
             for s in self._chunks(len(x), ROWS_PER_POINT * self.n_contacts, _VARIANCE_CHUNK_ENTRIES):
                 Ks = self.kernel.value_obs_cov(x[s], self._P)  # k_* rows (chunk, 4n)
-                V = scipy.linalg.solve_triangular(self._L, Ks.T, lower=True, check_finite=False)
+                V = self._L.solve(Ks.T)  # L V = k_*^T, all the chunk's points in one solve
                 out[s] -= np.einsum("ij,ij->j", V, V)
         return np.maximum(out, 0.0, out=out)
 
@@ -333,7 +393,7 @@ class GPIS:
     def _weights(self) -> FloatArray:
         """alpha = K~^{-1} (y - m_obs) = L^{-T} z as (n, 4)."""
         if self._alpha is None:
-            alpha = scipy.linalg.solve_triangular(self._L, self._z, lower=True, trans="T", check_finite=False)
+            alpha = self._L.solve(self._z, trans=True)
             self._alpha = alpha.reshape(self.n_contacts, ROWS_PER_POINT)
         return self._alpha
 
