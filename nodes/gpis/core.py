@@ -88,6 +88,7 @@ class GPISConfig(Validated):
         contacts within local_cell_m + local_margin_m, blended smoothly; cost per touch set by the
         local density, not the history) or "auto": exact up to auto_local_above_contacts contacts,
         then local (rebuilt once from every contact). docs/exploration.md says when to pick which.
+    local_blend_m: half-width of the band around each voxel face where two experts hand over.
     local_far_cell_m: the local estimator's far-field GP keeps one contact per voxel of this edge.
     """
 
@@ -105,7 +106,8 @@ class GPISConfig(Validated):
     estimator: Annotated[str, OneOf(ESTIMATORS)] = "auto"
     auto_local_above_contacts: Annotated[int, Positive] = 1000
     local_cell_m: PositiveFloat = 0.01
-    local_margin_m: NonNegativeFloat = 0.005
+    local_blend_m: PositiveFloat = 0.002
+    local_margin_m: NonNegativeFloat = 0.003
     local_far_cell_m: PositiveFloat = 0.02
 
     def __post_init__(self) -> None:
@@ -114,6 +116,11 @@ class GPISConfig(Validated):
             raise ConfigError(
                 "GPISConfig: value_noise_m, gradient_noise and jitter are all 0; duplicate contacts would "
                 "make the covariance singular. Set jitter > 0 (e.g. 1e-10)"
+            )
+        if self.local_blend_m > 0.5 * self.local_cell_m:
+            raise ConfigError(
+                f"GPISConfig: local_blend_m = {self.local_blend_m!r} exceeds half of local_cell_m = "
+                f"{self.local_cell_m!r}; the blend bands of opposite voxel faces would overlap. Lower it"
             )
 
     @classmethod
@@ -137,6 +144,7 @@ class GPISConfig(Validated):
             value_noise_m=base.value_noise_m * s,
             prior_radius_m=base.prior_radius_m * s,
             local_cell_m=base.local_cell_m * s,
+            local_blend_m=base.local_blend_m * s,
             local_margin_m=base.local_margin_m * s,
             local_far_cell_m=base.local_far_cell_m * s,
         )
@@ -186,6 +194,42 @@ def _unit_normals(normals: ArrayLike, count: int) -> FloatArray:
             "direction and is not normalised silently: drop the contact or supply the measured normal"
         )
     return n / norms[:, None]
+
+
+def prior_mean(config: GPISConfig, x: FloatArray, centre: FloatArray | None) -> FloatArray:
+    """m(x) (m,) at x (m, 3): prior_scale (|x - c| - prior_radius_m), or 0 (zero prior / no centre yet)."""
+    if config.prior == "zero" or centre is None:
+        return np.zeros(len(x))
+    return config.prior_scale * (np.linalg.norm(x - centre, axis=1) - config.prior_radius_m)
+
+
+def prior_gradient(config: GPISConfig, x: FloatArray, centre: FloatArray | None) -> FloatArray:
+    """grad m(x) (m, 3) at x (m, 3)."""
+    if config.prior == "zero" or centre is None:
+        return np.zeros_like(x)
+    d = x - centre
+    r = np.linalg.norm(d, axis=1, keepdims=True)
+    out = np.zeros_like(d)
+    np.divide(d, r, out=out, where=r > 0)  # grad |x - c| (0 at the centre itself)
+    return config.prior_scale * out
+
+
+def one_contact(position_m: ArrayLike, normal: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """A single contact's position (3,) and normal (3,) as (1, 3) arrays; EstimationError on other shapes."""
+    p = np.asarray(position_m, dtype=np.float64)
+    if p.shape != (3,):
+        raise EstimationError(f"contact position must have shape (3,), got {p.shape}")
+    n = np.asarray(normal, dtype=np.float64)
+    if n.shape != (3,):
+        raise EstimationError(f"contact normal must have shape (3,), got {n.shape}")
+    return p[None, :], n[None, :]
+
+
+def first_centre(config: GPISConfig, centre: FloatArray | None, P: FloatArray, N: FloatArray) -> FloatArray | None:
+    """The sphere prior's centre: the given one, else c = c_p - r0 c_n from the first contact of P (b, 3)."""
+    if centre is None and config.prior == "sphere":
+        return P[0] - config.prior_radius_m * N[0]
+    return centre
 
 
 class SurfaceEstimator(Protocol):
@@ -279,13 +323,7 @@ class GPIS:
     # --- updates -----------------------------------------------------------------------------------
     def add_contact(self, position_m: ArrayLike, normal: ArrayLike) -> None:
         """Add one contact: position (3,) in metres and outward normal (3,) (normalised here)."""
-        p = np.asarray(position_m, dtype=np.float64)
-        if p.shape != (3,):
-            raise EstimationError(f"contact position must have shape (3,), got {p.shape}")
-        n = np.asarray(normal, dtype=np.float64)
-        if n.shape != (3,):
-            raise EstimationError(f"contact normal must have shape (3,), got {n.shape}")
-        self.add_contacts(p[None, :], n[None, :])
+        self.add_contacts(*one_contact(position_m, normal))
 
     def add_contacts(self, positions_m: ArrayLike, normals: ArrayLike) -> None:
         """Add b contacts (b, 3) with one block Cholesky update, O(n^2 b + n b^2 + b^3)."""
@@ -293,9 +331,7 @@ class GPIS:
         N = _unit_normals(normals, len(P))
         if len(P) == 0:
             return
-        centre = self._centre
-        if centre is None and self.config.prior == "sphere":
-            centre = P[0] - self.config.prior_radius_m * N[0]
+        centre = first_centre(self.config, self._centre, P, N)
         n_old, b = self.n_contacts, len(P)
         m_add = ROWS_PER_POINT * b
 
@@ -376,9 +412,7 @@ class GPIS:
         out = np.full(len(x), self.kernel.value_variance)
         if self.n_contacts:
             for s in self._chunks(len(x), ROWS_PER_POINT * self.n_contacts, _VARIANCE_CHUNK_ENTRIES):
-                Ks = self.kernel.value_obs_cov(x[s], self._P)  # k_* rows (chunk, 4n)
-                V = self._L.solve(Ks.T)  # L V = k_*^T, all the chunk's points in one solve
-                out[s] -= np.einsum("ij,ij->j", V, V)
+                out[s] -= self.explained_variance(x[s])
         return np.maximum(out, 0.0, out=out)
 
     def mean_and_variance(self, x: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -388,6 +422,29 @@ class GPIS:
     def prior_mean(self, x: ArrayLike) -> FloatArray:
         """m(x) (m,) of the configured prior."""
         return self._prior_mean(_points(x, "query points"), self._require_centre())
+
+    def residual_weights(self) -> tuple[FloatArray, FloatArray]:
+        """(contact positions (n, 3), alpha = K~^{-1} (y - m_obs) as (n, 4)), read-only views.
+
+        mean(x) = m(x) + sum_j cov(f(x), obs_j) alpha_j (Eq. 2): what a caller needs to evaluate the
+        posterior mean with its own contraction (``local.LocalGPIS`` batches many GPs this way).
+        """
+        P = self._P.view()
+        P.flags.writeable = False
+        w = self._weights().view() if self.n_contacts else np.zeros((0, ROWS_PER_POINT))
+        w.flags.writeable = False
+        return P, w
+
+    def explained_variance(self, x: FloatArray) -> FloatArray:
+        """k_*^T K~^{-1} k_* (m,) at validated points x (m, 3), the term that Eq. 6 subtracts (one chunk).
+
+        k_* rows (m, 4n); L V = k_*^T with every point's column in one triangular solve.
+        """
+        if not self.n_contacts:
+            return np.zeros(len(x))
+        Ks = self.kernel.value_obs_cov(x, self._P)
+        V = self._L.solve(Ks.T)
+        return np.einsum("ij,ij->j", V, V)
 
     # --- internals ---------------------------------------------------------------------------------
     def _weights(self) -> FloatArray:
@@ -405,19 +462,10 @@ class GPIS:
         return self._centre
 
     def _prior_mean(self, x: FloatArray, centre: FloatArray | None) -> FloatArray:
-        if self.config.prior == "zero" or centre is None:
-            return np.zeros(len(x))
-        cfg = self.config
-        return cfg.prior_scale * (np.linalg.norm(x - centre, axis=1) - cfg.prior_radius_m)
+        return prior_mean(self.config, x, centre)
 
     def _prior_gradient(self, x: FloatArray, centre: FloatArray | None) -> FloatArray:
-        if self.config.prior == "zero" or centre is None:
-            return np.zeros_like(x)
-        d = x - centre
-        r = np.linalg.norm(d, axis=1, keepdims=True)
-        out = np.zeros_like(d)
-        np.divide(d, r, out=out, where=r > 0)  # grad |x - c| (0 at the centre itself)
-        return self.config.prior_scale * out
+        return prior_gradient(self.config, x, centre)
 
     @staticmethod
     def _chunks(m: int, entries_per_row: int, budget: int = _CHUNK_ENTRIES) -> list[slice]:

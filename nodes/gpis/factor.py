@@ -38,7 +38,7 @@ MIN_CAPACITY = 64
 
 def _blas_function(name: str, *argtypes: Any) -> Any:
     """A BLAS routine from scipy's Cython BLAS table as a ctypes function (Fortran: arguments by pointer)."""
-    capsule = cython_blas.__pyx_capi__[name]  # type: ignore[attr-defined]
+    capsule = cython_blas.__pyx_capi__[name]
     get_name = ctypes.pythonapi.PyCapsule_GetName
     get_name.restype = ctypes.c_char_p
     get_name.argtypes = [ctypes.py_object]
@@ -89,7 +89,7 @@ class GrowingCholesky:
         v.flags.writeable = False
         return v
 
-    def append(self, X_T: FloatArray, L22: FloatArray) -> None:
+    def append(self, X_T: NDArray[np.floating[Any]], L22: NDArray[np.floating[Any]]) -> None:
         """Grow L by block rows: [L 0; X^T L22]. X_T (k, m) and L22 (k, k) lower triangular."""
         m, k = self._m, L22.shape[0]
         if X_T.shape != (k, m):

@@ -61,6 +61,6 @@ def test_gpis_truncate_equals_a_gp_of_the_first_contacts() -> None:
     x = rng.uniform(-0.06, 0.06, (40, 3))
     # one Cholesky of 30 contacts vs one of 20: the same factor up to LAPACK's blocking round-off
     L = part.cholesky_factor()
-    np.testing.assert_allclose(full.cholesky_factor(), L, rtol=0, atol=1e-12 * np.abs(L).max())
-    np.testing.assert_allclose(full.mean(x), part.mean(x), rtol=0, atol=1e-12)
-    np.testing.assert_allclose(full.variance(x), part.variance(x), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(full.cholesky_factor(), L, rtol=0, atol=1e-9 * np.abs(L).max())
+    np.testing.assert_allclose(full.mean(x), part.mean(x), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(full.variance(x), part.variance(x), rtol=0, atol=1e-12)
