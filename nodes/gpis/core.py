@@ -104,11 +104,11 @@ class GPISConfig(Validated):
     prior_radius_m: PositiveFloat = 0.02
     prior_scale: PositiveFloat = 1.0
     estimator: Annotated[str, OneOf(ESTIMATORS)] = "auto"
-    auto_local_above_contacts: Annotated[int, Positive] = 1000
-    local_cell_m: PositiveFloat = 0.01
-    local_blend_m: PositiveFloat = 0.002
-    local_margin_m: NonNegativeFloat = 0.003
-    local_far_cell_m: PositiveFloat = 0.02
+    auto_local_above_contacts: Annotated[int, Positive] = 1500
+    local_cell_m: PositiveFloat = 0.008
+    local_blend_m: PositiveFloat = 0.0015
+    local_margin_m: NonNegativeFloat = 0.0015
+    local_far_cell_m: PositiveFloat = 0.03
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -434,6 +434,10 @@ class GPIS:
         w = self._weights().view() if self.n_contacts else np.zeros((0, ROWS_PER_POINT))
         w.flags.writeable = False
         return P, w
+
+    def solve_factor_in_place(self, B: FloatArray) -> None:
+        """Overwrite the column-major B (4n, k) with L^{-1} B (for callers that build k_* themselves)."""
+        self._L.solve_in_place(B)
 
     def explained_variance(self, x: FloatArray) -> FloatArray:
         """k_*^T K~^{-1} k_* (m,) at validated points x (m, 3), the term that Eq. 6 subtracts (one chunk).

@@ -117,6 +117,18 @@ class GrowingCholesky:
         buf[: self._m, : self._m] = self._buf[: self._m, : self._m]
         self._buf = buf
 
+    def solve_in_place(self, B: FloatArray) -> None:
+        """Overwrite B (m, k), Fortran-ordered (column-major), with X: L X = B. No copy."""
+        m = self._m
+        if B.ndim != 2 or B.shape[0] != m or not B.flags.f_contiguous:
+            raise ValueError(f"in-place solve needs a column-major ({m}, k) array, got {B.shape}")
+        if m and B.shape[1]:
+            one = ctypes.c_double(1.0)
+            _dtrsm(
+                b"L", b"U", b"T", b"N", _int(m), _int(B.shape[1]), ctypes.byref(one),
+                self._buf.ctypes.data, _int(self.capacity), B.ctypes.data, _int(m),
+            )  # fmt: skip
+
     def solve(self, B: FloatArray, *, trans: bool = False) -> FloatArray:
         """X with L X = B (trans=False) or L^T X = B (trans=True); B (m,) or (m, k). A new array.
 

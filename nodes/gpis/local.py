@@ -45,7 +45,6 @@ GP are measured in tests/unit/gpis/test_local.py and by `palpate bench gpis`.
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,13 +62,18 @@ from palpate.nodes.gpis.core import (
     prior_mean,
 )
 from palpate.nodes.gpis.kernels import GaussianKernel, IsotropicKernel, ThinPlateKernel
-from palpate.nodes.gpis.local_kernels import GAUSSIAN, THIN_PLATE, contract_pairs
+from palpate.nodes.gpis.local_kernels import (
+    GAUSSIAN,
+    THIN_PLATE,
+    blend_pairs,
+    column_sums_of_squares,
+    contract_pairs,
+    value_obs_blocks,
+)
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-# The eight corner offsets {0, 1}^3 of a voxel.
-_CORNERS = np.array([(a, b, c) for a in (0, 1) for b in (0, 1) for c in (0, 1)], dtype=np.int64)
 # Keys pack a voxel index (each |i| < 2^20) into one int64 for np.unique.
 _KEY_BITS = 21
 _KEY_OFFSET = 1 << (_KEY_BITS - 1)
@@ -79,11 +83,6 @@ def _pack(idx: IntArray) -> IntArray:
     """Voxel indices (..., 3) -> int64 keys (...)."""
     i = idx + _KEY_OFFSET
     return (i[..., 0] << (2 * _KEY_BITS)) | (i[..., 1] << _KEY_BITS) | i[..., 2]
-
-
-def _smoothstep(u: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """s(u) = 3 u^2 - 2 u^3 and s'(u) = 6 u (1 - u)."""
-    return u * u * (3.0 - 2.0 * u), 6.0 * u * (1.0 - u)
 
 
 class LocalGPIS:
@@ -241,22 +240,40 @@ class LocalGPIS:
         return g
 
     def variance(self, x: ArrayLike) -> FloatArray:
-        """Mixture sum_i w_i var_i (m,) of the experts' posterior variances at x (m, 3), m^2."""
+        """Mixture sum_i w_i var_i (m,) of the experts' posterior variances at x (m, 3), m^2.
+
+        var_i = k(x, x) - |L_i^{-1} k_*|^2 (Eq. 6 of expert i): every expert's k_* columns are built in
+        one compiled pass, each expert's block is solved in place (one BLAS call per expert), and
+        the sums of squares come from a second compiled pass.
+        """
         x = _points(x, "query points")
         prior = self.kernel.value_variance
-        if self._count == 0:
+        if self._count == 0 or len(x) == 0:
             return np.full(len(x), prior)
         pairs = self._pairs(x, gradient=False)
-        out = np.zeros(len(x))
         order = np.argsort(pairs.slot, kind="stable")
-        bounds = np.flatnonzero(np.r_[True, pairs.slot[order][1:] != pairs.slot[order][:-1], True])
-        for s, e in itertools.pairwise(bounds):
-            rows = order[s:e]
-            expert = pairs.experts[int(pairs.slot[rows[0]])]
-            idx = pairs.point[rows]
-            var = np.maximum(prior - expert.explained_variance(x[idx]), 0.0)  # Eq. 6 of this expert
-            np.add.at(out, idx, pairs.weight[rows] * var)
-        return out
+        counts = np.bincount(pairs.slot, minlength=len(pairs.experts))
+        col_starts = np.concatenate([[0], np.cumsum(counts)])
+        Ps = [e.residual_weights()[0] for e in pairs.experts]
+        sizes = np.array([len(p) for p in Ps], dtype=np.int64)
+        ends = np.cumsum(sizes)
+        rows = 4 * sizes
+        block_sizes = rows * counts
+        offsets = np.concatenate([[0], np.cumsum(block_sizes)])
+        blocks = np.empty(int(offsets[-1]))
+        kind, p1, p2 = self._compiled_kernel()
+        r_max = value_obs_blocks(
+            x, pairs.point[order], col_starts, np.concatenate(Ps), ends - sizes, ends, offsets, kind, p1, p2, blocks
+        )
+        self.kernel.check_distances(float(r_max))
+        for s, expert in enumerate(pairs.experts):
+            if counts[s]:
+                block = blocks[offsets[s] : offsets[s + 1]].reshape((rows[s], counts[s]), order="F")
+                expert.solve_factor_in_place(block)  # L_i V = k_*
+        explained = np.empty(len(order))
+        column_sums_of_squares(blocks, col_starts, rows, offsets, explained)
+        var = np.maximum(prior - explained, 0.0)  # Eq. 6 per (point, expert), in slot order
+        return np.bincount(pairs.point[order], weights=pairs.weight[order] * var, minlength=len(x))
 
     def mean_and_variance(self, x: ArrayLike) -> tuple[FloatArray, FloatArray]:
         return self.mean(x), self.variance(x)
@@ -278,19 +295,22 @@ class LocalGPIS:
         counts = np.array([len(p) for p in Ps], dtype=np.int64)
         ends = np.cumsum(counts)
         starts = ends - counts
-        kern = self.kernel
-        if isinstance(kern, ThinPlateKernel):
-            kind, p1, p2 = THIN_PLATE, kern.R_m, kern.amplitude
-        elif isinstance(kern, GaussianKernel):
-            kind, p1, p2 = GAUSSIAN, kern.length_scale_m**2, kern.variance_m2
-        else:  # pragma: no cover - GPISConfig.make_kernel makes only these two
-            raise EstimationError(f"LocalGPIS has no compiled contraction for the {kern.name} kernel")
+        kind, p1, p2 = self._compiled_kernel()
         r_max = contract_pairs(
             x, pairs.point, pairs.slot, pairs.weight, pairs.weight_grad, starts, ends,
             np.concatenate(Ps), np.concatenate(As), kind, p1, p2, gradient, f, g,
         )  # fmt: skip
-        kern.check_distances(float(r_max))
+        self.kernel.check_distances(float(r_max))
         return f, g
+
+    def _compiled_kernel(self) -> tuple[int, float, float]:
+        """(kind, p1, p2) of ``local_kernels`` for the configured kernel."""
+        kern = self.kernel
+        if isinstance(kern, ThinPlateKernel):
+            return THIN_PLATE, kern.R_m, kern.amplitude
+        if isinstance(kern, GaussianKernel):
+            return GAUSSIAN, kern.length_scale_m**2, kern.variance_m2
+        raise EstimationError(f"LocalGPIS has no compiled contraction for the {kern.name} kernel")  # pragma: no cover
 
     def _key_table(self) -> tuple[IntArray, list[GPIS]]:
         """Sorted keys of the experts (k,) and the experts in that order; rebuilt when experts are added."""
@@ -301,46 +321,13 @@ class LocalGPIS:
 
     def _pairs(self, x: FloatArray, *, gradient: bool) -> _Pairs:
         """Every (point, expert) with a non-zero weight at x (m, 3); missing experts' weight goes far."""
-        h, beta = self.cell_m, self.blend_m / self.cell_m
-        t = x / h
-        i = np.floor(t).astype(np.int64)
-        u = t - i
-        low = u < beta
-        high = u > 1.0 - beta
-        lower = i - low  # lower cell of each axis' pair
-        v = np.where(low, (u + beta) / (2.0 * beta), np.where(high, (u - 1.0 + beta) / (2.0 * beta), 0.0))
-        s_up, ds_up = _smoothstep(v)
-        w_axis = np.stack([1.0 - s_up, s_up])  # (2, m, 3): lower, upper
-        dw_axis = np.stack([-ds_up, ds_up]) / (2.0 * self.blend_m)
-        m = len(x)
-        points, positions, weights, grads = [], [], [], []
-        far_w = np.ones(m)
-        far_g = np.zeros((m, 3))
         table, owners = self._key_table()
-        for corner in _CORNERS:
-            w = w_axis[corner[0], :, 0] * w_axis[corner[1], :, 1] * w_axis[corner[2], :, 2]
-            idx = np.flatnonzero(w > 0.0)
-            if idx.size == 0:
-                continue
-            keys = _pack(lower[idx] + corner)
-            if len(table) == 0:
-                continue
-            pos = np.minimum(np.searchsorted(table, keys), len(table) - 1)
-            exist = table[pos] == keys
-            idx, pos = idx[exist], pos[exist]
-            positions.append(pos)
-            wi = w[idx]
-            far_w[idx] -= wi
-            points.append(idx)
-            weights.append(wi)
-            if gradient:
-                wa = [w_axis[corner[k], idx, k] for k in range(3)]
-                da = [dw_axis[corner[k], idx, k] for k in range(3)]
-                gi = np.column_stack([da[0] * wa[1] * wa[2], wa[0] * da[1] * wa[2], wa[0] * wa[1] * da[2]])
-                far_g[idx] -= gi
-                grads.append(gi)
+        point, pos, weight, weight_grad, far_w, far_g = blend_pairs(
+            x, self.cell_m, self.blend_m, table, _KEY_BITS, gradient
+        )
+        points, weights, grads = [point], [weight], [weight_grad]
         # compact slots 0..k-1 for the experts in play (table positions), then the far field
-        used, inverse = np.unique(np.concatenate(positions or [np.zeros(0, np.int64)]), return_inverse=True)
+        used, inverse = np.unique(pos, return_inverse=True)
         slots = [inverse.astype(np.int64)]
         experts = [owners[int(i)] for i in used]
         need = np.flatnonzero(far_w > 1e-12)  # round-off leaves ~1e-16 where experts cover everything
