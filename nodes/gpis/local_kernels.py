@@ -29,6 +29,15 @@ THIN_PLATE, GAUSSIAN = 0, 1
 
 
 @numba.njit(cache=True)
+def _radial(r: float, r2: float, kind: int, p1: float, p2: float) -> tuple[float, float]:
+    """phi(r) and g1(r) = phi'(r) / r of the kernel (r2 = r^2)."""
+    if kind == THIN_PLATE:
+        return p2 * ((2.0 * r - 3.0 * p1) * r2 + p1 * p1 * p1), p2 * (6.0 * r - 6.0 * p1)
+    phi = p2 * math.exp(-r2 / p1)
+    return phi, -2.0 / p1 * phi
+
+
+@numba.njit(cache=True)
 def contract_pairs(
     x: np.ndarray,
     pair_point: np.ndarray,
@@ -67,14 +76,10 @@ def contract_pairs(
             r2 = d0 * d0 + d1 * d1 + d2 * d2
             r = math.sqrt(r2)
             r_max = max(r_max, r)
+            phi, g1 = _radial(r, r2, kind, p1, p2)
+            g2 = 4.0 / (p1 * p1) * phi  # Gaussian; thin plate: 6 c / r, 0 at r = 0 (d d^T = 0 there)
             if kind == THIN_PLATE:
-                phi = p2 * ((2.0 * r - 3.0 * p1) * r2 + p1 * p1 * p1)
-                g1 = p2 * (6.0 * r - 6.0 * p1)
                 g2 = 6.0 * p2 / r if r > 0.0 else 0.0
-            else:
-                phi = p2 * math.exp(-r2 / p1)
-                g1 = -2.0 / p1 * phi
-                g2 = 4.0 / (p1 * p1) * phi
             a = A[j, 0]
             db = d0 * A[j, 1] + d1 * A[j, 2] + d2 * A[j, 3]
             f += a * phi - g1 * db
@@ -202,12 +207,7 @@ def value_obs_blocks(
                 r2 = d0 * d0 + d1 * d1 + d2 * d2
                 r = math.sqrt(r2)
                 r_max = max(r_max, r)
-                if kind == THIN_PLATE:
-                    phi = p2 * ((2.0 * r - 3.0 * p1) * r2 + p1 * p1 * p1)
-                    g1 = p2 * (6.0 * r - 6.0 * p1)
-                else:
-                    phi = p2 * math.exp(-r2 / p1)
-                    g1 = -2.0 / p1 * phi
+                phi, g1 = _radial(r, r2, kind, p1, p2)
                 out[at] = phi
                 out[at + 1] = -g1 * d0
                 out[at + 2] = -g1 * d1
