@@ -181,6 +181,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=("ellipsoid", "ycb"),
         help="scaling benchmark: true surfaces (default ellipsoid ycb; --quick ellipsoid)",
     )
+    parser.add_argument(
+        "--estimator",
+        choices=("auto", "local", "exact"),
+        help="scaling benchmark: the GPIS estimator timed (default auto, the node's); the exact GP is the reference",
+    )
 
 
 def main(args: argparse.Namespace) -> int:

@@ -202,14 +202,21 @@ def _row_in_subprocess(shape: str, n: int, estimator: str, repeats: int, seed: i
 
 
 def run_rows(
-    shapes: Sequence[str], contacts: Sequence[int], repeats: int, seed: int, *, exact_max: int = EXACT_MAX
+    shapes: Sequence[str],
+    contacts: Sequence[int],
+    repeats: int,
+    seed: int,
+    *,
+    exact_max: int = EXACT_MAX,
+    estimator: str = "auto",
 ) -> list[dict[str, Any]]:
-    """One row per (shape, n): the default estimator, and the exact reference where n <= exact_max."""
+    """One row per (shape, n): the estimator (default: the node's "auto"), and the exact reference
+    where n <= exact_max."""
     rows = []
     for shape in shapes:
         for n in contacts:
             print(f"  {shape}, {n} contacts ...", file=sys.stderr, flush=True)
-            default = _row_in_subprocess(shape, n, "auto", repeats, seed)
+            default = _row_in_subprocess(shape, n, estimator, repeats, seed)
             row = {k: v for k, v in default.items() if k not in ("vertices_m", "field")}
             if n <= exact_max:
                 exact = _row_in_subprocess(shape, n, "exact", repeats, seed)
@@ -218,7 +225,7 @@ def run_rows(
                 if default["ran"] == "exact":
                     row["approx_vs_exact_mm_p95"] = 0.0
                 else:
-                    default_at = _field_in_subprocess(shape, n, repeats, seed, exact["vertices_m"])
+                    default_at = _field_in_subprocess(shape, n, repeats, seed, exact["vertices_m"], estimator)
                     f_e = np.asarray(exact["field"]["f"])
                     g_e = np.asarray(exact["field"]["grad_norm"])
                     row["approx_vs_exact_mm_p95"] = float(np.percentile(1e3 * np.abs(default_at - f_e) / g_e, 95))
@@ -226,13 +233,15 @@ def run_rows(
     return rows
 
 
-def default_field_at(shape: str, n: int, repeats: int, seed: int, vertices: list[list[float]]) -> list[float]:
-    """The default estimator's mean at the given points after all n contacts (same build as measure_row)."""
+def default_field_at(
+    shape: str, n: int, repeats: int, seed: int, vertices: list[list[float]], estimator: str = "auto"
+) -> list[float]:
+    """The estimator's mean at the given points after all n contacts (the same build as measure_row)."""
     from palpate.nodes.gpis.local import make_estimator
     from palpate.nodes.gpis.node import GPISNodeConfig
 
     P, N = _Shape(shape).contacts(n, seed)
-    gp = make_estimator(GPISNodeConfig().gp)
+    gp = make_estimator(dataclasses.replace(GPISNodeConfig().gp, estimator=estimator))
     gp.add_contacts(P[: n - repeats], N[: n - repeats])
     for i in range(n - repeats, n):
         gp.add_contact(P[i], N[i])
@@ -240,14 +249,16 @@ def default_field_at(shape: str, n: int, repeats: int, seed: int, vertices: list
     return out
 
 
-def _field_in_subprocess(shape: str, n: int, repeats: int, seed: int, vertices: list[list[float]]) -> FloatArray:
+def _field_in_subprocess(
+    shape: str, n: int, repeats: int, seed: int, vertices: list[list[float]], estimator: str
+) -> FloatArray:
     code = (
         "import json, sys; from palpate.bench.gpis_scale import default_field_at; "
         "a = json.loads(sys.stdin.read()); print(json.dumps(default_field_at(*a)))"
     )
     done = subprocess.run(
         [sys.executable, "-c", code],
-        input=json.dumps([shape, n, repeats, seed, vertices]),
+        input=json.dumps([shape, n, repeats, seed, vertices, estimator]),
         capture_output=True,
         text=True,
         check=False,
@@ -322,7 +333,8 @@ def main(args: argparse.Namespace) -> int:
     blas = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
     load_start = os.getloadavg()[0]
     print(
-        f"palpate bench gpis: shapes {' '.join(shapes)}, n = {' '.join(map(str, contacts))}, median of {repeats} "
+        f"palpate bench gpis: estimator {getattr(args, 'estimator', None) or 'auto'}, shapes {' '.join(shapes)}, "
+        f"n = {' '.join(map(str, contacts))}, median of {repeats} "
         f"steps, seed {seed}, exact reference up to {exact_max} contacts; OPENBLAS_NUM_THREADS={blas}; "
         f"{os.cpu_count()} cores, load average {load_start:.1f}",
         flush=True,
@@ -330,7 +342,8 @@ def main(args: argparse.Namespace) -> int:
     for note in notes:
         print(note)
     start = time.perf_counter()
-    rows = run_rows(shapes, contacts, repeats, seed, exact_max=exact_max)
+    estimator = getattr(args, "estimator", None) or "auto"
+    rows = run_rows(shapes, contacts, repeats, seed, exact_max=exact_max, estimator=estimator)
     print(table(rows))
     print(
         "CPU ms (medians): IGEF = add_contact + local surface (5 mm grid, +-6 cm) without vertex variance; "
