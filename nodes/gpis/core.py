@@ -90,6 +90,8 @@ class GPISConfig(Validated):
         then local (rebuilt once from every contact). docs/exploration.md says when to pick which.
     local_blend_m: half-width of the band around each voxel face where two experts hand over.
     local_far_cell_m: the local estimator's far-field GP keeps one contact per voxel of this edge.
+    local_max_contacts: an expert holding more contacts halves its margin and is rebuilt (down to
+        margin 0): dense regions keep small experts, sparse ones the full local_margin_m.
     """
 
     kernel: Annotated[str, OneOf(KERNELS)] = "thin_plate"
@@ -107,8 +109,9 @@ class GPISConfig(Validated):
     auto_local_above_contacts: Annotated[int, Positive] = 1500
     local_cell_m: PositiveFloat = 0.008
     local_blend_m: PositiveFloat = 0.0015
-    local_margin_m: NonNegativeFloat = 0.0015
-    local_far_cell_m: PositiveFloat = 0.03
+    local_margin_m: NonNegativeFloat = 0.003
+    local_far_cell_m: PositiveFloat = 0.012
+    local_max_contacts: Annotated[int, Positive] = 64
 
     def __post_init__(self) -> None:
         super().__post_init__()

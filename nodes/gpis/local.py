@@ -77,6 +77,9 @@ IntArray = NDArray[np.int64]
 # Keys pack a voxel index (each |i| < 2^20) into one int64 for np.unique.
 _KEY_BITS = 21
 _KEY_OFFSET = 1 << (_KEY_BITS - 1)
+_KEY_MASK = (1 << _KEY_BITS) - 1
+#: Largest batch added in one atomic step (larger ones are split).
+BATCH = 256
 
 
 def _pack(idx: IntArray) -> IntArray:
@@ -101,6 +104,7 @@ class LocalGPIS:
         if prior_centre_m is not None:
             self._centre = _points(prior_centre_m, "prior_centre_m")[0].copy()
         self._experts: dict[int, GPIS] = {}
+        self._margins: dict[int, float] = {}  # experts whose margin shrank (default: margin_m)
         self._table: tuple[IntArray, list[GPIS]] | None = None
         self._far: GPIS | None = None
         self._far_cells: set[int] = set()
@@ -150,14 +154,20 @@ class LocalGPIS:
         """Add b contacts (b, 3): each goes to the experts whose region holds it (and maybe the far field).
 
         Atomic: when one expert's update fails, the experts already updated are cut back to their
-        earlier contacts (``GPIS.truncate``, exact) and the error is raised.
+        earlier contacts (``GPIS.truncate``, exact) and the error is raised. A batch of more than
+        BATCH contacts is added BATCH at a time (each chunk atomic), so that experts over
+        local_max_contacts shrink as they fill and the peak memory stays that of the capped experts.
         """
         P = _points(positions_m, "contact positions")
         N = _unit_normals(normals, len(P))
+        if len(P) > BATCH:
+            for s in range(0, len(P), BATCH):
+                self.add_contacts(P[s : s + BATCH], N[s : s + BATCH])
+            return
         if len(P) == 0:
             return
         centre = first_centre(self.config, self._centre, P, N)
-        groups = self._memberships(P)
+        groups = self._filter_by_margin(P, self._memberships(P))
         far_new = self._far_members(P)
         # Update every expert concerned; on failure, cut the ones already updated back (GPIS.truncate).
         sizes = {key: e.n_contacts for key, e in self._experts.items() if key in groups}
@@ -182,6 +192,49 @@ class LocalGPIS:
         self._far_cells.update(int(k) for k in _pack(self._far_index(P[far_new])))
         self._centre = centre
         self._append(P, N)
+        for key in groups:
+            if self._experts[key].n_contacts > self.config.local_max_contacts:
+                self._shrink(key)
+
+    def _box(self, key: int, margin_m: float) -> tuple[FloatArray, FloatArray]:
+        """The data box of expert `key` with this margin: voxel +- (blend + margin) per axis, (3,) and (3,)."""
+        i = np.array([(key >> (2 * _KEY_BITS)) & _KEY_MASK, (key >> _KEY_BITS) & _KEY_MASK, key & _KEY_MASK])
+        lo = (i - _KEY_OFFSET) * self.cell_m
+        reach = self.blend_m + margin_m
+        return lo - reach, lo + self.cell_m + reach
+
+    def _filter_by_margin(self, P: FloatArray, groups: dict[int, IntArray]) -> dict[int, IntArray]:
+        """Drop the rows outside an expert's own (possibly shrunk) data box."""
+        out = {}
+        for key, rows in groups.items():
+            margin = self._margins.get(key, self.margin_m)
+            if margin < self.margin_m:
+                lo, hi = self._box(key, margin)
+                inside = np.all((P[rows] >= lo) & (P[rows] <= hi), axis=1)
+                rows = rows[inside]
+            if rows.size:
+                out[key] = rows
+        return out
+
+    def _shrink(self, key: int) -> None:
+        """Halve an expert's margin (0 once below blend_m / 4) and rebuild it from the contacts
+        in its smaller box, until it holds at most local_max_contacts or its margin is 0.
+
+        Dense regions thus keep small experts (cost per touch and memory bounded by the cap) while
+        sparse ones keep the full margin. O(n) scan of the contacts and one O(m^3) factorisation.
+        """
+        expert = self._experts[key]
+        margin = self._margins.get(key, self.margin_m)
+        positions, normals = self._P[: self._count], self._N[: self._count]
+        while expert.n_contacts > self.config.local_max_contacts and margin > 0.0:
+            margin = 0.0 if margin < 0.25 * self.blend_m else 0.5 * margin
+            lo, hi = self._box(key, margin)
+            rows = np.flatnonzero(np.all((positions >= lo) & (positions <= hi), axis=1))
+            expert = GPIS(self.config, prior_centre_m=self._centre)
+            expert.add_contacts(positions[rows], normals[rows])
+        self._experts[key] = expert
+        self._margins[key] = margin
+        self._table = None
 
     def _append(self, P: FloatArray, N: FloatArray) -> None:
         need = self._count + len(P)

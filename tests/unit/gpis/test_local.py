@@ -192,3 +192,22 @@ def test_estimator_choice_is_validated() -> None:
         GPISConfig(estimator="sparse")
     with pytest.raises(ConfigError, match="local_blend_m"):
         GPISConfig(local_cell_m=0.01, local_blend_m=0.006)
+
+
+def test_full_experts_shrink_their_margin_and_stay_accurate() -> None:
+    """local_max_contacts caps an expert (down to margin 0); the surface stays close to the exact GP's."""
+    rng = np.random.default_rng(10)
+    P, N = ellipsoid(400, rng)
+    config = GPISConfig(local_cell_m=0.02, local_blend_m=0.004, local_margin_m=0.006, local_max_contacts=30)
+    local, exact = LocalGPIS(config), GPIS(config)
+    local.add_contacts(P[:300], N[:300])  # two chunks of at most BATCH contacts
+    for p, n in zip(P[300:], N[300:], strict=True):
+        local.add_contact(p, n)
+    exact.add_contacts(P, N)
+    margins = local._margins
+    assert margins and all(m < 0.006 for m in margins.values())  # some experts shrank
+    for key, expert in local._experts.items():
+        assert expert.n_contacts <= 30 or margins.get(key) == 0.0
+    x = near_surface(np.random.default_rng(11), 1000, 0.003)
+    shift_m = np.abs(local.mean(x) - exact.mean(x)) / np.linalg.norm(exact.gradient(x), axis=1)
+    assert np.percentile(shift_m, 95) < 1e-4, np.percentile(shift_m, 95)
