@@ -24,6 +24,9 @@ and the weight of an expert is the product over the three axes: one expert for m
 to eight near voxel faces, edges and corners; the weights sum to 1 and have continuous gradients
 (d w_upper / dx = s'(v) / (2 b)). Expert i holds every contact within b + local_margin_m of its
 voxel on each axis, so each point it weighs has data on every side up to at least local_margin_m.
+An expert that grows past local_max_contacts halves its own margin (to 0 once below b / 4) and is
+rebuilt from the contacts in its smaller box: where contacts are dense the data a few millimetres
+around a point pin the surface, and the cap bounds both the cost per touch and the memory.
 
 Blending. With a set E(x) of experts that exist (hold at least one contact) and the weight left over
 w_far = 1 - sum_{i in E} w_i taken by a far-field expert (an exact GPIS over one contact per voxel of
