@@ -110,7 +110,7 @@ class GPISConfig(Validated):
     local_cell_m: PositiveFloat = 0.008
     local_blend_m: PositiveFloat = 0.0015
     local_margin_m: NonNegativeFloat = 0.003
-    local_far_cell_m: PositiveFloat = 0.012
+    local_far_cell_m: PositiveFloat = 0.02
     local_max_contacts: Annotated[int, Positive] = 64
 
     def __post_init__(self) -> None:
@@ -427,16 +427,13 @@ class GPIS:
         return self._prior_mean(_points(x, "query points"), self._require_centre())
 
     def residual_weights(self) -> tuple[FloatArray, FloatArray]:
-        """(contact positions (n, 3), alpha = K~^{-1} (y - m_obs) as (n, 4)), read-only views.
+        """(contact positions (n, 3), alpha = K~^{-1} (y - m_obs) as (n, 4)): the GP's own arrays, not
+        copies (``local.LocalGPIS`` reads them for hundreds of experts per query); do not modify them.
 
         mean(x) = m(x) + sum_j cov(f(x), obs_j) alpha_j (Eq. 2): what a caller needs to evaluate the
-        posterior mean with its own contraction (``local.LocalGPIS`` batches many GPs this way).
+        posterior mean with its own contraction.
         """
-        P = self._P.view()
-        P.flags.writeable = False
-        w = self._weights().view() if self.n_contacts else np.zeros((0, ROWS_PER_POINT))
-        w.flags.writeable = False
-        return P, w
+        return self._P, (self._weights() if self.n_contacts else np.zeros((0, ROWS_PER_POINT)))
 
     def solve_factor_in_place(self, B: FloatArray) -> None:
         """Overwrite the column-major B (4n, k) with L^{-1} B (for callers that build k_* themselves)."""

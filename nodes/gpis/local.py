@@ -329,7 +329,8 @@ class LocalGPIS:
         explained = np.empty(len(order))
         column_sums_of_squares(blocks, col_starts, rows, offsets, explained)
         var = np.maximum(prior - explained, 0.0)  # Eq. 6 per (point, expert), in slot order
-        return np.bincount(pairs.point[order], weights=pairs.weight[order] * var, minlength=len(x))
+        out: FloatArray = np.bincount(pairs.point[order], weights=pairs.weight[order] * var, minlength=len(x))
+        return out
 
     def mean_and_variance(self, x: ArrayLike) -> tuple[FloatArray, FloatArray]:
         return self.mean(x), self.variance(x)
@@ -346,6 +347,7 @@ class LocalGPIS:
         if self._count == 0 or len(x) == 0:
             return f, g
         pairs = self._pairs(x, gradient=gradient)
+        near = pairs.slot != pairs.far_slot
         # Concatenate the contacts and alpha of the experts in play, slot by slot.
         Ps, As = zip(*(e.residual_weights() for e in pairs.experts), strict=True)
         counts = np.array([len(p) for p in Ps], dtype=np.int64)
@@ -353,10 +355,22 @@ class LocalGPIS:
         starts = ends - counts
         kind, p1, p2 = self._compiled_kernel()
         r_max = contract_pairs(
-            x, pairs.point, pairs.slot, pairs.weight, pairs.weight_grad, starts, ends,
+            x, pairs.point[near], pairs.slot[near], pairs.weight[near],
+            pairs.weight_grad[near] if gradient else pairs.weight_grad, starts, ends,
             np.concatenate(Ps), np.concatenate(As), kind, p1, p2, gradient, f, g,
         )  # fmt: skip
         self.kernel.check_distances(float(r_max))
+        if self._far is not None and pairs.far_slot >= 0:
+            # The far field holds hundreds of contacts: its own (BLAS-based, chunked) contraction is
+            # faster there. Each point appears once among its pairs; r = f_far - m.
+            far = ~near
+            idx, w = pairs.point[far], pairs.weight[far]
+            xi = x[idx]
+            r = self._far.mean(xi) - prior_mean(self.config, xi, centre)
+            f[idx] += w * r
+            if gradient:
+                grad_r = self._far.gradient(xi) - prior_gradient(self.config, xi, centre)
+                g[idx] += w[:, None] * grad_r + r[:, None] * pairs.weight_grad[far]
         return f, g
 
     def _compiled_kernel(self) -> tuple[int, float, float]:
@@ -387,7 +401,9 @@ class LocalGPIS:
         slots = [inverse.astype(np.int64)]
         experts = [owners[int(i)] for i in used]
         need = np.flatnonzero(far_w > 1e-12)  # round-off leaves ~1e-16 where experts cover everything
+        far_slot = -1
         if need.size and self._far is not None:
+            far_slot = len(experts)
             points.append(need)
             slots.append(np.full(need.size, len(experts), dtype=np.int64))
             weights.append(far_w[need])
@@ -399,6 +415,7 @@ class LocalGPIS:
             weight=np.concatenate(weights),
             weight_grad=np.concatenate(grads) if gradient else np.zeros((0, 3)),
             experts=experts,
+            far_slot=far_slot,
         )
 
 
@@ -411,6 +428,7 @@ class _Pairs:
     weight: FloatArray
     weight_grad: FloatArray
     experts: list[GPIS]
+    far_slot: int  # slot of the far-field expert, -1 when no point needs it
 
 
 class AutoGPIS:
