@@ -329,8 +329,8 @@ class LocalGPIS:
         explained = np.empty(len(order))
         column_sums_of_squares(blocks, col_starts, rows, offsets, explained)
         var = np.maximum(prior - explained, 0.0)  # Eq. 6 per (point, expert), in slot order
-        out: FloatArray = np.bincount(pairs.point[order], weights=pairs.weight[order] * var, minlength=len(x))
-        return out
+        out = np.bincount(pairs.point[order], weights=pairs.weight[order] * var, minlength=len(x))
+        return out.astype(np.float64, copy=False)  # float64 already (weighted); for the type checker
 
     def mean_and_variance(self, x: ArrayLike) -> tuple[FloatArray, FloatArray]:
         return self.mean(x), self.variance(x)
