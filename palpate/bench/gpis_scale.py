@@ -191,8 +191,8 @@ def _field_at(gp: Any, v: FloatArray) -> dict[str, list[float]]:
 
 def _row_in_subprocess(shape: str, n: int, estimator: str, repeats: int, seed: int) -> dict[str, Any]:
     code = (
-        "import json, sys; from palpate.bench.gpis_scale import measure_row; "
-        f"print(json.dumps(measure_row({shape!r}, {n}, {estimator!r}, {repeats}, {seed})))"
+        "from palpate import jsonio; from palpate.bench.gpis_scale import measure_row; "
+        f"print(jsonio.dumps(measure_row({shape!r}, {n}, {estimator!r}, {repeats}, {seed})))"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     if done.returncode != 0:
@@ -253,12 +253,12 @@ def _field_in_subprocess(
     shape: str, n: int, repeats: int, seed: int, vertices: list[list[float]], estimator: str
 ) -> FloatArray:
     code = (
-        "import json, sys; from palpate.bench.gpis_scale import default_field_at; "
-        "a = json.loads(sys.stdin.read()); print(json.dumps(default_field_at(*a)))"
+        "import json, sys; from palpate import jsonio; from palpate.bench.gpis_scale import default_field_at; "
+        "a = json.loads(sys.stdin.read()); print(jsonio.dumps(default_field_at(*a)))"
     )
     done = subprocess.run(
         [sys.executable, "-c", code],
-        input=json.dumps([shape, n, repeats, seed, vertices, estimator]),
+        input=jsonio.dumps([shape, n, repeats, seed, vertices, estimator]),
         capture_output=True,
         text=True,
         check=False,
