@@ -22,13 +22,20 @@ Factorisation: K~ = L L^T grows by a block Cholesky update per contact (or per b
 
 never a refit from scratch. z = L^{-1} (y - m_obs) grows with it (z2 = L22^{-1} (y2 - X^T z1)), and
 alpha = L^{-T} z is recomputed lazily (one triangular solve) when a mean or gradient is asked for.
+L lives in a buffer with spare capacity that grows geometrically (``factor.GrowingCholesky``): the
+new block rows are written in place, and the solves run on the buffer itself, bit for bit the
+solves of a contiguous L.
+
+This is the exact GP: the reference, and the default for small problems. ``local.LocalGPIS`` blends
+exact GPs over local regions and scales to thousands of contacts; ``make_estimator`` picks one from
+GPISConfig.estimator.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Protocol
 
 import numpy as np
 import scipy.linalg
@@ -36,12 +43,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from palpate.config import NonNegativeFloat, OneOf, Positive, PositiveFloat, Validated
 from palpate.errors import ConfigError, EstimationError
+from palpate.nodes.gpis.factor import GrowingCholesky
 from palpate.nodes.gpis.kernels import ROWS_PER_POINT, GaussianKernel, IsotropicKernel, ThinPlateKernel
 
 FloatArray = NDArray[np.float64]
 
 KERNELS = ("thin_plate", "gaussian")
 PRIORS = ("sphere", "zero")
+ESTIMATORS = ("exact", "local", "auto")
 
 #: Object size (m) that the default config is tuned for (YCB objects are at most 0.23 m across).
 REFERENCE_SIZE_M = 0.2
@@ -74,6 +83,15 @@ class GPISConfig(Validated):
         The thin-plate fit barely depends on it (box test: same error for r0 = 1, 2, 5 cm); the
         Gaussian kernel reverts to the prior within a few length scales of the contacts, so there a
         sphere that bulges out of the object leaves spurious surface (measured: 3 cm errors).
+    estimator: "exact" (one GP over every contact: the reference, O(n^2) per touch and in memory),
+        "local" (``local.LocalGPIS``: exact GPs over voxels of edge local_cell_m, each holding the
+        contacts within local_cell_m + local_margin_m, blended smoothly; cost per touch set by the
+        local density, not the history) or "auto": exact up to auto_local_above_contacts contacts,
+        then local (rebuilt once from every contact). docs/exploration.md says when to pick which.
+    local_blend_m: half-width of the band around each voxel face where two experts hand over.
+    local_far_cell_m: the local estimator's far-field GP keeps one contact per voxel of this edge.
+    local_max_contacts: an expert holding more contacts halves its margin and is rebuilt (down to
+        margin 0): dense regions keep small experts, sparse ones the full local_margin_m.
     """
 
     kernel: Annotated[str, OneOf(KERNELS)] = "thin_plate"
@@ -87,6 +105,13 @@ class GPISConfig(Validated):
     prior: Annotated[str, OneOf(PRIORS)] = "sphere"
     prior_radius_m: PositiveFloat = 0.02
     prior_scale: PositiveFloat = 1.0
+    estimator: Annotated[str, OneOf(ESTIMATORS)] = "auto"
+    auto_local_above_contacts: Annotated[int, Positive] = 1500
+    local_cell_m: PositiveFloat = 0.008
+    local_blend_m: PositiveFloat = 0.0015
+    local_margin_m: NonNegativeFloat = 0.003
+    local_far_cell_m: PositiveFloat = 0.02
+    local_max_contacts: Annotated[int, Positive] = 64
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -95,12 +120,18 @@ class GPISConfig(Validated):
                 "GPISConfig: value_noise_m, gradient_noise and jitter are all 0; duplicate contacts would "
                 "make the covariance singular. Set jitter > 0 (e.g. 1e-10)"
             )
+        if self.local_blend_m > 0.5 * self.local_cell_m:
+            raise ConfigError(
+                f"GPISConfig: local_blend_m = {self.local_blend_m!r} exceeds half of local_cell_m = "
+                f"{self.local_cell_m!r}; the blend bands of opposite voxel faces would overlap. Lower it"
+            )
 
     @classmethod
     def for_object_size(cls, size_m: float, **overrides: object) -> GPISConfig:
         """The defaults with every length scaled by s = size_m / REFERENCE_SIZE_M (0.2 m).
 
-        R_m, length_scale_m, value_noise_m and prior_radius_m scale by s, thin_plate_scale by 1 / s;
+        R_m, length_scale_m, value_noise_m, prior_radius_m and the local estimator's cells scale by s,
+        thin_plate_scale by 1 / s;
         gradient_noise (on unit normals) and jitter do not change. Then K + noise transforms as
         D (K + noise) D with D = diag(s, 1, 1, 1) per contact, and the posterior mean of the scaled
         object is exactly s times the reference one (variance s^2 times). Overrides apply last.
@@ -115,6 +146,10 @@ class GPISConfig(Validated):
             length_scale_m=base.length_scale_m * s,
             value_noise_m=base.value_noise_m * s,
             prior_radius_m=base.prior_radius_m * s,
+            local_cell_m=base.local_cell_m * s,
+            local_blend_m=base.local_blend_m * s,
+            local_margin_m=base.local_margin_m * s,
+            local_far_cell_m=base.local_far_cell_m * s,
         )
         return dataclasses.replace(scaled, **overrides)  # type: ignore[arg-type]
 
@@ -164,6 +199,65 @@ def _unit_normals(normals: ArrayLike, count: int) -> FloatArray:
     return n / norms[:, None]
 
 
+def prior_mean(config: GPISConfig, x: FloatArray, centre: FloatArray | None) -> FloatArray:
+    """m(x) (m,) at x (m, 3): prior_scale (|x - c| - prior_radius_m), or 0 (zero prior / no centre yet)."""
+    if config.prior == "zero" or centre is None:
+        return np.zeros(len(x))
+    return config.prior_scale * (np.linalg.norm(x - centre, axis=1) - config.prior_radius_m)
+
+
+def prior_gradient(config: GPISConfig, x: FloatArray, centre: FloatArray | None) -> FloatArray:
+    """grad m(x) (m, 3) at x (m, 3)."""
+    if config.prior == "zero" or centre is None:
+        return np.zeros_like(x)
+    d = x - centre
+    r = np.linalg.norm(d, axis=1, keepdims=True)
+    out = np.zeros_like(d)
+    np.divide(d, r, out=out, where=r > 0)  # grad |x - c| (0 at the centre itself)
+    return config.prior_scale * out
+
+
+def one_contact(position_m: ArrayLike, normal: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """A single contact's position (3,) and normal (3,) as (1, 3) arrays; EstimationError on other shapes."""
+    p = np.asarray(position_m, dtype=np.float64)
+    if p.shape != (3,):
+        raise EstimationError(f"contact position must have shape (3,), got {p.shape}")
+    n = np.asarray(normal, dtype=np.float64)
+    if n.shape != (3,):
+        raise EstimationError(f"contact normal must have shape (3,), got {n.shape}")
+    return p[None, :], n[None, :]
+
+
+def first_centre(config: GPISConfig, centre: FloatArray | None, P: FloatArray, N: FloatArray) -> FloatArray | None:
+    """The sphere prior's centre: the given one, else c = c_p - r0 c_n from the first contact of P (b, 3)."""
+    if centre is None and config.prior == "sphere":
+        return P[0] - config.prior_radius_m * N[0]
+    return centre
+
+
+class SurfaceEstimator(Protocol):
+    """What the surface mesher, the node and the benchmark need from a GPIS (exact or local)."""
+
+    config: GPISConfig
+    kernel: IsotropicKernel
+
+    @property
+    def n_contacts(self) -> int: ...
+
+    @property
+    def positions_m(self) -> FloatArray: ...
+
+    def add_contact(self, position_m: ArrayLike, normal: ArrayLike) -> None: ...
+
+    def add_contacts(self, positions_m: ArrayLike, normals: ArrayLike) -> None: ...
+
+    def mean(self, x: ArrayLike) -> FloatArray: ...
+
+    def gradient(self, x: ArrayLike) -> FloatArray: ...
+
+    def variance(self, x: ArrayLike) -> FloatArray: ...
+
+
 class GPIS:
     """Incrementally factorised GPIS. Positions in metres; normals are outward unit vectors.
 
@@ -176,9 +270,10 @@ class GPIS:
         self._centre: FloatArray | None = None
         if prior_centre_m is not None:
             self._centre = _points(prior_centre_m, "prior_centre_m")[0].copy()
+        self._given_centre = self._centre
         self._P = np.zeros((0, 3))
         self._N = np.zeros((0, 3))
-        self._L = np.zeros((0, 0))  # lower Cholesky factor of K + noise, (4n, 4n), C-contiguous
+        self._L = GrowingCholesky()  # lower Cholesky factor of K + noise, (4n, 4n), in a larger buffer
         self._z = np.zeros(0)  # L^{-1} (y - m_obs), (4n,)
         self._alpha: FloatArray | None = None  # K~^{-1} (y - m_obs) as (n, 4), computed lazily
         cfg, kern = self.config, self.kernel
@@ -215,7 +310,12 @@ class GPIS:
 
     def cholesky_factor(self) -> FloatArray:
         """The incrementally grown lower factor L (4n, 4n) of K + noise, a copy."""
-        return self._L.copy()
+        return self._L.view().copy()
+
+    @property
+    def factor_bytes(self) -> int:
+        """Memory held by the factor's buffer (bytes), spare capacity included."""
+        return self._L.nbytes
 
     def observation_covariance(self) -> FloatArray:
         """K + noise (4n, 4n) recomputed from scratch (for checks; the GP itself never does this)."""
@@ -226,13 +326,7 @@ class GPIS:
     # --- updates -----------------------------------------------------------------------------------
     def add_contact(self, position_m: ArrayLike, normal: ArrayLike) -> None:
         """Add one contact: position (3,) in metres and outward normal (3,) (normalised here)."""
-        p = np.asarray(position_m, dtype=np.float64)
-        if p.shape != (3,):
-            raise EstimationError(f"contact position must have shape (3,), got {p.shape}")
-        n = np.asarray(normal, dtype=np.float64)
-        if n.shape != (3,):
-            raise EstimationError(f"contact normal must have shape (3,), got {n.shape}")
-        self.add_contacts(p[None, :], n[None, :])
+        self.add_contacts(*one_contact(position_m, normal))
 
     def add_contacts(self, positions_m: ArrayLike, normals: ArrayLike) -> None:
         """Add b contacts (b, 3) with one block Cholesky update, O(n^2 b + n b^2 + b^3)."""
@@ -240,11 +334,9 @@ class GPIS:
         N = _unit_normals(normals, len(P))
         if len(P) == 0:
             return
-        centre = self._centre
-        if centre is None and self.config.prior == "sphere":
-            centre = P[0] - self.config.prior_radius_m * N[0]
+        centre = first_centre(self.config, self._centre, P, N)
         n_old, b = self.n_contacts, len(P)
-        m_old, m_add = ROWS_PER_POINT * n_old, ROWS_PER_POINT * b
+        m_add = ROWS_PER_POINT * b
 
         # Residual targets y - m_obs: value rows 0 - m(c_p), gradient rows c_n - grad m(c_p).
         targets = np.empty((b, ROWS_PER_POINT))
@@ -256,7 +348,7 @@ class GPIS:
         K22[np.diag_indices_from(K22)] += np.tile(self._diag, b)
         if n_old:
             K12 = self.kernel.observation_cov(self._P, P)  # (4 n_old, 4 b)
-            X = scipy.linalg.solve_triangular(self._L, K12, lower=True, check_finite=False)  # L11 X = K12
+            X = self._L.solve(K12)  # L11 X = K12
             S = K22 - X.T @ X  # Schur complement K22 - K21 K11^{-1} K12
         else:
             X = np.zeros((0, m_add))
@@ -276,18 +368,25 @@ class GPIS:
             ) from exc
         z2 = scipy.linalg.solve_triangular(L22, y2 - X.T @ self._z, lower=True, check_finite=False)
 
-        L = np.empty((m_old + m_add, m_old + m_add))
-        L[:m_old, :m_old] = self._L
-        L[:m_old, m_old:] = 0.0
-        L[m_old:, :m_old] = X.T
-        L[m_old:, m_old:] = L22
-        # Commit (nothing above mutated self).
+        # Commit (nothing above mutated self): L = [L11 0; X^T L22], written in place.
+        self._L.append(X.T, L22)
         self._centre = centre
-        self._L = L
         self._z = np.concatenate([self._z, z2])
         self._P = np.vstack([self._P, P])
         self._N = np.vstack([self._N, N])
         self._alpha = None
+
+    def truncate(self, n_contacts: int) -> None:
+        """Keep the first n_contacts contacts only (exact: the factor's leading block is their factor)."""
+        if not 0 <= n_contacts <= self.n_contacts:
+            raise EstimationError(f"cannot keep {n_contacts} of {self.n_contacts} contacts")
+        rows = ROWS_PER_POINT * n_contacts
+        self._L.truncate(rows)
+        self._z = self._z[:rows].copy()
+        self._P, self._N = self._P[:n_contacts].copy(), self._N[:n_contacts].copy()
+        self._alpha = None
+        if n_contacts == 0 and self._given_centre is None:
+            self._centre = None
 
     # --- queries -----------------------------------------------------------------------------------
     def mean(self, x: ArrayLike) -> FloatArray:
@@ -316,9 +415,7 @@ class GPIS:
         out = np.full(len(x), self.kernel.value_variance)
         if self.n_contacts:
             for s in self._chunks(len(x), ROWS_PER_POINT * self.n_contacts, _VARIANCE_CHUNK_ENTRIES):
-                Ks = self.kernel.value_obs_cov(x[s], self._P)  # k_* rows (chunk, 4n)
-                V = scipy.linalg.solve_triangular(self._L, Ks.T, lower=True, check_finite=False)
-                out[s] -= np.einsum("ij,ij->j", V, V)
+                out[s] -= self.explained_variance(x[s])
         return np.maximum(out, 0.0, out=out)
 
     def mean_and_variance(self, x: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -329,11 +426,35 @@ class GPIS:
         """m(x) (m,) of the configured prior."""
         return self._prior_mean(_points(x, "query points"), self._require_centre())
 
+    def residual_weights(self) -> tuple[FloatArray, FloatArray]:
+        """(contact positions (n, 3), alpha = K~^{-1} (y - m_obs) as (n, 4)): the GP's own arrays, not
+        copies (``local.LocalGPIS`` reads them for hundreds of experts per query); do not modify them.
+
+        mean(x) = m(x) + sum_j cov(f(x), obs_j) alpha_j (Eq. 2): what a caller needs to evaluate the
+        posterior mean with its own contraction.
+        """
+        return self._P, (self._weights() if self.n_contacts else np.zeros((0, ROWS_PER_POINT)))
+
+    def solve_factor_in_place(self, B: FloatArray) -> None:
+        """Overwrite the column-major B (4n, k) with L^{-1} B (for callers that build k_* themselves)."""
+        self._L.solve_in_place(B)
+
+    def explained_variance(self, x: FloatArray) -> FloatArray:
+        """k_*^T K~^{-1} k_* (m,) at validated points x (m, 3), the term that Eq. 6 subtracts (one chunk).
+
+        k_* rows (m, 4n); L V = k_*^T with every point's column in one triangular solve.
+        """
+        if not self.n_contacts:
+            return np.zeros(len(x))
+        Ks = self.kernel.value_obs_cov(x, self._P)
+        V = self._L.solve(Ks.T)
+        return np.einsum("ij,ij->j", V, V)
+
     # --- internals ---------------------------------------------------------------------------------
     def _weights(self) -> FloatArray:
         """alpha = K~^{-1} (y - m_obs) = L^{-T} z as (n, 4)."""
         if self._alpha is None:
-            alpha = scipy.linalg.solve_triangular(self._L, self._z, lower=True, trans="T", check_finite=False)
+            alpha = self._L.solve(self._z, trans=True)
             self._alpha = alpha.reshape(self.n_contacts, ROWS_PER_POINT)
         return self._alpha
 
@@ -345,19 +466,10 @@ class GPIS:
         return self._centre
 
     def _prior_mean(self, x: FloatArray, centre: FloatArray | None) -> FloatArray:
-        if self.config.prior == "zero" or centre is None:
-            return np.zeros(len(x))
-        cfg = self.config
-        return cfg.prior_scale * (np.linalg.norm(x - centre, axis=1) - cfg.prior_radius_m)
+        return prior_mean(self.config, x, centre)
 
     def _prior_gradient(self, x: FloatArray, centre: FloatArray | None) -> FloatArray:
-        if self.config.prior == "zero" or centre is None:
-            return np.zeros_like(x)
-        d = x - centre
-        r = np.linalg.norm(d, axis=1, keepdims=True)
-        out = np.zeros_like(d)
-        np.divide(d, r, out=out, where=r > 0)  # grad |x - c| (0 at the centre itself)
-        return self.config.prior_scale * out
+        return prior_gradient(self.config, x, centre)
 
     @staticmethod
     def _chunks(m: int, entries_per_row: int, budget: int = _CHUNK_ENTRIES) -> list[slice]:

@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 from palpate.config import NonNegativeFloat, PositiveFloat, Validated
 from palpate.errors import InputError
 from palpate.messages.schemas import SurfaceMesh, SurfaceRequest, TouchEvent
-from palpate.nodes.gpis.core import GPIS, GPISConfig
+from palpate.nodes.gpis.core import GPISConfig
+from palpate.nodes.gpis.local import make_estimator
 from palpate.nodes.gpis.surface import SurfaceMeshArrays, add_touch, whole_surface
 from palpate.runtime.spec import Context, NodeSpec, Port
 
@@ -36,7 +37,7 @@ class GPISNode:
 
     def __init__(self, config: GPISNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
-        self.gp = GPIS(config.gp, prior_centre_m=config.prior_centre_m)
+        self.gp = make_estimator(config.gp, prior_centre_m=config.prior_centre_m)
 
     def on_touches(self, message: TouchEvent) -> None:
         cfg = self.config

@@ -22,7 +22,7 @@ from skimage.measure import marching_cubes
 
 from palpate.errors import EstimationError, InputError
 from palpate.inputs import coordinates, unit_vectors
-from palpate.nodes.gpis.core import GPIS
+from palpate.nodes.gpis.core import SurfaceEstimator
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int32]
@@ -117,7 +117,7 @@ def _upsample(v: FloatArray, axis: int) -> FloatArray:
     return np.moveaxis(out, 0, axis)
 
 
-def sample_mean(gp: GPIS, axes: list[FloatArray], *, refine: bool = True) -> FloatArray:
+def sample_mean(gp: SurfaceEstimator, axes: list[FloatArray], *, refine: bool = True) -> FloatArray:
     """GP mean on the grid of the three node-coordinate axes (odd lengths): (nx, ny, nz).
 
     refine=True evaluates the coarse grid (every other node) and then only the fine nodes of coarse
@@ -147,7 +147,7 @@ def sample_mean(gp: GPIS, axes: list[FloatArray], *, refine: bool = True) -> Flo
 
 
 def mesh_from_grid(
-    gp: GPIS, axes: list[FloatArray], *, with_variance: bool = True, refine: bool = True
+    gp: SurfaceEstimator, axes: list[FloatArray], *, with_variance: bool = True, refine: bool = True
 ) -> SurfaceMeshArrays:
     """Marching cubes of the GP mean sampled on the grid given by three node-coordinate axes.
 
@@ -178,7 +178,7 @@ def mesh_from_grid(
 
 
 def local_surface(
-    gp: GPIS,
+    gp: SurfaceEstimator,
     centre_m: ArrayLike,
     half_extent_m: float = LOCAL_HALF_EXTENT_M,
     resolution_m: float = LOCAL_RESOLUTION_M,
@@ -197,7 +197,7 @@ def local_surface(
 
 
 def global_surface(
-    gp: GPIS,
+    gp: SurfaceEstimator,
     bounds_min: ArrayLike,
     bounds_max: ArrayLike,
     resolution_m: float,
@@ -211,7 +211,7 @@ def global_surface(
 
 
 def whole_surface(
-    gp: GPIS, margin_m: float, resolution_m: float, *, with_variance: bool = True, refine: bool = True
+    gp: SurfaceEstimator, margin_m: float, resolution_m: float, *, with_variance: bool = True, refine: bool = True
 ) -> SurfaceMeshArrays:
     """Surface mesh over the contacts' bounding box grown by margin_m on every side (the whole object
     as touched so far); an empty mesh before the first contact."""
@@ -223,7 +223,7 @@ def whole_surface(
 
 
 def add_touch(
-    gp: GPIS,
+    gp: SurfaceEstimator,
     position_m: ArrayLike,
     normal: ArrayLike,
     half_extent_m: float = LOCAL_HALF_EXTENT_M,

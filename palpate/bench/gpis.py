@@ -1,4 +1,8 @@
-"""`palpate bench gpis [--quick] [--json] [--contacts N ...]`: one GPIS update plus the local surface.
+"""`palpate bench gpis [--quick] [--json] [--contacts N ...] [--resolutions MM ...]`.
+
+Without --resolutions: the scaling benchmark of issue 11 (``gpis_scale``: 200, 2000 and 10,000
+contacts, exact and local estimators, memory and surface error). With --resolutions: the grid-step
+sweep of issue 5 below, one GPIS update plus the local surface per grid step.
 
 Per number of contacts n (default 50, 100, 200, 400, 1000; --quick: 200 only) and marching-cubes
 grid step (2, 3, 4, 5 mm), the median CPU ms over the last steps of: add_contact, the local surface
@@ -156,19 +160,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         nargs="+",
         metavar="N",
-        help=f"numbers of contacts (default {' '.join(map(str, CONTACTS))}; --quick {GOAL_CONTACTS})",
+        help="numbers of contacts (default 200 2000 10000, --quick 200 2000; with --resolutions "
+        f"{' '.join(map(str, CONTACTS))}, --quick {GOAL_CONTACTS})",
     )
     parser.add_argument(
         "--resolutions",
         type=float,
         nargs="+",
         metavar="MM",
-        help=f"marching-cubes grid steps in mm (default {' '.join(f'{r:g}' for r in RESOLUTIONS_MM)})",
+        help="run the grid-step sweep at these marching-cubes steps in mm "
+        f"(e.g. {' '.join(f'{r:g}' for r in RESOLUTIONS_MM)})",
     )
     parser.add_argument(
         "--repeats", type=int, help=f"timed steps per number of contacts (default {REPEATS}, --quick {QUICK_REPEATS})"
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the contacts on the ellipsoid")
+    parser.add_argument(
+        "--shapes",
+        nargs="+",
+        choices=("ellipsoid", "ycb"),
+        help="scaling benchmark: true surfaces (default ellipsoid ycb; --quick ellipsoid)",
+    )
+    parser.add_argument(
+        "--estimator",
+        choices=("auto", "local", "exact"),
+        help="scaling benchmark: the GPIS estimator timed (default auto, the node's); the exact GP is the reference",
+    )
+
+
+def main(args: argparse.Namespace) -> int:
+    """The scaling benchmark (``gpis_scale``), or the grid-step sweep when --resolutions is given."""
+    if getattr(args, "resolutions", None):
+        return grid_main(args)
+    from palpate.bench import gpis_scale
+
+    return gpis_scale.main(args)
 
 
 def table(rows: Sequence[Mapping[str, float]]) -> str:
@@ -203,7 +229,7 @@ def goal_check(rows: Sequence[Mapping[str, float]], resolution_m: float) -> dict
     return None
 
 
-def main(args: argparse.Namespace) -> int:
+def grid_main(args: argparse.Namespace) -> int:
     """Print the table and the goal check (and with --json a last line of JSON); 1 when the goal is missed."""
     from palpate.nodes.gpis.node import GPISNodeConfig
 

@@ -15,7 +15,9 @@ from palpate.errors import BenchmarkError
 
 
 def test_smallest_run_prints_a_row_per_grid_and_json_last(capsys: Any) -> None:
-    args = argparse.Namespace(quick=True, json=True, contacts=[12], resolutions=[10.0, 20.0], repeats=2, seed=1)
+    args = argparse.Namespace(
+        quick=True, json=True, contacts=[12], resolutions=[10.0, 20.0], repeats=2, seed=1, shapes=None
+    )
     assert bench_gpis.main(args) == 0  # no row at 200 contacts: no goal to miss
     out = capsys.readouterr().out.strip().splitlines()
     last = json.loads(out[-1])
@@ -71,3 +73,29 @@ def test_gpis_is_a_bench_sub_command() -> None:
 
     args = build_parser().parse_args(["bench", "gpis", "--quick", "--json", "--contacts", "50", "200"])
     assert args.quick and args.json and args.contacts == [50, 200] and args.resolutions is None
+
+
+def test_scaling_run_prints_rows_with_the_issue_keys_and_pass_last(capsys: Any) -> None:
+    """The smallest scaling run (`palpate bench gpis` without --resolutions): the JSON shape of issue 11."""
+    args = argparse.Namespace(quick=True, json=True, contacts=[12], resolutions=None, repeats=2, seed=1, shapes=None)
+    code = bench_gpis.main(args)
+    last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert isinstance(last["pass"], bool) and code == (0 if last["pass"] else 1)
+    (row,) = last["rows"]
+    for key in ("contacts", "igef_ms", "gpv_ms", "peak_mb", "surface_err_mm_p95"):
+        assert math.isfinite(row[key]), key
+    assert row["contacts"] == 12 and row["ran"] == "exact" and row["shape"] == "ellipsoid"
+    assert row["gpv_ms"] >= row["igef_ms"] > 0 and row["approx_vs_exact_mm_p95"] == 0.0
+    assert row["exact_igef_ms"] > 0  # the exact reference ran too (12 <= the exact limit)
+
+
+def test_scaling_goals_name_what_a_row_misses() -> None:
+    from palpate.bench.gpis_scale import check_row
+
+    row = {"contacts": 2000, "igef_ms": 15.0, "gpv_ms": 45.0, "peak_mb": 100.0, "approx_vs_exact_mm_p95": 0.3}
+    assert check_row(row) == ["GP-V 45.0 > 40 ms", "vs exact 0.300 > 0.2 mm"]
+    assert check_row({**row, "gpv_ms": 30.0, "approx_vs_exact_mm_p95": 0.01}) == []
+    assert check_row({**row, "contacts": 10_000, "peak_mb": 2000.0, "gpv_ms": 30.0}) == [
+        "peak 2000 > 1024 MB",
+        "vs exact 0.300 > 0.2 mm",
+    ]

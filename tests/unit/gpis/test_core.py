@@ -342,3 +342,21 @@ def test_queries_beyond_r_raise() -> None:
     for query in (gp.mean, gp.gradient, gp.variance):
         with pytest.raises(EstimationError, match="R_m"):
             query(np.array([[0.0, 0.25, 0.0]]))
+
+
+def test_contradictory_normals_at_one_point_stay_positive_definite() -> None:
+    """Opposite normals 1 um apart (a sensor glitch): the noise keeps K + noise positive definite."""
+    rng = np.random.default_rng(21)
+    P, N = ellipsoid(40, rng)
+    gp = GPIS()
+    gp.add_contacts(P, N)
+    gp.add_contact(P[5] + 1e-6, -N[5])
+    gp.add_contact(P[5] - 1e-6, N[5])
+    L = gp.cholesky_factor()
+    assert np.all(np.isfinite(L)) and np.all(np.diag(L) > 0)
+    x = CENTRE + rng.uniform(-0.07, 0.07, (30, 3))
+    ref_mean, ref_var = _fresh_solve_mean_var(gp, x)
+    np.testing.assert_allclose(gp.mean(x), ref_mean, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(gp.variance(x), np.maximum(ref_var, 0), rtol=0, atol=1e-12)
+    # the two opposite normals average out: the gradient at that point is much shorter than 1
+    assert np.linalg.norm(gp.gradient(P[5:6])[0]) < 0.5

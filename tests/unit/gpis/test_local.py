@@ -1,0 +1,213 @@
+"""LocalGPIS (local exact GPs blended by a partition of unity) against the exact GPIS, its oracle."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from palpate.errors import ConfigError, EstimationError
+from palpate.nodes.gpis.core import GPIS, GPISConfig
+from palpate.nodes.gpis.local import AutoGPIS, LocalGPIS, make_estimator
+
+AXES = np.array([0.06, 0.04, 0.03])
+CENTRE = np.array([0.013, -0.007, 0.1])  # off the voxel grid's origin on purpose
+#: Cells twice the default with 400 contacts: about the default's density at 1600 contacts.
+CONFIG = GPISConfig(local_cell_m=0.02, local_blend_m=0.004, local_margin_m=0.006)
+
+
+def ellipsoid(n: int, rng: np.random.Generator, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    u = rng.standard_normal((n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    p = u * AXES * scale
+    normal = p / (AXES * scale) ** 2
+    return CENTRE * scale + p, normal / np.linalg.norm(normal, axis=1, keepdims=True)
+
+
+def near_surface(rng: np.random.Generator, n: int, band_m: float, scale: float = 1.0) -> np.ndarray:
+    """Points within band_m of the ellipsoid (both sides): where the surface estimate matters."""
+    P, N = ellipsoid(n, rng, scale)
+    return P + rng.uniform(-band_m, band_m, (n, 1)) * N
+
+
+@pytest.fixture(scope="module")
+def pair() -> tuple[GPIS, LocalGPIS, np.ndarray]:
+    rng = np.random.default_rng(0)
+    P, N = ellipsoid(400, rng)
+    exact, local = GPIS(CONFIG), LocalGPIS(CONFIG)
+    exact.add_contacts(P, N)
+    local.add_contacts(P[:300], N[:300])
+    for p, n in zip(P[300:], N[300:], strict=True):  # the incremental path, one contact at a time
+        local.add_contact(p, n)
+    return exact, local, near_surface(np.random.default_rng(1), 2000, 0.003)
+
+
+def test_mean_matches_the_exact_gp_near_the_surface(pair: tuple[GPIS, LocalGPIS, np.ndarray]) -> None:
+    exact, local, x = pair
+    assert local.n_contacts == exact.n_contacts == 400 and local.n_experts > 20
+    # displacement of the level sets: |f_local - f_exact| / |grad f_exact|
+    shift_m = np.abs(local.mean(x) - exact.mean(x)) / np.linalg.norm(exact.gradient(x), axis=1)
+    assert np.percentile(shift_m, 95) < 6e-5, np.percentile(shift_m, 95)
+    assert shift_m.max() < 5e-4, shift_m.max()
+
+
+def test_gradient_matches_the_exact_gp_and_its_own_mean(pair: tuple[GPIS, LocalGPIS, np.ndarray]) -> None:
+    exact, local, x = pair
+    g_local, g_exact = local.gradient(x), exact.gradient(x)
+    cos = np.einsum("ij,ij->i", g_local, g_exact) / np.linalg.norm(g_local, axis=1) / np.linalg.norm(g_exact, axis=1)
+    angle_deg = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    assert np.percentile(angle_deg, 95) < 0.5 and angle_deg.max() < 5.0, (np.percentile(angle_deg, 95), angle_deg.max())
+    # the blended gradient is the derivative of the blended mean (weights' gradients included)
+    h = 1e-6
+    xs = x[:200]
+    fd = np.column_stack(
+        [(local.mean(xs + h * e) - local.mean(xs - h * e)) / (2 * h) for e in np.eye(3)]
+    )  # fmt: skip
+    np.testing.assert_allclose(local.gradient(xs), fd, rtol=0, atol=1e-6)
+
+
+def test_variance_is_close_to_the_exact_gp_and_never_below_it(pair: tuple[GPIS, LocalGPIS, np.ndarray]) -> None:
+    exact, local, x = pair
+    v_local, v_exact = local.variance(x), exact.variance(x)
+    assert np.all(v_local >= 0)
+    ratio = v_local / v_exact
+    assert np.median(ratio) < 1.05 and np.percentile(ratio, 95) < 1.6, (np.median(ratio), np.percentile(ratio, 95))
+    # each expert conditions on a subset of the contacts: its variance is never below the exact GP's
+    assert np.all(v_local >= v_exact * (1 - 1e-6) - 1e-18)
+
+
+def test_weights_form_a_partition_of_unity_with_zero_gradient_sum() -> None:
+    rng = np.random.default_rng(3)
+    P, N = ellipsoid(200, rng)
+    local = LocalGPIS(CONFIG)
+    local.add_contacts(P, N)
+    x = CENTRE + rng.uniform(-0.08, 0.08, (3000, 3))
+    pairs = local._pairs(x, gradient=True)
+    total = np.bincount(pairs.point, weights=pairs.weight, minlength=len(x))
+    np.testing.assert_allclose(total, 1.0, rtol=0, atol=1e-12)
+    for k in range(3):
+        grad_sum = np.bincount(pairs.point, weights=pairs.weight_grad[:, k], minlength=len(x))
+        np.testing.assert_allclose(grad_sum, 0.0, rtol=0, atol=1e-9)
+
+
+def test_far_from_the_contacts_the_sign_holds() -> None:
+    """Deep inside (no expert) the far-field GP keeps f < 0; far outside f > 0."""
+    rng = np.random.default_rng(4)
+    P, N = ellipsoid(400, rng)
+    local = LocalGPIS(CONFIG)
+    local.add_contacts(P, N)
+    inside = CENTRE + 0.3 * (rng.uniform(-1, 1, (200, 3)) * AXES)
+    outside = CENTRE + (1.0 + rng.uniform(0.3, 0.6, (200, 1))) * (P[:200] - CENTRE)
+    assert np.all(local.mean(inside) < 0) and np.all(local.mean(outside) > 0)
+
+
+def test_duplicates_near_duplicates_and_contradictory_normals_stay_finite() -> None:
+    rng = np.random.default_rng(5)
+    P, N = ellipsoid(150, rng)
+    local = LocalGPIS(CONFIG)
+    local.add_contacts(P, N)
+    for _ in range(3):
+        local.add_contact(P[0], N[0])  # exact duplicates
+    local.add_contact(P[1] + 1e-6 * np.array([0.6, 0.0, 0.8]), N[1])  # 1 um away
+    local.add_contact(P[2] + 1e-6, -N[2])  # the opposite normal 1 um away: contradictory
+    x = near_surface(rng, 300, 0.003)
+    for values in (local.mean(x), local.gradient(x), local.variance(x)):
+        assert np.all(np.isfinite(values))
+    assert abs(local.mean(P[3:4])[0]) < 1e-4
+
+
+@pytest.mark.parametrize("size_m", [0.005, 1.0])
+def test_tiny_and_huge_objects_scale_with_for_object_size(size_m: float) -> None:
+    """for_object_size scales the cells too, so the local fit of a scaled object is the scaled fit."""
+    rng = np.random.default_rng(6)
+    scale = size_m / 0.2
+    P, N = ellipsoid(300, rng)
+    ref = LocalGPIS(GPISConfig.for_object_size(0.2, estimator="local"))
+    scaled = LocalGPIS(GPISConfig.for_object_size(size_m, estimator="local"))
+    ref.add_contacts(P, N)
+    scaled.add_contacts(P * scale, N)
+    x = near_surface(rng, 300, 0.003)
+    np.testing.assert_allclose(scaled.mean(x * scale), scale * ref.mean(x), rtol=1e-6, atol=1e-9 * scale)
+    np.testing.assert_allclose(scaled.variance(x * scale), scale**2 * ref.variance(x), rtol=1e-5, atol=1e-15)
+
+
+def test_nan_inputs_are_rejected_by_name_and_leave_the_state_unchanged() -> None:
+    rng = np.random.default_rng(7)
+    P, N = ellipsoid(50, rng)
+    local = LocalGPIS(CONFIG)
+    local.add_contacts(P, N)
+    x = near_surface(rng, 20, 0.002)
+    before = local.mean(x)
+    with pytest.raises(EstimationError, match="contact positions row 0 is not finite"):
+        local.add_contact([np.nan, 0.0, 0.0], [0.0, 0.0, 1.0])
+    with pytest.raises(EstimationError, match="contact normal 0 is not finite"):
+        local.add_contact(P[0], [0.0, np.nan, 1.0])
+    with pytest.raises(EstimationError, match="query points row 1 is not finite"):
+        local.mean(np.array([P[0], [0.0, np.inf, 0.0]]))
+    assert local.n_contacts == 50
+    np.testing.assert_array_equal(local.mean(x), before)
+
+
+def test_a_failed_update_rolls_every_expert_back() -> None:
+    """A contact beyond the thin-plate range fails in the far-field GP after the experts took it."""
+    rng = np.random.default_rng(8)
+    P, N = ellipsoid(60, rng)
+    local = LocalGPIS(CONFIG)
+    local.add_contacts(P, N)
+    sizes = local.expert_sizes()
+    x = near_surface(rng, 30, 0.002)
+    before = local.mean(x)
+    with pytest.raises(EstimationError, match="R_m"):
+        local.add_contact(CENTRE + np.array([0.6, 0.0, 0.0]), [1.0, 0.0, 0.0])
+    assert local.n_contacts == 60 and local.expert_sizes() == sizes
+    np.testing.assert_array_equal(local.mean(x), before)
+
+
+def test_auto_is_exact_up_to_the_threshold_then_local() -> None:
+    rng = np.random.default_rng(9)
+    P, N = ellipsoid(260, rng)
+    config = GPISConfig(
+        local_cell_m=0.02, local_blend_m=0.004, local_margin_m=0.006, auto_local_above_contacts=250
+    )  # fmt: skip
+    auto, exact = make_estimator(config), GPIS(config)
+    assert isinstance(auto, AutoGPIS)
+    auto.add_contacts(P[:250], N[:250])
+    exact.add_contacts(P[:250], N[:250])
+    x = near_surface(rng, 200, 0.003)
+    assert not auto.is_local
+    np.testing.assert_array_equal(auto.mean(x), exact.mean(x))  # the same GP, bit for bit
+    np.testing.assert_array_equal(auto.variance(x), exact.variance(x))
+    auto.add_contact(P[250], N[250])
+    assert auto.is_local and auto.n_contacts == 251
+    for p, n in zip(P[251:], N[251:], strict=True):
+        auto.add_contact(p, n)
+    exact.add_contacts(P[250:], N[250:])
+    shift_m = np.abs(auto.mean(x) - exact.mean(x)) / np.linalg.norm(exact.gradient(x), axis=1)
+    assert np.percentile(shift_m, 95) < 5e-5
+
+
+def test_estimator_choice_is_validated() -> None:
+    assert isinstance(make_estimator(GPISConfig(estimator="exact")), GPIS)
+    assert isinstance(make_estimator(GPISConfig(estimator="local")), LocalGPIS)
+    with pytest.raises(ConfigError, match="estimator"):
+        GPISConfig(estimator="sparse")
+    with pytest.raises(ConfigError, match="local_blend_m"):
+        GPISConfig(local_cell_m=0.01, local_blend_m=0.006)
+
+
+def test_full_experts_shrink_their_margin_and_stay_accurate() -> None:
+    """local_max_contacts caps an expert (down to margin 0); the surface stays close to the exact GP's."""
+    rng = np.random.default_rng(10)
+    P, N = ellipsoid(400, rng)
+    config = GPISConfig(local_cell_m=0.02, local_blend_m=0.004, local_margin_m=0.006, local_max_contacts=30)
+    local, exact = LocalGPIS(config), GPIS(config)
+    local.add_contacts(P[:300], N[:300])  # two chunks of at most BATCH contacts
+    for p, n in zip(P[300:], N[300:], strict=True):
+        local.add_contact(p, n)
+    exact.add_contacts(P, N)
+    margins = local._margins
+    assert margins and all(m < 0.006 for m in margins.values())  # some experts shrank
+    for key, expert in local._experts.items():
+        assert expert.n_contacts <= 30 or margins.get(key) == 0.0
+    x = near_surface(np.random.default_rng(11), 1000, 0.003)
+    shift_m = np.abs(local.mean(x) - exact.mean(x)) / np.linalg.norm(exact.gradient(x), axis=1)
+    assert np.percentile(shift_m, 95) < 1e-4, np.percentile(shift_m, 95)
