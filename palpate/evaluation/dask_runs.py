@@ -28,6 +28,7 @@ import contextlib
 import hashlib
 import json
 import logging
+import math
 import os
 import sys
 import time
@@ -105,6 +106,17 @@ def file_digest(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def spell_non_finite(row: Mapping[str, Any]) -> Row:
+    """``row`` with its non-finite float fields as "inf", "-inf" or "nan": JSON has no such numbers
+    (runs.jsonl would hold null, which cannot tell inf from nan); :func:`read_non_finite` undoes it."""
+    return {k: (str(v) if isinstance(v, float) and not math.isfinite(v) else v) for k, v in row.items()}
+
+
+def read_non_finite(row: Mapping[str, Any]) -> Row:
+    """The inverse of :func:`spell_non_finite`."""
+    return {k: (float(v) if isinstance(v, str) and v in ("inf", "-inf", "nan") else v) for k, v in row.items()}
+
+
 def run_key(prefix: str, spec: Any) -> str:
     """A stable run key: ``prefix`` and a digest of the run's full description (JSON-able ``spec``),
     so that a run with other settings never passes for a finished one on --resume."""
@@ -143,10 +155,17 @@ class Outcome:
         """The finished rows in the order of ``tasks`` (failed runs left out)."""
         return [self.rows[t.key] for t in tasks if t.key in self.rows]
 
+    def runs_per_hour_per_worker(self) -> float:
+        """Throughput of this call: runs it finished (not resumed) per hour of wall time per worker,
+        cluster start-up included."""
+        ran = len(self.rows) - self.resumed
+        return 3600.0 * ran / self.wall_s / max(1, self.workers) if self.wall_s > 0 else 0.0
+
     def summary(self) -> str:
         return (
             f"{len(self.rows)} runs done ({self.resumed} from runs.jsonl), {len(self.failed)} failed, "
-            f"{self.retried} retried, {self.workers} Dask worker(s)"
+            f"{self.retried} retried, {self.workers} Dask worker(s), "
+            f"{self.runs_per_hour_per_worker():.0f} runs/hour/worker"
         )
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -91,3 +93,20 @@ def test_parameter_overrides_are_checked() -> None:
     assert next(n for n in launch.nodes if n.fields["name"] == "controller").fields["params"]["controller"] == {
         "v0_m_s": 0.1
     }
+
+
+def test_a_run_key_names_the_run_and_digests_the_mesh_bytes_not_its_path(tmp_path: Path) -> None:
+    from palpate.evaluation.explore import episode_task
+
+    mesh = trimesh.creation.box((0.02, 0.02, 0.02))
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        mesh.export(tmp_path / folder / "cube.stl")
+    cases = [ObjectCase(name="cube", mesh=str(tmp_path / folder / "cube.stl")) for folder in ("a", "b")]
+    here, there = (episodes([case], 1, ["igef"])[0] for case in cases)
+    assert episode_task(here).key == episode_task(there).key
+    assert episode_task(here).key.startswith("explore-cube-igef-0-")
+    assert episode_task(here).files == (tmp_path / "a" / "cube.stl",)
+    # another budget is another run
+    (other,) = episodes([cases[0]], 1, ["igef"], params={"eval.eval.max_contacts": 5})
+    assert episode_task(other).key != episode_task(here).key
