@@ -42,6 +42,8 @@ from palpate.errors import ClusterError, ConfigError
 
 #: Environment variable naming the scheduler of an existing Dask cluster (tcp://HOST:PORT).
 SCHEDULER_ENV = "PALPATE_SCHEDULER"
+#: Longest time between two redraws of the progress bar, seconds.
+REFRESH_S = 2.0
 #: The field of a runs.jsonl line that holds its run key.
 KEY_FIELD = "run_key"
 
@@ -63,7 +65,7 @@ class ClusterConfig:
     #: How long to wait for the first worker of an existing cluster.
     worker_timeout_s: float = 300.0
     #: How often the progress bar asks the scheduler what runs.
-    poll_s: float = 0.5
+    poll_s: float = 1.0
     progress: bool = True
 
     def __post_init__(self) -> None:
@@ -390,6 +392,8 @@ def run_tasks(
                 if status != shown:
                     shown = status
                     bar.set_postfix_str("done {}, running {}, failed {}, retried {}".format(*status))
+                elif time.time() - bar.last_print_t > REFRESH_S:
+                    bar.refresh()  # the elapsed time moves while long runs are in flight
                 if not batch:
                     time.sleep(config.poll_s)
     finally:
