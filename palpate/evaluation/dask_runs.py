@@ -332,8 +332,6 @@ def run_tasks(
     tasks: Sequence[RunTask],
     log: RunLog,
     config: ClusterConfig,
-    *,
-    on_row: Callable[[RunTask, Row], None] | None = None,
 ) -> Outcome:
     """Run every task whose key is not in ``log`` on the cluster of ``config``, writing each finished
     row to ``log`` as it finishes; one progress bar (done, running, failed, retried) over all tasks.
@@ -380,8 +378,8 @@ def run_tasks(
                         row = log.append(task.key, future.result())
                         if row is not None:
                             outcome.rows[task.key] = row
-                            if on_row is not None:
-                                on_row(task, row)
+                    elif future.status == "cancelled":  # the scheduler forgot it (restarted, or lost)
+                        outcome.failed[task.key] = f"{task.label or task.key}: cancelled by the scheduler"
                     else:
                         exc = future.exception()
                         outcome.failed[task.key] = f"{task.label or task.key}: {type(exc).__name__}: {exc}"
