@@ -1,8 +1,8 @@
 """`palpate eval explore` on Dask: a cluster of separate processes that loses a worker midway, and an
 evaluation killed midway and resumed, both give the runs and figures of an uninterrupted local run.
 
-The evaluation is `--quick` on two small meshes written here (a 12 mm ball and a 2 cm cube, 2 objects
-x 1 run x 2 strategies = 4 runs, each reaching 80 % coverage in 17-25 contacts) with a 30-contact
+The evaluation is `--quick` on two small meshes written here (balls of 12 and 9 mm radius, 2 objects
+x 1 run x 2 strategies = 4 runs, each reaching 80 % coverage in 12-20 contacts) with a 30-contact
 budget, so that every command takes seconds.
 """
 
@@ -47,7 +47,7 @@ def objects(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     folder = tmp_path_factory.mktemp("objects")
     trimesh.creation.icosphere(subdivisions=2, radius=0.012).export(folder / "ball.stl")
-    trimesh.creation.box(extents=(0.02, 0.02, 0.02)).export(folder / "cube.stl")
+    trimesh.creation.icosphere(subdivisions=2, radius=0.009).export(folder / "small_ball.stl")
     return folder
 
 
