@@ -25,9 +25,9 @@ import math
 import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,13 +35,22 @@ from numpy.typing import NDArray
 from palpate import jsonio
 from palpate.config import load
 from palpate.errors import ConfigError, MeshError
-from palpate.evaluation.dask_runs import KEY_FIELD, RunLog, report_failures
+from palpate.evaluation.dask_runs import (
+    KEY_FIELD,
+    ClusterConfig,
+    Outcome,
+    RunLog,
+    RunTask,
+    SharedFile,
+    file_digest,
+    local_copy,
+    report_failures,
+    run_key,
+    run_tasks,
+)
 from palpate.evaluation.dask_runs import add_arguments as add_cluster_arguments
 from palpate.evaluation.dask_runs import config_from_args as cluster_config
 from palpate.paths import LAUNCH_DIR
-
-if TYPE_CHECKING:
-    from palpate.evaluation.dask_runs import ClusterConfig, Outcome, RunTask, SharedFile
 
 FloatArray = NDArray[np.float64]
 
@@ -273,10 +282,6 @@ def _time_planning(graph: Any) -> list[float]:
 def episode_task(episode: Episode, prefix: str = "explore") -> RunTask:
     """The Dask task of one episode: its run key names object, strategy and run and digests the whole
     episode (the mesh by its SHA-256, not its path); the mesh file travels with it."""
-    from dataclasses import asdict, replace
-
-    from palpate.evaluation.dask_runs import RunTask, file_digest, run_key
-
     mesh = episode.case.mesh
     spec = asdict(replace(episode, case=replace(episode.case, mesh=file_digest(Path(mesh)) if mesh else "")))
     return RunTask(
@@ -292,10 +297,7 @@ def run_episode_on_worker(episode: Episode, *mesh: SharedFile) -> dict[str, Any]
     """On a Dask worker: run the episode on the worker's copy of its mesh. A run that raises a
     PalpateError (a bad mesh, a diverged simulation) is a row with ``error`` set and coverage 0: it
     would fail the same way on any worker."""
-    from dataclasses import replace
-
     from palpate.errors import PalpateError
-    from palpate.evaluation.dask_runs import local_copy
 
     if mesh:
         episode = replace(episode, case=replace(episode.case, mesh=str(local_copy(mesh[0]))))
@@ -318,8 +320,6 @@ def run_episodes(
 ) -> tuple[list[dict[str, Any] | None], Outcome]:
     """Run the episodes not yet in ``log`` on Dask (big objects first, for the load balance). The rows
     come back in the order of ``items``, None for a run that failed for good (not in ``log``)."""
-    from palpate.evaluation.dask_runs import run_tasks
-
     tasks = [episode_task(ep, prefix) for ep in items]
     order = sorted(range(len(items)), key=lambda i: -_size_key(items[i]))
     outcome = run_tasks([tasks[i] for i in order], log, cluster)
