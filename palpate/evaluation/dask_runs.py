@@ -14,8 +14,8 @@ another worker (up to ``distributed.scheduler.allowed-failures`` times); a run t
 ``retries`` times. Both count as retried; a run is written once, whatever the retries (by key).
 
 Files a run needs (meshes) travel through the cluster, not a shared filesystem: ``RunTask.files`` are
-read here, scattered to the workers once each (content-addressed by SHA-256) and cached on the worker
-under :func:`palpate.paths.cache_dir` (:func:`local_copy`).
+read here, sent once each as a task keyed by their SHA-256 (a worker's lost copy is sent again) and
+cached on the worker under :func:`palpate.paths.cache_dir` (:func:`local_copy`).
 
 Row fields whose names start with ``_`` go back to the caller but not into ``runs.jsonl`` (large,
 non-JSON results such as maps for a plot).
@@ -401,13 +401,18 @@ def run_tasks(
 
 
 def _share_files(client: Any, tasks: Sequence[RunTask]) -> dict[Path, Any]:
-    """Scatter each distinct file of ``tasks`` to every worker once: path -> future of its SharedFile."""
+    """Each distinct file of ``tasks`` as one small task keyed by its SHA-256 that returns its
+    SharedFile: path -> future. Workers fetch the result from each other; unlike scattered data, a
+    task's result lost with its worker is computed again (the bytes are in the task itself)."""
     out = {}
     for path in sorted({p for t in tasks for p in t.files}):
         shared = SharedFile.read(path)
-        key = f"palpate-file-{shared.sha256}"
-        out[path] = client.scatter({key: shared}, broadcast=True)[key]
+        out[path] = client.submit(_same, shared, key=f"palpate-file-{shared.sha256}", pure=False)
     return out
+
+
+def _same(shared: SharedFile) -> SharedFile:
+    return shared
 
 
 def report_failures(outcome: Outcome) -> None:

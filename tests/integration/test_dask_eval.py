@@ -184,15 +184,24 @@ def test_a_cluster_that_loses_a_worker_runs_every_run_once_with_the_local_result
     cluster: tuple[str, list[subprocess.Popen[bytes]], list[Path]],
     tmp_path: Path,
 ) -> None:
+    from distributed import Client
+
     address, workers, caches = cluster
     out = tmp_path / "out"
-    proc = spawn(eval_command(objects, out, "--scheduler", address), tmp_path / "eval.log", tmp_path / "eval-cache")
-    try:
-        wait_for_lines(out / "runs.jsonl", 1, proc)
-        kill_session(workers[0])  # in the middle: three runs to go, some of them on this worker
-        proc.wait(timeout=COMMAND_TIMEOUT_S)
-    finally:
-        kill_session(proc)
+    with Client(address, timeout=30, set_as_default=False) as observer:
+        observer.wait_for_workers(2, timeout=60)
+        proc = spawn(eval_command(objects, out, "--scheduler", address), tmp_path / "eval.log", tmp_path / "eval-cache")
+        try:
+            wait_for_lines(out / "runs.jsonl", 1, proc)
+            # in the middle: three runs to go; kill a worker that holds one of them
+            names = {a: w["name"] for a, w in observer.scheduler_info()["workers"].items()}
+            held = observer.processing()
+            busy = [names[a] for a, keys in held.items() if any(str(k).startswith("explore-") for k in keys)]
+            assert busy, "no run in flight after the first one finished"
+            kill_session(workers[int(str(busy[0]).removeprefix("worker"))])
+            proc.wait(timeout=COMMAND_TIMEOUT_S)
+        finally:
+            kill_session(proc)
     log = (tmp_path / "eval.log").read_text()
     assert proc.returncode == 0, log[-3000:]
     summary = json.loads(log.strip().splitlines()[-1])
