@@ -203,7 +203,8 @@ def test_a_cluster_that_loses_a_worker_runs_every_run_once_with_the_local_result
         finally:
             kill_session(proc)
     log = (tmp_path / "eval.log").read_text()
-    assert proc.returncode == 0, log[-3000:]
+    failures = "\n".join(line for line in log.splitlines() if line.startswith("run failed"))
+    assert proc.returncode == 0, failures + "\n" + log[-2000:]
     summary = json.loads(log.strip().splitlines()[-1])
     expected_summary, expected_out = reference
     assert runs(out) == runs(expected_out)
