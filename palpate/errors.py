@@ -99,6 +99,10 @@ class BenchmarkError(PalpateError):
     """A benchmark could not run to the end (a helper process died, timed out or lost messages)."""
 
 
+class ClusterError(PalpateError):
+    """Runs on Dask cannot go on: the scheduler is unreachable, no worker joined, or runs failed for good."""
+
+
 # --- message logs ---------------------------------------------------------------------------------
 class RecordError(PalpateError):
     """A message log (MCAP) is missing, unreadable, truncated or holds no usable messages."""

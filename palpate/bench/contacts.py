@@ -329,11 +329,13 @@ def run_contact_bench(
     rng: np.random.Generator,
     config: ContactBenchConfig | None = None,
 ) -> list[dict[str, Any]]:
-    """One row per mesh file (see ``object_paths``)."""
+    """One row per mesh file (see ``object_paths``), with a progress bar over the files on stderr."""
+    from tqdm import tqdm
+
     from palpate.nodes.sim.objects import read_mesh_file
 
     rows = []
-    for path in paths:
+    for path in tqdm(paths, unit="object", leave=False, disable=len(paths) < 2):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a non-watertight mesh is benchmarked all the same
             mesh = read_mesh_file(path)

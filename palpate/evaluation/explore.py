@@ -22,13 +22,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import multiprocessing
-import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +35,21 @@ from numpy.typing import NDArray
 from palpate import jsonio
 from palpate.config import load
 from palpate.errors import ConfigError, MeshError
+from palpate.evaluation.dask_runs import (
+    KEY_FIELD,
+    ClusterConfig,
+    Outcome,
+    RunLog,
+    RunTask,
+    SharedFile,
+    file_digest,
+    local_copy,
+    report_failures,
+    run_key,
+    run_tasks,
+)
+from palpate.evaluation.dask_runs import add_arguments as add_cluster_arguments
+from palpate.evaluation.dask_runs import config_from_args as cluster_config
 from palpate.paths import LAUNCH_DIR
 
 FloatArray = NDArray[np.float64]
@@ -267,73 +279,28 @@ def _time_planning(graph: Any) -> list[float]:
     return total
 
 
-@dataclass
-class RunnerOptions:
-    """How to run many episodes: worker processes and a progress callback."""
-
-    workers: int = 2
-    progress: bool = True
-    on_result: Callable[[dict[str, Any]], None] | None = None
-
-
-def run_episodes(items: Sequence[Episode], options: RunnerOptions | None = None) -> list[dict[str, Any]]:
-    """Run episodes in ``options.workers`` processes (1: in this process) with a tqdm progress bar.
-
-    Results come back in the order of ``items``. A run that raises is reported as a row with
-    ``error`` set (and coverage 0), never dropped.
-    """
-    from tqdm import tqdm
-
-    options = options or RunnerOptions()
-    results: list[dict[str, Any] | None] = [None] * len(items)
-    bar = tqdm(total=len(items), unit="run", disable=not options.progress, smoothing=0.0)
-
-    def done(i: int, row: dict[str, Any]) -> None:
-        results[i] = row
-        bar.update(1)
-        bar.set_postfix_str(f"{row['object'][:20]} {row['strategy']} cov {100 * row.get('coverage', 0):.0f}%")
-        if options.on_result is not None:
-            options.on_result(row)
-
-    try:
-        if options.workers <= 1:
-            for i, ep in enumerate(items):
-                done(i, _safe_run(ep))
-        else:
-            # spawned (not forked) workers read the environment at start-up: one BLAS thread each,
-            # since the workers already fill the cores
-            for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-                os.environ.setdefault(var, "1")
-            context = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(max_workers=options.workers, mp_context=context) as pool:
-                futures: dict[Future[dict[str, Any]], int] = {
-                    pool.submit(_safe_run, ep): i for i, ep in enumerate(_longest_first(items))
-                }
-                order = _longest_first_index(items)
-                for fut in as_completed(futures):
-                    i = order[futures[fut]]
-                    done(i, fut.result())
-    finally:
-        bar.close()
-    return [r for r in results if r is not None]
+def episode_task(episode: Episode, prefix: str = "explore") -> RunTask:
+    """The Dask task of one episode: its run key names object, strategy and run and digests the whole
+    episode (the mesh by its SHA-256, not its path); the mesh file travels with it."""
+    mesh = episode.case.mesh
+    spec = asdict(replace(episode, case=replace(episode.case, mesh=file_digest(Path(mesh)) if mesh else "")))
+    return RunTask(
+        key=run_key(f"{prefix}-{episode.case.name}-{episode.strategy}-{episode.run}", spec),
+        function=run_episode_on_worker,
+        args=(episode,),
+        files=(Path(mesh),) if mesh else (),
+        label=f"{episode.case.name} {episode.strategy} run {episode.run}",
+    )
 
 
-def _longest_first_index(items: Sequence[Episode]) -> list[int]:
-    """Indices of ``items`` sorted so that big objects start first (better load balance)."""
-    return sorted(range(len(items)), key=lambda i: -_size_key(items[i]))
-
-
-def _longest_first(items: Sequence[Episode]) -> list[Episode]:
-    return [items[i] for i in _longest_first_index(items)]
-
-
-def _size_key(ep: Episode) -> float:
-    return float(np.linalg.norm(np.subtract(ep.start_m, ep.target_m)))
-
-
-def _safe_run(episode: Episode) -> dict[str, Any]:
+def run_episode_on_worker(episode: Episode, *mesh: SharedFile) -> dict[str, Any]:
+    """On a Dask worker: run the episode on the worker's copy of its mesh. A run that raises a
+    PalpateError (a bad mesh, a diverged simulation) is a row with ``error`` set and coverage 0: it
+    would fail the same way on any worker."""
     from palpate.errors import PalpateError
 
+    if mesh:
+        episode = replace(episode, case=replace(episode.case, mesh=str(local_copy(mesh[0]))))
     try:
         return run_episode(episode)
     except PalpateError as exc:
@@ -346,6 +313,21 @@ def _safe_run(episode: Episode) -> dict[str, Any]:
             "coverage": 0.0,
             "contacts": 0,
         }
+
+
+def run_episodes(
+    items: Sequence[Episode], log: RunLog, cluster: ClusterConfig, prefix: str = "explore"
+) -> tuple[list[dict[str, Any] | None], Outcome]:
+    """Run the episodes not yet in ``log`` on Dask (big objects first, for the load balance). The rows
+    come back in the order of ``items``, None for a run that failed for good (not in ``log``)."""
+    tasks = [episode_task(ep, prefix) for ep in items]
+    order = sorted(range(len(items)), key=lambda i: -_size_key(items[i]))
+    outcome = run_tasks([tasks[i] for i in order], log, cluster)
+    return [outcome.rows.get(t.key) for t in tasks], outcome
+
+
+def _size_key(ep: Episode) -> float:
+    return float(np.linalg.norm(np.subtract(ep.start_m, ep.target_m)))
 
 
 # --- `palpate eval explore` ---------------------------------------------------------------------------
@@ -363,7 +345,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--objects", type=Path, help="folder of mesh files, metres (default: the YCB folder)")
     parser.add_argument("--runs", type=int, default=3, help="start positions per object (seed = run index)")
     parser.add_argument("--strategies", default="igef,gpv", help="comma-separated: igef, gpv, random")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes (1: run in this process)")
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, 1 run each")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object, last line")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (CSV, tables, plots)")
@@ -386,6 +367,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="NODE.KEY=VALUE",
         help="override a node parameter of launch/explore.yaml (YAML value), e.g. controller.controller.v0_m_s=0.1",
     )
+    add_cluster_arguments(parser)
     parser.set_defaults(func=main)
 
 
@@ -441,8 +423,11 @@ def main(args: argparse.Namespace) -> int:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
+    outcome = None
     if args.from_runs is not None:
         results = [json.loads(line) for line in args.from_runs.read_text().splitlines() if line.strip()]
+        for r in results:
+            r.pop(KEY_FIELD, None)
         cases = sorted({r["object"] for r in results})
         runs = 1 + max((int(r["run"]) for r in results), default=0)
         strategies = [s for s in strategies if any(r["strategy"] == s for r in results)]
@@ -450,22 +435,16 @@ def main(args: argparse.Namespace) -> int:
         chosen = select_cases(args.objects, QUICK_OBJECTS if args.quick else None)
         cases = [c.name for c in chosen]
         items = episodes(chosen, runs, strategies, params=eval_params(args))
-        log = (out / "runs.jsonl").open("w")
-
-        def keep(row: dict[str, Any]) -> None:
-            log.write(jsonio.dumps(row) + "\n")
-            log.flush()
-
-        try:
-            results = run_episodes(items, RunnerOptions(workers=args.workers, on_result=keep))
-        finally:
-            log.close()
+        with RunLog(out / "runs.jsonl", resume=args.resume) as log:
+            rows, outcome = run_episodes(items, log, cluster_config(args))
+        results = [r for r in rows if r is not None]
+        report_failures(outcome)
     elapsed = time.perf_counter() - start
     report.write_csv(out / "runs.csv", results)
     baseline, method = ("gpv", "igef") if {"gpv", "igef"} <= set(strategies) else (strategies[0], strategies[-1])
     text = (
         f"# Exploration evaluation\n\n{len(cases)} objects x {runs} runs x {len(strategies)} strategies"
-        + ("" if args.from_runs else f", {elapsed / 60:.1f} min wall with {args.workers} workers")
+        + ("" if outcome is None else f", {elapsed / 60:.1f} min wall; {outcome.summary()}")
         + ".\n\n## Averages (Table 2)\n\n"
         + report.table2(results, baseline, method)
         + "\n\n## Per object (Table 4)\n\n"
@@ -486,4 +465,4 @@ def main(args: argparse.Namespace) -> int:
     print(f"wrote {out}/runs.csv, runs.jsonl, tables.md, coverage_vs_travel.png, travel_per_object.png")
     if args.json:
         print(jsonio.dumps(report.summary_json(results, strategies, baseline, method)))
-    return 1 if errors else 0
+    return 1 if errors or (outcome is not None and outcome.failed) else 0

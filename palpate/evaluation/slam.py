@@ -29,12 +29,9 @@ from __future__ import annotations
 
 import argparse
 import math
-import multiprocessing
-import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
@@ -45,6 +42,17 @@ from numpy.typing import NDArray
 from palpate import jsonio
 from palpate.config import NonEmpty, NonNegativeFloat, PositiveFloat, PositiveInt, Validated
 from palpate.errors import ConfigError
+from palpate.evaluation.dask_runs import (
+    ClusterConfig,
+    Outcome,
+    RunLog,
+    read_non_finite,
+    report_failures,
+    spell_non_finite,
+)
+from palpate.evaluation.dask_runs import add_arguments as add_cluster_arguments
+from palpate.evaluation.dask_runs import config_from_args as cluster_config
+from palpate.evaluation.dask_runs import describe as describe_cluster
 from palpate.paths import LAUNCH_DIR
 from palpate.text_table import Column, fixed_width_table
 
@@ -425,22 +433,50 @@ def plot_maps(path: Path, maps: Mapping[str, Any], truth: BoxTruth, surface_m: F
 
 
 # --- runner ---------------------------------------------------------------------------------------------
-def _worker_init() -> None:
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
+def run_seed_on_worker(seed: int, config: SlamEvalConfig, keep_maps: bool) -> dict[str, Any]:
+    """On a Dask worker: one seed as a runs.jsonl row. Non-finite figures (an empty map's distances
+    are inf) are spelled out (dask_runs.spell_non_finite; aggregate's float() reads them back); the maps of
+    ``keep_maps`` travel back in ``_maps``, ``_truth`` and ``_surface`` (not written)."""
+    result = run_seed(seed, config, keep_maps=keep_maps)
+    row: dict[str, Any] = {
+        "seed": seed,
+        "rows": [spell_non_finite(r) for r in result["rows"]],
+        "timing": spell_non_finite(result["timing"]),
+    }
+    for key in ("maps", "truth", "surface"):
+        if key in result:
+            row["_" + key] = result[key]
+    return row
 
 
-def run_seeds(config: SlamEvalConfig, workers: int = 2, plot_seed: int | None = None) -> list[dict[str, Any]]:
-    """Every seed of ``config`` (in ``workers`` spawned processes; 1: in this process), in seed order.
-    The run of ``plot_seed`` keeps its maps."""
-    seeds = list(config.seeds)
-    if workers <= 1 or len(seeds) == 1:
-        return [run_seed(s, config, keep_maps=s == plot_seed) for s in seeds]
-    _worker_init()  # spawned workers read the environment at start-up
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(workers, len(seeds)), mp_context=context) as pool:
-        futures = [pool.submit(run_seed, s, config, SLAM_LAUNCH, s == plot_seed) for s in seeds]
-        return [f.result() for f in futures]
+def run_seeds(
+    config: SlamEvalConfig, log: RunLog, cluster: ClusterConfig, plot_seed: int | None = None
+) -> tuple[list[dict[str, Any]], Outcome]:
+    """Every seed of ``config`` not yet in ``log`` as a task on Dask; the finished seeds in seed order
+    ({"seed", "rows", "timing"} and, for ``plot_seed`` when it ran now, "_maps", "_truth", "_surface")."""
+    from palpate.evaluation.dask_runs import RunTask, run_key, run_tasks
+
+    spec = {k: v for k, v in asdict(config).items() if k != "seeds"}
+    tasks = [
+        RunTask(
+            key=run_key(f"slam-seed{seed}", {"seed": seed, **spec}),
+            function=run_seed_on_worker,
+            args=(seed, config, seed == plot_seed),
+            label=f"seed {seed}",
+        )
+        for seed in config.seeds
+    ]
+    outcome = run_tasks(tasks, log, cluster)
+    results = []
+    for r in outcome.ordered(tasks):
+        results.append(
+            {
+                **r,
+                "rows": [read_non_finite(row) for row in r["rows"]],
+                "timing": read_non_finite(r["timing"]),
+            }
+        )
+    return results, outcome
 
 
 QUICK_SEEDS = 2
@@ -459,7 +495,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--seeds", type=int, help=f"number of seeds 0..N-1 (default {FULL_SEEDS}, --quick {QUICK_SEEDS})"
     )
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (rows CSV, summary JSON, PNG)")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes (1: run in this process)")
     parser.add_argument("--particles", type=int, default=100, help="FastSLAM particles K")
     parser.add_argument("--resolution-mm", type=float, default=2.0, help="grid resolution, mm")
     parser.add_argument("--sigma-deg", type=float, default=1.5, help="joint noise standard deviation, degrees")
@@ -470,6 +505,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="NAME=VALUE",
         help="launch argument of launch/slam_eval.yaml (YAML value), e.g. free_reward=true or free_margin_m=null",
     )
+    add_cluster_arguments(parser)
     parser.set_defaults(func=main)
 
 
@@ -487,30 +523,38 @@ def main(args: argparse.Namespace) -> int:
         launch_args=parse_cli_args(args.arg, separator="="),
     )
     t0 = time.perf_counter()
+    cluster = cluster_config(args)
     print(
         f"palpate eval slam: {n} seed(s), {config.duration_s:g} s of exploration each, K={config.n_particles}, "
-        f"{args.resolution_mm:g} mm, sigma {config.sigma_deg:g} deg, {args.workers} worker(s)"
+        f"{args.resolution_mm:g} mm, sigma {config.sigma_deg:g} deg, {describe_cluster(cluster)}"
         + "".join(f", {k}={v}" for k, v in config.launch_args.items()),
         file=sys.stderr,
     )
-    results = run_seeds(config, workers=args.workers, plot_seed=config.seeds[0])
+    args.out.mkdir(parents=True, exist_ok=True)
+    with RunLog(args.out / "runs.jsonl", resume=args.resume) as log:
+        results, outcome = run_seeds(config, log, cluster, plot_seed=config.seeds[0])
+    report_failures(outcome)
+    if not results:
+        return 1
     rows = [row for r in results for row in r["rows"]]
     timing = [r["timing"] for r in results]
     summary = aggregate(rows)
     out = summary_json(summary, timing)
     out["total_wall_s"] = round(time.perf_counter() - t0, 1)
-    args.out.mkdir(parents=True, exist_ok=True)
     _write_csv(args.out / "slam_rows.csv", rows)
     png = args.out / "slam_maps.png"
     plotted = results[0]
-    plot_maps(
-        png,
-        plotted["maps"],
-        plotted["truth"],
-        plotted["surface"],
-        f"Rubik's cube after {config.duration_s:g} s of exploration (seed {config.seeds[0]}, K={config.n_particles}, "
-        f"{args.resolution_mm:g} mm cells, sigma {config.sigma_deg:g} deg)",
-    )
+    if "_maps" in plotted:
+        plot_maps(
+            png,
+            plotted["_maps"],
+            plotted["_truth"],
+            plotted["_surface"],
+            f"Rubik's cube after {config.duration_s:g} s of exploration (seed {config.seeds[0]}, "
+            f"K={config.n_particles}, {args.resolution_mm:g} mm cells, sigma {config.sigma_deg:g} deg)",
+        )
+    else:
+        print(f"{png} not redrawn: seed {config.seeds[0]} was resumed from runs.jsonl", file=sys.stderr)
     jsonio.write(args.out / "slam_summary.json", {"summary": summary, "timing": timing, **out}, indent=1)
     print(format_table(summary))
     print()
@@ -520,10 +564,11 @@ def main(args: argparse.Namespace) -> int:
             f"{t['ms_per_update_known']:.2f}, dead reckoning {t['ms_per_update_dead_reckoning']:.2f}, FastSLAM "
             f"{t['ms_per_update_fastslam']:.2f} ({t['resamples_fastslam']} resamples), {t['contacts']} contacts"
         )
+    print(outcome.summary())
     print(f"wrote {args.out / 'slam_rows.csv'}, {args.out / 'slam_summary.json'}, {png} ({out['total_wall_s']:.0f} s)")
     if args.json:
         print(jsonio.dumps(out))
-    return 0
+    return 1 if outcome.failed else 0
 
 
 def _write_csv(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:

@@ -1,9 +1,10 @@
 """`palpate sweep explore`: the speed-accuracy trade of the exploration graph, one knob at a time.
 
 Each setting changes one knob of launch/explore.yaml from its default (the first row, "default") and
-runs the same episodes (objects, start positions, strategies) as the default, in-process in worker
-processes. Reported per setting, over its runs: surface RMSE (the headline, confident estimate ->
-truth, and the whole estimate's symmetric RMSE; see docs/exploration.md) and travel at 80 % coverage
+runs the same episodes (objects, start positions, strategies) as the default, each a task on Dask
+(palpate.evaluation.dask_runs; resumable from runs.jsonl). Reported per setting, over its runs:
+surface RMSE (the headline, confident estimate -> truth, and the whole estimate's symmetric RMSE;
+see docs/exploration.md) and travel at 80 % coverage
 (completed runs), contacts, milliseconds of CPU per planning step (GPIS update + local surface +
 planner, per contact), CPU seconds per run, and how many runs completed.
 """
@@ -22,9 +23,11 @@ import numpy as np
 
 from palpate import jsonio
 from palpate.errors import ConfigError
+from palpate.evaluation.dask_runs import RunLog, report_failures
+from palpate.evaluation.dask_runs import add_arguments as add_cluster_arguments
+from palpate.evaluation.dask_runs import config_from_args as cluster_config
 from palpate.evaluation.explore import (
     Episode,
-    RunnerOptions,
     episodes,
     parse_sets,
     run_episodes,
@@ -74,11 +77,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, IGEF, 1 run")
     parser.add_argument("--runs", type=int, default=1, help="start positions per object")
     parser.add_argument("--strategies", default="igef", help="comma-separated strategies (default igef)")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes")
     parser.add_argument("--only", default="", help="comma-separated setting names or knobs to run (default all)")
     parser.add_argument("--out", type=Path, default=Path("out/sweep_explore"), help="output folder")
     parser.add_argument("--json", action="store_true", help="print the rows as one JSON list, last line")
     parser.add_argument("--set", action="append", default=[], metavar="NODE.KEY=VALUE", help="applies to all")
+    add_cluster_arguments(parser)
     parser.set_defaults(func=main)
 
 
@@ -180,22 +183,21 @@ def main(args: argparse.Namespace) -> int:
     common = {"eval.report": False, **parse_sets(args.set)}
     base = episodes(cases, runs, strategies)
     pairs = sweep_episodes(base, settings, common)
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    results = run_episodes([ep for _, ep in pairs], RunnerOptions(workers=args.workers))
+    with RunLog(out / "runs.jsonl", resume=args.resume) as log:
+        results, outcome = run_episodes([ep for _, ep in pairs], log, cluster_config(args), prefix="sweep-explore")
+    report_failures(outcome)
     elapsed = time.perf_counter() - start
     by_setting: dict[str, list[dict[str, Any]]] = {}
     for (setting, _), row in zip(pairs, results, strict=True):
-        by_setting.setdefault(setting.name, []).append(row)
-    rows = [summarise(s, by_setting[s.name]) for s in settings]
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    with (out / "runs.jsonl").open("w") as f:
-        for (setting, _), row in zip(pairs, results, strict=True):
-            slim = {k: v for k, v in row.items() if k != "touches"}
-            f.write(jsonio.dumps({"setting": setting.name, **slim}) + "\n")
+        if row is not None:
+            by_setting.setdefault(setting.name, []).append(row)
+    rows = [summarise(s, by_setting.get(s.name, [])) for s in settings]
     text = (
         f"# Exploration sweep\n\nObjects: {', '.join(c.name for c in cases)}; strategies {', '.join(strategies)}; "
-        f"{runs} run(s) each; {elapsed / 60:.1f} min wall with {args.workers} workers.\n\n" + table(rows) + "\n"
+        f"{runs} run(s) each; {elapsed / 60:.1f} min wall; {outcome.summary()}.\n\n" + table(rows) + "\n"
     )
     (out / "sweep.md").write_text(text)
     plot(out / "sweep.png", rows)
@@ -203,4 +205,4 @@ def main(args: argparse.Namespace) -> int:
     print(f"wrote {out}/sweep.md, sweep.png, runs.jsonl")
     if args.json:
         print(jsonio.dumps(rows))
-    return 0
+    return 1 if outcome.failed else 0

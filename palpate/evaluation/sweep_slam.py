@@ -8,7 +8,9 @@ stream then feeds mapper cores for every resolution and K (``run_mapper``: wall 
 are scored as in ``palpate eval slam`` (palpate/evaluation/slam.py). The cores model the finger of
 the FastSLAM node's ``mount`` (``fastslam_chain``). Feeding the cores directly keeps the timing to
 the mapper alone; through the graph the same update adds the message codec (about 0.1 ms per
-message).
+message). Each resolution is one task on Dask (palpate.evaluation.dask_runs: a local cluster or
+--scheduler; resumable from runs.jsonl); the stream is recorded here and travels with the tasks.
+Concurrent tasks share the machine, so compare the timing columns of one run only.
 """
 
 from __future__ import annotations
@@ -29,6 +31,16 @@ from numpy.typing import NDArray
 from palpate import jsonio
 from palpate.config import load
 from palpate.errors import ConfigError
+from palpate.evaluation.dask_runs import (
+    RunLog,
+    RunTask,
+    add_arguments,
+    config_from_args,
+    read_non_finite,
+    report_failures,
+    run_key,
+    run_tasks,
+)
 from palpate.evaluation.slam import SLAM_LAUNCH, BoxTruth, Scorer, SlamEvalConfig
 from palpate.text_table import Column, fixed_width_table
 
@@ -331,6 +343,22 @@ def plot(path: Path, rows: Sequence[Mapping[str, Any]], title: str) -> None:
     plt.close(fig)
 
 
+def sweep_resolution_on_worker(
+    stream: SensorStream,
+    Ks: Sequence[int],
+    resolution_mm: float,
+    seed: int,
+    measure_memory: bool,
+    skip: frozenset[tuple[float, int]],
+) -> dict[str, Any]:
+    """On a Dask worker: every method and K at one resolution (the known-pose map comes first: it
+    defines the scored cells), as a runs.jsonl row; non-finite figures spelled out."""
+    from palpate.evaluation.dask_runs import spell_non_finite
+
+    rows = sweep(stream, Ks, [resolution_mm], seed=seed, measure_memory=measure_memory, progress=False, skip=skip)
+    return {"resolution_mm": resolution_mm, "rows": [spell_non_finite(r) for r in rows_as_dicts(rows)]}
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate sweep slam` (registered by palpate.commands.evaluate)."""
     parser.add_argument("--quick", action="store_true", help="5 s of exploration instead of 20 s, no K=300 at 1 mm")
@@ -343,6 +371,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resolutions-mm", default=",".join(f"{r:g}" for r in RESOLUTIONS_MM), help="comma-separated")
     parser.add_argument("--no-memory", action="store_true", help="skip tracemalloc (peak memory column nan)")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (CSV, JSON, PNG)")
+    add_arguments(parser)
     parser.set_defaults(func=main)
 
 
@@ -362,13 +391,28 @@ def main(args: argparse.Namespace) -> int:
     print(f"palpate sweep slam: recording {duration:g} s of exploration (seed {args.seed})", file=sys.stderr)
     stream = record_stream(args.seed, duration, 1.5)
     skip = QUICK_SKIP if args.quick else frozenset()
-    rows = rows_as_dicts(sweep(stream, Ks, resolutions, seed=args.seed, measure_memory=not args.no_memory, skip=skip))
+    memory_too = not args.no_memory
+    spec = {"duration_s": duration, "seed": args.seed, "Ks": Ks, "memory": memory_too}
+    tasks = [
+        RunTask(
+            key=run_key(f"sweep-slam-{r:g}mm", spec),
+            function=sweep_resolution_on_worker,
+            args=(stream, Ks, r, args.seed, memory_too, frozenset(p for p in skip if p[0] == r)),
+            label=f"{r:g} mm",
+        )
+        for r in resolutions
+    ]
     args.out.mkdir(parents=True, exist_ok=True)
+    with RunLog(args.out / "runs.jsonl", resume=args.resume) as log:
+        outcome = run_tasks(tasks, log, config_from_args(args))
+    report_failures(outcome)
+    rows = [read_non_finite(row) for done in outcome.ordered(tasks) for row in done["rows"]]
     png = args.out / "slam_sweep.png"
     plot(png, rows, f"Rubik's cube, {duration:g} s of exploration, sigma 1.5 deg (seed {args.seed})")
     jsonio.write(args.out / "slam_sweep.json", rows, indent=1)
     print(format_table(rows))
+    print(outcome.summary())
     print(f"wrote {args.out / 'slam_sweep.json'} and {png} ({time.perf_counter() - t0:.0f} s)")
     if args.json:
         print(jsonio.dumps({"duration_s": duration, "seed": args.seed, "rows": rows}))
-    return 0
+    return 1 if outcome.failed else 0

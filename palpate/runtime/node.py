@@ -49,6 +49,10 @@ _INTERNAL = (topics.CLOCK, topics.LOCKSTEP_ACK, STOP_TOPIC)
 _LOG_FIRST_ERRORS = 10
 
 log = logging.getLogger("palpate.node")
+#: A clock source logs how far the run has got every this many seconds of wall time (progress of long
+#: graphs); the environment variable PROGRESS_ENV overrides it.
+PROGRESS_PERIOD_S = 30.0
+PROGRESS_ENV = "PALPATE_PROGRESS_S"
 
 
 def hello_topic(node: str) -> str:
@@ -372,6 +376,8 @@ class NodeRunner:
         if self.lockstep:
             self._wait_for_acks(self.process.lockstep_nodes, -1)
         start = time.monotonic()
+        progress_s = float(os.environ.get(PROGRESS_ENV) or PROGRESS_PERIOD_S)
+        next_report = start + progress_s
         tick = 0
         timer = self.timer
         while not self.interrupted:
@@ -407,6 +413,10 @@ class NodeRunner:
             if self.stopping or self.ctx.stop_requested:
                 break
             tick += 1
+            if (now := time.monotonic()) >= next_report:
+                next_report = now + progress_s
+                wall_s, sim_s = now - start, self.ctx.stamp_ns * 1e-9
+                log.info("t = %.1f s after %.0f s of wall time (%.2fx real time)", sim_s, wall_s, sim_s / wall_s)
         reason = self.ctx.stop_requested or self.stop_reason or "clock source finished"
         log.info("run stopped at t = %.3f s: %s", self.ctx.stamp_ns * 1e-9, reason)
         self._send_internal(STOP_TOPIC, RunControl(stamp_ns=self.ctx.stamp_ns, command="stop", reason=reason))

@@ -51,14 +51,30 @@ def test_demo_minimal_runs_and_exits_zero(tmp_path: Path) -> None:
     assert not list((tmp_path / "bus").glob("*.pub"))  # and the ipc socket files
 
 
-def test_a_node_that_stops_the_run_is_named_with_its_reason(tmp_path: Path) -> None:
+def run_until_quitter(tmp_path: Path, after_ticks: int) -> str:
+    """The long lockstep graph with a node that stops the run after ``after_ticks`` ticks: its output."""
     extra = f"""  - name: quitter
     type: {QUITTER}
-    params: {{after_ticks: 5}}"""
+    params: {{after_ticks: {after_ticks}}}"""
     log = tmp_path / "launch.log"
     with launched(write(tmp_path, long_graph("lockstep", extra)), tmp_path / "bus", log) as proc:
         assert proc.wait(timeout=60) == 0, text(log)
-    assert re.search(r"\[cube\] INFO run stopped at t = 0\.0[45]0 s: quitter: done after 5 ticks", text(log)), text(log)
+    return text(log)
+
+
+def test_a_node_that_stops_the_run_is_named_with_its_reason(tmp_path: Path) -> None:
+    out = run_until_quitter(tmp_path, 5)
+    assert re.search(r"\[cube\] INFO run stopped at t = 0\.0[45]0 s: quitter: done after 5 ticks", out), out
+
+
+def test_the_clock_source_reports_progress_while_the_graph_runs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("PALPATE_PROGRESS_S", "0.05")  # every 0.05 s of wall time instead of 30 s
+    out = run_until_quitter(tmp_path, 1000)
+    reports = re.findall(r"\[cube\] INFO t = (\d+\.\d) s after \d+ s of wall time \(\d+\.\d\dx real time\)", out)
+    assert reports, out
+    assert [float(t) for t in reports] == sorted(float(t) for t in reports)
 
 
 @pytest.mark.parametrize(

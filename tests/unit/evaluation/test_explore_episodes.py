@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -104,3 +106,20 @@ def test_a_budget_given_on_the_command_line_is_not_scaled_by_the_object() -> Non
     assert "eval.eval.contacts_per_bound" not in eval_params(
         argparse.Namespace(max_contacts=None, max_travel_m=None, set=[])
     )
+
+
+def test_a_run_key_names_the_run_and_digests_the_mesh_bytes_not_its_path(tmp_path: Path) -> None:
+    from palpate.evaluation.explore import episode_task
+
+    mesh = trimesh.creation.box((0.02, 0.02, 0.02))
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        mesh.export(tmp_path / folder / "cube.stl")
+    cases = [ObjectCase(name="cube", mesh=str(tmp_path / folder / "cube.stl")) for folder in ("a", "b")]
+    here, there = (episodes([case], 1, ["igef"])[0] for case in cases)
+    assert episode_task(here).key == episode_task(there).key
+    assert episode_task(here).key.startswith("explore-cube-igef-0-")
+    assert episode_task(here).files == (tmp_path / "a" / "cube.stl",)
+    # another budget is another run
+    (other,) = episodes([cases[0]], 1, ["igef"], params={"eval.eval.max_contacts": 5})
+    assert episode_task(other).key != episode_task(here).key

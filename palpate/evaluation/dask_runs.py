@@ -1,0 +1,423 @@
+"""Runs of an evaluation or sweep as tasks on Dask distributed, resumable through ``runs.jsonl``.
+
+One way to run: every run is one Dask task with a stable key (the run key), submitted to
+
+- a local cluster, one single-threaded worker process per core (``--workers N`` for N), when no
+  scheduler is named: nothing to set up;
+- an existing cluster, ``--scheduler tcp://HOST:PORT`` or ``$PALPATE_SCHEDULER`` (docs/benchmarks.md
+  shows how to start one on a few machines and on SLURM).
+
+Every finished run is appended to ``runs.jsonl`` as it finishes (one JSON object a line, its key in
+``run_key``; flushed and fsynced), so a killed evaluation loses only the runs in flight; ``--resume``
+reads the file and submits only the runs not in it. A run whose worker dies is rescheduled by Dask on
+another worker (up to ``distributed.scheduler.allowed-failures`` times); a run that raises is retried
+``retries`` times. Both count as retried; a run is written once, whatever the retries (by key).
+
+Files a run needs (meshes) travel through the cluster, not a shared filesystem: ``RunTask.files`` are
+read here, sent once each as a task keyed by their SHA-256 (a worker's lost copy is sent again) and
+cached on the worker under :func:`palpate.paths.cache_dir` (:func:`local_copy`).
+
+Row fields whose names start with ``_`` go back to the caller but not into ``runs.jsonl`` (large,
+non-JSON results such as maps for a plot).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import hashlib
+import json
+import logging
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+from palpate import jsonio
+from palpate.errors import ClusterError, ConfigError
+
+#: Environment variable naming the scheduler of an existing Dask cluster (tcp://HOST:PORT).
+SCHEDULER_ENV = "PALPATE_SCHEDULER"
+#: Longest time between two redraws of the progress bar, seconds.
+REFRESH_S = 2.0
+#: The field of a runs.jsonl line that holds its run key.
+KEY_FIELD = "run_key"
+
+Row = dict[str, Any]
+
+
+@dataclass(frozen=True, kw_only=True)
+class ClusterConfig:
+    """Where and how runs execute."""
+
+    #: Address of an existing scheduler (tcp://HOST:PORT); empty: start a local cluster.
+    scheduler: str = ""
+    #: Worker processes of the local cluster (one thread each); 0: one per core.
+    local_workers: int = 0
+    #: Extra attempts of a run that raises (a worker's death is rescheduled by Dask on its own).
+    retries: int = 2
+    #: How long to wait for the scheduler to answer.
+    connect_timeout_s: float = 20.0
+    #: How long to wait for the first worker of an existing cluster.
+    worker_timeout_s: float = 300.0
+    #: How often the progress bar asks the scheduler what runs.
+    poll_s: float = 1.0
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        if self.local_workers < 0:
+            raise ConfigError(f"--workers must be >= 1 (0: one per core), got {self.local_workers}")
+        if self.retries < 0:
+            raise ConfigError(f"retries must be >= 0, got {self.retries}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SharedFile:
+    """A file's bytes and their SHA-256, as a worker receives it."""
+
+    name: str
+    sha256: str
+    data: bytes
+
+    @classmethod
+    def read(cls, path: Path) -> SharedFile:
+        data = Path(path).read_bytes()
+        return cls(name=Path(path).name, sha256=hashlib.sha256(data).hexdigest(), data=data)
+
+
+def local_copy(shared: SharedFile) -> Path:
+    """The file as a path on this machine: ``cache_dir()/files/<sha256><suffix>``, written once."""
+    from palpate.paths import cache_dir
+
+    folder = cache_dir() / "files"
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / (shared.sha256 + Path(shared.name).suffix.lower())
+    if not path.exists():
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+        tmp.write_bytes(shared.data)
+        os.replace(tmp, path)  # atomic: concurrent workers on one machine write the same bytes
+    return path
+
+
+def file_digest(path: Path) -> str:
+    """SHA-256 of a file's bytes (what names it in run keys and on the workers)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def spell_non_finite(row: Mapping[str, Any]) -> Row:
+    """``row`` with its non-finite float fields as "inf", "-inf" or "nan": JSON has no such numbers
+    (runs.jsonl would hold null, which cannot tell inf from nan); :func:`read_non_finite` undoes it."""
+    return {k: (str(v) if isinstance(v, float) and not math.isfinite(v) else v) for k, v in row.items()}
+
+
+def read_non_finite(row: Mapping[str, Any]) -> Row:
+    """The inverse of :func:`spell_non_finite`."""
+    return {k: (float(v) if isinstance(v, str) and v in ("inf", "-inf", "nan") else v) for k, v in row.items()}
+
+
+def run_key(prefix: str, spec: Any) -> str:
+    """A stable run key: ``prefix`` and a digest of the run's full description (JSON-able ``spec``),
+    so that a run with other settings never passes for a finished one on --resume."""
+    digest = hashlib.sha256(jsonio.dumps(spec, sort_keys=True).encode()).hexdigest()[:12]
+    return f"{prefix}-{digest}"
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunTask:
+    """One run: ``function(*args, *files)`` on a worker, each file given as a :class:`SharedFile`.
+
+    ``function`` must be importable by the workers (a module-level function of palpate) and return a
+    dict whose fields not starting with ``_`` are JSON-able.
+    """
+
+    key: str
+    function: Callable[..., Row]
+    args: tuple[Any, ...] = ()
+    files: tuple[Path, ...] = ()
+    #: Short name in the progress bar.
+    label: str = ""
+
+
+@dataclass
+class Outcome:
+    """What a call of :func:`run_tasks` did."""
+
+    rows: dict[str, Row] = field(default_factory=dict)
+    resumed: int = 0
+    retried: int = 0
+    failed: dict[str, str] = field(default_factory=dict)
+    workers: int = 0
+    wall_s: float = 0.0
+
+    def ordered(self, tasks: Sequence[RunTask]) -> list[Row]:
+        """The finished rows in the order of ``tasks`` (failed runs left out)."""
+        return [self.rows[t.key] for t in tasks if t.key in self.rows]
+
+    def runs_per_hour_per_worker(self) -> float:
+        """Throughput of this call: runs it finished (not resumed) per hour of wall time per worker,
+        cluster start-up included."""
+        ran = len(self.rows) - self.resumed
+        return 3600.0 * ran / self.wall_s / max(1, self.workers) if self.wall_s > 0 else 0.0
+
+    def summary(self) -> str:
+        return (
+            f"{len(self.rows)} runs done ({self.resumed} from runs.jsonl), {len(self.failed)} failed, "
+            f"{self.retried} retried, {self.workers} Dask worker(s), "
+            f"{self.runs_per_hour_per_worker():.0f} runs/hour/worker"
+        )
+
+
+# --- runs.jsonl ------------------------------------------------------------------------------------------
+class RunLog:
+    """``runs.jsonl``: one finished run a line, appended as it finishes, each key at most once.
+
+    ``resume=False`` starts the file afresh; ``resume=True`` keeps its runs (:attr:`rows`) and drops a
+    last line cut off by a kill.
+    """
+
+    def __init__(self, path: Path, *, resume: bool) -> None:
+        self.path = Path(path)
+        self.rows: dict[str, Row] = {}
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if resume and self.path.exists():
+            text = self.path.read_text()
+            complete, _, partial = text.rpartition("\n") if not text.endswith("\n") else (text, "", "")
+            if partial:  # the last write was cut off: keep the complete lines only
+                self.path.write_text(complete + "\n" if complete else "")
+            for number, line in enumerate(complete.splitlines(), 1):
+                if not line.strip():
+                    continue
+                try:
+                    row = json.loads(line)
+                except json.JSONDecodeError as exc:
+                    raise ConfigError(
+                        f"{self.path}:{number} is not JSON ({exc}); remove the line or run without --resume"
+                    ) from exc
+                if KEY_FIELD not in row:
+                    raise ConfigError(f"{self.path}:{number} has no {KEY_FIELD!r}; run without --resume")
+                self.rows[str(row.pop(KEY_FIELD))] = row
+        elif self.path.exists():
+            self.path.unlink()
+        self._file: IO[str] = self.path.open("a")
+
+    def append(self, key: str, row: Mapping[str, Any]) -> Row | None:
+        """Write one finished run (flush + fsync) and return it as --resume will read it back (strict
+        JSON: tuples as lists, non-finite floats as None), plus its ``_`` fields; None, and nothing
+        written, if the key is there already."""
+        if key in self.rows:
+            return None
+        text = jsonio.dumps({KEY_FIELD: key, **{k: v for k, v in row.items() if not k.startswith("_")}})
+        self._file.write(text + "\n")
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        stored: Row = json.loads(text)
+        del stored[KEY_FIELD]
+        stored.update((k, v) for k, v in row.items() if k.startswith("_"))
+        self.rows[key] = stored
+        return stored
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> RunLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --- the cluster -----------------------------------------------------------------------------------------
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """--scheduler, --workers and --resume of every command that runs on Dask."""
+    parser.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        default=None,
+        help=f"Dask scheduler of an existing cluster (default ${SCHEDULER_ENV}; none: a local cluster)",
+    )
+    parser.add_argument(
+        "--workers", type=int, default=0, help="worker processes of the local cluster (default: one per core)"
+    )
+    parser.add_argument("--resume", action="store_true", help="keep the runs already in OUT/runs.jsonl, run the rest")
+
+
+def config_from_args(args: argparse.Namespace, **changes: Any) -> ClusterConfig:
+    """ClusterConfig of --scheduler (else $PALPATE_SCHEDULER) and --workers."""
+    scheduler = args.scheduler if args.scheduler is not None else os.environ.get(SCHEDULER_ENV, "")
+    if scheduler and args.workers:
+        raise ConfigError(f"--workers {args.workers} sizes a local cluster; leave it out with --scheduler {scheduler}")
+    return ClusterConfig(scheduler=scheduler, local_workers=args.workers, **changes)
+
+
+def describe(config: ClusterConfig) -> str:
+    """Where runs go, for the first line of a command's output."""
+    if config.scheduler:
+        return f"Dask scheduler {config.scheduler}"
+    return f"local Dask cluster, {config.local_workers or os.cpu_count() or 1} worker(s)"
+
+
+@contextlib.contextmanager
+def connect(config: ClusterConfig) -> Iterator[Any]:
+    """A dask.distributed Client: to ``config.scheduler``, or to a local cluster started (and stopped) here."""
+    from distributed import Client, LocalCluster
+
+    # Dask's INFO lines (scheduler and workers starting) would interleave with the progress bar
+    logging.getLogger("distributed").setLevel(logging.WARNING if config.scheduler else logging.ERROR)
+    if config.scheduler:
+        try:
+            client = Client(config.scheduler, timeout=config.connect_timeout_s, set_as_default=False)
+        except (OSError, TimeoutError) as exc:
+            raise ClusterError(
+                f"cannot reach the Dask scheduler at {config.scheduler} within {config.connect_timeout_s:g} s "
+                f"({exc}); start one with `dask scheduler` (docs/benchmarks.md) or leave out --scheduler and "
+                f"${SCHEDULER_ENV} to run on a local cluster"
+            ) from exc
+        try:
+            try:
+                client.wait_for_workers(1, timeout=config.worker_timeout_s)
+            except TimeoutError as exc:
+                raise ClusterError(
+                    f"no Dask worker joined the scheduler at {config.scheduler} within {config.worker_timeout_s:g} s;"
+                    f" start some with `dask worker {config.scheduler}`"
+                ) from exc
+            yield client
+        finally:
+            client.close()
+        return
+    # one BLAS thread per worker: the workers already fill the cores (spawned workers read this at start-up)
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    with (
+        LocalCluster(
+            n_workers=config.local_workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=":0",
+            silence_logs=logging.ERROR,
+        ) as cluster,
+        Client(cluster, set_as_default=False) as client,
+    ):
+        yield client
+
+
+def dashboard(client: Any) -> str:
+    """The dashboard's address, or "" when the scheduler serves none (bokeh not installed)."""
+    services = client.scheduler_info().get("services", {})
+    return str(client.dashboard_link) if "dashboard" in services else ""
+
+
+def _scheduler_state(keys: Sequence[str], retries: int, dask_scheduler: Any = None) -> dict[str, Any]:
+    """On the scheduler: how many of ``keys`` are processing, and each key's extra attempts so far
+    (worker deaths while it ran + retries after an exception)."""
+    threads = sum(ws.nthreads for ws in dask_scheduler.workers.values())
+    running, attempts = 0, {}
+    for key in keys:
+        ts = dask_scheduler.tasks.get(key)
+        if ts is None:
+            continue
+        running += ts.state == "processing"
+        extra = int(ts.suspicious) + max(0, retries - int(ts.retries or 0))
+        if extra:
+            attempts[key] = extra
+    # tasks a worker holds include those queued behind the one it executes
+    return {"running": min(running, threads), "attempts": attempts}
+
+
+def run_tasks(
+    tasks: Sequence[RunTask],
+    log: RunLog,
+    config: ClusterConfig,
+) -> Outcome:
+    """Run every task whose key is not in ``log`` on the cluster of ``config``, writing each finished
+    row to ``log`` as it finishes; one progress bar (done, running, failed, retried) over all tasks.
+
+    Tasks must have distinct keys. A task that still fails after its retries (or whose workers keep
+    dying) is reported in ``Outcome.failed`` and left out of ``log``, so that --resume runs it again.
+    """
+    from distributed import as_completed
+    from tqdm import tqdm
+
+    keys = [t.key for t in tasks]
+    if len(set(keys)) != len(keys):
+        raise ConfigError("two runs share a run key; every run needs its own (object, strategy, run, settings)")
+    start = time.perf_counter()
+    outcome = Outcome(rows={t.key: log.rows[t.key] for t in tasks if t.key in log.rows})
+    outcome.resumed = len(outcome.rows)
+    todo = [t for t in tasks if t.key not in log.rows]
+    if not todo:
+        return outcome
+    bar = tqdm(total=len(tasks), initial=outcome.resumed, unit="run", smoothing=0.0, disable=not config.progress)
+    try:
+        with connect(config) as client:
+            outcome.workers = len(client.scheduler_info().get("workers", {}))
+            link = dashboard(client)
+            where = describe(config) + (f"; dashboard {link}" if link else "")
+            print(f"{len(todo)} run(s) on {where}", file=sys.stderr)
+            shared = _share_files(client, todo)
+            pending = {
+                client.submit(
+                    t.function, *t.args, *(shared[p] for p in t.files), key=t.key, retries=config.retries, pure=False
+                ): t
+                for t in todo
+            }
+            attempts: dict[str, int] = {}
+            shown: tuple[int, ...] = ()
+            queue = as_completed(list(pending), loop=client.loop)
+            while not queue.is_empty():
+                batch = queue.next_batch(block=False)
+                state = client.run_on_scheduler(_scheduler_state, [t.key for t in pending.values()], config.retries)
+                attempts.update(state["attempts"])
+                for future in batch:
+                    task = pending.pop(future)
+                    if future.status == "finished":
+                        row = log.append(task.key, future.result())
+                        if row is not None:
+                            outcome.rows[task.key] = row
+                    elif future.status == "cancelled":  # the scheduler forgot it (restarted, or lost)
+                        outcome.failed[task.key] = f"{task.label or task.key}: cancelled by the scheduler"
+                    else:
+                        exc = future.exception()
+                        outcome.failed[task.key] = f"{task.label or task.key}: {type(exc).__name__}: {exc}"
+                    future.release()
+                    bar.update(1)
+                outcome.retried = len(attempts)
+                status = (len(outcome.rows), state["running"], len(outcome.failed), outcome.retried)
+                if status != shown:
+                    shown = status
+                    bar.set_postfix_str("done {}, running {}, failed {}, retried {}".format(*status))
+                elif time.time() - bar.last_print_t > REFRESH_S:
+                    bar.refresh()  # the elapsed time moves while long runs are in flight
+                if not batch:
+                    time.sleep(config.poll_s)
+    finally:
+        bar.close()
+    outcome.wall_s = time.perf_counter() - start
+    return outcome
+
+
+def _share_files(client: Any, tasks: Sequence[RunTask]) -> dict[Path, Any]:
+    """Each distinct file of ``tasks`` as one small task keyed by its SHA-256 that returns its
+    SharedFile: path -> future. Workers fetch the result from each other; unlike scattered data, a
+    task's result lost with its worker is computed again (the bytes are in the task itself)."""
+    out = {}
+    for path in sorted({p for t in tasks for p in t.files}):
+        shared = SharedFile.read(path)
+        out[path] = client.submit(_same, shared, key=f"palpate-file-{shared.sha256}", pure=False)
+    return out
+
+
+def _same(shared: SharedFile) -> SharedFile:
+    return shared
+
+
+def report_failures(outcome: Outcome) -> None:
+    """Print the runs that failed for good (they are not in runs.jsonl: --resume runs them again)."""
+    for message in outcome.failed.values():
+        print(f"run failed: {message}", file=sys.stderr)
+    if outcome.failed:
+        print(f"{len(outcome.failed)} run(s) failed; --resume runs them again", file=sys.stderr)

@@ -1,0 +1,240 @@
+"""`palpate eval explore` on Dask: a cluster of separate processes that loses a worker midway, and an
+evaluation killed midway and resumed, both give the runs and figures of an uninterrupted local run.
+
+The evaluation is `--quick` on two small meshes written here (balls of 12 and 9 mm radius, 2 objects
+x 1 run x 2 strategies = 4 runs, each reaching 80 % coverage in 12-20 contacts) with a 30-contact
+budget, so that every command takes seconds.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from palpate.paths import REPO_ROOT
+from tests.integration.launch_helpers import kill_session
+
+pytestmark = pytest.mark.slow
+
+#: Run fields that measure time, not what the run did.
+TIMING = {"setup_s", "wall_s", "cpu_s", "plan_ms"}
+COMMAND_TIMEOUT_S = 150.0
+
+
+def env(cache: Path) -> dict[str, str]:
+    return dict(
+        os.environ,
+        PALPATE_CACHE_DIR=str(cache),
+        PALPATE_SCHEDULER="",
+        OMP_NUM_THREADS="1",
+        OPENBLAS_NUM_THREADS="1",
+        MKL_NUM_THREADS="1",
+        PYTHONUNBUFFERED="1",
+    )
+
+
+@pytest.fixture(scope="module")
+def objects(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    import trimesh
+
+    folder = tmp_path_factory.mktemp("objects")
+    trimesh.creation.icosphere(subdivisions=2, radius=0.012).export(folder / "ball.stl")
+    trimesh.creation.icosphere(subdivisions=2, radius=0.009).export(folder / "small_ball.stl")
+    return folder
+
+
+def eval_command(objects: Path, out: Path, *extra: str) -> list[str]:
+    return [
+        sys.executable,
+        "-m",
+        "palpate.cli",
+        "eval",
+        "explore",
+        "--quick",
+        "--objects",
+        str(objects),
+        "--max-contacts",
+        "30",
+        "--json",
+        "--out",
+        str(out),
+        *extra,
+    ]
+
+
+def run_eval(objects: Path, out: Path, cache: Path, *extra: str) -> tuple[dict[str, object], str]:
+    """Run the evaluation to the end: its --json summary and its stderr."""
+    done = subprocess.run(
+        eval_command(objects, out, *extra),
+        cwd=REPO_ROOT,
+        env=env(cache),
+        capture_output=True,
+        text=True,
+        timeout=COMMAND_TIMEOUT_S,
+        check=False,
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    return json.loads(done.stdout.strip().splitlines()[-1]), done.stderr
+
+
+def runs(out: Path) -> dict[str, dict[str, object]]:
+    """runs.jsonl by run key, timing fields left out; fails if a key appears twice."""
+    rows = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines() if line.strip()]
+    keys = [r["run_key"] for r in rows]
+    assert len(keys) == len(set(keys)), f"a run was written twice: {keys}"
+    return {r["run_key"]: {k: v for k, v in r.items() if k not in TIMING} for r in rows}
+
+
+def wait_for_lines(path: Path, n: int, proc: subprocess.Popen[bytes], timeout_s: float = COMMAND_TIMEOUT_S) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if path.exists() and len(path.read_text().splitlines()) >= n:
+            return
+        assert proc.poll() is None, f"the evaluation ended (exit {proc.returncode}) before {n} run(s) finished"
+        time.sleep(0.2)
+    raise AssertionError(f"fewer than {n} run(s) in {path} after {timeout_s:g} s")
+
+
+@pytest.fixture(scope="module")
+def reference(objects: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, object], Path]:
+    """The uninterrupted run on the default local cluster."""
+    out = tmp_path_factory.mktemp("reference")
+    summary, _ = run_eval(objects, out, tmp_path_factory.mktemp("cache"))
+    return summary, out
+
+
+def spawn(args: list[str], log: Path, cache: Path) -> subprocess.Popen[bytes]:
+    with log.open("wb") as f:
+        return subprocess.Popen(
+            args, cwd=REPO_ROOT, env=env(cache), stdout=f, stderr=subprocess.STDOUT, start_new_session=True
+        )
+
+
+@pytest.fixture
+def cluster(tmp_path: Path) -> Iterator[tuple[str, list[subprocess.Popen[bytes]], list[Path]]]:
+    """A Dask scheduler and two workers, each its own process (workers without a nanny, so that killing
+    one kills the worker) with its own cache folder: address, worker processes, worker caches."""
+    scheduler_file = tmp_path / "scheduler.json"
+    procs = [
+        spawn(
+            [
+                sys.executable,
+                "-m",
+                "distributed.cli.dask_scheduler",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                "0",
+                "--no-dashboard",
+                "--scheduler-file",
+                str(scheduler_file),
+            ],
+            tmp_path / "scheduler.log",
+            tmp_path / "scheduler-cache",
+        )
+    ]
+    workers, caches = [], []
+    try:
+        deadline = time.monotonic() + 60
+        while not scheduler_file.exists() or not scheduler_file.read_text().strip():
+            assert procs[0].poll() is None, (tmp_path / "scheduler.log").read_text()
+            assert time.monotonic() < deadline, "the scheduler wrote no scheduler file in 60 s"
+            time.sleep(0.1)
+        address = json.loads(scheduler_file.read_text())["address"]
+        for i in range(2):
+            caches.append(tmp_path / f"worker{i}-cache")
+            workers.append(
+                spawn(
+                    [
+                        sys.executable,
+                        "-m",
+                        "distributed.cli.dask_worker",
+                        address,
+                        "--nthreads",
+                        "1",
+                        "--no-nanny",
+                        "--host",
+                        "127.0.0.1",
+                        "--no-dashboard",
+                        "--name",
+                        f"worker{i}",
+                    ],
+                    tmp_path / f"worker{i}.log",
+                    caches[-1],
+                )
+            )
+        procs += workers
+        yield address, workers, caches
+    finally:
+        for proc in reversed(procs):
+            kill_session(proc)
+
+
+def test_a_cluster_that_loses_a_worker_runs_every_run_once_with_the_local_results(
+    objects: Path,
+    reference: tuple[dict[str, object], Path],
+    cluster: tuple[str, list[subprocess.Popen[bytes]], list[Path]],
+    tmp_path: Path,
+) -> None:
+    from distributed import Client
+
+    address, workers, caches = cluster
+    out = tmp_path / "out"
+    with Client(address, timeout=30, set_as_default=False) as observer:
+        observer.wait_for_workers(2, timeout=60)
+        proc = spawn(eval_command(objects, out, "--scheduler", address), tmp_path / "eval.log", tmp_path / "eval-cache")
+        try:
+            wait_for_lines(out / "runs.jsonl", 1, proc)
+            # in the middle: three runs to go; kill a worker that holds one of them
+            names = {a: w["name"] for a, w in observer.scheduler_info()["workers"].items()}
+            held = observer.processing()
+            busy = [names[a] for a, keys in held.items() if any(str(k).startswith("explore-") for k in keys)]
+            assert busy, "no run in flight after the first one finished"
+            kill_session(workers[int(str(busy[0]).removeprefix("worker"))])
+            proc.wait(timeout=COMMAND_TIMEOUT_S)
+        finally:
+            kill_session(proc)
+    log = (tmp_path / "eval.log").read_text()
+    failures = "\n".join(line for line in log.splitlines() if line.startswith("run failed"))
+    assert proc.returncode == 0, failures + "\n" + log[-2000:]
+    summary = json.loads(log.strip().splitlines()[-1])
+    expected_summary, expected_out = reference
+    assert runs(out) == runs(expected_out)
+    assert summary == expected_summary
+    assert summary["igef"]["runs_completed"] == summary["gpv"]["runs_completed"] == 2  # type: ignore[index]
+    counts = re.search(r"(\d+) failed, (\d+) retried", log)
+    assert counts, log[-3000:]
+    assert int(counts[1]) == 0
+    assert int(counts[2]) >= 1, "the runs of the killed worker were not counted as retried"
+    # no shared filesystem: each worker ran from its own copy of the meshes, named by content
+    assert any(list((cache / "files").glob("*.stl")) for cache in caches)
+
+
+def test_a_killed_evaluation_resumes_to_the_tables_of_an_uninterrupted_run(
+    objects: Path, reference: tuple[dict[str, object], Path], tmp_path: Path
+) -> None:
+    out = tmp_path / "out"
+    cache = tmp_path / "cache"
+    proc = spawn(eval_command(objects, out, "--workers", "1"), tmp_path / "killed.log", cache)
+    try:
+        wait_for_lines(out / "runs.jsonl", 1, proc)
+    finally:
+        kill_session(proc)  # the whole session: the command and its local cluster
+    finished = runs(out)
+    assert 1 <= len(finished) < 4, "the kill came too late to test a resume"
+    summary, stderr = run_eval(objects, out, cache, "--resume")
+    expected_summary, expected_out = reference
+    assert f"({len(finished)} from runs.jsonl)" in (out / "tables.md").read_text()
+    assert f"{4 - len(finished)} run(s) on local Dask cluster" in stderr
+    assert runs(out) == runs(expected_out)
+    assert summary == expected_summary
+    tables = (out / "tables.md").read_text().split("## Averages", 1)[1]
+    assert tables == (expected_out / "tables.md").read_text().split("## Averages", 1)[1]

@@ -1,0 +1,119 @@
+"""palpate.evaluation.dask_runs: runs.jsonl (append once, resume, a cut-off last line), the cluster
+options, the error for an unreachable scheduler, and run_tasks on a one-worker local cluster."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import socket
+from pathlib import Path
+
+import pytest
+
+from palpate.errors import ClusterError, ConfigError
+from palpate.evaluation import dask_runs
+from palpate.evaluation.dask_runs import ClusterConfig, RunLog, RunTask, SharedFile, local_copy, run_key
+
+
+def lines(path: Path) -> list[dict[str, object]]:
+    return [json.loads(line) for line in path.read_text().splitlines()]
+
+
+def test_a_run_is_written_once_as_strict_json_without_its_private_fields(tmp_path: Path) -> None:
+    with RunLog(tmp_path / "runs.jsonl", resume=False) as log:
+        stored = log.append("a", {"x": (1, 2), "y": math.nan, "_maps": object()})
+        assert stored is not None
+        assert stored["x"] == [1, 2] and stored["y"] is None and "_maps" in stored
+        assert log.append("a", {"x": 3}) is None
+    assert lines(tmp_path / "runs.jsonl") == [{"run_key": "a", "x": [1, 2], "y": None}]
+
+
+def test_resume_keeps_the_finished_runs_and_drops_a_cut_off_last_line(tmp_path: Path) -> None:
+    path = tmp_path / "runs.jsonl"
+    path.write_text('{"run_key": "a", "x": 1}\n{"run_key": "b", "x": 2}\n{"run_key": "c", "x"')
+    with RunLog(path, resume=True) as log:
+        assert log.rows == {"a": {"x": 1}, "b": {"x": 2}}
+        log.append("c", {"x": 3})
+    assert [r["run_key"] for r in lines(path)] == ["a", "b", "c"]
+    with RunLog(path, resume=False) as log:
+        assert log.rows == {}
+    assert path.read_text() == ""
+
+
+def test_resume_refuses_a_broken_line_in_the_middle(tmp_path: Path) -> None:
+    path = tmp_path / "runs.jsonl"
+    path.write_text('{"run_key": "a"}\nnot json\n{"run_key": "b"}\n')
+    with pytest.raises(ConfigError, match=r"runs.jsonl:2"):
+        RunLog(path, resume=True)
+
+
+def test_run_keys_name_the_run_and_change_with_its_settings() -> None:
+    assert run_key("explore-ball-igef-0", {"v": 1}) == run_key("explore-ball-igef-0", {"v": 1})
+    assert run_key("explore-ball-igef-0", {"v": 1}) != run_key("explore-ball-igef-0", {"v": 2})
+    assert run_key("explore-ball-igef-0", {"v": 1}).startswith("explore-ball-igef-0-")
+
+
+def test_a_shared_file_lands_in_the_cache_under_its_digest(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    source = tmp_path / "mesh.STL"
+    source.write_bytes(b"solid x")
+    monkeypatch.setenv("PALPATE_CACHE_DIR", str(tmp_path / "cache"))
+    shared = SharedFile.read(source)
+    copy = local_copy(shared)
+    assert copy.name == shared.sha256 + ".stl"
+    assert copy.read_bytes() == b"solid x"
+    assert local_copy(shared) == copy
+
+
+def parse(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    dask_runs.add_arguments(parser)
+    return parser.parse_args(argv)
+
+
+def test_the_scheduler_comes_from_the_option_else_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(dask_runs.SCHEDULER_ENV, "tcp://10.0.0.1:8786")
+    assert dask_runs.config_from_args(parse()).scheduler == "tcp://10.0.0.1:8786"
+    assert dask_runs.config_from_args(parse("--scheduler", "tcp://h:1")).scheduler == "tcp://h:1"
+    monkeypatch.delenv(dask_runs.SCHEDULER_ENV)
+    config = dask_runs.config_from_args(parse("--workers", "3"))
+    assert (config.scheduler, config.local_workers) == ("", 3)
+    with pytest.raises(ConfigError, match="--workers 3"):
+        dask_runs.config_from_args(parse("--workers", "3", "--scheduler", "tcp://h:1"))
+
+
+def test_an_unreachable_scheduler_is_named_in_the_error() -> None:
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    address = f"tcp://127.0.0.1:{port}"
+    with (
+        pytest.raises(ClusterError, match=f"cannot reach the Dask scheduler at {address}"),
+        dask_runs.connect(ClusterConfig(scheduler=address, connect_timeout_s=1.0)),
+    ):
+        pass
+
+
+@pytest.mark.slow
+def test_run_tasks_skips_finished_runs_retries_and_reports_failures(tmp_path: Path) -> None:
+    path = tmp_path / "runs.jsonl"
+    path.write_text('{"run_key": "done", "x": 0}\n')
+    tasks = [
+        RunTask(key="done", function=dict, args=(5,)),  # would raise: must not run again
+        RunTask(key="one", function=dict, args=([("x", 1)],)),
+        RunTask(key="two", function=dict, args=([("x", 2)],)),
+        RunTask(key="bad", function=dict, args=(7,), label="bad run"),  # TypeError every time
+    ]
+    config = ClusterConfig(local_workers=1, retries=1, progress=False, poll_s=0.05)
+    with RunLog(path, resume=True) as log:
+        outcome = dask_runs.run_tasks(tasks, log, config)
+    assert outcome.ordered(tasks) == [{"x": 0}, {"x": 1}, {"x": 2}]
+    assert outcome.resumed == 1
+    assert list(outcome.failed) == ["bad"] and "bad run: TypeError" in outcome.failed["bad"]
+    assert outcome.retried == 1
+    assert sorted(r["run_key"] for r in lines(path)) == ["done", "one", "two"]
+
+
+def test_two_runs_with_one_key_are_refused(tmp_path: Path) -> None:
+    with RunLog(tmp_path / "runs.jsonl", resume=False) as log, pytest.raises(ConfigError, match="run key"):
+        dask_runs.run_tasks([RunTask(key="a", function=dict), RunTask(key="a", function=dict)], log, ClusterConfig())
