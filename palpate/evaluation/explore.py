@@ -344,7 +344,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate eval explore` (registered by palpate.commands.evaluate)."""
     parser.add_argument("--objects", type=Path, help="folder of mesh files, metres (default: the YCB folder)")
     parser.add_argument("--runs", type=int, default=3, help="start positions per object (seed = run index)")
-    parser.add_argument("--strategies", default="igef,gpv", help="comma-separated: igef, gpv, random")
+    parser.add_argument("--strategies", default="igef,gpv", help="comma-separated: igef, gpv, random, area")
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, 1 run each")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object, last line")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (CSV, tables, plots)")
@@ -415,6 +415,7 @@ def select_cases(folder: Path | None, smallest: int | None = None) -> list[Objec
 def main(args: argparse.Namespace) -> int:
     """`palpate eval explore`: run, write CSV/JSONL/tables/plots into --out, print the tables."""
     from palpate.evaluation import explore_report as report
+    from palpate.evaluation import shape_report
 
     strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
     runs = 1 if args.quick else args.runs
@@ -442,6 +443,7 @@ def main(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - start
     report.write_csv(out / "runs.csv", results)
     baseline, method = ("gpv", "igef") if {"gpv", "igef"} <= set(strategies) else (strategies[0], strategies[-1])
+    shape = shape_report.shape_summary(results, strategies)
     text = (
         f"# Exploration evaluation\n\n{len(cases)} objects x {runs} runs x {len(strategies)} strategies"
         + ("" if outcome is None else f", {elapsed / 60:.1f} min wall; {outcome.summary()}")
@@ -449,6 +451,8 @@ def main(args: argparse.Namespace) -> int:
         + report.table2(results, baseline, method)
         + "\n\n## Per object (Table 4)\n\n"
         + report.table4(results, baseline, method)
+        + "\n\n## Whole shape (F-score and Chamfer distance of the whole estimate)\n\n"
+        + shape_report.shape_table(shape)
         + "\n"
     )
     (out / "tables.md").write_text(text)
@@ -458,11 +462,18 @@ def main(args: argparse.Namespace) -> int:
             out / "coverage_vs_travel.png", results, PLOT_OBJECT if PLOT_OBJECT in names else names[0]
         )
         report.plot_travel_per_object(out / "travel_per_object.png", results, baseline, method)
+        shape_report.plot_fscore_vs_travel(
+            out / "fscore_vs_travel.png", results, PLOT_OBJECT if PLOT_OBJECT in names else names[0]
+        )
     errors = [r for r in results if "error" in r]
     print(text)
     for r in errors:
         print(f"run failed: {r['object']} {r['strategy']} run {r['run']}: {r['error']}", file=sys.stderr)
-    print(f"wrote {out}/runs.csv, runs.jsonl, tables.md, coverage_vs_travel.png, travel_per_object.png")
+    plots = "coverage_vs_travel.png, travel_per_object.png, fscore_vs_travel.png"
+    print(f"wrote {out}: runs.csv, runs.jsonl, tables.md, {plots}")
     if args.json:
-        print(jsonio.dumps(report.summary_json(results, strategies, baseline, method)))
+        summary = report.summary_json(results, strategies, baseline, method)
+        for s in strategies:
+            summary[s].update({k: round(v, 4) if isinstance(v, float) else v for k, v in shape[s].items()})
+        print(jsonio.dumps(summary))
     return 1 if errors or (outcome is not None and outcome.failed) else 0
