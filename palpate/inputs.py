@@ -55,7 +55,7 @@ def coordinates(
     a = np.asarray(values, dtype=np.float64)
     if 0 < a.size <= _FEW_VALUES:
         few = a.ravel().tolist()
-        if math.isfinite(sum(few)) and max(abs(v) for v in few) <= limit_m:  # no NaN, none beyond the limit
+        if math.isfinite(sum(few)) and max(map(abs, few)) <= limit_m:  # no NaN, none beyond the limit
             return a
     check = a[~np.isnan(a)] if allow_nan else a
     if check.size and not float(np.max(np.abs(check))) <= limit_m:
@@ -209,7 +209,7 @@ def _few_norms(values: list[float], shape: tuple[int, ...]) -> FloatArray:
     out = []
     for start in range(0, len(values), k):
         row = values[start : start + k]
-        scale = max(abs(v) for v in row)
+        scale = max(map(abs, row))
         safe = scale if scale > 0 else 1.0
         total = 0.0
         for v in row:
