@@ -623,4 +623,7 @@ def validate(message: Message) -> None:
 def _shape_fits(f: _FieldPlan, shape: tuple[int, ...]) -> bool:
     if len(shape) != f.ndim:
         return False
-    return all(shape[axis] == want for axis, want in f.fixed)
+    for axis, want in f.fixed:  # noqa: SIM110 (a loop, not all(generator): runs for every array of every message)
+        if shape[axis] != want:
+            return False
+    return True

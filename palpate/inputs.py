@@ -18,6 +18,7 @@ tabletop robot, not workspaces: a node with a real workspace (the mapper's grid)
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Sequence
 
@@ -52,6 +53,10 @@ def coordinates(
     contact before the first target); infinity never does.
     """
     a = np.asarray(values, dtype=np.float64)
+    if 0 < a.size <= _FEW_VALUES:
+        few = a.ravel().tolist()
+        if math.isfinite(sum(few)) and max(map(abs, few)) <= limit_m:  # no NaN, none beyond the limit
+            return a
     check = a[~np.isnan(a)] if allow_nan else a
     if check.size and not float(np.max(np.abs(check))) <= limit_m:
         raise InputError(field, f"coordinate {_largest(check):.6g} m lies beyond {limit_m:g} m of the origin")
@@ -194,10 +199,36 @@ def _squares(rows: FloatArray) -> FloatArray:
 
 def _norms(a: FloatArray) -> FloatArray:
     """Euclidean norms along the last axis, scaled so that 1e200 or 1e-200 components do not over/underflow."""
+    if 0 < a.size <= _FEW_VALUES and a.ndim in (1, 2):
+        values = a.ravel().tolist()
+        if math.isfinite(sum(values)):  # finite: the scalar twin below gives numpy's bits
+            return _few_norms(values, a.shape)
     scale = np.max(np.abs(a), axis=-1)
     safe = np.where(scale > 0, scale, 1.0)
     with np.errstate(over="ignore"):  # a norm beyond the largest double is infinite, and refused
         return np.asarray(scale * np.linalg.norm(a / safe[..., None], axis=-1), dtype=np.float64)
+
+
+#: Arrays of at most this many finite values take the scalar path of `_norms` and `coordinates`
+#: (one pose, quaternion or contact: numpy's call overhead is most of their cost).
+_FEW_VALUES = 16
+
+
+def _few_norms(values: list[float], shape: tuple[int, ...]) -> FloatArray:
+    """`_norms` of finite values (the flattened array of `shape`) in Python: the same maths in the same
+    order (numpy sums a row of a few squares left to right), so the same bits."""
+    k = shape[-1]
+    out = []
+    for start in range(0, len(values), k):
+        row = values[start : start + k]
+        scale = max(map(abs, row))
+        safe = scale if scale > 0 else 1.0
+        total = 0.0
+        for v in row:
+            x = v / safe
+            total += x * x
+        out.append(scale * math.sqrt(total))
+    return np.array(out, dtype=np.float64).reshape(shape[:-1])
 
 
 def _largest(a: FloatArray) -> float:

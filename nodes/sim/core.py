@@ -33,12 +33,21 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
 
 from palpate.errors import ConfigError, SimulationDivergedError
-from palpate.geometry.mesh_query import FEW_POINTS, ClosestPoints, ExactContactSensor, WarmClosest
+from palpate.geometry.mesh_query import (
+    FEW_POINTS,
+    WEAK_PSEUDO_NORMAL,
+    WEAK_SIGN_COS,
+    ClosestPoints,
+    ExactContactSensor,
+    WarmClosest,
+)
+from palpate.nodes.sim import probe_kernels
 from palpate.nodes.sim.effectors import FingerConfig, HandConfig
 from palpate.nodes.sim.objects import ObjectModel, load_object
 from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model, uses_exact_contacts
@@ -167,12 +176,15 @@ class Simulation:
             self._cmd_ang = np.zeros(3)
             self.joint_names: list[str] = []
             self._ranges = np.zeros((0, 2))
-            self._probe_cache_p = np.zeros(3)
-            self._probe_cache_d = -np.inf  # no query yet: the bound never skips
-            self._probe_cache_hit: tuple[np.ndarray, float, np.ndarray] | None = None
+            # the last query (centre, signed distance) and its hit (point, distance, normal), in one
+            # vector that the compiled steps read and write (probe_kernels.CACHE_P, ...)
+            self._probe_cache = np.zeros(probe_kernels.CACHE_SIZE)
+            self._probe_cache[probe_kernels.CACHE_D] = -np.inf  # no query yet: the bound never skips
             self._R = np.zeros(9)  # rotation matrix of the probe, row-major (mju_quat2Mat's buffer)
             assert self._sensor is not None
             self._warm: WarmClosest | None = WarmClosest(self._sensor)
+            #: Run the probe's steps in compiled code (probe_kernels) when MuJoCo's library is found.
+            self.compiled_steps = probe_kernels.mujoco_functions() is not None
         else:
             cfg = scene.effector_config()
             assert isinstance(cfg, HandConfig | FingerConfig)
@@ -222,7 +234,7 @@ class Simulation:
         q = np.asarray(q_rad, dtype=np.float64)
         if q.shape != (len(self.joint_names),):
             raise ValueError(f"joint targets have shape {q.shape}; expected ({len(self.joint_names)},)")
-        if not np.all(np.isfinite(q)):
+        if not np.isfinite(q).all():
             raise ValueError(f"joint targets must be finite, got {q!r}")
         clipped = np.clip(q, self._ranges[:, 0], self._ranges[:, 1])
         self.data.ctrl[self._actuator_of_joint] = clipped
@@ -238,7 +250,7 @@ class Simulation:
         w = np.asarray(angular_rad_s, dtype=np.float64)
         if v.shape != (3,) or w.shape != (3,):
             raise ValueError(f"velocities have shapes {v.shape} and {w.shape}; expected (3,) and (3,)")
-        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
+        if not (np.isfinite(v).all() and np.isfinite(w).all()):
             raise ValueError(f"velocities must be finite, got linear {v!r}, angular {w!r}")
         self._cmd_lin = v.copy()
         self._cmd_ang = w.copy()
@@ -260,7 +272,7 @@ class Simulation:
                 self._apply_penalty_forces()
                 mujoco.mj_step2(m, d)  # forces, acceleration, integration
                 self._steps += 1
-                if not np.all(np.isfinite(d.qpos)):
+                if not np.isfinite(d.qpos).all():
                     self._check_diverged(t0, force=True)
         else:
             mujoco.mj_step(m, d, nstep=n)
@@ -277,7 +289,7 @@ class Simulation:
             if count > self._warnings_seen[warning]:
                 problems.append(what)
                 self._warnings_seen[warning] = count
-        if force or not (np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))):
+        if force or not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):
             problems.append("non-finite state")
         if problems:
             dt = self._dt
@@ -296,44 +308,101 @@ class Simulation:
     # --- probe -------------------------------------------------------------------------------------
     def _probe_advance(self, n: int) -> None:
         """``n`` probe steps. Stretches that surely stay clear of the object (by the 1-Lipschitz bound
-        on the signed distance) run as one ``mj_step`` call; the others are checked step by step."""
-        m, d = self.model, self.data
-        qpos, qvel = d.qpos, d.qvel
+        on the signed distance) run as one ``mj_step`` call; the others are checked step by step.
+        With ``compiled_steps`` the loop runs in ``probe_kernels.probe_steps`` (the same bits), and
+        only the steps that need Python (a new patch of the warm query, a tie, a weak sign) come here."""
+        d = self.data
+        qvel = d.qvel
+        cache = self._probe_cache
         speed_per_step = float(np.linalg.norm(self._cmd_lin)) * self._dt
         turning = bool(self._cmd_ang.any())
-        R = self._R.reshape(3, 3)
         remaining = n
         projected = False
         while remaining > 0:
-            qvel[0:3] = self._cmd_lin  # free joint: linear velocity in the world frame
-            if turning:
-                # angular velocity in the body frame; constant during a batch since the probe's inertia
-                # is isotropic (a sphere) and it rotates about a fixed axis
-                mujoco.mju_quat2Mat(self._R, qpos[3:7])
-                qvel[3:6] = R.T @ self._cmd_ang
-            else:
-                qvel[3:6] = 0.0
-            offset = qpos[0:3] - self._probe_cache_p
-            margin = self._probe_cache_d - math.sqrt(offset.dot(offset)) - self._probe_radius - self._tol
-            free = 0
-            if math.isfinite(margin) and margin > 0:
-                free = remaining if speed_per_step == 0 else min(remaining, int(margin / speed_per_step))
-            if free > 0:
-                mujoco.mj_step(m, d, nstep=free)
-                self._steps += free
-                remaining -= free
-                projected = False
+            if self.compiled_steps:
+                taken, status, projected = self._probe_compiled(remaining, turning, speed_per_step)
+                remaining -= taken
+                if status == probe_kernels.DONE:
+                    break
+                # the last step's mj_step ran; its projection needs Python
+                projected = math.isfinite(sum(d.qpos.tolist())) and self._probe_project()
                 continue
-            mujoco.mj_step(m, d)
-            self._steps += 1
-            remaining -= 1
-            projected = math.isfinite(sum(qpos.tolist())) and self._probe_project()
-        if projected and self._probe_cache_hit is not None:
+            remaining, projected = self._probe_python_step(remaining, turning, speed_per_step)
+        if projected and cache[probe_kernels.HAS_HIT] == 1.0:
             # drop the inward velocity of the last projection (every step above sets the command anew)
-            normal = self._probe_cache_hit[2]
+            normal = cache[probe_kernels.HIT_NORMAL : probe_kernels.HIT_NORMAL + 3]
             inward = float(qvel[0:3] @ normal)
             if inward < 0.0:
                 qvel[0:3] -= inward * normal
+
+    def _probe_python_step(self, remaining: int, turning: bool, speed_per_step: float) -> tuple[int, bool]:
+        """One pass of the Python loop: a batch of free steps or one checked step; returns the steps
+        still to go and whether this pass projected the probe."""
+        m, d = self.model, self.data
+        qpos, qvel = d.qpos, d.qvel
+        cache = self._probe_cache
+        qvel[0:3] = self._cmd_lin  # free joint: linear velocity in the world frame
+        if turning:
+            # angular velocity in the body frame; constant during a batch since the probe's inertia
+            # is isotropic (a sphere) and it rotates about a fixed axis
+            mujoco.mju_quat2Mat(self._R, qpos[3:7])
+            qvel[3:6] = self._R.reshape(3, 3).T @ self._cmd_ang
+        else:
+            qvel[3:6] = 0.0
+        offset = qpos[0:3] - cache[0:3]
+        margin = float(cache[probe_kernels.CACHE_D]) - math.sqrt(offset.dot(offset)) - self._probe_radius - self._tol
+        free = 0
+        if math.isfinite(margin) and margin > 0:
+            free = remaining if speed_per_step == 0 else min(remaining, int(margin / speed_per_step))
+        if free > 0:
+            mujoco.mj_step(m, d, nstep=free)
+            self._steps += free
+            return remaining - free, False
+        mujoco.mj_step(m, d)
+        self._steps += 1
+        return remaining - 1, math.isfinite(sum(qpos.tolist())) and self._probe_project()
+
+    def _probe_compiled(self, steps: int, turning: bool, speed_per_step: float) -> tuple[int, int, bool]:
+        """Up to ``steps`` steps in ``probe_kernels.probe_steps``: (steps taken, status, projected)."""
+        functions = probe_kernels.mujoco_functions()
+        assert functions is not None and self._warm is not None
+        taken, status, projected, face, searches = probe_kernels.probe_steps(
+            functions[0],
+            functions[1],
+            self.model._address,
+            self.data._address,
+            steps,
+            self.data.qpos,
+            self.data.qvel,
+            self._cmd_lin,
+            self._cmd_ang,
+            turning,
+            speed_per_step,
+            self._R,
+            *self._probe_kernel_arguments(),
+        )
+        self._steps += taken
+        self._warm.resume(face, searches)
+        return taken, status, projected
+
+    def _probe_kernel_arguments(self) -> tuple[Any, ...]:
+        """The arguments that ``probe_kernels.probe_steps`` and ``probe_closest`` share: the cache, the
+        probe, the mesh and the warm query's patch."""
+        warm, sensor = self._warm, self._sensor
+        assert warm is not None and sensor is not None
+        return (
+            self._probe_cache,
+            self._probe_radius,
+            self._tol,
+            sensor._centre,
+            sensor._triangles,
+            sensor._sign_normals,
+            sensor.face_normals,
+            warm.reach_m,
+            *warm.patch(),
+            WEAK_PSEUDO_NORMAL,
+            WEAK_SIGN_COS,
+        )
 
     def _probe_project(self) -> bool:
         """Push the probe out of the surface along the contact normal; True when it was pushed (the
@@ -353,12 +422,19 @@ class Simulation:
     def _probe_closest(self) -> tuple[np.ndarray, float, np.ndarray] | None:
         """Closest surface point, signed centre distance and contact normal; None if surely apart."""
         assert self._warm is not None and self._sensor is not None
+        k = probe_kernels
+        cache = self._probe_cache
+        if self.compiled_steps:  # the same answer in compiled code, unless it needs Python
+            status, face, searched = k.probe_closest(self.data.qpos, *self._probe_kernel_arguments())
+            if status != k.NEEDS_PYTHON:
+                self._warm.resume(face, searched)
+                return None if status == k.NO_HIT else self._probe_hit()
         p = self.data.qpos[0:3].copy()
-        if self._probe_cache_hit is not None and p.tolist() == self._probe_cache_p.tolist():
-            return self._probe_cache_hit
+        if cache[k.HAS_HIT] == 1.0 and p.tolist() == cache[0:3].tolist():
+            return self._probe_hit()
         # The signed distance is 1-Lipschitz: skip the query while it cannot be within reach.
-        offset = p - self._probe_cache_p
-        bound = self._probe_cache_d - math.sqrt(offset.dot(offset))
+        offset = p - cache[0:3]
+        bound = float(cache[k.CACHE_D]) - math.sqrt(offset.dot(offset))
         if bound > self._probe_radius + self._tol:
             return None
         found, dist, face = self._warm.query(p)  # the exact query, warm-started from the last answer
@@ -370,9 +446,18 @@ class Simulation:
         length = math.sqrt(offset.dot(offset))
         if dist > 0 and length > 1e-9:
             normal = offset / length
-        result = (point, dist, normal / math.sqrt(normal.dot(normal)))
-        self._probe_cache_p, self._probe_cache_d, self._probe_cache_hit = p, dist, result
-        return result
+        cache[0:3] = p
+        cache[k.CACHE_D] = cache[k.HIT_DIST] = dist
+        cache[k.HIT_POINT : k.HIT_POINT + 3] = point
+        cache[k.HIT_NORMAL : k.HIT_NORMAL + 3] = normal / math.sqrt(normal.dot(normal))
+        cache[k.HAS_HIT] = 1.0
+        return self._probe_hit()
+
+    def _probe_hit(self) -> tuple[np.ndarray, float, np.ndarray]:
+        """The held hit: surface point (3,), signed distance, contact normal (3,) (copies)."""
+        k, cache = probe_kernels, self._probe_cache
+        point = cache[k.HIT_POINT : k.HIT_POINT + 3].copy()
+        return point, float(cache[k.HIT_DIST]), cache[k.HIT_NORMAL : k.HIT_NORMAL + 3].copy()
 
     def _probe_contacts(self) -> Contacts:
         hit = self._probe_closest()
@@ -584,7 +669,7 @@ class Simulation:
         return out
 
     def _finite(self, array: np.ndarray, what: str) -> np.ndarray:
-        if not np.all(np.isfinite(array)):
+        if not np.isfinite(array).all():
             dt = self._dt
             raise SimulationDivergedError(
                 f"{what} are not finite at t = {self.time_s:.6g} s with time step {dt:g} s; the simulation "

@@ -535,6 +535,19 @@ class WarmClosest:
         self._face = face
         return (qx + cx, qy + cy, qz + cz), signed, face
 
+    def patch(self) -> tuple[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The warm start for a compiled caller of ``closest_kernels.warm_query``: where the patch was
+        built (3,) (shifted frame; inf before the first), the last answer's face (-1: none), and the
+        patch's faces, bound planes, offsets, bounds and tie buffer (no faces: no patch, ask
+        :meth:`query`). A caller that answers queries itself reports back through :meth:`resume`."""
+        faces = np.zeros(0, dtype=np.int64) if self._faces is None else self._faces
+        return np.array(self._p0), self._face, faces, self._planes, self._offsets, self._lower0, self._ties
+
+    def resume(self, face: int, searches: int) -> None:
+        """After a compiled caller answered ``searches`` queries on :meth:`patch`, the last one on ``face``."""
+        self._face = int(face)
+        self.counts["patch"] += int(searches)
+
     def _break_tie(self, p: list[float], ties: list[int]) -> int:
         """The face the sensor's search picks among faces at the same squared distance: Open3D's face
         if it is one of them, else the lowest id of them in that face's ring (``_closest_few``)."""

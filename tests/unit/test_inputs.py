@@ -140,3 +140,19 @@ def test_triangle_mesh() -> None:
         triangle_mesh(np.array([[0.0, 0.0, 0.0], [1e-170, 0.0, 0.0], [0.0, 1e-170, 0.0]]), [[0, 1, 2]], solid=True)
     with pytest.raises(InputError, match=r"^vertices_m: coordinate"):
         triangle_mesh(V * 1e10, F, solid=True)
+
+
+def test_norms_of_a_few_values_take_the_scalar_path_with_numpys_bits(monkeypatch: pytest.MonkeyPatch) -> None:
+    from palpate import inputs
+
+    rng = np.random.default_rng(0)
+    for shape in [(3,), (4,), (1, 3), (5, 3)]:
+        for scale in (1.0, 1e-200, 1e200, 3.7):
+            a = rng.standard_normal((50, *shape)) * scale
+            a[::7] = 0.0
+            few = [inputs._norms(row) for row in a]
+            monkeypatch.setattr(inputs, "_FEW_VALUES", 0)  # the numpy path
+            reference = [inputs._norms(row) for row in a]
+            monkeypatch.undo()
+            for got, want in zip(few, reference, strict=True):
+                assert got.shape == want.shape and got.tobytes() == want.tobytes()

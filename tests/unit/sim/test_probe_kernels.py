@@ -1,0 +1,66 @@
+"""The probe's compiled steps (nodes/sim/probe_kernels.py) give the Python loop's bits."""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from palpate.nodes.sim import probe_kernels
+from palpate.nodes.sim.core import Simulation
+from palpate.nodes.sim.effectors import ProbeConfig
+from palpate.nodes.sim.objects import ObjectSpec
+from palpate.nodes.sim.scene import SceneConfig
+
+pytestmark = pytest.mark.skipif(probe_kernels.mujoco_functions() is None, reason="MuJoCo's library not found")
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PALPATE_CACHE_DIR", str(tmp_path / "cache"))
+
+
+def _run(obj: ObjectSpec, start: tuple[float, float, float], compiled: bool, ticks: int = 400) -> tuple[str, int, int]:
+    """Press, slide and turn the probe; hash of qpos, qvel and contacts per tick, contacts, compiled flag."""
+    sim = Simulation(SceneConfig(effector="probe", object=obj, probe=ProbeConfig(start_position_m=start)))
+    sim.compiled_steps = compiled
+    digest = hashlib.sha256()
+    normal: np.ndarray | None = None
+    touching, contacts = False, 0
+    for k in range(ticks):
+        angular = np.array([0.3 * math.sin(0.01 * k), 0.2, -0.5]) if (k // 50) % 2 else np.zeros(3)
+        if normal is None:
+            linear = np.array([0.0, 0.0, -0.05])
+        elif not touching:
+            linear = -0.05 * normal
+        else:
+            d = np.array([math.cos(0.02 * k), math.sin(0.02 * k), 0.0])
+            t = d - (d @ normal) * normal
+            linear = 0.03 * t / max(float(np.linalg.norm(t)), 1e-9) - 0.01 * normal
+        sim.set_velocity(linear, angular)
+        sim.step(5)
+        c = sim.contacts()
+        for array in (sim.data.qpos, sim.data.qvel, c.positions_m, c.normals, c.forces_n, c.local_positions_m):
+            digest.update(np.ascontiguousarray(array).tobytes())
+        touching = len(c) > 0
+        contacts += len(c)
+        if touching:
+            normal = c.normals.mean(axis=0) / np.linalg.norm(c.normals.mean(axis=0))
+    return digest.hexdigest(), contacts, int(sim.compiled_steps)
+
+
+@pytest.mark.parametrize(
+    ("obj", "start"),
+    [
+        (ObjectSpec(kind="torus", size_m=(0.03, 0.01)), (0.03, 0.0, 0.03)),
+        (ObjectSpec(kind="cube", size_m=(0.05,)), (0.01, 0.005, 0.05)),
+    ],
+)
+def test_compiled_probe_steps_give_the_python_loops_bits(obj: ObjectSpec, start: tuple[float, float, float]) -> None:
+    python = _run(obj, start, compiled=False)
+    compiled = _run(obj, start, compiled=True)
+    assert python[1] > 100  # the probe pressed and slid for most ticks
+    assert compiled[:2] == python[:2]
