@@ -214,6 +214,18 @@ def sample_candidates(
     )
 
 
+def path_length(r: FloatArray, v_n: FloatArray, s_p: FloatArray, s_n: FloatArray, config: PlannerConfig) -> FloatArray:
+    """Eqs. 8-9: the length (m,) of the Eq. 15 curve from r (3,), leaving along -v_n (3,), to each
+    candidate s_p (m, 3) against its normal s_n (m, 3), with beta = psi2_control_scale |r - s_p|."""
+    return bezier_length(approach_curve(r, v_n, s_p, s_n, scale=config.psi2_control_scale))
+
+
+def rotation_factor(s_n: FloatArray, R_z: FloatArray, config: PlannerConfig) -> FloatArray:
+    """Eq. 11: Psi4(s) = exp(-2 sin^2(alpha/2) / sigma_alpha^2) per candidate normal s_n (m, 3), with
+    alpha = angle(R_z, -s_n), so 2 sin^2(alpha/2) = 1 - cos(alpha) = 1 + R_z . s_n."""
+    return np.exp(-(1.0 + s_n @ R_z) / config.sigma_alpha**2)
+
+
 def igef_terms(
     candidates_m: FloatArray,
     normals: FloatArray,
@@ -232,8 +244,7 @@ def igef_terms(
     # Eq. 7, Alg. 2 line 2: Psi1(s) = min_c 1 - exp(-|s_p - c_p|^2 / sigma1^2) (monotone in |s - c|)
     psi1 = 1.0 - np.exp(-(d.min(axis=1) ** 2) / config.sigma1_m**2)
     # Eqs. 8-9, Alg. 2 line 4: Psi2(s) = 1 / Len(bezier(r, r - beta v_n, s_p + beta s_n, s_p))
-    curves = approach_curve(r, v_n, candidates_m, normals, scale=config.psi2_control_scale)
-    psi2 = 1.0 / np.maximum(bezier_length(curves), config.min_path_m)
+    psi2 = 1.0 / np.maximum(path_length(r, v_n, candidates_m, normals, config), config.min_path_m)
     # Eq. 10, Alg. 2 line 3: Psi3(s) = sum_c exp(-(|s - c| - mu3)^2 / sigma3^2), in place on d (m x n)
     d -= config.mu3_m
     d *= 1.0 / config.sigma3_m
@@ -241,9 +252,7 @@ def igef_terms(
     np.negative(d, out=d)
     np.exp(d, out=d)
     psi3 = d.sum(axis=1)
-    # Eq. 11: Psi4(s) = exp(-2 sin^2(alpha/2) / sigma_alpha^2), 2 sin^2(alpha/2) = 1 - cos(alpha),
-    # alpha = angle(R_z, -s_n)  =>  1 - cos(alpha) = 1 + R_z . s_n
-    psi4 = np.exp(-(1.0 + normals @ R_z) / config.sigma_alpha**2)
+    psi4 = rotation_factor(normals, R_z, config)  # Eq. 11
     return np.stack([psi1, psi2, psi3, psi4], axis=1)
 
 
@@ -276,18 +285,17 @@ def area_scores(
     explored_by, _ = cKDTree(contacts_m).query(candidates_m)  # distance to the nearest contact (m,)
     is_unexplored = explored_by > rho
     unexplored = candidates_m[is_unexplored]
-    curves = approach_curve(r, v_n, candidates_m, normals, scale=config.psi2_control_scale)
-    cost = bezier_length(curves) + config.area_touch_cost_m
-    psi4 = np.exp(-(1.0 + normals @ R_z) / config.sigma_alpha**2)  # Eq. 11
+    cost = path_length(r, v_n, candidates_m, normals, config) + config.area_touch_cost_m
+    psi4 = rotation_factor(normals, R_z, config)  # Eq. 11
     if len(unexplored):
-        unexplored_tree = cKDTree(unexplored)
+        candidate_tree = cKDTree(candidates_m)
         weight = np.ones(len(unexplored))
         if config.area_hole_weight > 0.0 and len(unexplored) < len(candidates_m):
-            around = cKDTree(candidates_m).query_ball_point(unexplored, 2.0 * rho, return_length=True)
+            around = candidate_tree.query_ball_point(unexplored, 2.0 * rho, return_length=True)
             explored = cKDTree(candidates_m[~is_unexplored])
             explored_around = explored.query_ball_point(unexplored, 2.0 * rho, return_length=True)
             weight += config.area_hole_weight * explored_around / np.maximum(around, 1)
-        pairs = cKDTree(candidates_m).sparse_distance_matrix(unexplored_tree, rho, output_type="ndarray")
+        pairs = candidate_tree.sparse_distance_matrix(cKDTree(unexplored), rho, output_type="ndarray")
         gain = np.bincount(pairs["i"], weights=weight[pairs["j"]], minlength=len(candidates_m))
         if gain.max() > 0.0:
             return np.asarray(gain * psi4 / cost, dtype=np.float64)
