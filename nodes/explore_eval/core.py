@@ -134,9 +134,11 @@ class RunControl:
     """When an evaluated run asks for the whole-object surface, which milestones that surface scores,
     and when the run ends (around an ExplorationEvaluator).
 
-    A touch that reaches milestones or finishes the run (goal or budget) asks for the surface; the next
-    whole-object surface scores the milestones waiting for it and, after the finishing touch, ends the
-    run. A run with no touch for EvalConfig.max_idle_s of simulated time finishes as "stalled".
+    A touch that reaches milestones, finishes the run (goal or budget) or is a shape checkpoint (every
+    EvalConfig.shape_every_contacts) asks for the surface; the next whole-object surface gets its shape
+    scores, scores the milestones waiting for it and, after the finishing touch, ends the run. A run
+    with no touch for EvalConfig.max_idle_s of simulated time finishes as "stalled" (its last surface
+    is scored the same way).
     """
 
     def __init__(self, evaluator: ExplorationEvaluator) -> None:
@@ -176,7 +178,7 @@ class RunControl:
     def surface(self, vertices_m: np.ndarray, faces: np.ndarray, vertex_variance: np.ndarray) -> bool:
         """A whole-object estimate arrived (vertices (v, 3) m, faces (f, 3), GP variance (v,) m^2): score the
         milestones waiting for it. True when the run is over (this was the surface asked for at the end)."""
-        shape = self.evaluator.shape(vertices_m, faces) if self.shape_pending or self.pending else None
+        shape = self.evaluator.shape(vertices_m, faces) if self.shape_pending else None
         self.shape_pending = False
         if self.pending:
             rmse = self.evaluator.rmse(vertices_m, faces, vertex_variance)
@@ -192,6 +194,7 @@ class RunControl:
             return False
         self.evaluator.finished = "stalled"
         self.final_requested = True
+        self.shape_pending = True  # the end's estimate is scored too
         return True
 
 

@@ -96,6 +96,7 @@ def test_a_run_without_a_touch_for_max_idle_s_finishes_as_stalled() -> None:
     assert not touch(run, 20 * S_NS)
     assert not run.tick(50 * S_NS)
     assert run.tick(50 * S_NS + 1)
+    assert run.surface(*surface(4)) and ev.shapes == [1]  # the end's estimate gets its shape scores
     assert ev.finished == "stalled"
     assert not run.tick(60 * S_NS)  # asked once
     assert not touch(run, 61 * S_NS) and len(ev.touches) == 1
