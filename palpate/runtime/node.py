@@ -143,12 +143,13 @@ class NodeRunner:
     """Runs one node object on the bus, in lockstep or real-time mode."""
 
     def __init__(self, spec: NodeSpec[Any], process: NodeProcessSpec, *, start_timeout_s: float = 60.0):
-        self.spec = spec
+        """`spec` as registered; its ports are resolved here for the config of `process.params`."""
+        config: Any = load(spec.config, process.params, f"node {process.name!r} params")  # before any socket
+        self.spec = spec.with_config(config)
         self.process = process
         self.lockstep = process.mode == "lockstep"
         self.start_timeout_s = start_timeout_s
         self.ack_timeout_s = 120.0
-        config: Any = load(spec.config, process.params, f"node {process.name!r} params")  # before any socket
         self.zmq: zmq.Context[Any] = zmq.Context.instance()
         # a Curve publisher admits only the client keys the launcher lists (a ZAP handler in this process)
         self.allow = bus.ClientAllowList(self.zmq) if process.curve else None
@@ -168,7 +169,7 @@ class NodeRunner:
                 self.zmq, process.connect, wanted, lockstep=self.lockstep, curve=process.curve
             )
             self.ctx = NodeContext(process.name, process.seed, self._send, dict(process.publishes))
-            self.node: NodeLike = spec.factory(config, self.ctx)
+            self.node: NodeLike = self.spec.factory(config, self.ctx)
         except BaseException:  # the node never ran: leave no socket, ipc file or ZAP thread behind
             self._close_sockets(linger_ms=0)
             raise
@@ -177,7 +178,7 @@ class NodeRunner:
         self.poller.register(self.sub, zmq.POLLIN)
         self.poller.register(self.pub, zmq.POLLIN)
         self.port_of_topic = {topic: port for port, topic in process.subscribes.items()}
-        self.input_types = {topic: spec.inputs[port].message for port, topic in process.subscribes.items()}
+        self.input_types = {topic: self.spec.inputs[port].message for port, topic in process.subscribes.items()}
         self.buffer: list[tuple[int, int, str, bytes]] = []
         self.seq = 0
         self.acks: dict[str, int] = {}
@@ -189,7 +190,7 @@ class NodeRunner:
             node=process.name,
             endpoint=process.endpoint,
             pid=_pid(),
-            publishes={t: spec.outputs[p].message.TYPE for p, t in process.publishes.items()},
+            publishes={t: self.spec.outputs[p].message.TYPE for p, t in process.publishes.items()},
             subscribes={t: self.input_types[t].TYPE for t in self.input_types},
             curve_public=process.curve.get("public", ""),
         )
@@ -514,8 +515,7 @@ def main(argv: list[str] | None = None) -> int:
     memory.keep_freed_buffers()  # reuse big payload buffers instead of faulting fresh pages in per message
     logging.basicConfig(level=logging.INFO, format=f"[{process.name}] %(levelname)s %(message)s", stream=sys.stderr)
     try:
-        spec = load_node_spec(process.node_spec, label=process.type).with_params(process.params)
-        runner = NodeRunner(spec, process)
+        runner = NodeRunner(load_node_spec(process.node_spec, label=process.type), process)
     except PalpateError as exc:
         log.error("node %s could not start: %s", process.name, exc)
         return 2
