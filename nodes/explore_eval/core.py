@@ -302,19 +302,13 @@ class ExplorationEvaluator:
         if self._shape_scorer is None:
             truth = (self.vertices_m, self.faces)
             self._shape_scorer = ShapeScorer(truth, self.config.shape_samples, rng=np.random.default_rng(0))
-        scores = self._shape_scorer.score((vertices_m, faces)).as_dict()
+        scores = self._shape_scorer.score((vertices_m, faces)).as_dict()  # ShapePoint's score fields
         last = self.touches[-1] if self.touches else None
         point = ShapePoint(
             contacts=len(self.touches),
             travel_cm=last.travel_cm if last else 0.0,
             coverage=self.tracker.coverage,
-            chamfer_mm=scores["chamfer_mm"],
-            accuracy_mm=scores["accuracy_mm"],
-            completeness_mm=scores["completeness_mm"],
-            fscore_1mm=scores["fscore_1mm"],
-            fscore_2mm=scores["fscore_2mm"],
-            fscore_5mm=scores["fscore_5mm"],
-            fscore_10mm=scores["fscore_10mm"],
+            **scores,
         )
         if self.shape_series and self.shape_series[-1].contacts == point.contacts:
             self.shape_series[-1] = point

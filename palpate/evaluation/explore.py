@@ -472,8 +472,5 @@ def main(args: argparse.Namespace) -> int:
     plots = "coverage_vs_travel.png, travel_per_object.png, fscore_vs_travel.png"
     print(f"wrote {out}: runs.csv, runs.jsonl, tables.md, {plots}")
     if args.json:
-        summary = report.summary_json(results, strategies, baseline, method)
-        for s in strategies:
-            summary[s].update({k: round(v, 4) if isinstance(v, float) else v for k, v in shape[s].items()})
-        print(jsonio.dumps(summary))
+        print(jsonio.dumps(report.summary_json(results, strategies, baseline, method, extra=shape)))
     return 1 if errors or (outcome is not None and outcome.failed) else 0

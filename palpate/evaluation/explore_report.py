@@ -240,9 +240,14 @@ def table4(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: 
 
 
 def summary_json(
-    results: Sequence[Mapping[str, Any]], strategies: Sequence[str], baseline: str = "gpv", method: str = "igef"
+    results: Sequence[Mapping[str, Any]],
+    strategies: Sequence[str],
+    baseline: str = "gpv",
+    method: str = "igef",
+    extra: Mapping[str, Mapping[str, float | int]] | None = None,
 ) -> dict[str, Any]:
-    """The --json summary: per strategy the figures at 80 % (paired averages) and counts, plus ratios."""
+    """The --json summary: per strategy the figures at 80 % (paired averages) and counts, plus ratios;
+    ``extra`` adds more figures per strategy (the whole-shape summary), floats rounded as the others."""
     keys = ("travel_cm", "rotation_deg", "rmse_mm", "prediction_miss_mm", "contacts")
     means = paired_means(results, strategies, "80")
     out: dict[str, Any] = {}
@@ -258,6 +263,8 @@ def summary_json(
             rmse_estimate_to_truth_mm=_json_number(m["rmse_estimate_to_truth_mm"]),
             rmse_truth_to_estimate_mm=_json_number(m["rmse_truth_to_estimate_mm"]),
         )
+        for k, v in (extra or {}).get(s, {}).items():
+            out[s][k] = _json_number(v) if isinstance(v, float) else v
     if baseline in means and method in means:
         out["ratios"] = {
             f"{k}_{method}_over_{baseline}": _json_number(_ratio(means[method][k], means[baseline][k])) for k in keys
