@@ -172,7 +172,7 @@ class SurfaceMesh(Message):
 
     TYPE: ClassVar[str] = "SurfaceMesh"
     STATE: ClassVar[bool] = True
-    VERSION: ClassVar[int] = 1
+    VERSION: ClassVar[int] = 2
     TOPIC: ClassVar[str] = topics.SURFACE_MESH
 
     region: str = scalar("str", "'local' (near the latest contact) or 'global' (whole object)")
@@ -180,7 +180,11 @@ class SurfaceMesh(Message):
     vertices_m: np.ndarray = array(("v", 3), "float64", "vertex positions, world frame", "m")
     faces: np.ndarray = array(("f", 3), "int32", "vertex indices of each triangle, counter-clockwise from outside")
     vertex_normals: np.ndarray = array(("v", 3), "float64", "unit outward normals from the GP gradient")
-    vertex_variance: np.ndarray = array(("v",), "float64", "GP posterior variance at each vertex", "m^2")
+    variance_vertices: np.ndarray = array(
+        ("k",), "int32", "ascending indices of the vertices vertex_variance belongs to (every vertex, or the "
+        "planner's candidates near the latest contact, or none)"
+    )  # fmt: skip
+    vertex_variance: np.ndarray = array(("k",), "float64", "GP posterior variance at those vertices", "m^2")
 
 
 class SurfaceRequest(Message):

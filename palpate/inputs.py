@@ -135,6 +135,34 @@ def contact_arrays(
     return coordinates(positions_m, "positions_m"), unit_vectors(normals, "normals"), forces
 
 
+def vertex_subset(indices: ArrayLike, count: int, field: str) -> IntArray:
+    """Indices (k,) of some of `count` vertices as int64: ascending, distinct and in range, else InputError."""
+    idx = np.asarray(indices).astype(np.int64, copy=False)
+    if idx.ndim != 1:
+        raise InputError(field, f"must be a flat index array, got shape {idx.shape}")
+    bad = (idx < 0) | (idx >= count)
+    bad[1:] |= idx[1:] <= idx[:-1]
+    if bad.any():
+        at = int(np.argmax(bad))
+        reason = f"must be ascending distinct vertex indices in [0, {count}); entry {at} is {int(idx[at])}"
+        raise InputError(field, reason)
+    return idx
+
+
+def per_vertex(values: ArrayLike, indices: ArrayLike, count: int, field: str, missing: float = math.nan) -> FloatArray:
+    """Values (count,) from values (k,) given at the vertices `indices` (k,) (``vertex_subset``), `missing` elsewhere.
+
+    For a SurfaceMesh: ``per_vertex(m.vertex_variance, m.variance_vertices, len(m.vertices_m), "variance_vertices")``.
+    """
+    idx = vertex_subset(indices, count, field)
+    v = np.asarray(values, dtype=np.float64)
+    if v.shape != idx.shape:
+        raise InputError(field, f"has {idx.size} indices for {v.size} values")
+    out = np.full(count, missing)
+    out[idx] = v
+    return out
+
+
 def unique_names(names: Sequence[str], field: str) -> list[str]:
     """`names` as a list when none is empty or repeated, else InputError."""
     out = list(names)

@@ -119,6 +119,7 @@ class BboxEstimator:
                 vertices_m=vertices,
                 faces=faces,
                 vertex_normals=normals,
+                variance_vertices=np.arange(len(vertices), dtype=np.int32),
                 vertex_variance=np.full(len(vertices), variance_m2),
             ),
         )

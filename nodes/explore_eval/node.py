@@ -15,7 +15,7 @@ import numpy as np
 
 from palpate.config import Validated
 from palpate.errors import InputError
-from palpate.inputs import coordinates, fingertip_pose, triangle_mesh
+from palpate.inputs import coordinates, fingertip_pose, per_vertex, triangle_mesh
 from palpate.jsonio import dumps as json_dumps
 from palpate.jsonio import write as write_json
 from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
@@ -84,7 +84,11 @@ class ExploreEvalNode:
             return
         vertices, faces = triangle_mesh(message.vertices_m, message.faces, solid=False)
         self.last_estimate = (np.array(vertices), np.array(faces))
-        self.last_variance = np.array(message.vertex_variance)
+        # a vertex without a variance counts as unsure (infinite variance)
+        count = len(message.vertices_m)
+        self.last_variance = per_vertex(
+            message.vertex_variance, message.variance_vertices, count, "variance_vertices", np.inf
+        )
         if self.run.surface(*self.last_estimate, self.last_variance):
             self.ctx.request_stop(f"exploration finished: {self.run.evaluator.finished}")
 

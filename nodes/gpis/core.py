@@ -57,8 +57,6 @@ REFERENCE_SIZE_M = 0.2
 
 # A normal shorter than this is treated as missing rather than normalised.
 _MIN_NORMAL_NORM = 1e-9
-# Kernel entries per chunk when evaluating many query points (bounds temporaries to ~ a few MB).
-_CHUNK_ENTRIES = 1 << 18
 # Entries of k_* per chunk in variance(): large, so the triangular solve sees many right-hand sides.
 _VARIANCE_CHUNK_ENTRIES = 1 << 22
 
@@ -394,9 +392,7 @@ class GPIS:
         x = _points(x, "query points")
         out = self._prior_mean(x, self._require_centre())
         if self.n_contacts:
-            w = self._weights()
-            for s in self._chunks(len(x), self.n_contacts):
-                out[s] += self.kernel.value_contract(x[s], self._P, w)
+            out += self.kernel.value_contract(x, self._P, self._weights())
         return out
 
     def gradient(self, x: ArrayLike) -> FloatArray:
@@ -404,9 +400,7 @@ class GPIS:
         x = _points(x, "query points")
         out = self._prior_gradient(x, self._require_centre())
         if self.n_contacts:
-            w = self._weights()
-            for s in self._chunks(len(x), 3 * self.n_contacts):
-                out[s] += self.kernel.gradient_contract(x[s], self._P, w)
+            out += self.kernel.gradient_contract(x, self._P, self._weights())
         return out
 
     def variance(self, x: ArrayLike) -> FloatArray:
@@ -414,7 +408,7 @@ class GPIS:
         x = _points(x, "query points")
         out = np.full(len(x), self.kernel.value_variance)
         if self.n_contacts:
-            for s in self._chunks(len(x), ROWS_PER_POINT * self.n_contacts, _VARIANCE_CHUNK_ENTRIES):
+            for s in self._chunks(len(x), ROWS_PER_POINT * self.n_contacts):
                 out[s] -= self.explained_variance(x[s])
         return np.maximum(out, 0.0, out=out)
 
@@ -446,8 +440,8 @@ class GPIS:
         """
         if not self.n_contacts:
             return np.zeros(len(x))
-        Ks = self.kernel.value_obs_cov(x, self._P)
-        V = self._L.solve(Ks.T)
+        V = self.kernel.value_obs_cov(x, self._P).T  # column-major (4n, m): solved in place
+        self._L.solve_in_place(V)
         return np.einsum("ij,ij->j", V, V)
 
     # --- internals ---------------------------------------------------------------------------------
@@ -472,6 +466,6 @@ class GPIS:
         return prior_gradient(self.config, x, centre)
 
     @staticmethod
-    def _chunks(m: int, entries_per_row: int, budget: int = _CHUNK_ENTRIES) -> list[slice]:
+    def _chunks(m: int, entries_per_row: int, budget: int = _VARIANCE_CHUNK_ENTRIES) -> list[slice]:
         step = max(1, budget // max(1, entries_per_row))
         return [slice(s, min(s + step, m)) for s in range(0, m, step)]

@@ -35,11 +35,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from palpate.errors import ConfigError, EstimationError
+from palpate.nodes.gpis import dense_kernels
+from palpate.nodes.gpis.local_kernels import GAUSSIAN, THIN_PLATE
 
 FloatArray = NDArray[np.float64]
 
 #: Number of observation rows per contact: one value and three gradient components.
 ROWS_PER_POINT = 4
+
+# Kernel entries per chunk of query points on the numpy paths (bounds their (m, n) temporaries).
+_CHUNK_ENTRIES = 1 << 18
 
 # Distances are compared with R with this relative slack, so that a query exactly at R (rounded) passes.
 _R_SLACK = 1e-12
@@ -74,6 +79,21 @@ class IsotropicKernel(ABC):
 
     def check_distances(self, r_max: float) -> None:  # noqa: B027 (optional hook, valid everywhere by default)
         """Raise EstimationError when the kernel is not valid at distance r_max (m). Default: always valid."""
+
+    def compiled(self) -> tuple[int, float, float] | None:
+        """(kind, p1, p2) of the compiled loops (``dense_kernels``, ``local_kernels``); None: numpy only."""
+        return None
+
+    def check_range(self, x: FloatArray, y: FloatArray) -> None:
+        """``check_distances`` for every pair of x (m, 3) and y (n, 3), without forming the (m, n) distances
+        when the bounding boxes are close enough (the farthest corners bound every distance)."""
+        if not (len(x) and len(y)):
+            return
+        span = np.maximum(x.max(axis=0) - y.min(axis=0), y.max(axis=0) - x.min(axis=0))
+        try:
+            self.check_distances(float(np.sqrt(span @ span)))
+        except EstimationError:
+            self.check_distances(dense_kernels.max_distance(x, y))
 
     @property
     def value_variance(self) -> float:
@@ -123,6 +143,51 @@ class IsotropicKernel(ABC):
 
     def value_obs_cov(self, x: FloatArray, y: FloatArray) -> FloatArray:
         """cov(f(x), observations at y): (m, 4 n), the k_* rows of Eq. 2 with gradient observations."""
+        x = _as_points(x, "x")
+        y = _as_points(y, "y")
+        params = self.compiled()
+        if params is None:
+            return self._value_obs_cov_numpy(x, y)
+        self.check_range(x, y)
+        out = np.empty((len(x), ROWS_PER_POINT * len(y)))
+        dense_kernels.value_obs_cov(x, y, *params, out)
+        return out
+
+    # --- contractions with weights (posterior mean and gradient without forming k_*) ----------------
+    def value_contract(self, x: FloatArray, y: FloatArray, w: FloatArray) -> FloatArray:
+        """sum_j cov(f(x), obs_j) w_j for weights w (n, 4) on the observations at y: (m,).
+
+        = sum_j [w_j0 phi(r_j) - g1(r_j) (x - y_j) . w_j(1:4)], compiled (``dense_kernels``) for the
+        built-in kernels; ``value_obs_cov(x, y) @ w.ravel()`` is the slow reference.
+        """
+        x = _as_points(x, "x")
+        y = _as_points(y, "y")
+        params = self.compiled()
+        if params is None:
+            return self._value_contract_numpy(x, y, w)
+        self.check_range(x, y)
+        out = np.zeros(len(x))
+        dense_kernels.add_values(np.ascontiguousarray(x.T), y, np.ascontiguousarray(w, dtype=np.float64), *params, out)
+        return out
+
+    def gradient_contract(self, x: FloatArray, y: FloatArray, w: FloatArray) -> FloatArray:
+        """sum_j cov(grad f(x), obs_j) w_j for weights w (n, 4): (m, 3).
+
+        = sum_j [g1 d w_j0 - g2 d (d . w_j(1:4)) - g1 w_j(1:4)], d = x - y_j.
+        """
+        x = _as_points(x, "x")
+        y = _as_points(y, "y")
+        params = self.compiled()
+        if params is None:
+            return self._gradient_contract_numpy(x, y, w)
+        self.check_range(x, y)
+        out = np.zeros((3, len(x)))
+        weights = np.ascontiguousarray(w, dtype=np.float64)
+        dense_kernels.add_gradients(np.ascontiguousarray(x.T), y, weights, *params, out)
+        return np.ascontiguousarray(out.T)
+
+    # --- numpy paths (kernels without compiled loops; the references of the tests) ----------------
+    def _value_obs_cov_numpy(self, x: FloatArray, y: FloatArray) -> FloatArray:
         d, r = self._checked_components(x, y)
         phi, g1 = self.radial(r)
         B = np.empty((*r.shape, ROWS_PER_POINT))
@@ -132,33 +197,20 @@ class IsotropicKernel(ABC):
             np.negative(B[..., 1 + k], out=B[..., 1 + k])
         return B.reshape(r.shape[0], ROWS_PER_POINT * r.shape[1])
 
-    # --- contractions with weights (posterior mean and gradient without forming k_*) ----------------
-    def value_contract(self, x: FloatArray, y: FloatArray, w: FloatArray) -> FloatArray:
-        """sum_j cov(f(x), obs_j) w_j for weights w (n, 4) on the observations at y: (m,).
-
-        = sum_j [w_j0 phi(r_j) - g1(r_j) (x - y_j) . w_j(1:4)]. Works on (m, n) arrays only (r^2 and
-        the dot products come from matrix products on coordinates centred on mean(y)), so it suits
-        large grids; ``value_obs_cov(x, y) @ w.ravel()`` is the slow reference.
-        """
-        x = _as_points(x, "x")
-        y = _as_points(y, "y")
-        o = y.mean(axis=0) if len(y) else np.zeros(3)
-        xc, yc = x - o, y - o
-        S = np.einsum("mk,mk->m", xc, xc)[:, None] + np.einsum("nk,nk->n", yc, yc)[None, :]
-        S -= 2.0 * (xc @ yc.T)
-        np.maximum(S, 0.0, out=S)
-        r = np.sqrt(S, out=S)
-        if r.size:
-            self.check_distances(float(r.max()))
+    def _value_contract_numpy(self, x: FloatArray, y: FloatArray, w: FloatArray) -> FloatArray:
+        if len(x) * len(y) > _CHUNK_ENTRIES:
+            step = max(1, _CHUNK_ENTRIES // len(y))
+            return np.concatenate([self._value_contract_numpy(x[s : s + step], y, w) for s in range(0, len(x), step)])
+        d, r = self._checked_components(x, y)
         phi, g1 = self.radial(r)
-        T = xc @ w[:, 1:].T - np.einsum("nk,nk->n", yc, w[:, 1:])[None, :]  # (x - y_j) . w_j(1:4)
-        return phi @ w[:, 0] - np.einsum("mn,mn->m", g1, T)
+        dw = d[0] * w[:, 1] + d[1] * w[:, 2] + d[2] * w[:, 3]
+        return np.einsum("mn,mn->m", phi, np.broadcast_to(w[:, 0], phi.shape)) - np.einsum("mn,mn->m", g1, dw)
 
-    def gradient_contract(self, x: FloatArray, y: FloatArray, w: FloatArray) -> FloatArray:
-        """sum_j cov(grad f(x), obs_j) w_j for weights w (n, 4): (m, 3).
-
-        = sum_j [g1 d w_j0 - g2 d (d . w_j(1:4)) - g1 w_j(1:4)], d = x - y_j.
-        """
+    def _gradient_contract_numpy(self, x: FloatArray, y: FloatArray, w: FloatArray) -> FloatArray:
+        if len(x) * len(y) > _CHUNK_ENTRIES:
+            step = max(1, _CHUNK_ENTRIES // len(y))
+            parts = [self._gradient_contract_numpy(x[s : s + step], y, w) for s in range(0, len(x), step)]
+            return np.concatenate(parts)
         d, r = self._checked_components(x, y)
         _, g1 = self.radial(r)
         g2 = self.radial_g2(r)
@@ -231,38 +283,8 @@ class ThinPlateKernel(IsotropicKernel):
                 "contacts and query points (>= 1.25 x the object's diameter) or query a smaller region"
             )
 
-    def value_contract(self, x: FloatArray, y: FloatArray, w: FloatArray) -> FloatArray:
-        """Fast path, O(m n) with two small matrix products and four passes over (m, n).
-
-        sum_j [a_j phi_j - g1_j T_j] with T_j = (x - y_j) . b_j, S_j = r_j^2:
-          = sum_j r_j (2 a_j S_j - 6 T_j)  +  sum_j (-3 R a_j S_j + R^3 a_j + 6 R T_j),
-        and the second sum is a quadratic polynomial in x. Coordinates are centred on mean(y).
-        """
-        x = _as_points(x, "x")
-        y = _as_points(y, "y")
-        R = self.R_m
-        o = y.mean(axis=0) if len(y) else np.zeros(3)
-        xc, yc = x - o, y - o
-        a, b = w[:, 0], w[:, 1:]
-        yy = np.einsum("nk,nk->n", yc, yc)
-        yb = np.einsum("nk,nk->n", yc, b)
-        # S = |x|^2 + |y|^2 - 2 x.y and W = 2 a S - 6 T as products of [|x|^2, x, 1] with (5, n).
-        MS = np.vstack([np.ones_like(yy), -2.0 * yc.T, yy])
-        MW = np.vstack([2.0 * a, -4.0 * a * yc.T - 6.0 * b.T, 2.0 * a * yy + 6.0 * yb])
-        xx = np.einsum("mk,mk->m", xc, xc)
-        feats = np.column_stack([xx, xc, np.ones_like(xx)])
-        S = feats @ MS
-        np.maximum(S, 0.0, out=S)
-        if S.size:
-            self.check_distances(float(np.sqrt(S.max())))
-        W = feats @ MW
-        r = np.sqrt(S, out=S)
-        out = np.einsum("mn,mn->m", r, W)
-        # Polynomial part: -3R (|x|^2 sum a - 2 x . sum a y + sum a |y|^2) + R^3 sum a + 6R (x . sum b - sum y.b)
-        sa = a.sum()
-        out += -3.0 * R * (xx * sa - 2.0 * xc @ (a @ yc) + a @ yy)
-        out += R**3 * sa + 6.0 * R * (xc @ b.sum(axis=0) - yb.sum())
-        return self.amplitude * out
+    def compiled(self) -> tuple[int, float, float]:
+        return THIN_PLATE, self.R_m, self.amplitude
 
 
 class GaussianKernel(IsotropicKernel):
@@ -287,24 +309,5 @@ class GaussianKernel(IsotropicKernel):
         inv = 1.0 / self.length_scale_m**2
         return 4.0 * inv * inv * self.variance_m2 * np.exp(-r * r * inv)
 
-    def value_contract(self, x: FloatArray, y: FloatArray, w: FloatArray) -> FloatArray:
-        """Fast path: sum_j phi_j (a_j + 2 / sigma^2 (x - y_j) . b_j), since -g1 = 2 phi / sigma^2.
-
-        Both r^2 and the bracket are products of [x, 1]-type features with (., n) matrices, so no
-        square root and one exponential per entry. Coordinates are centred on mean(y).
-        """
-        x = _as_points(x, "x")
-        y = _as_points(y, "y")
-        inv = 1.0 / self.length_scale_m**2
-        o = y.mean(axis=0) if len(y) else np.zeros(3)
-        xc, yc = x - o, y - o
-        a, b = w[:, 0], w[:, 1:]
-        yy = np.einsum("nk,nk->n", yc, yc)
-        ones = np.ones(len(x))
-        feats = np.column_stack([np.einsum("mk,mk->m", xc, xc), xc, ones])
-        MS = np.vstack([np.ones_like(yy), -2.0 * yc.T, yy])
-        E = feats @ (-inv * MS)  # -r^2 / sigma^2
-        phi = np.exp(np.minimum(E, 0.0, out=E), out=E)
-        MU = np.vstack([2.0 * inv * b.T, a - 2.0 * inv * np.einsum("nk,nk->n", yc, b)])
-        U = feats[:, 1:] @ MU  # a_j + 2/sigma^2 (x - y_j) . b_j
-        return self.variance_m2 * np.einsum("mn,mn->m", phi, U)
+    def compiled(self) -> tuple[int, float, float]:
+        return GAUSSIAN, self.length_scale_m**2, self.variance_m2

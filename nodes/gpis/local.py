@@ -64,10 +64,8 @@ from palpate.nodes.gpis.core import (
     prior_gradient,
     prior_mean,
 )
-from palpate.nodes.gpis.kernels import GaussianKernel, IsotropicKernel, ThinPlateKernel
+from palpate.nodes.gpis.kernels import IsotropicKernel
 from palpate.nodes.gpis.local_kernels import (
-    GAUSSIAN,
-    THIN_PLATE,
     blend_pairs,
     column_sums_of_squares,
     contract_pairs,
@@ -375,12 +373,10 @@ class LocalGPIS:
 
     def _compiled_kernel(self) -> tuple[int, float, float]:
         """(kind, p1, p2) of ``local_kernels`` for the configured kernel."""
-        kern = self.kernel
-        if isinstance(kern, ThinPlateKernel):
-            return THIN_PLATE, kern.R_m, kern.amplitude
-        if isinstance(kern, GaussianKernel):
-            return GAUSSIAN, kern.length_scale_m**2, kern.variance_m2
-        raise EstimationError(f"LocalGPIS has no compiled contraction for the {kern.name} kernel")  # pragma: no cover
+        params = self.kernel.compiled()
+        if params is None:  # pragma: no cover (every configurable kernel has compiled loops)
+            raise EstimationError(f"LocalGPIS has no compiled contraction for the {self.kernel.name} kernel")
+        return params
 
     def _key_table(self) -> tuple[IntArray, list[GPIS]]:
         """Sorted keys of the experts (k,) and the experts in that order; rebuilt when experts are added."""

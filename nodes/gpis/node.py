@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 from palpate.config import NonNegativeFloat, PositiveFloat, Validated
 from palpate.errors import InputError
@@ -28,8 +29,13 @@ class GPISNodeConfig(Validated):
     global_resolution_m: PositiveFloat = 0.003
     #: Margin around the contacts' bounding box for the whole-object mesh.
     global_margin_m: NonNegativeFloat = 0.03
-    #: GP variance at every vertex (GP-V needs it; IGEF does not and runs ~2x faster without it).
-    vertex_variance: bool = True
+    #: Where the local mesh carries the GP variance (Eq. 6): "candidates", only at the vertices GP-V
+    #: rates (one per variance_step_m voxel within variance_radius_m of the touch, the planner's
+    #: candidate_step_m and gpv_radius_m); "all" vertices; "none" (IGEF and the others need none and
+    #: run ~2-4x faster). The whole-object mesh always carries it at every vertex.
+    vertex_variance: Literal["candidates", "all", "none"] = "candidates"
+    variance_step_m: PositiveFloat = 0.005
+    variance_radius_m: PositiveFloat = 0.06
 
 
 class GPISNode:
@@ -47,7 +53,8 @@ class GPISNode:
             message.normal,
             cfg.local_half_extent_m,
             cfg.local_resolution_m,
-            with_variance=cfg.vertex_variance,
+            with_variance=cfg.vertex_variance != "none",
+            variance_near=(cfg.variance_step_m, cfg.variance_radius_m) if cfg.vertex_variance == "candidates" else None,
         )
         self._publish(mesh, "local")
 
@@ -68,6 +75,7 @@ class GPISNode:
                 vertices_m=mesh.vertices,
                 faces=mesh.faces,
                 vertex_normals=mesh.vertex_normals,
+                variance_vertices=mesh.variance_vertices,
                 vertex_variance=mesh.vertex_variance,
             ),
         )

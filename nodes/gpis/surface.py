@@ -14,6 +14,7 @@ crossing gives an empty mesh, not an exception.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,11 +22,14 @@ from numpy.typing import ArrayLike, NDArray
 from skimage.measure import marching_cubes
 
 from palpate.errors import EstimationError, InputError
+from palpate.geometry.thinning import thin_near
 from palpate.inputs import coordinates, unit_vectors
 from palpate.nodes.gpis.core import SurfaceEstimator
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int32]
+#: Which vertices (v, 3) get the GP variance: their ascending indices.
+VarianceSites = Callable[[FloatArray], NDArray[np.integer]]
 
 #: Default local patch: +-5 cm around the latest contact (the planner samples candidates up to 5 cm,
 #: GP-V up to 6 cm along the surface, which the box corners cover).
@@ -44,13 +48,16 @@ class SurfaceMeshArrays:
     """A triangle mesh of the estimated surface (metres, world frame).
 
     vertices (v, 3), faces (f, 3) int32 indices into vertices (counter-clockwise seen from outside),
-    vertex_normals (v, 3) outward unit normals from the GP gradient, vertex_variance (v,) GP variance
-    of f at each vertex in m^2 (Eq. 6; never negative: ``GPIS.variance`` clamps round-off at 0).
+    vertex_normals (v, 3) outward unit normals from the GP gradient, variance_vertices (k,) ascending
+    int32 indices of the vertices with a variance (all, none, or the planner's candidates) and
+    vertex_variance (k,) the GP variance of f there in m^2 (Eq. 6; never negative: ``GPIS.variance``
+    clamps round-off at 0).
     """
 
     vertices: FloatArray
     faces: IntArray
     vertex_normals: FloatArray
+    variance_vertices: IntArray
     vertex_variance: FloatArray
 
     @classmethod
@@ -60,6 +67,7 @@ class SurfaceMeshArrays:
             vertices=np.zeros((0, 3)),
             faces=np.zeros((0, 3), dtype=np.int32),
             vertex_normals=np.zeros((0, 3)),
+            variance_vertices=np.zeros(0, dtype=np.int32),
             vertex_variance=np.zeros(0),
         )
 
@@ -147,11 +155,17 @@ def sample_mean(gp: SurfaceEstimator, axes: list[FloatArray], *, refine: bool = 
 
 
 def mesh_from_grid(
-    gp: SurfaceEstimator, axes: list[FloatArray], *, with_variance: bool = True, refine: bool = True
+    gp: SurfaceEstimator,
+    axes: list[FloatArray],
+    *,
+    with_variance: bool = True,
+    variance_sites: VarianceSites | None = None,
+    refine: bool = True,
 ) -> SurfaceMeshArrays:
     """Marching cubes of the GP mean sampled on the grid given by three node-coordinate axes.
 
-    with_variance=False skips Eq. 6 at the vertices (fills zeros), for callers that only need shape;
+    with_variance=False skips Eq. 6 (no vertex carries a variance), for callers that only need shape;
+    variance_sites picks the vertices that get one (default: all);
     refine=False evaluates the mean at every grid node (reference for the coarse-to-fine sampling).
     """
     volume = sample_mean(gp, axes, refine=refine)
@@ -168,11 +182,18 @@ def mesh_from_grid(
     norm = np.linalg.norm(grad, axis=1, keepdims=True)
     normals = np.zeros_like(grad)
     np.divide(grad, norm, out=normals, where=norm > 0)
-    variance = gp.variance(vertices) if with_variance else np.zeros(len(vertices))
+    if not with_variance:
+        sites = np.zeros(0, dtype=np.int32)
+    elif variance_sites is None:
+        sites = np.arange(len(vertices), dtype=np.int32)
+    else:
+        sites = np.asarray(variance_sites(vertices), dtype=np.int32)
+    variance = gp.variance(vertices[sites])
     return SurfaceMeshArrays(
         vertices=vertices,
         faces=np.ascontiguousarray(faces, dtype=np.int32),
         vertex_normals=normals,
+        variance_vertices=sites,
         vertex_variance=variance,
     )
 
@@ -230,8 +251,12 @@ def add_touch(
     resolution_m: float = LOCAL_RESOLUTION_M,
     *,
     with_variance: bool = True,
+    variance_near: tuple[float, float] | None = None,
 ) -> SurfaceMeshArrays:
     """Add a touch (position (3,) m, outward unit normal (3,)) to the GP and mesh the surface around it.
+
+    variance_near = (step_m, radius_m): the variance only at the vertices a planner samples around this
+    touch (``thinning.thin_near``, one per step_m voxel within radius_m); None: at every vertex.
 
     Atomic: InputError (naming the TouchEvent field) leaves the GP as it was, for a position beyond
     palpate.inputs' bounds, a normal that is not unit, or a touch the kernel cannot hold together with
@@ -252,4 +277,5 @@ def add_touch(
             reason = f"the GPIS cannot add this touch to its {gp.n_contacts} contacts: {exc}"
             raise InputError("position_m", reason) from exc
     gp.add_contact(p, n)
-    return mesh_from_grid(gp, axes, with_variance=with_variance)
+    sites = None if variance_near is None else (lambda v: thin_near(v, p, *variance_near))
+    return mesh_from_grid(gp, axes, with_variance=with_variance, variance_sites=sites)

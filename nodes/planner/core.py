@@ -40,10 +40,11 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
 from palpate.config import NonNegativeFloat, PositiveFloat, PositiveInt, Validated
-from palpate.errors import PlanningError
+from palpate.errors import InputError, PlanningError
 from palpate.geometry.bezier import approach_curve, bezier_length, bezier_point
 from palpate.geometry.rotations import quat_to_matrix
-from palpate.inputs import MAX_COORDINATE_M, UNIT_TOLERANCE, bounded, coordinates, unit_or_zero
+from palpate.geometry.thinning import thin_near
+from palpate.inputs import MAX_COORDINATE_M, UNIT_TOLERANCE, bounded, coordinates, unit_or_zero, vertex_subset
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -180,9 +181,10 @@ def sample_candidates(
     """Thin surface points to about ``step_m`` spacing within ``radius_m`` of the last contact.
 
     Section 2.4: "the estimated surface S is sampled, starting from the last contact position" with
-    a 0.5 cm step up to 5 cm. A voxel grid of edge ``step_m`` centred on the last contact keeps, per
-    occupied voxel, the surface point nearest the voxel centre (a real mesh point, so its normal and
-    variance stay exact). vertices, normals: (k, 3); variance: (k,); last_contact: (3,).
+    a 0.5 cm step up to 5 cm. ``thinning.thin_near``: a voxel grid of edge ``step_m`` centred on the
+    last contact keeps, per occupied voxel, the surface point nearest the voxel centre (a real mesh
+    point, so its normal and variance stay exact). vertices, normals: (k, 3); variance: (k,);
+    last_contact: (3,).
     Returns possibly zero candidates (the caller decides what an empty surface means).
     """
     V = _points("vertices", vertices)
@@ -193,24 +195,12 @@ def sample_candidates(
         raise PlanningError(f"normals {N.shape} and variance {Q.shape} must match vertices {V.shape}")
     if not (step_m > 0.0 and radius_m > 0.0):
         raise PlanningError(f"step_m and radius_m must be > 0, got {step_m!r}, {radius_m!r}")
-    rel = V - c
-    inside = np.flatnonzero(np.einsum("ij,ij->i", rel, rel) <= radius_m**2)
-    grid = rel[inside] / step_m
-    key3 = np.floor(grid + 0.5).astype(np.int64)  # voxel of each point; the contact sits at a centre
-    off = grid - key3
-    dist2 = np.einsum("ij,ij->i", off, off)
-    K = int(np.ceil(radius_m / step_m)) + 1
-    side = 2 * K + 1
-    key = ((key3[:, 0] + K) * side + (key3[:, 1] + K)) * side + (key3[:, 2] + K)
-    order = np.lexsort((dist2, key))  # by voxel, nearest-to-centre first
-    first = np.ones(order.size, dtype=bool)
-    first[1:] = key[order][1:] != key[order][:-1]
-    keep = np.sort(inside[order[first]])
+    keep = thin_near(V, c, step_m, radius_m)
     return Candidates(
         points_m=V[keep].copy(),
         normals=N[keep].copy(),
         variance=Q[keep].copy(),
-        indices=keep.astype(np.int64),
+        indices=keep,
     )
 
 
@@ -507,21 +497,32 @@ class TouchPlanner:
         vertex_variance: FloatArray,
         fingertip: tuple[FloatArray, FloatArray] | None,
         rng: np.random.Generator,
+        *,
+        variance_vertices: NDArray[np.integer] | None = None,
     ) -> Plan | None:
         """The next touch, or None when this surface is not the one to plan on.
 
-        Plans on a "local" surface (vertices (k, 3) m, outward unit vertex normals (k, 3), GP variance
-        (k,) m^2) made from num_contacts contacts, when that is every contact so far and no plan was made
-        for them yet. fingertip: its centre (3,) m and orientation (unit quaternion wxyz (4,); its z axis
-        is the poking axis) now. Raises PlanningError
+        Plans on a "local" surface (vertices (v, 3) m, outward unit vertex normals (v, 3), GP variance
+        (k,) m^2 at the vertices variance_vertices (k,), default all) made from num_contacts contacts,
+        when that is every contact so far and no plan was made for them yet. GP-V samples its
+        candidates among the vertices with a variance (the GPIS node gives it at GP-V's candidates), the
+        others among all vertices. fingertip: its centre (3,) m and orientation (unit quaternion wxyz
+        (4,); its z axis is the poking axis) now. Raises PlanningError
         when planning is due and there is no fingertip pose, or no candidate near the last contact.
         """
         if region != "local" or num_contacts != len(self.contacts) or self.planned_for == len(self.contacts):
             return None
         # a surface the planner cannot use is refused before anything changes (InputError)
-        coordinates(vertices_m, "vertices_m")
+        V = coordinates(vertices_m, "vertices_m")
         bounded(vertex_normals, "vertex_normals", 1.0 + UNIT_TOLERANCE)
-        bounded(vertex_variance, "vertex_variance", MAX_COORDINATE_M**2, "m^2", lower=0.0)
+        sites = (
+            np.arange(len(V))
+            if variance_vertices is None
+            else vertex_subset(variance_vertices, len(V), "variance_vertices")
+        )
+        Q = bounded(vertex_variance, "vertex_variance", MAX_COORDINATE_M**2, "m^2", lower=0.0)
+        if Q.shape != sites.shape:
+            raise InputError("vertex_variance", f"has {Q.size} values for {sites.size} variance_vertices")
         self.planned_for = len(self.contacts)
         if fingertip is None:
             raise PlanningError("no fingertip pose received yet; the simulation or driver must publish one")
@@ -529,7 +530,10 @@ class TouchPlanner:
         axis = quat_to_matrix(quaternion_wxyz)[:, 2]
         cfg = self.config
         last = self.contacts[-1]
-        candidates = self.planner.sample(vertices_m, vertex_normals, vertex_variance, last)
+        if cfg.strategy == "gpv":
+            candidates = self.planner.sample(V[sites], np.asarray(vertex_normals)[sites], Q, last)
+        else:
+            candidates = self.planner.sample(V, vertex_normals, np.zeros(len(V)), last)
         surface = (vertices_m, vertex_normals, fingertip_m)
         contacts = np.array(self.contacts)
         admissible = None

@@ -36,6 +36,7 @@ class PlannerNode:
                 message.vertex_variance,
                 self.fingertip,
                 self.ctx.rng,
+                variance_vertices=message.variance_vertices,
             )
         except PlanningError as exc:
             # the contact is planned for and no other surface will come for it: without a target the

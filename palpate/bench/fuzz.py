@@ -270,7 +270,9 @@ class FrameGenerator:
     def _ints(self, name: str, shape: tuple[int, ...], dims: dict[str, int], profile: str) -> np.ndarray:
         rng = self.rng
         if profile == "plausible":
-            high = dims.get("v", 64) if name == "faces" else 64
+            high = dims.get("v", 64) if name in ("faces", "variance_vertices") else 64
+            if name == "variance_vertices" and shape[0] <= high:  # a subset of the vertices, ascending
+                return np.sort(rng.choice(high, shape[0], replace=False))
             return rng.integers(0, max(high, 1), shape)
         profile = str(rng.choice(_INT_PROFILES))
         if profile == "zeros":

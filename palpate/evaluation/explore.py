@@ -172,7 +172,7 @@ class Episode:
             "start_quaternion": list(self.quaternion_wxyz),
             "target": list(self.target_m),
             "duration_s": self.duration_s,
-            "variance": self.strategy == "gpv",
+            "variance": "candidates" if self.strategy == "gpv" else "none",
             "results": self.results_path,
             "plot": self.plot_path,
         }

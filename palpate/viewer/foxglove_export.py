@@ -69,6 +69,7 @@ from palpate.viewer.rerun_log import (
     ViewConfig,
     colorize,
     occupied_cells,
+    variance_per_vertex,
 )
 
 FOXGLOVE_HINT = "palpate bag export --foxglove needs the foxglove extra: pip install 'palpate[foxglove]'"
@@ -256,7 +257,7 @@ class FoxgloveScene:
         return [self._scene(topic, m.stamp_ns, "truth", triangles=[self._mesh(m.vertices_m, m.faces, rgba=TRUTH_RGBA)])]
 
     def _surface_mesh(self, topic: str, m: SurfaceMesh) -> list[Exported]:
-        colors = colorize(m.vertex_variance, self.config.colormap)
+        colors = colorize(variance_per_vertex(m), self.config.colormap)
         mesh = self._mesh(m.vertices_m, m.faces, colors=colors)
         return [self._scene(topic, m.stamp_ns, m.region or "surface", triangles=[mesh])]
 

@@ -34,6 +34,7 @@ import numpy as np
 
 from palpate.geometry.bezier import bezier_point
 from palpate.geometry.rotations import quat_to_matrix
+from palpate.inputs import per_vertex
 from palpate.messages.base import Message
 from palpate.messages.schemas import (
     ContactSet,
@@ -125,6 +126,11 @@ def colorize(
         scaled = np.clip((v[finite] - lo) / (hi - lo), 0.0, 1.0) if hi > lo else np.full(int(finite.sum()), 0.5)
         out[finite] = colormaps[colormap](scaled, bytes=True)
     return out
+
+
+def variance_per_vertex(m: SurfaceMesh) -> np.ndarray:
+    """A SurfaceMesh's GP variance at every vertex (v,), NaN (grey in ``colorize``) where it carries none."""
+    return per_vertex(m.vertex_variance, m.variance_vertices, len(m.vertices_m), "variance_vertices")
 
 
 def vertex_normals(vertices_m: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -270,7 +276,7 @@ class SceneLogger:
             vertex_positions=np.asarray(m.vertices_m, dtype=np.float64),
             triangle_indices=np.asarray(m.faces, dtype=np.uint32),
             vertex_normals=np.asarray(m.vertex_normals, dtype=np.float64),
-            vertex_colors=colorize(m.vertex_variance, self.config.colormap),
+            vertex_colors=colorize(variance_per_vertex(m), self.config.colormap),
         )
 
     def _touch_target(self, logger: Logger, root: str, topic: str, m: TouchTarget) -> None:

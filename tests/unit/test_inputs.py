@@ -12,6 +12,7 @@ from palpate.inputs import (
     contact_arrays,
     coordinates,
     fingertip_pose,
+    per_vertex,
     select_named,
     triangle_mesh,
     unique_names,
@@ -156,3 +157,13 @@ def test_norms_of_a_few_values_take_the_scalar_path_with_numpys_bits(monkeypatch
             monkeypatch.undo()
             for got, want in zip(few, reference, strict=True):
                 assert got.shape == want.shape and got.tobytes() == want.tobytes()
+
+
+def test_per_vertex_spreads_values_over_their_vertices_and_refuses_bad_indices() -> None:
+    np.testing.assert_array_equal(per_vertex([1.0, 2.0], [0, 3], 4, "variance_vertices", -1.0), [1.0, -1, -1, 2.0])
+    assert np.all(np.isnan(per_vertex([], [], 2, "f")))
+    for bad in ([1, 1], [2, 1], [0, 4], [-1, 0]):
+        with pytest.raises(InputError, match=r"^variance_vertices: must be ascending distinct vertex indices in"):
+            per_vertex([1.0, 2.0], bad, 4, "variance_vertices")
+    with pytest.raises(InputError, match=r"^f: has 1 indices for 2 values"):
+        per_vertex([1.0, 2.0], [0], 4, "f")

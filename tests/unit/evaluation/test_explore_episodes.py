@@ -72,7 +72,7 @@ def test_episodes_pair_strategies_on_the_same_start_and_load_as_launch_arguments
     apply_params(launch, items[1].params)
     nodes = {n.fields["name"]: n.fields for n in launch.nodes}
     assert nodes["planner"]["params"]["strategy"] == "gpv"
-    assert nodes["gpis"]["params"]["vertex_variance"] is True
+    assert nodes["gpis"]["params"]["vertex_variance"] == "candidates"
     assert nodes["eval"]["params"]["report"] is False
     assert launch.seed == 0
 

@@ -54,6 +54,7 @@ def test_bad_true_meshes_are_refused_and_slivers_dropped() -> None:
         vertices_m=V,
         faces=np.array([[0, 1, 99]], dtype=np.int32),
         vertex_normals=np.zeros_like(V),
+        variance_vertices=np.arange(len(V), dtype=np.int32),
         vertex_variance=np.zeros(len(V)),
     )
     with pytest.raises(InputError, match=r"^faces: vertex index 99 is outside"):

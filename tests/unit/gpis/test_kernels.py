@@ -140,11 +140,25 @@ def test_contractions_match_explicit_blocks(kernel: IsotropicKernel, scale: floa
     grad_blocks = kernel.observation_cov(x, y).reshape(len(x), 4, 30 * 4)[:, 1:, :]
     ref_grad = grad_blocks @ w.ravel()
     tol = 1e-12 * np.abs(w).sum() * kernel.value_variance
-    np.testing.assert_allclose(kernel.value_contract(x, y, w), ref_value, rtol=0, atol=tol)
-    generic = IsotropicKernel.value_contract(kernel, x, y, w)
-    np.testing.assert_allclose(generic, ref_value, rtol=0, atol=tol)
     gtol = 1e-12 * np.abs(w).sum() * kernel.gradient_variance * 10
+    assert kernel.compiled() is not None  # the compiled loops (dense_kernels) ...
+    np.testing.assert_allclose(kernel.value_contract(x, y, w), ref_value, rtol=0, atol=tol)
     np.testing.assert_allclose(kernel.gradient_contract(x, y, w), ref_grad, rtol=0, atol=gtol)
+    # ... and the numpy paths that kernels without them take
+    np.testing.assert_allclose(kernel._value_contract_numpy(x, y, w), ref_value, rtol=0, atol=tol)
+    np.testing.assert_allclose(kernel._gradient_contract_numpy(x, y, w), ref_grad, rtol=0, atol=gtol)
+    np.testing.assert_allclose(kernel._value_obs_cov_numpy(x, y), kernel.value_obs_cov(x, y), rtol=1e-13, atol=0)
+
+
+def test_range_check_without_distances_is_exact() -> None:
+    """check_range passes when the bounding boxes are farther apart than R but every pair is within R."""
+    k = ThinPlateKernel(1.0)
+    x = np.array([[0.0, 0.0, 0.0], [0.7, 0.7, 0.0]])
+    y = np.array([[0.7, 0.0, 0.0], [0.0, 0.7, 0.0]])  # box corners 0.99 apart, every pair 0.7
+    k.check_range(np.vstack([x, [[0.7, 0.7, 0.7]]]), y)  # corner bound sqrt(3) 0.7 > 1, every pair <= 0.99
+    with pytest.raises(EstimationError, match="R_m"):
+        k.check_range(x * 1.5, y * 1.5)
+    k.value_contract(x, y, np.ones((2, 4)))
 
 
 def test_thin_plate_covariance_positive_definite_within_its_valid_span() -> None:

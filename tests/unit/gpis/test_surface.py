@@ -7,9 +7,11 @@ import pytest
 from scipy.spatial import cKDTree
 
 from palpate.errors import EstimationError
+from palpate.geometry.thinning import thin_near
 from palpate.nodes.gpis.core import GPIS, GPISConfig
 from palpate.nodes.gpis.surface import (
     SurfaceMeshArrays,
+    add_touch,
     global_surface,
     grid_axes,
     local_surface,
@@ -49,6 +51,7 @@ def _check_mesh_arrays(mesh: SurfaceMeshArrays) -> None:
     v = len(mesh.vertices)
     assert mesh.vertices.shape == (v, 3) and mesh.vertex_normals.shape == (v, 3)
     assert mesh.vertex_variance.shape == (v,) and mesh.faces.dtype == np.int32
+    np.testing.assert_array_equal(mesh.variance_vertices, np.arange(v))
     assert mesh.faces.min() >= 0 and mesh.faces.max() < v
     np.testing.assert_allclose(np.linalg.norm(mesh.vertex_normals, axis=1), 1.0, atol=1e-12)
     assert np.all(mesh.vertex_variance >= 0)
@@ -120,7 +123,7 @@ def test_local_surface_around_a_contact() -> None:
     np.testing.assert_allclose(mesh.face_centres(), mesh.vertices[mesh.faces].mean(axis=1))
     bare = local_surface(gp, P[-1], 0.03, 0.004, with_variance=False)
     np.testing.assert_array_equal(bare.vertices, mesh.vertices)
-    assert np.all(bare.vertex_variance == 0)
+    assert bare.variance_vertices.shape == (0,) and bare.vertex_variance.shape == (0,)
 
 
 def test_faces_are_wound_outwards() -> None:
@@ -208,7 +211,7 @@ def test_whole_surface_spans_the_contacts_box_plus_the_margin() -> None:
     np.testing.assert_allclose(mesh.vertices.max(axis=0), CENTRE + 0.04, atol=0.003)
     bare = whole_surface(gp, 0.01, 0.004, with_variance=False)
     np.testing.assert_array_equal(bare.vertices, mesh.vertices)
-    assert np.all(bare.vertex_variance == 0)
+    assert bare.variance_vertices.shape == (0,) and bare.vertex_variance.shape == (0,)
 
 
 def test_vertex_variance_is_never_negative(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -222,3 +225,19 @@ def test_vertex_variance_is_never_negative(monkeypatch: pytest.MonkeyPatch) -> N
     mesh = local_surface(gp, P[0], 0.02, 0.004)
     assert not mesh.is_empty
     assert mesh.vertex_variance.tobytes() == np.zeros(len(mesh.vertices)).tobytes()  # +0.0, not -0.0
+
+
+def test_add_touch_gives_the_variance_at_the_planners_candidates_only_when_asked() -> None:
+    rng = np.random.default_rng(11)
+    P, N = sphere_contacts(30, rng, 0.04)
+    gp, same = GPIS(), GPIS()
+    gp.add_contacts(P[:-1], N[:-1])
+    same.add_contacts(P[:-1], N[:-1])
+    everywhere = add_touch(gp, P[-1], N[-1], 0.05, 0.005)
+    np.testing.assert_array_equal(everywhere.variance_vertices, np.arange(len(everywhere.vertices)))
+    near = add_touch(same, P[-1], N[-1], 0.05, 0.005, variance_near=(0.005, 0.04))
+    np.testing.assert_array_equal(near.vertices, everywhere.vertices)
+    sites = thin_near(near.vertices, P[-1], 0.005, 0.04)
+    assert 0 < len(sites) < len(near.vertices) / 2
+    np.testing.assert_array_equal(near.variance_vertices, sites)
+    np.testing.assert_allclose(near.vertex_variance, everywhere.vertex_variance[sites], rtol=1e-12, atol=0)

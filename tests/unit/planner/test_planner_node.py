@@ -53,6 +53,7 @@ def plane(variance: float) -> SurfaceMesh:
         vertices_m=V,
         faces=np.array(quads, dtype=np.int32),
         vertex_normals=np.tile([0.0, 0.0, 1.0], (len(V), 1)),
+        variance_vertices=np.arange(len(V), dtype=np.int32),
         vertex_variance=np.full(len(V), variance),
     )
 

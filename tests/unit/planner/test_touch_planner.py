@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from palpate.errors import PlanningError
+from palpate.errors import InputError, PlanningError
+from palpate.geometry.thinning import thin_near
 from palpate.nodes.planner.core import Planner, PlannerConfig, TouchPlanner, curves_clear
 
 DOWN_WXYZ = np.array([0.0, 1.0, 0.0, 0.0])  # half turn about x: poking axis R[:, 2] = -z
@@ -181,3 +182,35 @@ def test_when_no_curve_is_clear_the_papers_choice_is_kept_and_counted() -> None:
     assert plan.selection.index == paper.index
     np.testing.assert_array_equal(plan.selection.scores, paper.scores)
     assert planner.take_counts() == {"no_clear_curve": 1}
+
+
+def test_gpv_on_the_variance_at_its_candidates_chooses_as_on_the_variance_everywhere() -> None:
+    """The GPIS node's vertex_variance "candidates" (thin_near with GP-V's step and radius) loses nothing."""
+    V, N = plane(step=0.002)
+    rng = np.random.default_rng(4)
+    variance = rng.uniform(0.0, 1e-4, len(V))
+    config = PlannerConfig(strategy="gpv")
+    full = touched_at_origin(config).plan("local", 1, V, N, variance, over(np.zeros(3)), np.random.default_rng(0))
+    sites = thin_near(V, np.zeros(3), config.candidate_step_m, config.gpv_radius_m).astype(np.int32)
+    assert 0 < len(sites) < len(V) / 2
+    part = touched_at_origin(config).plan(
+        "local", 1, V, N, variance[sites], over(np.zeros(3)), np.random.default_rng(0), variance_vertices=sites
+    )
+    assert full is not None and part is not None
+    np.testing.assert_array_equal(part.candidates.points_m, full.candidates.points_m)
+    np.testing.assert_array_equal(part.selection.target_m, full.selection.target_m)
+
+
+def test_variance_vertices_out_of_range_or_unordered_are_refused_by_name() -> None:
+    V, N = plane()
+    planner = touched_at_origin(PlannerConfig(strategy="gpv"))
+    for bad in ([0, len(V)], [3, 2], [-1, 4]):
+        with pytest.raises(InputError, match=r"^variance_vertices: must be ascending distinct"):
+            planner.plan(
+                "local", 1, V, N, np.ones(2), over(np.zeros(3)), np.random.default_rng(0), variance_vertices=bad
+            )
+    with pytest.raises(InputError, match=r"^vertex_variance: has 3 values for 2 variance_vertices"):
+        planner.plan(
+            "local", 1, V, N, np.ones(3), over(np.zeros(3)), np.random.default_rng(0), variance_vertices=[0, 1]
+        )
+    assert planner.planned_for == 0  # refused before anything changed

@@ -36,6 +36,7 @@ def mesh(stamp_ns: int, size_m: float = 0.01) -> SurfaceMesh:
         vertices_m=vertices,
         faces=faces,
         vertex_normals=normals,
+        variance_vertices=np.arange(8, dtype=np.int32),
         vertex_variance=np.zeros(8),
     )
 

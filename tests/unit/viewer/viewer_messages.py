@@ -76,6 +76,7 @@ def surface(stamp_ns: int, region: str = "local") -> SurfaceMesh:
         vertices_m=TETRA_V,
         faces=TETRA_F,
         vertex_normals=normals,
+        variance_vertices=np.arange(4, dtype=np.int32),
         vertex_variance=np.array([1e-6, 4e-6, 2e-6, 3e-6]),
     )
 
