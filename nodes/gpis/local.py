@@ -64,6 +64,7 @@ from palpate.nodes.gpis.core import (
     prior_gradient,
     prior_mean,
 )
+from palpate.nodes.gpis.expert_pack import FAR_SLOT, ExpertPack
 from palpate.nodes.gpis.kernels import IsotropicKernel
 from palpate.nodes.gpis.local_kernels import (
     blend_pairs,
@@ -106,7 +107,7 @@ class LocalGPIS:
             self._centre = _points(prior_centre_m, "prior_centre_m")[0].copy()
         self._experts: dict[int, GPIS] = {}
         self._margins: dict[int, float] = {}  # experts whose margin shrank (default: margin_m)
-        self._table: tuple[IntArray, list[GPIS]] | None = None
+        self._pack = ExpertPack()  # every expert's contacts and weights, for the compiled loops
         self._far: GPIS | None = None
         self._far_cells: set[int] = set()
         self._P = np.zeros((0, 3))
@@ -190,6 +191,10 @@ class LocalGPIS:
             raise
         self._experts.update(staged)
         self._far = far
+        for key in groups:
+            self._pack.set(key, self._experts[key])
+        if far_new.size:
+            self._pack.set(None, far)
         self._far_cells.update(int(k) for k in _pack(self._far_index(P[far_new])))
         self._centre = centre
         self._append(P, N)
@@ -235,7 +240,7 @@ class LocalGPIS:
             expert.add_contacts(positions[rows], normals[rows])
         self._experts[key] = expert
         self._margins[key] = margin
-        self._table = None
+        self._pack.set(key, expert)
 
     def _append(self, P: FloatArray, N: FloatArray) -> None:
         need = self._count + len(P)
@@ -305,29 +310,28 @@ class LocalGPIS:
         if self._count == 0 or len(x) == 0:
             return np.full(len(x), prior)
         pairs = self._pairs(x, gradient=False)
-        order = np.argsort(pairs.slot, kind="stable")
-        counts = np.bincount(pairs.slot, minlength=len(pairs.experts))
+        P, _, starts, ends = self._pack.arrays()
+        point = np.concatenate([pairs.point, pairs.far_point])
+        slot = np.concatenate([pairs.slot, np.full(len(pairs.far_point), FAR_SLOT, dtype=np.int64)])
+        weight = np.concatenate([pairs.weight, pairs.far_weight])
+        order = np.argsort(slot, kind="stable")
+        counts = np.bincount(slot, minlength=len(starts))
         col_starts = np.concatenate([[0], np.cumsum(counts)])
-        Ps = [e.residual_weights()[0] for e in pairs.experts]
-        sizes = np.array([len(p) for p in Ps], dtype=np.int64)
-        ends = np.cumsum(sizes)
-        rows = 4 * sizes
-        block_sizes = rows * counts
-        offsets = np.concatenate([[0], np.cumsum(block_sizes)])
+        rows = 4 * (ends - starts)
+        offsets = np.concatenate([[0], np.cumsum(rows * counts)])
         blocks = np.empty(int(offsets[-1]))
         kind, p1, p2 = self._compiled_kernel()
-        r_max = value_obs_blocks(
-            x, pairs.point[order], col_starts, np.concatenate(Ps), ends - sizes, ends, offsets, kind, p1, p2, blocks
-        )
+        r_max = value_obs_blocks(x, point[order], col_starts, P, starts, ends, offsets, kind, p1, p2, blocks)
         self.kernel.check_distances(float(r_max))
-        for s, expert in enumerate(pairs.experts):
-            if counts[s]:
-                block = blocks[offsets[s] : offsets[s + 1]].reshape((rows[s], counts[s]), order="F")
-                expert.solve_factor_in_place(block)  # L_i V = k_*
+        for s in np.flatnonzero(counts).tolist():
+            block = blocks[offsets[s] : offsets[s + 1]].reshape((rows[s], counts[s]), order="F")
+            expert = self._pack.experts[s]
+            assert expert is not None  # a slot with query points has an expert
+            expert.solve_factor_in_place(block)  # L_i V = k_*
         explained = np.empty(len(order))
         column_sums_of_squares(blocks, col_starts, rows, offsets, explained)
         var = np.maximum(prior - explained, 0.0)  # Eq. 6 per (point, expert), in slot order
-        out = np.bincount(pairs.point[order], weights=pairs.weight[order] * var, minlength=len(x))
+        out = np.bincount(point[order], weights=weight[order] * var, minlength=len(x))
         return out.astype(np.float64, copy=False)  # float64 already (weighted); for the type checker
 
     def mean_and_variance(self, x: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -345,30 +349,23 @@ class LocalGPIS:
         if self._count == 0 or len(x) == 0:
             return f, g
         pairs = self._pairs(x, gradient=gradient)
-        near = pairs.slot != pairs.far_slot
-        # Concatenate the contacts and alpha of the experts in play, slot by slot.
-        Ps, As = zip(*(e.residual_weights() for e in pairs.experts), strict=True)
-        counts = np.array([len(p) for p in Ps], dtype=np.int64)
-        ends = np.cumsum(counts)
-        starts = ends - counts
+        P, A, starts, ends = self._pack.arrays()
         kind, p1, p2 = self._compiled_kernel()
         r_max = contract_pairs(
-            x, pairs.point[near], pairs.slot[near], pairs.weight[near],
-            pairs.weight_grad[near] if gradient else pairs.weight_grad, starts, ends,
-            np.concatenate(Ps), np.concatenate(As), kind, p1, p2, gradient, f, g,
+            x, pairs.point, pairs.slot, pairs.weight, pairs.weight_grad, starts, ends, P, A, kind, p1, p2,
+            gradient, f, g,
         )  # fmt: skip
         self.kernel.check_distances(float(r_max))
-        if self._far is not None and pairs.far_slot >= 0:
-            # The far field holds hundreds of contacts: its own (BLAS-based, chunked) contraction is
-            # faster there. Each point appears once among its pairs; r = f_far - m.
-            far = ~near
-            idx, w = pairs.point[far], pairs.weight[far]
+        if self._far is not None and len(pairs.far_point):
+            # The far field holds hundreds of contacts: the exact GP's vectorised contraction is faster
+            # there. Each point appears once among the far pairs; r = f_far - m.
+            idx, w = pairs.far_point, pairs.far_weight
             xi = x[idx]
             r = self._far.mean(xi) - prior_mean(self.config, xi, centre)
             f[idx] += w * r
             if gradient:
                 grad_r = self._far.gradient(xi) - prior_gradient(self.config, xi, centre)
-                g[idx] += w[:, None] * grad_r + r[:, None] * pairs.weight_grad[far]
+                g[idx] += w[:, None] * grad_r + r[:, None] * pairs.far_weight_grad
         return f, g
 
     def _compiled_kernel(self) -> tuple[int, float, float]:
@@ -378,53 +375,38 @@ class LocalGPIS:
             raise EstimationError(f"LocalGPIS has no compiled contraction for the {self.kernel.name} kernel")
         return params
 
-    def _key_table(self) -> tuple[IntArray, list[GPIS]]:
-        """Sorted keys of the experts (k,) and the experts in that order; rebuilt when experts are added."""
-        if self._table is None or len(self._table[1]) != len(self._experts):
-            keys = np.array(sorted(self._experts), dtype=np.int64)
-            self._table = (keys, [self._experts[int(k)] for k in keys])
-        return self._table
-
     def _pairs(self, x: FloatArray, *, gradient: bool) -> _Pairs:
-        """Every (point, expert) with a non-zero weight at x (m, 3); missing experts' weight goes far."""
-        table, owners = self._key_table()
+        """Every (point, expert) with a non-zero weight at x (m, 3) (the expert's slot in the pack), and
+        the points whose missing experts' weight goes to the far field."""
+        table, table_slots = self._pack.table()
         point, pos, weight, weight_grad, far_w, far_g = blend_pairs(
             x, self.cell_m, self.blend_m, table, _KEY_BITS, gradient
         )
-        points, weights, grads = [point], [weight], [weight_grad]
-        # compact slots 0..k-1 for the experts in play (table positions), then the far field
-        used, inverse = np.unique(pos, return_inverse=True)
-        slots = [inverse.astype(np.int64)]
-        experts = [owners[int(i)] for i in used]
-        need = np.flatnonzero(far_w > 1e-12)  # round-off leaves ~1e-16 where experts cover everything
-        far_slot = -1
-        if need.size and self._far is not None:
-            far_slot = len(experts)
-            points.append(need)
-            slots.append(np.full(need.size, len(experts), dtype=np.int64))
-            weights.append(far_w[need])
-            grads.append(far_g[need])
-            experts.append(self._far)
+        need = np.flatnonzero(far_w > 1e-12) if self._far is not None else np.zeros(0, dtype=np.int64)
+        # (round-off leaves ~1e-16 where experts cover everything)
         return _Pairs(
-            point=np.concatenate(points),
-            slot=np.concatenate(slots),
-            weight=np.concatenate(weights),
-            weight_grad=np.concatenate(grads) if gradient else np.zeros((0, 3)),
-            experts=experts,
-            far_slot=far_slot,
+            point=point,
+            slot=table_slots[pos],
+            weight=weight,
+            weight_grad=weight_grad,
+            far_point=need,
+            far_weight=far_w[need],
+            far_weight_grad=far_g[need] if gradient else np.zeros((0, 3)),
         )
 
 
 @dataclass(frozen=True)
 class _Pairs:
-    """(point, expert slot) pairs with blend weights (k,), weight gradients (k, 3) and the experts."""
+    """(point, expert slot) pairs with blend weights (k,) and weight gradients (k, 3) (empty unless
+    asked for), and the points (j,) that the far field weighs, with its weights and their gradients."""
 
     point: IntArray
     slot: IntArray
     weight: FloatArray
     weight_grad: FloatArray
-    experts: list[GPIS]
-    far_slot: int  # slot of the far-field expert, -1 when no point needs it
+    far_point: IntArray
+    far_weight: FloatArray
+    far_weight_grad: FloatArray
 
 
 class AutoGPIS:

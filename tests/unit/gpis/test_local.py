@@ -7,6 +7,7 @@ import pytest
 
 from palpate.errors import ConfigError, EstimationError
 from palpate.nodes.gpis.core import GPIS, GPISConfig
+from palpate.nodes.gpis.expert_pack import FAR_SLOT
 from palpate.nodes.gpis.local import AutoGPIS, LocalGPIS, make_estimator
 
 AXES = np.array([0.06, 0.04, 0.03])
@@ -82,10 +83,14 @@ def test_weights_form_a_partition_of_unity_with_zero_gradient_sum() -> None:
     local.add_contacts(P, N)
     x = CENTRE + rng.uniform(-0.08, 0.08, (3000, 3))
     pairs = local._pairs(x, gradient=True)
-    total = np.bincount(pairs.point, weights=pairs.weight, minlength=len(x))
+    point = np.concatenate([pairs.point, pairs.far_point])
+    weight = np.concatenate([pairs.weight, pairs.far_weight])
+    weight_grad = np.concatenate([pairs.weight_grad, pairs.far_weight_grad])
+    assert len(pairs.far_point) and len(pairs.point)  # both kinds of weight are in play
+    total = np.bincount(point, weights=weight, minlength=len(x))
     np.testing.assert_allclose(total, 1.0, rtol=0, atol=1e-12)
     for k in range(3):
-        grad_sum = np.bincount(pairs.point, weights=pairs.weight_grad[:, k], minlength=len(x))
+        grad_sum = np.bincount(point, weights=weight_grad[:, k], minlength=len(x))
         np.testing.assert_allclose(grad_sum, 0.0, rtol=0, atol=1e-9)
 
 
@@ -211,3 +216,30 @@ def test_full_experts_shrink_their_margin_and_stay_accurate() -> None:
     x = near_surface(np.random.default_rng(11), 1000, 0.003)
     shift_m = np.abs(local.mean(x) - exact.mean(x)) / np.linalg.norm(exact.gradient(x), axis=1)
     assert np.percentile(shift_m, 95) < 1e-4, np.percentile(shift_m, 95)
+
+
+def test_the_pack_holds_every_experts_current_rows_after_many_updates_and_compactions() -> None:
+    """ExpertPack: after one-by-one updates (appends, garbage, compactions) each slot's rows are its
+    expert's current contacts and weights, and the far field sits in slot 0."""
+    rng = np.random.default_rng(12)
+    P, N = ellipsoid(300, rng)
+    local = LocalGPIS(CONFIG)
+    local.add_contacts(P[:100], N[:100])
+    written = 0
+    for i in range(100, 300):
+        local.add_contact(P[i], N[i])
+        used = local._pack._used
+        local.mean(P[:5])  # the pack refreshes when a query needs it
+        written += max(0, local._pack._used - used)
+    assert written > 2 * local._pack._live  # garbage was written, so the arrays were compacted on the way
+    assert local._pack._used <= 2 * local._pack._live + 256
+    packed_P, packed_A, starts, ends = local._pack.arrays()
+    assert local._pack.experts[FAR_SLOT] is local._far
+    assert len(local._pack.experts) == local.n_experts + 1
+    for s, expert in enumerate(local._pack.experts):
+        assert expert is not None
+        positions, alpha = expert.residual_weights()
+        np.testing.assert_array_equal(packed_P[starts[s] : ends[s]], positions)
+        np.testing.assert_array_equal(packed_A[starts[s] : ends[s]], alpha)
+    keys, slots = local._pack.table()
+    assert np.all(np.diff(keys) > 0) and sorted(slots.tolist()) == list(range(1, local.n_experts + 1))
