@@ -204,7 +204,7 @@ class IsotropicKernel(ABC):
         d, r = self._checked_components(x, y)
         phi, g1 = self.radial(r)
         dw = d[0] * w[:, 1] + d[1] * w[:, 2] + d[2] * w[:, 3]
-        return np.einsum("mn,mn->m", phi, np.broadcast_to(w[:, 0], phi.shape)) - np.einsum("mn,mn->m", g1, dw)
+        return phi @ w[:, 0] - np.einsum("mn,mn->m", g1, dw)
 
     def _gradient_contract_numpy(self, x: FloatArray, y: FloatArray, w: FloatArray) -> FloatArray:
         if len(x) * len(y) > _CHUNK_ENTRIES:
