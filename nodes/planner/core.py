@@ -531,6 +531,11 @@ class TouchPlanner:
         cfg = self.config
         last = self.contacts[-1]
         if cfg.strategy == "gpv":
+            if len(V) and not len(sites):
+                raise PlanningError(
+                    "GP-V needs the GP variance on the surface, and this mesh carries none: set the gpis "
+                    "node's vertex_variance to candidates or all"
+                )
             candidates = self.planner.sample(V[sites], np.asarray(vertex_normals)[sites], Q, last)
         else:
             candidates = self.planner.sample(V, vertex_normals, np.zeros(len(V)), last)

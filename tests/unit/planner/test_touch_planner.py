@@ -214,3 +214,10 @@ def test_variance_vertices_out_of_range_or_unordered_are_refused_by_name() -> No
             "local", 1, V, N, np.ones(3), over(np.zeros(3)), np.random.default_rng(0), variance_vertices=[0, 1]
         )
     assert planner.planned_for == 0  # refused before anything changed
+
+
+def test_gpv_on_a_mesh_without_variance_names_the_gpis_setting() -> None:
+    V, N = plane()
+    planner = touched_at_origin(PlannerConfig(strategy="gpv"))
+    with pytest.raises(PlanningError, match="vertex_variance to candidates or all"):
+        planner.plan("local", 1, V, N, np.zeros(0), over(np.zeros(3)), np.random.default_rng(0), variance_vertices=[])
