@@ -105,6 +105,15 @@ class PlannerConfig(Validated):
     #: Extra weight of an unexplored patch per explored fraction of its surroundings (2 rho): holes and
     #: the rim of the explored region first, so that no patch is left for a long trip back.
     area_hole_weight: NonNegativeFloat = 2.0
+    #: Experimental: weight kappa of the GP variance in the area strategy's gain, G(s) (1 + kappa
+    #: var(s) / max var), so that among equal new areas the least known is touched first; 0 (default)
+    #: leaves the variance out (and the strategy then needs none from the GPIS node).
+    area_variance_weight: NonNegativeFloat = 0.0
+
+    @property
+    def uses_variance(self) -> bool:
+        """Whether the strategy rates candidates by the GP variance (GP-V; area with a variance weight)."""
+        return self.strategy == "gpv" or (self.strategy == "area" and self.area_variance_weight > 0.0)
 
     @property
     def radius_m(self) -> float:
@@ -254,6 +263,7 @@ def area_scores(
     v_n: FloatArray,
     R_z: FloatArray,
     config: PlannerConfig,
+    variance: FloatArray | None = None,
 ) -> FloatArray:
     """Area strategy (not in the paper): new explored area per unit of travel, for every candidate (m,).
 
@@ -269,6 +279,8 @@ def area_scores(
     region, so that no unexplored patch is left behind for a long trip back. When no candidate explores
     anything (the local surface is covered), the score is the distance to the nearest contact per unit
     of travel, which leads out of the covered region.
+    With ``area_variance_weight`` kappa > 0 and the GP variance (m,) at the candidates, the gain is
+    G(s) (1 + kappa var(s) / max var): among equal new areas, the least known first.
     candidates_m, normals (unit): (m, 3); contacts_m: (n, 3); r, v_n, R_z as in igef_terms.
     """
     rho = config.area_radius_m
@@ -287,6 +299,8 @@ def area_scores(
             weight += config.area_hole_weight * explored_around / np.maximum(around, 1)
         pairs = candidate_tree.sparse_distance_matrix(cKDTree(unexplored), rho, output_type="ndarray")
         gain = np.bincount(pairs["i"], weights=weight[pairs["j"]], minlength=len(candidates_m))
+        if config.area_variance_weight > 0.0 and variance is not None and variance.max() > 0.0:
+            gain *= 1.0 + config.area_variance_weight * variance / variance.max()
         if gain.max() > 0.0:
             return np.asarray(gain * psi4 / cost, dtype=np.float64)
     return np.asarray(explored_by * psi4 / cost, dtype=np.float64)
@@ -421,7 +435,7 @@ class Planner:
             scores[valid] = psi[valid].prod(axis=1)  # Eq. 12: Psi = prod Psi_n
             index = int(valid[np.argmax(scores[valid])])
         elif cfg.strategy == "area":
-            scores[valid] = area_scores(S[valid], Nrm[valid], C, r_, v, z, cfg)
+            scores[valid] = area_scores(S[valid], Nrm[valid], C, r_, v, z, cfg, Q[valid])
             index = int(valid[np.argmax(scores[valid])])
         elif cfg.strategy == "gpv":
             if not np.all(np.isfinite(Q[valid])):
@@ -504,10 +518,11 @@ class TouchPlanner:
 
         Plans on a "local" surface (vertices (v, 3) m, outward unit vertex normals (v, 3), GP variance
         (k,) m^2 at the vertices variance_vertices (k,), default all) made from num_contacts contacts,
-        when that is every contact so far and no plan was made for them yet. GP-V samples its
-        candidates among the vertices with a variance (the GPIS node gives it at GP-V's candidates), the
-        others among all vertices. fingertip: its centre (3,) m and orientation (unit quaternion wxyz
-        (4,); its z axis is the poking axis) now. Raises PlanningError
+        when that is every contact so far and no plan was made for them yet. A strategy that rates the
+        variance (``PlannerConfig.uses_variance``) samples its candidates among the vertices with a
+        variance (the GPIS node gives it at GP-V's candidates), the others among all vertices.
+        fingertip: its centre (3,) m and orientation (unit quaternion wxyz (4,); its z axis is the
+        poking axis) now. Raises PlanningError
         when planning is due and there is no fingertip pose, or no candidate near the last contact.
         """
         if region != "local" or num_contacts != len(self.contacts) or self.planned_for == len(self.contacts):
@@ -530,11 +545,11 @@ class TouchPlanner:
         axis = quat_to_matrix(quaternion_wxyz)[:, 2]
         cfg = self.config
         last = self.contacts[-1]
-        if cfg.strategy == "gpv":
+        if cfg.uses_variance:
             if len(V) and not len(sites):
                 raise PlanningError(
-                    "GP-V needs the GP variance on the surface, and this mesh carries none: set the gpis "
-                    "node's vertex_variance to candidates or all"
+                    f"the {cfg.strategy} strategy needs the GP variance on the surface, and this mesh carries "
+                    "none: set the gpis node's vertex_variance to candidates or all"
                 )
             candidates = self.planner.sample(V[sites], np.asarray(vertex_normals)[sites], Q, last)
         else:

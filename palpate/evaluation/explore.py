@@ -172,10 +172,16 @@ class Episode:
             "start_quaternion": list(self.quaternion_wxyz),
             "target": list(self.target_m),
             "duration_s": self.duration_s,
-            "variance": "candidates" if self.strategy == "gpv" else "none",
+            "variance": "candidates" if self._rates_variance() else "none",
             "results": self.results_path,
             "plot": self.plot_path,
         }
+
+    def _rates_variance(self) -> bool:
+        """Whether the planner rates by the GP variance (GP-V; area with a variance weight), so the GPIS
+        node must give it at the candidates."""
+        weight = float(dict(self.params).get("planner.area_variance_weight", 0.0))
+        return self.strategy == "gpv" or (self.strategy == "area" and weight > 0.0)
 
 
 def episodes(

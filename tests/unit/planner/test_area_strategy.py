@@ -87,3 +87,14 @@ def test_the_planner_selects_by_coverage() -> None:
     choice = planner.select(S, N, np.zeros(len(S)), C, C[-1], DOWN, DOWN, np.random.default_rng(0))
     assert choice.psi is None and choice.score == choice.scores.max() > 0.0
     assert 0.006 < np.linalg.norm(choice.target_m) <= 0.015
+
+
+def test_a_variance_weight_scales_the_gain_by_the_relative_variance() -> None:
+    S, N = plane_grid(half=0.025)
+    C = np.zeros((1, 3))
+    variance = np.random.default_rng(0).uniform(0.0, 1e-4, len(S))
+    plain = area_scores(S, N, C, C[-1], DOWN, DOWN, PlannerConfig(strategy="area"), variance)
+    config = PlannerConfig(strategy="area", area_variance_weight=3.0)
+    weighted = area_scores(S, N, C, C[-1], DOWN, DOWN, config, variance)
+    np.testing.assert_allclose(weighted, plain * (1.0 + 3.0 * variance / variance.max()), rtol=1e-12)
+    assert config.uses_variance and not PlannerConfig(strategy="area").uses_variance
