@@ -78,7 +78,8 @@ class InProcessGraph:
                     f"node {process.name!r} is passed at position {rank} but ranks {min(ranked - {rank})} in its "
                     "graph: pass the nodes in rank order (Graph.in_process_members())"
                 )
-            ctx = NodeContext(process.name, process.seed, self._sender(rank), dict(process.publishes))
+            # codec.transfer checks each message as validate would: publish need not validate first
+            ctx = NodeContext(process.name, process.seed, self._sender(rank), dict(process.publishes), send_checks=True)
             config = load(spec.config, process.params, f"node {process.name!r} params")
             self.members.append(_Member(rank, spec, process, ctx, spec.factory(config, ctx)))
         self.subscribers: dict[str, list[_Member]] = {}
