@@ -79,7 +79,14 @@ class InProcessGraph:
                     "graph: pass the nodes in rank order (Graph.in_process_members())"
                 )
             # codec.transfer checks each message as validate would: publish need not validate first
-            ctx = NodeContext(process.name, process.seed, self._sender(rank), dict(process.publishes), send_checks=True)
+            ctx = NodeContext(
+                process.name,
+                process.seed,
+                self._sender(rank),
+                dict(process.publishes),
+                send_checks=True,
+                may_stop=not spec.may_trail,
+            )
             config = load(spec.config, process.params, f"node {process.name!r} params")
             self.members.append(_Member(rank, spec, process, ctx, spec.factory(config, ctx)))
         self.subscribers: dict[str, list[_Member]] = {}
