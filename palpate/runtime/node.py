@@ -243,6 +243,9 @@ class NodeRunner:
 
     # --- sending -------------------------------------------------------------------------------------
     def _send(self, topic: str, message: Message) -> None:
+        if not self.counter.covering(topic):  # no subscriber (ZeroMQ would drop it): do not encode it
+            self.ctx.counters["messages_out"] += 1
+            return
         last, payload = self._last_sent
         if last is not message:  # the same message on a second topic is encoded once
             payload = self._encode(message)

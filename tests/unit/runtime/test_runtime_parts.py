@@ -267,3 +267,33 @@ def test_a_node_that_may_trail_cannot_stop_the_run() -> None:
     with pytest.raises(RuntimeError, match=r"node 'sink' asked to stop the run \(done\).*may_trail"):
         ctx.request_stop("done")
     assert ctx.stop_requested == ""
+
+
+def test_in_process_messages_nobody_reads_are_validated_not_transferred(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """demo_minimal's estimator publishes surface/mesh, which no node reads: without a listener the
+    executor only validates it (counted in messages_out all the same); with one, it is transferred."""
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch
+    from palpate.messages import codec
+    from palpate.paths import LAUNCH_DIR
+    from palpate.runtime import inprocess
+
+    transferred: list[str] = []
+    real = codec.transfer
+
+    def counting(message: Any) -> Any:
+        transferred.append(message.TYPE)
+        return real(message)
+
+    monkeypatch.setattr(inprocess.codec, "transfer", counting)
+    members = resolve(load_launch(LAUNCH_DIR / "demo_minimal.yaml"), bus_dir=tmp_path).in_process_members()
+    graph = inprocess.InProcessGraph(members)
+    graph.run(max_ticks=5)
+    assert "SurfaceMesh" not in transferred and "ContactSet" in transferred
+    assert graph.members[[m.process.name for m in graph.members].index("estimator")].ctx.counters["messages_out"] == 5
+    transferred.clear()
+    heard: list[str] = []
+    inprocess.InProcessGraph(members, listener=lambda tick, node, topic, message: heard.append(topic)).run(max_ticks=5)
+    assert "SurfaceMesh" in transferred and "surface/mesh" in heard
