@@ -142,22 +142,6 @@ def test_triangle_mesh() -> None:
         triangle_mesh(V * 1e10, F, solid=True)
 
 
-def test_norms_of_a_few_values_take_the_scalar_path_with_numpys_bits(monkeypatch: pytest.MonkeyPatch) -> None:
-    from palpate import inputs
-
-    rng = np.random.default_rng(0)
-    for shape in [(3,), (4,), (1, 3), (5, 3)]:
-        for scale in (1.0, 1e-200, 1e200, 3.7):
-            a = rng.standard_normal((50, *shape)) * scale
-            a[::7] = 0.0
-            few = [inputs._norms(row) for row in a]
-            monkeypatch.setattr(inputs, "_FEW_VALUES", 0)  # the numpy path
-            reference = [inputs._norms(row) for row in a]
-            monkeypatch.undo()
-            for got, want in zip(few, reference, strict=True):
-                assert got.shape == want.shape and got.tobytes() == want.tobytes()
-
-
 @pytest.mark.filterwarnings("ignore:invalid value encountered in divide:RuntimeWarning")  # numpy's inf / inf
 def test_unit_vectors_and_bounded_of_a_few_values_decide_as_the_numpy_path(monkeypatch: pytest.MonkeyPatch) -> None:
     """The scalar paths of `unit_vectors` and `bounded` accept and refuse exactly what numpy's do (norms at
@@ -192,3 +176,19 @@ def test_unit_vectors_and_bounded_of_a_few_values_decide_as_the_numpy_path(monke
     few = outcomes()
     monkeypatch.setattr(inputs, "_FEW_VALUES", 0)  # the numpy paths
     assert few == outcomes()
+
+
+def test_norms_of_a_few_values_take_the_scalar_path_with_numpys_bits(monkeypatch: pytest.MonkeyPatch) -> None:
+    from palpate import inputs
+
+    rng = np.random.default_rng(0)
+    for shape in [(3,), (4,), (1, 3), (5, 3)]:
+        for scale in (1.0, 1e-200, 1e200, 3.7):
+            a = rng.standard_normal((50, *shape)) * scale
+            a[::7] = 0.0
+            few = [inputs._norms(row) for row in a]
+            monkeypatch.setattr(inputs, "_FEW_VALUES", 0)  # the numpy path
+            reference = [inputs._norms(row) for row in a]
+            monkeypatch.undo()
+            for got, want in zip(few, reference, strict=True):
+                assert got.shape == want.shape and got.tobytes() == want.tobytes()
