@@ -68,6 +68,10 @@ def bounded(values: ArrayLike, field: str, limit: float, unit: str = "", *, lowe
     else InputError."""
     a = np.asarray(values, dtype=np.float64)
     low = -limit if lower is None else lower
+    if 0 < a.size <= _FEW_VALUES:
+        few = a.ravel().tolist()
+        if math.isfinite(sum(few)) and min(few) >= low and max(few) <= limit:  # no NaN, none out of range
+            return a
     if a.size and not (float(np.min(a)) >= low and float(np.max(a)) <= limit):
         bad = float(np.min(a)) if not float(np.min(a)) >= low else float(np.max(a))
         units = f" {unit}" if unit else ""
@@ -80,6 +84,12 @@ def unit_vectors(values: ArrayLike, field: str, tolerance: float = UNIT_TOLERANC
     a = np.asarray(values, dtype=np.float64)
     if a.size == 0:
         return a
+    if a.size <= _FEW_VALUES and a.ndim in (1, 2):
+        few = a.ravel().tolist()
+        if math.isfinite(sum(few)):  # the norms of `_few_norms`, checked in Python
+            k = a.shape[-1]
+            if all(abs(_few_norm(few[i : i + k]) - 1.0) <= tolerance for i in range(0, len(few), k)):
+                return a
     norms = _norms(a)
     bad = np.flatnonzero(~(np.abs(norms - 1.0) <= tolerance).ravel())
     if bad.size:
@@ -246,17 +256,19 @@ def _few_norms(values: list[float], shape: tuple[int, ...]) -> FloatArray:
     """`_norms` of finite values (the flattened array of `shape`) in Python: the same maths in the same
     order (numpy sums a row of a few squares left to right), so the same bits."""
     k = shape[-1]
-    out = []
-    for start in range(0, len(values), k):
-        row = values[start : start + k]
-        scale = max(map(abs, row))
-        safe = scale if scale > 0 else 1.0
-        total = 0.0
-        for v in row:
-            x = v / safe
-            total += x * x
-        out.append(scale * math.sqrt(total))
+    out = [_few_norm(values[start : start + k]) for start in range(0, len(values), k)]
     return np.array(out, dtype=np.float64).reshape(shape[:-1])
+
+
+def _few_norm(row: list[float]) -> float:
+    """The norm of one row of finite values, as `_norms` computes it (scaled by the largest magnitude)."""
+    scale = max(map(abs, row))
+    safe = scale if scale > 0 else 1.0
+    total = 0.0
+    for v in row:
+        x = v / safe
+        total += x * x
+    return scale * math.sqrt(total)
 
 
 def _largest(a: FloatArray) -> float:

@@ -126,4 +126,5 @@ SPEC = NodeSpec(
     ports_from_config=_ports,
     facts=_facts,
     doc="Haptic SLAM mapper of paper 000: occupancy grid at a known pose, or FastSLAM with K particles.",
+    may_trail=True,  # never stops a run: the clock need not wait for it when nothing in the loop reads it
 )

@@ -118,17 +118,55 @@ class ContactNoise:
         return p, n
 
 
+#: Up to this many directions, `perturb_directions` computes in Python (numpy's call overhead is most of
+#: the cost of a few rows), with the same operations in the same order, so the same bits.
+FEW_DIRECTIONS = 4
+
+
 def perturb_directions(normals: np.ndarray, sigma_rad: float, rng: np.random.Generator) -> np.ndarray:
     """Rotate unit vectors (n, 3) by a tangent Gaussian step t (sigma per tangent axis, radians).
 
     Exponential map on the sphere: n' = cos|t| n + sin|t| t/|t|, so angle(n, n') = |t| exactly and the
     result is unit length.
     """
+    z = sigma_rad * rng.standard_normal(np.shape(normals))
+    few = 0 < len(normals) <= FEW_DIRECTIONS and normals.shape[1:] == (3,)
+    if few and math.isfinite(sum(normals.ravel().tolist())):
+        return _perturb_few(normals, z)
+    return _perturb_many(normals, z)
+
+
+def _perturb_many(normals: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """`perturb_directions` with the step z (n, 3) drawn: the vectorised maths."""
     n = normals / np.linalg.norm(normals, axis=1, keepdims=True)
-    z = sigma_rad * rng.standard_normal(n.shape)
     t = z - np.einsum("ij,ij->i", z, n)[:, None] * n  # project onto the tangent plane
     angle = np.linalg.norm(t, axis=1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
         direction = np.where(angle > 0, t / angle, 0.0)
     out = np.cos(angle) * n + np.sin(angle) * direction
     return np.asarray(out / np.linalg.norm(out, axis=1, keepdims=True))
+
+
+def _perturb_few(normals: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """`_perturb_many` of a few finite rows, mostly in Python: numpy's norm of a row of three sums left to
+    right, so those lines give its bits; the dot products (einsum's own summation order), cos and sin
+    (numpy's float64 kernels may differ from libm's) stay numpy's calls."""
+    units = []
+    for a, b, c in normals.tolist():
+        length = math.sqrt(a * a + b * b + c * c)
+        units.append((a / length, b / length, c / length))
+    dots = np.einsum("ij,ij->i", z, np.array(units)).tolist()
+    tangents, angles = [], []
+    for (a, b, c), (za, zb, zc), dot in zip(units, z.tolist(), dots, strict=True):
+        ta, tb, tc = za - dot * a, zb - dot * b, zc - dot * c  # project onto the tangent plane
+        angle = math.sqrt(ta * ta + tb * tb + tc * tc)
+        tangents.append((ta / angle, tb / angle, tc / angle) if angle > 0 else (0.0, 0.0, 0.0))
+        angles.append(angle)
+    cos = np.cos(np.array(angles)).tolist()
+    sin = np.sin(np.array(angles)).tolist()
+    out = []
+    for (a, b, c), (ta, tb, tc), ca, sa in zip(units, tangents, cos, sin, strict=True):
+        x, y, w = ca * a + sa * ta, ca * b + sa * tb, ca * c + sa * tc
+        length = math.sqrt(x * x + y * y + w * w)
+        out.append((x / length, y / length, w / length))
+    return np.array(out, dtype=np.float64)

@@ -81,4 +81,5 @@ SPEC = NodeSpec(
     factory=NoiseNode,
     ports_from_config=_ports,
     doc="Proprioceptive noise on joint angles (and optionally contacts), seeded from the launch file.",
+    may_trail=True,  # never stops a run: the clock need not wait for it when nothing in the loop reads it
 )

@@ -47,7 +47,7 @@ from palpate.geometry.mesh_query import (
     ExactContactSensor,
     WarmClosest,
 )
-from palpate.nodes.sim import probe_kernels
+from palpate.nodes.sim import capsule_kernels, probe_kernels
 from palpate.nodes.sim.effectors import FingerConfig, HandConfig
 from palpate.nodes.sim.objects import ObjectModel, load_object
 from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model, uses_exact_contacts
@@ -477,18 +477,29 @@ class Simulation:
         self._sph_body = self.model.geom_bodyid[self._sph_geom]
         self._sph_cache_p = np.zeros((len(self._sph_geom), 3))
         self._sph_cache_d = np.full(len(self._sph_geom), -np.inf)  # no query yet: the bound never skips
+        self._sph_reach = self._sph_radius + self._tol
+        #: Place the spheres and bound their distances in compiled code (capsule_kernels), where it gives
+        #: numpy's bits.
+        self.compiled_bounds = capsule_kernels.matches_numpy()
         self._sph_warm: dict[int, WarmClosest] = {}  # each sphere's warm-started query, made on first use
 
-    def _sphere_centres(self) -> np.ndarray:
-        return sphere_centres(self.data, self._sph_geom, self._sph_offset)
+    def _sphere_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """World centres (K, 3) of the capsule spheres and the indices (t,) of those the 1-Lipschitz bound
+        on the signed distance leaves within reach of the surface, in increasing order."""
+        d = self.data
+        frames = (d.geom_xpos, d.geom_xmat, self._sph_geom, self._sph_offset)
+        caches = (self._sph_cache_p, self._sph_cache_d, self._sph_reach)
+        if not self.compiled_bounds:
+            return capsule_kernels.numpy_bounds(*frames, *caches)
+        count = len(self._sph_geom)
+        centres, near = np.empty((count, 3)), np.empty(count, dtype=np.int64)
+        return centres, near[: capsule_kernels.sphere_bounds(*frames, *caches, centres, near)]
 
     def _sphere_hits(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Touching spheres: indices (t,), centres (t, 3), surface points (t, 3), distances (t,),
         normals (t, 3), using the current kinematics."""
         assert self._sensor is not None
-        P = self._sphere_centres()
-        bound = self._sph_cache_d - np.linalg.norm(P - self._sph_cache_p, axis=1)
-        near = np.flatnonzero(bound <= self._sph_radius + self._tol)
+        P, near = self._sphere_bounds()
         if len(near) == 0:
             empty = np.zeros((0, 3))
             return np.zeros(0, dtype=np.int64), empty, empty, np.zeros(0), empty

@@ -198,6 +198,7 @@ SIM_SINK = NodeSpec(
     factory=SimSink,
     inputs={"pose": Port(Pose), "contacts": Port(ContactSet), "joint_states": Port(JointState)},
     doc="Consumes a hand or finger sim's outputs and records the wall time of every tick (benchmark).",
+    may_trail=True,  # never stops a run: the clock need not wait for it when nothing in the loop reads it
 )
 
 

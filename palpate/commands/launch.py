@@ -198,11 +198,13 @@ def describe(graph: Graph) -> str:
         f"launch {graph.source.path} (mode {graph.mode}, seed {graph.seed}, bus {graph.bus_dir})",
         "nodes:",
     ]
+    trailing = {n.name for n in graph.trailing_nodes()}
     for node in sorted(graph.nodes, key=lambda n: n.rank):
         flags = [
             f
             for f, on in (
                 ("clock", node.spec.clock_source),
+                ("trails", node.name in trailing),
                 ("external", node.external),
                 ("evaluator", node.evaluator),
                 ("respawn", node.respawn),

@@ -19,7 +19,7 @@ from palpate.launch.loader import LaunchFile, NodeEntry, Where
 from palpate.launch.node_types import load_node_type, node_spec_reference
 from palpate.messages import topics
 from palpate.runtime import bus
-from palpate.runtime.spec import NodeProcessSpec, NodeSpec
+from palpate.runtime.spec import TRAIL_TICKS, NodeProcessSpec, NodeSpec
 
 _SHARED_TOPICS = {topics.NODE_STATUS, topics.GRAPH_CONTROL}
 
@@ -99,6 +99,24 @@ class Graph:
         topics_in = set(node.subscribes.values())
         return [n for n in self.nodes if n is not node and topics_in & set(n.publishes.values())]
 
+    def trailing_nodes(self) -> list[GraphNode]:
+        """Nodes the clock source need not wait for every tick (lockstep only): not external (a driver speaks
+        the plain protocol), ``may_trail`` in their spec, and nothing they publish reaches the clock source
+        through any chain of subscriptions, so no node of the loop reads what they say in a tick."""
+        clock = self.clock_source
+        if clock is None or self.mode != "lockstep":
+            return []
+        feeding = {clock.name}  # nodes with a path of topics to the clock source
+        grown = True
+        while grown:
+            grown = False
+            wanted = {t for n in self.nodes if n.name in feeding for t in n.subscribes.values()}
+            for n in self.nodes:
+                if n.name not in feeding and wanted & set(n.publishes.values()):
+                    feeding.add(n.name)
+                    grown = True
+        return [n for n in self.nodes if n.name not in feeding and n.spec.may_trail and not n.external]
+
     def _connections(self, node: GraphNode) -> list[GraphNode]:
         """Publishers `node` connects to: those of its inputs, plus the clock source (and, for the
         clock source, every node, for acknowledgements and stop requests)."""
@@ -131,6 +149,7 @@ class Graph:
             expected[f"hello/{peer.name}"] = 1
         upstream = self.upstream(node)
         clock = self.clock_source
+        trailing = self.trailing_nodes() if node is clock else []
         return NodeProcessSpec(
             name=node.name,
             type=node.type,
@@ -149,6 +168,10 @@ class Graph:
             backward_upstream=[n.name for n in upstream if n.rank > node.rank and n is not clock],
             lockstep_nodes=[n.name for n in self.nodes if n is not node] if node is clock else [],
             topic_order={t: p.rank for p in self.nodes for t in p.publishes.values()},
+            topic_publishers={t: p.name for p in self.nodes for t in p.publishes.values()},
+            clock_name=clock.name if clock is not None else "",
+            trailing_nodes=[n.name for n in trailing],
+            trail_ticks=TRAIL_TICKS if trailing else 0,
             curve=node.curve,
             curve_clients=sorted(clients) if node.curve else [],
         )

@@ -11,9 +11,10 @@ calls them in the order the lockstep protocol guarantees (see palpate/runtime/no
 - a stop request ends the run after the tick in which it was made.
 
 Messages go through the codec (`codec.transfer`: what `decode(encode(message))` gives, without the
-bytes), so nodes see exactly what they would see on the bus. A test runs a launch file both ways and
-compares the contacts. The executor takes the nodes already resolved (a launch file's
-`Graph.in_process_members()`), so the runtime needs no launcher.
+bytes), so nodes see exactly what they would see on the bus; a message on a topic that no node reads
+(and no listener) is only validated, as a node process only validates what no subscriber receives.
+A test runs a launch file both ways and compares the contacts. The executor takes the nodes already
+resolved (a launch file's `Graph.in_process_members()`), so the runtime needs no launcher.
 """
 
 from __future__ import annotations
@@ -78,7 +79,15 @@ class InProcessGraph:
                     f"node {process.name!r} is passed at position {rank} but ranks {min(ranked - {rank})} in its "
                     "graph: pass the nodes in rank order (Graph.in_process_members())"
                 )
-            ctx = NodeContext(process.name, process.seed, self._sender(rank), dict(process.publishes))
+            # codec.transfer checks each message as validate would: publish need not validate first
+            ctx = NodeContext(
+                process.name,
+                process.seed,
+                self._sender(rank),
+                dict(process.publishes),
+                send_checks=True,
+                may_stop=not spec.may_trail,
+            )
             config = load(spec.config, process.params, f"node {process.name!r} params")
             self.members.append(_Member(rank, spec, process, ctx, spec.factory(config, ctx)))
         self.subscribers: dict[str, list[_Member]] = {}
@@ -91,6 +100,11 @@ class InProcessGraph:
     def _sender(self, rank: int) -> Callable[[str, Message], None]:
         def send(topic: str, message: Message) -> None:
             sender = self.members[rank]
+            receivers = self.subscribers.get(topic, [])
+            if not receivers and self.listener is None:  # nobody receives it: only the check (as on the bus)
+                codec.validate(message)
+                sender.ctx.counters["messages_out"] += 1
+                return
             last, decoded = sender.last_sent
             if last is not message or decoded is None:
                 timing = self._timing_now
@@ -100,7 +114,7 @@ class InProcessGraph:
                 if timing is not None:
                     _add(timing, "transfer", start)
             self.seq += 1
-            for member in self.subscribers.get(topic, []):
+            for member in receivers:
                 member.inbox.append((rank, self.seq, topic, decoded))
             sender.ctx.counters["messages_out"] += 1
             if self.listener is not None:

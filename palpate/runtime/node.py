@@ -9,13 +9,15 @@ Lockstep protocol (deterministic, independent of CPU speed):
    subscription counting), then acknowledges tick -1. The clock source starts tick 0 only when
    every node has.
 2. The clock source publishes tick t's data, then `Clock(t)`, then waits for `LockstepAck(t)` from
-   every node. Only then does it handle the commands it received and step again.
+   every node (from a trailing node, `LockstepAck(t - trail_ticks)`: one whose outputs never reach
+   the clock source and whose spec says `may_trail`). Only then does it handle the commands it
+   received and step again.
 3. A node handles tick t when it has `Clock(t)`, `LockstepAck(t)` from every upstream node before it
    in the graph order and `LockstepAck(t-1)` from every upstream node after it (feedback edges).
    Because each publisher-subscriber pair is one ordered connection, every message of tick t from a
-   node arrives before that node's acknowledgement. Buffered inputs are dispatched in a canonical
-   order (publisher rank, then arrival), the node's `on_tick` runs, its outputs go out and it
-   acknowledges tick t.
+   node arrives before that node's acknowledgement (or the clock source's Clock), so each input is
+   filed under its publisher's tick. Tick t's inputs are dispatched in a canonical order (publisher
+   rank, then arrival), the node's `on_tick` runs, its outputs go out and it acknowledges tick t.
 In real-time mode nothing waits: inputs are dispatched as they arrive, and for state topics only
 the latest message of a burst is kept.
 """
@@ -63,7 +65,20 @@ def hello_topic(node: str) -> str:
 class NodeContext:
     """The node object's view of the graph: publishing, time, randomness and counters (a spec.Context)."""
 
-    def __init__(self, name: str, seed: int, send: Callable[[str, Message], None], outputs: dict[str, str]):
+    def __init__(
+        self,
+        name: str,
+        seed: int,
+        send: Callable[[str, Message], None],
+        outputs: dict[str, str],
+        *,
+        send_checks: bool = False,
+        may_stop: bool = True,
+    ):
+        """`send(topic, message)` delivers a message; with `send_checks` it raises MessageError for a
+        message that breaks its schema before it delivers anything (the in-process executor's
+        `codec.transfer` checks what `codec.validate` checks), so `publish` need not validate first.
+        `may_stop`: False for a node whose spec says `may_trail` (its `request_stop` is a bug)."""
         self.name = name
         self.seed = seed
         self.rng = np.random.default_rng(seed)
@@ -80,6 +95,8 @@ class NodeContext:
         self.timings: dict[str, float] = {}
         self.stop_requested = ""
         self._send = send
+        self._send_checks = send_checks
+        self._may_stop = may_stop
         self._rejections: dict[tuple[str, str], int] = {}
         self.log = logging.getLogger(f"palpate.{name}")
 
@@ -88,16 +105,22 @@ class NodeContext:
         if port not in self.outputs:
             raise KeyError(f"node {self.name!r} has no output port {port!r}; ports: {sorted(self.outputs)}")
         try:
-            codec.validate(message)
+            if not (self._send_checks and _transfer_checks_all(type(message))):
+                codec.validate(message)
+            self._send(self.outputs[port], message)
         except MessageError as exc:
             self.counters["output_errors"] = self.counters.get("output_errors", 0) + 1
             raise OutputError(
                 f"node {self.name!r} published an invalid {message.TYPE} on port {port!r}: {exc}"
             ) from exc
-        self._send(self.outputs[port], message)
 
     def request_stop(self, reason: str) -> None:
         """Ask the graph to end the run after this tick."""
+        if not self._may_stop:  # the clock source may be ticks ahead of this node: no stop at this tick
+            raise RuntimeError(
+                f"node {self.name!r} asked to stop the run ({reason}), but its NodeSpec says may_trail=True, "
+                "which promises it never does: remove may_trail from the spec"
+            )
         self.stop_requested = reason
 
     def count(self, name: str, n: int = 1) -> None:
@@ -118,6 +141,21 @@ class NodeContext:
             self.log.warning(
                 "node %s, topic %s: input rejected, %s: %s (%d so far)", self.name, topic, where, reason, n
             )
+
+
+_TRANSFER_CHECKS_ALL: dict[type[Message], bool] = {}
+
+
+def _transfer_checks_all(cls: type[Message]) -> bool:
+    """True when `codec.transfer` refuses every `cls` message that `codec.validate` refuses: all its
+    array fields are floating point (transfer converts an array to the schema's dtype before checking
+    it, so a NaN bound for an integer field would pass it as garbage, which validate refuses)."""
+    known = _TRANSFER_CHECKS_ALL.get(cls)
+    if known is None:
+        known = _TRANSFER_CHECKS_ALL[cls] = all(
+            spec.kind != "array" or np.dtype(spec.dtype).kind == "f" for spec in cls.field_specs().values()
+        )
+    return known
 
 
 def deliver(ctx: NodeContext, node: NodeLike, port: str, topic: str, message: Message) -> bool:
@@ -168,7 +206,9 @@ class NodeRunner:
             self.sub = bus.make_subscriber(
                 self.zmq, process.connect, wanted, lockstep=self.lockstep, curve=process.curve
             )
-            self.ctx = NodeContext(process.name, process.seed, self._send, dict(process.publishes))
+            self.ctx = NodeContext(
+                process.name, process.seed, self._send, dict(process.publishes), may_stop=not self.spec.may_trail
+            )
             self.node: NodeLike = self.spec.factory(config, self.ctx)
         except BaseException:  # the node never ran: leave no socket, ipc file or ZAP thread behind
             self._close_sockets(linger_ms=0)
@@ -179,10 +219,13 @@ class NodeRunner:
         self.poller.register(self.pub, zmq.POLLIN)
         self.port_of_topic = {topic: port for port, topic in process.subscribes.items()}
         self.input_types = {topic: self.spec.inputs[port].message for port, topic in process.subscribes.items()}
-        self.buffer: list[tuple[int, int, str, bytes]] = []
+        #: (tick due, publisher rank, arrival, topic, payload) of every input not handled yet
+        self.buffer: list[tuple[int, int, int, str, bytes]] = []
         self.seq = 0
         self.acks: dict[str, int] = {}
         self.clock_ticks: deque[Clock] = deque()
+        self.last_clock = -1  # the last Clock tick received
+        self.backward = set(process.backward_upstream)
         self.stopping = False
         self.stop_reason = ""  # the first reason another node gave for stopping the run
         self.interrupted = False
@@ -200,6 +243,9 @@ class NodeRunner:
 
     # --- sending -------------------------------------------------------------------------------------
     def _send(self, topic: str, message: Message) -> None:
+        if not self.counter.covering(topic):  # no subscriber (ZeroMQ would drop it): do not encode it
+            self.ctx.counters["messages_out"] += 1
+            return
         last, payload = self._last_sent
         if last is not message:  # the same message on a second topic is encoded once
             payload = self._encode(message)
@@ -261,6 +307,7 @@ class NodeRunner:
             clock = self._decode_internal(topic, payload, Clock)
             if clock is not None:
                 self.clock_ticks.append(clock)
+                self.last_clock = max(self.last_clock, clock.tick)
                 if self.timer is not None:
                     self.timer.mark(clock.tick, "clock_received")
         elif topic == topics.LOCKSTEP_ACK:
@@ -275,8 +322,18 @@ class NodeRunner:
         elif topic in self.input_types:
             self.seq += 1
             rank = self.process.topic_order.get(topic, 1 << 30)
-            self.buffer.append((rank, self.seq, topic, payload))
+            self.buffer.append((self._due(topic), rank, self.seq, topic, payload))
         # anything else is a prefix match of another topic: not ours.
+
+    def _due(self, topic: str) -> int:
+        """The tick in which this node handles an input on `topic` that arrives now (lockstep): its
+        publisher's tick (messages of a tick precede the publisher's Clock or acknowledgement of it, over
+        one ordered connection), one later from a feedback edge; -1 (the next tick) for an unknown one."""
+        publisher = self.process.topic_publishers.get(topic, "")
+        if not publisher:
+            return -1
+        tick = self.last_clock + 1 if publisher == self.process.clock_name else self.acks.get(publisher, -1) + 1
+        return tick + 1 if publisher in self.backward else tick
 
     def _decode_internal(self, topic: str, payload: Any, cls: type[Message]) -> Any:
         try:
@@ -291,13 +348,21 @@ class NodeRunner:
         if n <= _LOG_FIRST_ERRORS or n % 100 == 0:
             log.warning("node %s, topic %s: rejected message (%d so far): %s", self.process.name, topic, n, reason)
 
-    def dispatch(self, latest_only: bool = False) -> None:
-        """Decode and hand buffered inputs to the node in canonical order."""
-        batch = sorted(self.buffer) if self.lockstep else self.buffer
-        self.buffer = []
+    def dispatch(self, latest_only: bool = False, tick: int | None = None) -> None:
+        """Decode and hand buffered inputs to the node: in lockstep those due by `tick` (None: all), in
+        canonical order (publisher rank, then arrival)."""
+        if self.lockstep:
+            if tick is None:
+                batch, self.buffer = self.buffer, []
+            else:
+                batch = [item for item in self.buffer if item[0] <= tick]
+                self.buffer = [item for item in self.buffer if item[0] > tick] if len(batch) < len(self.buffer) else []
+            batch.sort(key=_canonical)
+        else:
+            batch, self.buffer = self.buffer, []
         if latest_only:
             batch = _latest_state_messages(batch, self.input_types)
-        for _, _, topic, payload in batch:
+        for _, _, _, topic, payload in batch:
             try:
                 message = codec.decode(payload, self.input_types[topic])
             except MessageError as exc:
@@ -335,7 +400,7 @@ class NodeRunner:
                 if close is not None:
                     close()
                 if self.timer is not None:
-                    self.timer.write(self.spec.clock_source)
+                    self.timer.write(self.spec.clock_source, self.process.trailing_nodes)
             finally:  # even when the node's close() fails: no stale manifest, socket or ipc file
                 self.manifest_path.unlink(missing_ok=True)
                 time.sleep(0.05)  # let the last status leave
@@ -374,6 +439,8 @@ class NodeRunner:
     def _run_clock_source(self) -> None:
         step = cast(ClockSource, self.node).step  # spec.clock_source says so
         period_ns = int(getattr(self.node, "period_ns", 0))
+        trailing = sorted(self.process.trailing_nodes)
+        in_loop = [n for n in self.process.lockstep_nodes if n not in trailing]
         if self.lockstep:
             self._wait_for_acks(self.process.lockstep_nodes, -1)
         start = time.monotonic()
@@ -399,7 +466,9 @@ class NodeRunner:
                 topics.CLOCK, Clock(stamp_ns=stamp, tick=tick, period_ns=period_ns, lockstep=self.lockstep)
             )
             if self.lockstep:
-                self._wait_for_acks(self.process.lockstep_nodes, tick)
+                self._wait_for_acks(in_loop, tick)
+                if trailing:  # nodes that read nothing of the loop: up to trail_ticks ticks behind
+                    self._wait_for_acks(trailing, tick - self.process.trail_ticks)
                 if timer is not None:
                     timer.mark(tick, "acked")
                 self.dispatch()
@@ -437,7 +506,7 @@ class NodeRunner:
                     timer.mark(tick, "ready")
                 clock = self.clock_ticks.popleft()
                 self.ctx.stamp_ns, self.ctx.tick = clock.stamp_ns, clock.tick
-                self.dispatch()
+                self.dispatch(tick=tick)
                 if timer is not None:
                     timer.mark(tick, "dispatched")
                 self.node.on_tick(clock.stamp_ns)
@@ -480,15 +549,20 @@ class NodeRunner:
             self.publish_status("running")
 
 
+def _canonical(item: tuple[int, int, int, str, bytes]) -> tuple[int, int]:
+    """Dispatch order of a buffered input: publisher rank, then arrival."""
+    return item[1], item[2]
+
+
 def _latest_state_messages(
-    batch: list[tuple[int, int, str, bytes]], types: dict[str, type[Message]]
-) -> list[tuple[int, int, str, bytes]]:
+    batch: list[tuple[int, int, int, str, bytes]], types: dict[str, type[Message]]
+) -> list[tuple[int, int, int, str, bytes]]:
     """Keep, for topics of state messages, only the newest entry of the batch."""
     latest: dict[str, int] = {}
-    for i, (_, _, topic, _) in enumerate(batch):
+    for i, (_, _, _, topic, _) in enumerate(batch):
         if getattr(types[topic], "STATE", False):
             latest[topic] = i
-    return [item for i, item in enumerate(batch) if not getattr(types[item[2]], "STATE", False) or latest[item[2]] == i]
+    return [item for i, item in enumerate(batch) if not getattr(types[item[3]], "STATE", False) or latest[item[3]] == i]
 
 
 def _pid() -> int:

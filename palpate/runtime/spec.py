@@ -16,6 +16,11 @@ from palpate.messages.base import Message
 
 C = TypeVar("C")
 
+#: How many ticks the clock source may run ahead of a trailing node (NodeSpec.may_trail): enough to
+#: take the node's handling off the clock's round trip and absorb its jitter; at most this many ticks of
+#: its input wait in its queue.
+TRAIL_TICKS = 3
+
 
 @dataclass(frozen=True)
 class Port:
@@ -76,7 +81,7 @@ class Context(Protocol):
         ...
 
     def request_stop(self, reason: str) -> None:
-        """Ask the graph to end the run after this tick."""
+        """Ask the graph to end the run after this tick (not for a node whose spec says ``may_trail``)."""
         ...
 
 
@@ -122,6 +127,10 @@ class NodeSpec(Generic[C]):
     #: params that state it)}, e.g. where the hand is mounted. The launcher checks that every node of a
     #: graph that states a fact states the same value (a simulator and the mappers of its finger).
     facts: Callable[[C], Mapping[str, tuple[Any, KeyPath]]] | None = None
+    #: The node never asks to end a run (``ctx.request_stop`` raises). In lockstep, when nothing it
+    #: publishes reaches the clock source (a sink, a noise stage feeding a mapper), the clock source then
+    #: runs up to TRAIL_TICKS ticks ahead of it instead of waiting for it every tick (docs/runtime.md).
+    may_trail: bool = False
 
     def with_config(self, config: C) -> NodeSpec[C]:
         """This spec with its ports resolved for `config` (itself when its ports are fixed)."""
@@ -159,6 +168,13 @@ class NodeProcessSpec:
     backward_upstream: list[str] = field(default_factory=list)
     lockstep_nodes: list[str] = field(default_factory=list)  # clock source: every node that acknowledges
     topic_order: dict[str, int] = field(default_factory=dict)  # topic -> publisher rank, for dispatch order
+    #: topic -> the node publishing it, and the clock source's name: each input is filed under the tick its
+    #: publisher was in when it sent it (a trailing node receives ticks its publishers are ahead by).
+    topic_publishers: dict[str, str] = field(default_factory=dict)
+    clock_name: str = ""
+    #: Clock source: the nodes that trail it (lockstep_nodes it waits for `trail_ticks` ticks late).
+    trailing_nodes: list[str] = field(default_factory=list)
+    trail_ticks: int = 0
     curve: dict[str, str] = field(default_factory=dict)  # CurveZMQ keys (z85): public, secret, server_public
     #: With `curve`: the client public keys (z85) the publisher admits (ZAP): its subscribers' and a recorder's.
     curve_clients: list[str] = field(default_factory=list)

@@ -48,10 +48,16 @@ class TickRecorder:
         row = self.rows.setdefault(self.tick, {})
         row[name] = row.get(name, 0.0) + seconds
 
-    def write(self, clock_source: bool) -> None:
-        """Write the records as JSON (``{"node", "clock_source", "ticks": {tick: {mark: seconds}}}``)."""
+    def write(self, clock_source: bool, trailing: Sequence[str] = ()) -> None:
+        """Write the records as JSON (``{"node", "clock_source", "trailing", "ticks": {tick: {mark: seconds}}}``;
+        ``trailing``: the clock source's trailing nodes)."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        data = {"node": self.node, "clock_source": clock_source, "ticks": {str(t): r for t, r in self.rows.items()}}
+        data = {
+            "node": self.node,
+            "clock_source": clock_source,
+            "trailing": list(trailing),
+            "ticks": {str(t): r for t, r in self.rows.items()},
+        }
         self.path.write_text(jsonio.dumps(data))
 
 
@@ -70,13 +76,16 @@ def breakdown(folder: Path, first_tick: int = 0) -> dict[str, Any]:
     Clock received to ready, waiting for upstream acknowledgements), ``handle_ms`` (per follower:
     ready to acknowledged: decoding, handlers, on_tick, publishing), ``ack_hop_ms`` (last
     acknowledgement sent to received by the clock source), ``round_trip_ms`` (Clock sent to the last
-    acknowledgement received), ``source_dispatch_ms`` (the clock source handling its inputs).
+    acknowledgement received), ``source_dispatch_ms`` (the clock source handling its inputs), ``trailing``
+    (the nodes the clock source runs ahead of: their handling is off the round trip and out of
+    ``ack_hop_ms``; their ``clock_hop_ms`` and ``wait_ms`` include the ticks they are behind).
     """
     files = [json.loads(p.read_text()) for p in sorted(folder.glob("*.json"))]
     sources = [f for f in files if f["clock_source"]]
     if len(sources) != 1:
         raise ValueError(f"{folder}: expected one clock source's timing file, found {len(sources)}")
     source = {int(t): r for t, r in sources[0]["ticks"].items()}
+    trailing = list(sources[0].get("trailing", []))
     followers = {f["node"]: {int(t): r for t, r in f["ticks"].items()} for f in files if not f["clock_source"]}
     ticks = sorted(t for t in source if t >= first_tick and t + 1 in source and _complete(t, source, followers))
     if not ticks:
@@ -85,8 +94,10 @@ def breakdown(folder: Path, first_tick: int = 0) -> dict[str, Any]:
     def mean(values: Sequence[float]) -> float:
         return 1000.0 * sum(values) / len(values)
 
+    in_loop = {n: r for n, r in followers.items() if n not in trailing}
     out: dict[str, Any] = {
         "ticks": len(ticks),
+        "trailing": trailing,
         "tick_ms": mean([source[t + 1]["step"] - source[t]["step"] for t in ticks]),
         "step_ms": mean([source[t]["stepped"] - source[t]["step"] - source[t].get("encode_s", 0.0) for t in ticks]),
         "encode_ms": mean(
@@ -96,7 +107,9 @@ def breakdown(folder: Path, first_tick: int = 0) -> dict[str, Any]:
             ]
         ),
         "round_trip_ms": mean([source[t]["acked"] - source[t]["clock_sent"] for t in ticks]),
-        "ack_hop_ms": mean([source[t]["acked"] - max(r[t]["ack_sent"] for r in followers.values()) for t in ticks]),
+        "ack_hop_ms": mean([source[t]["acked"] - max(r[t]["ack_sent"] for r in in_loop.values()) for t in ticks])
+        if in_loop
+        else 0.0,
         "source_dispatch_ms": mean([source[t]["dispatched"] - source[t]["acked"] for t in ticks]),
         "clock_hop_ms": {
             n: mean([r[t]["clock_received"] - source[t]["clock_sent"] for t in ticks]) for n, r in followers.items()

@@ -11,7 +11,7 @@ import signal
 import time
 from dataclasses import dataclass
 
-from palpate.messages.schemas import JointState
+from palpate.messages.schemas import ContactSet, JointState
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
@@ -98,6 +98,51 @@ class JointSink:
         """Nothing to do per tick."""
 
 
+@dataclass(frozen=True, kw_only=True)
+class TrailingEchoConfig:
+    sleep_s: float = 0.002
+
+
+class TrailingEcho:
+    """Republishes each contact set it reads on ``trailing/echo`` and sleeps ``sleep_s`` per tick, so that
+    the clock source runs ahead of it (its spec says ``may_trail``)."""
+
+    def __init__(self, config: TrailingEchoConfig, ctx: Context):
+        self.config, self.ctx = config, ctx
+
+    def on_contacts(self, message: ContactSet) -> None:
+        self.ctx.publish("echo", message)
+
+    def on_tick(self, stamp_ns: int) -> None:
+        time.sleep(self.config.sleep_s)
+
+
+@dataclass(frozen=True, kw_only=True)
+class TickCheckConfig:
+    label: str = "check"
+
+
+class TickCheck:
+    """Counts inputs whose stamp is not the stamp of the tick they are handled in, and prints the count."""
+
+    def __init__(self, config: TickCheckConfig, ctx: Context):
+        self.config, self.ctx = config, ctx
+        self.ticks = self.inputs = self.misfiled = 0
+
+    def _check(self, message: ContactSet) -> None:
+        self.inputs += 1
+        self.misfiled += message.stamp_ns != self.ctx.stamp_ns
+
+    on_contacts = _check
+    on_echo = _check
+
+    def on_tick(self, stamp_ns: int) -> None:
+        self.ticks += 1
+
+    def close(self) -> None:
+        print(f"{self.config.label}: {self.ticks} ticks, {self.inputs} inputs, {self.misfiled} misfiled", flush=True)
+
+
 CRASHER = NodeSpec(name="crasher", config=CrasherConfig, factory=Crasher, doc="dies after a few ticks")
 QUITTER = NodeSpec(name="quitter", config=QuitterConfig, factory=Quitter, doc="requests a stop after a few ticks")
 STUBBORN = NodeSpec(name="stubborn", config=StubbornConfig, factory=Stubborn, doc="ignores SIGTERM")
@@ -107,4 +152,21 @@ JOINT_SINK = NodeSpec(
     factory=JointSink,
     inputs={"joints": Port(JointState)},
     doc="reads joint states; has a required parameter",
+)
+TRAILING_ECHO = NodeSpec(
+    name="trailing_echo",
+    config=TrailingEchoConfig,
+    factory=TrailingEcho,
+    inputs={"contacts": Port(ContactSet)},
+    outputs={"echo": Port(ContactSet, topic="trailing/echo")},
+    may_trail=True,
+    doc="republishes contact sets, slowly",
+)
+TICK_CHECK = NodeSpec(
+    name="tick_check",
+    config=TickCheckConfig,
+    factory=TickCheck,
+    inputs={"contacts": Port(ContactSet), "echo": Port(ContactSet, topic="trailing/echo")},
+    may_trail=True,
+    doc="counts inputs handled in another tick than their stamp's",
 )

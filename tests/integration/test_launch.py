@@ -13,11 +13,13 @@ from pathlib import Path
 import pytest
 
 from palpate.paths import REPO_ROOT
-from tests.integration.launch_helpers import alive, descendants, launched, node_pids, text, wait_for
+from tests.integration.launch_helpers import alive, child_env, descendants, launched, node_pids, text, wait_for
 
 CRASHER = "tests.integration.fake_nodes:CRASHER"
 QUITTER = "tests.integration.fake_nodes:QUITTER"
 STUBBORN = "tests.integration.fake_nodes:STUBBORN"
+TRAILING_ECHO = "tests.integration.fake_nodes:TRAILING_ECHO"
+TICK_CHECK = "tests.integration.fake_nodes:TICK_CHECK"
 
 
 def write(tmp_path: Path, body: str, name: str = "graph.yaml") -> Path:
@@ -65,6 +67,31 @@ def run_until_quitter(tmp_path: Path, after_ticks: int) -> str:
 def test_a_node_that_stops_the_run_is_named_with_its_reason(tmp_path: Path) -> None:
     out = run_until_quitter(tmp_path, 5)
     assert re.search(r"\[cube\] INFO run stopped at t = 0\.0[45]0 s: quitter: done after 5 ticks", out), out
+
+
+def test_trailing_nodes_handle_each_input_in_its_own_tick(tmp_path: Path) -> None:
+    """Nodes that feed nothing back to the clock source and say may_trail run behind it (the echo sleeps
+    every tick), and still handle every input in the tick it was published in, directly from the clock
+    source and through another trailing node."""
+    extra = f"""  - name: echo
+    type: {TRAILING_ECHO}
+  - name: check
+    type: {TICK_CHECK}"""
+    graph = write(tmp_path, long_graph("lockstep", extra).replace("1000.0", "0.5"))
+    dry = subprocess.run(
+        [sys.executable, "-m", "palpate.cli", "launch", "--dry-run", str(graph), "--bus", str(tmp_path / "bus")],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=REPO_ROOT,
+        env=child_env(tmp_path / "bus"),
+    ).stdout
+    assert re.search(r"echo \(tests\.integration\.fake_nodes:TRAILING_ECHO\) \S+ \[trails\]", dry), dry
+    assert re.search(r"check \(tests\.integration\.fake_nodes:TICK_CHECK\) \S+ \[trails\]", dry), dry
+    log = tmp_path / "launch.log"
+    with launched(graph, tmp_path / "bus", log) as proc:
+        assert proc.wait(timeout=60) == 0, text(log)
+    assert "check: 50 ticks, 100 inputs, 0 misfiled" in text(log), text(log)
 
 
 def test_the_clock_source_reports_progress_while_the_graph_runs(

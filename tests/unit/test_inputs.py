@@ -143,6 +143,42 @@ def test_triangle_mesh() -> None:
         triangle_mesh(V * 1e10, F, solid=True)
 
 
+@pytest.mark.filterwarnings("ignore:invalid value encountered in divide:RuntimeWarning")  # numpy's inf / inf
+def test_unit_vectors_and_bounded_of_a_few_values_decide_as_the_numpy_path(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The scalar paths of `unit_vectors` and `bounded` accept and refuse exactly what numpy's do (norms at
+    the tolerance's edge, values at the bounds, NaN, infinity), and return the values unchanged."""
+    from palpate import inputs
+
+    rng = np.random.default_rng(1)
+    cases = []
+    for shape in [(3,), (4,), (1, 3), (5, 3)]:
+        for _ in range(300):
+            a = rng.standard_normal(shape)
+            a /= np.linalg.norm(a, axis=-1, keepdims=True)
+            a *= 1.0 + rng.choice([0.0, 0.00999999, 0.01, 0.0100001, -0.01, -0.5]) * rng.choice([1.0, -1.0])
+            if rng.random() < 0.05:
+                a.ravel()[0] = rng.choice([np.nan, np.inf, -np.inf, 1e308])
+            cases.append(a)
+
+    def outcomes() -> list[tuple[str, str]]:
+        out = []
+        for a in cases:
+            for name, check in (
+                ("unit", lambda v: inputs.unit_vectors(v, "n")),
+                ("bounded", lambda v: inputs.bounded(v, "b", 1.0, lower=-0.5)),
+            ):
+                try:
+                    got = check(a)
+                    out.append((name, got.tobytes().hex()))
+                except InputError as exc:
+                    out.append((name, str(exc)))
+        return out
+
+    few = outcomes()
+    monkeypatch.setattr(inputs, "_FEW_VALUES", 0)  # the numpy paths
+    assert few == outcomes()
+
+
 def test_norms_of_a_few_values_take_the_scalar_path_with_numpys_bits(monkeypatch: pytest.MonkeyPatch) -> None:
     from palpate import inputs
 

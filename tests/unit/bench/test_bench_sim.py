@@ -202,6 +202,15 @@ def test_breakdown_of_a_timed_graph(tmp_path: Path) -> None:
     assert out["clock_hop_ms"]["driver"] == pytest.approx(100)
     assert out["wait_ms"]["driver"] == pytest.approx(10)
     assert out["handle_ms"]["driver"] == pytest.approx(200)
+    assert out["trailing"] == []
+    # a trailing node acknowledges after the clock source went on: out of the round trip's ack hop
+    late = {str(t): {**follower[str(t)], "ack_sent": t + 0.9} for t in range(5)}
+    (tmp_path / "noise.json").write_text(json.dumps({"node": "noise", "clock_source": False, "ticks": late}))
+    sim = {"node": "sim", "clock_source": True, "trailing": ["noise"], "ticks": source}
+    (tmp_path / "sim.json").write_text(json.dumps(sim))
+    out = breakdown(tmp_path, first_tick=1)
+    assert out["trailing"] == ["noise"] and out["ack_hop_ms"] == pytest.approx(90)
+    assert out["handle_ms"]["noise"] == pytest.approx(580)
     (tmp_path / "other.json").write_text(json.dumps({"node": "x", "clock_source": True, "ticks": {}}))
     with pytest.raises(ValueError, match="one clock source"):
         breakdown(tmp_path)

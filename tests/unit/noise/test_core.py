@@ -188,3 +188,19 @@ def test_contact_noise_same_seed_same_stream() -> None:
         ConfigError, match=r"ContactNoiseConfig.normal_sigma_deg: expected a finite number >= 0, got -2"
     ):
         ContactNoiseConfig(normal_sigma_deg=-2)
+
+
+def test_few_directions_take_the_scalar_path_with_numpys_bits() -> None:
+    """perturb_directions computes up to FEW_DIRECTIONS rows in Python: the same bits as the
+    vectorised maths for the same draw (normals within the unit tolerance, small and large steps)."""
+    from palpate.nodes.noise.core import FEW_DIRECTIONS, _perturb_few, _perturb_many
+
+    rng = np.random.default_rng(5)
+    for n in range(1, FEW_DIRECTIONS + 1):
+        for _ in range(2000):
+            v = rng.standard_normal((n, 3))
+            v *= (1.0 + rng.uniform(-0.009, 0.009, (n, 1))) / np.linalg.norm(v, axis=1, keepdims=True)
+            z = rng.standard_normal((n, 3)) * rng.choice([1e-3, 0.035, 0.5, 2.0])
+            assert _perturb_few(v, z).tobytes() == _perturb_many(v, z).tobytes()
+    v = np.array([[0.0, 0.0, 1.0]])
+    assert _perturb_few(v, np.array([[0.0, 0.0, 0.3]])).tobytes() == v.tobytes()  # a step along n: no turn

@@ -3,12 +3,14 @@ topic, field and reason (rate-limited per topic and field), and the node keeps i
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
 import pytest
 
 from palpate.errors import EstimationError, InputError, OutputError
+from palpate.messages import codec
 from palpate.messages.base import Message
 from palpate.messages.schemas import Pose
 from palpate.runtime.node import NodeContext, deliver
@@ -118,3 +120,44 @@ def test_an_invalid_output_is_counted_as_the_nodes_bug_and_propagates() -> None:
     with pytest.raises(OutputError, match=r"node 'echo' published an invalid Pose on port 'out'"):
         deliver(ctx, Echo(ctx), "pose", "in/pose", broken)
     assert not sent and ctx.counters["output_errors"] == 1 and ctx.counters["input_errors"] == 0
+
+
+@pytest.mark.parametrize(
+    "position",
+    [np.array([np.nan, 0.0, 0.0]), np.array([0.0, 0.0]), np.array([[0.0, 0.0, 0.0]])],
+    ids=["nan", "short", "2-d"],
+)
+def test_a_checking_send_refuses_what_validate_refuses(position: np.ndarray) -> None:
+    """In-process, `codec.transfer` checks the message instead of `codec.validate` (send_checks): the
+    same OutputError, counted, and nothing delivered."""
+    sent: list[Message] = []
+    ctx = NodeContext(
+        "echo", 0, lambda topic, message: sent.append(codec.transfer(message)), {"out": "echo/pose"}, send_checks=True
+    )
+    broken = dataclasses.replace(pose([1.0, 0.0, 0.0, 0.0]), position_m=position)
+    with pytest.raises(OutputError, match=r"node 'echo' published an invalid Pose on port 'out'"):
+        deliver(ctx, Echo(ctx), "pose", "in/pose", broken)
+    assert not sent and ctx.counters["output_errors"] == 1
+
+
+def test_integer_arrays_are_validated_before_a_checking_send() -> None:
+    """transfer converts an array to the schema's dtype before checking it; for a message with an integer
+    array field publish still validates, so a NaN there is refused rather than cast."""
+    from palpate.messages.schemas import ObjectTruth
+
+    sent: list[Message] = []
+    ctx = NodeContext(
+        "truth", 0, lambda topic, message: sent.append(message), {"out": "truth/object"}, send_checks=True
+    )
+    broken = ObjectTruth(
+        stamp_ns=0,
+        name="cube",
+        source="primitive",
+        position_m=np.zeros(3),
+        quaternion_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
+        vertices_m=np.zeros((3, 3)),
+        faces=np.array([[0.0, 1.0, np.nan]]),
+    )
+    with pytest.raises(OutputError, match=r"invalid ObjectTruth"):
+        ctx.publish("out", broken)
+    assert not sent

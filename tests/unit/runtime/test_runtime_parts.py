@@ -177,14 +177,14 @@ def _contacts(stamp: int) -> bytes:
 def test_realtime_keeps_only_the_latest_state_message_but_every_event() -> None:
     types = {"sensors/contacts": ContactSet, "controller/events": TouchEvent}
     batch = [
-        (0, 1, "sensors/contacts", _contacts(1)),
-        (0, 2, "controller/events", b"e1"),
-        (0, 3, "sensors/contacts", _contacts(2)),
-        (0, 4, "controller/events", b"e2"),
-        (0, 5, "sensors/contacts", _contacts(3)),
+        (0, 0, 1, "sensors/contacts", _contacts(1)),
+        (0, 0, 2, "controller/events", b"e1"),
+        (0, 0, 3, "sensors/contacts", _contacts(2)),
+        (0, 0, 4, "controller/events", b"e2"),
+        (0, 0, 5, "sensors/contacts", _contacts(3)),
     ]
     kept = _latest_state_messages(batch, types)  # type: ignore[arg-type]
-    assert [seq for _, seq, _, _ in kept] == [2, 4, 5]
+    assert [seq for _, _, seq, _, _ in kept] == [2, 4, 5]
 
 
 def test_in_process_graph_refuses_nodes_out_of_rank_order(tmp_path: Path) -> None:
@@ -231,3 +231,69 @@ def test_a_node_that_fails_to_start_leaves_no_socket_file(tmp_path: Path) -> Non
     with pytest.raises(ConfigError, match="unknown key 'speed'"):  # checked before any socket is bound
         NodeRunner(spec, dataclasses.replace(process, params={"speed": 1}))
     assert not (tmp_path / "refuser.pub").exists()
+
+
+def test_nodes_that_may_trail_and_feed_nothing_back_trail_the_clock(tmp_path: Path) -> None:
+    """Trailing nodes: not external, NodeSpec.may_trail, and no chain of topics from them to the clock source;
+    lockstep only. The clock source's process spec lists them with TRAIL_TICKS."""
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch, parse_cli_args
+    from palpate.paths import LAUNCH_DIR
+    from palpate.runtime.spec import TRAIL_TICKS
+
+    def trailing(name: str, *args: str) -> list[str]:
+        graph = resolve(load_launch(LAUNCH_DIR / name, parse_cli_args(list(args))), bus_dir=tmp_path)
+        names = [n.name for n in graph.trailing_nodes()]
+        clock = next(p for p in graph.process_specs() if p.clock_source)
+        assert clock.trailing_nodes == names and clock.trail_ticks == (TRAIL_TICKS if names else 0)
+        return names
+
+    assert trailing("probe.yaml") == ["noise"]  # the driver closes the loop; nothing reads the noisy contacts
+    assert trailing("fastslam.yaml") == ["noise", "mapper"]
+    assert trailing("explore.yaml") == []  # the noisy contacts feed the controller, which commands the sim
+    launch = tmp_path / "graph.yaml"
+    text = (LAUNCH_DIR / "probe.yaml").read_text()
+    launch.write_text(text.replace("    type: noise\n", "    type: noise\n    external: true\n"))
+    assert trailing(str(launch)) == []  # a driver speaks the plain protocol
+    launch.write_text(text.replace("mode: lockstep", "mode: realtime"))
+    assert trailing(str(launch)) == []
+
+
+def test_a_node_that_may_trail_cannot_stop_the_run() -> None:
+    """may_trail promises that the node never ends a run (the clock may be ticks ahead of it): asking is a bug."""
+    from palpate.runtime.node import NodeContext
+
+    ctx = NodeContext("sink", 0, lambda topic, message: None, {}, may_stop=False)
+    with pytest.raises(RuntimeError, match=r"node 'sink' asked to stop the run \(done\).*may_trail"):
+        ctx.request_stop("done")
+    assert ctx.stop_requested == ""
+
+
+def test_in_process_messages_nobody_reads_are_validated_not_transferred(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """demo_minimal's estimator publishes surface/mesh, which no node reads: without a listener the
+    executor only validates it (counted in messages_out all the same); with one, it is transferred."""
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch
+    from palpate.messages import codec
+    from palpate.paths import LAUNCH_DIR
+    from palpate.runtime import inprocess
+
+    transferred: list[str] = []
+    real = codec.transfer
+
+    def counting(message: Any) -> Any:
+        transferred.append(message.TYPE)
+        return real(message)
+
+    monkeypatch.setattr(inprocess.codec, "transfer", counting)
+    members = resolve(load_launch(LAUNCH_DIR / "demo_minimal.yaml"), bus_dir=tmp_path).in_process_members()
+    graph = inprocess.InProcessGraph(members)
+    graph.run(max_ticks=5)
+    assert "SurfaceMesh" not in transferred and "ContactSet" in transferred
+    assert graph.members[[m.process.name for m in graph.members].index("estimator")].ctx.counters["messages_out"] == 5
+    transferred.clear()
+    heard: list[str] = []
+    inprocess.InProcessGraph(members, listener=lambda tick, node, topic, message: heard.append(topic)).run(max_ticks=5)
+    assert "SurfaceMesh" in transferred and "surface/mesh" in heard
