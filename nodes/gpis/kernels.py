@@ -30,6 +30,7 @@ Observation order used throughout palpate's GPIS: per point the four rows [f, df
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -55,6 +56,16 @@ def _differences(x: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
     d = x[:, None, :] - y[None, :, :]
     r = np.sqrt(np.einsum("mnk,mnk->mn", d, d))
     return d, r
+
+
+def _by_row_chunks(
+    contract: Callable[[FloatArray, FloatArray, FloatArray], FloatArray], x: FloatArray, y: FloatArray, w: FloatArray
+) -> FloatArray:
+    """contract(x, y, w) on chunks of the rows of x, so that its (m, n) temporaries stay small."""
+    step = max(1, _CHUNK_ENTRIES // max(1, len(y)))
+    if len(x) <= step:
+        return contract(x, y, w)
+    return np.concatenate([contract(x[s : s + step], y, w) for s in range(0, len(x), step)])
 
 
 def _as_points(x: FloatArray, name: str) -> FloatArray:
@@ -143,12 +154,9 @@ class IsotropicKernel(ABC):
 
     def value_obs_cov(self, x: FloatArray, y: FloatArray) -> FloatArray:
         """cov(f(x), observations at y): (m, 4 n), the k_* rows of Eq. 2 with gradient observations."""
-        x = _as_points(x, "x")
-        y = _as_points(y, "y")
-        params = self.compiled()
+        x, y, params = self._prepared(x, y)
         if params is None:
             return self._value_obs_cov_numpy(x, y)
-        self.check_range(x, y)
         out = np.empty((len(x), ROWS_PER_POINT * len(y)))
         dense_kernels.value_obs_cov(x, y, *params, out)
         return out
@@ -160,12 +168,9 @@ class IsotropicKernel(ABC):
         = sum_j [w_j0 phi(r_j) - g1(r_j) (x - y_j) . w_j(1:4)], compiled (``dense_kernels``) for the
         built-in kernels; ``value_obs_cov(x, y) @ w.ravel()`` is the slow reference.
         """
-        x = _as_points(x, "x")
-        y = _as_points(y, "y")
-        params = self.compiled()
+        x, y, params = self._prepared(x, y)
         if params is None:
-            return self._value_contract_numpy(x, y, w)
-        self.check_range(x, y)
+            return _by_row_chunks(self._value_contract_numpy, x, y, w)
         out = np.zeros(len(x))
         dense_kernels.add_values(np.ascontiguousarray(x.T), y, np.ascontiguousarray(w, dtype=np.float64), *params, out)
         return out
@@ -175,16 +180,23 @@ class IsotropicKernel(ABC):
 
         = sum_j [g1 d w_j0 - g2 d (d . w_j(1:4)) - g1 w_j(1:4)], d = x - y_j.
         """
-        x = _as_points(x, "x")
-        y = _as_points(y, "y")
-        params = self.compiled()
+        x, y, params = self._prepared(x, y)
         if params is None:
-            return self._gradient_contract_numpy(x, y, w)
-        self.check_range(x, y)
+            return _by_row_chunks(self._gradient_contract_numpy, x, y, w)
         out = np.zeros((3, len(x)))
         weights = np.ascontiguousarray(w, dtype=np.float64)
         dense_kernels.add_gradients(np.ascontiguousarray(x.T), y, weights, *params, out)
         return np.ascontiguousarray(out.T)
+
+    def _prepared(self, x: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray, tuple[int, float, float] | None]:
+        """x (m, 3), y (n, 3) as arrays and the compiled loops' parameters, with the range checked for
+        them; None for a kernel without compiled loops (its numpy paths check the distances they form)."""
+        x = _as_points(x, "x")
+        y = _as_points(y, "y")
+        params = self.compiled()
+        if params is not None:
+            self.check_range(x, y)
+        return x, y, params
 
     # --- numpy paths (kernels without compiled loops; the references of the tests) ----------------
     def _value_obs_cov_numpy(self, x: FloatArray, y: FloatArray) -> FloatArray:
@@ -198,19 +210,12 @@ class IsotropicKernel(ABC):
         return B.reshape(r.shape[0], ROWS_PER_POINT * r.shape[1])
 
     def _value_contract_numpy(self, x: FloatArray, y: FloatArray, w: FloatArray) -> FloatArray:
-        if len(x) * len(y) > _CHUNK_ENTRIES:
-            step = max(1, _CHUNK_ENTRIES // len(y))
-            return np.concatenate([self._value_contract_numpy(x[s : s + step], y, w) for s in range(0, len(x), step)])
         d, r = self._checked_components(x, y)
         phi, g1 = self.radial(r)
         dw = d[0] * w[:, 1] + d[1] * w[:, 2] + d[2] * w[:, 3]
         return phi @ w[:, 0] - np.einsum("mn,mn->m", g1, dw)
 
     def _gradient_contract_numpy(self, x: FloatArray, y: FloatArray, w: FloatArray) -> FloatArray:
-        if len(x) * len(y) > _CHUNK_ENTRIES:
-            step = max(1, _CHUNK_ENTRIES // len(y))
-            parts = [self._gradient_contract_numpy(x[s : s + step], y, w) for s in range(0, len(x), step)]
-            return np.concatenate(parts)
         d, r = self._checked_components(x, y)
         _, g1 = self.radial(r)
         g2 = self.radial_g2(r)

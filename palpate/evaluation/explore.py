@@ -180,8 +180,11 @@ class Episode:
     def _rates_variance(self) -> bool:
         """Whether the planner rates by the GP variance (GP-V; area with a variance weight), so the GPIS
         node must give it at the candidates."""
-        weight = float(dict(self.params).get("planner.area_variance_weight", 0.0))
-        return self.strategy == "gpv" or (self.strategy == "area" and weight > 0.0)
+        from palpate.nodes.planner.core import PlannerConfig
+
+        weight = dict(self.params).get("planner.area_variance_weight", 0.0)
+        settings = {"strategy": self.strategy, "area_variance_weight": weight}
+        return load(PlannerConfig, settings, "planner params").uses_variance
 
 
 def episodes(

@@ -196,3 +196,21 @@ def test_bad_kernel_parameters_are_config_errors(bad: float) -> None:
         GaussianKernel(bad, 1.0)
     with pytest.raises(ConfigError):
         GaussianKernel(1.0, bad)
+
+
+def test_a_kernel_without_compiled_loops_takes_the_numpy_paths_in_row_chunks() -> None:
+    """More query points than one chunk holds: the numpy paths agree with the compiled loops."""
+
+    class NumpyThinPlate(ThinPlateKernel):
+        def compiled(self) -> None:
+            return None
+
+    rng = np.random.default_rng(10)
+    y = rng.uniform(-0.1, 0.1, (40, 3))
+    w = rng.standard_normal((40, 4))
+    x = rng.uniform(-0.1, 0.1, (9000, 3))  # 360,000 pairs: two chunks of 2^18 entries at most
+    compiled, numpy_only = ThinPlateKernel(0.5), NumpyThinPlate(0.5)
+    np.testing.assert_allclose(numpy_only.value_contract(x, y, w), compiled.value_contract(x, y, w), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        numpy_only.gradient_contract(x, y, w), compiled.gradient_contract(x, y, w), rtol=0, atol=1e-11
+    )
