@@ -191,10 +191,11 @@ class SurfaceRequest(Message):
     """Ask the surface estimator for a mesh of a region."""
 
     TYPE: ClassVar[str] = "SurfaceRequest"
-    VERSION: ClassVar[int] = 1
+    VERSION: ClassVar[int] = 2
     TOPIC: ClassVar[str] = topics.SURFACE_REQUEST
 
     region: str = scalar("str", "'global' for the whole object")
+    variance: bool = scalar("bool", "true when the mesh must carry the GP variance at every vertex (costly: Eq. 6)")
 
 
 class OccupancyGrid(Message):

@@ -175,9 +175,17 @@ class RunControl:
             return True
         return False
 
+    @property
+    def needs_variance(self) -> bool:
+        """Whether the whole-object surface asked for must carry the GP variance: only the milestones'
+        confident RMSE reads it (the shape checkpoints do not), and Eq. 6 at every vertex of the whole
+        object costs the GPIS node more than its mesh."""
+        return bool(self.pending)
+
     def surface(self, vertices_m: np.ndarray, faces: np.ndarray, vertex_variance: np.ndarray) -> bool:
         """A whole-object estimate arrived (vertices (v, 3) m, faces (f, 3), GP variance (v,) m^2): score the
-        milestones waiting for it. True when the run is over (this was the surface asked for at the end)."""
+        milestones waiting for it (a surface without variance serves when none waits). True when the run
+        is over (this was the surface asked for at the end)."""
         shape = self.evaluator.shape(vertices_m, faces) if self.shape_pending else None
         self.shape_pending = False
         if self.pending:

@@ -1,7 +1,9 @@
 """Exploration evaluator node: reads ground truth (an evaluator), scores the run, stops it at the goal.
 
 It asks the GPIS node for the whole-object surface when coverage first reaches each milestone (50 %
-and 80 %) to measure the surface RMSE there, and ends the run at the coverage goal or a budget.
+and 80 %) to measure the surface RMSE there (with the GP variance, for the confident part), every
+``shape_every_contacts`` contacts for the shape scores (without it), and ends the run at the coverage
+goal or a budget.
 At the end it prints one line `explore_result: {json}` and optionally writes JSON and a PNG.
 """
 
@@ -77,7 +79,8 @@ class ExploreEvalNode:
         )
         self.ctx.metrics["coverage"] = self.run.evaluator.tracker.coverage
         if request:
-            self.ctx.publish("request", SurfaceRequest(stamp_ns=self.ctx.stamp_ns, region="global"))
+            request = SurfaceRequest(stamp_ns=self.ctx.stamp_ns, region="global", variance=self.run.needs_variance)
+            self.ctx.publish("request", request)
 
     def on_surface(self, message: SurfaceMesh) -> None:
         if message.region != "global" or self.run is None:
@@ -95,7 +98,8 @@ class ExploreEvalNode:
     def on_tick(self, stamp_ns: int) -> None:
         """Watchdog: end a run that has made no touch for EvalConfig.max_idle_s of simulated time."""
         if self.run is not None and self.run.tick(stamp_ns):
-            self.ctx.publish("request", SurfaceRequest(stamp_ns=stamp_ns, region="global"))
+            request = SurfaceRequest(stamp_ns=stamp_ns, region="global", variance=self.run.needs_variance)
+            self.ctx.publish("request", request)
 
     def close(self) -> None:
         if self.evaluator is None:

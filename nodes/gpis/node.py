@@ -32,7 +32,7 @@ class GPISNodeConfig(Validated):
     #: Where the local mesh carries the GP variance (Eq. 6): "candidates", only at the vertices GP-V
     #: rates (one per variance_step_m voxel within variance_radius_m of the touch, the planner's
     #: candidate_step_m and gpv_radius_m); "all" vertices; "none" (IGEF and the others need none and
-    #: run ~2-4x faster). The whole-object mesh always carries it at every vertex.
+    #: run ~2-4x faster). The whole-object mesh carries it at every vertex when its request asks for it.
     vertex_variance: Literal["candidates", "all", "none"] = "candidates"
     variance_step_m: PositiveFloat = 0.005
     variance_radius_m: PositiveFloat = 0.06
@@ -62,7 +62,8 @@ class GPISNode:
         if message.region != "global":
             raise InputError("region", f"{message.region!r} is no region a request can name; use 'global'")
         cfg = self.config
-        self._publish(whole_surface(self.gp, cfg.global_margin_m, cfg.global_resolution_m), "global")
+        mesh = whole_surface(self.gp, cfg.global_margin_m, cfg.global_resolution_m, with_variance=message.variance)
+        self._publish(mesh, "global")
 
     def _publish(self, mesh: SurfaceMeshArrays, region: str) -> None:
         self.ctx.metrics["contacts"] = float(self.gp.n_contacts)

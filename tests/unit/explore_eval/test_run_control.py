@@ -82,10 +82,13 @@ def test_every_nth_contact_asks_for_the_surface_for_its_shape_scores() -> None:
     run = RunControl(ev)  # type: ignore[arg-type]
     asked = [touch(run, k * S_NS) for k in range(1, 4)]
     assert asked == [False, False, True]
+    assert not run.needs_variance  # the shape scores need no GP variance: the GPIS node skips Eq. 6
     assert not run.surface(*surface(5)) and ev.shapes == [3] and ev.scored == []
     assert not run.surface(*surface(5)) and ev.shapes == [3]  # nothing waiting: nothing scored
     assert [touch(run, k * S_NS) for k in range(4, 7)] == [False, False, True]
+    assert run.needs_variance  # a milestone waits: its confident RMSE reads the variance
     run.surface(*surface(6))
+    assert not run.needs_variance
     assert ev.shapes == [3, 6] and ev.scored == [(0.5, ("scores of", 6))]
 
 
@@ -96,6 +99,7 @@ def test_a_run_without_a_touch_for_max_idle_s_finishes_as_stalled() -> None:
     assert not touch(run, 20 * S_NS)
     assert not run.tick(50 * S_NS)
     assert run.tick(50 * S_NS + 1)
+    assert not run.needs_variance
     assert run.surface(*surface(4)) and ev.shapes == [1]  # the end's estimate gets its shape scores
     assert ev.finished == "stalled"
     assert not run.tick(60 * S_NS)  # asked once

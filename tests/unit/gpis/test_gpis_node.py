@@ -52,6 +52,13 @@ def test_unusable_touches_leave_the_gp_unchanged() -> None:
     node.on_touches(touch([0.3, 0.0, 0.03], [1.0, 0.0, 0.0]))  # 0.3 m away still fits
     assert node.gp.n_contacts == 2 and len(sent) == 2
     with pytest.raises(InputError, match=r"^region: 'local' is no region a request can name; use 'global'"):
-        node.on_request(SurfaceRequest(stamp_ns=0, region="local"))
-    node.on_request(SurfaceRequest(stamp_ns=0, region="global"))
+        node.on_request(SurfaceRequest(stamp_ns=0, region="local", variance=True))
+    node.on_request(SurfaceRequest(stamp_ns=0, region="global", variance=True))
     assert isinstance(sent[-1], SurfaceMesh) and sent[-1].region == "global"
+    with_variance = sent[-1]
+    assert len(with_variance.variance_vertices) == len(with_variance.vertices_m) > 0
+    node.on_request(SurfaceRequest(stamp_ns=0, region="global", variance=False))
+    without = sent[-1]  # the same mesh, without Eq. 6
+    assert isinstance(without, SurfaceMesh) and len(without.variance_vertices) == len(without.vertex_variance) == 0
+    np.testing.assert_array_equal(without.vertices_m, with_variance.vertices_m)
+    np.testing.assert_array_equal(without.faces, with_variance.faces)
