@@ -120,11 +120,14 @@ def _rotation(name: str, value: ArrayLike) -> FloatArray:
     if R.shape != (3, 3):
         raise PlanningError(f"{name} must be a 3x3 rotation matrix, got shape {R.shape}")
     (a, b, c), (d, e, f), (g, h, i) = R.tolist()  # plain floats: this runs every control step
-    cols = ((a, d, g), (b, e, h), (c, f, i))
+    # |R^T R - I|, entry by entry over the upper triangle (columns (a, d, g), (b, e, h), (c, f, i))
     gram_err = max(
-        abs(sum(x * y for x, y in zip(cols[j], cols[k], strict=True)) - (1.0 if j == k else 0.0))
-        for j in range(3)
-        for k in range(j, 3)
+        abs(a * a + d * d + g * g - 1.0),
+        abs(a * b + d * e + g * h),
+        abs(a * c + d * f + g * i),
+        abs(b * b + e * e + h * h - 1.0),
+        abs(b * c + e * f + h * i),
+        abs(c * c + f * f + i * i - 1.0),
     )
     det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
     if not (gram_err <= 1e-6 and det > 0.0):  # also false for NaN
