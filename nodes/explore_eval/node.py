@@ -17,7 +17,8 @@ import numpy as np
 
 from palpate.config import Validated
 from palpate.errors import InputError
-from palpate.inputs import coordinates, fingertip_pose, per_vertex, triangle_mesh
+from palpate.geometry.rotations import quat_to_matrix
+from palpate.inputs import coordinates, per_vertex, triangle_mesh, unit_quaternion
 from palpate.jsonio import dumps as json_dumps
 from palpate.jsonio import write as write_json
 from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
@@ -44,7 +45,7 @@ class ExploreEvalNode:
         self.name = ""  # the object's name, from its truth message
         self.evaluator: ExplorationEvaluator | None = None
         self.run: RunControl | None = None
-        self.fingertip_axis: np.ndarray | None = None  # the fingertip's poking axis R[:, 2] (3,)
+        self.fingertip_quaternion: np.ndarray | None = None  # the fingertip's orientation (w, x, y, z), checked
         self.last_estimate: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32))
         self.last_variance = np.zeros(0)
         self.result: dict[str, Any] = {}
@@ -61,7 +62,8 @@ class ExploreEvalNode:
         self.run = RunControl(self.evaluator)
 
     def on_pose(self, message: Pose) -> None:
-        self.fingertip_axis = fingertip_pose(message.position_m, message.quaternion_wxyz)[1][:, 2]
+        coordinates(message.position_m, "position_m")  # checked as every pose; only the axis is used, at touches
+        self.fingertip_quaternion = unit_quaternion(message.quaternion_wxyz, "quaternion_wxyz")
 
     def on_touches(self, message: TouchEvent) -> None:
         if self.run is None:
@@ -74,7 +76,7 @@ class ExploreEvalNode:
             np.array(predicted),
             message.travelled_m,
             message.rotation_deg,
-            self.fingertip_axis,
+            None if self.fingertip_quaternion is None else quat_to_matrix(self.fingertip_quaternion)[:, 2],
             message.missed,
         )
         self.ctx.metrics["coverage"] = self.run.evaluator.tracker.coverage
