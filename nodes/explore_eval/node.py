@@ -70,7 +70,7 @@ class ExploreEvalNode:
             raise InputError("index", f"touch {message.index} came before the object's truth; it is not scored")
         position = coordinates(message.position_m, "position_m")
         predicted = coordinates(message.predicted_contact_m, "predicted_contact_m", allow_nan=True)
-        request = self.run.touch(
+        asks = self.run.touch(
             self.ctx.stamp_ns,
             np.array(position),
             np.array(predicted),
@@ -80,9 +80,8 @@ class ExploreEvalNode:
             message.missed,
         )
         self.ctx.metrics["coverage"] = self.run.evaluator.tracker.coverage
-        if request:
-            request = SurfaceRequest(stamp_ns=self.ctx.stamp_ns, region="global", variance=self.run.needs_variance)
-            self.ctx.publish("request", request)
+        if asks:
+            self._request_surface(self.ctx.stamp_ns)
 
     def on_surface(self, message: SurfaceMesh) -> None:
         if message.region != "global" or self.run is None:
@@ -100,8 +99,13 @@ class ExploreEvalNode:
     def on_tick(self, stamp_ns: int) -> None:
         """Watchdog: end a run that has made no touch for EvalConfig.max_idle_s of simulated time."""
         if self.run is not None and self.run.tick(stamp_ns):
-            request = SurfaceRequest(stamp_ns=stamp_ns, region="global", variance=self.run.needs_variance)
-            self.ctx.publish("request", request)
+            self._request_surface(stamp_ns)
+
+    def _request_surface(self, stamp_ns: int) -> None:
+        """Ask for the whole-object surface, with the GP variance only when a milestone waits for it."""
+        assert self.run is not None
+        request = SurfaceRequest(stamp_ns=stamp_ns, region="global", variance=self.run.needs_variance)
+        self.ctx.publish("request", request)
 
     def close(self) -> None:
         if self.evaluator is None:
