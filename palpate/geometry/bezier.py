@@ -16,6 +16,8 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from palpate.geometry import bezier_kernels
+
 FloatArray = NDArray[np.float64]
 
 #: Control-point scaling of Eqs. 15 and 17: beta = |r - t_p| / 3.
@@ -127,7 +129,6 @@ class Cubic:
         self.A = _TO_POWER @ self.P  # T(tau) = A0 + A1 tau + A2 tau^2 + A3 tau^3
         self.end = self.P[3].copy()
         self.end_tangent = 3.0 * (self.P[3] - self.P[2])  # T'(1)
-        self._a = self.A.tolist()
 
     def point(self, tau: float) -> FloatArray:
         """T(tau), (3,) metres."""
@@ -155,53 +156,18 @@ class Cubic:
         """argmin over tau in [tau_min, tau_max] of |r - T(tau)| (Algorithm 1 line 25), r: (3,) metres.
 
         For ``tau_max > 1`` the straight continuation past T(1) is searched too. Dense sampling finds
-        the best bracket, Newton's method on g = (T - r) . T' refines inside it.
+        the best bracket, Newton's method on g = (T - r) . T' refines inside it (compiled:
+        ``bezier_kernels.closest_search``).
         """
         if not tau_max >= tau_min:
             raise ValueError(f"closest_tau needs tau_min <= tau_max, got {tau_min} > {tau_max}")
         r_ = np.asarray(r, dtype=np.float64)
-        A = self.A
-        grid = tau_min + (tau_max - tau_min) * _unit_grid(samples)
-        g_in = np.minimum(grid, 1.0)[:, None]
-        pts = A[0] + g_in * (A[1] + g_in * (A[2] + g_in * A[3]))
-        pts = pts + np.maximum(grid - 1.0, 0.0)[:, None] * self.end_tangent
-        diff = pts - r_
-        d2 = np.einsum("ij,ij->i", diff, diff)
-        i = int(np.argmin(d2))
-        lo, hi = float(grid[max(i - 1, 0)]), float(grid[min(i + 1, samples - 1)])
-        best_tau, best_d2 = float(grid[i]), float(d2[i])
-        rx, ry, rz = r_.tolist()
-        t = best_tau
-        for _ in range(newton_steps):  # scalar Newton in plain floats: ~10x faster than 3-vectors
-            g, dg = self._newton_terms(t, rx, ry, rz)
-            if dg <= 1e-300:
-                break
-            t_new = min(max(t - g / dg, lo), hi)
-            converged = abs(t_new - t) < 1e-12
-            t = t_new
-            if converged:
-                break
+        grid = _unit_grid(samples)
+        t, best_tau, best_d2 = bezier_kernels.closest_search(
+            self.A, self.end, self.end_tangent, r_, float(tau_min), float(tau_max), grid, newton_steps
+        )
         p = self.point(t) - r_
         return t if float(p @ p) <= best_d2 else best_tau
-
-    def _newton_terms(self, t: float, rx: float, ry: float, rz: float) -> tuple[float, float]:
-        """g = (T - r) . T' and g' = |T'|^2 + (T - r) . T'' at t."""
-        g = dg = 0.0
-        if t > 1.0:
-            for k, rk in enumerate((rx, ry, rz)):
-                e, d = float(self.end[k]), float(self.end_tangent[k])
-                diff = e + (t - 1.0) * d - rk
-                g += diff * d
-                dg += d * d
-            return g, dg
-        a0, a1, a2, a3 = self._a
-        for k, rk in enumerate((rx, ry, rz)):
-            diff = a0[k] + t * (a1[k] + t * (a2[k] + t * a3[k])) - rk
-            d1 = a1[k] + t * (2.0 * a2[k] + 3.0 * t * a3[k])
-            d2 = 2.0 * a2[k] + 6.0 * t * a3[k]
-            g += diff * d1
-            dg += d1 * d1 + diff * d2
-        return g, dg
 
 
 def approach_curve(

@@ -111,6 +111,52 @@ def test_closest_tau_matches_brute_force(curves: np.ndarray) -> None:
                 assert found <= brute + 1e-12
 
 
+def numpy_closest_tau(cubic: Cubic, r: np.ndarray, tau_min: float, tau_max: float, samples: int = 33) -> float:
+    """The numpy grid and Python Newton steps that ``bezier_kernels.closest_search`` replaced."""
+    A, end, tangent = cubic.A, cubic.end, cubic.end_tangent
+    grid = tau_min + (tau_max - tau_min) * np.linspace(0.0, 1.0, samples)
+    g_in = np.minimum(grid, 1.0)[:, None]
+    pts = A[0] + g_in * (A[1] + g_in * (A[2] + g_in * A[3])) + np.maximum(grid - 1.0, 0.0)[:, None] * tangent
+    d2 = np.einsum("ij,ij->i", pts - r, pts - r)
+    i = int(np.argmin(d2))
+    lo, hi, t = float(grid[max(i - 1, 0)]), float(grid[min(i + 1, samples - 1)]), float(grid[i])
+    a = A.tolist()
+    for _ in range(5):
+        g = dg = 0.0
+        for k, rk in enumerate(r.tolist()):
+            if t > 1.0:
+                diff = float(end[k]) + (t - 1.0) * float(tangent[k]) - rk
+                g += diff * float(tangent[k])
+                dg += float(tangent[k]) * float(tangent[k])
+            else:
+                diff = a[0][k] + t * (a[1][k] + t * (a[2][k] + t * a[3][k])) - rk
+                d1 = a[1][k] + t * (2.0 * a[2][k] + 3.0 * t * a[3][k])
+                g += diff * d1
+                dg += d1 * d1 + diff * (2.0 * a[2][k] + 6.0 * t * a[3][k])
+        if dg <= 1e-300:
+            break
+        t_new = min(max(t - g / dg, lo), hi)
+        converged = abs(t_new - t) < 1e-12
+        t = t_new
+        if converged:
+            break
+    p = cubic.point(t) - r
+    return t if float(p @ p) <= float(d2[i]) else float(grid[i])
+
+
+def test_closest_tau_gives_the_bits_of_the_numpy_search() -> None:
+    rng = np.random.default_rng(5)
+    differing = 0
+    for _ in range(3000):
+        P = rng.normal(scale=0.02, size=(4, 3))
+        cubic = Cubic(P)
+        r = P[rng.integers(4)] + rng.normal(scale=0.01, size=3)
+        tau_min = float(rng.uniform(0.0, 1.0))
+        tau_max = tau_min + float(rng.choice([0.0, rng.uniform(0.0, 1.5)]))
+        differing += cubic.closest_tau(r, tau_min, tau_max) != numpy_closest_tau(cubic, r, tau_min, tau_max)
+    assert differing == 0
+
+
 def test_closest_tau_respects_the_lower_bound() -> None:
     P = np.array([[0.0, 0, 0], [0.01, 0, 0], [0.02, 0, 0], [0.03, 0, 0]])
     assert Cubic(P).closest_tau(np.array([0.0, 0.001, 0.0]), 0.5) == pytest.approx(0.5)
