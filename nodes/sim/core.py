@@ -47,10 +47,14 @@ from palpate.geometry.mesh_query import (
     ExactContactSensor,
     WarmClosest,
 )
-from palpate.nodes.sim import capsule_kernels, probe_kernels
+from palpate.nodes.sim import capsule_kernels, penalty_kernels, probe_kernels
 from palpate.nodes.sim.effectors import FingerConfig, HandConfig
 from palpate.nodes.sim.objects import ObjectModel, load_object
 from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model, uses_exact_contacts
+
+#: Reach of each capsule sphere's warm-started query (WarmClosest): its patch is rebuilt when the sphere
+#: moves farther than this from where the patch was built.
+SPHERE_QUERY_REACH_M = 0.002
 
 #: MuJoCo warnings that mean the integration blew up (MuJoCo then resets the state silently).
 _INSTABILITY_WARNINGS = (
@@ -84,15 +88,6 @@ class Contacts:
 
     def __len__(self) -> int:
         return len(self.links)
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of (n, 3) arrays (np.cross is slow on small arrays)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    return out
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:
@@ -266,6 +261,8 @@ class Simulation:
         m, d = self.model, self.data
         if self.scene.effector == "probe":
             self._probe_advance(n)
+        elif self._exact and self.compiled_penalty:
+            self._penalty_advance(n, t0)
         elif self._exact:
             for _ in range(n):
                 mujoco.mj_step1(m, d)  # kinematics and velocities of the current state
@@ -472,16 +469,120 @@ class Simulation:
 
     # --- hand / finger on non-convex objects: exact-mesh penalty contacts ---------------------------
     def _setup_capsule_spheres(self) -> None:
-        spheres = capsule_spheres(self.model, self._is_effector_body)
+        m, d = self.model, self.data
+        spheres = capsule_spheres(m, self._is_effector_body)
         self._sph_geom, self._sph_offset, self._sph_radius, self._sph_runs = spheres
-        self._sph_body = self.model.geom_bodyid[self._sph_geom]
-        self._sph_cache_p = np.zeros((len(self._sph_geom), 3))
-        self._sph_cache_d = np.full(len(self._sph_geom), -np.inf)  # no query yet: the bound never skips
+        count = len(self._sph_geom)
+        self._sph_body = m.geom_bodyid[self._sph_geom]
+        self._sph_cache_p = np.zeros((count, 3))
+        self._sph_cache_d = np.full(count, -np.inf)  # no query yet: the bound never skips
         self._sph_reach = self._sph_radius + self._tol
         #: Place the spheres and bound their distances in compiled code (capsule_kernels), where it gives
         #: numpy's bits.
         self.compiled_bounds = capsule_kernels.matches_numpy()
+        #: Run the physics steps in compiled code (penalty_kernels) where MuJoCo's library is found and
+        #: the compiled arithmetic gives numpy's bits.
+        self.compiled_penalty = (
+            self.compiled_bounds and penalty_kernels.mujoco_functions() is not None and penalty_kernels.matches_numpy()
+        )
         self._sph_warm: dict[int, WarmClosest] = {}  # each sphere's warm-started query, made on first use
+        self._patches = penalty_kernels.WarmPatches(count)
+        # what the compiled steps read and write: MuJoCo's arrays (views that stay valid), the spheres,
+        # the mesh, per-step buffers and parameters (penalty_kernels.sphere_hits documents them)
+        sensor = self._sensor
+        assert sensor is not None
+        self._pk_frames = (d.geom_xpos, d.geom_xmat)
+        self._pk_dynamics = (np.asarray(m.body_rootid), (d.cvel, d.subtree_com, d.xipos, d.xfrc_applied))
+        self._pk_spheres = (
+            self._sph_geom,
+            self._sph_offset,
+            self._sph_radius,
+            self._sph_reach,
+            self._sph_body,
+            self._sph_cache_p,
+            self._sph_cache_d,
+        )
+        self._pk_mesh = (sensor._centre, sensor._triangles, sensor._sign_normals)
+        self._pk_face_normals = sensor.face_normals
+        self._pk_buffers = (
+            np.zeros((count, 3)),
+            np.zeros(count, dtype=np.int64),
+            np.zeros((count, 3)),
+            np.zeros(count),
+            np.zeros(count, dtype=np.int64),
+            np.zeros(count, dtype=np.int64),
+            np.zeros(2, dtype=np.int64),
+        )
+        k = penalty_kernels
+        self._pk_params = np.zeros(5)
+        self._pk_params[[k.P_REACH, k.P_WEAK_PSEUDO_NORMAL, k.P_WEAK_SIGN_COS]] = (
+            SPHERE_QUERY_REACH_M,
+            WEAK_PSEUDO_NORMAL,
+            WEAK_SIGN_COS,
+        )
+        self._pk_params[k.P_STIFFNESS] = self.scene.mesh_contact_stiffness_n_per_m
+        self._pk_params[k.P_DAMPING] = self.scene.mesh_contact_damping_n_s_per_m
+
+    def _penalty_advance(self, n: int, t0: float) -> None:
+        """``n`` steps in ``penalty_kernels.penalty_steps`` (the bits of the Python loop); the queries
+        that need Python are answered here, and the step goes on in compiled code."""
+        functions = penalty_kernels.mujoco_functions()
+        assert functions is not None
+        addresses = (*functions, self.model._address, self.data._address)
+        k = penalty_kernels
+        remaining, resume = n, -1
+        while remaining > 0:
+            taken, status, at = k.penalty_steps(
+                addresses,
+                remaining,
+                resume,
+                FEW_POINTS,
+                self.data.qpos,
+                self._pk_frames,
+                self._pk_dynamics,
+                self._pk_spheres,
+                self._pk_mesh,
+                self._pk_face_normals,
+                self._patches.arrays(),
+                self._pk_buffers,
+                self._pk_params,
+            )
+            self._steps += taken
+            remaining -= taken
+            resume = -1
+            if status == k.NEEDS_PYTHON:
+                resume = self._answer_in_python(at)
+            elif status == k.PENETRATED:
+                _, near, _, dist, _, touch, state = self._pk_buffers
+                rows = touch[: state[k.S_TOUCHING]]
+                raise self._penetration_error(near[rows], dist[rows])
+            elif status == k.NOT_FINITE:
+                self._check_diverged(t0, force=True)
+
+    def _answer_in_python(self, at: int) -> int:
+        """Answer the query at position ``at`` of the compiled near spheres (or all of them: BATCH) into
+        the buffers, as ``_sphere_closest`` does; returns where the compiled queries go on."""
+        assert self._sensor is not None
+        centres, near, points, dist, faces, _, state = self._pk_buffers
+        if at == penalty_kernels.BATCH:
+            count = int(state[penalty_kernels.S_NEAR])
+            hit = self._sensor.closest(centres[near[:count]])
+            points[:count], dist[:count], faces[:count] = hit.points_m, hit.distance_m, hit.face_ids
+            return count
+        k = int(near[at])
+        warm = self._sphere_warm(k)
+        self._patches.load(k, warm)
+        points[at], dist[at], faces[at] = warm.query(centres[k])
+        self._patches.store(k, warm)
+        return at + 1
+
+    def _sphere_warm(self, k: int) -> WarmClosest:
+        """Sphere k's warm-started query, made on first use."""
+        warm = self._sph_warm.get(k)
+        if warm is None:
+            assert self._sensor is not None
+            warm = self._sph_warm[k] = WarmClosest(self._sensor, reach_m=SPHERE_QUERY_REACH_M, same_face=True)
+        return warm
 
     def _sphere_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """World centres (K, 3) of the capsule spheres and the indices (t,) of those the 1-Lipschitz bound
@@ -499,6 +600,8 @@ class Simulation:
         """Touching spheres: indices (t,), centres (t, 3), surface points (t, 3), distances (t,),
         normals (t, 3), using the current kinematics."""
         assert self._sensor is not None
+        if self.compiled_penalty:
+            return self._compiled_sphere_hits()
         P, near = self._sphere_bounds()
         if len(near) == 0:
             empty = np.zeros((0, 3))
@@ -517,6 +620,29 @@ class Simulation:
             np.asarray(hit.normals, dtype=np.float64)[touching],
         )
 
+    def _compiled_sphere_hits(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``_sphere_hits`` by ``penalty_kernels.sphere_hits``, answering in Python what needs it."""
+        k = penalty_kernels
+        resume = -1
+        while True:
+            status, at = k.sphere_hits(
+                resume,
+                FEW_POINTS,
+                self._pk_frames,
+                self._pk_spheres,
+                self._pk_mesh,
+                self._patches.arrays(),
+                self._pk_buffers,
+                self._pk_params,
+            )
+            if status == k.DONE:
+                break
+            resume = self._answer_in_python(at)
+        centres, near, points, dist, faces, touch, state = self._pk_buffers
+        rows = touch[: state[k.S_TOUCHING]]
+        idx = near[rows]
+        return idx, centres[idx], points[rows], dist[rows], self._pk_face_normals[faces[rows]]
+
     def _sphere_closest(self, P: np.ndarray, near: np.ndarray) -> ClosestPoints:
         """The sensor's answer for the spheres ``near`` (indices into centres P (K, 3)). Up to
         FEW_POINTS spheres, where the sensor answers point by point, each sphere's own warm-started
@@ -527,10 +653,7 @@ class Simulation:
             return self._sensor.closest(P[near])
         points, distances, faces = [], [], []
         for k in near.tolist():
-            warm = self._sph_warm.get(k)
-            if warm is None:
-                warm = self._sph_warm[k] = WarmClosest(self._sensor, same_face=True)
-            point, distance, face = warm.query(P[k])
+            point, distance, face = self._sphere_warm(k).query(P[k])
             points.append(point)
             distances.append(distance)
             faces.append(face)
@@ -545,15 +668,12 @@ class Simulation:
     def _sphere_forces(self, idx: np.ndarray, points: np.ndarray, dist: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """Penalty normal force (t,) >= 0 of touching spheres: k (r - d) - b v_n."""
         d = self.data
-        k = self.scene.mesh_contact_stiffness_n_per_m
-        b = self.scene.mesh_contact_damping_n_s_per_m
         bodies = self._sph_body[idx]
         # cvel is (angular, linear) at the subtree centre of mass of the body's root, world frame
-        cvel = d.cvel[bodies]
         origin = d.subtree_com[self.model.body_rootid[bodies]]
-        v_point = cvel[:, 3:] + _cross(cvel[:, :3], points - origin)
-        v_n = np.einsum("ij,ij->i", v_point, normals)
-        return np.maximum(0.0, k * (self._sph_radius[idx] - dist) - b * v_n)
+        k = self.scene.mesh_contact_stiffness_n_per_m
+        b = self.scene.mesh_contact_damping_n_s_per_m
+        return penalty_kernels.numpy_forces(bodies, self._sph_radius[idx], points, dist, normals, d.cvel, origin, k, b)
 
     def _apply_penalty_forces(self) -> None:
         """Set xfrc_applied from the current kinematics (call between mj_step1 and mj_step2)."""
@@ -563,20 +683,21 @@ class Simulation:
         if len(idx) == 0:
             return
         if np.any(dist < 0.0):
-            dt = self._dt
-            raise SimulationDivergedError(
-                f"at t = {self.time_s:.6g} s a finger segment's axis is inside the object (penetration "
-                f"{1000 * (self._sph_radius[idx] - dist).max():.3g} mm, more than the segment radius): the "
-                f"penalty contact (stiffness {self.scene.mesh_contact_stiffness_n_per_m:g} N/m) was "
-                f"overrun with time step {dt:g} s; use a smaller time step, e.g. timestep_s: {dt / 2:g} "
-                "(or check that the effector does not start inside the object)"
-            )
-        f = self._sphere_forces(idx, points, dist, normals)[:, None] * normals
-        bodies = self._sph_body[idx]
-        torque = _cross(points - d.xipos[bodies], f)  # xfrc_applied acts at the body's centre of mass
-        wrench = np.zeros((self.model.nbody, 6))
-        np.add.at(wrench, bodies, np.concatenate([f, torque], axis=1))
-        d.xfrc_applied[:] = wrench
+            raise self._penetration_error(idx, dist)
+        forces = self._sphere_forces(idx, points, dist, normals)
+        # xfrc_applied acts at the body's centre of mass
+        d.xfrc_applied[:] = penalty_kernels.numpy_wrench(self._sph_body[idx], points, normals, forces, d.xipos)
+
+    def _penetration_error(self, idx: np.ndarray, dist: np.ndarray) -> SimulationDivergedError:
+        """The error for touching spheres idx (t,) at distances (t,) of which one has its centre inside."""
+        dt = self._dt
+        return SimulationDivergedError(
+            f"at t = {self.time_s:.6g} s a finger segment's axis is inside the object (penetration "
+            f"{1000 * (self._sph_radius[idx] - dist).max():.3g} mm, more than the segment radius): the "
+            f"penalty contact (stiffness {self.scene.mesh_contact_stiffness_n_per_m:g} N/m) was "
+            f"overrun with time step {dt:g} s; use a smaller time step, e.g. timestep_s: {dt / 2:g} "
+            "(or check that the effector does not start inside the object)"
+        )
 
     def _penalty_contacts(self) -> Contacts:
         idx, _, points, dist, normals = self._sphere_hits()

@@ -1,0 +1,410 @@
+"""A hand's or finger's physics steps on a mesh in compiled code (numba), MuJoCo's C functions called
+from the loop.
+
+On a mesh, every step of ``Simulation.step`` runs ``mj_step1``, places the capsule spheres, queries the
+exact surface for the spheres the 1-Lipschitz bound leaves near it, sets the penalty wrench in
+``xfrc_applied`` and runs ``mj_step2``. In Python that is about 150 us a step around 5 to 10 us of
+physics. :func:`penalty_steps` runs the whole loop for a batch of steps: ``mj_step1`` and ``mj_step2``
+of MuJoCo's shared library by address (``probe_kernels._call_void2``), the bounds of
+``capsule_kernels.sphere_bounds``, each near sphere's warm-started query with
+``closest_kernels.warm_query`` on its patch (:class:`WarmPatches` packs the patches of the spheres'
+``WarmClosest`` queries) and the penalty wrench (:func:`penalty_wrench`). Every expression is the
+numpy path's, in the same order (numba compiles without fast-math), so both give the same bits;
+:func:`matches_numpy` checks the wrench on random input once per process, and a test runs both paths
+side by side.
+
+A query that needs Python ends the call *within* its step, before ``mj_step2``: a new patch (a
+scipy k-d tree), a tie or a weak sign (Open3D), or more than ``FEW_POINTS`` near spheres (the
+sensor's vectorised query, which rounds differently). The caller answers that sphere (or the batch)
+into the buffers and calls again with ``resume`` set to where the queries go on.
+``mujoco_functions()`` returns None where MuJoCo's shared library is not found beside the bindings;
+the simulation then keeps the Python loop.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import math
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import numba
+import numpy as np
+
+from palpate.geometry import closest_kernels
+from palpate.geometry.mesh_query import WarmClosest
+from palpate.nodes.sim import capsule_kernels
+from palpate.nodes.sim.probe_kernels import _call_void2
+
+#: How a call ended: DONE; NEEDS_PYTHON (``at``: the position in ``near`` of the sphere to answer, or
+#: BATCH for all of them); PENETRATED (a touching sphere's centre is inside); NOT_FINITE (after mj_step2).
+DONE, NEEDS_PYTHON, PENETRATED, NOT_FINITE = 0, 1, 2, 3
+BATCH = -1
+#: Layout of the parameter vector: the patch reach, the weak-sign limits, stiffness and damping.
+P_REACH, P_WEAK_PSEUDO_NORMAL, P_WEAK_SIGN_COS, P_STIFFNESS, P_DAMPING = range(5)
+#: Layout of the state vector: how many spheres are near, how many of them touch.
+S_NEAR, S_TOUCHING = 0, 1
+
+A = np.ndarray
+
+
+@cache
+def mujoco_functions() -> tuple[int, int] | None:
+    """Addresses of ``mj_step1`` and ``mj_step2`` in the MuJoCo library the bindings loaded."""
+    import mujoco
+
+    folder = Path(mujoco.__file__).resolve().parent
+    libraries = sorted(folder.glob("libmujoco.so*")) + sorted(folder.glob("libmujoco*.dylib"))
+    if not libraries:
+        return None
+    try:
+        library = ctypes.CDLL(str(libraries[0]))
+        step1 = ctypes.cast(library.mj_step1, ctypes.c_void_p).value
+        step2 = ctypes.cast(library.mj_step2, ctypes.c_void_p).value
+    except (OSError, AttributeError):
+        return None
+    if not step1 or not step2:
+        return None
+    return int(step1), int(step2)
+
+
+# --- the penalty wrench --------------------------------------------------------------------------
+
+
+def cross(a: A, b: A) -> A:
+    """Row-wise cross product of (n, 3) arrays (np.cross is slow on small arrays)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+def numpy_forces(bodies: A, radius: A, points: A, dist: A, normals: A, cvel: A, origin: A, k: float, b: float) -> A:
+    """Penalty normal force (t,) >= 0 of touching spheres, ``k (r - d) - b v_n`` (the reference).
+
+    bodies (t,), radius (t,), surface points (t, 3), distances (t,), normals (t, 3); cvel (nbody, 6)
+    MuJoCo's (angular, linear) body velocities at origin (t, 3), the subtree centre of mass of each
+    sphere's root body.
+    """
+    vel = cvel[bodies]
+    v_point = vel[:, 3:] + cross(vel[:, :3], points - origin)
+    v_n = np.einsum("ij,ij->i", v_point, normals)
+    return np.maximum(0.0, k * (radius - dist) - b * v_n)
+
+
+def numpy_wrench(bodies: A, points: A, normals: A, forces: A, xipos: A) -> A:
+    """``xfrc_applied`` (nbody, 6) of the forces (t,) along normals (t, 3) at points (t, 3) on bodies
+    (t,) (the reference): force and torque about each body's centre of mass ``xipos`` (nbody, 3)."""
+    f = forces[:, None] * normals
+    torque = cross(points - xipos[bodies], f)
+    wrench = np.zeros((len(xipos), 6))
+    np.add.at(wrench, bodies, np.concatenate([f, torque], axis=1))
+    return wrench
+
+
+@numba.njit(cache=True)
+def penalty_wrench(
+    rows: A,
+    near: A,
+    points: A,
+    dist: A,
+    faces: A,
+    face_normals: A,
+    body: A,
+    radius: A,
+    body_rootid: A,
+    data: Any,
+    k: float,
+    b: float,
+) -> None:
+    """:func:`numpy_forces` and :func:`numpy_wrench` of the spheres ``near[rows]`` (their hits at
+    ``rows`` of points, dist and faces), added into ``xfrc_applied`` (zero on entry).
+
+    data: MuJoCo's (cvel (nbody, 6), subtree_com (nbody, 3), xipos (nbody, 3), xfrc_applied (nbody, 6)).
+    """
+    cvel, subtree_com, xipos, xfrc = data
+    for j in rows:
+        s = near[j]
+        bd = body[s]
+        root = body_rootid[bd]
+        a0, a1, a2 = cvel[bd, 0], cvel[bd, 1], cvel[bd, 2]
+        r0 = points[j, 0] - subtree_com[root, 0]
+        r1 = points[j, 1] - subtree_com[root, 1]
+        r2 = points[j, 2] - subtree_com[root, 2]
+        v0 = cvel[bd, 3] + (a1 * r2 - a2 * r1)  # v = v_lin + w x (p - com)
+        v1 = cvel[bd, 4] + (a2 * r0 - a0 * r2)
+        v2 = cvel[bd, 5] + (a0 * r1 - a1 * r0)
+        n0, n1, n2 = face_normals[faces[j], 0], face_normals[faces[j], 1], face_normals[faces[j], 2]
+        v_n = (v0 * n0 + v2 * n2) + v1 * n1  # einsum's order
+        force = k * (radius[s] - dist[j]) - b * v_n
+        if not force > 0.0:
+            force = 0.0 if force <= 0.0 else force  # np.maximum: NaN stays NaN
+        f0, f1, f2 = force * n0, force * n1, force * n2
+        p0 = points[j, 0] - xipos[bd, 0]
+        p1 = points[j, 1] - xipos[bd, 1]
+        p2 = points[j, 2] - xipos[bd, 2]
+        xfrc[bd, 0] += f0
+        xfrc[bd, 1] += f1
+        xfrc[bd, 2] += f2
+        xfrc[bd, 3] += p1 * f2 - p2 * f1  # (p - x_i) x f
+        xfrc[bd, 4] += p2 * f0 - p0 * f2
+        xfrc[bd, 5] += p0 * f1 - p1 * f0
+
+
+@cache
+def matches_numpy(samples: int = 500) -> bool:
+    """Whether :func:`penalty_wrench` gives the bits of :func:`numpy_forces` and :func:`numpy_wrench`
+    here (random spheres, hits and velocities)."""
+    rng = np.random.default_rng(20260102)
+    nbody, count = 6, 40
+    for _ in range(samples):
+        body, radius = rng.integers(1, nbody, count), np.full(count, 0.008)
+        t = int(rng.integers(1, 12))
+        near = np.sort(rng.choice(count, t, replace=False))
+        points = 0.05 * rng.standard_normal((t, 3))
+        dist = rng.uniform(0.0, 0.009, t)
+        face_normals = rng.standard_normal((t, 3))
+        face_normals /= np.linalg.norm(face_normals, axis=1, keepdims=True)
+        cvel, com, xipos = (
+            rng.standard_normal((nbody, 6)),
+            0.05 * rng.standard_normal((nbody, 3)),
+            0.05 * rng.standard_normal((nbody, 3)),
+        )
+        rootid = np.array([0] + [1] * (nbody - 1))
+        bodies = body[near]
+        forces = numpy_forces(bodies, radius[near], points, dist, face_normals, cvel, com[rootid[bodies]], 2000.0, 5.0)
+        expected = numpy_wrench(bodies, points, face_normals, forces, xipos)
+        got = np.zeros((nbody, 6))
+        rows, faces = np.arange(t), np.arange(t)
+        penalty_wrench(
+            rows, near, points, dist, faces, face_normals, body, radius, rootid, (cvel, com, xipos, got), 2000.0, 5.0
+        )
+        if got.tobytes() != expected.tobytes():
+            return False
+    return True
+
+
+# --- the spheres' warm-started queries -------------------------------------------------------------
+
+
+class WarmPatches:
+    """The ``WarmClosest`` queries of K spheres, packed for compiled code: per sphere where its patch
+    was built (K, 3), its last face (K,) (-1: none), where its patch starts and how many faces it holds
+    (K,) (0: no patch, ask Python) and its patch searches not yet reported (K,); the patches one after
+    the other in ``faces``, ``planes``, ``offsets`` and ``lower0``; one tie buffer for all."""
+
+    def __init__(self, count: int) -> None:
+        self.p0 = np.full((count, 3), np.inf)
+        self.face = np.full(count, -1, dtype=np.int64)
+        self.start = np.zeros(count, dtype=np.int64)
+        self.size = np.zeros(count, dtype=np.int64)
+        self.searches = np.zeros(count, dtype=np.int64)
+        self._patches: list[tuple[A, A, A, A] | None] = [None] * count
+        self._pack()
+
+    def arrays(self) -> tuple[A, ...]:
+        """The arrays :func:`query_near` reads and writes."""
+        return (
+            self.p0,
+            self.face,
+            self.start,
+            self.size,
+            self.searches,
+            self.faces,
+            self.planes,
+            self.offsets,
+            self.lower0,
+            self.ties,
+        )
+
+    def load(self, k: int, warm: WarmClosest) -> None:
+        """Hand sphere k's last face and searches back to its Python query."""
+        warm.resume(int(self.face[k]), int(self.searches[k]))
+        self.searches[k] = 0
+
+    def store(self, k: int, warm: WarmClosest) -> None:
+        """Take sphere k's state from its Python query (repacking when its patch was rebuilt)."""
+        p0, face, faces, planes, offsets, lower0, _ = warm.patch()
+        self.p0[k] = p0
+        self.face[k] = face
+        old = self._patches[k]
+        if len(faces) == 0:
+            if old is None:
+                return
+            self._patches[k] = None
+        elif old is not None and old[0] is faces:
+            return
+        else:
+            self._patches[k] = (faces, planes, offsets, lower0)
+        self._pack()
+
+    def _pack(self) -> None:
+        live = [(k, patch) for k, patch in enumerate(self._patches) if patch is not None]
+        self.size[:] = 0
+        position = 0
+        for k, patch in live:
+            self.start[k], self.size[k] = position, len(patch[0])
+            position += len(patch[0])
+        parts = [patch for _, patch in live]
+        empty = (np.zeros(0, dtype=np.int64), np.zeros((0, 4, 3)), np.zeros((0, 4)), np.zeros(0))
+        self.faces, self.planes, self.offsets, self.lower0 = (
+            np.ascontiguousarray(np.concatenate([p[i] for p in parts])) if parts else empty[i] for i in range(4)
+        )
+        self.ties = np.zeros(2 * int(self.size.max(initial=0)) + 1, dtype=np.int64)
+
+
+@numba.njit(cache=True)
+def query_near(
+    j0: int, centres: A, near: A, count: int, mesh: Any, warm: Any, params: A, points: A, dist: A, hit_faces: A
+) -> int:
+    """``WarmClosest.query`` (with ``same_face``) for the spheres near[j0:count] at their centres (K, 3),
+    as far as it needs no Python: writes each answer at its position j in points (K, 3), dist (K,) and
+    hit_faces (K,). Returns count, or the first position whose query needs Python.
+
+    mesh: the sensor's (centre (3,), triangles (F, 3, 3), sign normals (F, 7, 3)); warm:
+    :meth:`WarmPatches.arrays`.
+    """
+    centre, triangles, sign_normals = mesh
+    p0, face, start, size, searches, faces, planes, offsets, lower0, ties = warm
+    reach = params[P_REACH]
+    for j in range(j0, count):
+        k = near[j]
+        x, y, z = centres[k, 0], centres[k, 1], centres[k, 2]
+        if not math.isfinite(x + y + z) or size[k] == 0:
+            return j
+        px, py, pz = x - centre[0], y - centre[1], z - centre[2]
+        x0, y0, z0 = p0[k, 0], p0[k, 1], p0[k, 2]
+        if (px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2 > reach**2:
+            return j  # a new patch
+        moved = math.sqrt((px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2)
+        a, e = start[k], start[k] + size[k]
+        status, found, qx, qy, qz, unsigned, inside, weak = closest_kernels.warm_query(
+            triangles,
+            sign_normals,
+            faces[a:e],
+            planes[a:e],
+            offsets[a:e],
+            lower0[a:e],
+            moved * (1.0 + 1e-12) + 1e-18,
+            face[k],
+            px,
+            py,
+            pz,
+            params[P_WEAK_PSEUDO_NORMAL],
+            params[P_WEAK_SIGN_COS],
+            ties,
+            True,
+        )
+        if status == 1 or weak:
+            return j  # a tie or a weak sign
+        face[k] = found
+        searches[k] += 1
+        points[j, 0], points[j, 1], points[j, 2] = qx + centre[0], qy + centre[1], qz + centre[2]
+        dist[j] = -unsigned if inside else unsigned
+        hit_faces[j] = found
+    return count
+
+
+@numba.njit(cache=True)
+def sphere_hits(
+    resume: int, few_points: int, frames: Any, spheres: Any, mesh: Any, warm: Any, buffers: Any, params: A
+) -> tuple[int, int]:
+    """``Simulation._sphere_hits``: with resume < 0 the bounds (``capsule_kernels.sphere_bounds``) of
+    the current kinematics (more than ``few_points`` near spheres: BATCH), then the queries from
+    position ``resume`` on (:func:`query_near`); once
+    all are answered, the caches of the near spheres and, in buffers' touch[:state[S_TOUCHING]], the
+    positions of those that touch. Returns (DONE | NEEDS_PYTHON, the position to answer | BATCH).
+
+    frames: MuJoCo's (geom_xpos, geom_xmat); spheres: (geoms, offsets, radius, reach, body, cache_p,
+    cache_d); buffers: (centres (K, 3), near (K,), points (K, 3), dist (K,), hit_faces (K,), touch (K,),
+    state (2,)).
+    """
+    xpos, xmat = frames
+    geoms, offsets, _, reach, _, cache_p, cache_d = spheres
+    centres, near, points, dist, hit_faces, touch, state = buffers
+    if resume < 0:
+        state[S_NEAR] = capsule_kernels.sphere_bounds(
+            xpos, xmat, geoms, offsets, cache_p, cache_d, reach, centres, near
+        )
+        if state[S_NEAR] > few_points:
+            return NEEDS_PYTHON, BATCH  # the sensor's vectorised query
+        resume = 0
+    count = state[S_NEAR]
+    j = query_near(resume, centres, near, count, mesh, warm, params, points, dist, hit_faces)
+    if j < count:
+        return NEEDS_PYTHON, j
+    touching = 0
+    for j in range(count):
+        k = near[j]
+        cache_p[k, 0], cache_p[k, 1], cache_p[k, 2] = centres[k, 0], centres[k, 1], centres[k, 2]
+        cache_d[k] = dist[j]
+        if dist[j] <= reach[k]:
+            touch[touching] = j
+            touching += 1
+    state[S_TOUCHING] = touching
+    return DONE, 0
+
+
+@numba.njit(cache=True)
+def penalty_steps(
+    functions: tuple[int, int, int, int],
+    steps: int,
+    resume: int,
+    few_points: int,
+    qpos: A,
+    frames: Any,
+    dynamics: Any,
+    spheres: Any,
+    mesh: Any,
+    face_normals: A,
+    warm: Any,
+    buffers: Any,
+    params: A,
+) -> tuple[int, int, int]:
+    """Up to ``steps`` steps of ``Simulation.step`` on the exact-mesh path. resume >= 0 goes on with the
+    queries of a step that ended a call with NEEDS_PYTHON. Returns (steps completed, DONE |
+    NEEDS_PYTHON | PENETRATED | NOT_FINITE, the position to answer | BATCH).
+
+    functions: (mj_step1, mj_step2, model, data) addresses; dynamics: (body_rootid, (cvel, subtree_com,
+    xipos, xfrc_applied)); the rest as in :func:`sphere_hits`.
+    """
+    step1, step2, model, data = functions
+    body_rootid, body_data = dynamics
+    _, _, radius, _, body, _, _ = spheres
+    _, near, points, dist, hit_faces, touch, state = buffers
+    xfrc = body_data[3]
+    taken = 0
+    while taken < steps:
+        if resume < 0:
+            _call_void2(step1, model, data)  # kinematics and velocities of the current state
+        status, at = sphere_hits(resume, few_points, frames, spheres, mesh, warm, buffers, params)
+        resume = -1
+        if status != DONE:
+            return taken, status, at
+        rows = touch[: state[S_TOUCHING]]
+        for j in rows:
+            if dist[j] < 0.0:
+                return taken, PENETRATED, 0
+        xfrc[:] = 0.0
+        penalty_wrench(
+            rows,
+            near,
+            points,
+            dist,
+            hit_faces,
+            face_normals,
+            body,
+            radius,
+            body_rootid,
+            body_data,
+            params[P_STIFFNESS],
+            params[P_DAMPING],
+        )
+        _call_void2(step2, model, data)  # forces, acceleration, integration
+        taken += 1
+        for i in range(qpos.shape[0]):
+            if not math.isfinite(qpos[i]):
+                return taken, NOT_FINITE, 0
+    return taken, DONE, 0
