@@ -486,6 +486,8 @@ class Simulation:
             self.compiled_bounds and penalty_kernels.mujoco_functions() is not None and penalty_kernels.matches_numpy()
         )
         self._sph_warm: dict[int, WarmClosest] = {}  # each sphere's warm-started query, made on first use
+        assert self._sensor is not None
+        penalty_kernels.load_query_kernels(self._sensor)
         self._patches = penalty_kernels.WarmPatches(count)
         # what the compiled steps read and write: MuJoCo's arrays (views that stay valid), the spheres,
         # the mesh, per-step buffers and parameters (penalty_kernels.sphere_hits documents them)

@@ -33,7 +33,7 @@ import numba
 import numpy as np
 
 from palpate.geometry import closest_kernels
-from palpate.geometry.mesh_query import WarmClosest
+from palpate.geometry.mesh_query import WEAK_PSEUDO_NORMAL, WEAK_SIGN_COS, ExactContactSensor, WarmClosest
 from palpate.nodes.sim import capsule_kernels
 from palpate.nodes.sim.probe_kernels import _call_void2
 
@@ -187,6 +187,24 @@ def matches_numpy(samples: int = 500) -> bool:
 
 
 # --- the spheres' warm-started queries -------------------------------------------------------------
+
+
+def load_query_kernels(sensor: ExactContactSensor) -> None:
+    """Load the compiled kernels that a sphere's query calls from Python (a patch build, a tie, a weak
+    sign) and build the sensor's face index now, not at the first contact: tens of milliseconds once
+    per process, which would otherwise stall a step of a running graph."""
+    k = closest_kernels
+    triangles, signs = sensor._triangles, sensor._sign_normals
+    k.project(triangles, 0, 0.0, 0.0, 0.0)
+    k.finish(triangles, signs, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, WEAK_PSEUDO_NORMAL, WEAK_SIGN_COS)
+    faces, planes, offsets, lower0 = k.build_patch(
+        sensor._bound_planes, sensor._bound_offsets, np.zeros(0, dtype=np.int64), 0.0, 0.0, 0.0, 1.0
+    )
+    ties = np.zeros(1, dtype=np.int64)
+    for same_face in (False, True):
+        k.warm_query(triangles, signs, faces, planes, offsets, lower0, 0.0, 0, 0.0, 0.0, 0.0, 0.1, 0.1, ties, same_face)
+    sensor.face_index()
+    sensor._scene.closest_face_ids(np.zeros((1, 3)))
 
 
 class WarmPatches:
