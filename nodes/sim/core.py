@@ -52,10 +52,6 @@ from palpate.nodes.sim.effectors import FingerConfig, HandConfig
 from palpate.nodes.sim.objects import ObjectModel, load_object
 from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model, uses_exact_contacts
 
-#: Reach of each capsule sphere's warm-started query (WarmClosest): its patch is rebuilt when the sphere
-#: moves farther than this from where the patch was built.
-SPHERE_QUERY_REACH_M = 0.002
-
 #: MuJoCo warnings that mean the integration blew up (MuJoCo then resets the state silently).
 _INSTABILITY_WARNINGS = (
     (mujoco.mjtWarning.mjWARN_BADQACC, "bad acceleration"),
@@ -486,13 +482,13 @@ class Simulation:
             self.compiled_bounds and penalty_kernels.mujoco_functions() is not None and penalty_kernels.matches_numpy()
         )
         self._sph_warm: dict[int, WarmClosest] = {}  # each sphere's warm-started query, made on first use
-        assert self._sensor is not None
-        penalty_kernels.load_query_kernels(self._sensor)
-        self._patches = penalty_kernels.WarmPatches(count)
-        # what the compiled steps read and write: MuJoCo's arrays (views that stay valid), the spheres,
-        # the mesh, per-step buffers and parameters (penalty_kernels.sphere_hits documents them)
         sensor = self._sensor
         assert sensor is not None
+        penalty_kernels.load_query_kernels(sensor)
+        template = WarmClosest(sensor, same_face=True)  # the settings of every sphere's query
+        self._patches = penalty_kernels.WarmPatches(count, template.max_patch_faces)
+        # what the compiled steps read and write: MuJoCo's arrays (views that stay valid), the spheres,
+        # the mesh, per-step buffers and parameters (penalty_kernels.sphere_hits documents them)
         self._pk_frames = (d.geom_xpos, d.geom_xmat)
         self._pk_dynamics = (np.asarray(m.body_rootid), (d.cvel, d.subtree_com, d.xipos, d.xfrc_applied))
         self._pk_spheres = (
@@ -504,8 +500,15 @@ class Simulation:
             self._sph_cache_p,
             self._sph_cache_d,
         )
-        self._pk_mesh = (sensor._centre, sensor._triangles, sensor._sign_normals)
+        self._pk_mesh = (
+            sensor._centre,
+            sensor._triangles,
+            sensor._sign_normals,
+            sensor._bound_planes,
+            sensor._bound_offsets,
+        )
         self._pk_face_normals = sensor.face_normals
+        self._pk_grid, cell_m, largest = penalty_kernels.face_grid(sensor)
         self._pk_buffers = (
             np.zeros((count, 3)),
             np.zeros(count, dtype=np.int64),
@@ -514,16 +517,19 @@ class Simulation:
             np.zeros(count, dtype=np.int64),
             np.zeros(count, dtype=np.int64),
             np.zeros(2, dtype=np.int64),
+            np.zeros(len(sensor.face_normals), dtype=np.int64),
         )
         k = penalty_kernels
-        self._pk_params = np.zeros(5)
-        self._pk_params[[k.P_REACH, k.P_WEAK_PSEUDO_NORMAL, k.P_WEAK_SIGN_COS]] = (
-            SPHERE_QUERY_REACH_M,
-            WEAK_PSEUDO_NORMAL,
-            WEAK_SIGN_COS,
-        )
+        self._pk_params = np.zeros(k.PARAMS)
+        self._pk_params[k.P_REACH] = template.reach_m
+        self._pk_params[k.P_WEAK_PSEUDO_NORMAL] = WEAK_PSEUDO_NORMAL
+        self._pk_params[k.P_WEAK_SIGN_COS] = WEAK_SIGN_COS
         self._pk_params[k.P_STIFFNESS] = self.scene.mesh_contact_stiffness_n_per_m
         self._pk_params[k.P_DAMPING] = self.scene.mesh_contact_damping_n_s_per_m
+        self._pk_params[k.P_MAX_DISTANCE] = template.max_distance_m
+        self._pk_params[k.P_MAX_FACES] = template.max_patch_faces
+        self._pk_params[k.P_CELL] = cell_m
+        self._pk_params[k.P_LARGEST] = largest
 
     def _penalty_advance(self, n: int, t0: float) -> None:
         """``n`` steps in ``penalty_kernels.penalty_steps`` (the bits of the Python loop); the queries
@@ -544,6 +550,7 @@ class Simulation:
                 self._pk_dynamics,
                 self._pk_spheres,
                 self._pk_mesh,
+                self._pk_grid,
                 self._pk_face_normals,
                 self._patches.arrays(),
                 self._pk_buffers,
@@ -555,7 +562,7 @@ class Simulation:
             if status == k.NEEDS_PYTHON:
                 resume = self._answer_in_python(at)
             elif status == k.PENETRATED:
-                _, near, _, dist, _, touch, state = self._pk_buffers
+                _, near, _, dist, _, touch, state, _ = self._pk_buffers
                 rows = touch[: state[k.S_TOUCHING]]
                 raise self._penetration_error(near[rows], dist[rows])
             elif status == k.NOT_FINITE:
@@ -565,7 +572,7 @@ class Simulation:
         """Answer the query at position ``at`` of the compiled near spheres (or all of them: BATCH) into
         the buffers, as ``_sphere_closest`` does; returns where the compiled queries go on."""
         assert self._sensor is not None
-        centres, near, points, dist, faces, _, state = self._pk_buffers
+        centres, near, points, dist, faces, _, state, _ = self._pk_buffers
         if at == penalty_kernels.BATCH:
             count = int(state[penalty_kernels.S_NEAR])
             hit = self._sensor.closest(centres[near[:count]])
@@ -583,7 +590,7 @@ class Simulation:
         warm = self._sph_warm.get(k)
         if warm is None:
             assert self._sensor is not None
-            warm = self._sph_warm[k] = WarmClosest(self._sensor, reach_m=SPHERE_QUERY_REACH_M, same_face=True)
+            warm = self._sph_warm[k] = WarmClosest(self._sensor, same_face=True)
         return warm
 
     def _sphere_bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -633,6 +640,7 @@ class Simulation:
                 self._pk_frames,
                 self._pk_spheres,
                 self._pk_mesh,
+                self._pk_grid,
                 self._patches.arrays(),
                 self._pk_buffers,
                 self._pk_params,
@@ -640,7 +648,7 @@ class Simulation:
             if status == k.DONE:
                 break
             resume = self._answer_in_python(at)
-        centres, near, points, dist, faces, touch, state = self._pk_buffers
+        centres, near, points, dist, faces, touch, state, _ = self._pk_buffers
         rows = touch[: state[k.S_TOUCHING]]
         idx = near[rows]
         return idx, centres[idx], points[rows], dist[rows], self._pk_face_normals[faces[rows]]

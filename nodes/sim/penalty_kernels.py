@@ -41,8 +41,12 @@ from palpate.nodes.sim.probe_kernels import _call_void2
 #: BATCH for all of them); PENETRATED (a touching sphere's centre is inside); NOT_FINITE (after mj_step2).
 DONE, NEEDS_PYTHON, PENETRATED, NOT_FINITE = 0, 1, 2, 3
 BATCH = -1
-#: Layout of the parameter vector: the patch reach, the weak-sign limits, stiffness and damping.
+#: Layout of the parameter vector: the patch reach, the weak-sign limits, stiffness and damping, ...
 P_REACH, P_WEAK_PSEUDO_NORMAL, P_WEAK_SIGN_COS, P_STIFFNESS, P_DAMPING = range(5)
+#: ... the patch limits (WarmClosest's max_distance_m, max_patch_faces), the grid's cell size and the
+#: largest face radius (face_grid).
+P_MAX_DISTANCE, P_MAX_FACES, P_CELL, P_LARGEST = range(5, 9)
+PARAMS = 9
 #: Layout of the state vector: how many spheres are near, how many of them touch.
 S_NEAR, S_TOUCHING = 0, 1
 
@@ -208,19 +212,30 @@ def load_query_kernels(sensor: ExactContactSensor) -> None:
 
 
 class WarmPatches:
-    """The ``WarmClosest`` queries of K spheres, packed for compiled code: per sphere where its patch
-    was built (K, 3), its last face (K,) (-1: none), where its patch starts and how many faces it holds
-    (K,) (0: no patch, ask Python) and its patch searches not yet reported (K,); the patches one after
-    the other in ``faces``, ``planes``, ``offsets`` and ``lower0``; one tie buffer for all."""
+    """The ``WarmClosest`` queries of K spheres, packed for compiled code, which builds patches too.
 
-    def __init__(self, count: int) -> None:
+    Per sphere: where its patch was built (K, 3), its last face (K,) (-1: none yet), where its patch
+    starts in the arena and how many faces it holds (K,) (0: no patch) and its patch searches not yet
+    reported (K,). The arena holds the patches one after the other (``faces``, ``planes``,
+    ``offsets``, ``lower0``, ``used`` of them taken); a compiled build appends there, and when the
+    arena is full Python builds and packs the live patches into a larger one.
+    """
+
+    faces: A
+    planes: A
+    offsets: A
+    lower0: A
+
+    def __init__(self, count: int, max_patch_faces: int) -> None:
         self.p0 = np.full((count, 3), np.inf)
         self.face = np.full(count, -1, dtype=np.int64)
         self.start = np.zeros(count, dtype=np.int64)
         self.size = np.zeros(count, dtype=np.int64)
         self.searches = np.zeros(count, dtype=np.int64)
-        self._patches: list[tuple[A, A, A, A] | None] = [None] * count
-        self._pack()
+        self.used = np.zeros(1, dtype=np.int64)
+        self.ties = np.zeros(2 * max_patch_faces + 1, dtype=np.int64)
+        self._given: list[A | None] = [None] * count  # the faces each sphere's Python query last got
+        self._allocate(8 * max_patch_faces)
 
     def arrays(self) -> tuple[A, ...]:
         """The arrays :func:`query_near` reads and writes."""
@@ -234,68 +249,174 @@ class WarmPatches:
             self.planes,
             self.offsets,
             self.lower0,
+            self.used,
             self.ties,
         )
 
     def load(self, k: int, warm: WarmClosest) -> None:
-        """Hand sphere k's last face and searches back to its Python query."""
+        """Hand sphere k's warm start (its patch, last face and searches) to its Python query."""
+        window = slice(self.start[k], self.start[k] + self.size[k])
+        faces = self.faces[window]
+        warm.adopt(self.p0[k], int(self.face[k]), faces, self.planes[window], self.offsets[window], self.lower0[window])
         warm.resume(int(self.face[k]), int(self.searches[k]))
         self.searches[k] = 0
+        self._given[k] = faces
 
     def store(self, k: int, warm: WarmClosest) -> None:
-        """Take sphere k's state from its Python query (repacking when its patch was rebuilt)."""
+        """Take sphere k's warm start back from its Python query (a patch it built goes to the arena)."""
         p0, face, faces, planes, offsets, lower0, _ = warm.patch()
-        self.p0[k] = p0
         self.face[k] = face
-        old = self._patches[k]
-        if len(faces) == 0:
-            if old is None:
-                return
-            self._patches[k] = None
-        elif old is not None and old[0] is faces:
+        if faces is self._given[k]:
             return
-        else:
-            self._patches[k] = (faces, planes, offsets, lower0)
-        self._pack()
-
-    def _pack(self) -> None:
-        live = [(k, patch) for k, patch in enumerate(self._patches) if patch is not None]
-        self.size[:] = 0
-        position = 0
-        for k, patch in live:
-            self.start[k], self.size[k] = position, len(patch[0])
-            position += len(patch[0])
-        parts = [patch for _, patch in live]
-        empty = (np.zeros(0, dtype=np.int64), np.zeros((0, 4, 3)), np.zeros((0, 4)), np.zeros(0))
-        self.faces, self.planes, self.offsets, self.lower0 = (
-            np.ascontiguousarray(np.concatenate([p[i] for p in parts])) if parts else empty[i] for i in range(4)
+        self.p0[k] = p0
+        self.size[k] = 0
+        if len(faces) == 0:
+            return
+        if self.used[0] + len(faces) > len(self.faces):
+            self._allocate(2 * (int(self.size.sum()) + len(faces)) + len(self.faces))
+        start = int(self.used[0])
+        window = slice(start, start + len(faces))
+        self.faces[window], self.planes[window], self.offsets[window], self.lower0[window] = (
+            faces,
+            planes,
+            offsets,
+            lower0,
         )
-        self.ties = np.zeros(2 * int(self.size.max(initial=0)) + 1, dtype=np.int64)
+        self.start[k], self.size[k] = start, len(faces)
+        self.used[0] += len(faces)
+
+    def _allocate(self, capacity: int) -> None:
+        """A new arena of ``capacity`` faces holding the live patches."""
+        faces, planes = np.zeros(capacity, dtype=np.int64), np.zeros((capacity, 4, 3))
+        offsets, lower0 = np.zeros((capacity, 4)), np.zeros(capacity)
+        used = 0
+        for k in np.flatnonzero(self.size):
+            old, new = slice(self.start[k], self.start[k] + self.size[k]), slice(used, used + self.size[k])
+            faces[new], planes[new], offsets[new], lower0[new] = (
+                self.faces[old],
+                self.planes[old],
+                self.offsets[old],
+                self.lower0[old],
+            )
+            self.start[k] = used
+            used += int(self.size[k])
+        self.faces, self.planes, self.offsets, self.lower0 = faces, planes, offsets, lower0
+        self.used[0] = used
+
+
+def face_grid(
+    sensor: ExactContactSensor, cell_m: float = 0.004, max_cells: int = 1 << 22
+) -> tuple[tuple[A, ...], float, float]:
+    """A uniform grid of the face centroids (shifted frame) for compiled patch builds: (corner (3,),
+    cells per axis (3,), each cell's first entry (C + 1,), the faces by cell (F,), the centroids
+    (F, 3)), the cell size and the largest face radius about its centroid (``face_index``)."""
+    _, _, largest = sensor.face_index()
+    centroids = np.ascontiguousarray(sensor._triangles.mean(axis=1))
+    corner = centroids.min(axis=0)
+    extent = centroids.max(axis=0) - corner
+    while np.prod(np.floor(extent / cell_m) + 1) > max_cells:
+        cell_m *= 2.0
+    dims = (np.floor(extent / cell_m) + 1).astype(np.int64)
+    ijk = np.minimum(np.floor((centroids - corner) / cell_m).astype(np.int64), dims - 1)
+    cell = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+    order = np.argsort(cell, kind="stable").astype(np.int64)
+    first = np.concatenate([[0], np.cumsum(np.bincount(cell, minlength=int(np.prod(dims))))]).astype(np.int64)
+    return (corner, dims, first, order, centroids), float(cell_m), float(largest)
+
+
+@numba.njit(cache=True)
+def grid_faces(grid: Any, cell_m: float, px: float, py: float, pz: float, reach: float, out: A) -> int:
+    """The faces whose centroid lies within ``reach`` of p (``face_index``'s k-d tree query), into
+    out[:count]; returns count."""
+    corner, dims, first, order, centroids = grid
+    lo = np.empty(3, dtype=np.int64)
+    hi = np.empty(3, dtype=np.int64)
+    for a, v in enumerate((px, py, pz)):
+        lo[a] = max(0, math.floor((v - reach - corner[a]) / cell_m))
+        hi[a] = min(dims[a] - 1, math.floor((v + reach - corner[a]) / cell_m))
+    count = 0
+    for i in range(lo[0], hi[0] + 1):
+        for j in range(lo[1], hi[1] + 1):
+            for k in range(lo[2], hi[2] + 1):
+                c = (i * dims[1] + j) * dims[2] + k
+                for e in range(first[c], first[c + 1]):
+                    f = order[e]
+                    dx, dy, dz = centroids[f, 0] - px, centroids[f, 1] - py, centroids[f, 2] - pz
+                    if dx * dx + dy * dy + dz * dz <= reach * reach:
+                        out[count] = f
+                        count += 1
+    return count
+
+
+@numba.njit(cache=True)
+def build(k: int, px: float, py: float, pz: float, mesh: Any, grid: Any, warm: Any, params: A, candidates: A) -> bool:
+    """``WarmClosest._build`` of sphere k's patch at p (shifted frame) into the arena; False where it
+    needs Python (no face yet, no patch: too far or too many faces, a full arena)."""
+    _, triangles, _, bound_planes, bound_offsets = mesh
+    p0, face, start, size, _, faces, planes, offsets, lower0, used, _ = warm
+    if face[k] < 0:
+        return False
+    upper, _, _, _ = closest_kernels.project(triangles, face[k], px, py, pz)
+    radius = math.sqrt(upper) + 2.0 * params[P_REACH]
+    if radius > params[P_MAX_DISTANCE]:
+        return False
+    count = grid_faces(grid, params[P_CELL], px, py, pz, radius + params[P_LARGEST], candidates)
+    if count > params[P_MAX_FACES]:
+        return False
+    new_faces, new_planes, new_offsets, new_lower = closest_kernels.build_patch(
+        bound_planes, bound_offsets, candidates[:count], px, py, pz, radius
+    )
+    n = new_faces.shape[0]
+    if used[0] + n > faces.shape[0]:
+        return False
+    a = used[0]
+    faces[a : a + n] = new_faces
+    planes[a : a + n] = new_planes
+    offsets[a : a + n] = new_offsets
+    lower0[a : a + n] = new_lower
+    start[k], size[k] = a, n
+    used[0] += n
+    p0[k, 0], p0[k, 1], p0[k, 2] = px, py, pz
+    return True
 
 
 @numba.njit(cache=True)
 def query_near(
-    j0: int, centres: A, near: A, count: int, mesh: Any, warm: Any, params: A, points: A, dist: A, hit_faces: A
+    j0: int,
+    centres: A,
+    near: A,
+    count: int,
+    mesh: Any,
+    grid: Any,
+    warm: Any,
+    params: A,
+    points: A,
+    dist: A,
+    hit_faces: A,
+    candidates: A,
 ) -> int:
     """``WarmClosest.query`` (with ``same_face``) for the spheres near[j0:count] at their centres (K, 3),
     as far as it needs no Python: writes each answer at its position j in points (K, 3), dist (K,) and
     hit_faces (K,). Returns count, or the first position whose query needs Python.
 
-    mesh: the sensor's (centre (3,), triangles (F, 3, 3), sign normals (F, 7, 3)); warm:
-    :meth:`WarmPatches.arrays`.
+    mesh: the sensor's (centre (3,), triangles (F, 3, 3), sign normals (F, 7, 3), bound planes (F, 4,
+    3), bound offsets (F, 4)); grid: :func:`face_grid`'s; warm: :meth:`WarmPatches.arrays`;
+    candidates (F,): scratch.
     """
-    centre, triangles, sign_normals = mesh
-    p0, face, start, size, searches, faces, planes, offsets, lower0, ties = warm
+    centre, triangles, sign_normals, _, _ = mesh
+    p0, face, start, size, searches, faces, planes, offsets, lower0, _, ties = warm
     reach = params[P_REACH]
     for j in range(j0, count):
         k = near[j]
         x, y, z = centres[k, 0], centres[k, 1], centres[k, 2]
-        if not math.isfinite(x + y + z) or size[k] == 0:
+        if not math.isfinite(x + y + z):
             return j
         px, py, pz = x - centre[0], y - centre[1], z - centre[2]
         x0, y0, z0 = p0[k, 0], p0[k, 1], p0[k, 2]
-        if (px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2 > reach**2:
-            return j  # a new patch
+        if size[k] == 0 or (px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2 > reach**2:
+            if not build(k, px, py, pz, mesh, grid, warm, params, candidates):
+                return j
+            x0, y0, z0 = px, py, pz
         moved = math.sqrt((px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2)
         a, e = start[k], start[k] + size[k]
         status, found, qx, qy, qz, unsigned, inside, weak = closest_kernels.warm_query(
@@ -327,7 +448,7 @@ def query_near(
 
 @numba.njit(cache=True)
 def sphere_hits(
-    resume: int, few_points: int, frames: Any, spheres: Any, mesh: Any, warm: Any, buffers: Any, params: A
+    resume: int, few_points: int, frames: Any, spheres: Any, mesh: Any, grid: Any, warm: Any, buffers: Any, params: A
 ) -> tuple[int, int]:
     """``Simulation._sphere_hits``: with resume < 0 the bounds (``capsule_kernels.sphere_bounds``) of
     the current kinematics (more than ``few_points`` near spheres: BATCH), then the queries from
@@ -336,12 +457,12 @@ def sphere_hits(
     positions of those that touch. Returns (DONE | NEEDS_PYTHON, the position to answer | BATCH).
 
     frames: MuJoCo's (geom_xpos, geom_xmat); spheres: (geoms, offsets, radius, reach, body, cache_p,
-    cache_d); buffers: (centres (K, 3), near (K,), points (K, 3), dist (K,), hit_faces (K,), touch (K,),
-    state (2,)).
+    cache_d); mesh and grid as in :func:`query_near`; buffers: (centres (K, 3), near (K,), points (K, 3),
+    dist (K,), hit_faces (K,), touch (K,), state (2,), candidates (F,)).
     """
     xpos, xmat = frames
     geoms, offsets, _, reach, _, cache_p, cache_d = spheres
-    centres, near, points, dist, hit_faces, touch, state = buffers
+    centres, near, points, dist, hit_faces, touch, state, candidates = buffers
     if resume < 0:
         state[S_NEAR] = capsule_kernels.sphere_bounds(
             xpos, xmat, geoms, offsets, cache_p, cache_d, reach, centres, near
@@ -350,7 +471,7 @@ def sphere_hits(
             return NEEDS_PYTHON, BATCH  # the sensor's vectorised query
         resume = 0
     count = state[S_NEAR]
-    j = query_near(resume, centres, near, count, mesh, warm, params, points, dist, hit_faces)
+    j = query_near(resume, centres, near, count, mesh, grid, warm, params, points, dist, hit_faces, candidates)
     if j < count:
         return NEEDS_PYTHON, j
     touching = 0
@@ -376,6 +497,7 @@ def penalty_steps(
     dynamics: Any,
     spheres: Any,
     mesh: Any,
+    grid: Any,
     face_normals: A,
     warm: Any,
     buffers: Any,
@@ -391,13 +513,13 @@ def penalty_steps(
     step1, step2, model, data = functions
     body_rootid, body_data = dynamics
     _, _, radius, _, body, _, _ = spheres
-    _, near, points, dist, hit_faces, touch, state = buffers
+    _, near, points, dist, hit_faces, touch, state, _ = buffers
     xfrc = body_data[3]
     taken = 0
     while taken < steps:
         if resume < 0:
             _call_void2(step1, model, data)  # kinematics and velocities of the current state
-        status, at = sphere_hits(resume, few_points, frames, spheres, mesh, warm, buffers, params)
+        status, at = sphere_hits(resume, few_points, frames, spheres, mesh, grid, warm, buffers, params)
         resume = -1
         if status != DONE:
             return taken, status, at

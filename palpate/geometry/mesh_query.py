@@ -543,6 +543,19 @@ class WarmClosest:
         faces = np.zeros(0, dtype=np.int64) if self._faces is None else self._faces
         return np.array(self._p0), self._face, faces, self._planes, self._offsets, self._lower0, self._ties
 
+    def adopt(
+        self, p0: np.ndarray, face: int, faces: np.ndarray, planes: np.ndarray, offsets: np.ndarray, lower0: np.ndarray
+    ) -> None:
+        """Take the warm start of a compiled caller that builds patches too (the arrays of :meth:`patch`;
+        no faces: no patch). Any valid patch gives the same answers: it holds every face that can be
+        closest, or tie, within its reach."""
+        self._p0 = (float(p0[0]), float(p0[1]), float(p0[2]))
+        self._face = int(face)
+        self._faces = faces if len(faces) else None
+        self._planes, self._offsets, self._lower0 = planes, offsets, lower0
+        if len(self._ties) < len(faces) + 1:
+            self._ties = np.zeros(2 * len(faces) + 1, dtype=np.int64)
+
     def resume(self, face: int, searches: int) -> None:
         """After a compiled caller answered ``searches`` queries on :meth:`patch`, the last one on ``face``."""
         self._face = int(face)
