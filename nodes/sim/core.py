@@ -579,6 +579,13 @@ class Simulation:
             points[:count], dist[:count], faces[:count] = hit.points_m, hit.distance_m, hit.face_ids
             return count
         k = int(near[at])
+        x, y, z = centres[k].tolist()
+        if self._patches.face[k] < 0 and math.isfinite(x + y + z):
+            # a sphere's first query: its face starts at Open3D's, as WarmClosest._build seeds it, and
+            # the compiled build goes on from there
+            cx, cy, cz = self._sensor._centre_list
+            self._patches.face[k] = self._sensor._scene.closest_face_ids(np.array([[x - cx, y - cy, z - cz]]))[0]
+            return at
         warm = self._sphere_warm(k)
         self._patches.load(k, warm)
         points[at], dist[at], faces[at] = warm.query(centres[k])

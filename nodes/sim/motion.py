@@ -23,6 +23,7 @@ after 10 s and 100 s.
 from __future__ import annotations
 
 import argparse
+import bisect
 import math
 import time
 from dataclasses import dataclass
@@ -348,7 +349,7 @@ class ExplorationMotion:
             raise ValueError(f"time_s must be finite and >= 0, got {time_s!r}")
         while self._times[-1] <= time_s:
             self._next_stroke()
-        k = int(np.searchsorted(self._times, time_s, side="right")) - 1
+        k = bisect.bisect_right(self._times, time_s) - 1  # np.searchsorted(side="right") without the array
         t0, t1 = self._times[k], self._times[k + 1]
         s = (time_s - t0) / (t1 - t0)
         ramp = 0.5 - 0.5 * math.cos(math.pi * s)  # smooth start and stop of every segment
