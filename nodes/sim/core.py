@@ -518,6 +518,7 @@ class Simulation:
             np.zeros(count, dtype=np.int64),
             np.zeros(2, dtype=np.int64),
             np.zeros(len(sensor.face_normals), dtype=np.int64),
+            np.zeros(penalty_kernels.SEARCH_SIZE),
         )
         k = penalty_kernels
         self._pk_params = np.zeros(k.PARAMS)
@@ -562,7 +563,7 @@ class Simulation:
             if status == k.NEEDS_PYTHON:
                 resume = self._answer_in_python(at)
             elif status == k.PENETRATED:
-                _, near, _, dist, _, touch, state, _ = self._pk_buffers
+                _, near, _, dist, _, touch, state, _, _ = self._pk_buffers
                 rows = touch[: state[k.S_TOUCHING]]
                 raise self._penetration_error(near[rows], dist[rows])
             elif status == k.NOT_FINITE:
@@ -572,24 +573,38 @@ class Simulation:
         """Answer the query at position ``at`` of the compiled near spheres (or all of them: BATCH) into
         the buffers, as ``_sphere_closest`` does; returns where the compiled queries go on."""
         assert self._sensor is not None
-        centres, near, points, dist, faces, _, state, _ = self._pk_buffers
-        if at == penalty_kernels.BATCH:
-            count = int(state[penalty_kernels.S_NEAR])
+        centres, near, points, dist, faces, _, state, _, search = self._pk_buffers
+        k = penalty_kernels
+        if at == k.BATCH:
+            count = int(state[k.S_NEAR])
             hit = self._sensor.closest(centres[near[:count]])
             points[:count], dist[:count], faces[:count] = hit.points_m, hit.distance_m, hit.face_ids
             return count
-        k = int(near[at])
-        x, y, z = centres[k].tolist()
-        if self._patches.face[k] < 0 and math.isfinite(x + y + z):
+        sphere = int(near[at])
+        if search[k.SEARCH_PENDING]:  # a tie or a weak sign of the compiled search
+            search[k.SEARCH_PENDING] = 0.0
+            s = search.tolist()
+            q = s[k.SEARCH_Q : k.SEARCH_Q + 3]
+            found = (int(s[k.SEARCH_STATUS]), int(s[k.SEARCH_FACE]), q[0], q[1], q[2], s[k.SEARCH_DIST])
+            signs = (bool(s[k.SEARCH_INSIDE]), bool(s[k.SEARCH_WEAK]))
+            warm = self._sphere_warm(sphere)
+            answer = warm.settle(s[k.SEARCH_P : k.SEARCH_P + 3], (*found, *signs), self._patches.ties)
+            points[at], dist[at], faces[at] = answer
+            self._patches.face[sphere] = faces[at]
+            self._patches.searches[sphere] += 1
+            return at + 1
+        x, y, z = centres[sphere].tolist()
+        if self._patches.face[sphere] < 0 and math.isfinite(x + y + z):
             # a sphere's first query: its face starts at Open3D's, as WarmClosest._build seeds it, and
             # the compiled build goes on from there
             cx, cy, cz = self._sensor._centre_list
-            self._patches.face[k] = self._sensor._scene.closest_face_ids(np.array([[x - cx, y - cy, z - cz]]))[0]
+            seed = self._sensor._scene.closest_face_ids(np.array([[x - cx, y - cy, z - cz]]))[0]
+            self._patches.face[sphere] = seed
             return at
-        warm = self._sphere_warm(k)
-        self._patches.load(k, warm)
-        points[at], dist[at], faces[at] = warm.query(centres[k])
-        self._patches.store(k, warm)
+        warm = self._sphere_warm(sphere)
+        self._patches.load(sphere, warm)
+        points[at], dist[at], faces[at] = warm.query(centres[sphere])
+        self._patches.store(sphere, warm)
         return at + 1
 
     def _sphere_warm(self, k: int) -> WarmClosest:
@@ -655,7 +670,7 @@ class Simulation:
             if status == k.DONE:
                 break
             resume = self._answer_in_python(at)
-        centres, near, points, dist, faces, touch, state, _ = self._pk_buffers
+        centres, near, points, dist, faces, touch, state, _, _ = self._pk_buffers
         rows = touch[: state[k.S_TOUCHING]]
         idx = near[rows]
         return idx, centres[idx], points[rows], dist[rows], self._pk_face_normals[faces[rows]]

@@ -49,6 +49,19 @@ P_MAX_DISTANCE, P_MAX_FACES, P_CELL, P_LARGEST = range(5, 9)
 PARAMS = 9
 #: Layout of the state vector: how many spheres are near, how many of them touch.
 S_NEAR, S_TOUCHING = 0, 1
+#: Layout of the search vector: the query point (3, shifted frame), then warm_query's status, face,
+#: point (3), distance, inside and weak, and 1.0 while Python has to settle it.
+SEARCH_P, SEARCH_STATUS, SEARCH_FACE, SEARCH_Q, SEARCH_DIST, SEARCH_INSIDE, SEARCH_WEAK, SEARCH_PENDING = (
+    0,
+    3,
+    4,
+    5,
+    8,
+    9,
+    10,
+    11,
+)
+SEARCH_SIZE = 12
 
 A = np.ndarray
 
@@ -394,6 +407,7 @@ def query_near(
     dist: A,
     hit_faces: A,
     candidates: A,
+    search: A,
 ) -> int:
     """``WarmClosest.query`` (with ``same_face``) for the spheres near[j0:count] at their centres (K, 3),
     as far as it needs no Python: writes each answer at its position j in points (K, 3), dist (K,) and
@@ -401,7 +415,8 @@ def query_near(
 
     mesh: the sensor's (centre (3,), triangles (F, 3, 3), sign normals (F, 7, 3), bound planes (F, 4,
     3), bound offsets (F, 4)); grid: :func:`face_grid`'s; warm: :meth:`WarmPatches.arrays`;
-    candidates (F,): scratch.
+    candidates (F,): scratch. A search that ends in a tie or a weak sign leaves p and its result in
+    ``search`` (the SEARCH_* layout; SEARCH_PENDING 1) for ``WarmClosest.settle``.
     """
     centre, triangles, sign_normals, _, _ = mesh
     p0, face, start, size, searches, faces, planes, offsets, lower0, _, ties = warm
@@ -436,8 +451,13 @@ def query_near(
             ties,
             True,
         )
-        if status == 1 or weak:
-            return j  # a tie or a weak sign
+        if status == 1 or weak:  # a tie or a weak sign: Python settles it
+            search[SEARCH_P], search[SEARCH_P + 1], search[SEARCH_P + 2] = px, py, pz
+            search[SEARCH_STATUS], search[SEARCH_FACE] = status, found
+            search[SEARCH_Q], search[SEARCH_Q + 1], search[SEARCH_Q + 2] = qx, qy, qz
+            search[SEARCH_DIST], search[SEARCH_INSIDE], search[SEARCH_WEAK] = unsigned, inside, weak
+            search[SEARCH_PENDING] = 1.0
+            return j
         face[k] = found
         searches[k] += 1
         points[j, 0], points[j, 1], points[j, 2] = qx + centre[0], qy + centre[1], qz + centre[2]
@@ -458,11 +478,11 @@ def sphere_hits(
 
     frames: MuJoCo's (geom_xpos, geom_xmat); spheres: (geoms, offsets, radius, reach, body, cache_p,
     cache_d); mesh and grid as in :func:`query_near`; buffers: (centres (K, 3), near (K,), points (K, 3),
-    dist (K,), hit_faces (K,), touch (K,), state (2,), candidates (F,)).
+    dist (K,), hit_faces (K,), touch (K,), state (2,), candidates (F,), search (SEARCH_SIZE,)).
     """
     xpos, xmat = frames
     geoms, offsets, _, reach, _, cache_p, cache_d = spheres
-    centres, near, points, dist, hit_faces, touch, state, candidates = buffers
+    centres, near, points, dist, hit_faces, touch, state, candidates, search = buffers
     if resume < 0:
         state[S_NEAR] = capsule_kernels.sphere_bounds(
             xpos, xmat, geoms, offsets, cache_p, cache_d, reach, centres, near
@@ -471,7 +491,7 @@ def sphere_hits(
             return NEEDS_PYTHON, BATCH  # the sensor's vectorised query
         resume = 0
     count = state[S_NEAR]
-    j = query_near(resume, centres, near, count, mesh, grid, warm, params, points, dist, hit_faces, candidates)
+    j = query_near(resume, centres, near, count, mesh, grid, warm, params, points, dist, hit_faces, candidates, search)
     if j < count:
         return NEEDS_PYTHON, j
     touching = 0
@@ -513,7 +533,7 @@ def penalty_steps(
     step1, step2, model, data = functions
     body_rootid, body_data = dynamics
     _, _, radius, _, body, _, _ = spheres
-    _, near, points, dist, hit_faces, touch, state, _ = buffers
+    _, near, points, dist, hit_faces, touch, state, _, _ = buffers
     xfrc = body_data[3]
     taken = 0
     while taken < steps:

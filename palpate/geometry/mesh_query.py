@@ -524,8 +524,19 @@ class WarmClosest:
             self._ties,
             self.same_face,
         )
+        return self.settle([px, py, pz], (status, face, qx, qy, qz, dist, inside, weak), self._ties)
+
+    def settle(
+        self, p: list[float], search: tuple[int, int, float, float, float, float, bool, bool], ties: np.ndarray
+    ) -> tuple[tuple[float, float, float], float, int]:
+        """The answer at p (3 floats, shifted frame) from a patch search (``closest_kernels.warm_query``'s
+        result, its tied faces in ``ties``): a tie settled as the sensor's search settles it, a weak sign
+        by ray parity. For :meth:`query`, and for compiled callers that search patches themselves."""
+        s, k = self.sensor, self._kernels
+        status, face, qx, qy, qz, dist, inside, weak = search
+        px, py, pz = p
         if status == 1:  # tied faces that give different points: settle as the sensor's search does
-            face = self._break_tie([px, py, pz], self._ties[:face].tolist())
+            face = self._break_tie([px, py, pz], ties[:face].tolist())
             _, region, wb, wc = k.project(s._triangles, face, px, py, pz)
             (qx, qy, qz), signed = s._finish_scalar([px, py, pz], face, region, wb, wc)
         else:
@@ -533,6 +544,7 @@ class WarmClosest:
                 inside = bool(s._scene.occupied(np.array([[px, py, pz]]))[0])
             signed = -dist if inside else dist
         self._face = face
+        cx, cy, cz = s._centre_list
         return (qx + cx, qy + cy, qz + cz), signed, face
 
     def patch(self) -> tuple[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
