@@ -465,7 +465,7 @@ class Simulation:
 
     # --- hand / finger on non-convex objects: exact-mesh penalty contacts ---------------------------
     def _setup_capsule_spheres(self) -> None:
-        m, d = self.model, self.data
+        m = self.model
         spheres = capsule_spheres(m, self._is_effector_body)
         self._sph_geom, self._sph_offset, self._sph_radius, self._sph_runs = spheres
         count = len(self._sph_geom)
@@ -482,7 +482,11 @@ class Simulation:
             self.compiled_bounds and penalty_kernels.mujoco_functions() is not None and penalty_kernels.matches_numpy()
         )
         self._sph_warm: dict[int, WarmClosest] = {}  # each sphere's warm-started query, made on first use
-        sensor = self._sensor
+        self._setup_penalty_kernels(count)
+
+    def _setup_penalty_kernels(self, count: int) -> None:
+        """What the compiled steps of ``count`` capsule spheres read and write (penalty_kernels)."""
+        m, d, sensor = self.model, self.data, self._sensor
         assert sensor is not None
         penalty_kernels.load_query_kernels(sensor)
         template = WarmClosest(sensor, same_face=True)  # the settings of every sphere's query
