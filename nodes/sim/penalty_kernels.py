@@ -239,7 +239,7 @@ class WarmPatches:
     offsets: A
     lower0: A
 
-    def __init__(self, count: int, max_patch_faces: int) -> None:
+    def __init__(self, count: int, max_patch_faces: int, capacity: int = 0) -> None:
         self.p0 = np.full((count, 3), np.inf)
         self.face = np.full(count, -1, dtype=np.int64)
         self.start = np.zeros(count, dtype=np.int64)
@@ -248,7 +248,7 @@ class WarmPatches:
         self.used = np.zeros(1, dtype=np.int64)
         self.ties = np.zeros(2 * max_patch_faces + 1, dtype=np.int64)
         self._given: list[A | None] = [None] * count  # the faces each sphere's Python query last got
-        self._allocate(8 * max_patch_faces)
+        self._allocate(capacity or 8 * max_patch_faces)  # faces the arena holds at first
 
     def arrays(self) -> tuple[A, ...]:
         """The arrays :func:`query_near` reads and writes."""

@@ -35,14 +35,19 @@ def test_penalty_wrench_gives_numpys_bits() -> None:
     assert penalty_kernels.matches_numpy(samples=2000)
 
 
-def _explore(effector: str, compiled: bool, ticks: int = 250) -> tuple[str, int, dict[str, int]]:
+def _explore(effector: str, compiled: bool, ticks: int = 250, arena_faces: int = 0) -> tuple[str, int, dict[str, int]]:
     """The scripted exploration of a torus: hash of qpos, qvel, the applied wrench and the contacts per
-    tick, the contacts, and the spheres' query counts."""
+    tick, the contacts, and the spheres' query counts (``arena_faces``: the compiled patches' arena
+    at first)."""
     scene = SceneConfig(effector=effector, object=TORUS)
     sim = Simulation(scene)
     if compiled:
         _compiled_or_skip(sim)
     sim.compiled_penalty = compiled
+    if arena_faces:
+        sim._patches = penalty_kernels.WarmPatches(
+            len(sim._sph_geom), len(sim._patches.ties) // 2, capacity=arena_faces
+        )
     motion = ExplorationMotion(scene, np.random.default_rng(0), MotionConfig(candidate_samples=400), obj=sim.object)
     digest, contacts = hashlib.sha256(), 0
     for _ in range(ticks):
@@ -58,6 +63,7 @@ def _explore(effector: str, compiled: bool, ticks: int = 250) -> tuple[str, int,
     for warm in sim._sph_warm.values():
         for key in counts:
             counts[key] += warm.counts[key]
+    counts["arena"] = len(sim._patches.faces)
     return digest.hexdigest(), contacts, counts
 
 
@@ -69,6 +75,12 @@ def test_compiled_steps_give_the_python_loops_trajectory(effector: str) -> None:
     assert compiled[:2] == python[:2]
     # the compiled path builds patches itself; it answered the ties in Python
     assert python[2]["builds"] > compiled[2]["builds"] and compiled[2]["ties"] == python[2]["ties"]
+
+
+def test_a_full_arena_hands_the_build_to_python_and_grows() -> None:
+    python = _explore("finger", compiled=False, ticks=150)
+    compiled = _explore("finger", compiled=True, ticks=150, arena_faces=64)
+    assert compiled[:2] == python[:2] and compiled[2]["arena"] > 64
 
 
 def test_more_near_spheres_than_the_few_point_path_go_to_the_sensors_batch(monkeypatch: pytest.MonkeyPatch) -> None:
