@@ -47,7 +47,7 @@ from palpate.geometry.mesh_query import (
     ExactContactSensor,
     WarmClosest,
 )
-from palpate.nodes.sim import capsule_kernels, probe_kernels
+from palpate.nodes.sim import capsule_kernels, penalty_kernels, probe_kernels
 from palpate.nodes.sim.effectors import FingerConfig, HandConfig
 from palpate.nodes.sim.objects import ObjectModel, load_object
 from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model, uses_exact_contacts
@@ -84,15 +84,6 @@ class Contacts:
 
     def __len__(self) -> int:
         return len(self.links)
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of (n, 3) arrays (np.cross is slow on small arrays)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    return out
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:
@@ -266,6 +257,8 @@ class Simulation:
         m, d = self.model, self.data
         if self.scene.effector == "probe":
             self._probe_advance(n)
+        elif self._exact and self.compiled_penalty:
+            self._penalty_advance(n, t0)
         elif self._exact:
             for _ in range(n):
                 mujoco.mj_step1(m, d)  # kinematics and velocities of the current state
@@ -472,16 +465,159 @@ class Simulation:
 
     # --- hand / finger on non-convex objects: exact-mesh penalty contacts ---------------------------
     def _setup_capsule_spheres(self) -> None:
-        spheres = capsule_spheres(self.model, self._is_effector_body)
+        m = self.model
+        spheres = capsule_spheres(m, self._is_effector_body)
         self._sph_geom, self._sph_offset, self._sph_radius, self._sph_runs = spheres
-        self._sph_body = self.model.geom_bodyid[self._sph_geom]
-        self._sph_cache_p = np.zeros((len(self._sph_geom), 3))
-        self._sph_cache_d = np.full(len(self._sph_geom), -np.inf)  # no query yet: the bound never skips
+        count = len(self._sph_geom)
+        self._sph_body = m.geom_bodyid[self._sph_geom]
+        self._sph_cache_p = np.zeros((count, 3))
+        self._sph_cache_d = np.full(count, -np.inf)  # no query yet: the bound never skips
         self._sph_reach = self._sph_radius + self._tol
         #: Place the spheres and bound their distances in compiled code (capsule_kernels), where it gives
         #: numpy's bits.
         self.compiled_bounds = capsule_kernels.matches_numpy()
+        #: Run the physics steps in compiled code (penalty_kernels) where MuJoCo's library is found and
+        #: the compiled arithmetic gives numpy's bits.
+        self.compiled_penalty = (
+            self.compiled_bounds and penalty_kernels.mujoco_functions() is not None and penalty_kernels.matches_numpy()
+        )
         self._sph_warm: dict[int, WarmClosest] = {}  # each sphere's warm-started query, made on first use
+        self._setup_penalty_kernels(count)
+
+    def _setup_penalty_kernels(self, count: int) -> None:
+        """What the compiled steps of ``count`` capsule spheres read and write (penalty_kernels)."""
+        m, d, sensor = self.model, self.data, self._sensor
+        assert sensor is not None
+        penalty_kernels.load_query_kernels(sensor)
+        template = WarmClosest(sensor, same_face=True)  # the settings of every sphere's query
+        self._patches = penalty_kernels.WarmPatches(count, template.max_patch_faces)
+        # what the compiled steps read and write: MuJoCo's arrays (views that stay valid), the spheres,
+        # the mesh, per-step buffers and parameters (penalty_kernels.sphere_hits documents them)
+        self._pk_frames = (d.geom_xpos, d.geom_xmat)
+        self._pk_dynamics = (np.asarray(m.body_rootid), (d.cvel, d.subtree_com, d.xipos, d.xfrc_applied))
+        self._pk_spheres = (
+            self._sph_geom,
+            self._sph_offset,
+            self._sph_radius,
+            self._sph_reach,
+            self._sph_body,
+            self._sph_cache_p,
+            self._sph_cache_d,
+        )
+        self._pk_mesh = (
+            sensor._centre,
+            sensor._triangles,
+            sensor._sign_normals,
+            sensor._bound_planes,
+            sensor._bound_offsets,
+        )
+        self._pk_face_normals = sensor.face_normals
+        self._pk_grid, cell_m, largest = penalty_kernels.face_grid(sensor)
+        self._pk_buffers = (
+            np.zeros((count, 3)),
+            np.zeros(count, dtype=np.int64),
+            np.zeros((count, 3)),
+            np.zeros(count),
+            np.zeros(count, dtype=np.int64),
+            np.zeros(count, dtype=np.int64),
+            np.zeros(2, dtype=np.int64),
+            np.zeros(len(sensor.face_normals), dtype=np.int64),
+            np.zeros(penalty_kernels.SEARCH_SIZE),
+        )
+        k = penalty_kernels
+        self._pk_params = np.zeros(k.PARAMS)
+        self._pk_params[k.P_REACH] = template.reach_m
+        self._pk_params[k.P_WEAK_PSEUDO_NORMAL] = WEAK_PSEUDO_NORMAL
+        self._pk_params[k.P_WEAK_SIGN_COS] = WEAK_SIGN_COS
+        self._pk_params[k.P_STIFFNESS] = self.scene.mesh_contact_stiffness_n_per_m
+        self._pk_params[k.P_DAMPING] = self.scene.mesh_contact_damping_n_s_per_m
+        self._pk_params[k.P_MAX_DISTANCE] = template.max_distance_m
+        self._pk_params[k.P_MAX_FACES] = template.max_patch_faces
+        self._pk_params[k.P_CELL] = cell_m
+        self._pk_params[k.P_LARGEST] = largest
+
+    def _penalty_advance(self, n: int, t0: float) -> None:
+        """``n`` steps in ``penalty_kernels.penalty_steps`` (the bits of the Python loop); the queries
+        that need Python are answered here, and the step goes on in compiled code."""
+        functions = penalty_kernels.mujoco_functions()
+        assert functions is not None
+        addresses = (*functions, self.model._address, self.data._address)
+        k = penalty_kernels
+        remaining, resume = n, -1
+        while remaining > 0:
+            taken, status, at = k.penalty_steps(
+                addresses,
+                remaining,
+                resume,
+                FEW_POINTS,
+                self.data.qpos,
+                self._pk_frames,
+                self._pk_dynamics,
+                self._pk_spheres,
+                self._pk_mesh,
+                self._pk_grid,
+                self._pk_face_normals,
+                self._patches.arrays(),
+                self._pk_buffers,
+                self._pk_params,
+            )
+            self._steps += taken
+            remaining -= taken
+            resume = -1
+            if status == k.NEEDS_PYTHON:
+                resume = self._answer_in_python(at)
+            elif status == k.PENETRATED:
+                _, near, _, dist, _, touch, state, _, _ = self._pk_buffers
+                rows = touch[: state[k.S_TOUCHING]]
+                raise self._penetration_error(near[rows], dist[rows])
+            elif status == k.NOT_FINITE:
+                self._check_diverged(t0, force=True)
+
+    def _answer_in_python(self, at: int) -> int:
+        """Answer the query at position ``at`` of the compiled near spheres (or all of them: BATCH) into
+        the buffers, as ``_sphere_closest`` does; returns where the compiled queries go on."""
+        assert self._sensor is not None
+        centres, near, points, dist, faces, _, state, _, search = self._pk_buffers
+        k = penalty_kernels
+        if at == k.BATCH:
+            count = int(state[k.S_NEAR])
+            hit = self._sensor.closest(centres[near[:count]])
+            points[:count], dist[:count], faces[:count] = hit.points_m, hit.distance_m, hit.face_ids
+            return count
+        sphere = int(near[at])
+        if search[k.SEARCH_PENDING]:  # a tie or a weak sign of the compiled search
+            search[k.SEARCH_PENDING] = 0.0
+            s = search.tolist()
+            q = s[k.SEARCH_Q : k.SEARCH_Q + 3]
+            found = (int(s[k.SEARCH_STATUS]), int(s[k.SEARCH_FACE]), q[0], q[1], q[2], s[k.SEARCH_DIST])
+            signs = (bool(s[k.SEARCH_INSIDE]), bool(s[k.SEARCH_WEAK]))
+            warm = self._sphere_warm(sphere)
+            answer = warm.settle(s[k.SEARCH_P : k.SEARCH_P + 3], (*found, *signs), self._patches.ties)
+            points[at], dist[at], faces[at] = answer
+            self._patches.face[sphere] = faces[at]
+            self._patches.searches[sphere] += 1
+            return at + 1
+        x, y, z = centres[sphere].tolist()
+        if self._patches.face[sphere] < 0 and math.isfinite(x + y + z):
+            # a sphere's first query: its face starts at Open3D's, as WarmClosest._build seeds it, and
+            # the compiled build goes on from there
+            cx, cy, cz = self._sensor._centre_list
+            seed = self._sensor._scene.closest_face_ids(np.array([[x - cx, y - cy, z - cz]]))[0]
+            self._patches.face[sphere] = seed
+            return at
+        warm = self._sphere_warm(sphere)
+        self._patches.load(sphere, warm)
+        points[at], dist[at], faces[at] = warm.query(centres[sphere])
+        self._patches.store(sphere, warm)
+        return at + 1
+
+    def _sphere_warm(self, k: int) -> WarmClosest:
+        """Sphere k's warm-started query, made on first use."""
+        warm = self._sph_warm.get(k)
+        if warm is None:
+            assert self._sensor is not None
+            warm = self._sph_warm[k] = WarmClosest(self._sensor, same_face=True)
+        return warm
 
     def _sphere_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """World centres (K, 3) of the capsule spheres and the indices (t,) of those the 1-Lipschitz bound
@@ -499,6 +635,8 @@ class Simulation:
         """Touching spheres: indices (t,), centres (t, 3), surface points (t, 3), distances (t,),
         normals (t, 3), using the current kinematics."""
         assert self._sensor is not None
+        if self.compiled_penalty:
+            return self._compiled_sphere_hits()
         P, near = self._sphere_bounds()
         if len(near) == 0:
             empty = np.zeros((0, 3))
@@ -517,6 +655,30 @@ class Simulation:
             np.asarray(hit.normals, dtype=np.float64)[touching],
         )
 
+    def _compiled_sphere_hits(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``_sphere_hits`` by ``penalty_kernels.sphere_hits``, answering in Python what needs it."""
+        k = penalty_kernels
+        resume = -1
+        while True:
+            status, at = k.sphere_hits(
+                resume,
+                FEW_POINTS,
+                self._pk_frames,
+                self._pk_spheres,
+                self._pk_mesh,
+                self._pk_grid,
+                self._patches.arrays(),
+                self._pk_buffers,
+                self._pk_params,
+            )
+            if status == k.DONE:
+                break
+            resume = self._answer_in_python(at)
+        centres, near, points, dist, faces, touch, state, _, _ = self._pk_buffers
+        rows = touch[: state[k.S_TOUCHING]]
+        idx = near[rows]
+        return idx, centres[idx], points[rows], dist[rows], self._pk_face_normals[faces[rows]]
+
     def _sphere_closest(self, P: np.ndarray, near: np.ndarray) -> ClosestPoints:
         """The sensor's answer for the spheres ``near`` (indices into centres P (K, 3)). Up to
         FEW_POINTS spheres, where the sensor answers point by point, each sphere's own warm-started
@@ -527,10 +689,7 @@ class Simulation:
             return self._sensor.closest(P[near])
         points, distances, faces = [], [], []
         for k in near.tolist():
-            warm = self._sph_warm.get(k)
-            if warm is None:
-                warm = self._sph_warm[k] = WarmClosest(self._sensor, same_face=True)
-            point, distance, face = warm.query(P[k])
+            point, distance, face = self._sphere_warm(k).query(P[k])
             points.append(point)
             distances.append(distance)
             faces.append(face)
@@ -545,15 +704,12 @@ class Simulation:
     def _sphere_forces(self, idx: np.ndarray, points: np.ndarray, dist: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """Penalty normal force (t,) >= 0 of touching spheres: k (r - d) - b v_n."""
         d = self.data
-        k = self.scene.mesh_contact_stiffness_n_per_m
-        b = self.scene.mesh_contact_damping_n_s_per_m
         bodies = self._sph_body[idx]
         # cvel is (angular, linear) at the subtree centre of mass of the body's root, world frame
-        cvel = d.cvel[bodies]
         origin = d.subtree_com[self.model.body_rootid[bodies]]
-        v_point = cvel[:, 3:] + _cross(cvel[:, :3], points - origin)
-        v_n = np.einsum("ij,ij->i", v_point, normals)
-        return np.maximum(0.0, k * (self._sph_radius[idx] - dist) - b * v_n)
+        k = self.scene.mesh_contact_stiffness_n_per_m
+        b = self.scene.mesh_contact_damping_n_s_per_m
+        return penalty_kernels.numpy_forces(bodies, self._sph_radius[idx], points, dist, normals, d.cvel, origin, k, b)
 
     def _apply_penalty_forces(self) -> None:
         """Set xfrc_applied from the current kinematics (call between mj_step1 and mj_step2)."""
@@ -563,20 +719,21 @@ class Simulation:
         if len(idx) == 0:
             return
         if np.any(dist < 0.0):
-            dt = self._dt
-            raise SimulationDivergedError(
-                f"at t = {self.time_s:.6g} s a finger segment's axis is inside the object (penetration "
-                f"{1000 * (self._sph_radius[idx] - dist).max():.3g} mm, more than the segment radius): the "
-                f"penalty contact (stiffness {self.scene.mesh_contact_stiffness_n_per_m:g} N/m) was "
-                f"overrun with time step {dt:g} s; use a smaller time step, e.g. timestep_s: {dt / 2:g} "
-                "(or check that the effector does not start inside the object)"
-            )
-        f = self._sphere_forces(idx, points, dist, normals)[:, None] * normals
-        bodies = self._sph_body[idx]
-        torque = _cross(points - d.xipos[bodies], f)  # xfrc_applied acts at the body's centre of mass
-        wrench = np.zeros((self.model.nbody, 6))
-        np.add.at(wrench, bodies, np.concatenate([f, torque], axis=1))
-        d.xfrc_applied[:] = wrench
+            raise self._penetration_error(idx, dist)
+        forces = self._sphere_forces(idx, points, dist, normals)
+        # xfrc_applied acts at the body's centre of mass
+        d.xfrc_applied[:] = penalty_kernels.numpy_wrench(self._sph_body[idx], points, normals, forces, d.xipos)
+
+    def _penetration_error(self, idx: np.ndarray, dist: np.ndarray) -> SimulationDivergedError:
+        """The error for touching spheres idx (t,) at distances (t,) of which one has its centre inside."""
+        dt = self._dt
+        return SimulationDivergedError(
+            f"at t = {self.time_s:.6g} s a finger segment's axis is inside the object (penetration "
+            f"{1000 * (self._sph_radius[idx] - dist).max():.3g} mm, more than the segment radius): the "
+            f"penalty contact (stiffness {self.scene.mesh_contact_stiffness_n_per_m:g} N/m) was "
+            f"overrun with time step {dt:g} s; use a smaller time step, e.g. timestep_s: {dt / 2:g} "
+            "(or check that the effector does not start inside the object)"
+        )
 
     def _penalty_contacts(self) -> Contacts:
         idx, _, points, dist, normals = self._sphere_hits()

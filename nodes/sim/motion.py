@@ -23,6 +23,7 @@ after 10 s and 100 s.
 from __future__ import annotations
 
 import argparse
+import bisect
 import math
 import time
 from dataclasses import dataclass
@@ -32,7 +33,7 @@ import mujoco
 import numpy as np
 
 from palpate.config import Fraction, NonNegativeFloat, PositiveFloat, PositiveInt, Range, Validated
-from palpate.geometry.mesh_query import ExactContactSensor
+from palpate.geometry.mesh_query import FEW_POINTS, ExactContactSensor
 from palpate.jsonio import dumps as json_dumps
 from palpate.nodes.sim.core import Simulation, capsule_spheres, sphere_centres
 from palpate.nodes.sim.effectors import LONG_FINGERS, FingerConfig, HandConfig, finger_joint_names
@@ -153,6 +154,8 @@ class ExplorationMotion:
         self.object = load_object(scene.object) if obj is None else obj
         self.kin = FingerKinematics(scene, self.object)
         self.sensor = ExactContactSensor(self.object.mesh)
+        vertices = np.asarray(self.object.mesh.vertices, dtype=np.float64)
+        self._box = (vertices.min(axis=0), vertices.max(axis=0))
         self.joint_names = self.kin.joint_names
         self._rng = rng
         self.q_rest = np.clip(np.zeros(len(self.joint_names)), self.kin.limits[:, 0], self.kin.limits[:, 1])
@@ -176,12 +179,31 @@ class ExplorationMotion:
             return np.zeros(0, dtype=bool)
         centres = np.stack([self.kin.spheres(q) for q in qs])  # (n, K, 3)
         n, K, _ = centres.shape
-        dist = np.asarray(self.sensor.closest(centres.reshape(-1, 3)).distance_m).reshape(n, K)
         need = self.kin.sph_radii + self.config.clearance_m
         need = np.broadcast_to(need, (n, K)).copy()
         if allow_tip:
             need[:, self.kin.sph_may_touch] = self.kin.sph_radii[self.kin.sph_may_touch] - 1e-3
+        dist = self._distances_below(centres.reshape(-1, 3), need.ravel()).reshape(n, K)
         return np.all(dist >= need, axis=1)
+
+    def _distances_below(self, points: np.ndarray, need: np.ndarray) -> np.ndarray:
+        """Signed distances (n,) of points (n, 3) to the object where they may be below ``need`` (n,);
+        elsewhere the distance to the object's bounding box, a lower bound above ``need`` (outside the
+        box the surface is at least that far, and the sign test of a closed, outward-wound mesh says
+        outside). The sensor answers the others in one batch, as it would answer all of them (its rows
+        do not depend on each other), and never through its few-point path unless all points go there.
+        """
+        lo, hi = self._box
+        box = np.linalg.norm(np.maximum(np.maximum(lo - points, points - hi), 0.0), axis=1)
+        ask = ~(box > need + 1e-9)  # margin over the rounding of the sensor's closest points
+        if len(points) <= FEW_POINTS:
+            ask[:] = True
+        elif np.count_nonzero(ask) <= FEW_POINTS:
+            ask[: FEW_POINTS + 1] = True
+        dist = box
+        if ask.any():
+            dist[ask] = self.sensor.closest(points[ask]).distance_m
+        return dist
 
     def _project(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Newton-project configurations (n, J) onto d(c(q)) = r.
@@ -327,7 +349,7 @@ class ExplorationMotion:
             raise ValueError(f"time_s must be finite and >= 0, got {time_s!r}")
         while self._times[-1] <= time_s:
             self._next_stroke()
-        k = int(np.searchsorted(self._times, time_s, side="right")) - 1
+        k = bisect.bisect_right(self._times, time_s) - 1  # np.searchsorted(side="right") without the array
         t0, t1 = self._times[k], self._times[k + 1]
         s = (time_s - t0) / (t1 - t0)
         ramp = 0.5 - 0.5 * math.cos(math.pi * s)  # smooth start and stop of every segment

@@ -524,8 +524,19 @@ class WarmClosest:
             self._ties,
             self.same_face,
         )
+        return self.settle([px, py, pz], (status, face, qx, qy, qz, dist, inside, weak), self._ties)
+
+    def settle(
+        self, p: list[float], search: tuple[int, int, float, float, float, float, bool, bool], ties: np.ndarray
+    ) -> tuple[tuple[float, float, float], float, int]:
+        """The answer at p (3 floats, shifted frame) from a patch search (``closest_kernels.warm_query``'s
+        result, its tied faces in ``ties``): a tie settled as the sensor's search settles it, a weak sign
+        by ray parity. For :meth:`query`, and for compiled callers that search patches themselves."""
+        s, k = self.sensor, self._kernels
+        status, face, qx, qy, qz, dist, inside, weak = search
+        px, py, pz = p
         if status == 1:  # tied faces that give different points: settle as the sensor's search does
-            face = self._break_tie([px, py, pz], self._ties[:face].tolist())
+            face = self._break_tie([px, py, pz], ties[:face].tolist())
             _, region, wb, wc = k.project(s._triangles, face, px, py, pz)
             (qx, qy, qz), signed = s._finish_scalar([px, py, pz], face, region, wb, wc)
         else:
@@ -533,6 +544,7 @@ class WarmClosest:
                 inside = bool(s._scene.occupied(np.array([[px, py, pz]]))[0])
             signed = -dist if inside else dist
         self._face = face
+        cx, cy, cz = s._centre_list
         return (qx + cx, qy + cy, qz + cz), signed, face
 
     def patch(self) -> tuple[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -542,6 +554,19 @@ class WarmClosest:
         :meth:`query`). A caller that answers queries itself reports back through :meth:`resume`."""
         faces = np.zeros(0, dtype=np.int64) if self._faces is None else self._faces
         return np.array(self._p0), self._face, faces, self._planes, self._offsets, self._lower0, self._ties
+
+    def adopt(
+        self, p0: np.ndarray, face: int, faces: np.ndarray, planes: np.ndarray, offsets: np.ndarray, lower0: np.ndarray
+    ) -> None:
+        """Take the warm start of a compiled caller that builds patches too (the arrays of :meth:`patch`;
+        no faces: no patch). Any valid patch gives the same answers: it holds every face that can be
+        closest, or tie, within its reach."""
+        self._p0 = (float(p0[0]), float(p0[1]), float(p0[2]))
+        self._face = int(face)
+        self._faces = faces if len(faces) else None
+        self._planes, self._offsets, self._lower0 = planes, offsets, lower0
+        if len(self._ties) < len(faces) + 1:
+            self._ties = np.zeros(2 * len(faces) + 1, dtype=np.int64)
 
     def resume(self, face: int, searches: int) -> None:
         """After a compiled caller answered ``searches`` queries on :meth:`patch`, the last one on ``face``."""

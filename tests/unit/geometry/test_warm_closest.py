@@ -157,3 +157,17 @@ def test_same_face_gives_the_sensors_face_on_every_tie() -> None:
         )
         differ += loose.query(p)[2] != face
     assert differ > 0  # without it, ties with one point keep another face (a vertex's faces)
+
+
+def test_a_warm_query_that_adopts_another_patch_answers_the_same() -> None:
+    """Any valid patch gives the same answers: a query handed another query's (older) patch through
+    ``adopt`` answers as that query does, and as the sensor does."""
+    mesh = load_object(ObjectSpec(kind="torus", size_m=(0.04, 0.012))).mesh
+    sensor = ExactContactSensor(mesh)
+    points = _walks(mesh, np.random.default_rng(4), 4, 60, 0.006)
+    leader, follower = WarmClosest(sensor), WarmClosest(sensor)
+    for i, p in enumerate(points):
+        if i % 7 == 0:
+            p0, face, faces, planes, offsets, lower0, _ = leader.patch()
+            follower.adopt(p0, face, faces, planes, offsets, lower0)
+        assert follower.query(p) == leader.query(p)

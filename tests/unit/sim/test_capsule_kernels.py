@@ -52,6 +52,7 @@ def _explore(effector: str, compiled: bool, ticks: int = 250) -> tuple[str, int]
     scene = SceneConfig(effector=effector, object=ObjectSpec(kind="torus"))
     sim = Simulation(scene)
     sim.compiled_bounds = compiled
+    sim.compiled_penalty = False  # the Python step loop, which places the spheres with either path
     motion = ExplorationMotion(scene, np.random.default_rng(0), MotionConfig(candidate_samples=400), obj=sim.object)
     digest, contacts = hashlib.sha256(), 0
     for _ in range(ticks):

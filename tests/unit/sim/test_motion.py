@@ -61,3 +61,19 @@ def test_exploration_taps_the_cube_with_the_fingertip_on_two_faces() -> None:
     np.testing.assert_allclose(closest.distance_m, 0.0, atol=1e-6)
     faces = {tuple(np.round(n).astype(int)) for n in closest.normals}
     assert len(faces) >= 2, faces
+
+
+@pytest.mark.parametrize("count", [3, 12, 200])
+def test_clearance_distances_skip_only_points_surely_clear(count: int) -> None:
+    """Exact distances (the sensor's bits) wherever they may be below the need; elsewhere a bound above it."""
+    motion = ExplorationMotion(SceneConfig(effector="hand"), np.random.default_rng(2), FAST)
+    rng = np.random.default_rng(count)
+    lo, hi = motion._box
+    points = lo + (hi - lo) * rng.uniform(-1.0, 2.0, (count, 3))
+    need = rng.uniform(0.0, 0.02, count)
+    got = motion._distances_below(points, need)
+    exact = np.asarray(motion.sensor.closest(points).distance_m)
+    may_be_below = exact < need + 1e-3
+    np.testing.assert_array_equal(got[may_be_below], exact[may_be_below])
+    assert np.all(got[~may_be_below] >= need[~may_be_below])
+    np.testing.assert_array_equal(got >= need, exact >= need)

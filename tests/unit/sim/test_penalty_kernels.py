@@ -1,0 +1,142 @@
+"""A hand's or finger's compiled steps on a mesh (nodes/sim/penalty_kernels.py) give the Python loop's bits."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from palpate.errors import SimulationDivergedError
+from palpate.geometry.mesh_query import WarmClosest
+from palpate.nodes.sim import penalty_kernels
+from palpate.nodes.sim.core import Simulation
+from palpate.nodes.sim.motion import ExplorationMotion, MotionConfig
+from palpate.nodes.sim.objects import ObjectSpec
+from palpate.nodes.sim.scene import SceneConfig
+
+TORUS = ObjectSpec(kind="torus")
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PALPATE_CACHE_DIR", str(tmp_path / "cache"))
+
+
+def _compiled_or_skip(sim: Simulation) -> None:
+    if not sim.compiled_penalty:
+        pytest.skip("MuJoCo's library not found, or numpy sums in another order here: the Python loop runs")
+
+
+def test_penalty_wrench_gives_numpys_bits() -> None:
+    if penalty_kernels.mujoco_functions() is None:
+        pytest.skip("MuJoCo's library not found")
+    assert penalty_kernels.matches_numpy(samples=2000)
+
+
+def _explore(effector: str, compiled: bool, ticks: int = 250, arena_faces: int = 0) -> tuple[str, int, dict[str, int]]:
+    """The scripted exploration of a torus: hash of qpos, qvel, the applied wrench and the contacts per
+    tick, the contacts, and the spheres' query counts (``arena_faces``: the compiled patches' arena
+    at first)."""
+    scene = SceneConfig(effector=effector, object=TORUS)
+    sim = Simulation(scene)
+    if compiled:
+        _compiled_or_skip(sim)
+    sim.compiled_penalty = compiled
+    if arena_faces:
+        sim._patches = penalty_kernels.WarmPatches(
+            len(sim._sph_geom), len(sim._patches.ties) // 2, capacity=arena_faces
+        )
+    motion = ExplorationMotion(scene, np.random.default_rng(0), MotionConfig(candidate_samples=400), obj=sim.object)
+    digest, contacts = hashlib.sha256(), 0
+    for _ in range(ticks):
+        sim.set_joint_targets(motion.targets(sim.time_s))
+        sim.step(5)
+        arrays = (sim.data.qpos, sim.data.qvel, sim.data.xfrc_applied)
+        c = sim.contacts()
+        for array in (*arrays, c.positions_m, c.local_positions_m, c.normals, c.forces_n):
+            digest.update(np.ascontiguousarray(array).tobytes())
+        digest.update(" ".join(c.links).encode())
+        contacts += len(c)
+    counts = {"builds": 0, "ties": 0}
+    for warm in sim._sph_warm.values():
+        for key in counts:
+            counts[key] += warm.counts[key]
+    counts["arena"] = len(sim._patches.faces)
+    return digest.hexdigest(), contacts, counts
+
+
+@pytest.mark.parametrize("effector", ["finger", "hand"])
+def test_compiled_steps_give_the_python_loops_trajectory(effector: str) -> None:
+    python = _explore(effector, compiled=False)
+    compiled = _explore(effector, compiled=True)
+    assert python[1] > 10  # the motion touched the torus
+    assert compiled[:2] == python[:2]
+    # the compiled path builds patches itself; it answered the ties in Python
+    assert python[2]["builds"] > compiled[2]["builds"] and compiled[2]["ties"] == python[2]["ties"]
+
+
+def test_a_full_arena_hands_the_build_to_python_and_grows() -> None:
+    python = _explore("finger", compiled=False, ticks=150)
+    compiled = _explore("finger", compiled=True, ticks=150, arena_faces=64)
+    assert compiled[:2] == python[:2] and compiled[2]["arena"] > 64
+
+
+def test_more_near_spheres_than_the_few_point_path_go_to_the_sensors_batch(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With FEW_POINTS at 0 every step with a near sphere takes the sensor's vectorised query."""
+    monkeypatch.setattr("palpate.nodes.sim.core.FEW_POINTS", 0)
+    python = _explore("finger", compiled=False, ticks=120)
+    compiled = _explore("finger", compiled=True, ticks=120)
+    assert python[1] > 0
+    assert compiled[:2] == python[:2]
+
+
+def test_warm_patches_pack_each_spheres_patch_and_grow_the_arena() -> None:
+    sim = Simulation(SceneConfig(effector="finger", object=TORUS))
+    assert sim._sensor is not None
+    patches = penalty_kernels.WarmPatches(3, max_patch_faces=8)  # an arena of 64 faces: it must grow
+    warms = [WarmClosest(sim._sensor, same_face=True) for _ in range(2)]
+    for k, (warm, point) in enumerate(zip(warms, ([0.04, 0.0, 0.0], [0.0, 0.035, 0.005]), strict=True)):
+        warm.query(np.array(point))
+        patches.store(2 * k, warm)
+    assert patches.size[1] == 0 and patches.size.sum() > 64 and patches.used[0] == patches.size.sum()
+    for k, warm in zip((0, 2), warms, strict=True):
+        fresh = WarmClosest(sim._sensor, same_face=True)
+        patches.searches[k] = 5
+        patches.load(k, fresh)
+        assert patches.searches[k] == 0 and fresh.counts["patch"] == 5
+        for got, expected in zip(fresh.patch()[:6], warm.patch()[:6], strict=True):
+            np.testing.assert_array_equal(got, expected)
+
+
+def test_the_face_grid_finds_the_k_d_trees_faces() -> None:
+    sim = Simulation(SceneConfig(effector="finger", object=TORUS))
+    sensor = sim._sensor
+    assert sensor is not None
+    grid, cell_m, _ = penalty_kernels.face_grid(sensor)
+    tree, _, _ = sensor.face_index()
+    out = np.zeros(len(sensor.face_normals), dtype=np.int64)
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        p = 0.05 * rng.standard_normal(3)
+        reach = float(rng.uniform(0.001, 0.03))
+        count = penalty_kernels.grid_faces(grid, cell_m, *p, reach, out)
+        np.testing.assert_array_equal(np.sort(out[:count]), np.sort(tree.query_ball_point(p, reach)))
+
+
+def test_without_mujocos_library_the_python_loop_runs(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(penalty_kernels, "mujoco_functions", lambda: None)
+    sim = Simulation(SceneConfig(effector="finger", object=TORUS))
+    assert not sim.compiled_penalty
+    sim.set_joint_targets(np.array([0.0, 1.0, 0.6, 0.3]))
+    sim.step(300)
+    assert len(sim.contacts()) >= 1
+
+
+def test_a_segment_overrun_by_a_huge_time_step_raises_on_the_compiled_path() -> None:
+    sim = Simulation(SceneConfig(effector="finger", object=TORUS, timestep_s=0.05))
+    _compiled_or_skip(sim)
+    sim.set_joint_targets(np.array([0.0, 1.4, 0.6, 0.0]))
+    with pytest.raises(SimulationDivergedError, match=r"time step 0.05 s.*timestep_s: 0.025"):
+        sim.step(100)
