@@ -27,7 +27,7 @@ from typing import Any, cast
 from palpate.config import load
 from palpate.messages import codec
 from palpate.messages.base import Message
-from palpate.runtime.node import NodeContext, deliver
+from palpate.runtime.node import NodeContext, deliver_to
 from palpate.runtime.spec import ClockSource, NodeLike, NodeProcessSpec, NodeSpec
 
 #: Called for every message published: (tick, node name, topic, message).
@@ -45,6 +45,8 @@ class _Member:
     #: The last message this node sent and what subscribers got (a message sent on two topics is
     #: transferred once); forgotten after every tick.
     last_sent: tuple[Message | None, Message | None] = (None, None)
+    #: Per input topic: the bound ``on_<port>`` handler of its port, looked up at the first message.
+    handlers: dict[str, Callable[[Message], object]] = field(default_factory=dict)
 
 
 class InProcessGraph:
@@ -167,12 +169,25 @@ class InProcessGraph:
         return ticks
 
     def _dispatch(self, member: _Member) -> None:
-        batch = sorted(member.inbox, key=lambda item: (item[0], item[1]))
+        if not member.inbox:
+            return
+        # entries arrive in publish order (seq), so a stable sort by publisher rank gives (rank, seq)
+        batch = sorted(member.inbox, key=_publisher_rank) if len(member.inbox) > 1 else member.inbox
         member.inbox = []
-        ports = {topic: port for port, topic in member.process.subscribes.items()}
+        counters, handlers = member.ctx.counters, member.handlers
         for _, _, topic, message in batch:
-            member.ctx.counters["messages_in"] += 1
-            deliver(member.ctx, member.obj, ports[topic], topic, message)
+            counters["messages_in"] += 1
+            handler = handlers.get(topic)
+            if handler is None:
+                handler = handlers[topic] = self._handler(member, topic)
+            deliver_to(member.ctx, handler, topic, message)
+
+    @staticmethod
+    def _handler(member: _Member, topic: str) -> Callable[[Message], object]:
+        """The ``on_<port>`` handler of the port that reads `topic`."""
+        port = {wired: port for port, wired in member.process.subscribes.items()}[topic]
+        handler: Callable[[Message], object] = getattr(member.obj, f"on_{port}")
+        return handler
 
     def _collect_stop(self, member: _Member) -> None:
         if member.ctx.stop_requested and not self.stop_reason:
@@ -181,6 +196,10 @@ class InProcessGraph:
     def node(self, name: str) -> Any:
         """The node object called `name` (for reading results after a run)."""
         return next(m.obj for m in self.members if m.process.name == name)
+
+
+def _publisher_rank(item: tuple[int, int, str, Message]) -> int:
+    return item[0]
 
 
 def _add(timing: dict[str, float], name: str, start: float) -> None:
