@@ -96,6 +96,7 @@ class _FieldPlan:
     ndim: int = 0
     fixed: tuple[tuple[int, int], ...] = ()  # (axis, length) of every fixed-length axis
     check_finite: bool = False  # floats: spec.finite; arrays: spec.finite and a floating dtype
+    finite: bool = False  # spec.finite
 
 
 @dataclass(frozen=True, slots=True)
@@ -130,9 +131,10 @@ def _compile(cls: type[Message]) -> _Plan:
             dtype = np.dtype(spec.dtype)
             fixed = tuple((axis, want) for axis, want in enumerate(spec.shape) if isinstance(want, int))
             check = spec.finite and dtype.kind == "f"
-            fields.append(_FieldPlan(name, spec.kind, spec, where, dtype, len(spec.shape), fixed, check))
+            fields.append(_FieldPlan(name, spec.kind, spec, where, dtype, len(spec.shape), fixed, check, spec.finite))
         else:
-            fields.append(_FieldPlan(name, spec.kind, spec, where, check_finite=spec.kind == "float" and spec.finite))
+            check = spec.kind == "float" and spec.finite
+            fields.append(_FieldPlan(name, spec.kind, spec, where, check_finite=check, finite=spec.finite))
         for axis, want in enumerate(spec.shape or ()):
             if isinstance(want, str):
                 members.setdefault(want, []).append((name, -1 if spec.kind == "str_list" else axis))
@@ -298,8 +300,13 @@ def _transfer_values(plan: _Plan, fields: Mapping[str, Any]) -> dict[str, Any] |
 def _immutable_array(f: _FieldPlan, value: Any) -> np.ndarray | None:
     """`value` as a read-only view of a bytes object (itself when it already is one), or None when it
     does not fit the field (dtype, rank, fixed axes, finiteness)."""
-    if type(value) is np.ndarray and value.dtype == f.dtype and value.flags.c_contiguous and _views_bytes(value):
-        arr = value
+    if type(value) is np.ndarray and value.dtype == f.dtype:
+        if _views_bytes(value) and value.flags.c_contiguous:
+            arr = value
+        else:  # the C-ordered bytes, as encode writes them
+            arr = np.frombuffer(value.tobytes(), f.dtype)
+            if value.ndim != 1:
+                arr = arr.reshape(value.shape)
     else:
         try:
             arr = np.ascontiguousarray(value, dtype=f.dtype)  # as encode converts it
@@ -597,21 +604,25 @@ def validate(message: Message) -> None:
     """
     cls = type(message)
     plan = _plan_of(cls)
-    values = {}
+    fields = message.__dict__
+    converted: dict[str, Any] = {}  # array fields that are not ndarrays, as arrays
     for f in plan.fields:
-        value = getattr(message, f.name)
+        value = fields[f.name]
         if f.kind == "array":
-            arr = np.asarray(value)
+            arr = value
+            if type(arr) is not np.ndarray:
+                arr = converted[f.name] = np.asarray(value)
             if not _shape_fits(f, arr.shape):
                 raise MalformedMessageError(
                     f"{f.where} must have shape {_shape_text(f.spec.shape or ())}, got {arr.shape}"
                 )
-            if f.spec.finite and arr.dtype.kind in "fc" and arr.size and not _all_finite(arr):
+            if f.finite and arr.dtype.kind in "fc" and arr.size and not _all_finite(arr):
                 raise NonFiniteError(f"{f.where} must be finite, but holds NaN or infinity")
-            value = arr
         elif f.check_finite and not math.isfinite(value):
             raise NonFiniteError(f"{f.where} must be finite, got {value}")
-        values[f.name] = value
+    if not plan.dims:
+        return
+    values = {**fields, **converted} if converted else fields
     try:
         agree = _dims_agree(plan, values)
     except TypeError:  # a string list that has no length: let check_dimensions report it

@@ -297,3 +297,67 @@ def test_in_process_messages_nobody_reads_are_validated_not_transferred(
     heard: list[str] = []
     inprocess.InProcessGraph(members, listener=lambda tick, node, topic, message: heard.append(topic)).run(max_ticks=5)
     assert "SurfaceMesh" in transferred and "surface/mesh" in heard
+
+
+class _SentFrames:
+    """Stands in for a node's publisher socket: records what is sent."""
+
+    def __init__(self) -> None:
+        self.topics: list[bytes] = []
+
+    def send_multipart(self, frames: list[Any], copy: bool = True) -> None:
+        self.topics.append(bytes(frames[0]))
+
+
+class _Publisher:
+    def __init__(self, config: NoParams, ctx: Any) -> None:
+        self.ctx = ctx
+
+    def on_tick(self, stamp_ns: int) -> None:
+        """Publishes from the test."""
+
+
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_a_lockstep_node_sends_a_ticks_messages_together_with_its_acknowledgement(tmp_path: Path, mode: str) -> None:
+    """In lockstep, what a node publishes goes out, in order, just before its next Clock, acknowledgement or
+    status (so a subscriber wakes once per tick); in real-time mode at once."""
+    from palpate.messages import topics
+    from palpate.messages.schemas import LockstepAck
+    from palpate.runtime.node import NodeRunner
+    from palpate.runtime.spec import Port
+
+    process = NodeProcessSpec(
+        name="publisher",
+        type="publisher",
+        node_spec="tests:unused",
+        params={},
+        bus_dir=str(tmp_path),
+        endpoint=f"ipc://{tmp_path}/publisher.pub",
+        publishes={"contacts": "sim/contacts"},
+        subscribes={},
+        connect=[],
+        mode=mode,
+    )
+    spec = NodeSpec(name="publisher", config=NoParams, factory=_Publisher, outputs={"contacts": Port(ContactSet)})
+    runner = NodeRunner(spec, process)
+    socket, sent = runner.pub, _SentFrames()
+    runner.pub = sent  # type: ignore[assignment]
+    runner.counter.covering = lambda topic: 1  # type: ignore[method-assign]
+    empty = np.zeros((0, 3))
+    try:
+        for stamp in (1, 2):
+            message = ContactSet(
+                stamp_ns=stamp,
+                positions_m=empty,
+                local_positions_m=empty,
+                normals=empty,
+                forces_n=np.zeros(0),
+                links=[],
+            )
+            runner.ctx.publish("contacts", message)
+        assert sent.topics == ([] if mode == "lockstep" else [b"sim/contacts"] * 2)
+        runner._send_internal(topics.LOCKSTEP_ACK, LockstepAck(stamp_ns=2, node="publisher", tick=0))
+        assert sent.topics == [b"sim/contacts", b"sim/contacts", topics.LOCKSTEP_ACK.encode()]
+    finally:
+        runner.pub = socket
+        runner._close_sockets(linger_ms=0)
