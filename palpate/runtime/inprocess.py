@@ -47,6 +47,13 @@ class _Member:
     last_sent: tuple[Message | None, Message | None] = (None, None)
     #: Per input topic: the bound ``on_<port>`` handler of its port, looked up at the first message.
     handlers: dict[str, Callable[[Message], object]] = field(default_factory=dict)
+    #: The names of this node's parts in `InProcessGraph.timing`: its input handling and its on_tick.
+    inputs_part: str = field(init=False)
+    on_tick_part: str = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.inputs_part = f"{self.process.name}.inputs"
+        self.on_tick_part = f"{self.process.name}.on_tick"
 
 
 class InProcessGraph:
@@ -138,7 +145,7 @@ class InProcessGraph:
                 _add(timing, "step", start)
             if stamp is None:
                 break
-            for member in [self.clock, *self.followers]:
+            for member in self.members:
                 member.ctx.stamp_ns, member.ctx.tick = stamp, ticks
                 member.last_sent = (None, None)
             for member in self.followers:
@@ -146,18 +153,17 @@ class InProcessGraph:
                     self._dispatch(member)
                     member.obj.on_tick(stamp)
                 else:
-                    name = member.process.name
                     start = time.perf_counter()
                     self._dispatch(member)
-                    _add(timing, f"{name}.inputs", start)
+                    _add(timing, member.inputs_part, start)
                     start = time.perf_counter()
                     member.obj.on_tick(stamp)
-                    _add(timing, f"{name}.on_tick", start)
+                    _add(timing, member.on_tick_part, start)
                 self._collect_stop(member)
             start = time.perf_counter() if timing is not None else 0.0
             self._dispatch(self.clock)
             if timing is not None:
-                _add(timing, f"{self.clock.process.name}.inputs", start)
+                _add(timing, self.clock.inputs_part, start)
             self._collect_stop(self.clock)
             ticks += 1
             if self.stop_reason:
