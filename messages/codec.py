@@ -97,6 +97,8 @@ class _FieldPlan:
     fixed: tuple[tuple[int, int], ...] = ()  # (axis, length) of every fixed-length axis
     check_finite: bool = False  # floats: spec.finite; arrays: spec.finite and a floating dtype
     finite: bool = False  # spec.finite
+    wire_dtype: str = ""  # arrays: spec.dtype, the dtype string on the wire
+    itemsize: int = 0  # arrays: bytes per element
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,7 +133,21 @@ def _compile(cls: type[Message]) -> _Plan:
             dtype = np.dtype(spec.dtype)
             fixed = tuple((axis, want) for axis, want in enumerate(spec.shape) if isinstance(want, int))
             check = spec.finite and dtype.kind == "f"
-            fields.append(_FieldPlan(name, spec.kind, spec, where, dtype, len(spec.shape), fixed, check, spec.finite))
+            fields.append(
+                _FieldPlan(
+                    name,
+                    spec.kind,
+                    spec,
+                    where,
+                    dtype,
+                    len(spec.shape),
+                    fixed,
+                    check,
+                    spec.finite,
+                    spec.dtype,
+                    dtype.itemsize,
+                )
+            )
         else:
             check = spec.kind == "float" and spec.finite
             fields.append(_FieldPlan(name, spec.kind, spec, where, check_finite=check, finite=spec.finite))
@@ -424,13 +440,7 @@ def _fast_values(plan: _Plan, fields: dict[str, Any], blob: memoryview) -> dict[
         return None
     # Every array float64 and finite: one test over the whole blob (its padding is zeros) replaces
     # one per array; a blob that holds other bytes fails it and falls back to the arrays.
-    if (
-        len(unchecked) > 1
-        and plan.float64_blob
-        and len(blob) > 8 * _SMALL_ARRAY
-        and len(blob) % 8 == 0
-        and _all_finite(np.frombuffer(blob, _FLOAT64))
-    ):
+    if len(unchecked) > 1 and plan.float64_blob and len(blob) % 8 == 0 and _all_finite(np.frombuffer(blob, _FLOAT64)):
         return values
     for arr in unchecked:
         if not _all_finite(arr):
@@ -449,7 +459,7 @@ def _fast_array(f: _FieldPlan, raw: Any, blob: memoryview) -> np.ndarray | None:
         dtype, shape, offset, nbytes = raw["dtype"], raw["shape"], raw["offset"], raw["nbytes"]
     except KeyError:
         return None
-    if dtype != f.spec.dtype or type(shape) is not list or len(shape) != f.ndim:
+    if dtype != f.wire_dtype or type(shape) is not list or len(shape) != f.ndim:
         return None
     count = 1
     for d in shape:
@@ -459,8 +469,7 @@ def _fast_array(f: _FieldPlan, raw: Any, blob: memoryview) -> np.ndarray | None:
     for axis, want in f.fixed:
         if shape[axis] != want:
             return None
-    assert f.dtype is not None
-    if type(offset) is not int or offset < 0 or nbytes != count * f.dtype.itemsize or offset + nbytes > len(blob):
+    if type(offset) is not int or offset < 0 or nbytes != count * f.itemsize or offset + nbytes > len(blob):
         return None
     arr = np.frombuffer(blob, f.dtype, count, offset)
     return arr if f.ndim == 1 else arr.reshape(shape)

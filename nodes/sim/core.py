@@ -262,7 +262,7 @@ class Simulation:
         w = np.asarray(angular_rad_s, dtype=np.float64)
         if v.shape != (3,) or w.shape != (3,):
             raise ValueError(f"velocities have shapes {v.shape} and {w.shape}; expected (3,) and (3,)")
-        if not (np.isfinite(v).all() and np.isfinite(w).all()):
+        if not (_is_finite(v) and _is_finite(w)):
             raise ValueError(f"velocities must be finite, got linear {v!r}, angular {w!r}")
         self._cmd_lin = v.copy()
         self._cmd_ang = w.copy()
