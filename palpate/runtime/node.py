@@ -245,9 +245,6 @@ class NodeRunner:
         self.manifest_path = manifest.write(process.bus_dir)
         self.timer = timing.recorder(process.name)  # per-tick timestamps when $PALPATE_TICK_TIMING is set
         self._last_sent: tuple[Message | None, bytes] = (None, b"")  # a message published on two topics
-        #: Lockstep: frames published in this tick, sent together just before the node's next Clock,
-        #: acknowledgement or status (see `_flush`).
-        self._outbox: list[list[Any]] = []
 
     # --- sending -------------------------------------------------------------------------------------
     def _send(self, topic: str, message: Message) -> None:
@@ -258,24 +255,11 @@ class NodeRunner:
         if last is not message:  # the same message on a second topic is encoded once
             payload = self._encode(message)
             self._last_sent = (message, payload)
-        if self.lockstep:
-            self._outbox.append([topic.encode(), payload])
-        else:
-            self.pub.send_multipart([topic.encode(), payload], copy=False)
+        self.pub.send_multipart([topic.encode(), payload], copy=False)
         self.ctx.counters["messages_out"] += 1
 
     def _send_internal(self, topic: str, message: Message) -> None:
-        payload = self._encode(message)
-        self._flush()
-        self.pub.send_multipart([topic.encode(), payload])
-
-    def _flush(self) -> None:
-        """Send the tick's published frames, in publish order. Sent back to back with the Clock or
-        acknowledgement that follows them, they reach a subscriber together, which then wakes once per
-        tick instead of once per message (the order on the connection is the same)."""
-        for frames in self._outbox:
-            self.pub.send_multipart(frames, copy=False)
-        self._outbox.clear()
+        self.pub.send_multipart([topic.encode(), self._encode(message)])
 
     def _encode(self, message: Message) -> bytes:
         if self.timer is None:
@@ -420,7 +404,6 @@ class NodeRunner:
                 close = getattr(self.node, "close", None)
                 if close is not None:
                     close()
-                self._flush()  # what close() published
                 if self.timer is not None:
                     self.timer.write(self.spec.clock_source, self.process.trailing_nodes)
             finally:  # even when the node's close() fails: no stale manifest, socket or ipc file
