@@ -96,6 +96,9 @@ class _FieldPlan:
     ndim: int = 0
     fixed: tuple[tuple[int, int], ...] = ()  # (axis, length) of every fixed-length axis
     check_finite: bool = False  # floats: spec.finite; arrays: spec.finite and a floating dtype
+    finite: bool = False  # spec.finite
+    wire_dtype: str = ""  # arrays: spec.dtype, the dtype string on the wire
+    itemsize: int = 0  # arrays: bytes per element
 
 
 @dataclass(frozen=True, slots=True)
@@ -130,9 +133,24 @@ def _compile(cls: type[Message]) -> _Plan:
             dtype = np.dtype(spec.dtype)
             fixed = tuple((axis, want) for axis, want in enumerate(spec.shape) if isinstance(want, int))
             check = spec.finite and dtype.kind == "f"
-            fields.append(_FieldPlan(name, spec.kind, spec, where, dtype, len(spec.shape), fixed, check))
+            fields.append(
+                _FieldPlan(
+                    name,
+                    spec.kind,
+                    spec,
+                    where,
+                    dtype,
+                    len(spec.shape),
+                    fixed,
+                    check,
+                    spec.finite,
+                    spec.dtype,
+                    dtype.itemsize,
+                )
+            )
         else:
-            fields.append(_FieldPlan(name, spec.kind, spec, where, check_finite=spec.kind == "float" and spec.finite))
+            check = spec.kind == "float" and spec.finite
+            fields.append(_FieldPlan(name, spec.kind, spec, where, check_finite=check, finite=spec.finite))
         for axis, want in enumerate(spec.shape or ()):
             if isinstance(want, str):
                 members.setdefault(want, []).append((name, -1 if spec.kind == "str_list" else axis))
@@ -298,8 +316,13 @@ def _transfer_values(plan: _Plan, fields: Mapping[str, Any]) -> dict[str, Any] |
 def _immutable_array(f: _FieldPlan, value: Any) -> np.ndarray | None:
     """`value` as a read-only view of a bytes object (itself when it already is one), or None when it
     does not fit the field (dtype, rank, fixed axes, finiteness)."""
-    if type(value) is np.ndarray and value.dtype == f.dtype and value.flags.c_contiguous and _views_bytes(value):
-        arr = value
+    if type(value) is np.ndarray and value.dtype == f.dtype:
+        if _views_bytes(value) and value.flags.c_contiguous:
+            arr = value
+        else:  # the C-ordered bytes, as encode writes them
+            arr = np.frombuffer(value.tobytes(), f.dtype)
+            if value.ndim != 1:
+                arr = arr.reshape(value.shape)
     else:
         try:
             arr = np.ascontiguousarray(value, dtype=f.dtype)  # as encode converts it
@@ -417,13 +440,7 @@ def _fast_values(plan: _Plan, fields: dict[str, Any], blob: memoryview) -> dict[
         return None
     # Every array float64 and finite: one test over the whole blob (its padding is zeros) replaces
     # one per array; a blob that holds other bytes fails it and falls back to the arrays.
-    if (
-        len(unchecked) > 1
-        and plan.float64_blob
-        and len(blob) > 8 * _SMALL_ARRAY
-        and len(blob) % 8 == 0
-        and _all_finite(np.frombuffer(blob, _FLOAT64))
-    ):
+    if len(unchecked) > 1 and plan.float64_blob and len(blob) % 8 == 0 and _all_finite(np.frombuffer(blob, _FLOAT64)):
         return values
     for arr in unchecked:
         if not _all_finite(arr):
@@ -442,7 +459,7 @@ def _fast_array(f: _FieldPlan, raw: Any, blob: memoryview) -> np.ndarray | None:
         dtype, shape, offset, nbytes = raw["dtype"], raw["shape"], raw["offset"], raw["nbytes"]
     except KeyError:
         return None
-    if dtype != f.spec.dtype or type(shape) is not list or len(shape) != f.ndim:
+    if dtype != f.wire_dtype or type(shape) is not list or len(shape) != f.ndim:
         return None
     count = 1
     for d in shape:
@@ -452,8 +469,7 @@ def _fast_array(f: _FieldPlan, raw: Any, blob: memoryview) -> np.ndarray | None:
     for axis, want in f.fixed:
         if shape[axis] != want:
             return None
-    assert f.dtype is not None
-    if type(offset) is not int or offset < 0 or nbytes != count * f.dtype.itemsize or offset + nbytes > len(blob):
+    if type(offset) is not int or offset < 0 or nbytes != count * f.itemsize or offset + nbytes > len(blob):
         return None
     arr = np.frombuffer(blob, f.dtype, count, offset)
     return arr if f.ndim == 1 else arr.reshape(shape)
@@ -597,21 +613,25 @@ def validate(message: Message) -> None:
     """
     cls = type(message)
     plan = _plan_of(cls)
-    values = {}
+    fields = message.__dict__
+    converted: dict[str, Any] = {}  # array fields that are not ndarrays, as arrays
     for f in plan.fields:
-        value = getattr(message, f.name)
+        value = fields[f.name]
         if f.kind == "array":
-            arr = np.asarray(value)
+            arr = value
+            if type(arr) is not np.ndarray:
+                arr = converted[f.name] = np.asarray(value)
             if not _shape_fits(f, arr.shape):
                 raise MalformedMessageError(
                     f"{f.where} must have shape {_shape_text(f.spec.shape or ())}, got {arr.shape}"
                 )
-            if f.spec.finite and arr.dtype.kind in "fc" and arr.size and not _all_finite(arr):
+            if f.finite and arr.dtype.kind in "fc" and arr.size and not _all_finite(arr):
                 raise NonFiniteError(f"{f.where} must be finite, but holds NaN or infinity")
-            value = arr
         elif f.check_finite and not math.isfinite(value):
             raise NonFiniteError(f"{f.where} must be finite, got {value}")
-        values[f.name] = value
+    if not plan.dims:
+        return
+    values = {**fields, **converted} if converted else fields
     try:
         agree = _dims_agree(plan, values)
     except TypeError:  # a string list that has no length: let check_dimensions report it

@@ -107,14 +107,15 @@ class ContactNoise:
 
         InputError (naming the ContactSet field) for positions beyond palpate.inputs' bounds or normals
         that are not unit vectors."""
-        p = np.array(coordinates(positions_m, "positions_m"))
-        n = np.array(unit_vectors(normals, "normals"))
+        p = coordinates(positions_m, "positions_m")
+        n = unit_vectors(normals, "normals")
         if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
             raise ValueError(f"positions and normals must both have shape (n, 3), got {p.shape} and {n.shape}")
-        if self.config.position_sigma_m > 0:
+        if self.config.position_sigma_m > 0:  # each branch makes a new array
             p = p + self.config.position_sigma_m * self._rng.standard_normal(p.shape)
-        if self._sigma_normal_rad > 0:
-            n = perturb_directions(n, self._sigma_normal_rad, self._rng)
+        else:
+            p = np.array(p)
+        n = perturb_directions(n, self._sigma_normal_rad, self._rng) if self._sigma_normal_rad > 0 else np.array(n)
         return p, n
 
 

@@ -58,6 +58,8 @@ _INSTABILITY_WARNINGS = (
     (mujoco.mjtWarning.mjWARN_BADQVEL, "bad velocity"),
     (mujoco.mjtWarning.mjWARN_BADQPOS, "bad position"),
 )
+#: Arrays up to this many elements are checked for finiteness in Python (`_is_finite`).
+_FEW_ELEMENTS = 64
 
 
 @dataclass(frozen=True)
@@ -84,6 +86,15 @@ class Contacts:
 
     def __len__(self) -> int:
         return len(self.links)
+
+
+def _is_finite(array: np.ndarray) -> bool:
+    """True when no element of `array` is NaN or infinite."""
+    # A Python sum is NaN or infinite when any term is (cheaper than numpy for a few elements); an
+    # overflowing sum of finite terms is settled by the exact test.
+    if array.size <= _FEW_ELEMENTS and math.isfinite(sum(array.ravel().tolist())):
+        return True
+    return bool(np.isfinite(array).all())
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:
@@ -147,7 +158,8 @@ class Simulation:
         m = self.model
         self._dt = float(m.opt.timestep)
         self._steps = 0
-        self._warnings_seen = {w: 0 for w, _ in _INSTABILITY_WARNINGS}
+        self._warnings_seen = [0] * len(_INSTABILITY_WARNINGS)  # counts of _INSTABILITY_WARNINGS
+        self._warning_counts = self.data.warning.number  # a view of MjData's counters, read every step
         self._exact = uses_exact_contacts(scene, self.object)
         self._sensor = ExactContactSensor(self.object.mesh) if self._exact else None
         self._tol = float(scene.contact_tolerance_m)
@@ -241,7 +253,7 @@ class Simulation:
         w = np.asarray(angular_rad_s, dtype=np.float64)
         if v.shape != (3,) or w.shape != (3,):
             raise ValueError(f"velocities have shapes {v.shape} and {w.shape}; expected (3,) and (3,)")
-        if not (np.isfinite(v).all() and np.isfinite(w).all()):
+        if not (_is_finite(v) and _is_finite(w)):
             raise ValueError(f"velocities must be finite, got linear {v!r}, angular {w!r}")
         self._cmd_lin = v.copy()
         self._cmd_ang = w.copy()
@@ -276,13 +288,13 @@ class Simulation:
     def _check_diverged(self, t0: float, force: bool = False) -> None:
         d = self.data
         problems = []
-        counts = d.warning.number  # one array read; indexing d.warning[i] costs microseconds each
-        for warning, what in _INSTABILITY_WARNINGS:
-            count = int(counts[int(warning)])
-            if count > self._warnings_seen[warning]:
+        counts = self._warning_counts.tolist()
+        for i, (warning, what) in enumerate(_INSTABILITY_WARNINGS):
+            count = counts[int(warning)]
+            if count > self._warnings_seen[i]:
                 problems.append(what)
-                self._warnings_seen[warning] = count
-        if force or not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):
+                self._warnings_seen[i] = count
+        if force or not (_is_finite(d.qpos) and _is_finite(d.qvel)):
             problems.append("non-finite state")
         if problems:
             dt = self._dt
@@ -317,8 +329,8 @@ class Simulation:
                 remaining -= taken
                 if status == probe_kernels.DONE:
                     break
-                # the last step's mj_step ran; its projection needs Python
-                projected = math.isfinite(sum(d.qpos.tolist())) and self._probe_project()
+                # the last step's mj_step ran; its projection needs Python (the compiled query said so)
+                projected = math.isfinite(sum(d.qpos.tolist())) and self._probe_project(try_compiled=False)
                 continue
             remaining, projected = self._probe_python_step(remaining, turning, speed_per_step)
         if projected and cache[probe_kernels.HAS_HIT] == 1.0:
@@ -397,14 +409,14 @@ class Simulation:
             WEAK_SIGN_COS,
         )
 
-    def _probe_project(self) -> bool:
+    def _probe_project(self, try_compiled: bool = True) -> bool:
         """Push the probe out of the surface along the contact normal; True when it was pushed (the
-        caller then drops its inward velocity).
+        caller then drops its inward velocity). `try_compiled`: as `_probe_closest`.
 
         One projection per step: in a concave corner a second surface may still be penetrated by at
         most one step of motion, which the next step corrects.
         """
-        hit = self._probe_closest()
+        hit = self._probe_closest(try_compiled)
         r = self._probe_radius
         if hit is None or hit[1] >= r:
             return False
@@ -412,12 +424,13 @@ class Simulation:
         self.data.qpos[0:3] = point + r * normal
         return True
 
-    def _probe_closest(self) -> tuple[np.ndarray, float, np.ndarray] | None:
-        """Closest surface point, signed centre distance and contact normal; None if surely apart."""
+    def _probe_closest(self, try_compiled: bool = True) -> tuple[np.ndarray, float, np.ndarray] | None:
+        """Closest surface point, signed centre distance and contact normal; None if surely apart.
+        `try_compiled` False: the compiled query just said it needs Python here (skip asking again)."""
         assert self._warm is not None and self._sensor is not None
         k = probe_kernels
         cache = self._probe_cache
-        if self.compiled_steps:  # the same answer in compiled code, unless it needs Python
+        if self.compiled_steps and try_compiled:  # the same answer in compiled code, unless it needs Python
             status, face, searched = k.probe_closest(self.data.qpos, *self._probe_kernel_arguments())
             if status != k.NEEDS_PYTHON:
                 self._warm.resume(face, searched)
@@ -811,9 +824,9 @@ class Simulation:
         """Fingertip site (hand, finger) or probe centre: position (3,) m and quaternion (w, x, y, z)."""
         d = self.data
         if self.scene.effector == "probe":
-            pos = np.array(d.qpos[0:3], dtype=np.float64)
-            quat = np.array(d.qpos[3:7], dtype=np.float64)
-            quat /= np.linalg.norm(quat)
+            pos = d.qpos[0:3].copy()
+            quat = d.qpos[3:7].copy()
+            quat /= math.sqrt(quat.dot(quat))  # np.linalg.norm's own expression
         else:
             self._refresh()
             pos = np.array(d.site_xpos[self._tip_site], dtype=np.float64)
@@ -837,7 +850,7 @@ class Simulation:
         return out
 
     def _finite(self, array: np.ndarray, what: str) -> np.ndarray:
-        if not np.isfinite(array).all():
+        if not _is_finite(array):
             dt = self._dt
             raise SimulationDivergedError(
                 f"{what} are not finite at t = {self.time_s:.6g} s with time step {dt:g} s; the simulation "

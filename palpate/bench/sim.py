@@ -110,8 +110,9 @@ class ProbeDriver:
 
     def on_contacts(self, message: ContactSet) -> None:
         _, normals, _ = contact_arrays(message.positions_m, message.normals, message.forces_n)
-        n = normals.mean(axis=0) if len(normals) else np.zeros(3)
-        length = float(np.linalg.norm(n))
+        # the mean of one row is that row, bit for bit; the norm is np.linalg.norm's sqrt(n . n)
+        n = normals[0].copy() if len(normals) == 1 else normals.mean(axis=0) if len(normals) else np.zeros(3)
+        length = math.sqrt(n.dot(n))
         if len(normals) and not length > 1e-6:  # opposite normals cancel: no direction to press along
             raise InputError("normals", "the contact normals cancel out; no direction to press along")
         self.touching = len(normals) > 0
@@ -132,7 +133,7 @@ class ProbeDriver:
             angle = cfg.turn_rate_rad_s * stamp_ns * 1e-9
             d = np.array([math.cos(angle), math.sin(angle), 0.0])
             t = d - (d @ n) * n
-            length = float(np.linalg.norm(t))
+            length = math.sqrt(t.dot(t))
             tangent = t / length if length > 1e-6 else np.zeros(3)
             linear = cfg.slide_speed_m_s * tangent - cfg.press_speed_m_s * n
         self.ctx.publish(

@@ -27,7 +27,7 @@ from typing import Any, cast
 from palpate.config import load
 from palpate.messages import codec
 from palpate.messages.base import Message
-from palpate.runtime.node import NodeContext, deliver
+from palpate.runtime.node import NodeContext, deliver_to
 from palpate.runtime.spec import ClockSource, NodeLike, NodeProcessSpec, NodeSpec
 
 #: Called for every message published: (tick, node name, topic, message).
@@ -45,6 +45,15 @@ class _Member:
     #: The last message this node sent and what subscribers got (a message sent on two topics is
     #: transferred once); forgotten after every tick.
     last_sent: tuple[Message | None, Message | None] = (None, None)
+    #: Per input topic: the bound ``on_<port>`` handler of its port, looked up at the first message.
+    handlers: dict[str, Callable[[Message], object]] = field(default_factory=dict)
+    #: The names of this node's parts in `InProcessGraph.timing`: its input handling and its on_tick.
+    inputs_part: str = field(init=False)
+    on_tick_part: str = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.inputs_part = f"{self.process.name}.inputs"
+        self.on_tick_part = f"{self.process.name}.on_tick"
 
 
 class InProcessGraph:
@@ -136,7 +145,7 @@ class InProcessGraph:
                 _add(timing, "step", start)
             if stamp is None:
                 break
-            for member in [self.clock, *self.followers]:
+            for member in self.members:
                 member.ctx.stamp_ns, member.ctx.tick = stamp, ticks
                 member.last_sent = (None, None)
             for member in self.followers:
@@ -144,18 +153,17 @@ class InProcessGraph:
                     self._dispatch(member)
                     member.obj.on_tick(stamp)
                 else:
-                    name = member.process.name
                     start = time.perf_counter()
                     self._dispatch(member)
-                    _add(timing, f"{name}.inputs", start)
+                    _add(timing, member.inputs_part, start)
                     start = time.perf_counter()
                     member.obj.on_tick(stamp)
-                    _add(timing, f"{name}.on_tick", start)
+                    _add(timing, member.on_tick_part, start)
                 self._collect_stop(member)
             start = time.perf_counter() if timing is not None else 0.0
             self._dispatch(self.clock)
             if timing is not None:
-                _add(timing, f"{self.clock.process.name}.inputs", start)
+                _add(timing, self.clock.inputs_part, start)
             self._collect_stop(self.clock)
             ticks += 1
             if self.stop_reason:
@@ -167,12 +175,25 @@ class InProcessGraph:
         return ticks
 
     def _dispatch(self, member: _Member) -> None:
-        batch = sorted(member.inbox, key=lambda item: (item[0], item[1]))
+        if not member.inbox:
+            return
+        # entries arrive in publish order (seq), so a stable sort by publisher rank gives (rank, seq)
+        batch = sorted(member.inbox, key=_publisher_rank) if len(member.inbox) > 1 else member.inbox
         member.inbox = []
-        ports = {topic: port for port, topic in member.process.subscribes.items()}
+        counters, handlers = member.ctx.counters, member.handlers
         for _, _, topic, message in batch:
-            member.ctx.counters["messages_in"] += 1
-            deliver(member.ctx, member.obj, ports[topic], topic, message)
+            counters["messages_in"] += 1
+            handler = handlers.get(topic)
+            if handler is None:
+                handler = handlers[topic] = self._handler(member, topic)
+            deliver_to(member.ctx, handler, topic, message)
+
+    @staticmethod
+    def _handler(member: _Member, topic: str) -> Callable[[Message], object]:
+        """The ``on_<port>`` handler of the port that reads `topic`."""
+        port = {wired: port for port, wired in member.process.subscribes.items()}[topic]
+        handler: Callable[[Message], object] = getattr(member.obj, f"on_{port}")
+        return handler
 
     def _collect_stop(self, member: _Member) -> None:
         if member.ctx.stop_requested and not self.stop_reason:
@@ -181,6 +202,10 @@ class InProcessGraph:
     def node(self, name: str) -> Any:
         """The node object called `name` (for reading results after a run)."""
         return next(m.obj for m in self.members if m.process.name == name)
+
+
+def _publisher_rank(item: tuple[int, int, str, Message]) -> int:
+    return item[0]
 
 
 def _add(timing: dict[str, float], name: str, start: float) -> None:

@@ -167,8 +167,13 @@ def deliver(ctx: NodeContext, node: NodeLike, port: str, topic: str, message: Me
     change state. Any other exception, and an OutputError (the node's own message broke its schema),
     is a bug in the node and propagates.
     """
+    return deliver_to(ctx, getattr(node, f"on_{port}"), topic, message)
+
+
+def deliver_to(ctx: NodeContext, handler: Callable[[Message], object], topic: str, message: Message) -> bool:
+    """`deliver` to a handler already looked up (the in-process executor keeps them per topic)."""
     try:
-        getattr(node, f"on_{port}")(message)
+        handler(message)
     except OutputError:
         raise
     except PalpateError as exc:
