@@ -124,9 +124,10 @@ class PlannerConfig(Validated):
     tour_hole_weight: NonNegativeFloat = 2.0
     tour_far_weight: NonNegativeFloat = 1.0
     tour_far_m: PositiveFloat = 0.02
-    #: Experimental: weight kappa of the GP variance in the patch weight, w(q) (1 + kappa var(q) / max
-    #: var); 0 (default) needs no variance from the GPIS node.
-    tour_variance_weight: NonNegativeFloat = 0.0
+    #: Weight kappa of the GP variance in the patch weight, w(q) (1 + kappa var(q) / max var): the GP's
+    #: own doubt, where its estimate bulges away from the contacts (0: the GPIS node computes no variance
+    #: for the tour; docs/exploration.md compares 0, 0.5, 1 and 2 on 8 YCB objects).
+    tour_variance_weight: NonNegativeFloat = 1.0
 
     @property
     def uses_variance(self) -> bool:
@@ -632,6 +633,8 @@ class Planner:
             scores[valid] = area_scores(S[valid], Nrm[valid], C, r_, v, z, cfg, Q[valid])
             index = int(valid[np.argmax(scores[valid])])
         elif cfg.strategy == "tour":
+            if cfg.uses_variance and not np.all(np.isfinite(Q[valid])):
+                raise PlanningError("variance holds NaN or infinity; the GP variance must be finite")
             scores[valid] = tour_plan(S[valid], Nrm[valid], C, r_, v, z, cfg, Q[valid]).scores
             index = int(valid[np.argmax(scores[valid])])
         elif cfg.strategy == "gpv":

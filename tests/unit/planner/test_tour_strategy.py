@@ -34,7 +34,7 @@ def test_patch_weights_match_the_formula_with_loops() -> None:
         far = min(nearest[q] / config.tour_far_m, 1.0)
         slow[q] = (1.0 + 2.0 * share + 1.5 * far) * (1.0 + 0.5 * variance[q] / variance.max())
     np.testing.assert_allclose(patch_weights(S, nearest, config, variance), slow, rtol=1e-12)
-    assert config.uses_variance and not PlannerConfig(strategy="tour").uses_variance
+    assert config.uses_variance and not PlannerConfig(strategy="tour", tour_variance_weight=0.0).uses_variance
 
 
 def test_best_order_tries_every_order() -> None:
@@ -50,7 +50,7 @@ def test_best_order_tries_every_order() -> None:
 def test_a_one_site_tour_is_the_area_choice_of_its_weights() -> None:
     S, N = plane_grid()
     C = np.zeros((1, 3))
-    config = PlannerConfig(strategy="tour", tour_sites=1)
+    config = PlannerConfig(strategy="tour", tour_sites=1, tour_variance_weight=0.0)
     tour = tour_plan(S, N, C, C[-1], DOWN, DOWN, config)
     assert len(tour.sites) == 1 and tour.scores.argmax() == tour.sites[0]
     assert 0.006 < np.linalg.norm(S[tour.sites[0]]) <= 0.015  # next to the explored disc
