@@ -474,6 +474,7 @@ def tour_plan(
                 old = start[nxt] if i == 0 else hop[tour[i - 1], nxt]
             else:
                 out, old = np.zeros(P), 0.0
+            # J(T + s) = (sum_i G_i + G(s | T)) / (Len(T) + Len(prev -> s) + Len(s -> next) - Len(prev -> next) + L0)
             J = (sum(gains) + add) / (cost + into + out - old + L0)
             J[add <= 0.0] = -1.0
             a = int(np.argmax(J))
