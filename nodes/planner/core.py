@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass
+from itertools import permutations
 from typing import Literal
 
 import numpy as np
@@ -48,7 +49,7 @@ from palpate.inputs import MAX_COORDINATE_M, UNIT_TOLERANCE, bounded, coordinate
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
-Strategy = Literal["igef", "gpv", "random", "area"]
+Strategy = Literal["igef", "gpv", "random", "area", "tour"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -109,16 +110,43 @@ class PlannerConfig(Validated):
     #: var(s) / max var), so that among equal new areas the least known is touched first; 0 (default)
     #: leaves the variance out (and the strategy then needs none from the GPIS node).
     area_variance_weight: NonNegativeFloat = 0.0
+    #: Tour strategy (not in the paper, see ``tour_plan``): candidates up to ``tour_radius_m`` from the
+    #: last contact (GP-V's 6 cm, where the GPIS node gives the variance); a tour through at most
+    #: ``tour_sites`` of the ``tour_pool`` best candidates is planned and its first site touched.
+    tour_radius_m: PositiveFloat = 0.06
+    tour_sites: PositiveInt = 4
+    tour_pool: PositiveInt = 32
+    #: Fixed cost of a touch on the tour, metres of travel (as area_touch_cost_m).
+    tour_touch_cost_m: NonNegativeFloat = 0.02
+    #: Patch weight w(q) = 1 + beta e(q) + gamma min(d(q) / D, 1): beta as area_hole_weight; gamma the
+    #: weight of the patch's distance d(q) from every contact (how far the GP must extrapolate there),
+    #: saturating at D (IGEF's sigma_1, 2 cm).
+    tour_hole_weight: NonNegativeFloat = 2.0
+    tour_far_weight: NonNegativeFloat = 1.0
+    tour_far_m: PositiveFloat = 0.02
+    #: Weight kappa of the GP variance in the patch weight, w(q) (1 + kappa var(q) / max var): the GP's
+    #: own doubt, where its estimate bulges away from the contacts (0: the GPIS node computes no variance
+    #: for the tour; docs/exploration.md compares 0, 0.5, 1 and 2 on 8 YCB objects).
+    tour_variance_weight: NonNegativeFloat = 1.0
 
     @property
     def uses_variance(self) -> bool:
-        """Whether the strategy rates candidates by the GP variance (GP-V; area with a variance weight)."""
-        return self.strategy == "gpv" or (self.strategy == "area" and self.area_variance_weight > 0.0)
+        """Whether the strategy rates candidates by the GP variance (GP-V; area or tour with a variance
+        weight)."""
+        return (
+            self.strategy == "gpv"
+            or (self.strategy == "area" and self.area_variance_weight > 0.0)
+            or (self.strategy == "tour" and self.tour_variance_weight > 0.0)
+        )
 
     @property
     def radius_m(self) -> float:
         """Largest target distance from the last contact for the configured strategy."""
-        return self.gpv_radius_m if self.strategy == "gpv" else self.candidate_radius_m
+        if self.strategy == "gpv":
+            return self.gpv_radius_m
+        if self.strategy == "tour":
+            return self.tour_radius_m
+        return self.candidate_radius_m
 
 
 @dataclass(frozen=True)
@@ -306,6 +334,174 @@ def area_scores(
     return np.asarray(explored_by * psi4 / cost, dtype=np.float64)
 
 
+@dataclass(frozen=True)
+class Tour:
+    """A planned tour: the candidate rows of its sites in visiting order (k,), the new (weighted) area
+    each site explores after the sites before it (k,), its travel in metres (touch costs included),
+    and every candidate's rating (m,), the tour's sites first in tour order (see ``tour_plan``)."""
+
+    sites: IntArray
+    gains: FloatArray
+    cost_m: float
+    scores: FloatArray
+
+
+def patch_weights(
+    candidates_m: FloatArray,
+    explored_by: FloatArray,
+    config: PlannerConfig,
+    variance: FloatArray | None = None,
+) -> FloatArray:
+    """The tour's weight of every candidate patch (m,), 0 for explored ones (nearest contact within rho):
+
+        w(q) = (1 + beta e(q) + gamma min(d(q) / D, 1)) (1 + kappa var(q) / max var)
+
+    e(q): explored share of the candidates within 2 rho of q (holes and the rim first, as in area);
+    d(q) = explored_by (m,): distance from q to the nearest contact (the GP extrapolates over distant
+    patches, so those count more: touches spread); kappa var: optional GP variance (m,) term.
+    """
+    rho = config.area_radius_m
+    is_unexplored = explored_by > rho
+    w = np.zeros(len(candidates_m))
+    if not is_unexplored.any():
+        return w
+    unexplored = candidates_m[is_unexplored]
+    base = 1.0 + config.tour_far_weight * np.minimum(explored_by[is_unexplored] / config.tour_far_m, 1.0)
+    if config.tour_hole_weight > 0.0 and not is_unexplored.all():
+        around = cKDTree(candidates_m).query_ball_point(unexplored, 2.0 * rho, return_length=True)
+        explored_around = cKDTree(candidates_m[~is_unexplored]).query_ball_point(
+            unexplored, 2.0 * rho, return_length=True
+        )
+        base += config.tour_hole_weight * explored_around / np.maximum(around, 1)
+    w[is_unexplored] = base
+    if config.tour_variance_weight > 0.0 and variance is not None and variance.max() > 0.0:
+        w *= 1.0 + config.tour_variance_weight * variance / variance.max()
+    return w
+
+
+def best_order(start_cost: FloatArray, hop_cost: FloatArray) -> IntArray:
+    """The cheapest visiting order of k sites (all k! orders tried for k <= 7; above, the given order is
+    kept): start_cost (k,) from the fingertip to each site, hop_cost (k, k) from site i to site j.
+    Returns the order (k,); ties go to the lexicographically first order."""
+    k = len(start_cost)
+    if k <= 1 or k > 7:
+        return np.arange(k)
+    orders = np.array(list(permutations(range(k))))  # (k!, k), lexicographic
+    cost = start_cost[orders[:, 0]] + hop_cost[orders[:, :-1], orders[:, 1:]].sum(axis=1)
+    return np.asarray(orders[int(np.argmin(cost))], dtype=np.int64)
+
+
+def tour_plan(
+    candidates_m: FloatArray,
+    normals: FloatArray,
+    contacts_m: FloatArray,
+    r: FloatArray,
+    v_n: FloatArray,
+    R_z: FloatArray,
+    config: PlannerConfig,
+    variance: FloatArray | None = None,
+) -> Tour:
+    """Tour strategy (not in the paper): a receding-horizon tour through the candidates that explores the
+    most weighted area per metre of travel; the planner touches its first site and replans after it.
+
+    Patches and gains as in ``area_scores``, with the weights of ``patch_weights``: a site s explores
+    the unexplored patches within rho, G(s) = Psi4(s) sum w(q). Travel between sites is IGEF's Psi2
+    curve length (Eq. 15): Len(r -> s) from the fingertip leaving along -v_n, Len(s_i -> s_j) from a site
+    leaving along its normal (the next retraction). The tour T = (s_1, ..., s_k) maximises, greedily,
+
+        J(T) = sum_i G_i / (Len(r -> s_1) + sum_i Len(s_i -> s_i+1) + k L0)
+
+    G_i the gain of s_i over the patches not explored by the sites before it: starting from the empty
+    tour, the pool candidate and insertion position with the largest J of the extended tour is added,
+    until ``tour_sites`` sites or no candidate adds area; the sites are then put in their cheapest order
+    (all orders). The pool is the ``tour_pool`` candidates with the largest G(s) / (Len(r -> s) + L0)
+    (one site tours are area's choice). A one-site tour is the myopic choice; a longer one goes first to
+    the site on the way (a hole next to the path) and keeps a far uncovered region in the plan.
+    When no candidate explores anything, the tour is the single best of the distance to the nearest
+    contact per unit of travel (as in area). Scores (m,): the tour's sites get J + k - i (i = 0 first),
+    the other candidates G(s) / (Len(r -> s) + L0) scaled below J, so a caller that must skip the first
+    site (its curve is blocked) takes the next one of the tour.
+    candidates_m, normals (unit): (m, 3); contacts_m: (n, 3); r, v_n, R_z as in igef_terms; variance (m,).
+    """
+    L0 = config.tour_touch_cost_m
+    rho = config.area_radius_m
+    explored_by, _ = cKDTree(contacts_m).query(candidates_m)
+    w = patch_weights(candidates_m, explored_by, config, variance)
+    psi4 = rotation_factor(normals, R_z, config)  # Eq. 11
+    reach = path_length(r, v_n, candidates_m, normals, config)  # Len(r -> s), (m,)
+    if not w.any():
+        own = explored_by * psi4 / (reach + L0)
+        index = int(np.argmax(own))
+        scores = own / max(float(own.max()), 1e-300)
+        scores[index] = 2.0
+        return Tour(np.array([index]), np.zeros(1), float(reach[index] + L0), scores)
+    tree = cKDTree(candidates_m)
+    pairs = tree.sparse_distance_matrix(tree, rho, output_type="ndarray")
+    pairs = pairs[w[pairs["j"]] > 0.0]
+    gain = np.bincount(pairs["i"], weights=w[pairs["j"]], minlength=len(candidates_m)) * psi4  # G(s)
+    own = gain / (reach + L0)
+    pool = np.argsort(-own, kind="stable")[: config.tour_pool]
+    pool = pool[gain[pool] > 0.0]
+    P = len(pool)
+    # cover[a, q]: pool site a explores patch q (within rho); weights of patches not yet explored
+    row = np.full(len(candidates_m), -1)
+    row[pool] = np.arange(P)
+    in_pool = row[pairs["i"]] >= 0
+    cover = np.zeros((P, len(candidates_m)))
+    cover[row[pairs["i"][in_pool]], pairs["j"][in_pool]] = 1.0
+    S, N = candidates_m[pool], normals[pool]
+    # hop[a, b] = Len(s_a -> s_b), leaving s_a along its normal (v_n = -n_a)
+    hop = bezier_length(
+        approach_curve(S[:, None, :], -N[:, None, :], S[None, :, :], N[None, :, :], scale=config.psi2_control_scale)
+    )
+    start = reach[pool]
+    left = w.copy()
+    tour: list[int] = []  # pool rows in order
+    gains: list[float] = []
+    cost = 0.0
+    while len(tour) < min(config.tour_sites, P):
+        add = (cover @ left) * psi4[pool]  # (P,) new weighted area
+        add[tour] = 0.0
+        if add.max() <= 0.0:
+            break
+        # insertion at position i: before tour[i] (i = len(tour): at the end)
+        best = (-1.0, -1, -1)
+        for i in range(len(tour) + 1):
+            into = start if i == 0 else hop[tour[i - 1]]  # (P,) cost to reach the new site
+            if i < len(tour):
+                nxt = tour[i]
+                out = hop[:, nxt]
+                old = start[nxt] if i == 0 else hop[tour[i - 1], nxt]
+            else:
+                out, old = np.zeros(P), 0.0
+            # J(T + s) = (sum_i G_i + G(s | T)) / (Len(T) + Len(prev -> s) + Len(s -> next) - Len(prev -> next) + L0)
+            J = (sum(gains) + add) / (cost + into + out - old + L0)
+            J[add <= 0.0] = -1.0
+            a = int(np.argmax(J))
+            if J[a] > best[0]:
+                best = (float(J[a]), a, i)
+        _, a, i = best
+        tour.insert(i, a)
+        gains.insert(i, float(add[a]))
+        left = left * (1.0 - cover[a])
+        cost = float(start[tour[0]] + hop[tour[:-1], tour[1:]].sum()) + L0 * len(tour)
+    sites = np.asarray(tour, dtype=np.int64)
+    order = best_order(start[sites], hop[np.ix_(sites, sites)])
+    sites = sites[order]
+    # gains in the final order: each site over the patches the sites before it leave
+    left = w.copy()
+    ordered_gains = np.zeros(len(sites))
+    for k, a in enumerate(sites):
+        ordered_gains[k] = float(cover[a] @ left) * psi4[pool[a]]
+        left = left * (1.0 - cover[a])
+    total = float(start[sites[0]] + hop[sites[:-1], sites[1:]].sum()) + L0 * len(sites)
+    J = float(ordered_gains.sum()) / total
+    scores = J * own / max(float(own.max()), 1e-300) * 0.5
+    chosen = pool[sites]
+    scores[chosen] = J + len(chosen) - np.arange(len(chosen))
+    return Tour(np.asarray(chosen, dtype=np.int64), ordered_gains, total, scores)
+
+
 def away_from(points_m: ArrayLike, avoid_m: ArrayLike, radius_m: float) -> NDArray[np.bool_]:
     """Which points (m, 3) lie at least radius_m from every point of avoid_m (k, 3): a mask (m,)."""
     P = _points("points_m", points_m)
@@ -436,6 +632,11 @@ class Planner:
             index = int(valid[np.argmax(scores[valid])])
         elif cfg.strategy == "area":
             scores[valid] = area_scores(S[valid], Nrm[valid], C, r_, v, z, cfg, Q[valid])
+            index = int(valid[np.argmax(scores[valid])])
+        elif cfg.strategy == "tour":
+            if cfg.uses_variance and not np.all(np.isfinite(Q[valid])):
+                raise PlanningError("variance holds NaN or infinity; the GP variance must be finite")
+            scores[valid] = tour_plan(S[valid], Nrm[valid], C, r_, v, z, cfg, Q[valid]).scores
             index = int(valid[np.argmax(scores[valid])])
         elif cfg.strategy == "gpv":
             if not np.all(np.isfinite(Q[valid])):

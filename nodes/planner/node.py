@@ -74,5 +74,5 @@ SPEC = NodeSpec(
     factory=PlannerNode,
     inputs={"touches": Port(TouchEvent), "surface": Port(SurfaceMesh), "pose": Port(Pose)},
     outputs={"target": Port(TouchTarget)},
-    doc="Next best touch of paper 002: IGEF, GP variance (gpv) or random.",
+    doc="Next best touch of paper 002: IGEF, GP variance (gpv), random, or ours: area, tour.",
 )

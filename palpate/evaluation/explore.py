@@ -178,12 +178,15 @@ class Episode:
         }
 
     def _rates_variance(self) -> bool:
-        """Whether the planner rates by the GP variance (GP-V; area with a variance weight), so the GPIS
-        node must give it at the candidates."""
+        """Whether the planner rates by the GP variance (GP-V; area or tour with a variance weight), so the
+        GPIS node must give it at the candidates."""
         from palpate.nodes.planner.core import PlannerConfig
 
-        weight = dict(self.params).get("planner.area_variance_weight", 0.0)
-        settings = {"strategy": self.strategy, "area_variance_weight": weight}
+        params = dict(self.params)
+        settings = {"strategy": self.strategy}
+        for key in ("area_variance_weight", "tour_variance_weight"):
+            if f"planner.{key}" in params:
+                settings[key] = params[f"planner.{key}"]
         return load(PlannerConfig, settings, "planner params").uses_variance
 
 
@@ -353,7 +356,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate eval explore` (registered by palpate.commands.evaluate)."""
     parser.add_argument("--objects", type=Path, help="folder of mesh files, metres (default: the YCB folder)")
     parser.add_argument("--runs", type=int, default=3, help="start positions per object (seed = run index)")
-    parser.add_argument("--strategies", default="igef,gpv", help="comma-separated: igef, gpv, random, area")
+    parser.add_argument("--strategies", default="igef,gpv", help="comma-separated: igef, gpv, random, area, tour")
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, 1 run each")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object, last line")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (CSV, tables, plots)")

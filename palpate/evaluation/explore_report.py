@@ -290,7 +290,13 @@ def _json_number(value: float) -> float | None:
 
 
 #: Line colour of each strategy in the plots.
-STRATEGY_COLOURS = {"igef": "tab:blue", "gpv": "tab:orange", "random": "tab:gray", "area": "tab:green"}
+STRATEGY_COLOURS = {
+    "igef": "tab:blue",
+    "gpv": "tab:orange",
+    "random": "tab:gray",
+    "area": "tab:green",
+    "tour": "tab:red",
+}
 
 
 def plot_against_travel(

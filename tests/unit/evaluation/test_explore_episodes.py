@@ -123,3 +123,16 @@ def test_a_run_key_names_the_run_and_digests_the_mesh_bytes_not_its_path(tmp_pat
     # another budget is another run
     (other,) = episodes([cases[0]], 1, ["igef"], params={"eval.eval.max_contacts": 5})
     assert episode_task(other).key != episode_task(here).key
+
+
+def test_the_gpis_node_gives_the_variance_only_to_strategies_that_rate_it() -> None:
+    case = ObjectCase(name="sphere", kind="sphere", size_m=(0.03,))
+
+    def variance(strategy: str, params: dict[str, float]) -> str:
+        item = episodes([case], 1, (strategy,), params=params)[0]
+        return str(item.launch_args()["variance"])
+
+    assert variance("tour", {}) == "candidates" and variance("area", {}) == "none"
+    assert variance("tour", {"planner.tour_variance_weight": 0.0}) == "none"
+    assert variance("area", {"planner.area_variance_weight": 2.0}) == "candidates"
+    assert variance("igef", {"planner.area_variance_weight": 2.0}) == "none"  # another strategy's weight

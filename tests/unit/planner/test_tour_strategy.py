@@ -1,0 +1,102 @@
+"""The tour strategy: patch weights against the formula, the cheapest order against hand-checked
+costs, and small planar cases whose tour can be worked out by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from palpate.nodes.planner.core import Planner, PlannerConfig, best_order, patch_weights, tour_plan
+
+UP = np.array([0.0, 0.0, 1.0])
+DOWN = -UP
+
+
+def plane_grid(step: float = 0.005, half: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    x = np.arange(-half, half + 1e-9, step)
+    X, Y = np.meshgrid(x, x, indexing="ij")
+    S = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
+    return S, np.tile(UP, (len(S), 1))
+
+
+def test_patch_weights_match_the_formula_with_loops() -> None:
+    S, _ = plane_grid(half=0.03)
+    C = np.array([[0.0, 0.0, 0.0], [0.01, 0.005, 0.0]])
+    variance = np.random.default_rng(1).uniform(0.0, 1e-4, len(S))
+    config = PlannerConfig(strategy="tour", tour_hole_weight=2.0, tour_far_weight=1.5, tour_variance_weight=0.5)
+    nearest = np.array([min(np.linalg.norm(s - c) for c in C) for s in S])
+    rho = config.area_radius_m
+    slow = np.zeros(len(S))
+    for q in range(len(S)):
+        if nearest[q] <= rho:
+            continue
+        around = [j for j in range(len(S)) if np.linalg.norm(S[j] - S[q]) <= 2 * rho]
+        share = sum(nearest[j] <= rho for j in around) / len(around)
+        far = min(nearest[q] / config.tour_far_m, 1.0)
+        slow[q] = (1.0 + 2.0 * share + 1.5 * far) * (1.0 + 0.5 * variance[q] / variance.max())
+    np.testing.assert_allclose(patch_weights(S, nearest, config, variance), slow, rtol=1e-12)
+    assert config.uses_variance and not PlannerConfig(strategy="tour", tour_variance_weight=0.0).uses_variance
+
+
+def test_best_order_tries_every_order() -> None:
+    # sites on a line at x = 3, 1, 2 from a start at 0: the cheapest order is 1, 2, 3 (rows 1, 2, 0)
+    x = np.array([3.0, 1.0, 2.0])
+    order = best_order(np.abs(x), np.abs(x[:, None] - x[None, :]))
+    np.testing.assert_array_equal(order, [1, 2, 0])
+    # an asymmetric hop cost (0 -> 1 dear, 1 -> 0 cheap) reverses it
+    hop = np.array([[0.0, 10.0], [1.0, 0.0]])
+    np.testing.assert_array_equal(best_order(np.array([1.0, 1.0]), hop), [1, 0])
+
+
+def test_a_one_site_tour_is_the_area_choice_of_its_weights() -> None:
+    S, N = plane_grid()
+    C = np.zeros((1, 3))
+    config = PlannerConfig(strategy="tour", tour_sites=1, tour_variance_weight=0.0)
+    tour = tour_plan(S, N, C, C[-1], DOWN, DOWN, config)
+    assert len(tour.sites) == 1 and tour.scores.argmax() == tour.sites[0]
+    assert 0.006 < np.linalg.norm(S[tour.sites[0]]) <= 0.015  # next to the explored disc
+
+
+def test_the_tour_visits_sites_in_travel_order_and_spaces_them() -> None:
+    """A strip 5 mm wide and 10 cm long, explored at x = 0: the tour goes out along the strip, one site
+    after the other, its sites about a coverage diameter apart, never back over explored patches."""
+    x = np.arange(0.0, 0.1 + 1e-9, 0.005)
+    S = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    N = np.tile(UP, (len(S), 1))
+    C = np.zeros((1, 3))
+    config = PlannerConfig(strategy="tour", tour_sites=4, tour_far_weight=0.0)
+    tour = tour_plan(S, N, C, C[-1], DOWN, DOWN, config)
+    xs = S[tour.sites, 0]
+    assert len(xs) == 4 and np.all(np.diff(xs) > 0.0)  # outward, in order
+    assert np.all(np.diff(xs) >= 0.01)  # sites explore disjoint patches (2 rho = 12 mm, on a 5 mm grid)
+    assert np.all(tour.gains > 0.0)
+    ranked = np.argsort(-tour.scores)[:4]
+    np.testing.assert_array_equal(ranked, tour.sites)  # the scores rank the tour first, in its order
+
+
+def test_a_far_weight_favours_patches_far_from_every_contact() -> None:
+    S, _ = plane_grid()
+    near = patch_weights(S, np.linalg.norm(S, axis=1), PlannerConfig(strategy="tour", tour_far_weight=0.0))
+    far = patch_weights(S, np.linalg.norm(S, axis=1), PlannerConfig(strategy="tour", tour_far_weight=1.0))
+    d = np.linalg.norm(S, axis=1)
+    assert np.all(far[d >= 0.02] - near[d >= 0.02] == 1.0)  # saturated at D = 2 cm
+    assert np.all(far[d <= 0.006] == 0.0)  # explored
+
+
+def test_a_covered_surface_leads_out_of_the_covered_region() -> None:
+    S, N = plane_grid(half=0.02)
+    C = S[::2].copy()
+    tour = tour_plan(S, N, C, C[-1], DOWN, DOWN, PlannerConfig(strategy="tour"))
+    nearest = np.min(np.linalg.norm(S[:, None] - C[None], axis=2), axis=1)
+    assert len(tour.sites) == 1 and nearest[tour.sites[0]] > 0.0
+
+
+def test_the_planner_selects_the_tours_first_site_within_the_tour_radius() -> None:
+    S, N = plane_grid(half=0.08)
+    C = np.zeros((1, 3))
+    config = PlannerConfig(strategy="tour")
+    assert config.radius_m == config.tour_radius_m == 0.06
+    choice = Planner(config).select(S, N, np.zeros(len(S)), C, C[-1], DOWN, DOWN, np.random.default_rng(0))
+    assert choice.psi is None and choice.score == choice.scores.max()
+    assert np.all(choice.scores[np.linalg.norm(S, axis=1) > 0.06] == 0.0)
+    again = Planner(config).select(S, N, np.zeros(len(S)), C, C[-1], DOWN, DOWN, np.random.default_rng(5))
+    np.testing.assert_array_equal(choice.scores, again.scores)  # deterministic, whatever the rng
