@@ -60,6 +60,8 @@ EXPLORE_LAUNCH = LAUNCH_DIR / "explore.yaml"
 MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb")
 #: Strategies compared by default (the paper's Table 2).
 DEFAULT_STRATEGIES = ("igef", "gpv")
+#: Strategies of --quick: the paper's two and ours.
+QUICK_STRATEGIES = ("igef", "gpv", "tour")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -356,7 +358,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate eval explore` (registered by palpate.commands.evaluate)."""
     parser.add_argument("--objects", type=Path, help="folder of mesh files, metres (default: the YCB folder)")
     parser.add_argument("--runs", type=int, default=3, help="start positions per object (seed = run index)")
-    parser.add_argument("--strategies", default="igef,gpv", help="comma-separated: igef, gpv, random, area, tour")
+    parser.add_argument(
+        "--strategies",
+        help="comma-separated: igef, gpv, random, area, tour (default: igef,gpv; with --quick igef,gpv,tour)",
+    )
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, 1 run each")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object, last line")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (CSV, tables, plots)")
@@ -424,12 +429,18 @@ def select_cases(folder: Path | None, smallest: int | None = None) -> list[Objec
     return cases
 
 
+def strategies_of(args: argparse.Namespace) -> list[str]:
+    """The strategies an evaluation runs: --strategies, else igef and gpv, with --quick ours too."""
+    given = args.strategies or ",".join(QUICK_STRATEGIES if args.quick else DEFAULT_STRATEGIES)
+    return [s.strip() for s in given.split(",") if s.strip()]
+
+
 def main(args: argparse.Namespace) -> int:
     """`palpate eval explore`: run, write CSV/JSONL/tables/plots into --out, print the tables."""
     from palpate.evaluation import explore_report as report
     from palpate.evaluation import shape_report
 
-    strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
+    strategies = strategies_of(args)
     runs = 1 if args.quick else args.runs
     if runs < 1:
         raise ConfigError(f"--runs must be >= 1, got {runs}")

@@ -108,6 +108,16 @@ def test_a_budget_given_on_the_command_line_is_not_scaled_by_the_object() -> Non
     )
 
 
+def test_the_quick_evaluation_runs_our_strategy_beside_the_papers_two() -> None:
+    import argparse
+
+    from palpate.evaluation.explore import strategies_of
+
+    assert strategies_of(argparse.Namespace(strategies=None, quick=True)) == ["igef", "gpv", "tour"]
+    assert strategies_of(argparse.Namespace(strategies=None, quick=False)) == ["igef", "gpv"]
+    assert strategies_of(argparse.Namespace(strategies=" area, igef ", quick=True)) == ["area", "igef"]
+
+
 def test_a_run_key_names_the_run_and_digests_the_mesh_bytes_not_its_path(tmp_path: Path) -> None:
     from palpate.evaluation.explore import episode_task
 
