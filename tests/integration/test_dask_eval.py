@@ -59,6 +59,8 @@ def eval_command(objects: Path, out: Path, *extra: str) -> list[str]:
         "eval",
         "explore",
         "--quick",
+        "--strategies",
+        "igef,gpv",
         "--objects",
         str(objects),
         "--max-contacts",
