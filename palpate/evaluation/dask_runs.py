@@ -374,6 +374,12 @@ def run_tasks(
                 attempts.update(state["attempts"])
                 for future in batch:
                     task = pending.pop(future)
+                    if future.status in ("lost", "pending"):
+                        # it finished, then its result died with its worker before this loop read it:
+                        # the scheduler computes it again for the future still held here
+                        pending[future] = task
+                        queue.add(future)
+                        continue
                     if future.status == "finished":
                         row = log.append(task.key, future.result())
                         if row is not None:
