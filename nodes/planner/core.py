@@ -283,6 +283,19 @@ def igef_terms(
     return np.stack([psi1, psi2, psi3, psi4], axis=1)
 
 
+def hole_weights(
+    tree: cKDTree, candidates_m: FloatArray, is_unexplored: NDArray[np.bool_], rho: float, beta: float
+) -> FloatArray:
+    """beta e(q) of every unexplored candidate q (u,), e(q) the explored share of the candidates within
+    2 rho of q: holes and the rim of the explored region weigh more (area and tour strategies).
+    tree: cKDTree of candidates_m (m, 3); is_unexplored (m,) with explored and unexplored candidates."""
+    unexplored = candidates_m[is_unexplored]
+    around = tree.query_ball_point(unexplored, 2.0 * rho, return_length=True)
+    explored = cKDTree(candidates_m[~is_unexplored])
+    explored_around = explored.query_ball_point(unexplored, 2.0 * rho, return_length=True)
+    return np.asarray(beta * explored_around / np.maximum(around, 1), dtype=np.float64)
+
+
 def area_scores(
     candidates_m: FloatArray,
     normals: FloatArray,
@@ -321,10 +334,7 @@ def area_scores(
         candidate_tree = cKDTree(candidates_m)
         weight = np.ones(len(unexplored))
         if config.area_hole_weight > 0.0 and len(unexplored) < len(candidates_m):
-            around = candidate_tree.query_ball_point(unexplored, 2.0 * rho, return_length=True)
-            explored = cKDTree(candidates_m[~is_unexplored])
-            explored_around = explored.query_ball_point(unexplored, 2.0 * rho, return_length=True)
-            weight += config.area_hole_weight * explored_around / np.maximum(around, 1)
+            weight += hole_weights(candidate_tree, candidates_m, is_unexplored, rho, config.area_hole_weight)
         pairs = candidate_tree.sparse_distance_matrix(cKDTree(unexplored), rho, output_type="ndarray")
         gain = np.bincount(pairs["i"], weights=weight[pairs["j"]], minlength=len(candidates_m))
         if config.area_variance_weight > 0.0 and variance is not None and variance.max() > 0.0:
@@ -365,14 +375,9 @@ def patch_weights(
     w = np.zeros(len(candidates_m))
     if not is_unexplored.any():
         return w
-    unexplored = candidates_m[is_unexplored]
     base = 1.0 + config.tour_far_weight * np.minimum(explored_by[is_unexplored] / config.tour_far_m, 1.0)
     if config.tour_hole_weight > 0.0 and not is_unexplored.all():
-        around = cKDTree(candidates_m).query_ball_point(unexplored, 2.0 * rho, return_length=True)
-        explored_around = cKDTree(candidates_m[~is_unexplored]).query_ball_point(
-            unexplored, 2.0 * rho, return_length=True
-        )
-        base += config.tour_hole_weight * explored_around / np.maximum(around, 1)
+        base += hole_weights(cKDTree(candidates_m), candidates_m, is_unexplored, rho, config.tour_hole_weight)
     w[is_unexplored] = base
     if config.tour_variance_weight > 0.0 and variance is not None and variance.max() > 0.0:
         w *= 1.0 + config.tour_variance_weight * variance / variance.max()

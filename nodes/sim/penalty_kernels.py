@@ -5,7 +5,7 @@ On a mesh, every step of ``Simulation.step`` runs ``mj_step1``, places the capsu
 exact surface for the spheres the 1-Lipschitz bound leaves near it, sets the penalty wrench in
 ``xfrc_applied`` and runs ``mj_step2``. In Python that is about 150 us a step around 5 to 10 us of
 physics. :func:`penalty_steps` runs the whole loop for a batch of steps: ``mj_step1`` and ``mj_step2``
-of MuJoCo's shared library by address (``probe_kernels._call_void2``), the bounds of
+of MuJoCo's shared library by address (``mujoco_calls.call_void2``), the bounds of
 ``capsule_kernels.sphere_bounds``, each near sphere's warm-started query with
 ``closest_kernels.warm_query`` on its patch (:class:`WarmPatches` packs the patches of the spheres'
 ``WarmClosest`` queries) and the penalty wrench (:func:`penalty_wrench`). Every expression is the
@@ -23,10 +23,8 @@ the simulation then keeps the Python loop.
 
 from __future__ import annotations
 
-import ctypes
 import math
 from functools import cache
-from pathlib import Path
 from typing import Any
 
 import numba
@@ -35,7 +33,7 @@ import numpy as np
 from palpate.geometry import closest_kernels
 from palpate.geometry.mesh_query import WEAK_PSEUDO_NORMAL, WEAK_SIGN_COS, ExactContactSensor, WarmClosest
 from palpate.nodes.sim import capsule_kernels
-from palpate.nodes.sim.probe_kernels import _call_void2
+from palpate.nodes.sim.mujoco_calls import call_void2, function_addresses
 
 #: How a call ended: DONE; NEEDS_PYTHON (``at``: the position in ``near`` of the sphere to answer, or
 #: BATCH for all of them); PENETRATED (a touching sphere's centre is inside); NOT_FINITE (after mj_step2).
@@ -66,24 +64,9 @@ SEARCH_SIZE = 12
 A = np.ndarray
 
 
-@cache
-def mujoco_functions() -> tuple[int, int] | None:
+def mujoco_functions() -> tuple[int, ...] | None:
     """Addresses of ``mj_step1`` and ``mj_step2`` in the MuJoCo library the bindings loaded."""
-    import mujoco
-
-    folder = Path(mujoco.__file__).resolve().parent
-    libraries = sorted(folder.glob("libmujoco.so*")) + sorted(folder.glob("libmujoco*.dylib"))
-    if not libraries:
-        return None
-    try:
-        library = ctypes.CDLL(str(libraries[0]))
-        step1 = ctypes.cast(library.mj_step1, ctypes.c_void_p).value
-        step2 = ctypes.cast(library.mj_step2, ctypes.c_void_p).value
-    except (OSError, AttributeError):
-        return None
-    if not step1 or not step2:
-        return None
-    return int(step1), int(step2)
+    return function_addresses("mj_step1", "mj_step2")
 
 
 # --- the penalty wrench --------------------------------------------------------------------------
@@ -538,7 +521,7 @@ def penalty_steps(
     taken = 0
     while taken < steps:
         if resume < 0:
-            _call_void2(step1, model, data)  # kinematics and velocities of the current state
+            call_void2(step1, model, data)  # kinematics and velocities of the current state
         status, at = sphere_hits(resume, few_points, frames, spheres, mesh, grid, warm, buffers, params)
         resume = -1
         if status != DONE:
@@ -562,7 +545,7 @@ def penalty_steps(
             params[P_STIFFNESS],
             params[P_DAMPING],
         )
-        _call_void2(step2, model, data)  # forces, acceleration, integration
+        call_void2(step2, model, data)  # forces, acceleration, integration
         taken += 1
         for i in range(qpos.shape[0]):
             if not math.isfinite(qpos[i]):

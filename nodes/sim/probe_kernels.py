@@ -18,19 +18,13 @@ the simulation then keeps the Python loop.
 
 from __future__ import annotations
 
-import ctypes
 import math
-from functools import cache
-from pathlib import Path
-from typing import Any
 
 import numba
 import numpy as np
-from llvmlite import ir
-from numba.core import types
-from numba.extending import intrinsic
 
 from palpate.geometry import closest_kernels
+from palpate.nodes.sim.mujoco_calls import call_void2, function_addresses
 
 #: Layout of the probe's cache vector (float64): the last query's centre (3), its signed distance,
 #: the closest point (3), its distance, the contact normal (3), and 1.0 when a hit is held.
@@ -41,41 +35,9 @@ CACHE_SIZE = 12
 DONE, HIT, NEEDS_PYTHON, NO_HIT = 0, 0, 1, -1
 
 
-@cache
-def mujoco_functions() -> tuple[int, int] | None:
+def mujoco_functions() -> tuple[int, ...] | None:
     """Addresses of ``mj_step`` and ``mju_quat2Mat`` in the MuJoCo library the bindings loaded."""
-    import mujoco
-
-    folder = Path(mujoco.__file__).resolve().parent
-    libraries = sorted(folder.glob("libmujoco.so*")) + sorted(folder.glob("libmujoco*.dylib"))
-    if not libraries:
-        return None
-    try:
-        library = ctypes.CDLL(str(libraries[0]))
-        step = ctypes.cast(library.mj_step, ctypes.c_void_p).value
-        quat2mat = ctypes.cast(library.mju_quat2Mat, ctypes.c_void_p).value
-    except (OSError, AttributeError):
-        return None
-    if not step or not quat2mat:
-        return None
-    return int(step), int(quat2mat)
-
-
-def _call_void2_typer(typingctx: Any, function: Any, first: Any, second: Any) -> Any:
-    """Call the C function ``void f(void *, void *)`` at address ``function`` with two addresses."""
-    signature = types.void(types.intp, types.intp, types.intp)
-
-    def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
-        pointer = ir.IntType(8).as_pointer()
-        kind = ir.FunctionType(ir.VoidType(), [pointer, pointer])
-        callee = builder.inttoptr(args[0], kind.as_pointer())
-        builder.call(callee, [builder.inttoptr(args[1], pointer), builder.inttoptr(args[2], pointer)])
-        return context.get_dummy_value()
-
-    return signature, codegen
-
-
-_call_void2: Any = intrinsic(_call_void2_typer)
+    return function_addresses("mj_step", "mju_quat2Mat")
 
 
 @numba.njit(cache=True)
@@ -200,7 +162,7 @@ def probe_steps(
         qvel[0], qvel[1], qvel[2] = cmd_lin[0], cmd_lin[1], cmd_lin[2]
         if turning:
             # angular velocity in the body frame: R^T w, R from MuJoCo's own conversion
-            _call_void2(quat2mat_function, R.ctypes.data, qpos_address)
+            call_void2(quat2mat_function, R.ctypes.data, qpos_address)
             for i in range(3):
                 qvel[3 + i] = R[i] * cmd_ang[0] + R[3 + i] * cmd_ang[1] + R[6 + i] * cmd_ang[2]
         else:
@@ -212,11 +174,11 @@ def probe_steps(
             free = remaining if speed_per_step == 0 else min(remaining, int(margin / speed_per_step))
         if free > 0:
             for _ in range(free):
-                _call_void2(step_function, model_address, data_address)
+                call_void2(step_function, model_address, data_address)
             taken += free
             projected = False
             continue
-        _call_void2(step_function, model_address, data_address)
+        call_void2(step_function, model_address, data_address)
         taken += 1
         total = 0.0
         for i in range(qpos.shape[0]):

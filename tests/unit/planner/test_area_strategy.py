@@ -6,16 +6,7 @@ import numpy as np
 
 from palpate.geometry.bezier import approach_curve, bezier_length
 from palpate.nodes.planner.core import Planner, PlannerConfig, area_scores
-
-UP = np.array([0.0, 0.0, 1.0])
-DOWN = -UP
-
-
-def plane_grid(step: float = 0.005, half: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
-    x = np.arange(-half, half + 1e-9, step)
-    X, Y = np.meshgrid(x, x, indexing="ij")
-    S = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
-    return S, np.tile(UP, (len(S), 1))
+from tests.unit.planner.planes import DOWN, plane_grid
 
 
 def slow_scores(S: np.ndarray, N: np.ndarray, C: np.ndarray, config: PlannerConfig) -> np.ndarray:
