@@ -33,6 +33,7 @@ from palpate.config import NonNegativeFloat, PositiveFloat, Range, Validated
 from palpate.errors import PlanningError
 from palpate.geometry import rotations
 from palpate.geometry.bezier import Cubic, approach_curve, recovery_curve
+from palpate.geometry.rotations import dot3
 from palpate.inputs import coordinates, unit_vectors
 
 FloatArray = NDArray[np.float64]
@@ -100,7 +101,7 @@ class ControllerState(enum.Enum):
 
 def _vector(name: str, value: ArrayLike) -> FloatArray:
     v = np.asarray(value, dtype=np.float64)
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
+    if v.shape != (3,) or not all(map(math.isfinite, v.tolist())):
         raise PlanningError(f"{name} must be a finite 3-vector, got {value!r}")
     return v
 
@@ -135,6 +136,11 @@ def _rotation(name: str, value: ArrayLike) -> FloatArray:
     return R
 
 
+def _minus(a: list[float], b: list[float]) -> list[float]:
+    """a - b of two 3-vectors given as floats."""
+    return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+
+
 def retract_direction(v_n: ArrayLike, normal: ArrayLike, min_cos: float) -> FloatArray:
     """The v_n of the next Eq. 15 curve (not in the paper): the approach direction v_n (3,) when it
     points into the surface, v_n . (-normal) >= min_cos, else -normal (3,, the outward contact
@@ -166,8 +172,9 @@ class TrajectoryController:
         self._direct_start = np.zeros(3)
         self._direct_budget_m = 0.0
         self._recoveries = 0
+        self._R0_w01 = np.zeros(3)  # R0 w01: the slerp's rotation vector in the world frame
         # Odometry: the initial approach is kept apart from the exploratory actions.
-        self._prev_r: FloatArray | None = None
+        self._prev_r: list[float] | None = None
         self._prev_R: FloatArray | None = None
         self._exploring = False
         self._travelled = {False: 0.0, True: 0.0}
@@ -234,11 +241,11 @@ class TrajectoryController:
 
         ``command`` calls this; call it directly for poses seen while no command is needed.
         """
-        r_ = _vector("r", r)
+        r_ = _vector("r", r).tolist()
         R_ = _rotation("R", R)
         if self._prev_r is not None and self._prev_R is not None:
-            step = r_ - self._prev_r
-            self._travelled[self._exploring] += math.sqrt(float(step @ step))
+            step = [a - b for a, b in zip(r_, self._prev_r, strict=True)]
+            self._travelled[self._exploring] += math.sqrt(dot3(step, step))
             self._rotated_rad[self._exploring] += rotations.rotation_angle_3x3(self._prev_R.T @ R_)
         self._prev_r, self._prev_R = r_, R_
 
@@ -305,46 +312,48 @@ class TrajectoryController:
         angular velocity (3,) rad/s), world frame. Zero velocities in IDLE and FAILED.
         """
         self.observe(r, R)
-        zero = (np.zeros(3), np.zeros(3))
         r_ = np.asarray(r, dtype=np.float64)
         R_ = np.asarray(R, dtype=np.float64)
+        xyz = r_.tolist()  # the 3-vector arithmetic below runs on floats: numpy's bits, no call overhead
         cfg = self.config
         if self._state in (ControllerState.IDLE, ControllerState.FAILED):
-            return zero
+            return np.zeros(3), np.zeros(3)
         if self._state is ControllerState.DIRECT:
-            if float((r_ - self._direct_start) @ self._direction) > self._direct_budget_m:
+            if dot3(_minus(xyz, self._direct_start.tolist()), self._direction.tolist()) > self._direct_budget_m:
                 self._state = ControllerState.FAILED
-                return zero
+                return np.zeros(3), np.zeros(3)
             return cfg.v0_m_s * self._direction, np.zeros(3)  # Alg. 1 line 4: setVelocity(v_n v0)
 
         assert self._curve is not None
         # Alg. 1 line 25: tau <- argmin_{tau* in [tau, 1]} |r - T(tau*)| (searched past 1 to detect misses)
         self._tau = self._curve.closest_tau(r_, self._tau, self._tau_max, samples=cfg.closest_samples)
-        if self._tau >= 1.0 and float(np.linalg.norm(r_ - self._curve.end)) > cfg.miss_distance_m:  # line 26
-            if self._state is ControllerState.RECOVERY:
-                self._state = ControllerState.FAILED
-                return zero
-            self._start_recovery(r_, R_)
+        if self._tau >= 1.0:
+            off = _minus(xyz, self._curve.end.tolist())
+            if math.sqrt(dot3(off, off)) > cfg.miss_distance_m:  # line 26
+                if self._state is ControllerState.RECOVERY:
+                    self._state = ControllerState.FAILED
+                    return np.zeros(3), np.zeros(3)
+                self._start_recovery(r_, R_)
 
         curve = self._curve
         # Alg. 1 lines 35-37: v* = T_p(tau + dtau) - r, v = v0 v*/|v*|
         d_tau = cfg.d_tau
-        v_star = curve.point(self._tau + d_tau) - r_
+        v_star = _minus(curve.point_xyz(self._tau + d_tau), xyz)
         # Not in the paper: where the curve bends sharply (|T'| small at the retract-then-approach turn)
         # T(tau + dtau) can lie closer than one control step; the fingertip then overshoots it, v*
         # points backwards along the curve, and tau stops advancing (a measured limit cycle at 10 ms
         # ticks). Look further ahead (dtau doubled, at most 10 times) until v* points forwards,
         # v* . T'(tau + dtau) > 0. Never triggers while the fingertip stays behind the look-ahead point.
         for _ in range(10):
-            if float(v_star @ curve.derivative(self._tau + d_tau)) > 0.0:
+            if dot3(v_star, curve.derivative_xyz(self._tau + d_tau)) > 0.0:
                 break
             d_tau *= 2.0
-            v_star = curve.point(self._tau + d_tau) - r_
-        tangent = curve.derivative(min(self._tau, 1.0))
-        norm = math.sqrt(float(v_star @ v_star))
+            v_star = _minus(curve.point_xyz(self._tau + d_tau), xyz)
+        tangent = curve.derivative_xyz(min(self._tau, 1.0))
+        norm = math.sqrt(dot3(v_star, v_star))
         if norm < 1e-12:
-            v_star, norm = tangent, math.sqrt(float(tangent @ tangent))
-        self._direction = v_star / norm
+            v_star, norm = tangent, math.sqrt(dot3(tangent, tangent))
+        self._direction = np.array([v / norm for v in v_star])
         linear = cfg.v0_m_s * self._direction
 
         # Alg. 1 lines 38-39: omega from the orientation error R^-1 T_R(tau) (as a rotation vector)
@@ -352,9 +361,9 @@ class TrajectoryController:
         R_target = self._R0 @ rotations.exp_so3(tau_r * self._w01)
         angular = cfg.angular_gain_1_s * (R_ @ rotations.log_so3(R_.T @ R_target))
         if cfg.orientation_feedforward and self._tau < 1.0:
-            speed = math.sqrt(float(tangent @ tangent))
+            speed = math.sqrt(dot3(tangent, tangent))
             if speed > 1e-12:
-                angular = angular + (self._R0 @ self._w01) * (cfg.v0_m_s / speed)  # d/dt T_R
+                angular = angular + self._R0_w01 * (cfg.v0_m_s / speed)  # d/dt T_R
         return linear, angular
 
     # --- internals -------------------------------------------------------------------------------
@@ -369,6 +378,7 @@ class TrajectoryController:
         R1 = rotations.get_rotation(R0, face_n)  # Alg. 1 line 20: R1 <- getRotation(R0, t_n)
         self._R0 = R0
         self._w01 = rotations.log_so3(R0.T @ R1)  # T_R(tau) = R0 exp(tau w01)
+        self._R0_w01 = R0 @ self._w01
 
     def _start_recovery(self, r: FloatArray, R: FloatArray) -> None:
         """Alg. 1 lines 27-34 with the text's target: the last contact (always on the surface)."""

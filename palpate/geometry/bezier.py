@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from palpate.geometry import bezier_kernels
+from palpate.geometry.rotations import dot3
 
 FloatArray = NDArray[np.float64]
 
@@ -129,20 +130,29 @@ class Cubic:
         self.A = _TO_POWER @ self.P  # T(tau) = A0 + A1 tau + A2 tau^2 + A3 tau^3
         self.end = self.P[3].copy()
         self.end_tangent = 3.0 * (self.P[3] - self.P[2])  # T'(1)
+        # per axis as Python floats: the controller's scalar paths (numpy's elementwise bits, no call overhead)
+        self._axes = list(zip(*self.A.tolist(), self.end.tolist(), self.end_tangent.tolist(), strict=True))
 
     def point(self, tau: float) -> FloatArray:
         """T(tau), (3,) metres."""
-        if tau > 1.0:
-            return self.end + (tau - 1.0) * self.end_tangent
-        A = self.A
-        return A[0] + tau * (A[1] + tau * (A[2] + tau * A[3]))
+        return np.array(self.point_xyz(tau))
 
     def derivative(self, tau: float) -> FloatArray:
         """dT/dtau, (3,)."""
+        return np.array(self.derivative_xyz(tau))
+
+    def point_xyz(self, tau: float) -> list[float]:
+        """T(tau) as three floats, metres (``point`` without numpy)."""
         if tau > 1.0:
-            return self.end_tangent.copy()
-        A = self.A
-        return A[1] + tau * (2.0 * A[2] + 3.0 * tau * A[3])
+            return [e + (tau - 1.0) * d for _, _, _, _, e, d in self._axes]
+        return [a0 + tau * (a1 + tau * (a2 + tau * a3)) for a0, a1, a2, a3, _, _ in self._axes]
+
+    def derivative_xyz(self, tau: float) -> list[float]:
+        """dT/dtau as three floats (``derivative`` without numpy)."""
+        if tau > 1.0:
+            return [d for *_, d in self._axes]
+        three_tau = 3.0 * tau
+        return [a1 + tau * (2.0 * a2 + three_tau * a3) for _, a1, a2, a3, _, _ in self._axes]
 
     def closest_tau(
         self,
@@ -166,8 +176,13 @@ class Cubic:
         t, best_tau, best_d2 = bezier_kernels.closest_search(
             self.A, self.end, self.end_tangent, r_, float(tau_min), float(tau_max), grid, newton_steps
         )
-        p = self.point(t) - r_
-        return t if float(p @ p) <= best_d2 else best_tau
+        return t if _squared_distance(self.point_xyz(t), r_.tolist()) <= best_d2 else best_tau
+
+
+def _squared_distance(p: list[float], q: list[float]) -> float:
+    """|p - q|^2 of two 3-vectors as floats (numpy's bits for (p - q) @ (p - q))."""
+    d = [p[0] - q[0], p[1] - q[1], p[2] - q[2]]
+    return dot3(d, d)
 
 
 def approach_curve(

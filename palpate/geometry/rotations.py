@@ -25,13 +25,21 @@ _I3.setflags(write=False)
 
 def _hat(w: FloatArray) -> FloatArray:
     """Skew-symmetric matrix [w]x (3, 3) of w (3,): [w]x v = w x v."""
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    x, y, z = w.tolist()
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def dot3(a: list[float], b: list[float]) -> float:
+    """a . b of two 3-vectors given as floats, summed left to right: the bits of numpy's ``a @ b`` on
+    float64 (3,) arrays (BLAS ddot), without its call overhead (the controller's per-tick path)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 def exp_so3(w: ArrayLike) -> FloatArray:
     """Rotation matrix of the rotation vector w (axis * angle, radians), Rodrigues. (3,) -> (3, 3)."""
     w_ = np.asarray(w, dtype=np.float64)
-    theta = math.sqrt(float(w_ @ w_))
+    xyz = w_.tolist()
+    theta = math.sqrt(dot3(xyz, xyz))
     K = _hat(w_)
     if theta < 1e-8:
         return _I3 + K + 0.5 * (K @ K)
@@ -43,7 +51,8 @@ def log_so3(R: ArrayLike) -> FloatArray:
     """Rotation vector (axis * angle, angle in [0, pi]) of the rotation matrix R. (3, 3) -> (3,)."""
     R_ = np.asarray(R, dtype=np.float64)
     theta = rotation_angle_3x3(R_)
-    vee = 0.5 * np.array([R_[2, 1] - R_[1, 2], R_[0, 2] - R_[2, 0], R_[1, 0] - R_[0, 1]])  # sin(theta) axis
+    (_, b, c), (d, _, f), (g, h, _) = R_.tolist()
+    vee = 0.5 * np.array([h - f, c - g, d - b])  # sin(theta) axis
     if theta < 1e-6:
         return vee
     if theta > np.pi - 1e-3:  # sin(theta) ~ 0: the axis comes from the symmetric part instead
