@@ -230,3 +230,19 @@ def test_min_chord_keeps_a_curve_to_its_own_start() -> None:
     length = float(bezier_length(P))
     assert np.isfinite(length) and length > 1e-4
     assert float(bezier_length(approach_curve(r, np.array([0, 0, -1.0]), r, np.array([0, 0, 1.0])))) == 0.0
+
+
+def test_scalar_point_and_derivative_give_the_bits_of_numpy() -> None:
+    """The controller's float paths against the power form evaluated on arrays (and the continuation)."""
+    rng = np.random.default_rng(7)
+    for _ in range(2000):
+        cubic = Cubic(rng.normal(scale=0.02, size=(4, 3)))
+        A = cubic.A
+        for tau in (float(rng.uniform(0.0, 1.0)), float(rng.uniform(1.0, 2.0))):
+            if tau > 1.0:
+                point, slope = cubic.end + (tau - 1.0) * cubic.end_tangent, cubic.end_tangent
+            else:
+                point = A[0] + tau * (A[1] + tau * (A[2] + tau * A[3]))
+                slope = A[1] + tau * (2.0 * A[2] + 3.0 * tau * A[3])
+            assert cubic.point_xyz(tau) == point.tolist()
+            assert cubic.derivative_xyz(tau) == slope.tolist()

@@ -128,3 +128,12 @@ def test_ypr_deg_to_quat_is_intrinsic_z_y_x(ypr: tuple[float, float, float]) -> 
     Ry = rotations.exp_so3([0, pitch, 0])
     Rx = rotations.exp_so3([roll, 0, 0])
     np.testing.assert_allclose(rotations.quat_to_matrix(q), Rz @ Ry @ Rx, rtol=0, atol=1e-15)
+
+
+def test_dot3_gives_numpys_bits() -> None:
+    """The controller's scalar dot products must not move a run: the same bits as numpy's a @ b."""
+    rng = np.random.default_rng(5)
+    for _ in range(20_000):
+        a = rng.normal(size=3) * 10.0 ** rng.integers(-4, 4)
+        b = rng.normal(size=3)
+        assert rotations.dot3(a.tolist(), b.tolist()) == float(a @ b)
