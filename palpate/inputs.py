@@ -124,7 +124,8 @@ def unit_quaternion(q_wxyz: ArrayLike, field: str, tolerance: float = UNIT_TOLER
     q = np.asarray(q_wxyz, dtype=np.float64)
     if q.shape != (4,):
         raise InputError(field, f"a quaternion has 4 components (w, x, y, z), got shape {q.shape}")
-    norm = float(_norms(q))
+    values = q.tolist()
+    norm = _few_norm(values) if math.isfinite(sum(values)) else float(_norms(q))  # `_norms`, without an array
     if not abs(norm - 1.0) <= tolerance:
         raise InputError(field, f"norm {norm:.6g} is not that of a unit quaternion (w, x, y, z), 1 +- {tolerance:g}")
     return q

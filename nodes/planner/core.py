@@ -705,6 +705,8 @@ class TouchPlanner:
 
     def take_counts(self) -> dict[str, int]:
         """The events counted since the last call (name -> count), which are then forgotten."""
+        if not self.counts:  # the usual tick: nothing to hand over, no new Counter
+            return {}
         counts, self.counts = dict(self.counts), Counter()
         return counts
 

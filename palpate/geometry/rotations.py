@@ -124,7 +124,7 @@ def slerp(R0: ArrayLike, R1: ArrayLike, tau: float) -> FloatArray:
 
 def quat_to_matrix(q_wxyz: ArrayLike) -> FloatArray:
     """Rotation matrix (3, 3) of a unit quaternion (w, x, y, z); normalised here. Scalar fast path."""
-    w, x, y, z = (float(v) for v in np.asarray(q_wxyz, dtype=np.float64).reshape(4))
+    w, x, y, z = np.asarray(q_wxyz, dtype=np.float64).reshape(4).tolist()
     s = 2.0 / (w * w + x * x + y * y + z * z)
     return np.array(
         [
