@@ -17,7 +17,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from palpate.geometry import bezier_kernels
-from palpate.geometry.rotations import dot3
 
 FloatArray = NDArray[np.float64]
 
@@ -172,17 +171,18 @@ class Cubic:
         if not tau_max >= tau_min:
             raise ValueError(f"closest_tau needs tau_min <= tau_max, got {tau_min} > {tau_max}")
         r_ = np.asarray(r, dtype=np.float64)
-        grid = _unit_grid(samples)
-        t, best_tau, best_d2 = bezier_kernels.closest_search(
-            self.A, self.end, self.end_tangent, r_, float(tau_min), float(tau_max), grid, newton_steps
+        return float(
+            bezier_kernels.closest_search(
+                self.A,
+                self.end,
+                self.end_tangent,
+                r_,
+                float(tau_min),
+                float(tau_max),
+                _unit_grid(samples),
+                newton_steps,
+            )
         )
-        return t if _squared_distance(self.point_xyz(t), r_.tolist()) <= best_d2 else best_tau
-
-
-def _squared_distance(p: list[float], q: list[float]) -> float:
-    """|p - q|^2 of two 3-vectors as floats (numpy's bits for (p - q) @ (p - q))."""
-    d = [p[0] - q[0], p[1] - q[1], p[2] - q[2]]
-    return dot3(d, d)
 
 
 def approach_curve(

@@ -46,9 +46,9 @@ def closest_search(
     tau_max: float,
     unit_grid: np.ndarray,
     newton_steps: int,
-) -> tuple[float, float, float]:
-    """The grid search and Newton refinement of ``Cubic.closest_tau``: (Newton's tau, the best grid tau,
-    its squared distance). The caller keeps Newton's tau when its squared distance is no larger."""
+) -> float:
+    """``Cubic.closest_tau``: the grid search, the Newton refinement, and Newton's tau when its squared
+    distance is no larger than the best grid tau's, else that grid tau."""
     samples = unit_grid.shape[0]
     grid = np.empty(samples)
     best = -1
@@ -81,4 +81,11 @@ def closest_search(
         t = t_new
         if converged:
             break
-    return t, best_tau, best_d2
+    d2 = 0.0  # |T(t) - r|^2 as Cubic.point gives T(t)
+    for k in range(3):
+        if t > 1.0:
+            diff = end[k] + (t - 1.0) * end_tangent[k] - r[k]
+        else:
+            diff = A[0, k] + t * (A[1, k] + t * (A[2, k] + t * A[3, k])) - r[k]
+        d2 += diff * diff
+    return t if d2 <= best_d2 else best_tau
