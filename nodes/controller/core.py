@@ -224,7 +224,7 @@ class TrajectoryController:
     @property
     def rotation_deg(self) -> float:
         """Accumulated rotation angle of the fingertip during exploratory actions, degrees."""
-        return float(np.degrees(self._rotated_rad[True]))
+        return math.degrees(self._rotated_rad[True])
 
     @property
     def initial_travelled_m(self) -> float:
@@ -234,7 +234,7 @@ class TrajectoryController:
     @property
     def initial_rotation_deg(self) -> float:
         """Rotation during the initial direct approach, degrees."""
-        return float(np.degrees(self._rotated_rad[False]))
+        return math.degrees(self._rotated_rad[False])
 
     def observe(self, r: ArrayLike, R: ArrayLike) -> None:
         """Accumulate travelled distance |r_k - r_{k-1}| and rotation angle(R_{k-1}^T R_k).
