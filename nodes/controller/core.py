@@ -244,7 +244,7 @@ class TrajectoryController:
         r_ = _vector("r", r).tolist()
         R_ = _rotation("R", R)
         if self._prev_r is not None and self._prev_R is not None:
-            step = [a - b for a, b in zip(r_, self._prev_r, strict=True)]
+            step = _minus(r_, self._prev_r)
             self._travelled[self._exploring] += math.sqrt(dot3(step, step))
             self._rotated_rad[self._exploring] += rotations.rotation_angle_3x3(self._prev_R.T @ R_)
         self._prev_r, self._prev_R = r_, R_
