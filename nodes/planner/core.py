@@ -361,6 +361,7 @@ def patch_weights(
     explored_by: FloatArray,
     config: PlannerConfig,
     variance: FloatArray | None = None,
+    tree: cKDTree | None = None,
 ) -> FloatArray:
     """The tour's weight of every candidate patch (m,), 0 for explored ones (nearest contact within rho):
 
@@ -368,7 +369,8 @@ def patch_weights(
 
     e(q): explored share of the candidates within 2 rho of q (holes and the rim first, as in area);
     d(q) = explored_by (m,): distance from q to the nearest contact (the GP extrapolates over distant
-    patches, so those count more: touches spread); kappa var: optional GP variance (m,) term.
+    patches, so those count more: touches spread); kappa var: optional GP variance (m,) term;
+    tree: the candidates' cKDTree when the caller has one.
     """
     rho = config.area_radius_m
     is_unexplored = explored_by > rho
@@ -377,7 +379,8 @@ def patch_weights(
         return w
     base = 1.0 + config.tour_far_weight * np.minimum(explored_by[is_unexplored] / config.tour_far_m, 1.0)
     if config.tour_hole_weight > 0.0 and not is_unexplored.all():
-        base += hole_weights(cKDTree(candidates_m), candidates_m, is_unexplored, rho, config.tour_hole_weight)
+        tree = cKDTree(candidates_m) if tree is None else tree
+        base += hole_weights(tree, candidates_m, is_unexplored, rho, config.tour_hole_weight)
     w[is_unexplored] = base
     if config.tour_variance_weight > 0.0 and variance is not None and variance.max() > 0.0:
         w *= 1.0 + config.tour_variance_weight * variance / variance.max()
@@ -396,76 +399,24 @@ def best_order(start_cost: FloatArray, hop_cost: FloatArray) -> IntArray:
     return np.asarray(orders[int(np.argmin(cost))], dtype=np.int64)
 
 
-def tour_plan(
-    candidates_m: FloatArray,
-    normals: FloatArray,
-    contacts_m: FloatArray,
-    r: FloatArray,
-    v_n: FloatArray,
-    R_z: FloatArray,
-    config: PlannerConfig,
-    variance: FloatArray | None = None,
-) -> Tour:
-    """Tour strategy (not in the paper): a receding-horizon tour through the candidates that explores the
-    most weighted area per metre of travel; the planner touches its first site and replans after it.
+def greedy_insertion(
+    cover: FloatArray, w: FloatArray, psi4: FloatArray, start: FloatArray, hop: FloatArray, config: PlannerConfig
+) -> list[int]:
+    """The tour of ``tour_plan`` by greedy insertion: pool rows in visiting order.
 
-    Patches and gains as in ``area_scores``, with the weights of ``patch_weights``: a site s explores
-    the unexplored patches within rho, G(s) = Psi4(s) sum w(q). Travel between sites is IGEF's Psi2
-    curve length (Eq. 15): Len(r -> s) from the fingertip leaving along -v_n, Len(s_i -> s_j) from a site
-    leaving along its normal (the next retraction). The tour T = (s_1, ..., s_k) maximises, greedily,
-
-        J(T) = sum_i G_i / (Len(r -> s_1) + sum_i Len(s_i -> s_i+1) + k L0)
-
-    G_i the gain of s_i over the patches not explored by the sites before it: starting from the empty
-    tour, the pool candidate and insertion position with the largest J of the extended tour is added,
-    until ``tour_sites`` sites or no candidate adds area; the sites are then put in their cheapest order
-    (all orders). The pool is the ``tour_pool`` candidates with the largest G(s) / (Len(r -> s) + L0)
-    (one site tours are area's choice). A one-site tour is the myopic choice; a longer one goes first to
-    the site on the way (a hole next to the path) and keeps a far uncovered region in the plan.
-    When no candidate explores anything, the tour is the single best of the distance to the nearest
-    contact per unit of travel (as in area). Scores (m,): the tour's sites get J + k - i (i = 0 first),
-    the other candidates G(s) / (Len(r -> s) + L0) scaled below J, so a caller that must skip the first
-    site (its curve is blocked) takes the next one of the tour.
-    candidates_m, normals (unit): (m, 3); contacts_m: (n, 3); r, v_n, R_z as in igef_terms; variance (m,).
+    cover (P, m): pool site a explores patch q; w (m,): patch weights; psi4 (P,): the sites' rotation
+    factors; start (P,): Len(r -> s_a); hop (P, P): Len(s_a -> s_b). From the empty tour, the site and
+    insertion position with the largest J of the extended tour is added, until ``tour_sites`` sites or
+    no site adds area.
     """
     L0 = config.tour_touch_cost_m
-    rho = config.area_radius_m
-    explored_by, _ = cKDTree(contacts_m).query(candidates_m)
-    w = patch_weights(candidates_m, explored_by, config, variance)
-    psi4 = rotation_factor(normals, R_z, config)  # Eq. 11
-    reach = path_length(r, v_n, candidates_m, normals, config)  # Len(r -> s), (m,)
-    if not w.any():
-        own = explored_by * psi4 / (reach + L0)
-        index = int(np.argmax(own))
-        scores = own / max(float(own.max()), 1e-300)
-        scores[index] = 2.0
-        return Tour(np.array([index]), np.zeros(1), float(reach[index] + L0), scores)
-    tree = cKDTree(candidates_m)
-    pairs = tree.sparse_distance_matrix(tree, rho, output_type="ndarray")
-    pairs = pairs[w[pairs["j"]] > 0.0]
-    gain = np.bincount(pairs["i"], weights=w[pairs["j"]], minlength=len(candidates_m)) * psi4  # G(s)
-    own = gain / (reach + L0)
-    pool = np.argsort(-own, kind="stable")[: config.tour_pool]
-    pool = pool[gain[pool] > 0.0]
-    P = len(pool)
-    # cover[a, q]: pool site a explores patch q (within rho); weights of patches not yet explored
-    row = np.full(len(candidates_m), -1)
-    row[pool] = np.arange(P)
-    in_pool = row[pairs["i"]] >= 0
-    cover = np.zeros((P, len(candidates_m)))
-    cover[row[pairs["i"][in_pool]], pairs["j"][in_pool]] = 1.0
-    S, N = candidates_m[pool], normals[pool]
-    # hop[a, b] = Len(s_a -> s_b), leaving s_a along its normal (v_n = -n_a)
-    hop = bezier_length(
-        approach_curve(S[:, None, :], -N[:, None, :], S[None, :, :], N[None, :, :], scale=config.psi2_control_scale)
-    )
-    start = reach[pool]
+    P = len(start)
     left = w.copy()
-    tour: list[int] = []  # pool rows in order
-    gains: list[float] = []
+    tour: list[int] = []
+    gains: list[float] = []  # each site's new area, in tour order
     cost = 0.0
     while len(tour) < min(config.tour_sites, P):
-        add = (cover @ left) * psi4[pool]  # (P,) new weighted area
+        add = (cover @ left) * psi4  # (P,) new weighted area
         add[tour] = 0.0
         if add.max() <= 0.0:
             break
@@ -490,6 +441,73 @@ def tour_plan(
         gains.insert(i, float(add[a]))
         left = left * (1.0 - cover[a])
         cost = float(start[tour[0]] + hop[tour[:-1], tour[1:]].sum()) + L0 * len(tour)
+    return tour
+
+
+def tour_plan(
+    candidates_m: FloatArray,
+    normals: FloatArray,
+    contacts_m: FloatArray,
+    r: FloatArray,
+    v_n: FloatArray,
+    R_z: FloatArray,
+    config: PlannerConfig,
+    variance: FloatArray | None = None,
+) -> Tour:
+    """Tour strategy (not in the paper): a receding-horizon tour through the candidates that explores the
+    most weighted area per metre of travel; the planner touches its first site and replans after it.
+
+    Patches and gains as in ``area_scores``, with the weights of ``patch_weights``: a site s explores
+    the unexplored patches within rho, G(s) = Psi4(s) sum w(q). Travel between sites is IGEF's Psi2
+    curve length (Eq. 15): Len(r -> s) from the fingertip leaving along -v_n, Len(s_i -> s_j) from a site
+    leaving along its normal (the next retraction). The tour T = (s_1, ..., s_k) maximises, greedily,
+
+        J(T) = sum_i G_i / (Len(r -> s_1) + sum_i Len(s_i -> s_i+1) + k L0)
+
+    G_i the gain of s_i over the patches not explored by the sites before it, the tour built by
+    ``greedy_insertion`` and put in its cheapest order (``best_order``). The pool is the ``tour_pool``
+    candidates with the largest G(s) / (Len(r -> s) + L0) (one site tours are area's choice).
+    A one-site tour is the myopic choice; a longer one goes first to the site on the way (a hole next
+    to the path) and keeps a far uncovered region in the plan.
+    When no candidate explores anything, the tour is the single best of the distance to the nearest
+    contact per unit of travel (as in area). Scores (m,): the tour's sites get J + k - i (i = 0 first),
+    the other candidates G(s) / (Len(r -> s) + L0) scaled below J, so a caller that must skip the first
+    site (its curve is blocked) takes the next one of the tour.
+    candidates_m, normals (unit): (m, 3); contacts_m: (n, 3); r, v_n, R_z as in igef_terms; variance (m,).
+    """
+    L0 = config.tour_touch_cost_m
+    rho = config.area_radius_m
+    explored_by, _ = cKDTree(contacts_m).query(candidates_m)
+    tree = cKDTree(candidates_m)
+    w = patch_weights(candidates_m, explored_by, config, variance, tree)
+    psi4 = rotation_factor(normals, R_z, config)  # Eq. 11
+    reach = path_length(r, v_n, candidates_m, normals, config)  # Len(r -> s), (m,)
+    if not w.any():
+        own = explored_by * psi4 / (reach + L0)
+        index = int(np.argmax(own))
+        scores = own / max(float(own.max()), 1e-300)
+        scores[index] = 2.0
+        return Tour(np.array([index]), np.zeros(1), float(reach[index] + L0), scores)
+    pairs = tree.sparse_distance_matrix(tree, rho, output_type="ndarray")
+    pairs = pairs[w[pairs["j"]] > 0.0]
+    gain = np.bincount(pairs["i"], weights=w[pairs["j"]], minlength=len(candidates_m)) * psi4  # G(s)
+    own = gain / (reach + L0)
+    pool = np.argsort(-own, kind="stable")[: config.tour_pool]
+    pool = pool[gain[pool] > 0.0]
+    P = len(pool)
+    # cover[a, q]: pool site a explores patch q (within rho); weights of patches not yet explored
+    row = np.full(len(candidates_m), -1)
+    row[pool] = np.arange(P)
+    in_pool = row[pairs["i"]] >= 0
+    cover = np.zeros((P, len(candidates_m)))
+    cover[row[pairs["i"][in_pool]], pairs["j"][in_pool]] = 1.0
+    S, N = candidates_m[pool], normals[pool]
+    # hop[a, b] = Len(s_a -> s_b), leaving s_a along its normal (v_n = -n_a)
+    hop = bezier_length(
+        approach_curve(S[:, None, :], -N[:, None, :], S[None, :, :], N[None, :, :], scale=config.psi2_control_scale)
+    )
+    start = reach[pool]
+    tour = greedy_insertion(cover, w, psi4[pool], start, hop, config)
     sites = np.asarray(tour, dtype=np.int64)
     order = best_order(start[sites], hop[np.ix_(sites, sites)])
     sites = sites[order]
