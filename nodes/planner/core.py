@@ -646,6 +646,8 @@ class Planner:
                 f"({S.shape[0]} candidates given, {excluded} not admissible); mesh the estimated surface "
                 "around the last contact"
             )
+        if cfg.uses_variance and not np.all(np.isfinite(Q[valid])):
+            raise PlanningError("variance holds NaN or infinity; the GP variance must be finite")
         scores = np.zeros(S.shape[0])
         psi: FloatArray | None = None
         if cfg.strategy == "igef":
@@ -657,13 +659,9 @@ class Planner:
             scores[valid] = area_scores(S[valid], Nrm[valid], C, r_, v, z, cfg, Q[valid])
             index = int(valid[np.argmax(scores[valid])])
         elif cfg.strategy == "tour":
-            if cfg.uses_variance and not np.all(np.isfinite(Q[valid])):
-                raise PlanningError("variance holds NaN or infinity; the GP variance must be finite")
             scores[valid] = tour_plan(S[valid], Nrm[valid], C, r_, v, z, cfg, Q[valid]).scores
             index = int(valid[np.argmax(scores[valid])])
         elif cfg.strategy == "gpv":
-            if not np.all(np.isfinite(Q[valid])):
-                raise PlanningError("variance holds NaN or infinity; the GP variance must be finite")
             scores[valid] = Q[valid]  # Alg. 1 line 14: I(s) = GP variance(s)
             index = int(valid[np.argmax(scores[valid])])
         else:
