@@ -120,14 +120,16 @@ class PlannerConfig(Validated):
     tour_touch_cost_m: NonNegativeFloat = 0.02
     #: Patch weight w(q) = 1 + beta e(q) + gamma min(d(q) / D, 1): beta as area_hole_weight; gamma the
     #: weight of the patch's distance d(q) from every contact (how far the GP must extrapolate there),
-    #: saturating at D (IGEF's sigma_1, 2 cm).
+    #: saturating at D = 3 cm (5 coverage radii). gamma 3 and D 3 cm against the first 1 and 2 cm: the
+    #: same travel on the 30 shared objects, a better whole estimate (docs/exploration.md).
     tour_hole_weight: NonNegativeFloat = 2.0
-    tour_far_weight: NonNegativeFloat = 1.0
-    tour_far_m: PositiveFloat = 0.02
+    tour_far_weight: NonNegativeFloat = 3.0
+    tour_far_m: PositiveFloat = 0.03
     #: Weight kappa of the GP variance in the patch weight, w(q) (1 + kappa var(q) / max var): the GP's
-    #: own doubt, where its estimate bulges away from the contacts (0: the GPIS node computes no variance
-    #: for the tour; docs/exploration.md compares 0, 0.5, 1 and 2 on 8 YCB objects).
-    tour_variance_weight: NonNegativeFloat = 1.0
+    #: own doubt, where its estimate bulges away from the contacts. 0 (default): the GPIS node computes
+    #: no variance for the tour; kappa 1 buys a better whole estimate with 20 % more travel
+    #: (docs/exploration.md compares the settings on the 30 shared objects).
+    tour_variance_weight: NonNegativeFloat = 0.0
 
     @property
     def uses_variance(self) -> bool:
