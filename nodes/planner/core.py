@@ -120,14 +120,16 @@ class PlannerConfig(Validated):
     tour_touch_cost_m: NonNegativeFloat = 0.02
     #: Patch weight w(q) = 1 + beta e(q) + gamma min(d(q) / D, 1): beta as area_hole_weight; gamma the
     #: weight of the patch's distance d(q) from every contact (how far the GP must extrapolate there),
-    #: saturating at D (IGEF's sigma_1, 2 cm).
+    #: saturating at D = 3 cm (5 coverage radii). gamma 3 and D 3 cm against the first 1 and 2 cm: the
+    #: same travel on the 30 shared objects, a better whole estimate (docs/exploration.md).
     tour_hole_weight: NonNegativeFloat = 2.0
-    tour_far_weight: NonNegativeFloat = 1.0
-    tour_far_m: PositiveFloat = 0.02
+    tour_far_weight: NonNegativeFloat = 3.0
+    tour_far_m: PositiveFloat = 0.03
     #: Weight kappa of the GP variance in the patch weight, w(q) (1 + kappa var(q) / max var): the GP's
-    #: own doubt, where its estimate bulges away from the contacts (0: the GPIS node computes no variance
-    #: for the tour; docs/exploration.md compares 0, 0.5, 1 and 2 on 8 YCB objects).
-    tour_variance_weight: NonNegativeFloat = 1.0
+    #: own doubt, where its estimate bulges away from the contacts. 0 (default): the GPIS node computes
+    #: no variance for the tour; kappa 1 buys a better whole estimate with 20 % more travel
+    #: (docs/exploration.md compares the settings on the 30 shared objects).
+    tour_variance_weight: NonNegativeFloat = 0.0
 
     @property
     def uses_variance(self) -> bool:
@@ -361,6 +363,7 @@ def patch_weights(
     explored_by: FloatArray,
     config: PlannerConfig,
     variance: FloatArray | None = None,
+    tree: cKDTree | None = None,
 ) -> FloatArray:
     """The tour's weight of every candidate patch (m,), 0 for explored ones (nearest contact within rho):
 
@@ -368,7 +371,8 @@ def patch_weights(
 
     e(q): explored share of the candidates within 2 rho of q (holes and the rim first, as in area);
     d(q) = explored_by (m,): distance from q to the nearest contact (the GP extrapolates over distant
-    patches, so those count more: touches spread); kappa var: optional GP variance (m,) term.
+    patches, so those count more: touches spread); kappa var: optional GP variance (m,) term;
+    tree: the candidates' cKDTree when the caller has one.
     """
     rho = config.area_radius_m
     is_unexplored = explored_by > rho
@@ -377,7 +381,8 @@ def patch_weights(
         return w
     base = 1.0 + config.tour_far_weight * np.minimum(explored_by[is_unexplored] / config.tour_far_m, 1.0)
     if config.tour_hole_weight > 0.0 and not is_unexplored.all():
-        base += hole_weights(cKDTree(candidates_m), candidates_m, is_unexplored, rho, config.tour_hole_weight)
+        tree = cKDTree(candidates_m) if tree is None else tree
+        base += hole_weights(tree, candidates_m, is_unexplored, rho, config.tour_hole_weight)
     w[is_unexplored] = base
     if config.tour_variance_weight > 0.0 and variance is not None and variance.max() > 0.0:
         w *= 1.0 + config.tour_variance_weight * variance / variance.max()
@@ -396,76 +401,24 @@ def best_order(start_cost: FloatArray, hop_cost: FloatArray) -> IntArray:
     return np.asarray(orders[int(np.argmin(cost))], dtype=np.int64)
 
 
-def tour_plan(
-    candidates_m: FloatArray,
-    normals: FloatArray,
-    contacts_m: FloatArray,
-    r: FloatArray,
-    v_n: FloatArray,
-    R_z: FloatArray,
-    config: PlannerConfig,
-    variance: FloatArray | None = None,
-) -> Tour:
-    """Tour strategy (not in the paper): a receding-horizon tour through the candidates that explores the
-    most weighted area per metre of travel; the planner touches its first site and replans after it.
+def greedy_insertion(
+    cover: FloatArray, w: FloatArray, psi4: FloatArray, start: FloatArray, hop: FloatArray, config: PlannerConfig
+) -> list[int]:
+    """The tour of ``tour_plan`` by greedy insertion: pool rows in visiting order.
 
-    Patches and gains as in ``area_scores``, with the weights of ``patch_weights``: a site s explores
-    the unexplored patches within rho, G(s) = Psi4(s) sum w(q). Travel between sites is IGEF's Psi2
-    curve length (Eq. 15): Len(r -> s) from the fingertip leaving along -v_n, Len(s_i -> s_j) from a site
-    leaving along its normal (the next retraction). The tour T = (s_1, ..., s_k) maximises, greedily,
-
-        J(T) = sum_i G_i / (Len(r -> s_1) + sum_i Len(s_i -> s_i+1) + k L0)
-
-    G_i the gain of s_i over the patches not explored by the sites before it: starting from the empty
-    tour, the pool candidate and insertion position with the largest J of the extended tour is added,
-    until ``tour_sites`` sites or no candidate adds area; the sites are then put in their cheapest order
-    (all orders). The pool is the ``tour_pool`` candidates with the largest G(s) / (Len(r -> s) + L0)
-    (one site tours are area's choice). A one-site tour is the myopic choice; a longer one goes first to
-    the site on the way (a hole next to the path) and keeps a far uncovered region in the plan.
-    When no candidate explores anything, the tour is the single best of the distance to the nearest
-    contact per unit of travel (as in area). Scores (m,): the tour's sites get J + k - i (i = 0 first),
-    the other candidates G(s) / (Len(r -> s) + L0) scaled below J, so a caller that must skip the first
-    site (its curve is blocked) takes the next one of the tour.
-    candidates_m, normals (unit): (m, 3); contacts_m: (n, 3); r, v_n, R_z as in igef_terms; variance (m,).
+    cover (P, m): pool site a explores patch q; w (m,): patch weights; psi4 (P,): the sites' rotation
+    factors; start (P,): Len(r -> s_a); hop (P, P): Len(s_a -> s_b). From the empty tour, the site and
+    insertion position with the largest J of the extended tour is added, until ``tour_sites`` sites or
+    no site adds area.
     """
     L0 = config.tour_touch_cost_m
-    rho = config.area_radius_m
-    explored_by, _ = cKDTree(contacts_m).query(candidates_m)
-    w = patch_weights(candidates_m, explored_by, config, variance)
-    psi4 = rotation_factor(normals, R_z, config)  # Eq. 11
-    reach = path_length(r, v_n, candidates_m, normals, config)  # Len(r -> s), (m,)
-    if not w.any():
-        own = explored_by * psi4 / (reach + L0)
-        index = int(np.argmax(own))
-        scores = own / max(float(own.max()), 1e-300)
-        scores[index] = 2.0
-        return Tour(np.array([index]), np.zeros(1), float(reach[index] + L0), scores)
-    tree = cKDTree(candidates_m)
-    pairs = tree.sparse_distance_matrix(tree, rho, output_type="ndarray")
-    pairs = pairs[w[pairs["j"]] > 0.0]
-    gain = np.bincount(pairs["i"], weights=w[pairs["j"]], minlength=len(candidates_m)) * psi4  # G(s)
-    own = gain / (reach + L0)
-    pool = np.argsort(-own, kind="stable")[: config.tour_pool]
-    pool = pool[gain[pool] > 0.0]
-    P = len(pool)
-    # cover[a, q]: pool site a explores patch q (within rho); weights of patches not yet explored
-    row = np.full(len(candidates_m), -1)
-    row[pool] = np.arange(P)
-    in_pool = row[pairs["i"]] >= 0
-    cover = np.zeros((P, len(candidates_m)))
-    cover[row[pairs["i"][in_pool]], pairs["j"][in_pool]] = 1.0
-    S, N = candidates_m[pool], normals[pool]
-    # hop[a, b] = Len(s_a -> s_b), leaving s_a along its normal (v_n = -n_a)
-    hop = bezier_length(
-        approach_curve(S[:, None, :], -N[:, None, :], S[None, :, :], N[None, :, :], scale=config.psi2_control_scale)
-    )
-    start = reach[pool]
+    P = len(start)
     left = w.copy()
-    tour: list[int] = []  # pool rows in order
-    gains: list[float] = []
+    tour: list[int] = []
+    gains: list[float] = []  # each site's new area, in tour order
     cost = 0.0
     while len(tour) < min(config.tour_sites, P):
-        add = (cover @ left) * psi4[pool]  # (P,) new weighted area
+        add = (cover @ left) * psi4  # (P,) new weighted area
         add[tour] = 0.0
         if add.max() <= 0.0:
             break
@@ -490,6 +443,73 @@ def tour_plan(
         gains.insert(i, float(add[a]))
         left = left * (1.0 - cover[a])
         cost = float(start[tour[0]] + hop[tour[:-1], tour[1:]].sum()) + L0 * len(tour)
+    return tour
+
+
+def tour_plan(
+    candidates_m: FloatArray,
+    normals: FloatArray,
+    contacts_m: FloatArray,
+    r: FloatArray,
+    v_n: FloatArray,
+    R_z: FloatArray,
+    config: PlannerConfig,
+    variance: FloatArray | None = None,
+) -> Tour:
+    """Tour strategy (not in the paper): a receding-horizon tour through the candidates that explores the
+    most weighted area per metre of travel; the planner touches its first site and replans after it.
+
+    Patches and gains as in ``area_scores``, with the weights of ``patch_weights``: a site s explores
+    the unexplored patches within rho, G(s) = Psi4(s) sum w(q). Travel between sites is IGEF's Psi2
+    curve length (Eq. 15): Len(r -> s) from the fingertip leaving along -v_n, Len(s_i -> s_j) from a site
+    leaving along its normal (the next retraction). The tour T = (s_1, ..., s_k) maximises, greedily,
+
+        J(T) = sum_i G_i / (Len(r -> s_1) + sum_i Len(s_i -> s_i+1) + k L0)
+
+    G_i the gain of s_i over the patches not explored by the sites before it, the tour built by
+    ``greedy_insertion`` and put in its cheapest order (``best_order``). The pool is the ``tour_pool``
+    candidates with the largest G(s) / (Len(r -> s) + L0) (one site tours are area's choice).
+    A one-site tour is the myopic choice; a longer one goes first to the site on the way (a hole next
+    to the path) and keeps a far uncovered region in the plan.
+    When no candidate explores anything, the tour is the single best of the distance to the nearest
+    contact per unit of travel (as in area). Scores (m,): the tour's sites get J + k - i (i = 0 first),
+    the other candidates G(s) / (Len(r -> s) + L0) scaled below J, so a caller that must skip the first
+    site (its curve is blocked) takes the next one of the tour.
+    candidates_m, normals (unit): (m, 3); contacts_m: (n, 3); r, v_n, R_z as in igef_terms; variance (m,).
+    """
+    L0 = config.tour_touch_cost_m
+    rho = config.area_radius_m
+    explored_by, _ = cKDTree(contacts_m).query(candidates_m)
+    tree = cKDTree(candidates_m)
+    w = patch_weights(candidates_m, explored_by, config, variance, tree)
+    psi4 = rotation_factor(normals, R_z, config)  # Eq. 11
+    reach = path_length(r, v_n, candidates_m, normals, config)  # Len(r -> s), (m,)
+    if not w.any():
+        own = explored_by * psi4 / (reach + L0)
+        index = int(np.argmax(own))
+        scores = own / max(float(own.max()), 1e-300)
+        scores[index] = 2.0
+        return Tour(np.array([index]), np.zeros(1), float(reach[index] + L0), scores)
+    pairs = tree.sparse_distance_matrix(tree, rho, output_type="ndarray")
+    pairs = pairs[w[pairs["j"]] > 0.0]
+    gain = np.bincount(pairs["i"], weights=w[pairs["j"]], minlength=len(candidates_m)) * psi4  # G(s)
+    own = gain / (reach + L0)
+    pool = np.argsort(-own, kind="stable")[: config.tour_pool]
+    pool = pool[gain[pool] > 0.0]
+    P = len(pool)
+    # cover[a, q]: pool site a explores patch q (within rho); weights of patches not yet explored
+    row = np.full(len(candidates_m), -1)
+    row[pool] = np.arange(P)
+    in_pool = row[pairs["i"]] >= 0
+    cover = np.zeros((P, len(candidates_m)))
+    cover[row[pairs["i"][in_pool]], pairs["j"][in_pool]] = 1.0
+    S, N = candidates_m[pool], normals[pool]
+    # hop[a, b] = Len(s_a -> s_b), leaving s_a along its normal (v_n = -n_a)
+    hop = bezier_length(
+        approach_curve(S[:, None, :], -N[:, None, :], S[None, :, :], N[None, :, :], scale=config.psi2_control_scale)
+    )
+    start = reach[pool]
+    tour = greedy_insertion(cover, w, psi4[pool], start, hop, config)
     sites = np.asarray(tour, dtype=np.int64)
     order = best_order(start[sites], hop[np.ix_(sites, sites)])
     sites = sites[order]
@@ -628,6 +648,8 @@ class Planner:
                 f"({S.shape[0]} candidates given, {excluded} not admissible); mesh the estimated surface "
                 "around the last contact"
             )
+        if cfg.uses_variance and not np.all(np.isfinite(Q[valid])):
+            raise PlanningError("variance holds NaN or infinity; the GP variance must be finite")
         scores = np.zeros(S.shape[0])
         psi: FloatArray | None = None
         if cfg.strategy == "igef":
@@ -639,13 +661,9 @@ class Planner:
             scores[valid] = area_scores(S[valid], Nrm[valid], C, r_, v, z, cfg, Q[valid])
             index = int(valid[np.argmax(scores[valid])])
         elif cfg.strategy == "tour":
-            if cfg.uses_variance and not np.all(np.isfinite(Q[valid])):
-                raise PlanningError("variance holds NaN or infinity; the GP variance must be finite")
             scores[valid] = tour_plan(S[valid], Nrm[valid], C, r_, v, z, cfg, Q[valid]).scores
             index = int(valid[np.argmax(scores[valid])])
         elif cfg.strategy == "gpv":
-            if not np.all(np.isfinite(Q[valid])):
-                raise PlanningError("variance holds NaN or infinity; the GP variance must be finite")
             scores[valid] = Q[valid]  # Alg. 1 line 14: I(s) = GP variance(s)
             index = int(valid[np.argmax(scores[valid])])
         else:

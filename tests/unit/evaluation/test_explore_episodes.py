@@ -142,7 +142,7 @@ def test_the_gpis_node_gives_the_variance_only_to_strategies_that_rate_it() -> N
         item = episodes([case], 1, (strategy,), params=params)[0]
         return str(item.launch_args()["variance"])
 
-    assert variance("tour", {}) == "candidates" and variance("area", {}) == "none"
-    assert variance("tour", {"planner.tour_variance_weight": 0.0}) == "none"
+    assert variance("tour", {}) == "none" and variance("area", {}) == "none"
+    assert variance("tour", {"planner.tour_variance_weight": 1.0}) == "candidates"
     assert variance("area", {"planner.area_variance_weight": 2.0}) == "candidates"
     assert variance("igef", {"planner.area_variance_weight": 2.0}) == "none"  # another strategy's weight

@@ -235,3 +235,26 @@ def test_away_from_drops_points_within_the_radius_of_any_avoided_point() -> None
     np.testing.assert_array_equal(away_from(points, avoid, 0.006), [False, False, True, False])
     np.testing.assert_array_equal(away_from(points, np.zeros((0, 3)), 0.006), [True] * 4)
     np.testing.assert_array_equal(away_from(points, avoid, 0.0), [True] * 4)
+
+
+@pytest.mark.parametrize(
+    ("config", "refused"),
+    [
+        (PlannerConfig(strategy="gpv"), True),
+        (PlannerConfig(strategy="tour", tour_variance_weight=1.0), True),
+        (PlannerConfig(strategy="area", area_variance_weight=1.0), True),
+        (PlannerConfig(strategy="tour", tour_variance_weight=0.0), False),
+        (PlannerConfig(strategy="igef"), False),
+    ],
+)
+def test_a_nan_variance_is_refused_by_every_strategy_that_rates_it(config: PlannerConfig, refused: bool) -> None:
+    S, N = plane_patch()
+    C = np.array([[0.0, 0.0, 0.0]])
+    variance = np.ones(len(S))
+    variance[3] = np.nan
+    args = (S, N, variance, C, C[-1], np.array([0, 0, -1.0]), np.array([0, 0, -1.0]), np.random.default_rng(0))
+    if refused:
+        with pytest.raises(PlanningError, match="NaN or infinity"):
+            Planner(config).select(*args)
+    else:
+        assert np.isfinite(Planner(config).select(*args).score)

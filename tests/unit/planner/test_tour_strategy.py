@@ -69,7 +69,8 @@ def test_a_far_weight_favours_patches_far_from_every_contact() -> None:
     near = patch_weights(S, np.linalg.norm(S, axis=1), PlannerConfig(strategy="tour", tour_far_weight=0.0))
     far = patch_weights(S, np.linalg.norm(S, axis=1), PlannerConfig(strategy="tour", tour_far_weight=1.0))
     d = np.linalg.norm(S, axis=1)
-    assert np.all(far[d >= 0.02] - near[d >= 0.02] == 1.0)  # saturated at D = 2 cm
+    assert np.all(far[d >= 0.03] - near[d >= 0.03] == 1.0)  # saturated at D = 3 cm
+    assert np.all(far[(d > 0.006) & (d < 0.03)] - near[(d > 0.006) & (d < 0.03)] < 1.0)
     assert np.all(far[d <= 0.006] == 0.0)  # explored
 
 
