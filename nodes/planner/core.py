@@ -127,8 +127,8 @@ class PlannerConfig(Validated):
     tour_far_m: PositiveFloat = 0.03
     #: Weight kappa of the GP variance in the patch weight, w(q) (1 + kappa var(q) / max var): the GP's
     #: own doubt, where its estimate bulges away from the contacts. 0 (default): the GPIS node computes
-    #: no variance for the tour; kappa 1 buys a better whole estimate with 20 % more travel
-    #: (docs/exploration.md compares the settings on the 30 shared objects).
+    #: no variance for the tour; kappa 1 with a 3 cm touch cost buys a better whole estimate with 20 %
+    #: more travel (docs/exploration.md compares the settings on the 30 shared objects).
     tour_variance_weight: NonNegativeFloat = 0.0
 
     @property
