@@ -317,23 +317,25 @@ def _immutable_array(f: _FieldPlan, value: Any) -> np.ndarray | None:
     """`value` as a read-only view of a bytes object (itself when it already is one), or None when it
     does not fit the field (dtype, rank, fixed axes, finiteness)."""
     if type(value) is np.ndarray and value.dtype == f.dtype:
-        if _views_bytes(value) and value.flags.c_contiguous:
-            arr = value
-        else:  # the C-ordered bytes, as encode writes them
-            arr = np.frombuffer(value.tobytes(), f.dtype)
-            if value.ndim != 1:
-                arr = arr.reshape(value.shape)
+        arr = value if _views_bytes(value) and value.flags.c_contiguous else frozen(value)
     else:
         try:
-            arr = np.ascontiguousarray(value, dtype=f.dtype)  # as encode converts it
+            arr = frozen(np.ascontiguousarray(value, dtype=f.dtype))  # as encode converts it
         except (TypeError, ValueError):
             return None
-        arr = np.frombuffer(arr.tobytes(), f.dtype).reshape(arr.shape)
     if not _shape_fits(f, arr.shape):
         return None
     if f.check_finite and arr.size and not _all_finite(arr):
         return None
     return arr
+
+
+def frozen(array: np.ndarray) -> np.ndarray:
+    """A read-only copy of `array`, C-ordered, over a bytes object (the bytes `encode` writes): nothing
+    can change it, so `transfer` passes it on without a copy. For an array a node publishes unchanged
+    tick after tick, freeze it once."""
+    arr = np.frombuffer(array.tobytes(), array.dtype)
+    return arr if array.ndim == 1 else arr.reshape(array.shape)
 
 
 def _views_bytes(arr: np.ndarray) -> bool:

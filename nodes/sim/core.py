@@ -47,6 +47,7 @@ from palpate.geometry.mesh_query import (
     ExactContactSensor,
     WarmClosest,
 )
+from palpate.messages import codec
 from palpate.nodes.sim import capsule_kernels, penalty_kernels, probe_kernels
 from palpate.nodes.sim.effectors import FingerConfig, HandConfig
 from palpate.nodes.sim.objects import ObjectModel, load_object
@@ -60,6 +61,10 @@ _INSTABILITY_WARNINGS = (
 )
 #: Arrays up to this many elements are checked for finiteness in Python (`_is_finite`).
 _FEW_ELEMENTS = 64
+#: No contact: read-only arrays over an empty bytes object, shared by every empty Contacts (nothing can
+#: change them, so the message codec passes them on without a copy).
+_NO_ROWS = codec.frozen(np.zeros((0, 3)))
+_NO_VALUES = codec.frozen(np.zeros(0))
 
 
 @dataclass(frozen=True)
@@ -81,8 +86,8 @@ class Contacts:
 
     @staticmethod
     def empty() -> Contacts:
-        """No contact."""
-        return Contacts(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), [])
+        """No contact (read-only arrays)."""
+        return Contacts(_NO_ROWS, _NO_ROWS, _NO_ROWS, _NO_VALUES, [])
 
     def __len__(self) -> int:
         return len(self.links)
