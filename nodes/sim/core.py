@@ -242,9 +242,9 @@ class Simulation:
         q = np.asarray(q_rad, dtype=np.float64)
         if q.shape != (len(self.joint_names),):
             raise ValueError(f"joint targets have shape {q.shape}; expected ({len(self.joint_names)},)")
-        if not np.isfinite(q).all():
+        if not _is_finite(q):
             raise ValueError(f"joint targets must be finite, got {q!r}")
-        clipped = np.clip(q, self._ranges[:, 0], self._ranges[:, 1])
+        clipped = q.clip(self._ranges[:, 0], self._ranges[:, 1])  # np.clip without its wrappers
         self.data.ctrl[self._actuator_of_joint] = clipped
 
     def set_velocity(self, linear_m_s: np.ndarray, angular_rad_s: np.ndarray) -> None:
