@@ -65,6 +65,9 @@ _FEW_ELEMENTS = 64
 #: change them, so the message codec passes them on without a copy).
 _NO_ROWS = codec.frozen(np.zeros((0, 3)))
 _NO_VALUES = codec.frozen(np.zeros(0))
+#: No touching capsule sphere: `Simulation._sphere_hits`'s answer (indices, centres, points, distances,
+#: normals), read-only.
+_NO_HITS = (codec.frozen(np.zeros(0, dtype=np.int64)), _NO_ROWS, _NO_ROWS, _NO_VALUES, _NO_ROWS)
 
 
 @dataclass(frozen=True)
@@ -693,6 +696,8 @@ class Simulation:
                 break
             resume = self._answer_in_python(at)
         centres, near, points, dist, faces, touch, state, _, _ = self._pk_buffers
+        if state[k.S_TOUCHING] == 0:  # the common case: no sphere touches
+            return _NO_HITS
         rows = touch[: state[k.S_TOUCHING]]
         idx = near[rows]
         return idx, centres[idx], points[rows], dist[rows], self._pk_face_normals[faces[rows]]
