@@ -113,6 +113,8 @@ class ContactNoise:
         n = unit_vectors(normals, "normals")
         if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
             raise ValueError(f"positions and normals must both have shape (n, 3), got {p.shape} and {n.shape}")
+        if not len(p):  # no contact: nothing to draw (drawing no values leaves the generator as it is)
+            return np.array(p), np.array(n)
         if self.config.position_sigma_m > 0:  # each branch makes a new array
             p = p + self.config.position_sigma_m * self._rng.standard_normal(p.shape)
         else:
