@@ -285,6 +285,7 @@ def _transfer_values(plan: _Plan, fields: Mapping[str, Any]) -> dict[str, Any] |
     """Field values for `transfer` when every field is well-formed, else None."""
     values: dict[str, Any] = {}
     value: Any
+    total = 0.0  # the elements of the small float arrays that must be finite: see _all_finite
     for f in plan.fields:
         value = fields[f.name]
         kind = f.kind
@@ -292,6 +293,11 @@ def _transfer_values(plan: _Plan, fields: Mapping[str, Any]) -> dict[str, Any] |
             value = _immutable_array(f, value)
             if value is None:
                 return None
+            if f.check_finite and value.size:
+                if value.size <= _SMALL_ARRAY:
+                    total += sum(value.ravel().tolist())
+                elif not _all_finite(value):
+                    return None
         elif kind == "float":
             if type(value) is not float and type(value) is not int:
                 return None
@@ -308,6 +314,8 @@ def _transfer_values(plan: _Plan, fields: Mapping[str, Any]) -> dict[str, Any] |
         elif type(value) is not _EXACT_TYPE[kind]:
             return None
         values[f.name] = value
+    if not math.isfinite(total):  # a NaN or infinity (or finite values that overflow: decode passes them)
+        return None
     if plan.dims and not _dims_agree(plan, values):
         return None
     return values
@@ -315,25 +323,23 @@ def _transfer_values(plan: _Plan, fields: Mapping[str, Any]) -> dict[str, Any] |
 
 def _immutable_array(f: _FieldPlan, value: Any) -> np.ndarray | None:
     """`value` as a read-only view of a bytes object (itself when it already is one), or None when it
-    does not fit the field (dtype, rank, fixed axes, finiteness)."""
+    does not fit the field (dtype, rank, fixed axes). Finiteness is left to the caller."""
     if type(value) is np.ndarray and value.dtype == f.dtype:
-        if _views_bytes(value) and value.flags.c_contiguous:
-            arr = value
-        else:  # the C-ordered bytes, as encode writes them
-            arr = np.frombuffer(value.tobytes(), f.dtype)
-            if value.ndim != 1:
-                arr = arr.reshape(value.shape)
+        arr = value if _views_bytes(value) and value.flags.c_contiguous else frozen(value)
     else:
         try:
-            arr = np.ascontiguousarray(value, dtype=f.dtype)  # as encode converts it
+            arr = frozen(np.ascontiguousarray(value, dtype=f.dtype))  # as encode converts it
         except (TypeError, ValueError):
             return None
-        arr = np.frombuffer(arr.tobytes(), f.dtype).reshape(arr.shape)
-    if not _shape_fits(f, arr.shape):
-        return None
-    if f.check_finite and arr.size and not _all_finite(arr):
-        return None
-    return arr
+    return arr if _shape_fits(f, arr.shape) else None
+
+
+def frozen(array: np.ndarray) -> np.ndarray:
+    """A read-only copy of `array`, C-ordered, over a bytes object (the bytes `encode` writes): nothing
+    can change it, so `transfer` passes it on without a copy. For an array a node publishes unchanged
+    tick after tick, freeze it once."""
+    arr = np.frombuffer(array.tobytes(), array.dtype)
+    return arr if array.ndim == 1 else arr.reshape(array.shape)
 
 
 def _views_bytes(arr: np.ndarray) -> bool:
@@ -614,6 +620,8 @@ def validate(message: Message) -> None:
     cls = type(message)
     plan = _plan_of(cls)
     fields = message.__dict__
+    if _surely_valid(plan, fields):
+        return
     converted: dict[str, Any] = {}  # array fields that are not ndarrays, as arrays
     for f in plan.fields:
         value = fields[f.name]
@@ -638,6 +646,31 @@ def validate(message: Message) -> None:
         agree = False
     if not agree:
         check_dimensions(cls, values)
+
+
+def _surely_valid(plan: _Plan, fields: Mapping[str, Any]) -> bool:
+    """`validate`'s fast path: True when every field passes (ndarrays of fitting shapes, the small
+    float64 ones checked for finiteness by one sum, as in `_all_finite`), False when `validate`
+    must check field by field (which raises the first fault, or passes finite values whose sum overflows)."""
+    total = 0.0
+    for f in plan.fields:
+        value = fields[f.name]
+        if f.kind == "array":
+            if type(value) is not np.ndarray or not _shape_fits(f, value.shape):
+                return False
+            if f.finite and value.size:
+                if value.dtype is _FLOAT64 and value.size <= _SMALL_ARRAY:
+                    total += sum(value.ravel().tolist())
+                elif value.dtype.kind in "fc" and not _all_finite(value):
+                    return False
+        elif f.check_finite:
+            if type(value) is not float:
+                return False
+            total += value
+    try:
+        return math.isfinite(total) and (not plan.dims or _dims_agree(plan, fields))
+    except TypeError:  # a string list that has no length
+        return False
 
 
 def _shape_fits(f: _FieldPlan, shape: tuple[int, ...]) -> bool:

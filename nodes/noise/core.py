@@ -54,18 +54,20 @@ class JointNoise:
         self.sigma_rad = np.radians(sigma_deg)
         self.bias_rad = np.radians(bias_deg)
         self._noisy = (self.sigma_rad > 0) | (self.bias_rad != 0)
+        self._some_noisy, self._all_noisy = bool(self._noisy.any()), bool(self._noisy.all())
         self._rng = rng
 
     def apply(self, q_rad: np.ndarray) -> np.ndarray:
         """Noisy copy of joint angles q_rad (..., J) in radians. Joints with sigma 0 and bias 0 keep
         their values bit for bit; the generator is only drawn from when some joint is noisy."""
-        q = np.array(q_rad, dtype=np.float64)
+        q = np.asarray(q_rad, dtype=np.float64)
         if q.shape[-1:] != (len(self.joint_names),):
             raise ValueError(f"expected joint angles of shape (..., {len(self.joint_names)}), got {q.shape}")
-        if not self._noisy.any():
-            return q
+        if not self._some_noisy:
+            return np.array(q)
         z = self._rng.standard_normal(q.shape)
-        return np.where(self._noisy, q + self.bias_rad + self.sigma_rad * z, q)  # q + b + sigma z
+        noisy = q + self.bias_rad + self.sigma_rad * z  # q + b + sigma z
+        return noisy if self._all_noisy else np.where(self._noisy, noisy, q)
 
 
 class JointStreamNoise:
@@ -111,6 +113,8 @@ class ContactNoise:
         n = unit_vectors(normals, "normals")
         if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
             raise ValueError(f"positions and normals must both have shape (n, 3), got {p.shape} and {n.shape}")
+        if not len(p):  # no contact: nothing to draw (drawing no values leaves the generator as it is)
+            return np.array(p), np.array(n)
         if self.config.position_sigma_m > 0:  # each branch makes a new array
             p = p + self.config.position_sigma_m * self._rng.standard_normal(p.shape)
         else:

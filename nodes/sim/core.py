@@ -47,6 +47,7 @@ from palpate.geometry.mesh_query import (
     ExactContactSensor,
     WarmClosest,
 )
+from palpate.messages import codec
 from palpate.nodes.sim import capsule_kernels, penalty_kernels, probe_kernels
 from palpate.nodes.sim.effectors import FingerConfig, HandConfig
 from palpate.nodes.sim.objects import ObjectModel, load_object
@@ -60,6 +61,13 @@ _INSTABILITY_WARNINGS = (
 )
 #: Arrays up to this many elements are checked for finiteness in Python (`_is_finite`).
 _FEW_ELEMENTS = 64
+#: No contact: read-only arrays over an empty bytes object, shared by every empty Contacts (nothing can
+#: change them, so the message codec passes them on without a copy).
+_NO_ROWS = codec.frozen(np.zeros((0, 3)))
+_NO_VALUES = codec.frozen(np.zeros(0))
+#: No touching capsule sphere: `Simulation._sphere_hits`'s answer (indices, centres, points, distances,
+#: normals), read-only.
+_NO_HITS = (codec.frozen(np.zeros(0, dtype=np.int64)), _NO_ROWS, _NO_ROWS, _NO_VALUES, _NO_ROWS)
 
 
 @dataclass(frozen=True)
@@ -81,8 +89,8 @@ class Contacts:
 
     @staticmethod
     def empty() -> Contacts:
-        """No contact."""
-        return Contacts(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), [])
+        """No contact (read-only arrays)."""
+        return Contacts(_NO_ROWS, _NO_ROWS, _NO_ROWS, _NO_VALUES, [])
 
     def __len__(self) -> int:
         return len(self.links)
@@ -237,9 +245,9 @@ class Simulation:
         q = np.asarray(q_rad, dtype=np.float64)
         if q.shape != (len(self.joint_names),):
             raise ValueError(f"joint targets have shape {q.shape}; expected ({len(self.joint_names)},)")
-        if not np.isfinite(q).all():
+        if not _is_finite(q):
             raise ValueError(f"joint targets must be finite, got {q!r}")
-        clipped = np.clip(q, self._ranges[:, 0], self._ranges[:, 1])
+        clipped = q.clip(self._ranges[:, 0], self._ranges[:, 1])  # np.clip without its wrappers
         self.data.ctrl[self._actuator_of_joint] = clipped
 
     def set_velocity(self, linear_m_s: np.ndarray, angular_rad_s: np.ndarray) -> None:
@@ -688,6 +696,8 @@ class Simulation:
                 break
             resume = self._answer_in_python(at)
         centres, near, points, dist, faces, touch, state, _, _ = self._pk_buffers
+        if state[k.S_TOUCHING] == 0:  # the common case: no sphere touches
+            return _NO_HITS
         rows = touch[: state[k.S_TOUCHING]]
         idx = near[rows]
         return idx, centres[idx], points[rows], dist[rows], self._pk_face_normals[faces[rows]]

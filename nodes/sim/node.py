@@ -16,7 +16,7 @@ import numpy as np
 from palpate.config import PositiveFloat, Validated
 from palpate.errors import ConfigError
 from palpate.inputs import MAX_RATE, bounded
-from palpate.messages import topics
+from palpate.messages import codec, topics
 from palpate.messages.schemas import (
     CartesianVelocityCommand,
     ContactSet,
@@ -81,6 +81,8 @@ class SimNode:
             motion=motion,
         )
         self.period_ns = self.session.period_ns  # the runtime puts it in every Clock
+        #: The joint velocities published (zero: the joint states carry angles only), frozen once.
+        self._joint_velocities = codec.frozen(np.zeros(len(self.sim.joint_names)))
 
     def on_velocity(self, message: CartesianVelocityCommand) -> None:
         linear = bounded(message.linear_m_s, "linear_m_s", MAX_RATE, "m/s")
@@ -131,7 +133,10 @@ class SimNode:
         if not self.probe:
             q = self.sim.joint_positions()
             state = JointState(
-                stamp_ns=stamp, names=list(self.sim.joint_names), positions_rad=q, velocities_rad_s=np.zeros_like(q)
+                stamp_ns=stamp,
+                names=list(self.sim.joint_names),
+                positions_rad=q,
+                velocities_rad_s=self._joint_velocities,
             )
             self.ctx.publish("joint_states", state)
             self.ctx.publish("truth_joint_states", state)

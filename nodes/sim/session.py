@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from palpate.inputs import select_named
+from palpate.messages import codec
 
 FloatArray = NDArray[np.float64]
 
@@ -62,6 +63,10 @@ class SimTick:
     angular_velocity_rad_s: np.ndarray
 
 
+#: A zero velocity (3,), read-only over a bytes object (so the message codec passes it on without a copy).
+_AT_REST = codec.frozen(np.zeros(3))
+
+
 class SimSession:
     """Steps a simulation tick by tick (see the module docstring for the rules)."""
 
@@ -101,7 +106,7 @@ class SimSession:
                 self.sim.set_joint_targets(self.motion.targets(self.sim.time_s))
             self.sim.step(self.steps_per_tick)
         position, quaternion = self.sim.effector_pose()
-        linear = angular = np.zeros(3)
+        linear = angular = _AT_REST
         if self._previous_position is not None:
             linear = (position - self._previous_position) / self.tick_period_s  # v = dx / dt
         self._previous_position = position

@@ -43,6 +43,7 @@ from palpate import jsonio
 from palpate.config import NonNegativeFloat, Validated, load
 from palpate.errors import BenchmarkError, InputError
 from palpate.inputs import contact_arrays
+from palpate.messages import codec
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, JointState, Pose
 from palpate.paths import LAUNCH_DIR, ycb_dir
 from palpate.runtime.spec import Context, NodeSpec, Port
@@ -57,6 +58,10 @@ FALLBACK_OBJECT: dict[str, Any] = {"kind": "box"}
 
 
 # --- timing nodes (used by the benchmark's graphs and by launch/probe.yaml) ---------------------------
+
+
+#: The driver's angular velocity (3,): zero, frozen once (the codec passes it on without a copy).
+_NO_TURN = codec.frozen(np.zeros(3))
 
 
 class _TickTimes:
@@ -137,7 +142,7 @@ class ProbeDriver:
             tangent = t / length if length > 1e-6 else np.zeros(3)
             linear = cfg.slide_speed_m_s * tangent - cfg.press_speed_m_s * n
         self.ctx.publish(
-            "velocity", CartesianVelocityCommand(stamp_ns=stamp_ns, linear_m_s=linear, angular_rad_s=np.zeros(3))
+            "velocity", CartesianVelocityCommand(stamp_ns=stamp_ns, linear_m_s=linear, angular_rad_s=_NO_TURN)
         )
 
     def close(self) -> None:

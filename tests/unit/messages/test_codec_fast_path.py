@@ -259,6 +259,7 @@ def test_huge_finite_values_are_finite_and_nan_or_inf_anywhere_are_not(n: int) -
     )
     codec.validate(message)
     assert codec.decode(codec.encode(message), ParticleSetSummary) == message
+    assert codec.transfer(message) == message
     for bad in (np.nan, np.inf, -np.inf):
         for at in {0, n // 2, n - 1}:
             weights = huge.copy()
@@ -268,3 +269,38 @@ def test_huge_finite_values_are_finite_and_nan_or_inf_anywhere_are_not(n: int) -
                 codec.validate(broken)
             with pytest.raises(NonFiniteError, match=re.escape("ParticleSetSummary.weights must be finite")):
                 codec.decode(codec.encode(broken), ParticleSetSummary)
+            with pytest.raises(NonFiniteError, match=re.escape("ParticleSetSummary.weights must be finite")):
+                codec.transfer(broken)
+
+
+def test_validate_raises_the_first_fault_in_field_order() -> None:
+    """Its fast path checks all fields at once; a fault still raises the error of the first faulty field."""
+    nan_first = ContactSet(
+        stamp_ns=0,
+        positions_m=np.full((1, 3), np.nan),
+        local_positions_m=np.zeros((1, 3)),
+        normals=np.zeros((1, 2)),  # also wrong, but a later field
+        forces_n=np.zeros(1),
+        links=["a"],
+    )
+    with pytest.raises(NonFiniteError, match=re.escape("ContactSet.positions_m must be finite")):
+        codec.validate(nan_first)
+    shape_first = dataclasses.replace(nan_first, positions_m=np.zeros((1, 2)), normals=np.full((1, 3), np.inf))
+    with pytest.raises(MalformedMessageError, match=re.escape("ContactSet.positions_m must have shape (n, 3)")):
+        codec.validate(shape_first)
+
+
+def test_frozen_arrays_are_read_only_copies_that_transfer_passes_on() -> None:
+    source = np.arange(6.0).reshape(2, 3)
+    frozen = codec.frozen(source)
+    assert np.array_equal(frozen, source) and frozen.dtype == source.dtype and not frozen.flags.writeable
+    assert not np.shares_memory(frozen, source)
+    message = ContactSet(
+        stamp_ns=0,
+        positions_m=frozen,
+        local_positions_m=frozen,
+        normals=np.eye(3)[:2],
+        forces_n=np.ones(2),
+        links=["a", "b"],
+    )
+    assert codec.transfer(message).positions_m is frozen

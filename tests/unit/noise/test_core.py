@@ -204,3 +204,15 @@ def test_few_directions_take_the_scalar_path_with_numpys_bits() -> None:
             assert _perturb_few(v, z).tobytes() == _perturb_many(v, z).tobytes()
     v = np.array([[0.0, 0.0, 1.0]])
     assert _perturb_few(v, np.array([[0.0, 0.0, 0.3]])).tobytes() == v.tobytes()  # a step along n: no turn
+
+
+def test_contact_noise_of_no_contact_is_empty_and_draws_nothing() -> None:
+    config = ContactNoiseConfig(position_sigma_m=1e-3, normal_sigma_deg=2.0)
+    rng = np.random.default_rng(4)
+    state = rng.bit_generator.state
+    empty = np.zeros((0, 3))
+    empty.flags.writeable = False  # as received
+    p, n = ContactNoise(config, rng).apply(empty, empty)
+    assert p.shape == n.shape == (0, 3) and p.dtype == n.dtype == np.float64
+    assert p.flags.writeable and n.flags.writeable and not np.shares_memory(p, empty)
+    assert rng.bit_generator.state == state
