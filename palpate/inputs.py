@@ -236,6 +236,20 @@ def _squares(rows: FloatArray) -> FloatArray:
     return np.asarray(np.einsum("ij,ij->i", rows, rows), dtype=np.float64)
 
 
+#: Float arrays up to this many elements are checked for finiteness in Python (`all_finite`).
+FEW_FINITE = 64
+
+
+def all_finite(array: np.ndarray) -> bool:
+    """True when no element of `array` is NaN or infinite."""
+    # A sum of Python floats is NaN or infinite when any term is (NaN and infinity propagate, and
+    # inf - inf is NaN), and cheaper than numpy for a few elements; an overflowing sum of finite terms
+    # is settled by the exact test below.
+    if array.dtype.kind == "f" and array.size <= FEW_FINITE and math.isfinite(sum(array.ravel().tolist())):
+        return True
+    return bool(np.isfinite(array).all())
+
+
 def _norms(a: FloatArray) -> FloatArray:
     """Euclidean norms along the last axis, scaled so that 1e200 or 1e-200 components do not over/underflow."""
     if 0 < a.size <= _FEW_VALUES and a.ndim in (1, 2):

@@ -47,6 +47,7 @@ from palpate.geometry.mesh_query import (
     ExactContactSensor,
     WarmClosest,
 )
+from palpate.inputs import all_finite
 from palpate.messages import codec
 from palpate.nodes.sim import capsule_kernels, penalty_kernels, probe_kernels
 from palpate.nodes.sim.effectors import FingerConfig, HandConfig
@@ -59,8 +60,6 @@ _INSTABILITY_WARNINGS = (
     (mujoco.mjtWarning.mjWARN_BADQVEL, "bad velocity"),
     (mujoco.mjtWarning.mjWARN_BADQPOS, "bad position"),
 )
-#: Arrays up to this many elements are checked for finiteness in Python (`_is_finite`).
-_FEW_ELEMENTS = 64
 #: No contact: read-only arrays over an empty bytes object, shared by every empty Contacts (nothing can
 #: change them, so the message codec passes them on without a copy).
 _NO_ROWS = codec.frozen(np.zeros((0, 3)))
@@ -94,15 +93,6 @@ class Contacts:
 
     def __len__(self) -> int:
         return len(self.links)
-
-
-def _is_finite(array: np.ndarray) -> bool:
-    """True when no element of `array` is NaN or infinite."""
-    # A Python sum is NaN or infinite when any term is (cheaper than numpy for a few elements); an
-    # overflowing sum of finite terms is settled by the exact test.
-    if array.size <= _FEW_ELEMENTS and math.isfinite(sum(array.ravel().tolist())):
-        return True
-    return bool(np.isfinite(array).all())
 
 
 def _quat_to_mat(q: np.ndarray) -> np.ndarray:
@@ -245,7 +235,7 @@ class Simulation:
         q = np.asarray(q_rad, dtype=np.float64)
         if q.shape != (len(self.joint_names),):
             raise ValueError(f"joint targets have shape {q.shape}; expected ({len(self.joint_names)},)")
-        if not _is_finite(q):
+        if not all_finite(q):
             raise ValueError(f"joint targets must be finite, got {q!r}")
         clipped = q.clip(self._ranges[:, 0], self._ranges[:, 1])  # np.clip without its wrappers
         self.data.ctrl[self._actuator_of_joint] = clipped
@@ -261,7 +251,7 @@ class Simulation:
         w = np.asarray(angular_rad_s, dtype=np.float64)
         if v.shape != (3,) or w.shape != (3,):
             raise ValueError(f"velocities have shapes {v.shape} and {w.shape}; expected (3,) and (3,)")
-        if not (_is_finite(v) and _is_finite(w)):
+        if not (all_finite(v) and all_finite(w)):
             raise ValueError(f"velocities must be finite, got linear {v!r}, angular {w!r}")
         self._cmd_lin = v.copy()
         self._cmd_ang = w.copy()
@@ -302,7 +292,7 @@ class Simulation:
             if count > self._warnings_seen[i]:
                 problems.append(what)
                 self._warnings_seen[i] = count
-        if force or not (_is_finite(d.qpos) and _is_finite(d.qvel)):
+        if force or not (all_finite(d.qpos) and all_finite(d.qvel)):
             problems.append("non-finite state")
         if problems:
             dt = self._dt
@@ -860,7 +850,7 @@ class Simulation:
         return out
 
     def _finite(self, array: np.ndarray, what: str) -> np.ndarray:
-        if not _is_finite(array):
+        if not all_finite(array):
             dt = self._dt
             raise SimulationDivergedError(
                 f"{what} are not finite at t = {self.time_s:.6g} s with time step {dt:g} s; the simulation "

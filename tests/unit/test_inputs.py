@@ -8,6 +8,7 @@ import pytest
 from palpate.errors import InputError, PalpateError
 from palpate.inputs import (
     MAX_COORDINATE_M,
+    all_finite,
     bounded,
     contact_arrays,
     coordinates,
@@ -203,3 +204,12 @@ def test_per_vertex_spreads_values_over_their_vertices_and_refuses_bad_indices()
             per_vertex([1.0, 2.0], bad, 4, "variance_vertices")
     with pytest.raises(InputError, match=r"^f: has 1 indices for 2 values"):
         per_vertex([1.0, 2.0], [0], 4, "f")
+
+
+@pytest.mark.parametrize(
+    "values",
+    [[], [0.0, -1.0, 2.5], [1e308, 1e308, 1e308], [1.0, np.nan], [np.inf, 1.0], [-np.inf, np.inf], [1e308] * 100],
+)
+def test_all_finite_agrees_with_numpy(values: list[float]) -> None:
+    array = np.array(values, dtype=np.float64).reshape(-1, 1) if len(values) > 3 else np.array(values, np.float64)
+    assert all_finite(array) == bool(np.isfinite(array).all())

@@ -12,7 +12,7 @@ import pytest
 from palpate.config import load
 from palpate.errors import ConfigError, SimulationDivergedError
 from palpate.geometry.mesh_query import ExactContactSensor
-from palpate.nodes.sim.core import Contacts, Simulation, _is_finite, bare_step_rate
+from palpate.nodes.sim.core import Contacts, Simulation, bare_step_rate
 from palpate.nodes.sim.effectors import FingerConfig, ProbeConfig
 from palpate.nodes.sim.objects import ObjectSpec
 from palpate.nodes.sim.scene import SceneConfig
@@ -268,15 +268,6 @@ def test_bare_step_rate_counts_steps() -> None:
     sim = Simulation(SceneConfig(effector="finger"))
     rate = bare_step_rate(sim.model, seconds=0.05)
     assert 1e3 < rate < 1e8
-
-
-@pytest.mark.parametrize(
-    "values",
-    [[], [0.0, -1.0, 2.5], [1e308, 1e308, 1e308], [1.0, np.nan], [np.inf, 1.0], [-np.inf, np.inf], [1e308] * 100],
-)
-def test_is_finite_agrees_with_numpy(values: list[float]) -> None:
-    array = np.array(values, dtype=np.float64).reshape(-1, 1) if len(values) > 3 else np.array(values, np.float64)
-    assert _is_finite(array) == bool(np.isfinite(array).all())
 
 
 def test_a_new_instability_warning_raises_once_per_new_count() -> None:
