@@ -186,6 +186,8 @@ class Simulation:
             self._warm: WarmClosest | None = WarmClosest(self._sensor)
             #: Run the probe's steps in compiled code (probe_kernels) when MuJoCo's library is found.
             self.compiled_steps = probe_kernels.mujoco_functions() is not None
+            if self.compiled_steps:
+                self._setup_probe_kernels()
         else:
             cfg = scene.effector_config()
             assert isinstance(cfg, HandConfig | FingerConfig)
@@ -365,11 +367,39 @@ class Simulation:
         self._steps += 1
         return remaining - 1, math.isfinite(sum(qpos.tolist())) and self._probe_project()
 
+    def _setup_probe_kernels(self) -> None:
+        """What the compiled steps read and write (probe_kernels): the mesh, its face grid, the probe's
+        patch (a one-sphere ``WarmPatches``, the warm query's state while the compiled steps run) and
+        the parameters of its query."""
+        warm, sensor = self._warm, self._sensor
+        assert warm is not None and sensor is not None
+        penalty_kernels.load_query_kernels(sensor)
+        self._patch = penalty_kernels.WarmPatches(1, warm.max_patch_faces, capacity=2 * warm.max_patch_faces)
+        self._pk_mesh = (
+            sensor._centre,
+            sensor._triangles,
+            sensor._sign_normals,
+            sensor._bound_planes,
+            sensor._bound_offsets,
+        )
+        self._pk_face_normals = sensor.face_normals
+        self._pk_grid, cell_m, largest = penalty_kernels.face_grid(sensor)
+        self._pk_candidates = np.zeros(len(sensor.face_normals), dtype=np.int64)
+        k = penalty_kernels
+        self._pk_params = np.zeros(k.PARAMS)
+        self._pk_params[k.P_REACH] = warm.reach_m
+        self._pk_params[k.P_WEAK_PSEUDO_NORMAL] = WEAK_PSEUDO_NORMAL
+        self._pk_params[k.P_WEAK_SIGN_COS] = WEAK_SIGN_COS
+        self._pk_params[k.P_MAX_DISTANCE] = warm.max_distance_m
+        self._pk_params[k.P_MAX_FACES] = warm.max_patch_faces
+        self._pk_params[k.P_CELL] = cell_m
+        self._pk_params[k.P_LARGEST] = largest
+
     def _probe_compiled(self, steps: int, turning: bool, speed_per_step: float) -> tuple[int, int, bool]:
         """Up to ``steps`` steps in ``probe_kernels.probe_steps``: (steps taken, status, projected)."""
         functions = probe_kernels.mujoco_functions()
-        assert functions is not None and self._warm is not None
-        taken, status, projected, face, searches = probe_kernels.probe_steps(
+        assert functions is not None
+        taken, status, projected = probe_kernels.probe_steps(
             functions[0],
             functions[1],
             self.model._address,
@@ -385,27 +415,33 @@ class Simulation:
             *self._probe_kernel_arguments(),
         )
         self._steps += taken
-        self._warm.resume(face, searches)
         return taken, status, projected
 
     def _probe_kernel_arguments(self) -> tuple[Any, ...]:
         """The arguments that ``probe_kernels.probe_steps`` and ``probe_closest`` share: the cache, the
-        probe, the mesh and the warm query's patch."""
-        warm, sensor = self._warm, self._sensor
-        assert warm is not None and sensor is not None
+        probe, the mesh and the probe's patch."""
         return (
             self._probe_cache,
             self._probe_radius,
             self._tol,
-            sensor._centre,
-            sensor._triangles,
-            sensor._sign_normals,
-            sensor.face_normals,
-            warm.reach_m,
-            *warm.patch(),
-            WEAK_PSEUDO_NORMAL,
-            WEAK_SIGN_COS,
+            self._pk_mesh,
+            self._pk_face_normals,
+            self._pk_grid,
+            self._patch.arrays(),
+            self._pk_params,
+            self._pk_candidates,
         )
+
+    def _warm_query(self, p: np.ndarray) -> tuple[tuple[float, float, float], float, int]:
+        """The warm query at p (3,) in Python; with compiled steps it takes over and hands back the
+        probe's patch (``WarmPatches.load`` and ``store``)."""
+        assert self._warm is not None
+        if not self.compiled_steps:
+            return self._warm.query(p)
+        self._patch.load(0, self._warm)
+        answer = self._warm.query(p)
+        self._patch.store(0, self._warm)
+        return answer
 
     def _probe_project(self, try_compiled: bool = True) -> bool:
         """Push the probe out of the surface along the contact normal; True when it was pushed (the
@@ -429,9 +465,8 @@ class Simulation:
         k = probe_kernels
         cache = self._probe_cache
         if self.compiled_steps and try_compiled:  # the same answer in compiled code, unless it needs Python
-            status, face, searched = k.probe_closest(self.data.qpos, *self._probe_kernel_arguments())
+            status, _ = k.probe_closest(self.data.qpos, *self._probe_kernel_arguments())
             if status != k.NEEDS_PYTHON:
-                self._warm.resume(face, searched)
                 return None if status == k.NO_HIT else self._probe_hit()
         p = self.data.qpos[0:3].copy()
         if cache[k.HAS_HIT] == 1.0 and p.tolist() == cache[0:3].tolist():
@@ -441,7 +476,7 @@ class Simulation:
         bound = float(cache[k.CACHE_D]) - math.sqrt(offset.dot(offset))
         if bound > self._probe_radius + self._tol:
             return None
-        found, dist, face = self._warm.query(p)  # the exact query, warm-started from the last answer
+        found, dist, face = self._warm_query(p)  # the exact query, warm-started from the last answer
         point = np.array(found)
         # Contact normal of a sphere: from the surface point to the centre (equals the surface normal
         # on faces, and is the true contact normal on edges and vertices); inside, the mesh normal.
@@ -500,7 +535,7 @@ class Simulation:
         m, d, sensor = self.model, self.data, self._sensor
         assert sensor is not None
         penalty_kernels.load_query_kernels(sensor)
-        template = WarmClosest(sensor, same_face=True)  # the settings of every sphere's query
+        template = WarmClosest(sensor)  # the settings of every sphere's query
         self._patches = penalty_kernels.WarmPatches(count, template.max_patch_faces)
         # what the compiled steps read and write: MuJoCo's arrays (views that stay valid), the spheres,
         # the mesh, per-step buffers and parameters (penalty_kernels.sphere_hits documents them)
@@ -596,14 +631,14 @@ class Simulation:
             points[:count], dist[:count], faces[:count] = hit.points_m, hit.distance_m, hit.face_ids
             return count
         sphere = int(near[at])
-        if search[k.SEARCH_PENDING]:  # a tie or a weak sign of the compiled search
+        if search[k.SEARCH_PENDING]:  # a weak sign of the compiled search
             search[k.SEARCH_PENDING] = 0.0
             s = search.tolist()
             q = s[k.SEARCH_Q : k.SEARCH_Q + 3]
-            found = (int(s[k.SEARCH_STATUS]), int(s[k.SEARCH_FACE]), q[0], q[1], q[2], s[k.SEARCH_DIST])
+            found = (int(s[k.SEARCH_FACE]), q[0], q[1], q[2], s[k.SEARCH_DIST])
             signs = (bool(s[k.SEARCH_INSIDE]), bool(s[k.SEARCH_WEAK]))
             warm = self._sphere_warm(sphere)
-            answer = warm.settle(s[k.SEARCH_P : k.SEARCH_P + 3], (*found, *signs), self._patches.ties)
+            answer = warm.settle(s[k.SEARCH_P : k.SEARCH_P + 3], (*found, *signs))
             points[at], dist[at], faces[at] = answer
             self._patches.face[sphere] = faces[at]
             self._patches.searches[sphere] += 1
@@ -627,7 +662,7 @@ class Simulation:
         warm = self._sph_warm.get(k)
         if warm is None:
             assert self._sensor is not None
-            warm = self._sph_warm[k] = WarmClosest(self._sensor, same_face=True)
+            warm = self._sph_warm[k] = WarmClosest(self._sensor)
         return warm
 
     def _sphere_bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -695,7 +730,7 @@ class Simulation:
     def _sphere_closest(self, P: np.ndarray, near: np.ndarray) -> ClosestPoints:
         """The sensor's answer for the spheres ``near`` (indices into centres P (K, 3)). Up to
         FEW_POINTS spheres, where the sensor answers point by point, each sphere's own warm-started
-        query gives the same bits (its face too: ``same_face``) for less; more go to the sensor in one
+        query gives the same bits (its face too) for less; more go to the sensor in one
         batch, whose vectorised path rounds differently."""
         assert self._sensor is not None
         if len(near) > FEW_POINTS:

@@ -14,7 +14,7 @@ numpy path's, in the same order (numba compiles without fast-math), so both give
 side by side.
 
 A query that needs Python ends the call *within* its step, before ``mj_step2``: a new patch (a
-scipy k-d tree), a tie or a weak sign (Open3D), or more than ``FEW_POINTS`` near spheres (the
+scipy k-d tree), a weak sign (Open3D's ray parity), or more than ``FEW_POINTS`` near spheres (the
 sensor's vectorised query, which rounds differently). The caller answers that sphere (or the batch)
 into the buffers and calls again with ``resume`` set to where the queries go on.
 ``mujoco_functions()`` returns None where MuJoCo's shared library is not found beside the bindings;
@@ -47,19 +47,10 @@ P_MAX_DISTANCE, P_MAX_FACES, P_CELL, P_LARGEST = range(5, 9)
 PARAMS = 9
 #: Layout of the state vector: how many spheres are near, how many of them touch.
 S_NEAR, S_TOUCHING = 0, 1
-#: Layout of the search vector: the query point (3, shifted frame), then warm_query's status, face,
-#: point (3), distance, inside and weak, and 1.0 while Python has to settle it.
-SEARCH_P, SEARCH_STATUS, SEARCH_FACE, SEARCH_Q, SEARCH_DIST, SEARCH_INSIDE, SEARCH_WEAK, SEARCH_PENDING = (
-    0,
-    3,
-    4,
-    5,
-    8,
-    9,
-    10,
-    11,
-)
-SEARCH_SIZE = 12
+#: Layout of the search vector: the query point (3, shifted frame), then warm_query's face, point (3),
+#: distance, inside and weak, and 1.0 while Python has to settle it.
+SEARCH_P, SEARCH_FACE, SEARCH_Q, SEARCH_DIST, SEARCH_INSIDE, SEARCH_WEAK, SEARCH_PENDING = 0, 3, 4, 7, 8, 9, 10
+SEARCH_SIZE = 11
 
 A = np.ndarray
 
@@ -190,9 +181,9 @@ def matches_numpy(samples: int = 500) -> bool:
 
 
 def load_query_kernels(sensor: ExactContactSensor) -> None:
-    """Load the compiled kernels that a sphere's query calls from Python (a patch build, a tie, a weak
-    sign) and build the sensor's face index now, not at the first contact: tens of milliseconds once
-    per process, which would otherwise stall a step of a running graph."""
+    """Load the compiled kernels that a sphere's query calls from Python (a patch build, a weak sign)
+    and build the sensor's face index now, not at the first contact: tens of milliseconds once per
+    process, which would otherwise stall a step of a running graph."""
     k = closest_kernels
     triangles, signs = sensor._triangles, sensor._sign_normals
     k.project(triangles, 0, 0.0, 0.0, 0.0)
@@ -200,9 +191,7 @@ def load_query_kernels(sensor: ExactContactSensor) -> None:
     faces, planes, offsets, lower0 = k.build_patch(
         sensor._bound_planes, sensor._bound_offsets, np.zeros(0, dtype=np.int64), 0.0, 0.0, 0.0, 1.0
     )
-    ties = np.zeros(1, dtype=np.int64)
-    for same_face in (False, True):
-        k.warm_query(triangles, signs, faces, planes, offsets, lower0, 0.0, 0, 0.0, 0.0, 0.0, 0.1, 0.1, ties, same_face)
+    k.warm_query(triangles, signs, faces, planes, offsets, lower0, 0.0, 0, 0.0, 0.0, 0.0, 0.1, 0.1)
     sensor.face_index()
     sensor._scene.closest_face_ids(np.zeros((1, 3)))
 
@@ -229,7 +218,6 @@ class WarmPatches:
         self.size = np.zeros(count, dtype=np.int64)
         self.searches = np.zeros(count, dtype=np.int64)
         self.used = np.zeros(1, dtype=np.int64)
-        self.ties = np.zeros(2 * max_patch_faces + 1, dtype=np.int64)
         self._given: list[A | None] = [None] * count  # the faces each sphere's Python query last got
         self._allocate(capacity or 8 * max_patch_faces)  # faces the arena holds at first
 
@@ -246,7 +234,6 @@ class WarmPatches:
             self.offsets,
             self.lower0,
             self.used,
-            self.ties,
         )
 
     def load(self, k: int, warm: WarmClosest) -> None:
@@ -260,7 +247,7 @@ class WarmPatches:
 
     def store(self, k: int, warm: WarmClosest) -> None:
         """Take sphere k's warm start back from its Python query (a patch it built goes to the arena)."""
-        p0, face, faces, planes, offsets, lower0, _ = warm.patch()
+        p0, face, faces, planes, offsets, lower0 = warm.patch()
         self.face[k] = face
         if faces is self._given[k]:
             return
@@ -349,7 +336,7 @@ def build(k: int, px: float, py: float, pz: float, mesh: Any, grid: Any, warm: A
     """``WarmClosest._build`` of sphere k's patch at p (shifted frame) into the arena; False where it
     needs Python (no face yet, no patch: too far or too many faces, a full arena)."""
     _, triangles, _, bound_planes, bound_offsets = mesh
-    p0, face, start, size, _, faces, planes, offsets, lower0, used, _ = warm
+    p0, face, start, size, _, faces, planes, offsets, lower0, used = warm
     if face[k] < 0:
         return False
     upper, _, _, _ = closest_kernels.project(triangles, face[k], px, py, pz)
@@ -392,17 +379,17 @@ def query_near(
     candidates: A,
     search: A,
 ) -> int:
-    """``WarmClosest.query`` (with ``same_face``) for the spheres near[j0:count] at their centres (K, 3),
+    """``WarmClosest.query`` for the spheres near[j0:count] at their centres (K, 3),
     as far as it needs no Python: writes each answer at its position j in points (K, 3), dist (K,) and
     hit_faces (K,). Returns count, or the first position whose query needs Python.
 
     mesh: the sensor's (centre (3,), triangles (F, 3, 3), sign normals (F, 7, 3), bound planes (F, 4,
     3), bound offsets (F, 4)); grid: :func:`face_grid`'s; warm: :meth:`WarmPatches.arrays`;
-    candidates (F,): scratch. A search that ends in a tie or a weak sign leaves p and its result in
+    candidates (F,): scratch. A search that ends in a weak sign leaves p and its result in
     ``search`` (the SEARCH_* layout; SEARCH_PENDING 1) for ``WarmClosest.settle``.
     """
     centre, triangles, sign_normals, _, _ = mesh
-    p0, face, start, size, searches, faces, planes, offsets, lower0, _, ties = warm
+    p0, face, start, size, searches, faces, planes, offsets, lower0, _ = warm
     reach = params[P_REACH]
     for j in range(j0, count):
         k = near[j]
@@ -417,7 +404,7 @@ def query_near(
             x0, y0, z0 = px, py, pz
         moved = math.sqrt((px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2)
         a, e = start[k], start[k] + size[k]
-        status, found, qx, qy, qz, unsigned, inside, weak = closest_kernels.warm_query(
+        found, qx, qy, qz, unsigned, inside, weak = closest_kernels.warm_query(
             triangles,
             sign_normals,
             faces[a:e],
@@ -431,12 +418,10 @@ def query_near(
             pz,
             params[P_WEAK_PSEUDO_NORMAL],
             params[P_WEAK_SIGN_COS],
-            ties,
-            True,
         )
-        if status == 1 or weak:  # a tie or a weak sign: Python settles it
+        if weak:  # a weak sign: Python decides it by ray parity
             search[SEARCH_P], search[SEARCH_P + 1], search[SEARCH_P + 2] = px, py, pz
-            search[SEARCH_STATUS], search[SEARCH_FACE] = status, found
+            search[SEARCH_FACE] = found
             search[SEARCH_Q], search[SEARCH_Q + 1], search[SEARCH_Q + 2] = qx, qy, qz
             search[SEARCH_DIST], search[SEARCH_INSIDE], search[SEARCH_WEAK] = unsigned, inside, weak
             search[SEARCH_PENDING] = 1.0

@@ -4,13 +4,14 @@
 commanded twist, the 1-Lipschitz bound, the warm-started exact query, the projection out of the
 surface. :func:`probe_steps` runs that loop for a batch of steps in one call: it calls ``mj_step``
 and ``mju_quat2Mat`` of MuJoCo's shared library by address (the same library the Python bindings
-use, so the same code), searches the warm query's patch with ``closest_kernels.warm_query`` and
-projects the probe. Every expression is the one of the Python path, in the same order (numpy's
-3-element dot products and 3x3 matrix-vector products sum left to right; numba compiles without
-fast-math, so without fused multiply-adds), so both paths give the same bits; a test runs them side
-by side. Whatever needs Python (a new patch, a tie settled by Open3D, a weak sign decided by ray
-parity, a non-finite state) ends the call right after that step's ``mj_step``, and the caller
-finishes the step on the Python path and calls again.
+use, so the same code), builds and searches the warm query's patch (``penalty_kernels.build``, as
+for a hand's spheres, and ``closest_kernels.warm_query``) and projects the probe. Every expression
+is the one of the Python path, in the same order (numpy's 3-element dot products and 3x3
+matrix-vector products sum left to right; numba compiles without fast-math, so without fused
+multiply-adds), so both paths give the same bits; a test runs them side by side. Whatever needs
+Python (the first query, a patch too far from the surface or too large, a weak sign decided by
+Open3D's ray parity, a non-finite state) ends the call right after that step's ``mj_step``, and the
+caller finishes the step on the Python path and calls again.
 
 ``mujoco_functions()`` returns None where MuJoCo's shared library is not found beside the bindings;
 the simulation then keeps the Python loop.
@@ -19,11 +20,13 @@ the simulation then keeps the Python loop.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba
 import numpy as np
 
 from palpate.geometry import closest_kernels
+from palpate.nodes.sim import penalty_kernels
 from palpate.nodes.sim.mujoco_calls import call_void2, function_addresses
 
 #: Layout of the probe's cache vector (float64): the last query's centre (3), its signed distance,
@@ -46,63 +49,62 @@ def probe_closest(
     cache: np.ndarray,
     radius: float,
     tol: float,
-    centre: np.ndarray,
-    triangles: np.ndarray,
-    sign_normals: np.ndarray,
+    mesh: Any,
     face_normals: np.ndarray,
-    reach: float,
-    p0: np.ndarray,
-    start_face: int,
-    faces: np.ndarray,
-    planes: np.ndarray,
-    offsets: np.ndarray,
-    lower0: np.ndarray,
-    ties: np.ndarray,
-    weak_pseudo_normal: float,
-    weak_sign_cos: float,
-) -> tuple[int, int, int]:
+    grid: Any,
+    warm: Any,
+    params: np.ndarray,
+    candidates: np.ndarray,
+) -> tuple[int, int]:
     """``Simulation._probe_closest`` at the probe's centre qpos[0:3]: (NO_HIT | HIT, written into
-    ``cache`` | NEEDS_PYTHON, the warm face, 1 when the warm patch was searched)."""
+    ``cache`` | NEEDS_PYTHON, 1 when the warm patch was searched).
+
+    mesh, grid, params and candidates as in ``penalty_kernels.query_near``; warm: the probe's patch,
+    ``penalty_kernels.WarmPatches.arrays()`` of one sphere, rebuilt here (``penalty_kernels.build``)
+    when the probe leaves its reach (the arena then holds only the new patch)."""
     x, y, z = qpos[0], qpos[1], qpos[2]
     if cache[HAS_HIT] == 1.0 and x == cache[CACHE_P] and y == cache[CACHE_P + 1] and z == cache[CACHE_P + 2]:
-        return HIT, start_face, 0
+        return HIT, 0
     ox, oy, oz = x - cache[CACHE_P], y - cache[CACHE_P + 1], z - cache[CACHE_P + 2]
     bound = cache[CACHE_D] - math.sqrt(ox * ox + oy * oy + oz * oz)
     if bound > radius + tol:
-        return NO_HIT, start_face, 0
+        return NO_HIT, 0
     # WarmClosest.query, as far as it needs no Python
     if not math.isfinite(x + y + z):
-        return NEEDS_PYTHON, start_face, 0
+        return NEEDS_PYTHON, 0
+    centre, triangles, sign_normals, _, _ = mesh
+    p0, face, start, size, searches, faces, planes, offsets, lower0, used = warm
     px, py, pz = x - centre[0], y - centre[1], z - centre[2]
-    if faces.shape[0] == 0 or start_face < 0:
-        return NEEDS_PYTHON, start_face, 0
-    dx, dy, dz = px - p0[0], py - p0[1], pz - p0[2]
-    if dx**2 + dy**2 + dz**2 > reach**2:
-        return NEEDS_PYTHON, start_face, 0
-    moved = math.sqrt((px - p0[0]) ** 2 + (py - p0[1]) ** 2 + (pz - p0[2]) ** 2)
-    status, face, qx, qy, qz, dist, inside, weak = closest_kernels.warm_query(
+    dx, dy, dz = px - p0[0, 0], py - p0[0, 1], pz - p0[0, 2]
+    if size[0] == 0 or dx**2 + dy**2 + dz**2 > params[penalty_kernels.P_REACH] ** 2:
+        used[0], size[0] = 0, 0  # the one live patch is replaced
+        if not penalty_kernels.build(0, px, py, pz, mesh, grid, warm, params, candidates):
+            return NEEDS_PYTHON, 0
+    moved = math.sqrt((px - p0[0, 0]) ** 2 + (py - p0[0, 1]) ** 2 + (pz - p0[0, 2]) ** 2)
+    a, e = start[0], start[0] + size[0]
+    found, qx, qy, qz, dist, inside, weak = closest_kernels.warm_query(
         triangles,
         sign_normals,
-        faces,
-        planes,
-        offsets,
-        lower0,
+        faces[a:e],
+        planes[a:e],
+        offsets[a:e],
+        lower0[a:e],
         moved * (1.0 + 1e-12) + 1e-18,
-        start_face,
+        face[0],
         px,
         py,
         pz,
-        weak_pseudo_normal,
-        weak_sign_cos,
-        ties,
-        False,
+        params[penalty_kernels.P_WEAK_PSEUDO_NORMAL],
+        params[penalty_kernels.P_WEAK_SIGN_COS],
     )
-    if status == 1 or weak:
-        return NEEDS_PYTHON, start_face, 0
+    if weak:
+        return NEEDS_PYTHON, 0
+    face[0] = found
+    searches[0] += 1
     signed = -dist if inside else dist
     qx, qy, qz = qx + centre[0], qy + centre[1], qz + centre[2]
     # the contact normal of a sphere: from the surface point to the centre; inside, the mesh normal
-    nx, ny, nz = face_normals[face, 0], face_normals[face, 1], face_normals[face, 2]
+    nx, ny, nz = face_normals[found, 0], face_normals[found, 1], face_normals[found, 2]
     ox, oy, oz = x - qx, y - qy, z - qz
     length = math.sqrt(ox * ox + oy * oy + oz * oz)
     if signed > 0 and length > 1e-9:
@@ -114,7 +116,7 @@ def probe_closest(
     cache[HIT_DIST] = signed
     cache[HIT_NORMAL], cache[HIT_NORMAL + 1], cache[HIT_NORMAL + 2] = nx / norm, ny / norm, nz / norm
     cache[HAS_HIT] = 1.0
-    return HIT, face, 1
+    return HIT, 1
 
 
 @numba.njit(cache=True)
@@ -134,28 +136,18 @@ def probe_steps(
     cache: np.ndarray,
     radius: float,
     tol: float,
-    centre: np.ndarray,
-    triangles: np.ndarray,
-    sign_normals: np.ndarray,
+    mesh: Any,
     face_normals: np.ndarray,
-    reach: float,
-    p0: np.ndarray,
-    start_face: int,
-    faces: np.ndarray,
-    planes: np.ndarray,
-    offsets: np.ndarray,
-    lower0: np.ndarray,
-    ties: np.ndarray,
-    weak_pseudo_normal: float,
-    weak_sign_cos: float,
-) -> tuple[int, int, bool, int, int]:
+    grid: Any,
+    warm: Any,
+    params: np.ndarray,
+    candidates: np.ndarray,
+) -> tuple[int, int, bool]:
     """Up to ``steps`` probe steps of ``Simulation._probe_advance`` (without its final drop of the
-    inward velocity). Returns (steps taken, DONE | NEEDS_PYTHON, projected, the warm face, patch
-    searches). With NEEDS_PYTHON the last step's ``mj_step`` has run but not its projection."""
+    inward velocity). Returns (steps taken, DONE | NEEDS_PYTHON, projected). With NEEDS_PYTHON the last
+    step's ``mj_step`` has run but not its projection. The rest as in :func:`probe_closest`."""
     taken = 0
     projected = False
-    face = start_face
-    searches = 0
     qpos_address = qpos.ctypes.data + 3 * 8  # the quaternion qpos[3:7]
     while taken < steps:
         remaining = steps - taken
@@ -186,32 +178,12 @@ def probe_steps(
         if not math.isfinite(total):
             projected = False
             continue
-        status, face, searched = probe_closest(
-            qpos,
-            cache,
-            radius,
-            tol,
-            centre,
-            triangles,
-            sign_normals,
-            face_normals,
-            reach,
-            p0,
-            face,
-            faces,
-            planes,
-            offsets,
-            lower0,
-            ties,
-            weak_pseudo_normal,
-            weak_sign_cos,
-        )
-        searches += searched
+        status, _ = probe_closest(qpos, cache, radius, tol, mesh, face_normals, grid, warm, params, candidates)
         if status == NEEDS_PYTHON:
-            return taken, NEEDS_PYTHON, projected, face, searches
+            return taken, NEEDS_PYTHON, projected
         projected = False
         if status == HIT and cache[HIT_DIST] < radius:
             for i in range(3):
                 qpos[i] = cache[HIT_POINT + i] + radius * cache[HIT_NORMAL + i]
             projected = True
-    return taken, DONE, projected, face, searches
+    return taken, DONE, projected

@@ -133,24 +133,19 @@ def warm_query(
     pz: float,
     weak_pseudo_normal: float,
     weak_sign_cos: float,
-    ties: np.ndarray,
-    same_face: bool,
-) -> tuple[int, int, float, float, float, float, bool, bool]:
-    """One query of ``mesh_query.WarmClosest`` on its patch: search, tie check and finish in one call.
+) -> tuple[int, float, float, float, float, bool, bool]:
+    """One query of ``mesh_query.WarmClosest`` on its patch: search and finish in one call.
 
     faces (K,): patch faces sorted by ``lower0`` (K,), a lower bound of each face's distance from the
     point where the patch was built, which lies ``moved`` from p; planes (K, 4, 3) and offsets (K, 4):
     their lower-bound planes. A face is skipped when either bound (lower0 - moved, 1-Lipschitz, or
     the plane bound at p) cannot reach the best so far; the sorted ``lower0`` ends the loop early.
-    Returns (status, face, qx, qy, qz, distance, inside, weak): status 0 when the answer is settled,
-    1 when faces at the same squared distance give different points or signs, or with ``same_face``
-    when there are such faces at all (their ids fill ``ties``, how many is the face slot; the caller
-    settles the tie).
+    Faces at the same squared distance (a vertex or edge they share) resolve to the lowest id, as in
+    the sensor, so the answer does not depend on ``start`` or on the order of the search.
+    Returns (face, qx, qy, qz, distance, inside, weak); ``weak``: the sign needs ray parity.
     """
     best, region, wb, wc = project(triangles, start, px, py, pz)
     face = start
-    ties[0] = start
-    count = 1
     for k in range(faces.shape[0]):
         slack = best * (1.0 + 1e-9) + 1e-24
         reach = lower0[k] - moved
@@ -162,27 +157,12 @@ def warm_query(
         if bound_squared(planes, offsets, k, px, py, pz) > slack:
             continue
         squared, h_region, h_wb, h_wc = project(triangles, h, px, py, pz)
-        if squared < best:
+        if squared < best or (squared == best and h < face):
             best, face, region, wb, wc = squared, h, h_region, h_wb, h_wc
-            ties[0] = h
-            count = 1
-        elif squared == best:
-            ties[count] = h
-            count += 1
     qx, qy, qz, dist, inside, weak = finish(
         triangles, sign_normals, face, region, wb, wc, px, py, pz, weak_pseudo_normal, weak_sign_cos
     )
-    if same_face and count > 1:  # the caller needs the sensor's very face: it settles every tie
-        return 1, count, qx, qy, qz, dist, inside, weak
-    for i in range(count):  # tied faces: any of them serves when they give the same point and sign
-        h = ties[i]
-        if h == face:
-            continue
-        _, h_region, h_wb, h_wc = project(triangles, h, px, py, pz)
-        other = finish(triangles, sign_normals, h, h_region, h_wb, h_wc, px, py, pz, weak_pseudo_normal, weak_sign_cos)
-        if other[0] != qx or other[1] != qy or other[2] != qz or other[4] != inside or other[5] != weak:
-            return 1, count, qx, qy, qz, dist, inside, weak
-    return 0, face, qx, qy, qz, dist, inside, weak
+    return face, qx, qy, qz, dist, inside, weak
 
 
 @numba.njit(cache=True)

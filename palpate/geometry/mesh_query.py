@@ -10,9 +10,12 @@ the real (non-convex) mesh; MuJoCo collides mesh geoms as their convex hulls, so
 wrong in holes and cups. The simulator's touch sensor and the exploration metrics both use it:
 
 1. Open3D's ``compute_closest_points`` (``MeshScene.closest``) picks the closest triangle.
-2. The closest point on that triangle is recomputed in float64 (Ericson, Real-Time Collision
-   Detection, 5.1.5), so points and distances carry float64 precision; float32 only decides
-   near-ties between triangles that are equally close to within about 1e-8 m.
+2. The closest point on that triangle and on the triangles sharing a vertex with it is recomputed
+   in float64 (Ericson, Real-Time Collision Detection, 5.1.5), so points and distances carry float64
+   precision; float32 only decides near-ties between triangles that are equally close to within
+   about 1e-8 m. Triangles at exactly the same float64 squared distance (a vertex or an edge they
+   share) resolve to the lowest face id, so the answer does not depend on the order of Open3D's
+   search, and a warm-started search (``WarmClosest``) finds the same face without asking Open3D.
 3. The sign (inside < 0) comes from the angle-weighted pseudo-normal of the face, edge or vertex
    holding the closest point (Baerentzen and Aanaes 2005), exact for closed, outward-wound meshes
    without folds. Where the offset is nearly orthogonal to that pseudo-normal (folded scan
@@ -304,14 +307,16 @@ class ExactContactSensor:
         if len(local) <= FEW_POINTS:
             return self._closest_few(local)
         found, _ = self._scene.closest(local)
-        # float64 projection onto Open3D's triangle and the faces around it (float32 near-ties):
-        # the first (Open3D's) wins exact ties
+        # float64 projection onto Open3D's triangle and the faces around it (float32 near-ties);
+        # exact ties go to the lowest face id
         ring = self._ring[found]  # (n, K)
         n, K = ring.shape
         tri = self._triangles[ring.ravel()]
         q_all, region_all = closest_points_on_triangles(np.repeat(local, K, axis=0), tri[:, 0], tri[:, 1], tri[:, 2])
         d_all = np.einsum("ij,ij->i", q_all - np.repeat(local, K, axis=0), q_all - np.repeat(local, K, axis=0))
-        best = np.arange(n) * K + np.argmin(d_all.reshape(n, K), axis=1)
+        d_all = d_all.reshape(n, K)
+        tied = d_all == d_all.min(axis=1, keepdims=True)
+        best = np.arange(n) * K + np.argmin(np.where(tied, ring, np.iinfo(np.int64).max), axis=1)
         faces, q, region = ring.ravel()[best], q_all[best], region_all[best]
         offset = local - q
         distance = np.linalg.norm(offset, axis=1)
@@ -341,26 +346,26 @@ class ExactContactSensor:
         here is a fraction of numpy's per-call overhead on arrays of 3 to 20 elements. A ring face is
         projected only when its distance can beat the best so far: its lower bound is
         plane^2 + max(0, max_e out_e)^2 (squared distance to the face's plane plus how far the point
-        lies outside the face's edges within that plane; exact on the face and edge regions). Only the
-        rounding of the dot products differs from the vectorised path (about 1e-17 m), so exact ties
-        between ring faces may resolve to another face.
+        lies outside the face's edges within that plane; exact on the face and edge regions). Exact
+        ties go to the lowest face id. Only the rounding of the dot products differs from the
+        vectorised path (about 1e-17 m), so a face that ties here may be a hair nearer there.
         """
         found = self._scene.closest_face_ids(local)
         points, distance, faces = [], [], []
         for p, f in zip(local.tolist(), found, strict=True):
             ring = self._ring[f]
             planes = (self._bound_planes[ring] @ p - self._bound_offsets[ring]).tolist()  # (K, 4), see __init__
-            best, pick = math.inf, (0, FACE, 0.0, 0.0)
-            for k, (plane, out_ab, out_bc, out_ca) in enumerate(planes):  # ring order: the first wins ties
+            best, face, pick = math.inf, -1, (FACE, 0.0, 0.0)
+            for k, (plane, out_ab, out_bc, out_ca) in enumerate(planes):  # Open3D's face first
                 outside = max(out_ab, out_bc, out_ca, 0.0)
                 # slack above the bound's rounding (~1e-17 m), so faces that may tie are projected
                 if k and plane * plane + outside * outside > best * (1.0 + 1e-9) + 1e-24:
                     continue
-                squared, region, wb, wc = self._kernels.project(self._triangles, int(ring[k]), p[0], p[1], p[2])
-                if squared < best:
-                    best, pick = squared, (k, region, wb, wc)
-            k, region, wb, wc = pick
-            face = int(ring[k])
+                h = int(ring[k])
+                squared, region, wb, wc = self._kernels.project(self._triangles, h, p[0], p[1], p[2])
+                if squared < best or (squared == best and h < face):
+                    best, face, pick = squared, h, (region, wb, wc)
+            region, wb, wc = pick
             q, signed = self._finish_scalar(p, face, region, wb, wc)
             points.append(q)
             distance.append(signed)
@@ -444,10 +449,7 @@ class WarmClosest:
       patch face whose lower bound (its plane, then how far p lies outside its edges: the bound of the
       few-point path, with the same slack) can reach the best so far.
     - Exact ties (faces at the same squared distance to the last bit: a vertex or edge they share)
-      whose faces give different points or signs are settled as the sensor's search settles them:
-      Open3D's face if it is one of them, else the lowest id in that face's ring (one Open3D call).
-      Ties whose faces give the same point and sign keep the first face found, unless ``same_face``
-      asks for the sensor's face (and its normal) on every tie.
+      go to the lowest face id, as in the sensor, so the face (and its normal) is the sensor's too.
     - Far from the surface (e + 2 reach > ``max_distance_m``), or where a patch would hold more than
       ``max_patch_faces`` faces, the query is the sensor's own.
 
@@ -462,7 +464,6 @@ class WarmClosest:
         reach_m: float = 0.002,
         max_distance_m: float = 0.03,
         max_patch_faces: int = 4096,
-        same_face: bool = False,
     ) -> None:
         if not reach_m > 0.0 or not max_distance_m > 0.0:
             raise ValueError(f"reach_m and max_distance_m must be > 0, got {reach_m!r} and {max_distance_m!r}")
@@ -471,18 +472,14 @@ class WarmClosest:
         self.reach_m = float(reach_m)
         self.max_distance_m = float(max_distance_m)
         self.max_patch_faces = int(max_patch_faces)
-        #: Settle every tie as the sensor does, so that the face (and its normal) is the sensor's too;
-        #: without it a tie whose faces give the same point and sign keeps any of them.
-        self.same_face = bool(same_face)
         self._face = -1  # the last answer's face (-1: none yet)
         self._p0 = (math.inf, math.inf, math.inf)  # where the patch was built (shifted frame)
         self._faces: NDArray[np.int64] | None = None  # patch faces, by their lower bound at p0
         self._planes = np.zeros((0, 4, 3))  # their bound planes (K, 4, 3), offsets (K, 4), bounds at p0 (K,)
         self._offsets = np.zeros((0, 4))
         self._lower0 = np.zeros(0)
-        self._ties = np.zeros(1, dtype=np.int64)
-        #: How many queries built a patch, searched one, settled a tie or took the sensor's own search.
-        self.counts = {"builds": 0, "patch": 0, "ties": 0, "full": 0}
+        #: How many queries built a patch, searched one or took the sensor's own search.
+        self.counts = {"builds": 0, "patch": 0, "full": 0}
 
     def query(self, point_m: ArrayLike) -> tuple[tuple[float, float, float], float, int]:
         """Closest surface point (3 floats, world frame, metres), signed distance (m, < 0 inside) and
@@ -507,7 +504,7 @@ class WarmClosest:
         k = self._kernels
         x0, y0, z0 = self._p0
         moved = math.sqrt((px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2)
-        status, face, qx, qy, qz, dist, inside, weak = k.warm_query(
+        search = k.warm_query(
             s._triangles,
             s._sign_normals,
             self._faces,
@@ -521,39 +518,31 @@ class WarmClosest:
             pz,
             WEAK_PSEUDO_NORMAL,
             WEAK_SIGN_COS,
-            self._ties,
-            self.same_face,
         )
-        return self.settle([px, py, pz], (status, face, qx, qy, qz, dist, inside, weak), self._ties)
+        return self.settle([px, py, pz], search)
 
     def settle(
-        self, p: list[float], search: tuple[int, int, float, float, float, float, bool, bool], ties: np.ndarray
+        self, p: list[float], search: tuple[int, float, float, float, float, bool, bool]
     ) -> tuple[tuple[float, float, float], float, int]:
         """The answer at p (3 floats, shifted frame) from a patch search (``closest_kernels.warm_query``'s
-        result, its tied faces in ``ties``): a tie settled as the sensor's search settles it, a weak sign
-        by ray parity. For :meth:`query`, and for compiled callers that search patches themselves."""
-        s, k = self.sensor, self._kernels
-        status, face, qx, qy, qz, dist, inside, weak = search
-        px, py, pz = p
-        if status == 1:  # tied faces that give different points: settle as the sensor's search does
-            face = self._break_tie([px, py, pz], ties[:face].tolist())
-            _, region, wb, wc = k.project(s._triangles, face, px, py, pz)
-            (qx, qy, qz), signed = s._finish_scalar([px, py, pz], face, region, wb, wc)
-        else:
-            if weak:  # ray parity, as the sensor decides
-                inside = bool(s._scene.occupied(np.array([[px, py, pz]]))[0])
-            signed = -dist if inside else dist
+        result): a weak sign decided by ray parity, as the sensor decides it. For :meth:`query`, and for
+        compiled callers that search patches themselves."""
+        s = self.sensor
+        face, qx, qy, qz, dist, inside, weak = search
+        if weak:
+            inside = bool(s._scene.occupied(np.array([p]))[0])
+        signed = -dist if inside else dist
         self._face = face
         cx, cy, cz = s._centre_list
         return (qx + cx, qy + cy, qz + cz), signed, face
 
-    def patch(self) -> tuple[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def patch(self) -> tuple[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The warm start for a compiled caller of ``closest_kernels.warm_query``: where the patch was
         built (3,) (shifted frame; inf before the first), the last answer's face (-1: none), and the
-        patch's faces, bound planes, offsets, bounds and tie buffer (no faces: no patch, ask
-        :meth:`query`). A caller that answers queries itself reports back through :meth:`resume`."""
+        patch's faces, bound planes, offsets and bounds (no faces: no patch, ask :meth:`query`). A
+        caller that answers queries itself reports back through :meth:`resume`."""
         faces = np.zeros(0, dtype=np.int64) if self._faces is None else self._faces
-        return np.array(self._p0), self._face, faces, self._planes, self._offsets, self._lower0, self._ties
+        return np.array(self._p0), self._face, faces, self._planes, self._offsets, self._lower0
 
     def adopt(
         self, p0: np.ndarray, face: int, faces: np.ndarray, planes: np.ndarray, offsets: np.ndarray, lower0: np.ndarray
@@ -565,23 +554,11 @@ class WarmClosest:
         self._face = int(face)
         self._faces = faces if len(faces) else None
         self._planes, self._offsets, self._lower0 = planes, offsets, lower0
-        if len(self._ties) < len(faces) + 1:
-            self._ties = np.zeros(2 * len(faces) + 1, dtype=np.int64)
 
     def resume(self, face: int, searches: int) -> None:
         """After a compiled caller answered ``searches`` queries on :meth:`patch`, the last one on ``face``."""
         self._face = int(face)
         self.counts["patch"] += int(searches)
-
-    def _break_tie(self, p: list[float], ties: list[int]) -> int:
-        """The face the sensor's search picks among faces at the same squared distance: Open3D's face
-        if it is one of them, else the lowest id of them in that face's ring (``_closest_few``)."""
-        self.counts["ties"] += 1
-        found = self.sensor._scene.closest_face_ids(np.array([p]))[0]
-        if found in ties:
-            return int(found)
-        ring = set(self.sensor._ring[found].tolist())
-        return min((t for t in ties if t in ring), default=min(ties))
 
     def _build(self, px: float, py: float, pz: float) -> None:
         """The patch about p (shifted frame); the first query seeds the warm face with Open3D's."""
@@ -601,7 +578,5 @@ class WarmClosest:
             s._bound_planes, s._bound_offsets, near, px, py, pz, radius
         )
         self._faces, self._planes, self._offsets, self._lower0 = faces, planes, offsets, lower
-        if len(self._ties) < len(self._faces) + 1:
-            self._ties = np.zeros(2 * len(self._faces) + 1, dtype=np.int64)
         self._p0 = (px, py, pz)
         self.counts["builds"] += 1

@@ -23,8 +23,11 @@ def _cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("PALPATE_CACHE_DIR", str(tmp_path / "cache"))
 
 
-def _run(obj: ObjectSpec, start: tuple[float, float, float], compiled: bool, ticks: int = 400) -> tuple[str, int, int]:
-    """Press, slide and turn the probe; hash of qpos, qvel and contacts per tick, contacts, compiled flag."""
+def _run(
+    obj: ObjectSpec, start: tuple[float, float, float], compiled: bool, ticks: int = 400
+) -> tuple[str, int, int, int]:
+    """Press, slide and turn the probe; hash of qpos, qvel and contacts per tick, contacts, compiled flag,
+    and the patches built in Python."""
     sim = Simulation(SceneConfig(effector="probe", object=obj, probe=ProbeConfig(start_position_m=start)))
     sim.compiled_steps = compiled
     digest = hashlib.sha256()
@@ -49,7 +52,8 @@ def _run(obj: ObjectSpec, start: tuple[float, float, float], compiled: bool, tic
         contacts += len(c)
         if touching:
             normal = c.normals.mean(axis=0) / np.linalg.norm(c.normals.mean(axis=0))
-    return digest.hexdigest(), contacts, int(sim.compiled_steps)
+    assert sim._warm is not None
+    return digest.hexdigest(), contacts, int(sim.compiled_steps), sim._warm.counts["builds"]
 
 
 @pytest.mark.parametrize(
@@ -64,3 +68,5 @@ def test_compiled_probe_steps_give_the_python_loops_bits(obj: ObjectSpec, start:
     compiled = _run(obj, start, compiled=True)
     assert python[1] > 100  # the probe pressed and slid for most ticks
     assert compiled[:2] == python[:2]
+    # the compiled steps build the patches themselves: Python builds only the first one
+    assert python[3] > 20 and compiled[3] == 1
