@@ -186,6 +186,7 @@ class Simulation:
             self._warm: WarmClosest | None = WarmClosest(self._sensor)
             #: Run the probe's steps in compiled code (probe_kernels) when MuJoCo's library is found.
             self.compiled_steps = probe_kernels.mujoco_functions() is not None
+            self._patch: penalty_kernels.WarmPatches | None = None  # the probe's patch for compiled steps
             if self.compiled_steps:
                 self._setup_probe_kernels()
         else:
@@ -315,7 +316,8 @@ class Simulation:
         """``n`` probe steps. Stretches that surely stay clear of the object (by the 1-Lipschitz bound
         on the signed distance) run as one ``mj_step`` call; the others are checked step by step.
         With ``compiled_steps`` the loop runs in ``probe_kernels.probe_steps`` (the same bits), and
-        only the steps that need Python (a new patch of the warm query, a tie, a weak sign) come here."""
+        only the steps that need Python (the warm query's first patch or one it cannot build, a weak
+        sign) come here."""
         d = self.data
         qvel = d.qvel
         cache = self._probe_cache
@@ -415,11 +417,15 @@ class Simulation:
             *self._probe_kernel_arguments(),
         )
         self._steps += taken
+        assert self._warm is not None and self._patch is not None
+        self._warm.resume(int(self._patch.face[0]), int(self._patch.searches[0]))  # counts and face
+        self._patch.searches[0] = 0
         return taken, status, projected
 
     def _probe_kernel_arguments(self) -> tuple[Any, ...]:
         """The arguments that ``probe_kernels.probe_steps`` and ``probe_closest`` share: the cache, the
         probe, the mesh and the probe's patch."""
+        assert self._patch is not None
         return (
             self._probe_cache,
             self._probe_radius,
@@ -433,10 +439,11 @@ class Simulation:
         )
 
     def _warm_query(self, p: np.ndarray) -> tuple[tuple[float, float, float], float, int]:
-        """The warm query at p (3,) in Python; with compiled steps it takes over and hands back the
-        probe's patch (``WarmPatches.load`` and ``store``)."""
+        """The warm query at p (3,) in Python; where the compiled steps keep the probe's patch it takes
+        it over and hands it back (``WarmPatches.load`` and ``store``), even after ``compiled_steps``
+        was turned off."""
         assert self._warm is not None
-        if not self.compiled_steps:
+        if self._patch is None:
             return self._warm.query(p)
         self._patch.load(0, self._warm)
         answer = self._warm.query(p)

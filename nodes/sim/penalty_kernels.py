@@ -13,8 +13,9 @@ numpy path's, in the same order (numba compiles without fast-math), so both give
 :func:`matches_numpy` checks the wrench on random input once per process, and a test runs both paths
 side by side.
 
-A query that needs Python ends the call *within* its step, before ``mj_step2``: a new patch (a
-scipy k-d tree), a weak sign (Open3D's ray parity), or more than ``FEW_POINTS`` near spheres (the
+A query that needs Python ends the call *within* its step, before ``mj_step2``: a patch the
+compiled build cannot make (a sphere's first, one too far or too large, a full arena), a weak sign
+(Open3D's ray parity), or more than ``FEW_POINTS`` near spheres (the
 sensor's vectorised query, which rounds differently). The caller answers that sphere (or the batch)
 into the buffers and calls again with ``resume`` set to where the queries go on.
 ``mujoco_functions()`` returns None where MuJoCo's shared library is not found beside the bindings;
@@ -252,6 +253,8 @@ class WarmPatches:
         if faces is self._given[k]:
             return
         self.p0[k] = p0
+        if self.size[k] and self.start[k] + self.size[k] == self.used[0]:
+            self.used[0] = self.start[k]  # its old patch was the arena's last: reuse the room
         self.size[k] = 0
         if len(faces) == 0:
             return

@@ -449,13 +449,17 @@ class WarmClosest:
       patch face whose lower bound (its plane, then how far p lies outside its edges: the bound of the
       few-point path, with the same slack) can reach the best so far.
     - Exact ties (faces at the same squared distance to the last bit: a vertex or edge they share)
-      go to the lowest face id, as in the sensor, so the face (and its normal) is the sensor's too.
+      go to the lowest face id, as in the sensor, so the face (and its normal) is the sensor's too,
+      up to the caveat below.
     - Far from the surface (e + 2 reach > ``max_distance_m``), or where a patch would hold more than
       ``max_patch_faces`` faces, the query is the sensor's own.
 
-    The one way the answers could differ: where Open3D's float32 search picks a face whose ring misses
-    the true closest face (a near-tie of non-adjacent faces within float32 rounding, about 1e-8 m),
-    the sensor answers with the best face of that ring and this search with the true closest.
+    The one way the answers could differ: the sensor searches only the ring of Open3D's face (the
+    faces sharing a vertex with it). Where that ring misses the true closest face (a near-tie of
+    non-adjacent faces within float32 rounding, about 1e-8 m), or a lower-id face tied with it (an
+    exact tie of faces that share no vertex, or Open3D's face a float32 near-tie that does not hold the
+    tied vertex), the sensor answers with the best face of that ring and this search with the true
+    closest, lowest-id face. Neither was seen on the test meshes or the 30 shared objects.
     """
 
     def __init__(
@@ -478,7 +482,8 @@ class WarmClosest:
         self._planes = np.zeros((0, 4, 3))  # their bound planes (K, 4, 3), offsets (K, 4), bounds at p0 (K,)
         self._offsets = np.zeros((0, 4))
         self._lower0 = np.zeros(0)
-        #: How many queries built a patch, searched one or took the sensor's own search.
+        #: How many queries built a patch, searched one or took the sensor's own search (a compiled
+        #: caller reports its searches through :meth:`resume`; the patches it builds are not counted).
         self.counts = {"builds": 0, "patch": 0, "full": 0}
 
     def query(self, point_m: ArrayLike) -> tuple[tuple[float, float, float], float, int]:

@@ -144,7 +144,8 @@ def test_exact_ties_go_to_the_lowest_face_id_on_every_path(monkeypatch: pytest.M
     """Points above a box's vertices and edges are equally close to several faces: the sensor's
     few-point path and the warm query (the compiled projection's arithmetic) and the vectorised path
     (numpy's) answer with the lowest id among the faces at exactly the smallest squared distance, in
-    their own arithmetic, whichever face Open3D's search or the warm start offers first."""
+    their own arithmetic, even where Open3D's search offers the highest of them and whichever face
+    the warm query starts from."""
     from palpate.geometry import closest_kernels
 
     mesh = trimesh.creation.box((0.04, 0.03, 0.02))
@@ -152,19 +153,31 @@ def test_exact_ties_go_to_the_lowest_face_id_on_every_path(monkeypatch: pytest.M
     corners = np.asarray(mesh.vertices)
     edges = 0.5 * (corners[mesh.edges_unique[:, 0]] + corners[mesh.edges_unique[:, 1]])
     points = np.concatenate([corners, edges]) * 1.25  # outside, over a vertex or an edge
-    local = points - sensor._centre
     faces = range(len(mesh.faces))
+    tri = sensor._triangles
+
+    def tied(p: list[float]) -> np.ndarray:
+        squared = np.array([closest_kernels.project(tri, f, *p)[0] for f in faces])
+        return np.flatnonzero(squared == squared.min())
+
     scalar, vectorised, tie_counts = [], [], []
-    for p in local.tolist():
-        squared = np.array([closest_kernels.project(sensor._triangles, f, *p)[0] for f in faces])
-        tied = np.flatnonzero(squared == squared.min())
-        tie_counts.append(len(tied))
-        scalar.append(int(tied.min()))
-        tri = sensor._triangles
+    for p in (points - sensor._centre).tolist():
+        scalar.append(int(tied(p).min()))
+        tie_counts.append(len(tied(p)))
         q, _ = closest_points_on_triangles(np.repeat([p], len(tri), 0), tri[:, 0], tri[:, 1], tri[:, 2])
         squared = np.einsum("ij,ij->i", q - p, q - p)
         vectorised.append(int(np.flatnonzero(squared == squared.min()).min()))
-    assert max(tie_counts) >= 2  # some points do tie exactly
+    assert sum(count >= 2 for count in tie_counts) >= 6  # points that tie exactly
+
+    # Open3D's search offers the highest tied face (the old rule kept the face Open3D offered)
+    scene = sensor._scene
+    found = scene.closest
+
+    def highest(local: np.ndarray) -> list[int]:
+        return [int(tied(p).max()) for p in np.asarray(local).tolist()]
+
+    monkeypatch.setattr(scene, "closest_face_ids", highest)
+    monkeypatch.setattr(scene, "closest", lambda local: (np.array(highest(local)), found(local)[1]))
     few = [int(sensor.closest(p[None]).face_ids[0]) for p in points]
     warm = WarmClosest(sensor)
     warm_faces = []

@@ -73,8 +73,8 @@ def test_compiled_steps_give_the_python_loops_trajectory(effector: str) -> None:
     compiled = _explore(effector, compiled=True)
     assert python[1] > 10  # the motion touched the torus
     assert compiled[:2] == python[:2]
-    # the compiled path builds and searches patches itself
-    assert python[2]["builds"] > compiled[2]["builds"] and python[2]["patch"] > compiled[2]["patch"]
+    # the compiled path builds patches itself
+    assert python[2]["builds"] > compiled[2]["builds"]
 
 
 def test_a_full_arena_hands_the_build_to_python_and_grows() -> None:
