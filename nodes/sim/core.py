@@ -472,7 +472,7 @@ class Simulation:
         k = probe_kernels
         cache = self._probe_cache
         if self.compiled_steps and try_compiled:  # the same answer in compiled code, unless it needs Python
-            status, _ = k.probe_closest(self.data.qpos, *self._probe_kernel_arguments())
+            status = k.probe_closest(self.data.qpos, *self._probe_kernel_arguments())
             if status != k.NEEDS_PYTHON:
                 return None if status == k.NO_HIT else self._probe_hit()
         p = self.data.qpos[0:3].copy()

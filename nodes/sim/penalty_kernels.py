@@ -15,9 +15,9 @@ side by side.
 
 A query that needs Python ends the call *within* its step, before ``mj_step2``: a patch the
 compiled build cannot make (a sphere's first, one too far or too large, a full arena), a weak sign
-(Open3D's ray parity), or more than ``FEW_POINTS`` near spheres (the
-sensor's vectorised query, which rounds differently). The caller answers that sphere (or the batch)
-into the buffers and calls again with ``resume`` set to where the queries go on.
+(Open3D's ray parity), or more than ``FEW_POINTS`` near spheres (the sensor's vectorised query,
+which rounds differently). The caller answers that sphere (or the batch) into the buffers and calls
+again with ``resume`` set to where the queries go on.
 ``mujoco_functions()`` returns None where MuJoCo's shared library is not found beside the bindings;
 the simulation then keeps the Python loop.
 """

@@ -55,23 +55,23 @@ def probe_closest(
     warm: Any,
     params: np.ndarray,
     candidates: np.ndarray,
-) -> tuple[int, int]:
-    """``Simulation._probe_closest`` at the probe's centre qpos[0:3]: (NO_HIT | HIT, written into
-    ``cache`` | NEEDS_PYTHON, 1 when the warm patch was searched).
+) -> int:
+    """``Simulation._probe_closest`` at the probe's centre qpos[0:3]: NO_HIT, HIT (written into
+    ``cache``) or NEEDS_PYTHON.
 
     mesh, grid, params and candidates as in ``penalty_kernels.query_near``; warm: the probe's patch,
     ``penalty_kernels.WarmPatches.arrays()`` of one sphere, rebuilt here (``penalty_kernels.build``)
     when the probe leaves its reach (the arena then holds only the new patch)."""
     x, y, z = qpos[0], qpos[1], qpos[2]
     if cache[HAS_HIT] == 1.0 and x == cache[CACHE_P] and y == cache[CACHE_P + 1] and z == cache[CACHE_P + 2]:
-        return HIT, 0
+        return HIT
     ox, oy, oz = x - cache[CACHE_P], y - cache[CACHE_P + 1], z - cache[CACHE_P + 2]
     bound = cache[CACHE_D] - math.sqrt(ox * ox + oy * oy + oz * oz)
     if bound > radius + tol:
-        return NO_HIT, 0
+        return NO_HIT
     # WarmClosest.query, as far as it needs no Python
     if not math.isfinite(x + y + z):
-        return NEEDS_PYTHON, 0
+        return NEEDS_PYTHON
     centre, triangles, sign_normals, _, _ = mesh
     p0, face, start, size, searches, faces, planes, offsets, lower0, used = warm
     px, py, pz = x - centre[0], y - centre[1], z - centre[2]
@@ -79,7 +79,7 @@ def probe_closest(
     if size[0] == 0 or dx**2 + dy**2 + dz**2 > params[penalty_kernels.P_REACH] ** 2:
         used[0], size[0] = 0, 0  # the one live patch is replaced
         if not penalty_kernels.build(0, px, py, pz, mesh, grid, warm, params, candidates):
-            return NEEDS_PYTHON, 0
+            return NEEDS_PYTHON
     moved = math.sqrt((px - p0[0, 0]) ** 2 + (py - p0[0, 1]) ** 2 + (pz - p0[0, 2]) ** 2)
     a, e = start[0], start[0] + size[0]
     found, qx, qy, qz, dist, inside, weak = closest_kernels.warm_query(
@@ -98,7 +98,7 @@ def probe_closest(
         params[penalty_kernels.P_WEAK_SIGN_COS],
     )
     if weak:
-        return NEEDS_PYTHON, 0
+        return NEEDS_PYTHON
     face[0] = found
     searches[0] += 1
     signed = -dist if inside else dist
@@ -116,7 +116,7 @@ def probe_closest(
     cache[HIT_DIST] = signed
     cache[HIT_NORMAL], cache[HIT_NORMAL + 1], cache[HIT_NORMAL + 2] = nx / norm, ny / norm, nz / norm
     cache[HAS_HIT] = 1.0
-    return HIT, 1
+    return HIT
 
 
 @numba.njit(cache=True)
@@ -178,7 +178,7 @@ def probe_steps(
         if not math.isfinite(total):
             projected = False
             continue
-        status, _ = probe_closest(qpos, cache, radius, tol, mesh, face_normals, grid, warm, params, candidates)
+        status = probe_closest(qpos, cache, radius, tol, mesh, face_normals, grid, warm, params, candidates)
         if status == NEEDS_PYTHON:
             return taken, NEEDS_PYTHON, projected
         projected = False
