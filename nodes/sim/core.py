@@ -41,8 +41,6 @@ import numpy as np
 from palpate.errors import ConfigError, SimulationDivergedError
 from palpate.geometry.mesh_query import (
     FEW_POINTS,
-    WEAK_PSEUDO_NORMAL,
-    WEAK_SIGN_COS,
     ClosestPoints,
     ExactContactSensor,
     WarmClosest,
@@ -375,27 +373,10 @@ class Simulation:
         the parameters of its query."""
         warm, sensor = self._warm, self._sensor
         assert warm is not None and sensor is not None
-        penalty_kernels.load_query_kernels(sensor)
+        self._pk_mesh, self._pk_grid, self._pk_params = penalty_kernels.query_setup(sensor, warm)
         self._patch = penalty_kernels.WarmPatches(1, warm.max_patch_faces, capacity=2 * warm.max_patch_faces)
-        self._pk_mesh = (
-            sensor._centre,
-            sensor._triangles,
-            sensor._sign_normals,
-            sensor._bound_planes,
-            sensor._bound_offsets,
-        )
         self._pk_face_normals = sensor.face_normals
-        self._pk_grid, cell_m, largest = penalty_kernels.face_grid(sensor)
         self._pk_candidates = np.zeros(len(sensor.face_normals), dtype=np.int64)
-        k = penalty_kernels
-        self._pk_params = np.zeros(k.PARAMS)
-        self._pk_params[k.P_REACH] = warm.reach_m
-        self._pk_params[k.P_WEAK_PSEUDO_NORMAL] = WEAK_PSEUDO_NORMAL
-        self._pk_params[k.P_WEAK_SIGN_COS] = WEAK_SIGN_COS
-        self._pk_params[k.P_MAX_DISTANCE] = warm.max_distance_m
-        self._pk_params[k.P_MAX_FACES] = warm.max_patch_faces
-        self._pk_params[k.P_CELL] = cell_m
-        self._pk_params[k.P_LARGEST] = largest
 
     def _probe_compiled(self, steps: int, turning: bool, speed_per_step: float) -> tuple[int, int, bool]:
         """Up to ``steps`` steps in ``probe_kernels.probe_steps``: (steps taken, status, projected)."""
@@ -541,8 +522,8 @@ class Simulation:
         """What the compiled steps of ``count`` capsule spheres read and write (penalty_kernels)."""
         m, d, sensor = self.model, self.data, self._sensor
         assert sensor is not None
-        penalty_kernels.load_query_kernels(sensor)
         template = WarmClosest(sensor)  # the settings of every sphere's query
+        self._pk_mesh, self._pk_grid, self._pk_params = penalty_kernels.query_setup(sensor, template)
         self._patches = penalty_kernels.WarmPatches(count, template.max_patch_faces)
         # what the compiled steps read and write: MuJoCo's arrays (views that stay valid), the spheres,
         # the mesh, per-step buffers and parameters (penalty_kernels.sphere_hits documents them)
@@ -557,15 +538,7 @@ class Simulation:
             self._sph_cache_p,
             self._sph_cache_d,
         )
-        self._pk_mesh = (
-            sensor._centre,
-            sensor._triangles,
-            sensor._sign_normals,
-            sensor._bound_planes,
-            sensor._bound_offsets,
-        )
         self._pk_face_normals = sensor.face_normals
-        self._pk_grid, cell_m, largest = penalty_kernels.face_grid(sensor)
         self._pk_buffers = (
             np.zeros((count, 3)),
             np.zeros(count, dtype=np.int64),
@@ -577,17 +550,8 @@ class Simulation:
             np.zeros(len(sensor.face_normals), dtype=np.int64),
             np.zeros(penalty_kernels.SEARCH_SIZE),
         )
-        k = penalty_kernels
-        self._pk_params = np.zeros(k.PARAMS)
-        self._pk_params[k.P_REACH] = template.reach_m
-        self._pk_params[k.P_WEAK_PSEUDO_NORMAL] = WEAK_PSEUDO_NORMAL
-        self._pk_params[k.P_WEAK_SIGN_COS] = WEAK_SIGN_COS
-        self._pk_params[k.P_STIFFNESS] = self.scene.mesh_contact_stiffness_n_per_m
-        self._pk_params[k.P_DAMPING] = self.scene.mesh_contact_damping_n_s_per_m
-        self._pk_params[k.P_MAX_DISTANCE] = template.max_distance_m
-        self._pk_params[k.P_MAX_FACES] = template.max_patch_faces
-        self._pk_params[k.P_CELL] = cell_m
-        self._pk_params[k.P_LARGEST] = largest
+        self._pk_params[penalty_kernels.P_STIFFNESS] = self.scene.mesh_contact_stiffness_n_per_m
+        self._pk_params[penalty_kernels.P_DAMPING] = self.scene.mesh_contact_damping_n_s_per_m
 
     def _penalty_advance(self, n: int, t0: float) -> None:
         """``n`` steps in ``penalty_kernels.penalty_steps`` (the bits of the Python loop); the queries

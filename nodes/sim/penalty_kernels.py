@@ -290,6 +290,25 @@ class WarmPatches:
         self.used[0] = used
 
 
+def query_setup(sensor: ExactContactSensor, warm: WarmClosest) -> tuple[tuple[A, ...], tuple[A, ...], A]:
+    """What compiled warm queries on ``sensor`` with ``warm``'s settings read (:func:`query_near`,
+    ``probe_kernels.probe_closest``): the mesh (centre, triangles, sign normals, bound planes, bound
+    offsets), its :func:`face_grid` and the parameter vector with the query's entries set (reach,
+    weak-sign limits, patch limits, grid cell, largest face radius); its kernels are loaded first."""
+    load_query_kernels(sensor)
+    mesh = (sensor._centre, sensor._triangles, sensor._sign_normals, sensor._bound_planes, sensor._bound_offsets)
+    grid, cell_m, largest = face_grid(sensor)
+    params = np.zeros(PARAMS)
+    params[P_REACH] = warm.reach_m
+    params[P_WEAK_PSEUDO_NORMAL] = WEAK_PSEUDO_NORMAL
+    params[P_WEAK_SIGN_COS] = WEAK_SIGN_COS
+    params[P_MAX_DISTANCE] = warm.max_distance_m
+    params[P_MAX_FACES] = warm.max_patch_faces
+    params[P_CELL] = cell_m
+    params[P_LARGEST] = largest
+    return mesh, grid, params
+
+
 def face_grid(
     sensor: ExactContactSensor, cell_m: float = 0.004, max_cells: int = 1 << 22
 ) -> tuple[tuple[A, ...], float, float]:
