@@ -356,9 +356,13 @@ def grid_faces(grid: Any, cell_m: float, px: float, py: float, pz: float, reach:
 @numba.njit(cache=True)
 def build(k: int, px: float, py: float, pz: float, mesh: Any, grid: Any, warm: Any, params: A, candidates: A) -> bool:
     """``WarmClosest._build`` of sphere k's patch at p (shifted frame) into the arena; False where it
-    needs Python (no face yet, no patch: too far or too many faces, a full arena)."""
+    needs Python (no face yet, no patch: too far or too many faces, a full arena). The old patch is
+    dropped either way (p left its reach), and if it was the arena's last the new one takes its room."""
     _, triangles, _, bound_planes, bound_offsets = mesh
     p0, face, start, size, _, faces, planes, offsets, lower0, used = warm
+    if size[k] > 0 and start[k] + size[k] == used[0]:
+        used[0] = start[k]
+    size[k] = 0
     if face[k] < 0:
         return False
     upper, _, _, _ = closest_kernels.project(triangles, face[k], px, py, pz)

@@ -61,7 +61,8 @@ def probe_closest(
 
     mesh, grid, params and candidates as in ``penalty_kernels.query_near``; warm: the probe's patch,
     ``penalty_kernels.WarmPatches.arrays()`` of one sphere, rebuilt here (``penalty_kernels.build``)
-    when the probe leaves its reach (the arena then holds only the new patch)."""
+    when the probe leaves its reach. The query repeats ``penalty_kernels.query_near``'s for one
+    sphere: calling it would cost the probe's hot path the unboxing of its buffers on every call."""
     x, y, z = qpos[0], qpos[1], qpos[2]
     if cache[HAS_HIT] == 1.0 and x == cache[CACHE_P] and y == cache[CACHE_P + 1] and z == cache[CACHE_P + 2]:
         return HIT
@@ -73,13 +74,13 @@ def probe_closest(
     if not math.isfinite(x + y + z):
         return NEEDS_PYTHON
     centre, triangles, sign_normals, _, _ = mesh
-    p0, face, start, size, searches, faces, planes, offsets, lower0, used = warm
+    p0, face, start, size, searches, faces, planes, offsets, lower0, _ = warm
     px, py, pz = x - centre[0], y - centre[1], z - centre[2]
     dx, dy, dz = px - p0[0, 0], py - p0[0, 1], pz - p0[0, 2]
-    if size[0] == 0 or dx**2 + dy**2 + dz**2 > params[penalty_kernels.P_REACH] ** 2:
-        used[0], size[0] = 0, 0  # the one live patch is replaced
-        if not penalty_kernels.build(0, px, py, pz, mesh, grid, warm, params, candidates):
-            return NEEDS_PYTHON
+    out_of_reach = size[0] == 0 or dx**2 + dy**2 + dz**2 > params[penalty_kernels.P_REACH] ** 2
+    # the one patch is always the arena's last, so a new one takes its room
+    if out_of_reach and not penalty_kernels.build(0, px, py, pz, mesh, grid, warm, params, candidates):
+        return NEEDS_PYTHON
     moved = math.sqrt((px - p0[0, 0]) ** 2 + (py - p0[0, 1]) ** 2 + (pz - p0[0, 2]) ** 2)
     a, e = start[0], start[0] + size[0]
     found, qx, qy, qz, dist, inside, weak = closest_kernels.warm_query(
