@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from palpate.errors import LaunchError
+from palpate.launch import placement
 from palpate.launch.graph import Graph, resolve
 from palpate.launch.loader import load_launch, parse_cli_args
 from palpate.launch.supervisor import Supervisor
@@ -93,7 +94,10 @@ def run_graph(graph: Graph, record: Path | None = None) -> int:
         extra_subscribers=1 if record else 0,
         extra_curve_clients=[recorder_keys["public"]] if recorder_keys else [],
     )
-    supervisor = Supervisor(graph, specs)
+    where = placement.graph_placement(graph)
+    if where:
+        print(f"[launch] placement {graph.source.placement}: {placement.describe(where)}", flush=True)
+    supervisor = Supervisor(graph, specs, placement=where)
     recorder: subprocess.Popen[bytes] | None = None
     if record is not None:
         endpoints = [n.endpoint for n in graph.nodes]

@@ -15,11 +15,12 @@ import yaml
 
 from palpate.config import KeyPath, key_lines, line_at
 from palpate.errors import LaunchError
+from palpate.launch.placement import PLACEMENTS
 
 _CONSTRUCTOR = yaml.constructor.SafeConstructor()
 _ARG = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
 
-TOP_KEYS = {"args", "mode", "seed", "include", "nodes", "description"}
+TOP_KEYS = {"args", "mode", "seed", "include", "nodes", "description", "placement"}
 NODE_KEYS = {
     "name",
     "type",
@@ -78,6 +79,8 @@ class LaunchFile:
     args: dict[str, Any]
     nodes: list[NodeEntry]
     description: str = ""
+    #: Where the node processes run (palpate.launch.placement): "os" or "loop".
+    placement: str = "os"
 
 
 def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any]:
@@ -137,6 +140,13 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> Lau
         raise LaunchError(
             f"{name}:{top['mode'][1].start_mark.line + 1}: mode must be 'lockstep' or 'realtime', got {mode!r}"
         )
+    placement = value("placement", "os")
+    if placement not in PLACEMENTS or (placement == "loop" and mode != "lockstep"):
+        line = top["placement"][1].start_mark.line + 1
+        raise LaunchError(
+            f"{name}:{line}: placement must be one of {list(PLACEMENTS)}, 'loop' only with mode lockstep; "
+            f"got {placement!r} (mode {mode})"
+        )
     seed = value("seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool):
         raise LaunchError(f"{name}:{top['seed'][1].start_mark.line + 1}: seed must be an integer, got {seed!r}")
@@ -162,7 +172,13 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> Lau
     for entry in _sequence(top, "nodes", name):
         nodes.append(_node_entry(entry, name, args))
     return LaunchFile(
-        path=path, mode=mode, seed=seed, args=args, nodes=nodes, description=str(value("description", ""))
+        path=path,
+        mode=mode,
+        seed=seed,
+        args=args,
+        nodes=nodes,
+        description=str(value("description", "")),
+        placement=placement,
     )
 
 

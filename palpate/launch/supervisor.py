@@ -8,6 +8,7 @@ exits non-zero unless the node is set to respawn (up to `max_restarts`).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
 import shutil
@@ -26,6 +27,7 @@ from typing import IO
 
 from palpate import jsonio
 from palpate.launch.graph import Graph, GraphNode
+from palpate.launch.placement import CpuPlacement
 from palpate.runtime import bus
 from palpate.runtime.spec import NodeProcessSpec
 
@@ -63,6 +65,14 @@ def write_external_spec(bus_dir: str | Path, spec: NodeProcessSpec) -> Path:
     return path
 
 
+def _place_child(place: CpuPlacement) -> None:
+    """Run in the child before exec: die with the parent, take the CPUs and policy of `place` (a
+    refusal is reported by the parent, which reads them back)."""
+    _die_with_parent()
+    with contextlib.suppress(OSError):
+        place.apply()
+
+
 @dataclass
 class Child:
     """A running node process and what we keep of its output."""
@@ -78,8 +88,17 @@ class Child:
 class Supervisor:
     """Runs the graph's node processes and reports how they ended."""
 
-    def __init__(self, graph: Graph, process_specs: list[NodeProcessSpec], *, out: IO[str] | None = None):
+    def __init__(
+        self,
+        graph: Graph,
+        process_specs: list[NodeProcessSpec],
+        *,
+        out: IO[str] | None = None,
+        placement: dict[str, CpuPlacement] | None = None,
+    ):
+        """`placement`: where each node's process runs (palpate.launch.placement; absent: anywhere)."""
         self.graph = graph
+        self.placement = placement or {}
         self.out = out or sys.stdout
         # the node specs (and any key file) live in a 0700 directory, removed at shutdown: they hold secret keys
         self.run_dir = Path(tempfile.mkdtemp(prefix="palpate-run-"))
@@ -106,16 +125,30 @@ class Supervisor:
 
     def _start(self, child: Child) -> None:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        place = self.placement.get(child.node.name)
         child.proc = subprocess.Popen(
             [sys.executable, "-m", "palpate.runtime.node", str(child.spec_path)],
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
-            preexec_fn=_die_with_parent,
+            preexec_fn=_die_with_parent if place is None else lambda: _place_child(place),
             env=env,
         )
+        if place is not None:
+            self._check_placed(child, place)
         pump = threading.Thread(target=self._pump, args=(child, child.proc), daemon=True)
         pump.start()
         child.pumps.append(pump)
+
+    def _check_placed(self, child: Child, place: CpuPlacement) -> None:
+        """Say so when a child did not get its placement (the system refused it): it runs anyway."""
+        assert child.proc is not None
+        try:
+            placed = os.sched_getaffinity(child.proc.pid) == place.cpus
+            placed = placed and (not place.batch or os.sched_getscheduler(child.proc.pid) == os.SCHED_BATCH)
+        except OSError:  # it has already exited: its own report follows
+            return
+        if not placed:
+            self._say(f"node {child.node.name!r} runs without its placement ({place}): the system refused it")
 
     def _pump(self, child: Child, proc: subprocess.Popen[bytes]) -> None:
         assert proc.stdout is not None

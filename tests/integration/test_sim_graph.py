@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 from pathlib import Path
 
 import pytest
 
+from palpate.launch import placement
 from palpate.paths import REPO_ROOT
 from palpate.runtime.timing import TIMING_ENV, breakdown
 from tests.integration.launch_helpers import launched, node_pids, text
@@ -25,6 +27,10 @@ def test_probe_graph_runs_to_completion(tmp_path: Path, monkeypatch: pytest.Monk
     contacts, touching, ticks = (int(g) for g in found.groups())
     assert ticks == 101  # ticks 0..100 of 10 ms in 1 s
     assert contacts == touching > 50  # one contact per tick while pressing and sliding on the box
+    if placement.supported():  # launch/probe.yaml asks for placement: loop
+        cpus = re.search(r"\[launch\] placement loop: CPU (\d+): sim, driver(;|$)", out)
+        assert cpus and int(cpus.group(1)) in os.sched_getaffinity(0), out
+        assert "without its placement" not in out, out
     data = json.loads(timing.read_text())
     assert data["stamps_ns"] == [k * 10_000_000 for k in range(101)]
     assert all(b >= a for a, b in zip(data["wall_s"], data["wall_s"][1:], strict=False))

@@ -86,6 +86,12 @@ BAD = [
     ("unknown_type.yaml", [], "unknown node type 'cube_contactz'"),
     ("two_publishers.yaml", [], "topic 'sensors/contacts' has two publishers (cube and cube2)"),
     ("bad_mode.yaml", [], "mode must be 'lockstep' or 'realtime', got 'fast'"),
+    (
+        "bad_placement.yaml",
+        [],
+        "placement must be one of ['os', 'loop'], 'loop' only with mode lockstep; got 'fastest'",
+    ),
+    ("placement_realtime.yaml", [], "'loop' only with mode lockstep; got 'loop' (mode realtime)"),
     ("bad_flag.yaml", [], "respawn must be true or false, got 'yes'"),
     ("unknown_substitution.yaml", [], "unknown argument ${edge}"),
     ("with_args.yaml", ["x:=1"], "unknown launch argument 'x'"),
