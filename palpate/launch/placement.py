@@ -83,8 +83,8 @@ def busy_ticks(stat_text: str) -> dict[int, tuple[int, int]]:
 def least_busy(
     before: Mapping[int, tuple[int, int]], after: Mapping[int, tuple[int, int]], allowed: Iterable[int]
 ) -> int:
-    """The allowed CPU with the smallest busy share between two /proc/stat readings (the lowest
-    number on ties, and when the readings do not cover the allowed CPUs)."""
+    """The allowed CPU with the smallest busy share between two /proc/stat readings: the lowest
+    number on ties; a CPU the readings miss counts as idle."""
 
     def share(cpu: int) -> float:
         if cpu not in before or cpu not in after:
