@@ -40,6 +40,9 @@ class CpuPlacement:
     cpus: frozenset[int]
     batch: bool = True
 
+    def __str__(self) -> str:
+        return f"CPUs {sorted(self.cpus)}" + (", SCHED_BATCH" if self.batch else "")
+
     def apply(self) -> None:
         """Place the calling process (for a child: between fork and exec, so that every thread it
         starts inherits it). Raises OSError where the system refuses."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import os
 import subprocess
 import sys
@@ -13,7 +14,7 @@ from palpate.launch import placement
 from palpate.launch.graph import resolve
 from palpate.launch.loader import load_launch
 from palpate.launch.placement import CpuPlacement, busy_ticks, graph_placement, least_busy, plan_loop
-from palpate.launch.supervisor import _place_child
+from palpate.launch.supervisor import Child, Supervisor, _place_child
 from palpate.paths import REPO_ROOT
 
 STAT_BEFORE = """cpu  300 0 100 1000 0 0 0 0 0 0
@@ -78,3 +79,22 @@ def test_a_child_runs_where_its_placement_says(tmp_path: Path) -> None:
         check=True,
     ).stdout
     assert out.split() == [f"[{cpu}]", "True"]
+
+
+def test_the_launcher_says_when_a_child_runs_unplaced(tmp_path: Path) -> None:
+    allowed = os.sched_getaffinity(0) if placement.supported() else set()
+    if len(allowed) < 2:
+        pytest.skip("needs CPU affinity and two CPUs")
+    graph = resolve(load_launch(REPO_ROOT / "launch" / "probe.yaml"), bus_dir=tmp_path)
+    out = io.StringIO()
+    supervisor = Supervisor(graph, [], out=out)
+    child = Child(node=graph.by_name["sim"], spec_path=tmp_path / "sim.json")
+    child.proc = subprocess.Popen(["sleep", "10"])  # started without the placement below
+    try:
+        supervisor._check_placed(child, CpuPlacement(frozenset({min(allowed)})))
+    finally:
+        child.proc.kill()
+        child.proc.wait()
+        supervisor.shutdown()
+    expected = f"node 'sim' runs without its placement (CPUs [{min(allowed)}], SCHED_BATCH): the system refused it"
+    assert out.getvalue().strip() == f"[launch] {expected}"
