@@ -61,6 +61,11 @@ def test_probe_launch_places_sim_and_driver_together(tmp_path: Path, monkeypatch
     assert plan["sim"] == plan["driver"] == CpuPlacement(frozenset({max(allowed)}))
     assert plan["noise"].cpus == (allowed - {max(allowed)} or allowed)  # it trails the clock
     assert placement.describe(plan).startswith(f"CPU {max(allowed)}: sim, driver")
+    external = tmp_path / "external.yaml"  # a node the launcher does not start gets no placement
+    external.write_text(
+        (REPO_ROOT / "launch" / "probe.yaml").read_text().replace("type: noise\n", "type: noise\n    external: true\n")
+    )
+    assert set(graph_placement(resolve(load_launch(external), bus_dir=tmp_path))) == {"sim", "driver"}
     demo = resolve(load_launch(REPO_ROOT / "launch" / "demo.yaml"), bus_dir=tmp_path)
     assert demo.source.placement == "os" and graph_placement(demo) == {}
 
