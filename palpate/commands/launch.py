@@ -97,6 +97,12 @@ def run_graph(graph: Graph, record: Path | None = None) -> int:
     where = placement.graph_placement(graph)
     if where:
         print(f"[launch] placement {graph.source.placement}: {placement.describe(where)}", flush=True)
+    elif graph.source.placement != "os":
+        print(
+            f"[launch] placement {graph.source.placement}: this system cannot place processes (no Linux CPU "
+            "affinity); the OS places them",
+            flush=True,
+        )
     supervisor = Supervisor(graph, specs, placement=where)
     recorder: subprocess.Popen[bytes] | None = None
     if record is not None:

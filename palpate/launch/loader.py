@@ -141,12 +141,12 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> Lau
             f"{name}:{top['mode'][1].start_mark.line + 1}: mode must be 'lockstep' or 'realtime', got {mode!r}"
         )
     placement = value("placement", "os")
-    if placement not in PLACEMENTS or (placement == "loop" and mode != "lockstep"):
+    if placement not in PLACEMENTS:
         line = top["placement"][1].start_mark.line + 1
-        raise LaunchError(
-            f"{name}:{line}: placement must be one of {list(PLACEMENTS)}, 'loop' only with mode lockstep; "
-            f"got {placement!r} (mode {mode})"
-        )
+        raise LaunchError(f"{name}:{line}: placement must be 'os' or 'loop', got {placement!r}")
+    if placement == "loop" and mode != "lockstep":
+        line = top["placement"][1].start_mark.line + 1
+        raise LaunchError(f"{name}:{line}: placement 'loop' needs mode lockstep (mode is {mode})")
     seed = value("seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool):
         raise LaunchError(f"{name}:{top['seed'][1].start_mark.line + 1}: seed must be an integer, got {seed!r}")

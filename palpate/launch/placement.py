@@ -5,14 +5,17 @@ lockstep graph of light nodes (the probe benchmark, a simulator with a scripted 
 
 - the clock source and every node it waits for each tick (the loop) share one CPU, the least busy
   one of those the launcher may use; the trailing nodes get the others;
-- every node process runs under ``SCHED_BATCH``: a woken process does not preempt a running one.
+- every node process the launcher starts runs under ``SCHED_BATCH``: a woken process does not
+  preempt a running one.
 
-In lockstep only one node of the loop works at a time, so one CPU loses no parallelism there and
-saves each hop of a tick a wake-up on a CPU that has gone idle; without preemption, a node that
-receives its inputs one by one is not switched in for each of them. Measured on the 2-core
-development VM: the probe graph's real-time factor rises about 1.5x (docs/benchmarks.md,
-Simulation). Not for loops of heavy nodes that use threads (the GPIS node's BLAS): on one CPU they
-lose them. Placement changes wall time only, never a lockstep run's messages.
+Where the loop is a chain (sim -> driver -> sim), only one of its nodes works at a time, so one CPU
+loses no parallelism and saves each hop of a tick a wake-up on a CPU that has gone idle; without
+preemption, a node that receives its inputs one by one is not switched in for each of them. Nodes
+of the loop that would handle a tick side by side (two followers of the clock alone) take turns.
+Measured on the 2-core development VM: the probe graph's median round 11.9 against 7.6 times real
+time (docs/benchmarks.md, Simulation, "Seventh pass"). Not for loops of heavy nodes that use
+threads (the GPIS node's BLAS): on one CPU they lose them. Placement changes wall time only, never
+a lockstep run's messages. External nodes, the recorder and the launcher itself are not placed.
 """
 
 from __future__ import annotations
@@ -24,8 +27,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from palpate.errors import LaunchError
-
 if TYPE_CHECKING:
     from palpate.launch.graph import Graph
 
@@ -35,20 +36,27 @@ _PROC_STAT = Path("/proc/stat")
 
 @dataclass(frozen=True)
 class CpuPlacement:
-    """The CPUs one node process may run on, and whether it runs under SCHED_BATCH."""
+    """The CPUs one node process may run on; it runs under SCHED_BATCH."""
 
     cpus: frozenset[int]
-    batch: bool = True
 
     def __str__(self) -> str:
-        return f"CPUs {sorted(self.cpus)}" + (", SCHED_BATCH" if self.batch else "")
+        return f"CPU {','.join(map(str, sorted(self.cpus)))}"
 
     def apply(self) -> None:
         """Place the calling process (for a child: between fork and exec, so that every thread it
-        starts inherits it). Raises OSError where the system refuses."""
-        os.sched_setaffinity(0, self.cpus)
-        if self.batch:
+        starts inherits it). Each of the two settings is tried; OSError where the system refuses one."""
+        refused: OSError | None = None
+        try:
+            os.sched_setaffinity(0, self.cpus)
+        except OSError as exc:
+            refused = exc
+        try:
             os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+        except OSError as exc:
+            refused = refused or exc
+        if refused is not None:
+            raise refused
 
 
 def supported() -> bool:
@@ -86,38 +94,38 @@ def busy_ticks(stat_text: str) -> dict[int, tuple[int, int]]:
 def least_busy(
     before: Mapping[int, tuple[int, int]], after: Mapping[int, tuple[int, int]], allowed: Iterable[int]
 ) -> int:
-    """The allowed CPU with the smallest busy share between two /proc/stat readings: the lowest
-    number on ties; a CPU the readings miss counts as idle."""
+    """The allowed CPU with the smallest busy share between two /proc/stat readings. Ties go to the
+    highest number (CPU 0 often serves the interrupts); a CPU the readings miss counts as busy."""
 
     def share(cpu: int) -> float:
         if cpu not in before or cpu not in after:
-            return 0.0
+            return 1.0
         busy = after[cpu][0] - before[cpu][0]
         total = after[cpu][1] - before[cpu][1]
         return busy / total if total > 0 else 0.0
 
-    return min(sorted(allowed), key=share)
+    return min(sorted(allowed, reverse=True), key=share)
 
 
-def least_busy_cpu(allowed: Iterable[int], sample_s: float = 0.05) -> int:
-    """The allowed CPU that was least busy over the next `sample_s` seconds (/proc/stat)."""
+def least_busy_cpu(allowed: Iterable[int], sample_s: float = 0.1) -> int:
+    """The allowed CPU that was least busy over the next `sample_s` seconds (/proc/stat; without
+    it, the highest allowed CPU)."""
     allowed = sorted(allowed)
     try:
         before = busy_ticks(_PROC_STAT.read_text())
         time.sleep(sample_s)
         after = busy_ticks(_PROC_STAT.read_text())
     except OSError:
-        return allowed[0]
+        return allowed[-1]
     return least_busy(before, after, allowed)
 
 
 def graph_placement(graph: Graph) -> dict[str, CpuPlacement]:
-    """Per node the launcher starts, where it runs: {} for ``placement: os``. LaunchError where the
-    launch file asks for ``loop`` on a system that cannot place processes."""
-    if graph.source.placement != "loop":
+    """Per node the launcher starts (not external ones), where it runs; empty when the OS places
+    them: for ``placement: os``, and for ``loop`` on a system that cannot place processes (the
+    launcher says so)."""
+    if graph.source.placement != "loop" or not supported():
         return {}
-    if not supported():
-        raise LaunchError(f"{graph.source.path}: placement 'loop' needs Linux CPU affinity; use placement: os")
     trailing = {n.name for n in graph.trailing_nodes()}
     started = [n.name for n in graph.nodes if not n.external]
     allowed = os.sched_getaffinity(0)
@@ -131,7 +139,7 @@ def graph_placement(graph: Graph) -> dict[str, CpuPlacement]:
 
 def describe(placement: Mapping[str, CpuPlacement]) -> str:
     """Which nodes run on which CPUs, one group per CPU set, in the order of the nodes."""
-    groups: dict[frozenset[int], list[str]] = {}
+    groups: dict[CpuPlacement, list[str]] = {}
     for name, place in placement.items():
-        groups.setdefault(place.cpus, []).append(name)
-    return "; ".join(f"CPU {','.join(map(str, sorted(cpus)))}: {', '.join(names)}" for cpus, names in groups.items())
+        groups.setdefault(place, []).append(name)
+    return "; ".join(f"{place}: {', '.join(names)}" for place, names in groups.items())

@@ -142,13 +142,18 @@ class Supervisor:
     def _check_placed(self, child: Child, place: CpuPlacement) -> None:
         """Say so when a child did not get its placement (the system refused it): it runs anyway."""
         assert child.proc is not None
+        pid = child.proc.pid
         try:
-            placed = os.sched_getaffinity(child.proc.pid) == place.cpus
-            placed = placed and (not place.batch or os.sched_getscheduler(child.proc.pid) == os.SCHED_BATCH)
-        except OSError:  # it has already exited: its own report follows
+            placed = os.sched_getaffinity(pid) == place.cpus and os.sched_getscheduler(pid) == os.SCHED_BATCH
+        except ProcessLookupError:  # it has already exited: its own report follows
+            return
+        except OSError as exc:
+            self._say(f"node {child.node.name!r}: cannot read back its placement ({place}, SCHED_BATCH): {exc}")
             return
         if not placed:
-            self._say(f"node {child.node.name!r} runs without its placement ({place}): the system refused it")
+            self._say(
+                f"node {child.node.name!r} runs without its placement ({place}, SCHED_BATCH): the system refused it"
+            )
 
     def _pump(self, child: Child, proc: subprocess.Popen[bytes]) -> None:
         assert proc.stdout is not None

@@ -46,8 +46,8 @@ def test_the_least_busy_cpu_from_two_readings_of_proc_stat() -> None:
     assert before == {0: (150, 650), 1: (250, 750)}
     assert least_busy(before, after, {0, 1}) == 1
     assert least_busy(before, after, {0}) == 0
-    assert least_busy(before, before, {1, 0}) == 0  # no ticks passed: a tie, the lowest number
-    assert least_busy(before, after, {7, 1}) == 7  # a CPU the readings miss counts as idle
+    assert least_busy(before, before, {1, 0}) == 1  # no ticks passed: a tie, the highest number
+    assert least_busy(before, after, {7, 0}) == 0  # a CPU the readings miss counts as busy
 
 
 def test_probe_launch_places_sim_and_driver_together(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -70,12 +70,18 @@ def test_probe_launch_places_sim_and_driver_together(tmp_path: Path, monkeypatch
     assert demo.source.placement == "os" and graph_placement(demo) == {}
 
 
-def test_a_child_runs_where_its_placement_says(tmp_path: Path) -> None:
-    if not placement.supported():
-        pytest.skip("no CPU affinity on this system")
-    cpu = min(os.sched_getaffinity(0))
-    place = CpuPlacement(frozenset({cpu}))
-    report = "import os; print(sorted(os.sched_getaffinity(0)), os.sched_getscheduler(0) == os.SCHED_BATCH)"
+def test_a_child_and_its_threads_run_where_its_placement_says(tmp_path: Path) -> None:
+    allowed = os.sched_getaffinity(0) if placement.supported() else set()
+    if len(allowed) < 2:
+        pytest.skip("needs CPU affinity and two CPUs")
+    place = CpuPlacement(frozenset({max(allowed)}))
+    report = (
+        "import os, threading\n"
+        "def show():\n"
+        "    tid = threading.get_native_id()\n"
+        "    print(sorted(os.sched_getaffinity(tid)), os.sched_getscheduler(tid) == os.SCHED_BATCH)\n"
+        "show(); t = threading.Thread(target=show); t.start(); t.join()"
+    )
     out = subprocess.run(
         [sys.executable, "-c", report],
         preexec_fn=lambda: _place_child(place),
@@ -83,23 +89,29 @@ def test_a_child_runs_where_its_placement_says(tmp_path: Path) -> None:
         text=True,
         check=True,
     ).stdout
-    assert out.split() == [f"[{cpu}]", "True"]
+    assert out.split("\n")[:2] == [f"[{max(allowed)}] True"] * 2
 
 
-def test_the_launcher_says_when_a_child_runs_unplaced(tmp_path: Path) -> None:
+@pytest.mark.parametrize("refused", [False, True])
+def test_the_launcher_says_when_a_child_runs_unplaced(
+    refused: bool, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     allowed = os.sched_getaffinity(0) if placement.supported() else set()
     if len(allowed) < 2:
         pytest.skip("needs CPU affinity and two CPUs")
+    if refused:  # the forked child inherits the patch: the system "refuses" there
+        monkeypatch.setattr(CpuPlacement, "apply", lambda self: (_ for _ in ()).throw(PermissionError(1, "refused")))
     graph = resolve(load_launch(REPO_ROOT / "launch" / "probe.yaml"), bus_dir=tmp_path)
     out = io.StringIO()
     supervisor = Supervisor(graph, [], out=out)
+    place = CpuPlacement(frozenset({max(allowed)}))
     child = Child(node=graph.by_name["sim"], spec_path=tmp_path / "sim.json")
-    child.proc = subprocess.Popen(["sleep", "10"])  # started without the placement below
+    child.proc = subprocess.Popen(["sleep", "10"], preexec_fn=lambda: _place_child(place))
     try:
-        supervisor._check_placed(child, CpuPlacement(frozenset({min(allowed)})))
+        supervisor._check_placed(child, place)
     finally:
         child.proc.kill()
         child.proc.wait()
         supervisor.shutdown()
-    expected = f"node 'sim' runs without its placement (CPUs [{min(allowed)}], SCHED_BATCH): the system refused it"
-    assert out.getvalue().strip() == f"[launch] {expected}"
+    refusal = f"[launch] node 'sim' runs without its placement (CPU {max(allowed)}, SCHED_BATCH): the system refused it"
+    assert out.getvalue().strip() == (refusal if refused else "")
