@@ -97,7 +97,7 @@ def run_graph(graph: Graph, record: Path | None = None) -> int:
     where = placement.graph_placement(graph)
     if where:
         print(f"[launch] placement {graph.source.placement}: {placement.describe(where)}", flush=True)
-    elif graph.source.placement != "os":
+    elif graph.source.placement != "os" and not placement.supported():
         print(
             f"[launch] placement {graph.source.placement}: this system cannot place processes (no Linux CPU "
             "affinity); the OS places them",
