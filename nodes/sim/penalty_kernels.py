@@ -330,9 +330,10 @@ def face_grid(
 
 
 @numba.njit(cache=True)
-def grid_faces(grid: Any, cell_m: float, px: float, py: float, pz: float, reach: float, out: A) -> int:
+def grid_faces(grid: Any, cell_m: float, px: float, py: float, pz: float, reach: float, out: A, limit: int) -> int:
     """The faces whose centroid lies within ``reach`` of p (``face_index``'s k-d tree query), into
-    out[:count]; returns count."""
+    out[:count]; returns count. Stops at ``limit`` + 1 faces (a patch that large is not built), so
+    that a dense mesh costs at most that many per call."""
     corner, dims, first, order, centroids = grid
     lo = np.empty(3, dtype=np.int64)
     hi = np.empty(3, dtype=np.int64)
@@ -350,6 +351,8 @@ def grid_faces(grid: Any, cell_m: float, px: float, py: float, pz: float, reach:
                     if dx * dx + dy * dy + dz * dz <= reach * reach:
                         out[count] = f
                         count += 1
+                        if count > limit:
+                            return count
     return count
 
 
@@ -369,8 +372,9 @@ def build(k: int, px: float, py: float, pz: float, mesh: Any, grid: Any, warm: A
     radius = math.sqrt(upper) + 2.0 * params[P_REACH]
     if radius > params[P_MAX_DISTANCE]:
         return False
-    count = grid_faces(grid, params[P_CELL], px, py, pz, radius + params[P_LARGEST], candidates)
-    if count > params[P_MAX_FACES]:
+    limit = int(params[P_MAX_FACES])
+    count = grid_faces(grid, params[P_CELL], px, py, pz, radius + params[P_LARGEST], candidates, limit)
+    if count > limit:
         return False
     new_faces, new_planes, new_offsets, new_lower = closest_kernels.build_patch(
         bound_planes, bound_offsets, candidates[:count], px, py, pz, radius

@@ -121,8 +121,12 @@ def test_the_face_grid_finds_the_k_d_trees_faces() -> None:
     for _ in range(200):
         p = 0.05 * rng.standard_normal(3)
         reach = float(rng.uniform(0.001, 0.03))
-        count = penalty_kernels.grid_faces(grid, cell_m, *p, reach, out)
-        np.testing.assert_array_equal(np.sort(out[:count]), np.sort(tree.query_ball_point(p, reach)))
+        count = penalty_kernels.grid_faces(grid, cell_m, *p, reach, out, len(out))
+        expected = tree.query_ball_point(p, reach)
+        np.testing.assert_array_equal(np.sort(out[:count]), np.sort(expected))
+        if len(expected) > 3:  # a smaller limit stops the scan at limit + 1 of the same faces
+            stopped = penalty_kernels.grid_faces(grid, cell_m, *p, reach, out, 2)
+            assert stopped == 3 and set(out[:3].tolist()) <= set(expected)
 
 
 def test_without_mujocos_library_the_python_loop_runs(monkeypatch: pytest.MonkeyPatch) -> None:
