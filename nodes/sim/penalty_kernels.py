@@ -182,9 +182,10 @@ def matches_numpy(samples: int = 500) -> bool:
 
 
 def load_query_kernels(sensor: ExactContactSensor) -> None:
-    """Load the compiled kernels that a sphere's query calls from Python (a patch build, a weak sign)
-    and build the sensor's face index now, not at the first contact: tens of milliseconds once per
-    process, which would otherwise stall a step of a running graph."""
+    """Load the compiled kernels that a sphere's query calls from Python (a patch build, a weak sign,
+    handing a patch back to the arena) and build the sensor's face index now, not at the first
+    contact: tens of milliseconds once per process, which would otherwise stall a step of a running
+    graph."""
     k = closest_kernels
     triangles, signs = sensor._triangles, sensor._sign_normals
     k.project(triangles, 0, 0.0, 0.0, 0.0)
@@ -193,6 +194,8 @@ def load_query_kernels(sensor: ExactContactSensor) -> None:
         sensor._bound_planes, sensor._bound_offsets, np.zeros(0, dtype=np.int64), 0.0, 0.0, 0.0, 1.0
     )
     k.warm_query(triangles, signs, faces, planes, offsets, lower0, 0.0, 0, 0.0, 0.0, 0.0, 0.1, 0.1)
+    index = np.zeros(1, dtype=np.int64)
+    drop_patch(0, index, index.copy(), index.copy())  # WarmPatches.store's
     sensor.face_index()
     sensor._scene.closest_face_ids(np.zeros((1, 3)))
 
@@ -253,9 +256,7 @@ class WarmPatches:
         if faces is self._given[k]:
             return
         self.p0[k] = p0
-        if self.size[k] and self.start[k] + self.size[k] == self.used[0]:
-            self.used[0] = self.start[k]  # its old patch was the arena's last: reuse the room
-        self.size[k] = 0
+        drop_patch(k, self.start, self.size, self.used)
         if len(faces) == 0:
             return
         if self.used[0] + len(faces) > len(self.faces):
@@ -357,15 +358,21 @@ def grid_faces(grid: Any, cell_m: float, px: float, py: float, pz: float, reach:
 
 
 @numba.njit(cache=True)
+def drop_patch(k: int, start: A, size: A, used: A) -> None:
+    """Drop sphere k's patch from the arena; when it was the arena's last, the next patch takes its room."""
+    if size[k] > 0 and start[k] + size[k] == used[0]:
+        used[0] = start[k]
+    size[k] = 0
+
+
+@numba.njit(cache=True)
 def build(k: int, px: float, py: float, pz: float, mesh: Any, grid: Any, warm: Any, params: A, candidates: A) -> bool:
     """``WarmClosest._build`` of sphere k's patch at p (shifted frame) into the arena; False where it
     needs Python (no face yet, no patch: too far or too many faces, a full arena). The old patch is
     dropped either way (p left its reach), and if it was the arena's last the new one takes its room."""
     _, triangles, _, bound_planes, bound_offsets = mesh
     p0, face, start, size, _, faces, planes, offsets, lower0, used = warm
-    if size[k] > 0 and start[k] + size[k] == used[0]:
-        used[0] = start[k]
-    size[k] = 0
+    drop_patch(k, start, size, used)
     if face[k] < 0:
         return False
     upper, _, _, _ = closest_kernels.project(triangles, face[k], px, py, pz)
