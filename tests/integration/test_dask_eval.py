@@ -16,11 +16,15 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
 from palpate.paths import REPO_ROOT
 from tests.integration.launch_helpers import kill_session
+
+if TYPE_CHECKING:
+    from distributed import Client
 
 pytestmark = pytest.mark.slow
 
@@ -180,6 +184,23 @@ def cluster(tmp_path: Path) -> Iterator[tuple[str, list[subprocess.Popen[bytes]]
             kill_session(proc)
 
 
+def wait_for_a_busy_worker(observer: Client, proc: subprocess.Popen[bytes], timeout_s: float = 60.0) -> str:
+    """The name of a worker the scheduler has given a run to.
+
+    Looked for repeatedly: between one run landing and the next being assigned (the scheduler queues
+    tasks until a worker is free) no worker may hold a run for a moment.
+    """
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        names = {a: w["name"] for a, w in observer.scheduler_info()["workers"].items()}
+        for address, keys in observer.processing().items():
+            if any(str(k).startswith("explore-") for k in keys):
+                return str(names[address])
+        assert proc.poll() is None, f"the evaluation ended (exit {proc.returncode}) before a worker was seen with a run"
+        time.sleep(0.02)
+    raise AssertionError(f"no worker held a run for {timeout_s:g} s")
+
+
 def test_a_cluster_that_loses_a_worker_runs_every_run_once_with_the_local_results(
     objects: Path,
     reference: tuple[dict[str, object], Path],
@@ -195,12 +216,9 @@ def test_a_cluster_that_loses_a_worker_runs_every_run_once_with_the_local_result
         proc = spawn(eval_command(objects, out, "--scheduler", address), tmp_path / "eval.log", tmp_path / "eval-cache")
         try:
             wait_for_lines(out / "runs.jsonl", 1, proc)
-            # in the middle: three runs to go; kill a worker that holds one of them
-            names = {a: w["name"] for a, w in observer.scheduler_info()["workers"].items()}
-            held = observer.processing()
-            busy = [names[a] for a, keys in held.items() if any(str(k).startswith("explore-") for k in keys)]
-            assert busy, "no run in flight after the first one finished"
-            kill_session(workers[int(str(busy[0]).removeprefix("worker"))])
+            # in the middle: kill a worker as soon as it holds one of the runs still to go
+            busy = wait_for_a_busy_worker(observer, proc)
+            kill_session(workers[int(busy.removeprefix("worker"))])
             proc.wait(timeout=COMMAND_TIMEOUT_S)
         finally:
             kill_session(proc)
