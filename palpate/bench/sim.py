@@ -43,7 +43,7 @@ from palpate import jsonio
 from palpate.config import NonNegativeFloat, Validated, load
 from palpate.errors import BenchmarkError, InputError
 from palpate.inputs import contact_arrays
-from palpate.launch.loader import load_launch, parse_cli_args
+from palpate.launch.loader import LaunchFile, load_launch, parse_cli_args
 from palpate.launch.placement import PLACEMENTS
 from palpate.messages import codec
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, JointState, Pose
@@ -373,15 +373,14 @@ def _run_checked(command: Sequence[str], timing: Path, timeout_s: float, env: Ma
         raise BenchmarkError(f"{' '.join(command)} exited with code {done.returncode}:\n{tail}")
 
 
-def bare_rate(launch: Path, args: Sequence[str], seconds: float) -> tuple[float, float, dict[str, int]]:
+def bare_rate(launch: LaunchFile, seconds: float) -> tuple[float, float, dict[str, int]]:
     """Bare mj_step steps per second on the scene's model, its time step and its sizes (model_sizes)."""
     from palpate.launch.graph import resolve
-    from palpate.launch.loader import load_launch, parse_cli_args
     from palpate.nodes.sim.core import Simulation, bare_step_rate, model_sizes
     from palpate.nodes.sim.scene import SceneConfig
 
     with tempfile.TemporaryDirectory() as bus_dir:
-        graph = resolve(load_launch(launch, parse_cli_args(list(args))), bus_dir=Path(bus_dir))
+        graph = resolve(launch, bus_dir=Path(bus_dir))
     sim = Simulation(load(SceneConfig, graph.by_name["sim"].params["scene"], "scene"))
     sizes = {**model_sizes(sim.model), "exact_contact_spheres": sim.exact_contact_spheres}
     return bare_step_rate(sim.model, seconds), sim.timestep_s, sizes
@@ -398,7 +397,8 @@ def bench_scene(scene: str, obj: Mapping[str, Any], config: SimBenchConfig, work
     time goes in each tier; the tiers alternate (ABBA...) over ``config.rounds`` rounds and the best
     round of each counts (a shared machine only slows runs down), with that round's breakdown."""
     launch, args = scene_launch(scene, obj, config, workdir)
-    bare_steps, dt, sizes = bare_rate(launch, args, config.bare_seconds)
+    loaded = load_launch(launch, parse_cli_args(args))
+    bare_steps, dt, sizes = bare_rate(loaded, config.bare_seconds)
     rtf: dict[str, list[float]] = {"inprocess": [], "graph": []}
     totals: dict[str, list[float]] = {"inprocess": [], "graph": []}
     parts: dict[str, list[dict[str, Any]]] = {"inprocess": [], "graph": []}
@@ -418,7 +418,7 @@ def bench_scene(scene: str, obj: Mapping[str, Any], config: SimBenchConfig, work
     inproc, graph = rtf["inprocess"][best["inprocess"]], rtf["graph"][best["graph"]]
     row: dict[str, Any] = {
         "scene": scene,
-        "placement": load_launch(launch, parse_cli_args(args)).placement,
+        "placement": loaded.placement,
         "timestep_s": dt,
         **sizes,
         "bare_steps_s": bare_steps,
