@@ -90,7 +90,7 @@ class Node:
         self.spec = spec
         self.name = spec["name"]
         lockstep = spec["mode"] == "lockstep"
-        context = zmq.Context.instance()
+        self.context = context = zmq.Context()
         self.pub = context.socket(zmq.XPUB)
         self.pub.setsockopt(zmq.XPUB_VERBOSE, 1)  # report every subscription, to count subscribers
         self.pub.setsockopt(zmq.LINGER, 2000)
@@ -165,8 +165,8 @@ class Node:
 
     def close(self) -> None:
         self.manifest.unlink(missing_ok=True)
-        time.sleep(0.05)  # let the last messages leave
         self.pub.close(linger=1000)
         self.sub.close()
+        self.context.term()  # returns when the last messages have left (or the linger is over)
         if self.spec["endpoint"].startswith("ipc://"):  # the socket file
             Path(self.spec["endpoint"][len("ipc://") :]).unlink(missing_ok=True)

@@ -28,6 +28,7 @@ import logging
 import os
 import signal
 import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -234,6 +235,7 @@ class NodeRunner:
         self.stopping = False
         self.stop_reason = ""  # the first reason another node gave for stopping the run
         self.interrupted = False
+        _install_signal_handlers(self)  # before the manifest: a signal from now on ends the run cleanly
         manifest = bus.Manifest(
             node=process.name,
             endpoint=process.endpoint,
@@ -379,7 +381,6 @@ class NodeRunner:
     # --- main loops ----------------------------------------------------------------------------------
     def run(self) -> int:
         """Run until the graph stops or a signal arrives; returns the process exit code."""
-        _install_signal_handlers(self)
         try:
             self._start_up()
             if self.spec.clock_source:
@@ -408,8 +409,7 @@ class NodeRunner:
                     self.timer.write(self.spec.clock_source, self.process.trailing_nodes)
             finally:  # even when the node's close() fails: no stale manifest, socket or ipc file
                 self.manifest_path.unlink(missing_ok=True)
-                time.sleep(0.05)  # let the last status leave
-                self._close_sockets(linger_ms=1000)
+                self._close_sockets(linger_ms=1000)  # what is queued still leaves: see flush_before_exit
 
     def _close_sockets(self, linger_ms: int) -> None:
         """Close the sockets this runner opened, remove its ipc file and stop its ZAP handler."""
@@ -598,7 +598,23 @@ def main(argv: list[str] | None = None) -> int:
     except PalpateError as exc:
         log.error("node %s could not start: %s", process.name, exc)
         return 2
-    return runner.run()
+    code = runner.run()
+    flush_before_exit(runner.zmq, timeout_s=1.0)
+    return code
+
+
+def flush_before_exit(context: zmq.Context[Any], timeout_s: float) -> bool:
+    """Let the messages still queued on closed sockets (the final NodeStatus, the clock source's
+    stop) leave before the process exits, for at most `timeout_s`; True when they did.
+
+    pyzmq does not terminate its context at exit, and without that the queued messages die with the
+    process. ``term()`` blocks until every socket is closed, so it runs in a daemon thread: a socket
+    left open cannot hold the exit longer than `timeout_s`.
+    """
+    ender = threading.Thread(target=context.term, name="zmq-flush", daemon=True)
+    ender.start()
+    ender.join(timeout_s)
+    return not ender.is_alive()
 
 
 if __name__ == "__main__":
