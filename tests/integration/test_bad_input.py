@@ -46,7 +46,7 @@ class Harness:
     def send(self, topic: str, payload: bytes) -> None:
         self.pub.send_multipart([topic.encode(), payload])
 
-    def receive_until_ack(self, tick: int, timeout_s: float = 10.0) -> None:
+    def receive_until_ack(self, tick: int, timeout_s: float = 60.0) -> None:
         """Read the node's publisher until it acknowledges `tick` (collecting NodeStatus on the way)."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
@@ -69,7 +69,7 @@ class Harness:
 
     def stop(self) -> int:
         self.send(topics.GRAPH_CONTROL, codec.encode(RunControl(stamp_ns=0, command="stop", reason="test over")))
-        code = self.proc.wait(timeout=10)
+        code = self.proc.wait(timeout=60)
         while self.sub.poll(500):  # the final status goes out just before exit
             topic, payload = self.sub.recv_multipart()
             if topic == topics.NODE_STATUS.encode():

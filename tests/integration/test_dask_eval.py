@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -184,21 +185,41 @@ def cluster(tmp_path: Path) -> Iterator[tuple[str, list[subprocess.Popen[bytes]]
             kill_session(proc)
 
 
-def wait_for_a_busy_worker(observer: Client, proc: subprocess.Popen[bytes], timeout_s: float = 60.0) -> str:
-    """The name of a worker the scheduler has given a run to.
+def runs_held(observer: Client) -> dict[str, set[str]]:
+    """Worker name -> the runs the scheduler has given it (runs queued on the scheduler, waiting for a
+    free worker, are in no worker's list)."""
+    names = {a: str(w["name"]) for a, w in observer.scheduler_info()["workers"].items()}
+    held = observer.processing()
+    return {names[a]: {str(k) for k in keys if str(k).startswith("explore-")} for a, keys in held.items() if a in names}
 
-    Looked for repeatedly: between one run landing and the next being assigned (the scheduler queues
-    tasks until a worker is free) no worker may hold a run for a moment.
+
+def stop_a_worker_midway(
+    observer: Client, workers: list[subprocess.Popen[bytes]], proc: subprocess.Popen[bytes], timeout_s: float = 120.0
+) -> int:
+    """The index of a worker, stopped (SIGSTOP), that has finished a run and holds another.
+
+    Watched from the start: a run that leaves a worker's list is done (or was moved to the other).
+    A worker seen with a run may finish it before a kill lands; stopped, it cannot, and after a
+    moment for any result already on its way the scheduler's list is checked again (if the run got
+    away, the worker is continued).
     """
+    done: dict[str, set[str]] = {}
+    seen: dict[str, set[str]] = {}
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        names = {a: w["name"] for a, w in observer.scheduler_info()["workers"].items()}
-        for address, keys in observer.processing().items():
-            if any(str(k).startswith("explore-") for k in keys):
-                return str(names[address])
-        assert proc.poll() is None, f"the evaluation ended (exit {proc.returncode}) before a worker was seen with a run"
+        assert proc.poll() is None, f"the evaluation ended (exit {proc.returncode}) before a worker was seen midway"
+        for name, runs in runs_held(observer).items():
+            done.setdefault(name, set()).update(seen.get(name, set()) - runs)
+            seen[name] = runs
+            if done[name] and runs:
+                index = int(name.removeprefix("worker"))
+                os.kill(workers[index].pid, signal.SIGSTOP)
+                time.sleep(0.5)
+                if runs_held(observer).get(name):
+                    return index
+                os.kill(workers[index].pid, signal.SIGCONT)
         time.sleep(0.02)
-    raise AssertionError(f"no worker held a run for {timeout_s:g} s")
+    raise AssertionError(f"no worker was seen with a run after finishing one in {timeout_s:g} s")
 
 
 def test_a_cluster_that_loses_a_worker_runs_every_run_once_with_the_local_results(
@@ -215,10 +236,8 @@ def test_a_cluster_that_loses_a_worker_runs_every_run_once_with_the_local_result
         observer.wait_for_workers(2, timeout=60)
         proc = spawn(eval_command(objects, out, "--scheduler", address), tmp_path / "eval.log", tmp_path / "eval-cache")
         try:
-            wait_for_lines(out / "runs.jsonl", 1, proc)
-            # in the middle: kill a worker as soon as it holds one of the runs still to go
-            busy = wait_for_a_busy_worker(observer, proc)
-            kill_session(workers[int(busy.removeprefix("worker"))])
+            # in the middle: kill a worker that has finished a run and holds another
+            kill_session(workers[stop_a_worker_midway(observer, workers, proc)])
             proc.wait(timeout=COMMAND_TIMEOUT_S)
         finally:
             kill_session(proc)

@@ -112,7 +112,7 @@ def test_the_clock_source_reports_progress_while_the_graph_runs(
 def test_signal_ends_every_child_without_orphans(tmp_path: Path, mode: str, signum: int, to_group: bool) -> None:
     bus_dir, log = tmp_path / "bus", tmp_path / "launch.log"
     with launched(write(tmp_path, long_graph(mode)), bus_dir, log) as proc:
-        wait_for(lambda: set(node_pids(bus_dir)) == {"cube", "stats"}, 20, "both nodes to start", log)
+        wait_for(lambda: set(node_pids(bus_dir)) == {"cube", "stats"}, 60, "both nodes to start", log)
         time.sleep(0.5)  # let them get into their loops
         pids = set(node_pids(bus_dir).values()) | set(descendants(proc.pid))
         assert len(pids) >= 2 and all(alive(p) for p in pids)
@@ -121,12 +121,12 @@ def test_signal_ends_every_child_without_orphans(tmp_path: Path, mode: str, sign
             os.killpg(proc.pid, signum)  # what a terminal's Ctrl-C does
         else:
             os.kill(proc.pid, signum)
-        code = proc.wait(timeout=15)
+        code = proc.wait(timeout=30)
         took = time.monotonic() - start
     out = text(log)
     assert code == 128 + signum, out
     assert f"received {signal.Signals(signum).name}: stopping every node" in out
-    assert took < 5.0 + 2.0, f"shutdown took {took:.1f} s (sigterm_timeout_s is 5 s)"
+    assert took < 5.0 + 8.0, f"shutdown took {took:.1f} s (sigterm_timeout_s is 5 s)"
     assert [p for p in pids if alive(p)] == [], "orphan node processes"
     assert not list(bus_dir.glob("*.json")), "a node did not remove its manifest (it did not exit cleanly)"
     assert not list(bus_dir.glob("*.pub")), "ipc socket files left behind"
@@ -135,7 +135,7 @@ def test_signal_ends_every_child_without_orphans(tmp_path: Path, mode: str, sign
 def test_killed_launcher_takes_its_children_along(tmp_path: Path) -> None:
     bus_dir, log = tmp_path / "bus", tmp_path / "launch.log"
     with launched(write(tmp_path, long_graph("realtime")), bus_dir, log) as proc:
-        wait_for(lambda: set(node_pids(bus_dir)) == {"cube", "stats"}, 20, "both nodes to start", log)
+        wait_for(lambda: set(node_pids(bus_dir)) == {"cube", "stats"}, 60, "both nodes to start", log)
         pids = list(node_pids(bus_dir).values())
         os.kill(proc.pid, signal.SIGKILL)  # no chance to clean up: the parent-death signal must do it
         proc.wait(timeout=5)
@@ -149,16 +149,16 @@ def test_node_ignoring_sigterm_is_killed_after_its_timeout(tmp_path: Path) -> No
 """
     bus_dir, log = tmp_path / "bus", tmp_path / "launch.log"
     with launched(write(tmp_path, long_graph("lockstep", extra)), bus_dir, log) as proc:
-        wait_for(lambda: "stubborn: ignoring SIGTERM" in text(log), 20, "the stubborn node to arm", log)
+        wait_for(lambda: "stubborn: ignoring SIGTERM" in text(log), 60, "the stubborn node to arm", log)
         pids = set(node_pids(bus_dir).values()) | set(descendants(proc.pid))
         start = time.monotonic()
         os.kill(proc.pid, signal.SIGTERM)
-        code = proc.wait(timeout=15)
+        code = proc.wait(timeout=30)
         took = time.monotonic() - start
     out = text(log)
     assert code == 128 + signal.SIGTERM, out
     assert "[launch] node 'stubborn' ignored SIGTERM for 1.0 s: killing it" in out
-    assert 1.0 <= took < 1.0 + 3.0, f"took {took:.1f} s"
+    assert 1.0 <= took < 1.0 + 10.0, f"took {took:.1f} s"  # the others stop first; a loaded machine is slow
     assert [p for p in pids if alive(p)] == []
     assert not list(bus_dir.glob("*.pub")), "the launcher did not remove the killed node's socket file"
 
@@ -170,9 +170,16 @@ def test_dying_node_is_reported_and_fails_the_launch(tmp_path: Path) -> None:
 """
     bus_dir, log = tmp_path / "bus", tmp_path / "launch.log"
     with launched(write(tmp_path, long_graph("lockstep", extra)), bus_dir, log) as proc:
-        wait_for(lambda: set(node_pids(bus_dir)) >= {"cube", "stats"}, 20, "the nodes to start", log)
-        pids = set(node_pids(bus_dir).values())
-        code = proc.wait(timeout=20)
+        seen: dict[str, int] = {}  # every node's pid, gathered while they run (the run lasts a moment)
+
+        def both_seen_or_ended() -> bool:
+            seen.update(node_pids(bus_dir))
+            return set(seen) >= {"cube", "stats"} or proc.poll() is not None
+
+        wait_for(both_seen_or_ended, 60, "the nodes to start", log)
+        assert set(seen) >= {"cube", "stats"}, f"the launch ended before both nodes were seen: {seen}"
+        pids = set(seen.values())
+        code = proc.wait(timeout=30)
     out = text(log)
     assert code == 1, out
     report = out[out.index(f"[launch] node 'crasher' ({CRASHER}) died with exit code 3; stopping the launch.") :]

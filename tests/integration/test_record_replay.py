@@ -189,11 +189,14 @@ def test_recover_a_log_whose_recorder_was_killed(tmp_path: Path) -> None:
     ):
         tap = TopicTap(bus_dir, topics.CLOCK)
         latest = -1
+        mark: int | None = None  # the first tick at 3 s of sim (and wall-clock) time
         deadline = time.monotonic() + 60
-        while latest < 3_000_000_000:  # three seconds of sim (and wall-clock) time
+        while mark is None or latest < mark + 2_000_000_000:  # two more seconds: two flushes after the mark
             assert time.monotonic() < deadline and launch.poll() is None, (tmp_path / "launch.log").read_text()
             for _, payload in tap.receive(0.1):
                 latest = max(latest, codec.decode(payload, Clock).stamp_ns)
+            if mark is None and latest >= 3_000_000_000:
+                mark = latest
         recorder.send_signal(signal.SIGKILL)
         assert recorder.wait(timeout=10) == -signal.SIGKILL
         tap.close()
@@ -204,7 +207,8 @@ def test_recover_a_log_whose_recorder_was_killed(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stdout + done.stderr
     summary = summarize(fixed)
     assert summary.topics[topics.CONTACTS] > 100 and summary.topics[topics.SURFACE_MESH] > 100
-    # flushed at least every second: all but (about) the last second is there (0.5 s slack for scheduling)
-    assert summary.end_ns >= latest - 1_500_000_000, (summary.end_ns, latest)
+    # flushed every second: what the bus carried two seconds before the kill is on disk (a loaded
+    # machine may hold the recorder up to a second behind the bus)
+    assert mark is not None and summary.end_ns >= mark, (summary.end_ns, mark, latest)
     for message in read_messages(fixed):
         codec.decode(message.data)

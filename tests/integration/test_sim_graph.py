@@ -24,7 +24,7 @@ def test_probe_graph_runs_to_completion(tmp_path: Path, monkeypatch: pytest.Monk
     args = ("duration_s:=1", "start:=[0.0, 0.0, 0.03]", f"timing:={timing}")
     with launched(REPO_ROOT / "launch" / "probe.yaml", bus_dir, log, *args) as proc:
         placed = _placements_while_running(proc, bus_dir, {"sim", "driver", "noise"})
-        assert proc.wait(timeout=60) == 0, text(log)
+        assert proc.wait(timeout=180) == 0, text(log)
     out = text(log)
     found = re.search(r"\[driver\] INFO probe driver: (\d+) contacts in (\d+) of (\d+) ticks", out)
     assert found, out
