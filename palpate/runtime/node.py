@@ -416,7 +416,7 @@ class NodeRunner:
         self.pub.close(linger=linger_ms)
         if hasattr(self, "sub"):
             self.sub.close()
-        bus.remove_ipc_file(self.process.endpoint)  # the context is never terminated: zmq would leave it
+        bus.remove_ipc_file(self.process.endpoint)  # now: zmq would unlink it later, in its I/O thread
         if self.allow is not None:
             self.allow.close()
 
