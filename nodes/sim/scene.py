@@ -9,7 +9,8 @@ Placement: when the effector's base pose is not given, the exploring finger's MC
 ``finger_mcp_offset_m`` from the object's bounding box (x from its -x face, y from its centre, z
 from its top), fingers pointing +x and palm facing -z, so the fingertip can reach the top face and
 the face nearest the hand. The probe starts ``start_clearance_m`` above the object's top, facing
-down.
+down, over the centre of its bounding box, or where nothing lies under that centre, over the nearest
+point that has the object under it (``descent_xy``).
 """
 
 from __future__ import annotations
@@ -126,15 +127,51 @@ def target_mcp_position(scene: SceneConfig, obj: ObjectModel) -> np.ndarray:
     return anchor + np.asarray(scene.finger_mcp_offset_m, dtype=np.float64)
 
 
+def descent_xy(obj: ObjectModel, radius_m: float, grid: int = 64) -> tuple[float, float]:
+    """Where a probe of ``radius_m`` moving straight down lands on the object: the centre (x, y) of its
+    bounding box when the object lies under it, else (under the hole of a torus, between two parts)
+    the point nearest that centre, on a ``grid`` x ``grid`` lattice over the box, where the object
+    lies under the probe's whole footprint (failing that, under its centre)."""
+    from palpate.geometry.mesh_query import MeshScene
+
+    lo, hi = np.asarray(obj.mesh.bounds, dtype=np.float64)
+    centre = 0.5 * (lo + hi)
+    scene = MeshScene(obj.mesh.vertices, obj.mesh.faces, origin_m=centre)
+    above = hi[2] - centre[2] + radius_m
+    angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
+    footprint = np.vstack([[0.0, 0.0], 0.9 * radius_m * np.column_stack([np.cos(angles), np.sin(angles)])])
+    if _under(scene, np.zeros((1, 2)), footprint[:1], above).all():
+        return float(centre[0]), float(centre[1])
+    u = np.linspace(lo[0], hi[0], grid) - centre[0]
+    v = np.linspace(lo[1], hi[1], grid) - centre[1]
+    lattice = np.stack(np.meshgrid(u, v, indexing="ij"), axis=-1).reshape(-1, 2)
+    under = _under(scene, lattice, footprint, above)
+    for landed in (under.all(axis=1), under[:, 0]):  # the whole footprint, else its centre
+        if landed.any():
+            points = lattice[landed]
+            x, y = points[np.argmin(np.einsum("ij,ij->i", points, points))]
+            return float(centre[0] + x), float(centre[1] + y)
+    return float(centre[0]), float(centre[1])
+
+
+def _under(scene: Any, xy: np.ndarray, footprint: np.ndarray, height_m: float) -> np.ndarray:
+    """(n, k): whether a vertical ray down from (x, y) + footprint[j] at ``height_m`` meets the mesh
+    (``MeshScene``'s local frame)."""
+    points = (xy[:, None, :] + footprint[None, :, :]).reshape(-1, 2)
+    origins = np.column_stack([points, np.full(len(points), height_m)])
+    down = np.tile([0.0, 0.0, -1.0], (len(points), 1))
+    hit: np.ndarray = np.isfinite(scene.ray_hit_distance(origins, down)).reshape(len(xy), len(footprint))
+    return hit
+
+
 def effector_base_position(scene: SceneConfig, obj: ObjectModel) -> np.ndarray:
     """World position (3,) of the effector's root body (palm, metacarpal base or probe centre)."""
     if scene.effector == "probe":
         cfg = scene.probe_config()
         if cfg.start_position_m is not None:
             return np.asarray(cfg.start_position_m, dtype=np.float64)
-        lo, hi = np.asarray(obj.mesh.bounds, dtype=np.float64)
-        centre = 0.5 * (lo + hi)
-        return np.array([centre[0], centre[1], hi[2] + cfg.radius_m + cfg.start_clearance_m])
+        x, y = descent_xy(obj, cfg.radius_m)
+        return np.array([x, y, obj.mesh.bounds[1][2] + cfg.radius_m + cfg.start_clearance_m])
     if scene.effector == "finger":
         fcfg = scene.finger_config()
         if fcfg.base_position_m is not None:

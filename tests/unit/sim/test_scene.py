@@ -16,6 +16,7 @@ from palpate.nodes.sim.objects import KINDS, ObjectSpec, load_object
 from palpate.nodes.sim.scene import (
     SceneConfig,
     build_model,
+    descent_xy,
     effector_base_position,
     effector_mount,
     target_mcp_position,
@@ -167,3 +168,14 @@ def test_probe_starts_above_the_object_facing_down() -> None:
     mujoco.mj_kinematics(model, data)
     np.testing.assert_allclose(data.body("probe").xpos, (0, 0, 0.0285 + 0.008 + 0.02), atol=1e-12)
     np.testing.assert_allclose(data.body("probe").xmat.reshape(3, 3)[:, 2], (0, 0, -1), atol=1e-12)
+
+
+def test_probe_starts_over_the_object_where_its_centre_is_a_hole() -> None:
+    torus = load_object(ObjectSpec(kind="torus"))  # the default ring: major radius 40 mm, tube 15 mm
+    x, y = descent_xy(torus, radius_m=0.008)
+    off_axis = float(np.hypot(x, y))
+    assert 0.025 + 0.005 <= off_axis <= 0.04, (x, y)  # over the tube (inner edge at 25 mm), not the hole
+    base = effector_base_position(SceneConfig(effector="probe", object=ObjectSpec(kind="torus")), torus)
+    np.testing.assert_allclose(base[:2], [x, y])
+    box = load_object(ObjectSpec(**PRIMITIVES["box"]))
+    assert descent_xy(box, radius_m=0.008) == (0.0, 0.0)  # the centre when the object lies under it
