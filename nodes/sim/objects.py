@@ -424,7 +424,9 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
         raise MeshError(
             f"{path}: absurd scale: the mesh is {size:.6g} m across after scale {scale:g} ({limit}); "
             "millimetres given as metres or the reverse? "
-            f"Set object.scale: {scale * factor:g} in the scene (or convert the file to metres)"
+            f"Give it a scale of {scale * factor:g}: object.scale in a scene, scale:={scale * factor:g} for "
+            f"launch/explore.yaml and launch/probe.yaml, --scale {scale * factor:g} for palpate eval explore "
+            "(or convert the file to metres)"
         )
     if mesh.is_watertight and volume < 0:
         warnings.warn(

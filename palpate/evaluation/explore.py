@@ -72,28 +72,31 @@ class ObjectCase:
     kind: str = "mesh"
     mesh: str = ""
     size_m: tuple[float, ...] | None = None
+    #: Metres per unit of the mesh file (0.001: a file in millimetres).
+    scale: float = 1.0
 
     def launch_args(self) -> dict[str, Any]:
         """The launch arguments of explore.yaml that select this object."""
-        return {"object": self.kind, "mesh": self.mesh, "size_m": list(self.size_m) if self.size_m else None}
+        size_m = list(self.size_m) if self.size_m else None
+        return {"object": self.kind, "mesh": self.mesh, "size_m": size_m, "scale": self.scale}
 
     def true_mesh(self) -> tuple[FloatArray, NDArray[np.int64]]:
         """The object's true surface as the simulation builds it: vertices (V, 3) m, faces (F, 3)."""
         from palpate.nodes.sim.objects import ObjectSpec, load_object
 
-        spec = {"kind": self.kind, "path": self.mesh or None, "size_m": self.size_m}
+        spec = {"kind": self.kind, "path": self.mesh or None, "size_m": self.size_m, "scale": self.scale}
         model = load_object(load(ObjectSpec, spec, f"object {self.name!r}"))
         return np.asarray(model.mesh.vertices, dtype=np.float64), np.asarray(model.mesh.faces, dtype=np.int64)
 
 
-def objects_in(folder: Path) -> list[ObjectCase]:
-    """Every mesh file in ``folder`` (sorted by name) as an ObjectCase."""
+def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
+    """Every mesh file in ``folder`` (sorted by name) as an ObjectCase, in metres after ``scale``."""
     if not folder.is_dir():
         raise ConfigError(f"--objects {str(folder)!r} is not a folder; give a folder of mesh files (STL, metres)")
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     if not files:
         raise ConfigError(f"no mesh files ({', '.join(MESH_SUFFIXES)}) in {str(folder)!r}")
-    return [ObjectCase(name=p.stem, kind="mesh", mesh=str(p.resolve())) for p in files]
+    return [ObjectCase(name=p.stem, kind="mesh", mesh=str(p.resolve()), scale=scale) for p in files]
 
 
 @dataclass(frozen=True)
@@ -205,6 +208,7 @@ def episodes(
     frozen = tuple(sorted((params or {}).items()))
     for case in cases:
         vertices, faces = case.true_mesh()
+        _note_if_tiny(case.name, vertices, faces)
         for run in range(runs):
             a = approach(vertices, faces, run)
             q = probe_quaternion(a.direction)
@@ -222,6 +226,25 @@ def episodes(
                     )
                 )
     return out
+
+
+#: Below this covering bound (contacts) coverage is reached by a touch or two.
+FEW_TOUCHES = 3.0
+
+
+def _note_if_tiny(name: str, vertices: FloatArray, faces: NDArray[np.int64]) -> None:
+    """Say on stderr when an object is so small that a touch or two cover 80 % of it: its run then
+    completes at once, and only its shape scores (F-score, Chamfer) tell how well it was learnt."""
+    from palpate.metrics.exploration import covering_bound_contacts, triangle_areas
+
+    area = float(triangle_areas(vertices, faces).sum())
+    bound = covering_bound_contacts(area)
+    if bound < FEW_TOUCHES:
+        print(
+            f"note: {name} has {area * 1e4:.3g} cm^2 of surface: {bound:.2g} touches of 6 mm cover 80 % of it, "
+            "so its run completes at once; its F-score and Chamfer distance tell how well it was learnt",
+            file=sys.stderr,
+        )
 
 
 def _triple(v: FloatArray) -> tuple[float, float, float]:
@@ -298,6 +321,8 @@ def episode_task(episode: Episode, prefix: str = "explore") -> RunTask:
     episode (the mesh by its SHA-256, not its path); the mesh file travels with it."""
     mesh = episode.case.mesh
     spec = asdict(replace(episode, case=replace(episode.case, mesh=file_digest(Path(mesh)) if mesh else "")))
+    if episode.case.scale == 1.0:  # the runs recorded before objects had a scale keep their keys
+        del spec["case"]["scale"]
     return RunTask(
         key=run_key(f"{prefix}-{episode.case.name}-{episode.strategy}-{episode.run}", spec),
         function=run_episode_on_worker,
@@ -354,9 +379,20 @@ DEFAULT_OUT = Path("out/eval_explore")
 PLOT_OBJECT = "011_banana"
 
 
+def add_scale_argument(parser: argparse.ArgumentParser) -> None:
+    """``--scale``: metres per unit of the --objects files."""
+    parser.add_argument(
+        "--scale",
+        type=float,
+        default=1.0,
+        help="metres per unit of the --objects mesh files (default 1; 0.001 for files in millimetres)",
+    )
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate eval explore` (registered by palpate.commands.evaluate)."""
     parser.add_argument("--objects", type=Path, help="folder of mesh files, metres (default: the YCB folder)")
+    add_scale_argument(parser)
     parser.add_argument("--runs", type=int, default=3, help="start positions per object (seed = run index)")
     parser.add_argument(
         "--strategies",
@@ -412,15 +448,15 @@ def eval_params(args: argparse.Namespace) -> dict[str, Any]:
     return params
 
 
-def select_cases(folder: Path | None, smallest: int | None = None) -> list[ObjectCase]:
-    """The objects of an evaluation: every mesh of ``folder`` (default: the YCB folder), or only the
-    ``smallest`` ones by surface area."""
+def select_cases(folder: Path | None, smallest: int | None = None, scale: float = 1.0) -> list[ObjectCase]:
+    """The objects of an evaluation: every mesh of ``folder`` (default: the YCB folder, in metres after
+    ``scale``), or only the ``smallest`` ones by surface area."""
     from palpate.paths import ycb_dir
 
     folder = folder or ycb_dir()
     if folder is None:
         raise ConfigError("no --objects folder given and the YCB meshes are not found (set PALPATE_YCB_DIR)")
-    cases = objects_in(Path(folder))
+    cases = objects_in(Path(folder), scale)
     if smallest is not None:
         import trimesh
 
@@ -456,7 +492,7 @@ def main(args: argparse.Namespace) -> int:
         runs = 1 + max((int(r["run"]) for r in results), default=0)
         strategies = [s for s in strategies if any(r["strategy"] == s for r in results)]
     else:
-        chosen = select_cases(args.objects, QUICK_OBJECTS if args.quick else None)
+        chosen = select_cases(args.objects, QUICK_OBJECTS if args.quick else None, args.scale)
         cases = [c.name for c in chosen]
         items = episodes(chosen, runs, strategies, params=eval_params(args))
         with RunLog(out / "runs.jsonl", resume=args.resume) as log:

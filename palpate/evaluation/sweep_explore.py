@@ -29,6 +29,7 @@ from palpate.evaluation.dask_runs import add_arguments as add_cluster_arguments
 from palpate.evaluation.dask_runs import config_from_args as cluster_config
 from palpate.evaluation.explore import (
     Episode,
+    add_scale_argument,
     episodes,
     parse_sets,
     run_episodes,
@@ -79,6 +80,7 @@ FULL_OBJECTS = 5
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate sweep explore`."""
     parser.add_argument("--objects", type=Path, help="folder of mesh files, metres (default: the YCB folder)")
+    add_scale_argument(parser)
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, IGEF, 1 run")
     parser.add_argument("--runs", type=int, default=1, help="start positions per object")
     parser.add_argument("--strategies", default="igef", help="comma-separated strategies (default igef)")
@@ -185,7 +187,7 @@ def main(args: argparse.Namespace) -> int:
     settings = [s for s in SETTINGS if not wanted or s.name in wanted or s.knob in wanted or s.name == "default"]
     if not settings:
         raise ConfigError(f"--only {args.only!r} matches no setting; settings: {[s.name for s in SETTINGS]}")
-    cases = select_cases(args.objects, QUICK_OBJECTS if args.quick else FULL_OBJECTS)
+    cases = select_cases(args.objects, QUICK_OBJECTS if args.quick else FULL_OBJECTS, args.scale)
     runs = 1 if args.quick else args.runs
     common = {"eval.report": False, **parse_sets(args.set)}
     base = episodes(cases, runs, strategies)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from palpate.errors import ConfigError, LaunchError
+from palpate.errors import ConfigError, LaunchError, MeshError
 from palpate.evaluation.explore import (
     EXPLORE_LAUNCH,
     ObjectCase,
@@ -135,6 +135,22 @@ def test_a_run_key_names_the_run_and_digests_the_mesh_bytes_not_its_path(tmp_pat
     assert episode_task(other).key != episode_task(here).key
 
 
+def test_a_folder_of_millimetre_meshes_is_explored_in_metres_with_a_scale(tmp_path: Path) -> None:
+    from palpate.evaluation.explore import episode_task, objects_in
+
+    trimesh.creation.box((20.0, 20.0, 20.0)).export(tmp_path / "cube.stl")  # millimetres
+    (case,) = objects_in(tmp_path, scale=0.001)
+    vertices, _ = case.true_mesh()
+    np.testing.assert_allclose(np.ptp(vertices, axis=0), [0.02, 0.02, 0.02])
+    assert case.launch_args()["scale"] == 0.001  # the simulation builds the same object
+    (metres,) = objects_in(tmp_path)
+    with pytest.raises(MeshError, match=r"--scale 0\.001"):
+        metres.true_mesh()
+    (larger,) = objects_in(tmp_path, scale=0.0011)
+    keys = {episode_task(episodes([c], 1, ["igef"])[0]).key for c in (case, larger)}
+    assert len(keys) == 2  # the scale is part of the run
+
+
 def test_the_gpis_node_gives_the_variance_only_to_strategies_that_rate_it() -> None:
     case = ObjectCase(name="sphere", kind="sphere", size_m=(0.03,))
 
@@ -146,3 +162,11 @@ def test_the_gpis_node_gives_the_variance_only_to_strategies_that_rate_it() -> N
     assert variance("tour", {"planner.tour_variance_weight": 1.0}) == "candidates"
     assert variance("area", {"planner.area_variance_weight": 2.0}) == "candidates"
     assert variance("igef", {"planner.area_variance_weight": 2.0}) == "none"  # another strategy's weight
+
+
+def test_an_object_a_touch_or_two_cover_is_noted(capsys: pytest.CaptureFixture[str]) -> None:
+    tiny = ObjectCase(name="bead", kind="sphere", size_m=(0.003,))  # 4 pi r^2 = 1.13 cm^2
+    episodes([tiny], 1, ["igef"])
+    assert "note: bead has 1.13 cm^2 of surface: 0.97 touches of 6 mm" in capsys.readouterr().err
+    episodes([ObjectCase(name="ball", kind="sphere", size_m=(0.03,))], 1, ["igef"])
+    assert "note" not in capsys.readouterr().err

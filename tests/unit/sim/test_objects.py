@@ -287,8 +287,8 @@ def test_degenerate_zero_area_mesh(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("extent", "scale", "fragment"),
     [
-        (150.0, 1.0, r"150 m across after scale 1 \(over 2 m\); millimetres given as metres .*scale: 0\.001"),
-        (0.1, 0.001, r"0\.0001 m across after scale 0\.001 \(under 2 mm\).*Set object\.scale: 1 "),
+        (150.0, 1.0, r"150 m across after scale 1 \(over 2 m\); millimetres given as metres .*scale of 0\.001: "),
+        (0.1, 0.001, r"0\.0001 m across after scale 0\.001 \(under 2 mm\).*scale of 1: .*--scale 1 for palpate eval"),
     ],
 )
 def test_absurd_scale(tmp_path: Path, extent: float, scale: float, fragment: str) -> None:
