@@ -419,14 +419,13 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
             "the surface is flat or collapsed, export the object's closed 3-D surface"
         )
     if size > MAX_EXTENT_M or size < MIN_EXTENT_M:
-        factor = 0.001 if size > MAX_EXTENT_M else 1000.0
         limit = "over 2 m" if size > MAX_EXTENT_M else "under 2 mm"
+        fix = np.format_float_positional(scale * (0.001 if size > MAX_EXTENT_M else 1000.0), trim="-")
         raise MeshError(
             f"{path}: absurd scale: the mesh is {size:.6g} m across after scale {scale:g} ({limit}); "
-            "millimetres given as metres or the reverse? "
-            f"Give it a scale of {scale * factor:g}: object.scale in a scene, scale:={scale * factor:g} for "
-            f"launch/explore.yaml and launch/probe.yaml, --scale {scale * factor:g} for palpate eval explore "
-            "(or convert the file to metres)"
+            f"millimetres given as metres or the reverse? Give it a scale of {fix}: object.scale in a "
+            f"scene, scale:={fix} for launch/explore.yaml and launch/probe.yaml, --scale {fix} for "
+            "palpate eval explore and sweep explore (or convert the file to metres)"
         )
     if mesh.is_watertight and volume < 0:
         warnings.warn(

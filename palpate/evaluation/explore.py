@@ -92,7 +92,7 @@ class ObjectCase:
 def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
     """Every mesh file in ``folder`` (sorted by name) as an ObjectCase, in metres after ``scale``."""
     if not folder.is_dir():
-        raise ConfigError(f"--objects {str(folder)!r} is not a folder; give a folder of mesh files (STL, metres)")
+        raise ConfigError(f"--objects {str(folder)!r} is not a folder; give a folder of mesh files (STL, see --scale)")
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     if not files:
         raise ConfigError(f"no mesh files ({', '.join(MESH_SUFFIXES)}) in {str(folder)!r}")
@@ -208,7 +208,7 @@ def episodes(
     frozen = tuple(sorted((params or {}).items()))
     for case in cases:
         vertices, faces = case.true_mesh()
-        _note_if_tiny(case.name, vertices, faces)
+        _note_if_tiny(case.name, vertices, faces, params or {})
         for run in range(runs):
             a = approach(vertices, faces, run)
             q = probe_quaternion(a.direction)
@@ -232,17 +232,23 @@ def episodes(
 FEW_TOUCHES = 3.0
 
 
-def _note_if_tiny(name: str, vertices: FloatArray, faces: NDArray[np.int64]) -> None:
-    """Say on stderr when an object is so small that a touch or two cover 80 % of it: its run then
-    completes at once, and only its shape scores (F-score, Chamfer) tell how well it was learnt."""
+def _note_if_tiny(name: str, vertices: FloatArray, faces: NDArray[np.int64], params: Mapping[str, Any]) -> None:
+    """Say on stderr when an object is so small that a touch or two reach its coverage goal (the
+    evaluator's, after ``params``): its run then completes at once, and only its shape scores
+    (F-score, Chamfer) tell how well it was learnt."""
     from palpate.metrics.exploration import covering_bound_contacts, triangle_areas
+    from palpate.nodes.explore_eval.core import EvalConfig
 
+    defaults = EvalConfig()
+    goal = float(params.get("eval.eval.coverage_goal", defaults.coverage_goal))
+    radius_m = float(params.get("eval.eval.radius_m", defaults.radius_m))
     area = float(triangle_areas(vertices, faces).sum())
-    bound = covering_bound_contacts(area)
+    bound = covering_bound_contacts(area, goal, radius_m)
     if bound < FEW_TOUCHES:
         print(
-            f"note: {name} has {area * 1e4:.3g} cm^2 of surface: {bound:.2g} touches of 6 mm cover 80 % of it, "
-            "so its run completes at once; its F-score and Chamfer distance tell how well it was learnt",
+            f"note: {name} has {area * 1e4:.3g} cm^2 of surface: {bound:.2g} touches of {radius_m * 1e3:g} mm "
+            f"cover {goal:.0%} of it, so its run completes at once; its F-score and Chamfer distance tell "
+            "how well it was learnt",
             file=sys.stderr,
         )
 
@@ -383,15 +389,26 @@ def add_scale_argument(parser: argparse.ArgumentParser) -> None:
     """``--scale``: metres per unit of the --objects files."""
     parser.add_argument(
         "--scale",
-        type=float,
+        type=positive_scale,
         default=1.0,
         help="metres per unit of the --objects mesh files (default 1; 0.001 for files in millimetres)",
     )
 
 
+def positive_scale(text: str) -> float:
+    """``--scale``: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0 (0.001: millimetres), got {text!r}")
+    return value
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate eval explore` (registered by palpate.commands.evaluate)."""
-    parser.add_argument("--objects", type=Path, help="folder of mesh files, metres (default: the YCB folder)")
+    parser.add_argument("--objects", type=Path, help="folder of mesh files, metres or see --scale (default: YCB)")
     add_scale_argument(parser)
     parser.add_argument("--runs", type=int, default=3, help="start positions per object (seed = run index)")
     parser.add_argument(

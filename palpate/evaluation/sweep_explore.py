@@ -79,7 +79,7 @@ FULL_OBJECTS = 5
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate sweep explore`."""
-    parser.add_argument("--objects", type=Path, help="folder of mesh files, metres (default: the YCB folder)")
+    parser.add_argument("--objects", type=Path, help="folder of mesh files, metres or see --scale (default: YCB)")
     add_scale_argument(parser)
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, IGEF, 1 run")
     parser.add_argument("--runs", type=int, default=1, help="start positions per object")

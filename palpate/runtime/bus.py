@@ -96,8 +96,8 @@ def ipc_path(endpoint: str) -> Path | None:
 
 
 def remove_ipc_file(endpoint: str) -> None:
-    """Delete the socket file of a closed ``ipc://`` publisher (ZeroMQ leaves it when the process exits
-    without terminating its context); nothing for TCP endpoints."""
+    """Delete the socket file of a closed ``ipc://`` publisher at once (ZeroMQ unlinks it later, in its
+    I/O thread, and not at all when the process exits first); nothing for TCP endpoints."""
     path = ipc_path(endpoint)
     if path is not None:
         path.unlink(missing_ok=True)

@@ -194,7 +194,7 @@ class NodeRunner:
         self.lockstep = process.mode == "lockstep"
         self.start_timeout_s = start_timeout_s
         self.ack_timeout_s = 120.0
-        self.zmq: zmq.Context[Any] = zmq.Context.instance()
+        self.zmq: zmq.Context[Any] = zmq.Context()  # its own: flush_before_exit terminates it
         # a Curve publisher admits only the client keys the launcher lists (a ZAP handler in this process)
         self.allow = bus.ClientAllowList(self.zmq) if process.curve else None
         self.pub = bus.make_publisher(
@@ -598,14 +598,20 @@ def main(argv: list[str] | None = None) -> int:
     except PalpateError as exc:
         log.error("node %s could not start: %s", process.name, exc)
         return 2
-    code = runner.run()
-    flush_before_exit(runner.zmq, timeout_s=1.0)
-    return code
+    except KeyboardInterrupt:  # a signal while the node object was being built (before its handlers)
+        log.info("node %s interrupted while starting", process.name)
+        return 130
+    try:
+        return runner.run()
+    finally:
+        if not flush_before_exit(runner.zmq, timeout_s=1.0):
+            log.warning("node %s: messages still queued after 1 s at exit were dropped", process.name)
 
 
 def flush_before_exit(context: zmq.Context[Any], timeout_s: float) -> bool:
-    """Let the messages still queued on closed sockets (the final NodeStatus, the clock source's
-    stop) leave before the process exits, for at most `timeout_s`; True when they did.
+    """Let the messages still queued on the closed sockets of `context` (the final NodeStatus, the
+    clock source's stop) leave before the process exits, for at most `timeout_s`; True when they did.
+    Terminates `context`: call it last, on a context of one's own.
 
     pyzmq does not terminate its context at exit, and without that the queued messages die with the
     process. ``term()`` blocks until every socket is closed, so it runs in a daemon thread: a socket

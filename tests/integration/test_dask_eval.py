@@ -214,7 +214,7 @@ def stop_a_worker_midway(
             if done[name] and runs:
                 index = int(name.removeprefix("worker"))
                 os.kill(workers[index].pid, signal.SIGSTOP)
-                time.sleep(0.5)
+                time.sleep(2.0)  # a result already sent reaches the scheduler meanwhile, even a loaded one
                 if runs_held(observer).get(name):
                     return index
                 os.kill(workers[index].pid, signal.SIGCONT)

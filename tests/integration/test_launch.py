@@ -158,7 +158,8 @@ def test_node_ignoring_sigterm_is_killed_after_its_timeout(tmp_path: Path) -> No
     out = text(log)
     assert code == 128 + signal.SIGTERM, out
     assert "[launch] node 'stubborn' ignored SIGTERM for 1.0 s: killing it" in out
-    assert 1.0 <= took < 1.0 + 10.0, f"took {took:.1f} s"  # the others stop first; a loaded machine is slow
+    # under the default sigterm_timeout_s of 5 s: the node's own 1 s counted (the others stop first)
+    assert 1.0 <= took < 5.0, f"took {took:.1f} s"
     assert [p for p in pids if alive(p)] == []
     assert not list(bus_dir.glob("*.pub")), "the launcher did not remove the killed node's socket file"
 

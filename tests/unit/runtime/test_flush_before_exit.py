@@ -37,7 +37,7 @@ def test_a_burst_queued_before_exit_reaches_a_slow_reader(tmp_path: Path) -> Non
     child = subprocess.Popen([sys.executable, "-c", CHILD, endpoint, str(count)])
     try:
         got = []
-        while len(got) < count and pull.poll(5000):
+        while len(got) < count and pull.poll(5000 if got else 60_000):  # the child starts Python first
             got.append(int.from_bytes(pull.recv()[:4], "little"))
             time.sleep(0.002)  # a reader slower than the writer
         assert child.wait(timeout=60) == 0
