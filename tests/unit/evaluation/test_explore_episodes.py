@@ -171,3 +171,14 @@ def test_an_object_a_touch_or_two_cover_is_noted(capsys: pytest.CaptureFixture[s
     assert "note: bead has 1.13 cm^2 of surface: 0.97 touches of 6 mm" in capsys.readouterr().err
     episodes([ObjectCase(name="ball", kind="sphere", size_m=(0.03,))], 1, ["igef"])
     assert "note" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("text", ["0", "-1", "nan", "inf", "mm"])
+def test_a_scale_that_is_not_a_finite_positive_number_is_refused(text: str) -> None:
+    import argparse
+
+    from palpate.evaluation.explore import positive_scale
+
+    with pytest.raises(argparse.ArgumentTypeError, match=f"expected a finite number > 0.*got '{text}'"):
+        positive_scale(text)
+    assert positive_scale("0.001") == 0.001
