@@ -422,13 +422,11 @@ def bench_scene(scene: str, obj: Mapping[str, Any], config: SimBenchConfig, work
         tiers = ("inprocess", "graph") if round_index % 2 == 0 else ("graph", "inprocess")
         for tier in tiers:
             timing = workdir / f"{scene}-{tier}-{round_index}.json"
-            start = time.perf_counter()
-            if tier == "inprocess":  # right after a bare loop
+            if tier == "inprocess":  # the bare loop right before its in-process run
                 bare.append(bare_rate(sim.model, config.bare_seconds))
-                start = time.perf_counter()
-                parts[tier].append(run_in_process_fresh(launch, args, timing, timeout_s, config.warmup_s))
-            else:
-                parts[tier].append(run_launched(launch, args, timing, timeout_s, config.warmup_s))
+            start = time.perf_counter()
+            runner = run_in_process_fresh if tier == "inprocess" else run_launched
+            parts[tier].append(runner(launch, args, timing, timeout_s, config.warmup_s))
             totals[tier].append(time.perf_counter() - start)
             rate = rate_from_timing(timing, config.warmup_s)
             rtf[tier].append(rate["rtf"])
