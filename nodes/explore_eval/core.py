@@ -26,6 +26,10 @@ from palpate.metrics.exploration import (
 )
 from palpate.metrics.shape import ShapeScorer
 
+#: How the evaluator's stop request begins ("exploration finished: goal", ...): any other reason to end
+#: a run came from another node.
+FINISHED_PREFIX = "exploration finished"
+
 
 @dataclass(frozen=True, kw_only=True)
 class EvalConfig(Validated):

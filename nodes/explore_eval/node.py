@@ -22,7 +22,7 @@ from palpate.inputs import coordinates, per_vertex, triangle_mesh, unit_quaterni
 from palpate.jsonio import dumps as json_dumps
 from palpate.jsonio import write as write_json
 from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
-from palpate.nodes.explore_eval.core import EvalConfig, ExplorationEvaluator, RunControl
+from palpate.nodes.explore_eval.core import FINISHED_PREFIX, EvalConfig, ExplorationEvaluator, RunControl
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
@@ -94,7 +94,7 @@ class ExploreEvalNode:
             message.vertex_variance, message.variance_vertices, count, "variance_vertices", np.inf
         )
         if self.run.surface(*self.last_estimate, self.last_variance):
-            self.ctx.request_stop(f"exploration finished: {self.run.evaluator.finished}")
+            self.ctx.request_stop(f"{FINISHED_PREFIX}: {self.run.evaluator.finished}")
 
     def on_tick(self, stamp_ns: int) -> None:
         """Watchdog: end a run that has made no touch for EvalConfig.max_idle_s of simulated time."""

@@ -187,11 +187,8 @@ class Episode:
         GPIS node must give it at the candidates."""
         from palpate.nodes.planner.core import PlannerConfig
 
-        params = dict(self.params)
-        settings = {"strategy": self.strategy}
-        for key in ("area_variance_weight", "tour_variance_weight"):
-            if f"planner.{key}" in params:
-                settings[key] = params[f"planner.{key}"]
+        settings = {key.removeprefix("planner."): value for key, value in self.params if key.startswith("planner.")}
+        settings["strategy"] = self.strategy
         return load(PlannerConfig, settings, "planner params").uses_variance
 
 
@@ -288,6 +285,8 @@ def run_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> dict[st
     ticks = graph.run()
     t2, c2 = time.perf_counter(), time.process_time()
     result: dict[str, Any] = dict(graph.node("eval").result)
+    if stopped_early(graph.stop_reason):  # another node ended the run: not the evaluator's "clock"
+        result["finished"] = "stopped"
     result.update(
         object=episode.case.name,
         strategy=episode.strategy,
@@ -301,6 +300,28 @@ def run_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> dict[st
         params=dict(episode.params),
     )
     return result
+
+
+def stopped_early(stop_reason: str) -> bool:
+    """Whether a node other than the evaluator ended the run (a planner or controller that cannot go on)."""
+    from palpate.nodes.explore_eval.core import FINISHED_PREFIX
+
+    return bool(stop_reason) and not stop_reason.startswith(FINISHED_PREFIX)
+
+
+def report_stopped(results: Sequence[Mapping[str, Any]]) -> None:
+    """Print on stderr, once per reason, the runs a node ended before the evaluator did."""
+    by_reason: dict[str, list[Mapping[str, Any]]] = {}
+    for r in results:
+        if stopped_early(str(r.get("stop_reason") or "")):
+            by_reason.setdefault(str(r["stop_reason"]), []).append(r)
+    for reason, runs in by_reason.items():
+        first = runs[0]
+        print(
+            f"{len(runs)} run(s) stopped early (first: {first['object']} {first['strategy']} run {first['run']}): "
+            f"{reason}",
+            file=sys.stderr,
+        )
 
 
 def _time_planning(graph: Any) -> list[float]:
@@ -545,6 +566,7 @@ def main(args: argparse.Namespace) -> int:
     print(text)
     for r in errors:
         print(f"run failed: {r['object']} {r['strategy']} run {r['run']}: {r['error']}", file=sys.stderr)
+    report_stopped(results)
     plots = "coverage_vs_travel.png, travel_per_object.png, fscore_vs_travel.png"
     print(f"wrote {out}: runs.csv, runs.jsonl, tables.md, {plots}")
     if args.json:

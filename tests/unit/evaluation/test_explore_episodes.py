@@ -17,6 +17,8 @@ from palpate.evaluation.explore import (
     episodes,
     parse_sets,
     probe_quaternion,
+    report_stopped,
+    run_episode,
 )
 from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.geometry.rotations import quat_to_matrix
@@ -182,3 +184,20 @@ def test_a_scale_that_is_not_a_finite_positive_number_is_refused(text: str) -> N
     with pytest.raises(argparse.ArgumentTypeError, match=f"expected a finite number > 0.*got '{text}'"):
         positive_scale(text)
     assert positive_scale("0.001") == 0.001
+
+
+def test_a_run_another_node_ends_is_marked_stopped_and_reported_once_per_reason(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """GP-V without the GP variance on the surface: the planner cannot plan the first touch and ends the
+    run. The row says "stopped" (not the evaluator's "clock") with the planner's reason, and the
+    evaluation prints that reason on stderr once for all such runs."""
+    case = ObjectCase(name="sphere", kind="sphere", size_m=(0.03,))
+    (episode,) = episodes([case], 1, ("gpv",), params={"gpis.vertex_variance": "none"})
+    row = run_episode(episode)
+    assert row["finished"] == "stopped" and row["contacts"] == 1
+    assert row["stop_reason"].startswith("planner: the gpv strategy needs the GP variance")
+    finished = {**row, "finished": "goal", "stop_reason": "exploration finished: goal"}
+    report_stopped([row, {**row, "run": 1}, finished])
+    err = capsys.readouterr().err.splitlines()
+    assert err == [f"2 run(s) stopped early (first: sphere gpv run 0): {row['stop_reason']}"]
