@@ -65,6 +65,19 @@ class ControllerNode:
             ),
         )
 
+    def _failure(self) -> str:
+        missed = (
+            "approach, recovery and return" if self.config.controller.return_after_recovery else "approach and recovery"
+        )
+        return f"controller: the fingertip found no surface ({missed} missed)"
+
+    def _no_first_touch(self) -> str:
+        return (
+            "controller: the initial approach from the start position towards the initial target "
+            f"{list(self.config.initial_target_m)} found no surface; the target must lie inside the object "
+            "(launch arguments start:= and target:= of launch/explore.yaml)"
+        )
+
     def on_tick(self, stamp_ns: int) -> None:
         if self.pose is None:
             return
@@ -72,13 +85,7 @@ class ControllerNode:
         if step.touch is not None:
             self._publish_touch(step.touch)
         if step.failed:
-            self.ctx.request_stop(
-                "controller: the fingertip found no surface (approach and recovery missed)"
-                if self.core.touches
-                else "controller: the initial approach from the start position towards the initial target "
-                f"{list(self.config.initial_target_m)} found no surface; the target must lie inside the object "
-                "(launch arguments start:= and target:= of launch/explore.yaml)"
-            )
+            self.ctx.request_stop(self._failure() if self.core.touches else self._no_first_touch())
         self.ctx.publish(
             "velocity",
             CartesianVelocityCommand(stamp_ns=stamp_ns, linear_m_s=step.linear_m_s, angular_rad_s=step.angular_rad_s),

@@ -115,14 +115,33 @@ def test_missed_prediction_starts_the_recovery_curve() -> None:
     assert run.r[2] < 0.0
 
 
-def test_fails_when_even_the_recovery_finds_nothing() -> None:
-    ctrl = TrajectoryController()
+@pytest.mark.parametrize("return_after_recovery", [True, False])
+def test_fails_when_even_the_recovery_finds_nothing(return_after_recovery: bool) -> None:
+    ctrl = TrajectoryController(ControllerConfig(return_after_recovery=return_after_recovery))
     ctrl.start(np.zeros(3), V_DOWN, R_DOWN, np.array([0.03, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]))
     run = drive(ctrl, np.zeros(3), R_DOWN, nothing)
     assert ctrl.state is ControllerState.FAILED
     assert ctrl.recoveries == 1
+    assert ctrl.returns == int(return_after_recovery)  # the straight return, if any, found nothing either
     v, w = ctrl.command(run.r, run.R)
     assert not v.any() and not w.any()
+
+
+def test_a_missed_recovery_goes_straight_back_to_the_last_contact() -> None:
+    """A recovery that passes the last contact by (as one sliding off a cup's rim) is followed by a
+    straight line to that contact, which touches there. Here the surface is a 1 mm spot at the last
+    contact that only the return can touch: a stand-in for the rim the recovery curve slid past."""
+    ctrl = TrajectoryController()
+    ctrl.start(np.zeros(3), V_DOWN, R_DOWN, np.array([0.03, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]))
+    run = drive(ctrl, np.zeros(3), R_DOWN, lambda p: ctrl.returns > 0 and bool(np.linalg.norm(p) < 1e-3))
+    assert (ctrl.recoveries, ctrl.returns) == (1, 1)
+    assert run.contact_state is ControllerState.DIRECT and ctrl.state is ControllerState.IDLE
+    assert np.linalg.norm(run.r) < 1e-3
+    back = np.array(run.trail[run.states.index(ControllerState.DIRECT) :])
+    chord = back[-1] - back[0]
+    off_line = np.linalg.norm(np.cross(back - back[0], chord / np.linalg.norm(chord)), axis=1)
+    assert off_line.max() < 1e-9  # a straight line
+    assert ctrl.initial_travelled_m == 0.0  # exploratory travel, not the initial approach
 
 
 def test_initial_approach_is_a_straight_line() -> None:
