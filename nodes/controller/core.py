@@ -180,7 +180,7 @@ class TrajectoryController:
         self._direct_start = np.zeros(3)
         self._direct_budget_m = 0.0
         self._recoveries = 0
-        self._returns = 0
+        self._straight_returns = 0
         self._R0_w01 = np.zeros(3)  # R0 w01: the slerp's rotation vector in the world frame
         # Odometry: the initial approach is kept apart from the exploratory actions.
         self._prev_r: list[float] | None = None
@@ -225,9 +225,9 @@ class TrajectoryController:
         return self._recoveries
 
     @property
-    def returns(self) -> int:
-        """Number of missed recoveries (straight returns to the last contact started)."""
-        return self._returns
+    def straight_returns(self) -> int:
+        """Number of straight returns to the last contact started (each after a missed recovery)."""
+        return self._straight_returns
 
     # --- odometry --------------------------------------------------------------------------------
     @property
@@ -409,7 +409,8 @@ class TrajectoryController:
 
     def _start_return(self, r: FloatArray) -> bool:
         """After a missed recovery: straight from r to the last contact, at most Delta_m beyond it (the
-        direct approach of Alg. 1 lines 1-4, counted as exploratory travel). False if r is there."""
+        direct approach of Alg. 1 lines 1-4, counted as exploratory travel). False if r is there (not
+        reached in practice: a missed recovery leaves the fingertip Delta_m past the last contact)."""
         to_contact = self._last_contact - r
         distance = float(np.linalg.norm(to_contact))
         if distance < self.config.min_chord_m:
@@ -419,7 +420,7 @@ class TrajectoryController:
         self._direct_budget_m = distance + self.config.miss_distance_m
         self._target_p, self._target_n = self._last_contact.copy(), -self._direction
         self._curve = None
-        self._returns += 1
+        self._straight_returns += 1
         self._state = ControllerState.DIRECT
         return True
 

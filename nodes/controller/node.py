@@ -66,9 +66,8 @@ class ControllerNode:
         )
 
     def _failure(self) -> str:
-        missed = (
-            "approach, recovery and return" if self.config.controller.return_after_recovery else "approach and recovery"
-        )
+        returned = self.core.controller.straight_returns > 0
+        missed = "approach, recovery and straight return" if returned else "approach and recovery"
         return f"controller: the fingertip found no surface ({missed} missed)"
 
     def _no_first_touch(self) -> str:

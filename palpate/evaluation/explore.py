@@ -285,8 +285,8 @@ def run_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> dict[st
     ticks = graph.run()
     t2, c2 = time.perf_counter(), time.process_time()
     result: dict[str, Any] = dict(graph.node("eval").result)
-    if stopped_early(graph.stop_reason):  # another node ended the run: not the evaluator's "clock"
-        result["finished"] = "stopped"
+    if result.get("finished") == "clock" and stopped_early(graph.stop_reason):
+        result["finished"] = "stopped"  # another node ended the run, not the simulated clock
     result.update(
         object=episode.case.name,
         strategy=episode.strategy,
@@ -470,6 +470,10 @@ def parse_sets(items: Sequence[str]) -> dict[str, Any]:
     for key in out:
         if "." not in key:
             raise ConfigError(f"--set {key!r}: expected NODE.KEY=VALUE, e.g. planner.candidate_step_m=0.005")
+        if key == "planner.strategy":
+            raise ConfigError(
+                "--set planner.strategy: choose the strategies with --strategies (each run's is a launch argument)"
+            )
     return out
 
 

@@ -32,6 +32,7 @@ from palpate.evaluation.explore import (
     add_scale_argument,
     episodes,
     parse_sets,
+    report_stopped,
     run_episodes,
     select_cases,
 )
@@ -198,6 +199,7 @@ def main(args: argparse.Namespace) -> int:
     with RunLog(out / "runs.jsonl", resume=args.resume) as log:
         results, outcome = run_episodes([ep for _, ep in pairs], log, cluster_config(args), prefix="sweep-explore")
     report_failures(outcome)
+    report_stopped([row for row in results if row is not None])
     elapsed = time.perf_counter() - start
     by_setting: dict[str, list[dict[str, Any]]] = {}
     for (setting, _), row in zip(pairs, results, strict=True):

@@ -122,7 +122,7 @@ def test_fails_when_even_the_recovery_finds_nothing(return_after_recovery: bool)
     run = drive(ctrl, np.zeros(3), R_DOWN, nothing)
     assert ctrl.state is ControllerState.FAILED
     assert ctrl.recoveries == 1
-    assert ctrl.returns == int(return_after_recovery)  # the straight return, if any, found nothing either
+    assert ctrl.straight_returns == int(return_after_recovery)  # the straight return, if any, found nothing either
     v, w = ctrl.command(run.r, run.R)
     assert not v.any() and not w.any()
 
@@ -133,8 +133,8 @@ def test_a_missed_recovery_goes_straight_back_to_the_last_contact() -> None:
     contact that only the return can touch: a stand-in for the rim the recovery curve slid past."""
     ctrl = TrajectoryController()
     ctrl.start(np.zeros(3), V_DOWN, R_DOWN, np.array([0.03, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]))
-    run = drive(ctrl, np.zeros(3), R_DOWN, lambda p: ctrl.returns > 0 and bool(np.linalg.norm(p) < 1e-3))
-    assert (ctrl.recoveries, ctrl.returns) == (1, 1)
+    run = drive(ctrl, np.zeros(3), R_DOWN, lambda p: ctrl.straight_returns > 0 and bool(np.linalg.norm(p) < 1e-3))
+    assert (ctrl.recoveries, ctrl.straight_returns) == (1, 1)
     assert run.contact_state is ControllerState.DIRECT and ctrl.state is ControllerState.IDLE
     assert np.linalg.norm(run.r) < 1e-3
     back = np.array(run.trail[run.states.index(ControllerState.DIRECT) :])

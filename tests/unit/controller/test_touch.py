@@ -189,6 +189,22 @@ def test_a_touch_made_by_the_recovery_curve_is_marked_missed() -> None:
     assert again is not None and again.index == 2 and not again.missed  # counted once
 
 
+def test_a_touch_made_by_the_straight_return_is_marked_missed_and_keeps_the_run_going() -> None:
+    """The recovery curve passes the last contact by (here the object is only touchable once the
+    straight return has started: a stand-in for a rim the curve slid past); the straight return
+    touches at the last contact, a missed touch, and the loop has not failed."""
+    loop = point_loop()
+    r, first = drive(loop, np.array([0.0, 0.0, 0.02]), below_plane)
+    assert first is not None
+    loop.aim(r, R_DOWN, np.array([0.03, 0.0, 0.0]), UP, np.array([0.03, 0.0, 0.0]))
+    r, touch = drive(loop, r, lambda p: loop.controller.straight_returns > 0 and bool(np.linalg.norm(p - r) < 1e-3))
+    assert touch is not None and touch.index == 1 and touch.missed
+    assert (loop.controller.recoveries, loop.controller.straight_returns) == (1, 1)
+    np.testing.assert_allclose(touch.position_m, first.position_m, atol=1e-3)  # back at the last contact
+    np.testing.assert_array_equal(touch.predicted_contact_m, [0.03, 0.0, 0.0])  # 3 cm off: unreached
+    assert not loop.step(0, touch.position_m, R_DOWN, *NONE).failed
+
+
 def test_an_initial_approach_into_nothing_fails() -> None:
     loop = point_loop()
     r, touch = drive(loop, np.array([0.0, 0.0, 0.02]), lambda p: False, ticks=200)

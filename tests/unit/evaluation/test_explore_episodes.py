@@ -19,6 +19,7 @@ from palpate.evaluation.explore import (
     probe_quaternion,
     report_stopped,
     run_episode,
+    stopped_early,
 )
 from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.geometry.rotations import quat_to_matrix
@@ -88,6 +89,8 @@ def test_parameter_overrides_are_checked() -> None:
         parse_sets(["no_equals_sign"])
     with pytest.raises(ConfigError, match=r"NODE\.KEY=VALUE"):
         parse_sets(["candidate_step_m=0.01"])
+    with pytest.raises(ConfigError, match="--strategies"):  # each run's strategy is a launch argument
+        parse_sets(["planner.strategy=gpv"])
     launch = load_launch(EXPLORE_LAUNCH)
     with pytest.raises(ConfigError, match=r"node\.key"):
         apply_params(launch, [("nosuchnode.x", 1)])
@@ -165,6 +168,9 @@ def test_the_gpis_node_gives_the_variance_only_to_strategies_that_rate_it() -> N
     assert variance("tour", {"planner.tour_variance_weight": 1.0}) == "candidates"
     assert variance("area", {"planner.area_variance_weight": 2.0}) == "candidates"
     assert variance("igef", {"planner.area_variance_weight": 2.0}) == "none"  # another strategy's weight
+    assert variance("tour", {"planner.tour_variance_weight": 1.0, "planner.tour_sites": 2}) == "candidates"
+    with pytest.raises(ConfigError, match=r"planner params.*no_such_weight"):  # a misspelt key is named
+        variance("tour", {"planner.no_such_weight": 1.0})
 
 
 def test_an_object_a_touch_or_two_cover_is_noted(capsys: pytest.CaptureFixture[str]) -> None:
@@ -197,6 +203,7 @@ def test_a_run_another_node_ends_is_marked_stopped_and_reported_once_per_reason(
     row = run_episode(episode)
     assert row["finished"] == "stopped" and row["contacts"] == 1
     assert row["stop_reason"].startswith("planner: the gpv strategy needs the GP variance")
+    assert not stopped_early("") and not stopped_early("exploration finished: goal")  # the clock, the evaluator
     finished = {**row, "finished": "goal", "stop_reason": "exploration finished: goal"}
     report_stopped([row, {**row, "run": 1}, finished])
     err = capsys.readouterr().err.splitlines()
