@@ -6,10 +6,11 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from palpate.config import NonNegativeFloat, PositiveFloat, Validated
-from palpate.errors import InputError
+from palpate.errors import EstimationError, InputError
 from palpate.messages.schemas import SurfaceMesh, SurfaceRequest, TouchEvent
-from palpate.nodes.gpis.core import GPISConfig
+from palpate.nodes.gpis.core import GPISConfig, SurfaceEstimator
 from palpate.nodes.gpis.local import make_estimator
+from palpate.nodes.gpis.reach import holding, mesh_reach, touch_reach
 from palpate.nodes.gpis.surface import SurfaceMeshArrays, add_touch, whole_surface
 from palpate.runtime.spec import Context, NodeSpec, Port
 
@@ -36,6 +37,10 @@ class GPISNodeConfig(Validated):
     vertex_variance: Literal["candidates", "all", "none"] = "candidates"
     variance_step_m: PositiveFloat = 0.005
     variance_radius_m: PositiveFloat = 0.06
+    #: An object larger than the thin-plate kernel's R_m allows (gp.R_m, 0.5 m: about 0.4 m across):
+    #: rebuild the GP with R_m doubled (``reach.holding``; counter ``kernel_grown``, status metric
+    #: ``kernel_R_m``) instead of refusing the touch. False refuses it, as an input error.
+    grow_kernel: bool = True
 
 
 class GPISNode:
@@ -43,10 +48,11 @@ class GPISNode:
 
     def __init__(self, config: GPISNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
-        self.gp = make_estimator(config.gp, prior_centre_m=config.prior_centre_m)
+        self.gp: SurfaceEstimator = make_estimator(config.gp, prior_centre_m=config.prior_centre_m)
 
     def on_touches(self, message: TouchEvent) -> None:
         cfg = self.config
+        self._hold(touch_reach(self.gp, message.position_m, cfg.local_half_extent_m + cfg.local_resolution_m))
         mesh = add_touch(
             self.gp,
             message.position_m,
@@ -62,8 +68,23 @@ class GPISNode:
         if message.region != "global":
             raise InputError("region", f"{message.region!r} is no region a request can name; use 'global'")
         cfg = self.config
+        self._hold(mesh_reach(self.gp, cfg.global_margin_m + cfg.global_resolution_m))
         mesh = whole_surface(self.gp, cfg.global_margin_m, cfg.global_resolution_m, with_variance=message.variance)
         self._publish(mesh, "global")
+
+    def _hold(self, reach_m: float) -> None:
+        """With grow_kernel: make the GP a covariance up to reach_m metres (see ``reach.holding``)."""
+        if not self.config.grow_kernel:
+            return
+        try:
+            grown = holding(self.gp, reach_m)
+        except EstimationError:  # the contacts do not factor with that R_m: the GP as it was refuses
+            self.ctx.count("kernel_not_grown")
+            return
+        if grown is not self.gp:
+            self.gp = grown
+            self.ctx.count("kernel_grown")
+            self.ctx.metrics["kernel_R_m"] = grown.config.R_m
 
     def _publish(self, mesh: SurfaceMeshArrays, region: str) -> None:
         self.ctx.metrics["contacts"] = float(self.gp.n_contacts)

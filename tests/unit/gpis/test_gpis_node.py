@@ -1,5 +1,6 @@
-"""GPIS node: a touch it cannot use (beyond the sanity bounds, a normal that is no unit vector, or too far
-from the contacts for the kernel) is refused before the GP changes; a request must name 'global'."""
+"""GPIS node: a touch it cannot use (beyond the sanity bounds, a normal that is no unit vector, or, with
+grow_kernel off, too far from the contacts for the kernel) is refused before the GP changes; an object
+larger than the kernel's R_m grows it; a request must name 'global'."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import pytest
 from palpate.errors import InputError
 from palpate.messages.base import Message
 from palpate.messages.schemas import SurfaceMesh, SurfaceRequest, TouchEvent
-from palpate.nodes.gpis.core import GPIS
+from palpate.nodes.gpis.core import GPIS, GPISConfig
 from palpate.nodes.gpis.local import AutoGPIS
 from palpate.nodes.gpis.node import GPISNode, GPISNodeConfig
 from palpate.runtime.node import NodeContext
@@ -32,7 +33,7 @@ def touch(position: list[float], normal: list[float]) -> TouchEvent:
 def test_unusable_touches_leave_the_gp_unchanged() -> None:
     sent: list[Message] = []
     ctx = NodeContext("gpis", 0, lambda topic, message: sent.append(message), {"surface": "surface/mesh"})
-    node = GPISNode(GPISNodeConfig(), ctx)
+    node = GPISNode(GPISNodeConfig(grow_kernel=False), ctx)
     node.on_touches(touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]))
     exact = node.gp.estimator if isinstance(node.gp, AutoGPIS) else None
     assert isinstance(exact, GPIS)  # "auto": the exact GP while the contacts are few
@@ -62,3 +63,40 @@ def test_unusable_touches_leave_the_gp_unchanged() -> None:
     assert isinstance(without, SurfaceMesh) and len(without.variance_vertices) == len(without.vertex_variance) == 0
     np.testing.assert_array_equal(without.vertices_m, with_variance.vertices_m)
     np.testing.assert_array_equal(without.faces, with_variance.faces)
+
+
+def test_an_object_larger_than_the_kernels_reach_grows_it_and_keeps_every_contact() -> None:
+    """R_m = 0.5 m: a touch 0.45 m from the first needs 0.55 m (its local grid's far corner). The node
+    rebuilds the GP with R_m doubled (1 m >= 1.25 x 0.55 m), from the same contacts and prior centre:
+    the same estimate as a GP built with that R_m from the start. A touch 1 m away doubles it again."""
+    sent: list[Message] = []
+    ctx = NodeContext("gpis", 0, lambda topic, message: sent.append(message), {"surface": "surface/mesh"})
+    node = GPISNode(GPISNodeConfig(), ctx)
+    first, far = touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]), touch([0.45, 0.0, 0.03], [1.0, 0.0, 0.0])
+    node.on_touches(first)
+    node.on_touches(far)
+    assert node.gp.config.R_m == 1.0 and node.gp.n_contacts == 2 and len(sent) == 2
+    assert ctx.counters["kernel_grown"] == 1 and ctx.metrics["kernel_R_m"] == 1.0
+    direct = GPIS(GPISConfig(R_m=1.0), prior_centre_m=node.gp.prior_centre_m)
+    direct.add_contact(first.position_m, first.normal)
+    direct.add_contact(far.position_m, far.normal)
+    x = np.random.default_rng(0).uniform(-0.05, 0.5, (50, 3))
+    np.testing.assert_allclose(node.gp.mean(x), direct.mean(x), rtol=1e-9, atol=1e-12)
+    node.on_touches(touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]))  # near the first: no growth
+    assert ctx.counters["kernel_grown"] == 1
+    node.on_touches(touch([1.0, 0.0, 0.03], [1.0, 0.0, 0.0]))  # 1.07 m: doubled again
+    assert node.gp.config.R_m == 2.0 and node.gp.n_contacts == 4 and ctx.counters["kernel_grown"] == 2
+
+
+def test_a_whole_object_mesh_beyond_the_kernels_reach_grows_it() -> None:
+    """Touches 0.3 m apart fit R_m = 0.5 m, but the whole-object mesh with a 0.3 m margin spans 1.25 m:
+    R_m doubles twice (2 m >= 1.25 x 1.25 m) and the mesh is made."""
+    sent: list[Message] = []
+    ctx = NodeContext("gpis", 0, lambda topic, message: sent.append(message), {"surface": "surface/mesh"})
+    node = GPISNode(GPISNodeConfig(global_margin_m=0.3, global_resolution_m=0.01), ctx)
+    node.on_touches(touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]))
+    node.on_touches(touch([0.3, 0.0, 0.03], [1.0, 0.0, 0.0]))
+    assert node.gp.config.R_m == 0.5 and "kernel_grown" not in ctx.counters
+    node.on_request(SurfaceRequest(stamp_ns=0, region="global", variance=False))
+    assert node.gp.config.R_m == 2.0 and ctx.counters["kernel_grown"] == 1 and node.gp.n_contacts == 2
+    assert isinstance(sent[-1], SurfaceMesh) and sent[-1].region == "global" and len(sent[-1].vertices_m) > 0
