@@ -55,6 +55,9 @@ class EvalConfig(Validated):
     #: Simulated time without a touch after which the run ends as stalled (the fingertip stuck against
     #: the object without a touch event, or a planner error), seconds.
     max_idle_s: PositiveFloat = 30.0
+    #: Simulated time the run waits for the whole-object surface it asked for at the end; then it ends
+    #: without it (its last milestones keep no RMSE) instead of running on until the clock, seconds.
+    surface_wait_s: PositiveFloat = 5.0
     rmse_samples: PositiveInt = 20000
     #: The headline surface RMSE is taken over the part of the estimate whose GP standard deviation is
     #: at most this, metres: the surface the estimate claims to know (see ``Milestone``).
@@ -142,7 +145,8 @@ class RunControl:
     EvalConfig.shape_every_contacts) asks for the surface; the next whole-object surface gets its shape
     scores, scores the milestones waiting for it and, after the finishing touch, ends the run. A run
     with no touch for EvalConfig.max_idle_s of simulated time finishes as "stalled" (its last surface
-    is scored the same way).
+    is scored the same way). A run whose last surface does not come within EvalConfig.surface_wait_s
+    is ``overdue``: it ends without it.
     """
 
     def __init__(self, evaluator: ExplorationEvaluator) -> None:
@@ -150,6 +154,9 @@ class RunControl:
         self.pending: list[float] = []  # milestones waiting for their whole-object surface
         self.shape_pending = False  # a shape checkpoint waits for its whole-object surface
         self.final_requested = False
+        self.final_requested_ns = 0
+        self.final_received = False
+        self.overdue_reported = False
         self.last_touch_ns = 0
 
     def touch(
@@ -176,6 +183,7 @@ class RunControl:
             self.pending.extend(reached)
             self.shape_pending = True
             self.final_requested = bool(ev.finished)
+            self.final_requested_ns = stamp_ns
             return True
         return False
 
@@ -197,6 +205,7 @@ class RunControl:
             for fraction in self.pending:
                 self.evaluator.set_rmse(fraction, rmse, shape)
             self.pending = []
+        self.final_received = self.final_requested
         return self.final_requested
 
     def tick(self, stamp_ns: int) -> bool:
@@ -206,7 +215,18 @@ class RunControl:
             return False
         self.evaluator.finished = "stalled"
         self.final_requested = True
+        self.final_requested_ns = stamp_ns
         self.shape_pending = True  # the end's estimate is scored too
+        return True
+
+    def overdue(self, stamp_ns: int) -> bool:
+        """True (once) when the surface asked for at the end has not come within surface_wait_s of
+        simulated time (the GPIS node refused the request, or there is none): the run ends without it."""
+        if not self.final_requested or self.final_received or self.overdue_reported:
+            return False
+        if stamp_ns - self.final_requested_ns <= self.evaluator.config.surface_wait_s * 1e9:
+            return False
+        self.overdue_reported = True
         return True
 
 

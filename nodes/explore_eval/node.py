@@ -97,9 +97,16 @@ class ExploreEvalNode:
             self.ctx.request_stop(f"{FINISHED_PREFIX}: {self.run.evaluator.finished}")
 
     def on_tick(self, stamp_ns: int) -> None:
-        """Watchdog: end a run that has made no touch for EvalConfig.max_idle_s of simulated time."""
-        if self.run is not None and self.run.tick(stamp_ns):
+        """Watchdogs: end a run that has made no touch for EvalConfig.max_idle_s of simulated time, or whose
+        last whole-object surface has not come within EvalConfig.surface_wait_s."""
+        if self.run is None:
+            return
+        if self.run.tick(stamp_ns):
             self._request_surface(stamp_ns)
+        elif self.run.overdue(stamp_ns):
+            wait = self.config.eval.surface_wait_s
+            finished = self.run.evaluator.finished
+            self.ctx.request_stop(f"{FINISHED_PREFIX}: {finished} (no whole-object surface came within {wait:g} s)")
 
     def _request_surface(self, stamp_ns: int) -> None:
         """Ask for the whole-object surface, with the GP variance only when a milestone waits for it."""

@@ -114,3 +114,25 @@ def test_a_touch_without_a_fingertip_pose_is_scored_with_the_axis_pointing_down(
     touch(run, 2 * S_NS, axis=np.array([1.0, 0.0, 0.0]))
     np.testing.assert_array_equal(ev.touches[0][4], [0.0, 0.0, -1.0])
     np.testing.assert_array_equal(ev.touches[1][4], [1.0, 0.0, 0.0])
+
+
+def test_a_last_surface_that_never_comes_ends_the_run_after_the_wait() -> None:
+    """The finishing touch asks for the last surface; if none comes within surface_wait_s of simulated
+    time (the GPIS node refused the request), the run is overdue, once, and ends without it. A surface
+    that comes in time, or a run still going, is never overdue."""
+    ev = FakeEvaluator([([0.5, 0.8], "goal")], EvalConfig(surface_wait_s=5.0))
+    run = RunControl(ev)  # type: ignore[arg-type]
+    assert not run.overdue(100 * S_NS)  # nothing asked for yet
+    assert touch(run, 10 * S_NS)
+    assert not run.overdue(15 * S_NS)  # 5 s: still waiting
+    assert run.overdue(15 * S_NS + 1)
+    assert not run.overdue(16 * S_NS)  # once
+    assert ev.scored == []  # the milestones keep no RMSE
+    served = RunControl(FakeEvaluator([([0.8], "goal")], EvalConfig(surface_wait_s=5.0)))  # type: ignore[arg-type]
+    assert touch(served, 10 * S_NS)
+    assert served.surface(*surface(4))
+    assert not served.overdue(100 * S_NS)
+    stalled = RunControl(FakeEvaluator([([], "")], EvalConfig(max_idle_s=30.0, surface_wait_s=5.0)))  # type: ignore[arg-type]
+    assert not touch(stalled, S_NS)
+    assert stalled.tick(32 * S_NS)  # stalled: asks for the last surface
+    assert not stalled.overdue(37 * S_NS) and stalled.overdue(38 * S_NS)
