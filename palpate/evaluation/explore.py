@@ -205,7 +205,7 @@ def episodes(
     frozen = tuple(sorted((params or {}).items()))
     for case in cases:
         vertices, faces = case.true_mesh()
-        _note_if_tiny(case.name, vertices, faces, params or {})
+        _note_size(case.name, vertices, faces, params or {})
         for run in range(runs):
             a = approach(vertices, faces, run)
             q = probe_quaternion(a.direction)
@@ -227,12 +227,16 @@ def episodes(
 
 #: Below this covering bound (contacts) coverage is reached by a touch or two.
 FEW_TOUCHES = 3.0
+#: ... or so large that a run to the goal takes more touches than this (about 4x the covering bound of the
+#: largest YCB object, the master chef can's 531), hours of simulated exploration.
+MANY_TOUCHES = 2000.0
 
 
-def _note_if_tiny(name: str, vertices: FloatArray, faces: NDArray[np.int64], params: Mapping[str, Any]) -> None:
+def _note_size(name: str, vertices: FloatArray, faces: NDArray[np.int64], params: Mapping[str, Any]) -> None:
     """Say on stderr when an object is so small that a touch or two reach its coverage goal (the
     evaluator's, after ``params``): its run then completes at once, and only its shape scores
-    (F-score, Chamfer) tell how well it was learnt."""
+    (F-score, Chamfer) tell how well it was learnt; or so large that its run takes hours, with the
+    budgets it gets and how to cap them."""
     from palpate.metrics.exploration import covering_bound_contacts, triangle_areas
     from palpate.nodes.explore_eval.core import EvalConfig
 
@@ -246,6 +250,17 @@ def _note_if_tiny(name: str, vertices: FloatArray, faces: NDArray[np.int64], par
             f"note: {name} has {area * 1e4:.3g} cm^2 of surface: {bound:.2g} touches of {radius_m * 1e3:g} mm "
             f"cover {goal:.0%} of it, so its run completes at once; its F-score and Chamfer distance tell "
             "how well it was learnt",
+            file=sys.stderr,
+        )
+    elif bound > MANY_TOUCHES:
+        setting = lambda key: float(params.get(f"eval.eval.{key}", getattr(defaults, key)))  # noqa: E731
+        contacts = max(setting("max_contacts"), math.ceil(setting("contacts_per_bound") * bound))
+        travel_m = max(setting("max_travel_m"), setting("travel_per_bound_m") * bound)
+        print(
+            f"note: {name} has {area:.3g} m^2 of surface: {bound:,.0f} touches of {radius_m * 1e3:g} mm cover "
+            f"{goal:.0%} of it, so its runs may take hours; their budgets are {contacts:,.0f} contacts and "
+            f"{travel_m:,.0f} m of travel (cap them with --max-contacts and --max-travel-m; give --scale if "
+            "the mesh is not in metres)",
             file=sys.stderr,
         )
 

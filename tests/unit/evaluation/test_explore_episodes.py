@@ -179,6 +179,13 @@ def test_an_object_a_touch_or_two_cover_is_noted(capsys: pytest.CaptureFixture[s
     assert "note: bead has 1.13 cm^2 of surface: 0.97 touches of 6 mm" in capsys.readouterr().err
     episodes([ObjectCase(name="ball", kind="sphere", size_m=(0.03,))], 1, ["igef"])
     assert "note" not in capsys.readouterr().err
+    crate = ObjectCase(name="crate", kind="box", size_m=(0.6, 0.6, 0.6))  # 2.16 m^2: about 18,500 touches
+    episodes([crate], 1, ["igef"])
+    note = capsys.readouterr().err
+    assert "note: crate has 2.16 m^2 of surface: 18,475 touches" in note
+    assert "budgets are 46,189 contacts and 924 m" in note  # 2.5 x and 5 cm x the bound
+    episodes([crate], 1, ["igef"], params={"eval.eval.max_contacts": 300, "eval.eval.contacts_per_bound": 0.0})
+    assert "budgets are 300 contacts" in capsys.readouterr().err  # as --max-contacts 300 sets them
 
 
 @pytest.mark.parametrize("text", ["0", "-1", "nan", "inf", "mm"])
