@@ -10,7 +10,7 @@ from palpate.errors import EstimationError, InputError
 from palpate.messages.schemas import SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.gpis.core import GPISConfig, SurfaceEstimator
 from palpate.nodes.gpis.local import make_estimator
-from palpate.nodes.gpis.reach import holding, mesh_reach, touch_reach
+from palpate.nodes.gpis.reach import holding, touch_reach
 from palpate.nodes.gpis.surface import SurfaceMeshArrays, add_touch, whole_surface
 from palpate.runtime.spec import Context, NodeSpec, Port
 
@@ -39,8 +39,11 @@ class GPISNodeConfig(Validated):
     variance_radius_m: PositiveFloat = 0.06
     #: An object larger than the thin-plate kernel's R_m allows (gp.R_m, 0.5 m: about 0.4 m across):
     #: rebuild the GP with R_m doubled (``reach.holding``; counter ``kernel_grown``, status metric
-    #: ``kernel_R_m``) instead of refusing the touch. False refuses it, as an input error.
+    #: ``kernel_R_m``), up to kernel_radius_cap_m, instead of refusing the touch. False refuses it, as an input error.
     grow_kernel: bool = True
+    #: Largest R_m growing may reach, metres (objects up to about 6 m across); beyond it the fit degrades
+    #: (the relative jitter, a fraction of R_m^3, outweighs the value noise) and touches are refused.
+    kernel_radius_cap_m: PositiveFloat = 8.0
 
 
 class GPISNode:
@@ -52,9 +55,9 @@ class GPISNode:
 
     def on_touches(self, message: TouchEvent) -> None:
         cfg = self.config
-        self._hold(touch_reach(self.gp, message.position_m, cfg.local_half_extent_m + cfg.local_resolution_m))
+        gp = self._holding(message)
         mesh = add_touch(
-            self.gp,
+            gp,
             message.position_m,
             message.normal,
             cfg.local_half_extent_m,
@@ -62,29 +65,32 @@ class GPISNode:
             with_variance=cfg.vertex_variance != "none",
             variance_near=(cfg.variance_step_m, cfg.variance_radius_m) if cfg.vertex_variance == "candidates" else None,
         )
+        if gp is not self.gp:  # grown, and the touch was usable: keep it
+            self.gp = gp
+            self.ctx.count("kernel_grown")
+            self.ctx.metrics["kernel_R_m"] = gp.config.R_m
         self._publish(mesh, "local")
 
     def on_request(self, message: SurfaceRequest) -> None:
         if message.region != "global":
             raise InputError("region", f"{message.region!r} is no region a request can name; use 'global'")
         cfg = self.config
-        self._hold(mesh_reach(self.gp, cfg.global_margin_m + cfg.global_resolution_m))
         mesh = whole_surface(self.gp, cfg.global_margin_m, cfg.global_resolution_m, with_variance=message.variance)
         self._publish(mesh, "global")
 
-    def _hold(self, reach_m: float) -> None:
-        """With grow_kernel: make the GP a covariance up to reach_m metres (see ``reach.holding``)."""
-        if not self.config.grow_kernel:
-            return
+    def _holding(self, message: TouchEvent) -> SurfaceEstimator:
+        """With grow_kernel, the GP grown to hold this touch's local mesh and the whole-object mesh after
+        it (see ``reach.touch_reach``), not yet kept: the touch may still be refused; else the GP."""
+        cfg = self.config
+        if not cfg.grow_kernel:
+            return self.gp
+        e = cfg.local_half_extent_m + cfg.local_resolution_m  # the local grid's half extent, at most
+        reach = touch_reach(self.gp, message.position_m, e, cfg.global_margin_m + cfg.global_resolution_m)
         try:
-            grown = holding(self.gp, reach_m)
+            return holding(self.gp, reach, cfg.kernel_radius_cap_m)
         except EstimationError:  # the contacts do not factor with that R_m: the GP as it was refuses
             self.ctx.count("kernel_not_grown")
-            return
-        if grown is not self.gp:
-            self.gp = grown
-            self.ctx.count("kernel_grown")
-            self.ctx.metrics["kernel_R_m"] = grown.config.R_m
+            return self.gp
 
     def _publish(self, mesh: SurfaceMeshArrays, region: str) -> None:
         self.ctx.metrics["contacts"] = float(self.gp.n_contacts)

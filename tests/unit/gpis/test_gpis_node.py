@@ -88,15 +88,33 @@ def test_an_object_larger_than_the_kernels_reach_grows_it_and_keeps_every_contac
     assert node.gp.config.R_m == 2.0 and node.gp.n_contacts == 4 and ctx.counters["kernel_grown"] == 2
 
 
-def test_a_whole_object_mesh_beyond_the_kernels_reach_grows_it() -> None:
-    """Touches 0.3 m apart fit R_m = 0.5 m, but the whole-object mesh with a 0.3 m margin spans 1.25 m:
-    R_m doubles twice (2 m >= 1.25 x 1.25 m) and the mesh is made."""
+def test_the_whole_object_mesh_after_a_touch_is_held_at_the_touch_not_at_the_request() -> None:
+    """Touches 0.3 m apart fit R_m = 0.5 m locally, but the whole-object mesh with a 0.3 m margin would
+    span 1.25 m: the second touch already grows R_m (twice, to 2 m >= 1.25 x 1.25 m), so that when the
+    evaluator asks for that mesh does not change the GP the planner's meshes come from."""
     sent: list[Message] = []
     ctx = NodeContext("gpis", 0, lambda topic, message: sent.append(message), {"surface": "surface/mesh"})
     node = GPISNode(GPISNodeConfig(global_margin_m=0.3, global_resolution_m=0.01), ctx)
     node.on_touches(touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]))
+    assert node.gp.config.R_m == 0.5
     node.on_touches(touch([0.3, 0.0, 0.03], [1.0, 0.0, 0.0]))
-    assert node.gp.config.R_m == 0.5 and "kernel_grown" not in ctx.counters
-    node.on_request(SurfaceRequest(stamp_ns=0, region="global", variance=False))
     assert node.gp.config.R_m == 2.0 and ctx.counters["kernel_grown"] == 1 and node.gp.n_contacts == 2
+    node.on_request(SurfaceRequest(stamp_ns=0, region="global", variance=False))
+    assert node.gp.config.R_m == 2.0 and ctx.counters["kernel_grown"] == 1
     assert isinstance(sent[-1], SurfaceMesh) and sent[-1].region == "global" and len(sent[-1].vertices_m) > 0
+
+
+def test_a_refused_touch_leaves_the_kernel_as_it_was_and_growth_stops_at_its_cap() -> None:
+    """A touch far enough to grow R_m but with a normal that is no unit vector is refused before
+    anything changes; one that would need R_m beyond kernel_radius_cap_m is refused as without growth."""
+    ctx = NodeContext("gpis", 0, lambda topic, message: None, {"surface": "surface/mesh"})
+    node = GPISNode(GPISNodeConfig(kernel_radius_cap_m=4.0), ctx)
+    node.on_touches(touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]))
+    with pytest.raises(InputError, match=r"^normal: norm 2, not 1"):
+        node.on_touches(touch([0.45, 0.0, 0.03], [2.0, 0.0, 0.0]))
+    assert node.gp.config.R_m == 0.5 and node.gp.n_contacts == 1 and "kernel_grown" not in ctx.counters
+    with pytest.raises(InputError, match=r"^position_m: the GPIS cannot add this touch to its 1 contacts"):
+        node.on_touches(touch([5.0, 0.0, 0.03], [1.0, 0.0, 0.0]))  # needs R_m = 8 m > 4 m
+    assert node.gp.config.R_m == 0.5 and node.gp.n_contacts == 1
+    node.on_touches(touch([2.0, 0.0, 0.03], [1.0, 0.0, 0.0]))  # needs 4 m: grown
+    assert node.gp.config.R_m == 4.0 and node.gp.n_contacts == 2
