@@ -55,9 +55,10 @@ class EvalConfig(Validated):
     #: Simulated time without a touch after which the run ends as stalled (the fingertip stuck against
     #: the object without a touch event, or a planner error), seconds.
     max_idle_s: PositiveFloat = 30.0
-    #: Simulated time the run waits for the whole-object surface it asked for at the end; then it ends
-    #: without it (its last milestones keep no RMSE) instead of running on until the clock, seconds.
-    surface_wait_s: PositiveFloat = 5.0
+    #: Time the run waits for the whole-object surface it asked for at the end; then it ends without it
+    #: (its last milestones keep no RMSE) instead of running on until the clock, seconds. Lockstep runs
+    #: get it the next tick; 30 s leaves a real-time GPIS node time for a large object's mesh.
+    surface_wait_s: PositiveFloat = 30.0
     rmse_samples: PositiveInt = 20000
     #: The headline surface RMSE is taken over the part of the estimate whose GP standard deviation is
     #: at most this, metres: the surface the estimate claims to know (see ``Milestone``).
