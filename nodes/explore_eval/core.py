@@ -68,6 +68,18 @@ class EvalConfig(Validated):
     shape_every_contacts: NonNegativeInt = 10
     shape_samples: PositiveInt = 5000
 
+    def covering_bound(self, area_m2: float) -> float:
+        """The fewest discs of radius_m that cover coverage_goal of a surface of area_m2 (contacts)."""
+        return covering_bound_contacts(area_m2, self.coverage_goal, self.radius_m)
+
+    def contact_budget(self, bound: float) -> int:
+        """max(max_contacts, contacts_per_bound * covering bound)."""
+        return max(self.max_contacts, math.ceil(self.contacts_per_bound * bound))
+
+    def travel_budget_m(self, bound: float) -> float:
+        """max(max_travel_m, travel_per_bound_m * covering bound), metres."""
+        return max(self.max_travel_m, self.travel_per_bound_m * bound)
+
 
 @dataclass
 class Milestone:
@@ -257,17 +269,17 @@ class ExplorationEvaluator:
     @property
     def covering_bound(self) -> float:
         """The fewest 6 mm discs that cover the goal's share of the true surface (contacts)."""
-        return covering_bound_contacts(self.area_m2, self.config.coverage_goal, self.config.radius_m)
+        return self.config.covering_bound(self.area_m2)
 
     @property
     def contact_budget(self) -> int:
-        """max(max_contacts, contacts_per_bound * covering bound)."""
-        return max(self.config.max_contacts, math.ceil(self.config.contacts_per_bound * self.covering_bound))
+        """EvalConfig.contact_budget of this object."""
+        return self.config.contact_budget(self.covering_bound)
 
     @property
     def travel_budget_m(self) -> float:
-        """max(max_travel_m, travel_per_bound_m * covering bound), metres."""
-        return max(self.config.max_travel_m, self.config.travel_per_bound_m * self.covering_bound)
+        """EvalConfig.travel_budget_m of this object, metres."""
+        return self.config.travel_budget_m(self.covering_bound)
 
     def add_touch(
         self,

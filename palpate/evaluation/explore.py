@@ -237,14 +237,14 @@ def _note_size(name: str, vertices: FloatArray, faces: NDArray[np.int64], params
     evaluator's, after ``params``): its run then completes at once, and only its shape scores
     (F-score, Chamfer) tell how well it was learnt; or so large that its run takes hours, with the
     budgets it gets and how to cap them."""
-    from palpate.metrics.exploration import covering_bound_contacts, triangle_areas
+    from palpate.metrics.exploration import triangle_areas
     from palpate.nodes.explore_eval.core import EvalConfig
 
-    defaults = EvalConfig()
-    goal = float(params.get("eval.eval.coverage_goal", defaults.coverage_goal))
-    radius_m = float(params.get("eval.eval.radius_m", defaults.radius_m))
+    settings = {key.removeprefix("eval.eval."): value for key, value in params.items() if key.startswith("eval.eval.")}
+    config = load(EvalConfig, settings, "eval params")
+    goal, radius_m = config.coverage_goal, config.radius_m
     area = float(triangle_areas(vertices, faces).sum())
-    bound = covering_bound_contacts(area, goal, radius_m)
+    bound = config.covering_bound(area)
     if bound < FEW_TOUCHES:
         print(
             f"note: {name} has {area * 1e4:.3g} cm^2 of surface: {bound:.2g} touches of {radius_m * 1e3:g} mm "
@@ -253,9 +253,7 @@ def _note_size(name: str, vertices: FloatArray, faces: NDArray[np.int64], params
             file=sys.stderr,
         )
     elif bound > MANY_TOUCHES:
-        setting = lambda key: float(params.get(f"eval.eval.{key}", getattr(defaults, key)))  # noqa: E731
-        contacts = max(setting("max_contacts"), math.ceil(setting("contacts_per_bound") * bound))
-        travel_m = max(setting("max_travel_m"), setting("travel_per_bound_m") * bound)
+        contacts, travel_m = config.contact_budget(bound), config.travel_budget_m(bound)
         print(
             f"note: {name} has {area:.3g} m^2 of surface: {bound:,.0f} touches of {radius_m * 1e3:g} mm cover "
             f"{goal:.0%} of it, so its runs may take hours; their budgets are {contacts:,.0f} contacts and "
