@@ -21,6 +21,7 @@ from palpate.errors import EstimationError
 from palpate.inputs import coordinates
 from palpate.nodes.gpis.core import SurfaceEstimator
 from palpate.nodes.gpis.local import make_estimator
+from palpate.nodes.gpis.surface import grid_reach
 
 #: R_m after growing is at least this many times the distance that did not fit.
 HEADROOM = 1.25
@@ -37,7 +38,7 @@ def touch_reach(gp: SurfaceEstimator, position_m: ArrayLike, half_extent_m: floa
     if not gp.n_contacts:
         return 0.0
     P = gp.positions_m
-    local = float(np.sqrt(np.max(np.sum((np.abs(P - p) + half_extent_m) ** 2, axis=1))))
+    local = grid_reach(P, p, half_extent_m)
     lower, upper = np.minimum(P.min(axis=0), p), np.maximum(P.max(axis=0), p)
     whole = float(np.linalg.norm(upper - lower + 2.0 * margin_m))
     return max(local, whole)

@@ -243,6 +243,13 @@ def whole_surface(
     return global_surface(gp, lower, upper, resolution_m, with_variance=with_variance, refine=refine)
 
 
+def grid_reach(points_m: FloatArray, centre_m: FloatArray, half_extents_m: FloatArray | float) -> float:
+    """Largest distance, metres, from one of points_m (n, 3), n >= 1, to a point of the box of half
+    extents half_extents_m (3,) or one for every axis around centre_m (3,): the box corner farthest
+    from each point, sqrt(sum_i (|p_i - c_i| + e_i)^2)."""
+    return float(np.sqrt(np.max(np.sum((np.abs(points_m - centre_m) + half_extents_m) ** 2, axis=1))))
+
+
 def add_touch(
     gp: SurfaceEstimator,
     position_m: ArrayLike,
@@ -267,10 +274,9 @@ def add_touch(
     n = unit_vectors(normal, "normal")
     axes = grid_axes(p - half_extent_m, p + half_extent_m, resolution_m)
     if gp.n_contacts:
-        # every local grid has these half extents; the farthest point of the grid around a from b is
-        # the corner at sqrt(sum_i (|a_i - b_i| + e_i)^2), both ways round
+        # every local grid has these half extents, so the same bound holds both ways round
         e = np.array([0.5 * float(a[-1] - a[0]) for a in axes])
-        reach = float(np.sqrt(np.max(np.sum((np.abs(gp.positions_m - p) + e) ** 2, axis=1))))
+        reach = grid_reach(gp.positions_m, np.asarray(p), e)
         try:
             gp.kernel.check_distances(reach)
         except EstimationError as exc:
