@@ -271,13 +271,8 @@ class TrajectoryController:
         """
         start = _vector("start_r", start_r)
         target = _vector("target_p", target_p)
-        self._direction = _unit("target_p - start_r", target - start)  # v_n = (t_p - r)/|t_p - r|
-        self._direct_start = start
-        self._direct_budget_m = float(np.linalg.norm(target - start)) + self.config.miss_distance_m
-        self._target_p, self._target_n = target, -self._direction
-        self._curve = None
+        self._go_straight(start, target, _unit("target_p - start_r", target - start))  # v_n = (t_p - r)/|t_p - r|
         self._exploring = False
-        self._state = ControllerState.DIRECT
 
     def start(
         self, c_p: ArrayLike, v_n: ArrayLike, R0: ArrayLike, target_p: ArrayLike, target_n: ArrayLike
@@ -415,14 +410,19 @@ class TrajectoryController:
         distance = float(np.linalg.norm(to_contact))
         if distance < self.config.min_chord_m:
             return False
-        self._direction = to_contact / distance
-        self._direct_start = r.copy()
-        self._direct_budget_m = distance + self.config.miss_distance_m
-        self._target_p, self._target_n = self._last_contact.copy(), -self._direction
-        self._curve = None
+        self._go_straight(r.copy(), self._last_contact.copy(), to_contact / distance)
         self._straight_returns += 1
-        self._state = ControllerState.DIRECT
         return True
+
+    def _go_straight(self, start: FloatArray, target: FloatArray, direction: FloatArray) -> None:
+        """State DIRECT: along the unit ``direction`` from start to target (3,), failing once the
+        fingertip is more than Delta_m beyond target without a contact."""
+        self._direction = direction
+        self._direct_start = start
+        self._direct_budget_m = float(np.linalg.norm(target - start)) + self.config.miss_distance_m
+        self._target_p, self._target_n = target, -direction
+        self._curve = None
+        self._state = ControllerState.DIRECT
 
 
 class TouchArming:
