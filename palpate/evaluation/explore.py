@@ -187,9 +187,13 @@ class Episode:
         GPIS node must give it at the candidates."""
         from palpate.nodes.planner.core import PlannerConfig
 
-        settings = {key.removeprefix("planner."): value for key, value in self.params if key.startswith("planner.")}
-        settings["strategy"] = self.strategy
+        settings = {**overrides_under(self.params, "planner."), "strategy": self.strategy}
         return load(PlannerConfig, settings, "planner params").uses_variance
+
+
+def overrides_under(params: Iterable[tuple[str, Any]], prefix: str) -> dict[str, Any]:
+    """The dotted overrides ``"node.key" = value`` under ``prefix`` (e.g. "planner."), keyed without it."""
+    return {key.removeprefix(prefix): value for key, value in params if key.startswith(prefix)}
 
 
 def episodes(
@@ -240,8 +244,7 @@ def _note_size(name: str, vertices: FloatArray, faces: NDArray[np.int64], params
     from palpate.metrics.exploration import triangle_areas
     from palpate.nodes.explore_eval.core import EvalConfig
 
-    settings = {key.removeprefix("eval.eval."): value for key, value in params.items() if key.startswith("eval.eval.")}
-    config = load(EvalConfig, settings, "eval params")
+    config = load(EvalConfig, overrides_under(params.items(), "eval.eval."), "eval params")
     goal, radius_m = config.coverage_goal, config.radius_m
     area = float(triangle_areas(vertices, faces).sum())
     bound = config.covering_bound(area)
