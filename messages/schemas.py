@@ -188,7 +188,8 @@ class SurfaceMesh(Message):
 
 
 class SurfaceRequest(Message):
-    """Ask the surface estimator for a mesh of a region."""
+    """Ask the surface estimator for a mesh of a region. The estimator answers each request with one
+    SurfaceMesh of that region, in the order asked."""
 
     TYPE: ClassVar[str] = "SurfaceRequest"
     VERSION: ClassVar[int] = 2

@@ -8,6 +8,7 @@ budget (contacts or travel) and is reported as incomplete with the coverage it r
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import asdict, dataclass, field
 from typing import Annotated, Any
 
@@ -150,22 +151,34 @@ class TouchRecord:
     missed: bool
 
 
+@dataclass(frozen=True)
+class SurfaceAsk:
+    """One request for the whole-object surface: the touch count when it was made, the milestones its
+    surface scores, and whether it is the run's last."""
+
+    contacts: int
+    milestones: tuple[float, ...]
+    final: bool
+
+
 class RunControl:
     """When an evaluated run asks for the whole-object surface, which milestones that surface scores,
     and when the run ends (around an ExplorationEvaluator).
 
     A touch that reaches milestones, finishes the run (goal or budget) or is a shape checkpoint (every
-    EvalConfig.shape_every_contacts) asks for the surface; the next whole-object surface gets its shape
-    scores, scores the milestones waiting for it and, after the finishing touch, ends the run. A run
-    with no touch for EvalConfig.max_idle_s of simulated time finishes as "stalled" (its last surface
-    is scored the same way). A run whose last surface does not come within EvalConfig.surface_wait_s
-    is ``overdue``: it ends without it.
+    EvalConfig.shape_every_contacts) asks for the surface. The surfaces answer the requests in order
+    (the estimator answers each once, first come first served): each gets its shape scores at the
+    touch count of its request, scores the milestones of that request and, when it answers the
+    finishing touch's request, ends the run; a surface that answers no request is ignored. So a
+    surface that comes late (a slow estimator, off lockstep) is neither scored as a later one nor
+    ends the run early. A run with no touch for EvalConfig.max_idle_s of simulated time finishes as
+    "stalled" (its last surface is scored the same way). A run whose last surface does not come
+    within EvalConfig.surface_wait_s is ``overdue``: it ends without it.
     """
 
     def __init__(self, evaluator: ExplorationEvaluator) -> None:
         self.evaluator = evaluator
-        self.pending: list[float] = []  # milestones waiting for their whole-object surface
-        self.shape_pending = False  # a shape checkpoint waits for its whole-object surface
+        self.asks: deque[SurfaceAsk] = deque()  # requests not yet answered, oldest first
         self.final_requested = False
         self.final_requested_ns = 0
         self.final_received = False
@@ -193,43 +206,45 @@ class RunControl:
         every = ev.config.shape_every_contacts
         checkpoint = every > 0 and len(ev.touches) % every == 0
         if reached or ev.finished or checkpoint:
-            self.pending.extend(reached)
-            self.shape_pending = True
-            self.final_requested = bool(ev.finished)
-            self.final_requested_ns = stamp_ns
+            self._ask(stamp_ns, tuple(reached), final=bool(ev.finished))
             return True
         return False
 
+    def _ask(self, stamp_ns: int, milestones: tuple[float, ...], final: bool) -> None:
+        self.asks.append(SurfaceAsk(len(self.evaluator.touches), milestones, final))
+        if final:
+            self.final_requested = True
+            self.final_requested_ns = stamp_ns
+
     @property
     def needs_variance(self) -> bool:
-        """Whether the whole-object surface asked for must carry the GP variance: only the milestones'
-        confident RMSE reads it (the shape checkpoints do not), and Eq. 6 at every vertex of the whole
-        object costs the GPIS node more than its mesh."""
-        return bool(self.pending)
+        """Whether the whole-object surface just asked for must carry the GP variance: only the
+        milestones' confident RMSE reads it (the shape checkpoints do not), and Eq. 6 at every vertex of
+        the whole object costs the GPIS node more than its mesh."""
+        return bool(self.asks and self.asks[-1].milestones)
 
     def surface(self, vertices_m: np.ndarray, faces: np.ndarray, vertex_variance: np.ndarray) -> bool:
-        """A whole-object estimate arrived (vertices (v, 3) m, faces (f, 3), GP variance (v,) m^2): score the
-        milestones waiting for it (a surface without variance serves when none waits). True when the run
-        is over (this was the surface asked for at the end)."""
-        shape = self.evaluator.shape(vertices_m, faces) if self.shape_pending else None
-        self.shape_pending = False
-        if self.pending:
+        """A whole-object estimate arrived (vertices (v, 3) m, faces (f, 3), GP variance (v,) m^2): it
+        answers the oldest request, whose shape scores and milestones it gets. True when the run is
+        over (it answers the run's last request)."""
+        if not self.asks:
+            return False
+        ask = self.asks.popleft()
+        shape = self.evaluator.shape(vertices_m, faces, ask.contacts)
+        if ask.milestones:
             rmse = self.evaluator.rmse(vertices_m, faces, vertex_variance)
-            for fraction in self.pending:
+            for fraction in ask.milestones:
                 self.evaluator.set_rmse(fraction, rmse, shape)
-            self.pending = []
-        self.final_received = self.final_requested
-        return self.final_requested
+        self.final_received = ask.final
+        return ask.final
 
     def tick(self, stamp_ns: int) -> bool:
         """Watchdog: True (once) when the run has made no touch for max_idle_s and has just finished as
-        stalled; the whole-object surface must then be requested."""
+        stalled; the whole-object surface must then be requested (the end's estimate is scored too)."""
         if self.final_requested or stamp_ns - self.last_touch_ns <= self.evaluator.config.max_idle_s * 1e9:
             return False
         self.evaluator.finished = "stalled"
-        self.final_requested = True
-        self.final_requested_ns = stamp_ns
-        self.shape_pending = True  # the end's estimate is scored too
+        self._ask(stamp_ns, (), final=True)
         return True
 
     def overdue(self, stamp_ns: int) -> bool:
@@ -341,18 +356,19 @@ class ExplorationEvaluator:
             vertex_coverage=self.tracker.vertex_coverage,
         )
 
-    def shape(self, vertices_m: np.ndarray, faces: np.ndarray) -> ShapePoint:
-        """Whole-shape scores of an estimated mesh (vertices (v, 3) m, faces (f, 3)) now: appended to
-        ``shape_series`` (once per contact count) and returned."""
+    def shape(self, vertices_m: np.ndarray, faces: np.ndarray, contacts: int | None = None) -> ShapePoint:
+        """Whole-shape scores of an estimated mesh (vertices (v, 3) m, faces (f, 3)) after ``contacts``
+        touches (None: all so far): appended to ``shape_series`` (once per contact count) and returned."""
         if self._shape_scorer is None:
             truth = (self.vertices_m, self.faces)
             self._shape_scorer = ShapeScorer(truth, self.config.shape_samples, rng=np.random.default_rng(0))
         scores = self._shape_scorer.score((vertices_m, faces)).as_dict()  # ShapePoint's score fields
-        last = self.touches[-1] if self.touches else None
+        count = len(self.touches) if contacts is None else contacts
+        last = self.touches[count - 1] if count > 0 else None
         point = ShapePoint(
-            contacts=len(self.touches),
+            contacts=count,
             travel_cm=last.travel_cm if last else 0.0,
-            coverage=self.tracker.coverage,
+            coverage=last.coverage if last else 0.0,
             **scores,
         )
         if self.shape_series and self.shape_series[-1].contacts == point.contacts:

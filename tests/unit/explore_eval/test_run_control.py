@@ -30,8 +30,8 @@ class FakeEvaluator:
     def rmse(self, vertices_m: np.ndarray, faces: np.ndarray, vertex_variance: np.ndarray) -> Any:
         return ("scores of", len(vertices_m))
 
-    def shape(self, vertices_m: np.ndarray, faces: np.ndarray) -> Any:
-        self.shapes.append(len(self.touches))
+    def shape(self, vertices_m: np.ndarray, faces: np.ndarray, contacts: int | None = None) -> Any:
+        self.shapes.append(len(self.touches) if contacts is None else contacts)
         return ("shape of", len(vertices_m))
 
     def set_rmse(self, fraction: float, scores: Any, shape: Any = None) -> None:
@@ -92,6 +92,21 @@ def test_every_nth_contact_asks_for_the_surface_for_its_shape_scores() -> None:
     assert ev.shapes == [3, 6] and ev.scored == [(0.5, ("scores of", 6))]
 
 
+def test_surfaces_answer_the_requests_in_order_so_a_late_one_is_not_the_last() -> None:
+    """Off lockstep a checkpoint's surface can come after the finishing touch: it gets the checkpoint's
+    shape scores (at its touch count), and only the next surface scores the milestones and ends the run."""
+    ev = FakeEvaluator([([], ""), ([0.5, 0.8], "goal")], EvalConfig(shape_every_contacts=1))
+    run = RunControl(ev)  # type: ignore[arg-type]
+    assert touch(run, 1 * S_NS)  # a checkpoint
+    assert touch(run, 2 * S_NS)  # the finishing touch, before the checkpoint's surface came
+    assert run.needs_variance  # the last request carries milestones
+    assert not run.surface(*surface(3))  # the checkpoint's surface: the run goes on
+    assert ev.shapes == [1] and ev.scored == []
+    assert run.surface(*surface(8))
+    assert ev.shapes == [1, 2] and ev.scored == [(0.5, ("scores of", 8)), (0.8, ("scores of", 8))]
+    assert not run.overdue(1000 * S_NS)
+
+
 def test_a_run_without_a_touch_for_max_idle_s_finishes_as_stalled() -> None:
     ev = FakeEvaluator([([], "")], EvalConfig(max_idle_s=30.0))
     run = RunControl(ev)  # type: ignore[arg-type]
@@ -104,7 +119,7 @@ def test_a_run_without_a_touch_for_max_idle_s_finishes_as_stalled() -> None:
     assert ev.finished == "stalled"
     assert not run.tick(60 * S_NS)  # asked once
     assert not touch(run, 61 * S_NS) and len(ev.touches) == 1
-    assert run.surface(*surface(2))
+    assert not run.surface(*surface(2)) and ev.shapes == [1]  # answers no request: ignored
 
 
 def test_a_touch_without_a_fingertip_pose_is_scored_with_the_axis_pointing_down() -> None:
