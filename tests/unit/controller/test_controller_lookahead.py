@@ -1,4 +1,4 @@
-"""Coarse control steps through a sharp bend: the look-ahead grows instead of oscillating in place."""
+"""The look-ahead on the curve: it grows at a sharp bend and on a short curve, instead of oscillating."""
 
 from __future__ import annotations
 
@@ -35,3 +35,38 @@ def test_tau_keeps_advancing_through_a_sharp_bend_with_coarse_steps() -> None:
         taus.append(ctrl.tau)
     assert taus[10] > 0.2, f"tau stalled at {taus[10]:.3f}"
     assert taus[-1] > 0.95
+
+
+def short_hop(hop_m: float, lookahead_one_step: bool) -> tuple[float, float, float]:
+    """A hop of hop_m along a plane (z = 0, centre at the tip radius) in 10 ms steps at 5 cm/s: the curve's
+    length, the path travelled to the plane and the angle between the last step and the normal, degrees."""
+    ctrl = TrajectoryController(ControllerConfig(lookahead_one_step=lookahead_one_step))
+    r = np.array([0.0, 0.0, 0.008])
+    P = ctrl.start(r, np.array([0.0, 0.0, -1.0]), R_DOWN, np.array([hop_m, 0.0, 0.008]), np.array([0.0, 0.0, 1.0]))
+    tau = np.linspace(0.0, 1.0, 4001)[:, None]
+    curve = (1 - tau) ** 3 * P[0] + 3 * (1 - tau) ** 2 * tau * P[1] + 3 * (1 - tau) * tau**2 * P[2] + tau**3 * P[3]
+    path = 0.0
+    for _ in range(500):
+        v, _ = ctrl.command(r, R_DOWN)
+        step = v * 0.01
+        path += float(np.linalg.norm(step))
+        r = r + step
+        if r[2] < 0.008 and path > 0.002:  # the fingertip sphere reaches the plane
+            break
+    angle = float(np.degrees(np.arccos(-step[2] / np.linalg.norm(step))))
+    return float(np.linalg.norm(np.diff(curve, axis=0), axis=1).sum()), path, angle
+
+
+def test_a_short_curve_is_followed_not_zigzagged_about() -> None:
+    # Delta tau = 0.02 of a 6 mm curve is 0.12 mm, a quarter of one 0.5 mm step: looking that far ahead
+    # the fingertip overshoots every tick and zigzags; looking one step ahead it follows the curve
+    for hop in (0.003, 0.005, 0.008):
+        length, path, angle = short_hop(hop, lookahead_one_step=True)
+        assert path < length + 0.001, (hop, length, path)
+        assert angle < 15.0, (hop, angle)
+        length, path, angle = short_hop(hop, lookahead_one_step=False)
+        assert path > 1.2 * length and angle > 45.0, (hop, length, path, angle)
+    # a long curve is followed either way
+    for one_step in (True, False):
+        length, path, angle = short_hop(0.03, lookahead_one_step=one_step)
+        assert path < length + 0.001 and angle < 5.0
