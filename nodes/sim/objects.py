@@ -211,7 +211,7 @@ class ObjectModel:
         if kind == "cylinder":
             return "", f'<geom name="object" type="cylinder" size="{_fmt([size[0], size[1] / 2])}"{pose}/>'
         if collision == "hull":
-            path = self._mesh_file("object_mesh", self.mesh)
+            path = self._mesh_files.get("object_mesh") or self._mesh_file("object_mesh", mujoco_hull_mesh(self.mesh))
             return (
                 f'<mesh name="object_mesh" file="{path}"/>',
                 '<geom name="object" type="mesh" mesh="object_mesh"/>',
@@ -245,6 +245,24 @@ class ObjectModel:
         if key not in self._mesh_files:
             self._mesh_files[key] = write_cached_stl(mesh, self.name)
         return self._mesh_files[key]
+
+
+#: MuJoCo reads at most this many triangles from an STL file.
+MUJOCO_MAX_STL_FACES = 200_000
+
+
+def mujoco_hull_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """The mesh MuJoCo gets for the ``hull`` collision: ``mesh`` itself, or, beyond MuJoCo's STL limit
+    (a dense scan), its convex hull, which is what MuJoCo collides a mesh geom as anyway (a hull still
+    over the limit is taken over every k-th of its vertices). The contacts of the probe and of a hand on
+    a non-convex object come from the full mesh (``ExactContactSensor``), whatever MuJoCo holds."""
+    if len(mesh.faces) <= MUJOCO_MAX_STL_FACES:
+        return mesh
+    hull = mesh.convex_hull
+    if len(hull.faces) > MUJOCO_MAX_STL_FACES:  # a hull of v vertices has at most 2 v - 4 triangles
+        step = math.ceil(2 * len(hull.vertices) / MUJOCO_MAX_STL_FACES)
+        hull = trimesh.convex.convex_hull(np.asarray(hull.vertices)[::step])
+    return hull
 
 
 def _fmt(values: Sequence[float]) -> str:
@@ -398,6 +416,16 @@ def read_mesh_file(path: Path, scale: float = 1.0) -> trimesh.Trimesh:
         raise MeshError(f"{path}: degenerate mesh: some vertices are NaN or infinite; repair or re-export it")
     mesh = trimesh.Trimesh(vertices * scale, faces, process=True)
     mesh.update_faces(mesh.nondegenerate_faces())
+    unique = mesh.unique_faces()
+    if not unique.all():
+        warnings.warn(
+            f"{path}: {int((~unique).sum())} triangles repeat others (the same three vertices); dropped them, "
+            "so that they do not count twice in the object's area and coverage. Re-export the mesh without "
+            "duplicate faces to silence this warning.",
+            MeshWarning,
+            stacklevel=2,
+        )
+        mesh.update_faces(unique)
     mesh.remove_unreferenced_vertices()
     _check_geometry(mesh, path, scale)
     return mesh
@@ -408,6 +436,15 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
     if len(mesh.faces) == 0 or mesh.area <= 0.0:
         raise MeshError(
             f"{path}: degenerate mesh: all triangles have zero area (no faces left); export the object's closed surface"
+        )
+    if mesh.is_watertight and not mesh.is_winding_consistent:
+        trimesh.repair.fix_winding(mesh)
+        warnings.warn(
+            f"{path}: faces are wound inconsistently (some clockwise, some counter-clockwise seen from "
+            "outside); re-wound them consistently, so that normals, volume and inside/outside tests hold. "
+            "Re-export the mesh with consistent winding to silence this warning.",
+            MeshWarning,
+            stacklevel=3,
         )
     extents = np.asarray(mesh.extents, dtype=np.float64)
     size = float(extents.max())
@@ -436,15 +473,20 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
         )
         mesh.invert()
     if not mesh.is_watertight:
-        open_edges = len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1))
         warnings.warn(
-            f"{path}: mesh is not watertight ({open_edges} open edges): inside/outside tests and signed "
+            f"{path}: mesh is not watertight ({_edge_defects(mesh)}): inside/outside tests and signed "
             "distance (contact penetration sign, occupancy ground truth) and volume-based metrics are "
             "unreliable on it; contact points and normals are still exact. Close the holes (e.g. "
             "trimesh.repair.fill_holes or MeshLab) for reliable results.",
             MeshWarning,
             stacklevel=3,
         )
+
+
+def _edge_defects(mesh: trimesh.Trimesh) -> str:
+    """Why a mesh is not watertight: its open edges (on one triangle) and the edges on more than two."""
+    _, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    return f"{int((counts == 1).sum())} open edges, {int((counts > 2).sum())} edges on more than two triangles"
 
 
 def _mm(extents: np.ndarray) -> str:

@@ -96,6 +96,14 @@ def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     if not files:
         raise ConfigError(f"no mesh files ({', '.join(MESH_SUFFIXES)}) in {str(folder)!r}")
+    by_name: dict[str, Path] = {}
+    for p in files:
+        if p.stem in by_name:  # runs, tables and resumed logs know an object by its name
+            raise ConfigError(
+                f"{str(folder)!r} holds two meshes named {p.stem!r} ({by_name[p.stem].name} and {p.name}); "
+                "rename one: an object's file name without its extension names it in the runs and tables"
+            )
+        by_name[p.stem] = p
     return [ObjectCase(name=p.stem, kind="mesh", mesh=str(p.resolve()), scale=scale) for p in files]
 
 
@@ -525,8 +533,40 @@ def select_cases(folder: Path | None, smallest: int | None = None, scale: float 
 
 def strategies_of(args: argparse.Namespace) -> list[str]:
     """The strategies an evaluation runs: --strategies, else igef and gpv, with --quick ours too."""
-    given = args.strategies or ",".join(QUICK_STRATEGIES if args.quick else DEFAULT_STRATEGIES)
-    return [s.strip() for s in given.split(",") if s.strip()]
+    return parse_strategies(args.strategies or ",".join(QUICK_STRATEGIES if args.quick else DEFAULT_STRATEGIES))
+
+
+def parse_strategies(text: str) -> list[str]:
+    """The comma-separated strategies of ``--strategies``; ConfigError for none, an unknown one or a
+    repeat, before any run starts."""
+    from typing import get_args
+
+    from palpate.nodes.planner.core import Strategy
+
+    known = get_args(Strategy)
+    strategies = [s.strip() for s in text.split(",") if s.strip()]
+    if not strategies:
+        raise ConfigError(f"--strategies {text!r} names no strategy; choose from {', '.join(known)}")
+    for s in strategies:
+        if s not in known:
+            raise ConfigError(f"--strategies: unknown strategy {s!r}; choose from {', '.join(known)}")
+    if len(set(strategies)) < len(strategies):
+        raise ConfigError(f"--strategies {text!r} names a strategy twice")
+    return strategies
+
+
+def check_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> None:
+    """Validate an episode's launch file with its parameter overrides (``--set``) here, before any worker
+    starts: a misspelt key or a bad value then fails once, naming it, instead of in every run."""
+    import tempfile
+
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch
+
+    launch = load_launch(launch_path, episode.launch_args())
+    apply_params(launch, episode.params)
+    with tempfile.TemporaryDirectory() as bus_dir:
+        resolve(launch, bus_dir=Path(bus_dir))
 
 
 def main(args: argparse.Namespace) -> int:
@@ -553,6 +593,9 @@ def main(args: argparse.Namespace) -> int:
         chosen = select_cases(args.objects, QUICK_OBJECTS if args.quick else None, args.scale)
         cases = [c.name for c in chosen]
         items = episodes(chosen, runs, strategies, params=eval_params(args))
+        first = {ep.strategy: ep for ep in reversed(items)}  # each strategy's first episode
+        for episode in first.values():
+            check_episode(episode)
         with RunLog(out / "runs.jsonl", resume=args.resume) as log:
             rows, outcome = run_episodes(items, log, cluster_config(args))
         results = [r for r in rows if r is not None]

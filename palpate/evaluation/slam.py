@@ -66,6 +66,17 @@ MAP_TOPICS = {"map/known": "known", "map/fastslam": "fastslam", "map/dead_reckon
 MAPPER_NODES = {"known": "mapper_known", "fastslam": "mapper_fastslam", "dead_reckoning": "mapper_dead_reckoning"}
 DEFAULT_OUT = Path("out") / "slam"
 
+#: The launch arguments of slam_eval.yaml that the evaluation sets itself (SlamEvalConfig.arguments), and
+#: how to set each instead of with --arg.
+CONTROLLED_ARGUMENTS = {
+    "seed": "each run's seed (--seeds N runs seeds 0 to N-1)",
+    "duration_s": "the last snapshot time (100 s)",
+    "sigma_deg": "--sigma-deg",
+    "particles": "--particles",
+    "resolution_m": "--resolution-mm",
+    "publish_period_s": "derived from the snapshot times",
+}
+
 
 @dataclass(frozen=True, kw_only=True)
 class SlamEvalConfig(Validated):
@@ -85,6 +96,15 @@ class SlamEvalConfig(Validated):
     surface_spacing_m: PositiveFloat = 0.001
     #: Extra launch arguments of launch/slam_eval.yaml (name -> value).
     launch_args: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        controlled = sorted(set(self.launch_args) & set(CONTROLLED_ARGUMENTS))
+        if controlled:
+            raise ConfigError(
+                f"--arg {', '.join(controlled)}: the evaluation sets these launch arguments itself; "
+                + "; ".join(f"{k} is {CONTROLLED_ARGUMENTS[k]}" for k in controlled)
+            )
 
     @property
     def duration_s(self) -> float:

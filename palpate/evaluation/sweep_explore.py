@@ -32,6 +32,7 @@ from palpate.evaluation.explore import (
     add_scale_argument,
     episodes,
     parse_sets,
+    parse_strategies,
     report_stopped,
     run_episodes,
     select_cases,
@@ -183,7 +184,7 @@ def plot(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Run the sweep; write sweep.md, sweep.png and runs.jsonl into --out."""
-    strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
+    strategies = parse_strategies(args.strategies)
     wanted = {w.strip() for w in args.only.split(",") if w.strip()}
     settings = [s for s in SETTINGS if not wanted or s.name in wanted or s.knob in wanted or s.name == "default"]
     if not settings:

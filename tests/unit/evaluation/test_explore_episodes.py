@@ -14,8 +14,11 @@ from palpate.evaluation.explore import (
     ObjectCase,
     apply_params,
     approach,
+    check_episode,
     episodes,
+    objects_in,
     parse_sets,
+    parse_strategies,
     probe_quaternion,
     report_stopped,
     run_episode,
@@ -98,6 +101,25 @@ def test_parameter_overrides_are_checked() -> None:
     assert next(n for n in launch.nodes if n.fields["name"] == "controller").fields["params"]["controller"] == {
         "v0_m_s": 0.1
     }
+
+
+def test_strategies_and_overrides_are_checked_before_any_run() -> None:
+    assert parse_strategies(" igef, tour ") == ["igef", "tour"]
+    for text, error in ((",", "names no strategy"), ("igef,foo", "unknown strategy 'foo'"), ("gpv,gpv", "twice")):
+        with pytest.raises(ConfigError, match=error):
+            parse_strategies(text)
+    [episode] = episodes([ObjectCase(name="cube", kind="cube")], 1, ["igef"], params={"noise.position_sigma_m": -1})
+    with pytest.raises(LaunchError, match=r"node 'noise': params\.position_sigma_m: expected a finite number >= 0"):
+        check_episode(episode)
+    check_episode(episodes([ObjectCase(name="cube", kind="cube")], 1, ["tour"])[0])
+
+
+def test_two_meshes_of_one_name_are_refused(tmp_path: Path) -> None:
+    # runs, tables and a resumed log know an object by its file name without the extension
+    for suffix in (".stl", ".ply"):
+        trimesh.creation.box(extents=(0.05, 0.05, 0.05)).export(tmp_path / f"box{suffix}")
+    with pytest.raises(ConfigError, match=r"two meshes named 'box' \(box\.ply and box\.stl\)"):
+        objects_in(tmp_path)
 
 
 def test_a_budget_given_on_the_command_line_is_not_scaled_by_the_object() -> None:

@@ -131,6 +131,10 @@ def test_publish_period_lands_on_every_snapshot() -> None:
         SlamEvalConfig(seeds=())
     with pytest.raises(ConfigError):
         SlamEvalConfig(snapshot_s=(0.0,))
+    # --arg must not override what the evaluation sets itself (every seed would run as seed 0)
+    with pytest.raises(ConfigError, match=r"--arg seed: the evaluation sets these launch arguments itself"):
+        SlamEvalConfig(launch_args={"seed": 0})
+    assert SlamEvalConfig(launch_args={"free_reward": True}).arguments(1)["free_reward"] is True
 
 
 def test_box_truth_from_the_vertices_of_a_box_and_not_of_anything_else() -> None:

@@ -14,11 +14,13 @@ import trimesh
 from palpate.config import load
 from palpate.errors import ConfigError, MeshError, MeshWarning
 from palpate.geometry.mesh_query import ExactContactSensor
+from palpate.nodes.sim import objects
 from palpate.nodes.sim.decomposition import convex_decomposition
 from palpate.nodes.sim.objects import (
     RUBIKS_CUBE_EDGE_M,
     ObjectSpec,
     load_object,
+    mujoco_hull_mesh,
     sample_surface,
     sample_surface_faces,
 )
@@ -303,7 +305,7 @@ def test_non_watertight_mesh_warns_what_it_affects(tmp_path: Path) -> None:
     path = tmp_path / "open_box.stl"
     box = trimesh.creation.box(extents=[0.1, 0.1, 0.1])
     trimesh.Trimesh(box.vertices, box.faces[:-2]).export(path)  # drop the two triangles of one side
-    with pytest.warns(MeshWarning, match=r"open_box\.stl: mesh is not watertight \(4 open edges\)") as record:
+    with pytest.warns(MeshWarning, match=r"open_box\.stl: mesh is not watertight \(4 open edges, 0 edges on") as record:
         model = load_object(_mesh_spec(path))
     message = str(record[0].message)
     assert "signed distance" in message and "inside/outside" in message and "volume-based metrics" in message
@@ -317,6 +319,44 @@ def test_inward_wound_mesh_is_inverted_with_a_warning(tmp_path: Path) -> None:
     with pytest.warns(MeshWarning, match=r"inside_out\.stl: faces are wound inward"):
         model = load_object(_mesh_spec(path))
     assert model.mesh.volume > 0
+
+
+def test_duplicate_triangles_are_dropped_with_a_warning(tmp_path: Path) -> None:
+    # a repeated triangle would count twice in the area, the covering bound and the budgets
+    path = tmp_path / "twice.stl"
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.03)
+    trimesh.Trimesh(sphere.vertices, np.vstack([sphere.faces, sphere.faces[:10]]), process=False).export(path)
+    with pytest.warns(MeshWarning, match=r"twice\.stl: 10 triangles repeat others"):
+        model = load_object(_mesh_spec(path))
+    assert len(model.mesh.faces) == len(sphere.faces)
+    assert model.mesh.area == pytest.approx(sphere.area)
+    assert model.watertight
+
+
+def test_inconsistently_wound_faces_are_rewound_with_a_warning(tmp_path: Path) -> None:
+    # half the triangles clockwise: watertight, but the volume nearly cancels and normals point both ways
+    path = tmp_path / "mixed.stl"
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.03)
+    faces = sphere.faces.copy()
+    faces[::2] = faces[::2, ::-1]
+    trimesh.Trimesh(sphere.vertices, faces, process=False).export(path)
+    with pytest.warns(MeshWarning, match=r"mixed\.stl: faces are wound inconsistently"):
+        model = load_object(_mesh_spec(path))
+    assert model.mesh.is_winding_consistent
+    assert model.mesh.volume == pytest.approx(sphere.volume, rel=1e-6)  # STL holds float32
+
+
+def test_a_mesh_over_mujocos_stl_limit_gives_mujoco_its_convex_hull(monkeypatch: pytest.MonkeyPatch) -> None:
+    # MuJoCo reads at most 200,000 triangles from an STL file and collides a mesh geom as its hull
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.03)  # 1280 triangles
+    assert mujoco_hull_mesh(mesh) is mesh
+    monkeypatch.setattr(objects, "MUJOCO_MAX_STL_FACES", 1000)
+    hull = mujoco_hull_mesh(mesh)
+    assert len(hull.faces) <= 1000 and hull.is_convex
+    assert hull.volume == pytest.approx(mesh.volume, rel=0.05)  # every k-th hull vertex: a little inside
+    bowl = trimesh.creation.annulus(r_min=0.02, r_max=0.03, height=0.01, sections=400)  # not convex
+    monkeypatch.setattr(objects, "MUJOCO_MAX_STL_FACES", len(bowl.faces) - 1)
+    assert mujoco_hull_mesh(bowl).volume == pytest.approx(bowl.convex_hull.volume)
 
 
 def test_sampled_surface_points_are_on_the_surface() -> None:
