@@ -48,11 +48,12 @@ class TouchConfig(Validated):
     #: t_p when it reaches t_p + radius t_n.
     tip_radius_m: NonNegativeFloat = 0.008
     #: A contact counts as a new touch once the fingertip has left the last one, or (not in the paper)
-    #: once the contact point has slid this far from the last touch while the fingertip stayed in
-    #: contact, metres. Without it a curve that grazes the surface (retracting along a tangential v_n,
-    #: or bending around an edge) slides along the object for ever without a touch event: measured on
-    #: the YCB wood block. 3 mm is half the coverage radius, so such a touch still explores new surface.
-    #: 0 disables it.
+    #: once the fingertip has slid this far from where it made the last touch while it stayed in
+    #: contact, metres (measured on the fingertip's pose, not on the contact point: a noisy contact
+    #: reading jumps by more than this without any motion, and counted one press as several touches).
+    #: Without it a curve that grazes the surface (retracting along a tangential v_n, or bending around
+    #: an edge) slides along the object for ever without a touch event: measured on the YCB wood block.
+    #: 3 mm is half the coverage radius, so such a touch still explores new surface. 0 disables it.
     rearm_distance_m: NonNegativeFloat = 0.003
     #: ... or once the fingertip has pushed against the surface (normal force > 0) without interruption
     #: for this long, seconds (not in the paper): a curve blocked by the object (under the lip of a cup)
@@ -450,30 +451,31 @@ class TouchArming:
 
     Armed at first. A new target disarms it: the next curve starts at the contact the fingertip is in.
     It re-arms when a tick has no contact (the fingertip left the surface) or, after the first touch,
-    while the fingertip stays in contact: when the strongest contact point is more than
-    ``rearm_distance_m`` from the last touch, or when the strongest contact has pushed (force > 0)
-    without interruption for ``rearm_push_s`` (see TouchConfig).
+    while the fingertip stays in contact: when the fingertip is more than ``rearm_distance_m`` from
+    where it made the last touch, or when the strongest contact has pushed (force > 0) without
+    interruption for ``rearm_push_s`` (see TouchConfig).
     """
 
     def __init__(self, config: TouchConfig) -> None:
         self.config = config
         self.armed = True
         self.push_since_ns: int | None = None  # stamp since which the fingertip pushes without a touch
-        self.last_contact = np.zeros(3)  # position of the last touch (3,), metres
+        self.last_fingertip = np.zeros(3)  # fingertip position at the last touch (3,), metres
         self.touches = 0
 
     def disarm(self) -> None:
         """A new target: the contact the fingertip is in is the last touch, not a new one."""
         self.armed = False
 
-    def update(self, stamp_ns: int, positions_m: FloatArray, forces_n: FloatArray) -> bool:
-        """Fold in one tick's contacts (positions (n, 3) m, normal forces (n,) N); returns whether armed."""
+    def update(self, stamp_ns: int, fingertip_m: FloatArray, forces_n: FloatArray) -> bool:
+        """Fold in one tick: the fingertip position (3,) m and the normal forces (n,) N of its contacts;
+        returns whether armed."""
         cfg = self.config
         if len(forces_n) == 0:
             self.armed = True
         elif not self.armed and self.touches > 0:
             strongest = int(np.argmax(forces_n))
-            slid = positions_m[strongest] - self.last_contact
+            slid = fingertip_m - self.last_fingertip
             if cfg.rearm_distance_m > 0.0 and float(slid @ slid) > cfg.rearm_distance_m**2:
                 self.armed = True
             if forces_n[strongest] > 0.0:
@@ -486,9 +488,9 @@ class TouchArming:
             self.push_since_ns = None
         return self.armed
 
-    def touched(self, position_m: FloatArray) -> None:
-        """A touch at position_m (3,) m was announced."""
-        self.last_contact = position_m
+    def touched(self, fingertip_m: FloatArray) -> None:
+        """A touch was announced, made with the fingertip at fingertip_m (3,) m."""
+        self.last_fingertip = np.array(fingertip_m)
         self.touches += 1
 
 
@@ -590,7 +592,7 @@ class TouchLoop:
                 return ControlStep(np.zeros(3), np.zeros(3), None, failed=False)
             self.controller.initial_approach(r, self.initial_target_m)
             self.started = True
-        armed = self.arming.update(stamp_ns, positions_m, forces_n)
+        armed = self.arming.update(stamp_ns, r, forces_n)
         touch = None
         if self.controller.moving and len(forces_n) > 0 and armed:
             touch = self._touch(r, R, positions_m, normals, forces_n)  # Alg. 1 lines 6-10: stop until the next target
@@ -620,5 +622,5 @@ class TouchLoop:
             travelled_m=self.controller.travelled_m,
             rotation_deg=self.controller.rotation_deg,
         )
-        self.arming.touched(position)
+        self.arming.touched(r)
         return touch
