@@ -48,9 +48,10 @@ class TouchConfig(Validated):
     #: t_p when it reaches t_p + radius t_n.
     tip_radius_m: NonNegativeFloat = 0.008
     #: A contact counts as a new touch once the fingertip has left the last one, or (not in the paper)
-    #: once the fingertip has slid this far from where it made the last touch while it stayed in
-    #: contact, metres (measured on the fingertip's pose, not on the contact point: a noisy contact
-    #: reading jumps by more than this without any motion, and counted one press as several touches).
+    #: once it has slid this far from the last touch while it stayed in contact, metres: both the
+    #: fingertip (its pose) and the strongest contact point moved this far. The contact point alone
+    #: is not enough: a noisy reading jumps by more than this without any motion, and counted one press
+    #: as several touches; nor the fingertip alone, which rolls over an edge while the contact stays.
     #: Without it a curve that grazes the surface (retracting along a tangential v_n, or bending around
     #: an edge) slides along the object for ever without a touch event: measured on the YCB wood block.
     #: 3 mm is half the coverage radius, so such a touch still explores new surface. 0 disables it.
@@ -106,8 +107,10 @@ class ControllerConfig(Validated):
     return_after_recovery: bool = True
 
 
-#: The look-ahead of ``lookahead_one_step`` reaches at most this far on the curve parameter (its
-#: first-order length estimate fails where |T'| is small, at a sharp turn).
+#: The look-ahead of ``lookahead_one_step`` reaches at most this far on the curve parameter: its
+#: first-order length estimate fails where |T'| is small, at a sharp turn (the doubling of Delta tau
+#: then takes over), and on a curve shorter than about four control steps (2 mm) it then looks ahead
+#: less than one step.
 MAX_LOOKAHEAD_TAU = 0.25
 
 
@@ -367,9 +370,9 @@ class TrajectoryController:
         d_tau = cfg.d_tau
         if cfg.lookahead_one_step:  # at least the last step's length along the curve, to first order
             velocity = curve.derivative_xyz(self._tau)
-            reach = math.sqrt(dot3(velocity, velocity)) * MAX_LOOKAHEAD_TAU
-            if reach > 0.0:
-                d_tau = max(d_tau, MAX_LOOKAHEAD_TAU * min(1.0, self._last_step_m / reach))
+            speed = math.sqrt(dot3(velocity, velocity))  # |T'(tau)|, metres per unit of tau
+            if speed > 0.0:
+                d_tau = max(d_tau, min(MAX_LOOKAHEAD_TAU, self._last_step_m / speed))
         v_star = _minus(curve.point_xyz(self._tau + d_tau), xyz)
         # Not in the paper: where the curve bends sharply (|T'| small at the retract-then-approach turn)
         # T(tau + dtau) can lie closer than one control step; the fingertip then overshoots it, v*
@@ -446,20 +449,26 @@ class TrajectoryController:
         self._state = ControllerState.DIRECT
 
 
+def _distance(a: FloatArray, b: FloatArray) -> float:
+    d = a - b
+    return math.sqrt(float(d @ d))
+
+
 class TouchArming:
     """Whether a contact may count as a new touch (Alg. 1 line 6 with re-arming rules not in the paper).
 
     Armed at first. A new target disarms it: the next curve starts at the contact the fingertip is in.
     It re-arms when a tick has no contact (the fingertip left the surface) or, after the first touch,
-    while the fingertip stays in contact: when the fingertip is more than ``rearm_distance_m`` from
-    where it made the last touch, or when the strongest contact has pushed (force > 0) without
-    interruption for ``rearm_push_s`` (see TouchConfig).
+    while the fingertip stays in contact: when both the fingertip and the strongest contact point are
+    more than ``rearm_distance_m`` from where they were at the last touch, or when the strongest contact
+    has pushed (force > 0) without interruption for ``rearm_push_s`` (see TouchConfig).
     """
 
     def __init__(self, config: TouchConfig) -> None:
         self.config = config
         self.armed = True
         self.push_since_ns: int | None = None  # stamp since which the fingertip pushes without a touch
+        self.last_contact = np.zeros(3)  # position of the last touch (3,), metres
         self.last_fingertip = np.zeros(3)  # fingertip position at the last touch (3,), metres
         self.touches = 0
 
@@ -467,16 +476,18 @@ class TouchArming:
         """A new target: the contact the fingertip is in is the last touch, not a new one."""
         self.armed = False
 
-    def update(self, stamp_ns: int, fingertip_m: FloatArray, forces_n: FloatArray) -> bool:
-        """Fold in one tick: the fingertip position (3,) m and the normal forces (n,) N of its contacts;
-        returns whether armed."""
+    def update(self, stamp_ns: int, fingertip_m: FloatArray, positions_m: FloatArray, forces_n: FloatArray) -> bool:
+        """Fold in one tick: the fingertip position (3,) m and its contacts (positions (n, 3) m, normal
+        forces (n,) N); returns whether armed."""
         cfg = self.config
         if len(forces_n) == 0:
             self.armed = True
         elif not self.armed and self.touches > 0:
             strongest = int(np.argmax(forces_n))
-            slid = fingertip_m - self.last_fingertip
-            if cfg.rearm_distance_m > 0.0 and float(slid @ slid) > cfg.rearm_distance_m**2:
+            slid = min(
+                _distance(fingertip_m, self.last_fingertip), _distance(positions_m[strongest], self.last_contact)
+            )
+            if cfg.rearm_distance_m > 0.0 and slid > cfg.rearm_distance_m:
                 self.armed = True
             if forces_n[strongest] > 0.0:
                 self.push_since_ns = stamp_ns if self.push_since_ns is None else self.push_since_ns
@@ -488,8 +499,9 @@ class TouchArming:
             self.push_since_ns = None
         return self.armed
 
-    def touched(self, fingertip_m: FloatArray) -> None:
-        """A touch was announced, made with the fingertip at fingertip_m (3,) m."""
+    def touched(self, position_m: FloatArray, fingertip_m: FloatArray) -> None:
+        """A touch at position_m (3,) m was announced, made with the fingertip at fingertip_m (3,) m."""
+        self.last_contact = np.array(position_m)
         self.last_fingertip = np.array(fingertip_m)
         self.touches += 1
 
@@ -592,7 +604,7 @@ class TouchLoop:
                 return ControlStep(np.zeros(3), np.zeros(3), None, failed=False)
             self.controller.initial_approach(r, self.initial_target_m)
             self.started = True
-        armed = self.arming.update(stamp_ns, r, forces_n)
+        armed = self.arming.update(stamp_ns, r, positions_m, forces_n)
         touch = None
         if self.controller.moving and len(forces_n) > 0 and armed:
             touch = self._touch(r, R, positions_m, normals, forces_n)  # Alg. 1 lines 6-10: stop until the next target
@@ -622,5 +634,5 @@ class TouchLoop:
             travelled_m=self.controller.travelled_m,
             rotation_deg=self.controller.rotation_deg,
         )
-        self.arming.touched(r)
+        self.arming.touched(position, r)
         return touch

@@ -167,11 +167,13 @@ class RunControl:
 
     A touch that reaches milestones, finishes the run (goal or budget) or is a shape checkpoint (every
     EvalConfig.shape_every_contacts) asks for the surface. The surfaces answer the requests in order
-    (the estimator answers each once, first come first served): each gets its shape scores at the
-    touch count of its request, scores the milestones of that request and, when it answers the
-    finishing touch's request, ends the run; a surface that answers no request is ignored. So a
-    surface that comes late (a slow estimator, off lockstep) is neither scored as a later one nor
-    ends the run early. A run with no touch for EvalConfig.max_idle_s of simulated time finishes as
+    (the estimator answers each once, first come first served), and a surface also answers the later
+    requests that its contact count covers, so that a request never answered does not hold up the
+    rest (see ``surface``): it gets its shape scores at the touch count of the newest request it
+    answers, scores their milestones and, when it answers the finishing touch's request, ends the run;
+    a surface that answers no request is ignored. So a surface that comes late (a slow estimator,
+    off lockstep) is neither scored as a later one nor ends the run early; off lockstep it may also
+    hold touches made after its request. A run with no touch for EvalConfig.max_idle_s of simulated time finishes as
     "stalled" (its last surface is scored the same way). A run whose last surface does not come
     within EvalConfig.surface_wait_s is ``overdue``: it ends without it.
     """
@@ -223,20 +225,29 @@ class RunControl:
         the whole object costs the GPIS node more than its mesh."""
         return bool(self.asks and self.asks[-1].milestones)
 
-    def surface(self, vertices_m: np.ndarray, faces: np.ndarray, vertex_variance: np.ndarray) -> bool:
-        """A whole-object estimate arrived (vertices (v, 3) m, faces (f, 3), GP variance (v,) m^2): it
-        answers the oldest request, whose shape scores and milestones it gets. True when the run is
-        over (it answers the run's last request)."""
+    def surface(
+        self, vertices_m: np.ndarray, faces: np.ndarray, vertex_variance: np.ndarray, num_contacts: int | None = None
+    ) -> bool:
+        """A whole-object estimate of ``num_contacts`` contacts arrived (vertices (v, 3) m, faces (f, 3), GP
+        variance (v,) m^2): it answers the oldest open request and every later one that its contacts
+        cover (a request whose answer never came: the estimator refused it, or a reply was lost), and
+        gets the shape scores at the newest of them and their milestones. True when the run is over (it
+        answers the run's last request). An estimator that holds fewer contacts than touches (it refused
+        some) is answered in order."""
         if not self.asks:
             return False
-        ask = self.asks.popleft()
-        shape = self.evaluator.shape(vertices_m, faces, ask.contacts)
-        if ask.milestones:
+        answered = [self.asks.popleft()]
+        while self.asks and num_contacts is not None and self.asks[0].contacts <= num_contacts:
+            answered.append(self.asks.popleft())
+        newest = answered[-1]
+        shape = self.evaluator.shape(vertices_m, faces, newest.contacts)
+        milestones = [fraction for ask in answered for fraction in ask.milestones]
+        if milestones:
             rmse = self.evaluator.rmse(vertices_m, faces, vertex_variance)
-            for fraction in ask.milestones:
+            for fraction in milestones:
                 self.evaluator.set_rmse(fraction, rmse, shape)
-        self.final_received = ask.final
-        return ask.final
+        self.final_received = newest.final
+        return newest.final
 
     def tick(self, stamp_ns: int) -> bool:
         """Watchdog: True (once) when the run has made no touch for max_idle_s and has just finished as

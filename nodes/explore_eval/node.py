@@ -93,7 +93,7 @@ class ExploreEvalNode:
         self.last_variance = per_vertex(
             message.vertex_variance, message.variance_vertices, count, "variance_vertices", np.inf
         )
-        if self.run.surface(*self.last_estimate, self.last_variance):
+        if self.run.surface(*self.last_estimate, self.last_variance, message.num_contacts):
             self.ctx.request_stop(f"{FINISHED_PREFIX}: {self.run.evaluator.finished}")
 
     def on_tick(self, stamp_ns: int) -> None:

@@ -253,9 +253,11 @@ MUJOCO_MAX_STL_FACES = 200_000
 
 def mujoco_hull_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """The mesh MuJoCo gets for the ``hull`` collision: ``mesh`` itself, or, beyond MuJoCo's STL limit
-    (a dense scan), its convex hull, which is what MuJoCo collides a mesh geom as anyway (a hull still
-    over the limit is taken over every k-th of its vertices). The contacts of the probe and of a hand on
-    a non-convex object come from the full mesh (``ExactContactSensor``), whatever MuJoCo holds."""
+    (a dense scan), its convex hull, which is what MuJoCo collides a mesh geom as anyway. A hull still
+    over the limit (a densely sampled round object) is taken over every k-th of its vertices, so it
+    lies slightly inside the object: a hand's MuJoCo contacts on such a convex object are then off by
+    that much. The contacts of the probe and of a hand on a non-convex object come from the full mesh
+    (``ExactContactSensor``), whatever MuJoCo holds."""
     if len(mesh.faces) <= MUJOCO_MAX_STL_FACES:
         return mesh
     hull = mesh.convex_hull
@@ -303,8 +305,9 @@ def _safe_name(name: str) -> str:
 def load_object(spec: ObjectSpec) -> ObjectModel:
     """Generate or read the object's surface and pose it in the world frame.
 
-    Raises MeshError (file missing or unreadable, not a mesh, degenerate, absurd scale); warns with
-    MeshWarning when a mesh is not watertight.
+    Raises MeshError (file missing or unreadable, not a mesh, degenerate, absurd scale, not orientable);
+    warns with MeshWarning when it drops repeated triangles, re-winds faces (inconsistent or inward)
+    or finds the mesh not watertight.
     """
     if spec.kind == "mesh":
         assert spec.path is not None  # guaranteed by ObjectSpec validation
@@ -419,7 +422,8 @@ def read_mesh_file(path: Path, scale: float = 1.0) -> trimesh.Trimesh:
     unique = mesh.unique_faces()
     if not unique.all():
         warnings.warn(
-            f"{path}: {int((~unique).sum())} triangles repeat others (the same three vertices); dropped them, "
+            f"{path}: {int((~unique).sum())} triangles repeat others (the same three vertices, in either "
+            "winding); dropped them, "
             "so that they do not count twice in the object's area and coverage. Re-export the mesh without "
             "duplicate faces to silence this warning.",
             MeshWarning,
@@ -437,24 +441,8 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
         raise MeshError(
             f"{path}: degenerate mesh: all triangles have zero area (no faces left); export the object's closed surface"
         )
-    if mesh.is_watertight and not mesh.is_winding_consistent:
-        trimesh.repair.fix_winding(mesh)
-        warnings.warn(
-            f"{path}: faces are wound inconsistently (some clockwise, some counter-clockwise seen from "
-            "outside); re-wound them consistently, so that normals, volume and inside/outside tests hold. "
-            "Re-export the mesh with consistent winding to silence this warning.",
-            MeshWarning,
-            stacklevel=3,
-        )
     extents = np.asarray(mesh.extents, dtype=np.float64)
     size = float(extents.max())
-    volume = float(mesh.volume) if mesh.is_watertight else 0.0
-    flat = float(extents.min()) <= 1e-9 * size
-    if flat or (mesh.is_watertight and abs(volume) <= 1e-6 * float(np.prod(extents))):
-        raise MeshError(
-            f"{path}: degenerate mesh: zero volume (bounding box {_mm(extents)} mm, volume {volume:.3g} m^3); "
-            "the surface is flat or collapsed, export the object's closed 3-D surface"
-        )
     if size > MAX_EXTENT_M or size < MIN_EXTENT_M:
         limit = "over 2 m" if size > MAX_EXTENT_M else "under 2 mm"
         fix = np.format_float_positional(scale * (0.001 if size > MAX_EXTENT_M else 1000.0), trim="-")
@@ -463,6 +451,15 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
             f"millimetres given as metres or the reverse? Give it a scale of {fix}: object.scale in a "
             f"scene, scale:={fix} for launch/explore.yaml and launch/probe.yaml, --scale {fix} for "
             "palpate eval explore and sweep explore (or convert the file to metres)"
+        )
+    if mesh.is_watertight and not mesh.is_winding_consistent:
+        _rewind(mesh, path)
+    volume = float(mesh.volume) if mesh.is_watertight else 0.0
+    flat = float(extents.min()) <= 1e-9 * size
+    if flat or (mesh.is_watertight and abs(volume) <= 1e-6 * float(np.prod(extents))):
+        raise MeshError(
+            f"{path}: degenerate mesh: zero volume (bounding box {_mm(extents)} mm, volume {volume:.3g} m^3); "
+            "the surface is flat or collapsed, export the object's closed 3-D surface"
         )
     if mesh.is_watertight and volume < 0:
         warnings.warn(
@@ -481,6 +478,24 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
             MeshWarning,
             stacklevel=3,
         )
+
+
+def _rewind(mesh: trimesh.Trimesh, path: Path) -> None:
+    """Wind a closed mesh's faces consistently and outward, body by body, with a warning; MeshError when
+    no consistent winding exists (a non-orientable surface)."""
+    trimesh.repair.fix_normals(mesh, multibody=True)
+    if not mesh.is_winding_consistent:
+        raise MeshError(
+            f"{path}: faces are wound inconsistently and no consistent winding exists (a non-orientable "
+            "surface); export the object's closed, orientable surface"
+        )
+    warnings.warn(
+        f"{path}: faces are wound inconsistently (some clockwise, some counter-clockwise seen from outside); "
+        "re-wound each body's faces consistently and outward, so that normals, volume and inside/outside "
+        "tests hold. Re-export the mesh with consistent winding to silence this warning.",
+        MeshWarning,
+        stacklevel=4,
+    )
 
 
 def _edge_defects(mesh: trimesh.Trimesh) -> str:

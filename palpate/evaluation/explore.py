@@ -23,11 +23,12 @@ import argparse
 import json
 import math
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import numpy as np
 from numpy.typing import NDArray
@@ -297,13 +298,10 @@ def apply_params(launch: Any, params: Iterable[tuple[str, Any]]) -> None:
 def run_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> dict[str, Any]:
     """Run one episode in this process; returns the evaluator's summary plus timing and identity."""
     from palpate.launch.graph import resolve
-    from palpate.launch.loader import load_launch
     from palpate.runtime.inprocess import InProcessGraph
 
     t0, c0 = time.perf_counter(), time.process_time()
-    launch = load_launch(launch_path, episode.launch_args())
-    apply_params(launch, episode.params)
-    graph = InProcessGraph(resolve(launch).in_process_members())
+    graph = InProcessGraph(resolve(episode_launch(episode, launch_path)).in_process_members())
     plan_s = _time_planning(graph)
     t1 = time.perf_counter()
     ticks = graph.run()
@@ -539,8 +537,6 @@ def strategies_of(args: argparse.Namespace) -> list[str]:
 def parse_strategies(text: str) -> list[str]:
     """The comma-separated strategies of ``--strategies``; ConfigError for none, an unknown one or a
     repeat, before any run starts."""
-    from typing import get_args
-
     from palpate.nodes.planner.core import Strategy
 
     known = get_args(Strategy)
@@ -555,18 +551,27 @@ def parse_strategies(text: str) -> list[str]:
     return strategies
 
 
-def check_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> None:
-    """Validate an episode's launch file with its parameter overrides (``--set``) here, before any worker
-    starts: a misspelt key or a bad value then fails once, naming it, instead of in every run."""
-    import tempfile
-
+def check_episodes(items: Sequence[Episode], launch_path: Path = EXPLORE_LAUNCH) -> None:
+    """Validate the launch file with the parameter overrides (``--set``) of each strategy's first episode
+    here, before any worker starts: a misspelt key or a bad value then fails once, naming it, instead
+    of in every run. (Only the object and start differ between a strategy's episodes.)"""
     from palpate.launch.graph import resolve
+
+    first: dict[str, Episode] = {}
+    for episode in items:
+        first.setdefault(episode.strategy, episode)
+    with tempfile.TemporaryDirectory() as bus_dir:
+        for episode in first.values():
+            resolve(episode_launch(episode, launch_path), bus_dir=Path(bus_dir))
+
+
+def episode_launch(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> Any:
+    """The episode's launch file, loaded with its arguments and parameter overrides (not yet resolved)."""
     from palpate.launch.loader import load_launch
 
     launch = load_launch(launch_path, episode.launch_args())
     apply_params(launch, episode.params)
-    with tempfile.TemporaryDirectory() as bus_dir:
-        resolve(launch, bus_dir=Path(bus_dir))
+    return launch
 
 
 def main(args: argparse.Namespace) -> int:
@@ -593,9 +598,7 @@ def main(args: argparse.Namespace) -> int:
         chosen = select_cases(args.objects, QUICK_OBJECTS if args.quick else None, args.scale)
         cases = [c.name for c in chosen]
         items = episodes(chosen, runs, strategies, params=eval_params(args))
-        first = {ep.strategy: ep for ep in reversed(items)}  # each strategy's first episode
-        for episode in first.values():
-            check_episode(episode)
+        check_episodes(items)
         with RunLog(out / "runs.jsonl", resume=args.resume) as log:
             rows, outcome = run_episodes(items, log, cluster_config(args))
         results = [r for r in rows if r is not None]

@@ -66,11 +66,11 @@ MAP_TOPICS = {"map/known": "known", "map/fastslam": "fastslam", "map/dead_reckon
 MAPPER_NODES = {"known": "mapper_known", "fastslam": "mapper_fastslam", "dead_reckoning": "mapper_dead_reckoning"}
 DEFAULT_OUT = Path("out") / "slam"
 
-#: The launch arguments of slam_eval.yaml that the evaluation sets itself (SlamEvalConfig.arguments), and
-#: how to set each instead of with --arg.
-CONTROLLED_ARGUMENTS = {
+#: How to set each launch argument of slam_eval.yaml that the evaluation sets itself
+#: (SlamEvalConfig.own_arguments; a test checks that the keys agree) instead of with --arg.
+OWN_ARGUMENT_HINTS = {
     "seed": "each run's seed (--seeds N runs seeds 0 to N-1)",
-    "duration_s": "the last snapshot time (100 s)",
+    "duration_s": "the last snapshot time",
     "sigma_deg": "--sigma-deg",
     "particles": "--particles",
     "resolution_m": "--resolution-mm",
@@ -99,11 +99,11 @@ class SlamEvalConfig(Validated):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        controlled = sorted(set(self.launch_args) & set(CONTROLLED_ARGUMENTS))
-        if controlled:
+        own = sorted(set(self.launch_args) & set(self.own_arguments(0)))
+        if own:
             raise ConfigError(
-                f"--arg {', '.join(controlled)}: the evaluation sets these launch arguments itself; "
-                + "; ".join(f"{k} is {CONTROLLED_ARGUMENTS[k]}" for k in controlled)
+                f"launch_args (--arg) {', '.join(own)}: the evaluation sets these launch arguments itself; "
+                + "; ".join(f"{k} is {OWN_ARGUMENT_HINTS.get(k, 'set by the evaluation')}" for k in own)
             )
 
     @property
@@ -115,9 +115,9 @@ class SlamEvalConfig(Validated):
         ticks = [round(t * 100) for t in self.snapshot_s]
         return math.gcd(*ticks) / 100.0
 
-    def arguments(self, seed: int) -> dict[str, Any]:
-        """Launch arguments of slam_eval.yaml for one seed."""
-        args: dict[str, Any] = {
+    def own_arguments(self, seed: int) -> dict[str, Any]:
+        """The launch arguments of slam_eval.yaml that the evaluation sets itself, for one seed."""
+        return {
             "seed": seed,
             "duration_s": self.duration_s,
             "sigma_deg": self.sigma_deg,
@@ -125,8 +125,10 @@ class SlamEvalConfig(Validated):
             "resolution_m": self.resolution_m,
             "publish_period_s": self.publish_period_s(),
         }
-        args.update(self.launch_args)
-        return args
+
+    def arguments(self, seed: int) -> dict[str, Any]:
+        """Launch arguments of slam_eval.yaml for one seed: the evaluation's own and ``launch_args``."""
+        return {**self.own_arguments(seed), **self.launch_args}
 
 
 # --- ground truth ------------------------------------------------------------------------------------

@@ -30,6 +30,7 @@ from palpate.evaluation.dask_runs import config_from_args as cluster_config
 from palpate.evaluation.explore import (
     Episode,
     add_scale_argument,
+    check_episodes,
     episodes,
     parse_sets,
     parse_strategies,
@@ -194,6 +195,8 @@ def main(args: argparse.Namespace) -> int:
     common = {"eval.report": False, **parse_sets(args.set)}
     base = episodes(cases, runs, strategies)
     pairs = sweep_episodes(base, settings, common)
+    for setting in settings:  # each setting's overrides, before any worker starts
+        check_episodes([ep for s, ep in pairs if s is setting])
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()

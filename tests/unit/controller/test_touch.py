@@ -31,39 +31,60 @@ def contact(at: list[float] | np.ndarray, force_n: float = 1.0, normal: np.ndarr
 # --- TouchArming ------------------------------------------------------------------------------------
 
 
+FORCE = np.array([1.0])  # one contact pushing
+TIP_M = 0.008  # the fingertip's centre lies this far above a contact on a z-up surface
+
+
+def slid(x: float, y: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fingertip and its contact, slid together to (x, y) on the plane z = 0: fingertip (3,),
+    contact positions (1, 3), forces (1,)."""
+    return np.array([x, y, TIP_M]), np.array([[x, y, 0.0]]), FORCE
+
+
 def touched_arming(config: TouchConfig) -> TouchArming:
-    """An arming that has announced a touch with the fingertip at the origin and then got a new target."""
+    """An arming that has announced a touch at the origin and then got a new target."""
     arming = TouchArming(config)
-    assert arming.update(0, np.zeros(3), FORCE)
-    arming.touched(np.zeros(3))
+    assert arming.update(0, *slid(0.0))
+    arming.touched(np.zeros(3), np.array([0.0, 0.0, TIP_M]))
     arming.disarm()
     return arming
-
-
-FORCE = np.array([1.0])  # one contact pushing
 
 
 def test_armed_at_first_disarmed_by_a_target_and_rearmed_when_the_contact_is_lost() -> None:
     arming = TouchArming(TouchConfig())
     assert arming.armed
     arming.disarm()
-    assert not arming.update(0, np.zeros(3), FORCE)
-    assert arming.update(TICK_NS, np.zeros(3), NONE[2])  # the fingertip left the surface
+    assert not arming.update(0, *slid(0.0))
+    assert arming.update(TICK_NS, np.zeros(3), NONE[0], NONE[2])  # the fingertip left the surface
 
 
 def test_staying_in_contact_never_rearms_before_the_first_touch() -> None:
     arming = TouchArming(TouchConfig())
     arming.disarm()
     for tick in range(100):  # slid 10 cm, pushed for 1 s
-        assert not arming.update(tick * TICK_NS, np.array([0.001 * tick, 0.0, 0.0]), FORCE)
+        assert not arming.update(tick * TICK_NS, *slid(0.001 * tick))
 
 
 def test_sliding_beyond_rearm_distance_rearms() -> None:
     arming = touched_arming(TouchConfig(rearm_distance_m=0.003, rearm_push_s=0.0))
-    assert not arming.update(TICK_NS, np.array([0.0029, 0.0, 0.0]), FORCE)
-    assert arming.update(2 * TICK_NS, np.array([0.0, 0.0031, 0.0]), FORCE)
+    assert not arming.update(TICK_NS, *slid(0.0029))
+    assert arming.update(2 * TICK_NS, *slid(0.0, 0.0031))
     off = touched_arming(TouchConfig(rearm_distance_m=0.0, rearm_push_s=0.0))
-    assert not off.update(TICK_NS, np.array([0.05, 0.0, 0.0]), FORCE)  # 0 disables it
+    assert not off.update(TICK_NS, *slid(0.05))  # 0 disables it
+
+
+def test_the_fingertip_rolling_over_an_edge_does_not_rearm() -> None:
+    # the contact stays on the edge at the origin while the fingertip's centre turns about it by 60 deg
+    arming = touched_arming(TouchConfig(rearm_distance_m=0.003, rearm_push_s=0.0))
+    rolled = TIP_M * np.array([np.sin(np.pi / 3), 0.0, np.cos(np.pi / 3)])
+    assert not arming.update(TICK_NS, rolled, np.zeros((1, 3)), FORCE)
+
+
+def test_the_strongest_contact_decides_the_slide() -> None:
+    arming = touched_arming(TouchConfig(rearm_distance_m=0.003, rearm_push_s=0.0))
+    tip, positions = np.array([0.01, 0.0, TIP_M]), np.array([[0.01, 0.0, 0.0], [0.001, 0.0, 0.0]])
+    assert not arming.update(TICK_NS, tip, positions, np.array([0.5, 2.0]))
+    assert arming.update(2 * TICK_NS, tip, positions, np.array([2.0, 0.5]))
 
 
 def test_a_contact_reading_that_jumps_while_the_fingertip_stays_does_not_rearm() -> None:
@@ -80,10 +101,10 @@ def test_a_contact_reading_that_jumps_while_the_fingertip_stays_does_not_rearm()
 
 def test_pushing_without_interruption_for_rearm_push_s_rearms() -> None:
     arming = touched_arming(TouchConfig(rearm_distance_m=0.0, rearm_push_s=0.1))
-    push = contact([0.0, 0.0, 0.0])[::2]
+    push = slid(0.0)
     assert not arming.update(1 * TICK_NS, *push)  # the push starts here
     assert not arming.update(10 * TICK_NS, *push)  # 0.09 s
-    assert not arming.update(11 * TICK_NS, push[0], np.array([0.0]))  # an interruption: the clock restarts
+    assert not arming.update(11 * TICK_NS, *push[:2], np.array([0.0]))  # an interruption: the clock restarts
     assert not arming.update(12 * TICK_NS, *push)
     assert not arming.update(21 * TICK_NS, *push)  # 0.09 s since the restart
     assert arming.update(22 * TICK_NS, *push)  # 0.1 s

@@ -14,7 +14,7 @@ from palpate.evaluation.explore import (
     ObjectCase,
     apply_params,
     approach,
-    check_episode,
+    check_episodes,
     episodes,
     objects_in,
     parse_sets,
@@ -110,8 +110,8 @@ def test_strategies_and_overrides_are_checked_before_any_run() -> None:
             parse_strategies(text)
     [episode] = episodes([ObjectCase(name="cube", kind="cube")], 1, ["igef"], params={"noise.position_sigma_m": -1})
     with pytest.raises(LaunchError, match=r"node 'noise': params\.position_sigma_m: expected a finite number >= 0"):
-        check_episode(episode)
-    check_episode(episodes([ObjectCase(name="cube", kind="cube")], 1, ["tour"])[0])
+        check_episodes([episode])
+    check_episodes(episodes([ObjectCase(name="cube", kind="cube")], 1, ["igef", "tour"]))
 
 
 def test_two_meshes_of_one_name_are_refused(tmp_path: Path) -> None:

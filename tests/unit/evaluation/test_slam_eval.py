@@ -11,6 +11,7 @@ import pytest
 from palpate.errors import ConfigError, LaunchError
 from palpate.evaluation.slam import (
     METHODS,
+    OWN_ARGUMENT_HINTS,
     BoxTruth,
     Capture,
     SlamEvalConfig,
@@ -132,8 +133,9 @@ def test_publish_period_lands_on_every_snapshot() -> None:
     with pytest.raises(ConfigError):
         SlamEvalConfig(snapshot_s=(0.0,))
     # --arg must not override what the evaluation sets itself (every seed would run as seed 0)
-    with pytest.raises(ConfigError, match=r"--arg seed: the evaluation sets these launch arguments itself"):
+    with pytest.raises(ConfigError, match=r"\(--arg\) seed: the evaluation sets these launch arguments itself"):
         SlamEvalConfig(launch_args={"seed": 0})
+    assert set(OWN_ARGUMENT_HINTS) == set(SlamEvalConfig().own_arguments(0))
     assert SlamEvalConfig(launch_args={"free_reward": True}).arguments(1)["free_reward"] is True
 
 

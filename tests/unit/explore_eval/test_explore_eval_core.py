@@ -90,3 +90,14 @@ def test_shape_scores_of_the_estimate_join_the_series_and_the_milestone() -> Non
     ev.set_rmse(0.5, ev.rmse(V, F, np.zeros(len(V))), shifted)
     assert ev.milestones[0.5].fscore_2mm == shifted.fscore_2mm
     assert ev.summary()["shape"][0]["fscore_2mm"] == shifted.fscore_2mm
+
+
+def test_shape_scores_of_an_earlier_request_are_labelled_with_its_touch() -> None:
+    # a surface answering the request of touch 1 that comes after touch 2: its point says touch 1
+    V, F = _cube(0.05)
+    ev = ExplorationEvaluator(V, F, EvalConfig(coverage_samples=1000, shape_samples=500))
+    for k, x in enumerate((0.025, -0.025)):
+        ev.add_touch(np.array([x, 0.0, 0.0]), np.full(3, np.nan), 0.1 * (k + 1), 0.0, np.array([-1.0, 0.0, 0.0]))
+    early = ev.shape(V, F, contacts=1)
+    assert early.contacts == 1 and early.travel_cm == 10.0 and early.coverage == ev.touches[0].coverage
+    assert ev.touches[0].coverage < ev.touches[1].coverage

@@ -107,6 +107,22 @@ def test_surfaces_answer_the_requests_in_order_so_a_late_one_is_not_the_last() -
     assert not run.overdue(1000 * S_NS)
 
 
+def test_a_request_never_answered_does_not_hold_up_the_later_ones() -> None:
+    """The estimator refused the checkpoint's request: the surface after the finishing touch covers its
+    contacts and answers both, ending the run with the milestones scored."""
+    ev = FakeEvaluator([([], ""), ([0.5, 0.8], "goal")], EvalConfig(shape_every_contacts=1))
+    run = RunControl(ev)  # type: ignore[arg-type]
+    assert touch(run, 1 * S_NS) and touch(run, 2 * S_NS)
+    assert run.surface(*surface(8), num_contacts=2)
+    assert ev.shapes == [2] and ev.scored == [(0.5, ("scores of", 8)), (0.8, ("scores of", 8))]
+    # an estimator that holds fewer contacts than touches (it refused one) is answered in order
+    ev = FakeEvaluator([([], ""), ([0.8], "goal")], EvalConfig(shape_every_contacts=1))
+    run = RunControl(ev)  # type: ignore[arg-type]
+    assert touch(run, 1 * S_NS) and touch(run, 2 * S_NS)
+    assert not run.surface(*surface(3), num_contacts=0) and ev.shapes == [1]
+    assert run.surface(*surface(4), num_contacts=1) and ev.shapes == [1, 2]
+
+
 def test_a_run_without_a_touch_for_max_idle_s_finishes_as_stalled() -> None:
     ev = FakeEvaluator([([], "")], EvalConfig(max_idle_s=30.0))
     run = RunControl(ev)  # type: ignore[arg-type]

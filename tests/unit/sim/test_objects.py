@@ -344,6 +344,16 @@ def test_inconsistently_wound_faces_are_rewound_with_a_warning(tmp_path: Path) -
         model = load_object(_mesh_spec(path))
     assert model.mesh.is_winding_consistent
     assert model.mesh.volume == pytest.approx(sphere.volume, rel=1e-6)  # STL holds float32
+    # two bodies, each mixed: each is wound outward on its own (one winding for all would turn one inward)
+    other = sphere.copy()
+    other.apply_translation([0.1, 0.0, 0.0])
+    both = trimesh.util.concatenate([sphere, other])
+    faces = both.faces.copy()
+    faces[::3] = faces[::3, ::-1]
+    trimesh.Trimesh(both.vertices, faces, process=False).export(path)
+    with pytest.warns(MeshWarning, match=r"wound inconsistently"):
+        mesh = load_object(_mesh_spec(path)).mesh
+    assert [part.volume for part in mesh.split(only_watertight=True)] == pytest.approx([sphere.volume] * 2, rel=1e-6)
 
 
 def test_a_mesh_over_mujocos_stl_limit_gives_mujoco_its_convex_hull(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -354,9 +364,19 @@ def test_a_mesh_over_mujocos_stl_limit_gives_mujoco_its_convex_hull(monkeypatch:
     hull = mujoco_hull_mesh(mesh)
     assert len(hull.faces) <= 1000 and hull.is_convex
     assert hull.volume == pytest.approx(mesh.volume, rel=0.05)  # every k-th hull vertex: a little inside
-    bowl = trimesh.creation.annulus(r_min=0.02, r_max=0.03, height=0.01, sections=400)  # not convex
-    monkeypatch.setattr(objects, "MUJOCO_MAX_STL_FACES", len(bowl.faces) - 1)
-    assert mujoco_hull_mesh(bowl).volume == pytest.approx(bowl.convex_hull.volume)
+    ring = trimesh.creation.annulus(r_min=0.02, r_max=0.03, height=0.01, sections=400)  # not convex
+    monkeypatch.setattr(objects, "MUJOCO_MAX_STL_FACES", len(ring.faces) - 1)
+    assert mujoco_hull_mesh(ring).volume == pytest.approx(ring.convex_hull.volume)
+
+
+def test_two_boxes_sharing_an_edge_are_not_watertight_for_that_edge(tmp_path: Path) -> None:
+    path = tmp_path / "edge.stl"
+    first = trimesh.creation.box(extents=(0.04, 0.04, 0.04))
+    second = first.copy()
+    second.apply_translation([0.04, 0.04, 0.0])  # touches the first along one vertical edge
+    trimesh.util.concatenate([first, second]).export(path)
+    with pytest.warns(MeshWarning, match=r"not watertight \(0 open edges, \d+ edges on more than two triangles\)"):
+        load_object(_mesh_spec(path))
 
 
 def test_sampled_surface_points_are_on_the_surface() -> None:
