@@ -173,9 +173,9 @@ class RunControl:
     answers, scores their milestones and, when it answers the finishing touch's request, ends the run;
     a surface that answers no request is ignored. So a surface that comes late (a slow estimator,
     off lockstep) is neither scored as a later one nor ends the run early; off lockstep it may also
-    hold touches made after its request. A run with no touch for EvalConfig.max_idle_s of simulated time finishes as
-    "stalled" (its last surface is scored the same way). A run whose last surface does not come
-    within EvalConfig.surface_wait_s is ``overdue``: it ends without it.
+    hold touches made after its request. A run with no touch for EvalConfig.max_idle_s of simulated
+    time finishes as "stalled" (its last surface is scored the same way). A run whose last surface
+    does not come within EvalConfig.surface_wait_s is ``overdue``: it ends without it.
     """
 
     def __init__(self, evaluator: ExplorationEvaluator) -> None:

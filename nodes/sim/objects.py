@@ -423,9 +423,8 @@ def read_mesh_file(path: Path, scale: float = 1.0) -> trimesh.Trimesh:
     if not unique.all():
         warnings.warn(
             f"{path}: {int((~unique).sum())} triangles repeat others (the same three vertices, in either "
-            "winding); dropped them, "
-            "so that they do not count twice in the object's area and coverage. Re-export the mesh without "
-            "duplicate faces to silence this warning.",
+            "winding); dropped them, so that they do not count twice in the object's area and coverage. "
+            "Re-export the mesh without duplicate faces to silence this warning.",
             MeshWarning,
             stacklevel=2,
         )
