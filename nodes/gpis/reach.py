@@ -21,7 +21,7 @@ from palpate.errors import EstimationError
 from palpate.inputs import coordinates
 from palpate.nodes.gpis.core import SurfaceEstimator
 from palpate.nodes.gpis.local import make_estimator
-from palpate.nodes.gpis.surface import grid_reach
+from palpate.nodes.gpis.surface import grid_reach, whole_box
 
 #: R_m after growing is at least this many times the distance that did not fit.
 HEADROOM = 1.25
@@ -39,9 +39,8 @@ def touch_reach(gp: SurfaceEstimator, position_m: ArrayLike, half_extent_m: floa
         return 0.0
     P = gp.positions_m
     local = grid_reach(P, p, half_extent_m)
-    lower, upper = np.minimum(P.min(axis=0), p), np.maximum(P.max(axis=0), p)
-    whole = float(np.linalg.norm(upper - lower + 2.0 * margin_m))
-    return max(local, whole)
+    lower, upper = whole_box(np.vstack([P, p]), margin_m)
+    return max(local, float(np.linalg.norm(upper - lower)))
 
 
 def holding(gp: SurfaceEstimator, reach_m: float, max_R_m: float) -> SurfaceEstimator:

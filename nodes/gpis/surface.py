@@ -238,9 +238,14 @@ def whole_surface(
     as touched so far); an empty mesh before the first contact."""
     if gp.n_contacts == 0:
         return SurfaceMeshArrays.empty()
-    points = gp.positions_m
-    lower, upper = points.min(axis=0) - margin_m, points.max(axis=0) + margin_m
+    lower, upper = whole_box(gp.positions_m, margin_m)
     return global_surface(gp, lower, upper, resolution_m, with_variance=with_variance, refine=refine)
+
+
+def whole_box(points_m: FloatArray, margin_m: float) -> tuple[FloatArray, FloatArray]:
+    """The box ``whole_surface`` meshes: the bounding box of points_m (n, 3), n >= 1, grown by margin_m
+    on every side, as (lower (3,), upper (3,))."""
+    return points_m.min(axis=0) - margin_m, points_m.max(axis=0) + margin_m
 
 
 def grid_reach(points_m: FloatArray, centre_m: FloatArray, half_extents_m: FloatArray | float) -> float:

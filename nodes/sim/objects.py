@@ -18,6 +18,7 @@ Conventions:
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import os
@@ -211,7 +212,7 @@ class ObjectModel:
         if kind == "cylinder":
             return "", f'<geom name="object" type="cylinder" size="{_fmt([size[0], size[1] / 2])}"{pose}/>'
         if collision == "hull":
-            path = self._mesh_files.get("object_mesh") or self._mesh_file("object_mesh", mujoco_hull_mesh(self.mesh))
+            path = self._mesh_file("object_mesh", self._mujoco_mesh)
             return (
                 f'<mesh name="object_mesh" file="{path}"/>',
                 '<geom name="object" type="mesh" mesh="object_mesh"/>',
@@ -235,6 +236,11 @@ class ObjectModel:
             x, y, z = self.spec.size_m
             return (x, y, z)
         raise ValueError(f"{self.spec.kind!r} is not a box")
+
+    @functools.cached_property
+    def _mujoco_mesh(self) -> trimesh.Trimesh:
+        """What MuJoCo gets for the ``hull`` collision (``mujoco_hull_mesh``), computed once."""
+        return mujoco_hull_mesh(self.mesh)
 
     def _parts(self) -> list[trimesh.Trimesh]:
         from palpate.nodes.sim.decomposition import convex_decomposition
