@@ -43,7 +43,7 @@ class PlannerNode:
             # fingertip would wait for ever, so the run ends here with the reason (an InputError, a
             # surface refused before anything changed, still propagates as a rejected input)
             self.ctx.count("planning_failed")
-            self.ctx.request_stop(f"planner: {exc}")
+            self.ctx.request_stop(f"planner: {exc}", failed=True)
             return
         if plan is None:
             return

@@ -160,31 +160,43 @@ def _fmt(value: float, unit: str = "", digits: int = 1) -> str:
     return f"{value:.{digits}f}" + (f" {unit}" if unit else "")
 
 
+def _compared(baseline: str, method: str) -> tuple[str, ...]:
+    """The strategies a table compares: both, or one when an evaluation ran a single strategy."""
+    return (baseline,) if baseline == method else (baseline, method)
+
+
 def table2(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: str = "igef") -> str:
-    """Markdown table in the form of the paper's Table 2 (averages at 50 % and 80 % coverage)."""
-    lines = [
-        f"| Coverage | Metric | {baseline.upper()} | {method.upper()} | Avg. improvement |",
-        "|---|---|---:|---:|---:|",
-    ]
+    """Markdown table in the form of the paper's Table 2 (averages at 50 % and 80 % coverage); with
+    baseline == method (a single strategy) its averages alone, without the improvement column."""
+    shown = _compared(baseline, method)
+    names = " | ".join(s.upper() for s in shown)
+    lines = (
+        [f"| Coverage | Metric | {names} | Avg. improvement |", "|---|---|---:|---:|---:|"]
+        if len(shown) == 2
+        else [f"| Coverage | Metric | {names} |", "|---|---|---:|"]
+    )
     notes = []
     for percent in MILESTONES:
-        means = paired_means(results, (baseline, method), percent)
-        b, m = means[baseline], means[method]
+        means = paired_means(results, shown, percent)
         for key, label, unit in METRICS:
             digits = 2 if (unit == "mm" and "miss" not in key) or key == "confident_fraction" else 1
-            lines.append(
-                f"| {percent} % | {label} | {_fmt(b[key], unit, digits)} | {_fmt(m[key], unit, digits)} | "
-                f"{_fmt(improvement_pct(b[key], m[key]), '%', 0)} |"
-            )
+            cells = [_fmt(means[s][key], unit, digits) for s in shown]
+            if len(shown) == 2:
+                cells.append(_fmt(improvement_pct(means[baseline][key], means[method][key]), "%", 0))
+            lines.append(f"| {percent} % | {label} | " + " | ".join(cells) + " |")
+        first = means[shown[0]]
+        completed = ", ".join(f"{s.upper()} {int(means[s]['runs_completed'])}/{int(means[s]['runs'])}" for s in shown)
         notes.append(
-            f"{percent} %: {int(b['paired_runs'])} paired runs on {int(b['objects'])} objects; completed "
-            f"{baseline.upper()} {int(b['runs_completed'])}/{int(b['runs'])}, "
-            f"{method.upper()} {int(m['runs_completed'])}/{int(m['runs'])}"
+            f"{percent} %: {int(first['paired_runs'])} paired runs on {int(first['objects'])} objects; "
+            f"completed {completed}"
         )
     lines.append("")
     lines.append(
         "Averages over paired runs only (every strategy reached the coverage in that (object, run)): "
-        "per object, then over objects. Improvement = (baseline - method) / baseline. " + "; ".join(notes) + "."
+        "per object, then over objects."
+        + (" Improvement = (baseline - method) / baseline. " if len(shown) == 2 else " ")
+        + "; ".join(notes)
+        + "."
     )
     return "\n".join(lines)
 
@@ -193,47 +205,51 @@ def table4(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: 
     """Markdown table in the form of the paper's Table 4: per object, travel at 80 % coverage.
 
     Each strategy's travel is its mean over its own completed runs (the count beside it); the
-    improvement compares the paired runs only; the covering bound (contacts) is beside it.
+    improvement compares the paired runs only; the covering bound (contacts) is beside it. With
+    baseline == method (a single strategy) its columns alone, without the improvement.
     """
+    shown = _compared(baseline, method)
+    pair = len(shown) == 2
     objects = sorted({r["object"] for r in results})
-    lines = [
-        f"| Object | {baseline.upper()} travel | {method.upper()} travel | Improvement (paired) | "
-        f"{baseline.upper()} contacts | {method.upper()} contacts | Covering bound (contacts) | "
-        f"Coverage reached {baseline.upper()} / {method.upper()} |",
-        "|---|---:|---:|---:|---:|---:|---:|---|",
-    ]
+    header = (
+        ["Object"]
+        + [f"{s.upper()} travel" for s in shown]
+        + (["Improvement (paired)"] if pair else [])
+        + [f"{s.upper()} contacts" for s in shown]
+        + ["Covering bound (contacts)", "Coverage reached " + " / ".join(s.upper() for s in shown)]
+    )
+    lines = ["| " + " | ".join(header) + " |", "|---|" + "---:|" * (len(header) - 2) + "---|"]
     for name in objects:
         mine = [r for r in results if r["object"] == name]
         cells = []
         contact_cells = []
-        for s in (baseline, method):
+        for s in shown:
             done = [r for r in mine if r["strategy"] == s and "error" not in r and _reached(r, "80")]
             runs = [r for r in mine if r["strategy"] == s]
             travel = float(np.mean([_value(r, "80", "travel_cm") for r in done])) if done else math.nan
             contacts = float(np.mean([_value(r, "80", "contacts") for r in done])) if done else math.nan
             cells.append(f"{_fmt(travel, 'cm')} ({len(done)}/{len(runs)})")
             contact_cells.append(_fmt(contacts, "", 0))
-        paired = paired_means(mine, (baseline, method), "80")
-        gain = improvement_pct(paired[baseline]["travel_cm"], paired[method]["travel_cm"])
+        if pair:
+            paired = paired_means(mine, shown, "80")
+            cells.append(_fmt(improvement_pct(paired[baseline]["travel_cm"], paired[method]["travel_cm"]), "%", 1))
         bound = next((float(r["covering_bound_contacts"]) for r in mine if "covering_bound_contacts" in r), math.nan)
         coverage = " / ".join(
             _fmt(100.0 * _mean([float(r.get("coverage", 0.0)) for r in mine if r["strategy"] == s]), "%", 0)
-            for s in (baseline, method)
+            for s in shown
         )
-        lines.append(
-            f"| {name} | {cells[0]} | {cells[1]} | {_fmt(gain, '%', 1)} | {contact_cells[0]} | "
-            f"{contact_cells[1]} | {_fmt(bound, '', 0)} | {coverage} |"
-        )
-    avg = paired_means(results, (baseline, method), "80")
-    lines.append(
-        f"| **average (paired)** | {_fmt(avg[baseline]['travel_cm'], 'cm')} | {_fmt(avg[method]['travel_cm'], 'cm')} | "
-        f"{_fmt(improvement_pct(avg[baseline]['travel_cm'], avg[method]['travel_cm']), '%', 1)} | "
-        f"{_fmt(avg[baseline]['contacts'], '', 0)} | {_fmt(avg[method]['contacts'], '', 0)} | | |"
-    )
+        lines.append("| " + " | ".join([name, *cells, *contact_cells, _fmt(bound, "", 0), coverage]) + " |")
+    avg = paired_means(results, shown, "80")
+    cells = [_fmt(avg[s]["travel_cm"], "cm") for s in shown]
+    if pair:
+        cells.append(_fmt(improvement_pct(avg[baseline]["travel_cm"], avg[method]["travel_cm"]), "%", 1))
+    cells += [_fmt(avg[s]["contacts"], "", 0) for s in shown]
+    lines.append("| " + " | ".join(["**average (paired)**", *cells, "", ""]) + " |")
     lines.append("")
     lines.append(
-        "Travel at 80 % coverage, mean over each strategy's completed runs (completed/runs in brackets); "
-        "the improvement compares the paired runs only. Covering bound: 1.21 x 0.8 x area / (pi (6 mm)^2), "
+        "Travel at 80 % coverage, mean over each strategy's completed runs (completed/runs in brackets)"
+        + ("; the improvement compares the paired runs only" if pair else "")
+        + ". Covering bound: 1.21 x 0.8 x area / (pi (6 mm)^2), "
         "the fewest 6 mm discs that cover 80 % of a flat surface of that area."
     )
     return "\n".join(lines)
@@ -265,7 +281,7 @@ def summary_json(
         )
         for k, v in (extra or {}).get(s, {}).items():
             out[s][k] = _json_number(v) if isinstance(v, float) else v
-    if baseline in means and method in means:
+    if baseline != method and baseline in means and method in means:
         out["ratios"] = {
             f"{k}_{method}_over_{baseline}": _json_number(_ratio(means[method][k], means[baseline][k])) for k in keys
         }
@@ -359,7 +375,9 @@ def plot_travel_per_object(
     objects = sorted({r["object"] for r in results})
     fig, ax = plt.subplots(figsize=(max(6.0, 0.35 * len(objects) + 2.0), 4.5))
     x = np.arange(len(objects))
-    for k, (s, colour) in enumerate(((baseline, "tab:orange"), (method, "tab:blue"))):
+    bars = tuple(zip(_compared(baseline, method), ("tab:orange", "tab:blue"), strict=False))
+    width = 0.8 / len(bars)
+    for k, (s, colour) in enumerate(bars):
         values = []
         for name in objects:
             done = [
@@ -368,7 +386,7 @@ def plot_travel_per_object(
                 if r["object"] == name and r["strategy"] == s and "error" not in r and _reached(r, "80")
             ]
             values.append(float(np.mean(done)) if done else 0.0)
-        ax.bar(x + (k - 0.5) * 0.4, values, width=0.4, color=colour, label=s.upper())
+        ax.bar(x + (k - (len(bars) - 1) / 2) * width, values, width=width, color=colour, label=s.upper())
     ax.set_xticks(x)
     ax.set_xticklabels(objects, rotation=70, ha="right", fontsize=7)
     ax.set_ylabel("travelled distance to 80 % coverage (cm)")

@@ -3,7 +3,9 @@
 Children are started with a parent-death signal, so none outlives the launcher even if it is killed.
 Ctrl-C or SIGTERM sends SIGTERM to every child, waits up to its `sigterm_timeout_s`, then SIGKILLs.
 A child that dies is reported with its exit code and last log lines; the launch then stops and
-exits non-zero unless the node is set to respawn (up to `max_restarts`).
+exits non-zero unless the node is set to respawn (up to `max_restarts`). A node that ends the run as
+a failure (``ctx.request_stop(reason, failed=True)``, exit code EXIT_RUN_FAILED) lets the others stop
+in order; the launch then exits 1.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from palpate import jsonio
 from palpate.launch.graph import Graph, GraphNode
 from palpate.launch.placement import CpuPlacement
 from palpate.runtime import bus
-from palpate.runtime.spec import NodeProcessSpec
+from palpate.runtime.spec import EXIT_RUN_FAILED, NodeProcessSpec
 
 _PR_SET_PDEATHSIG = 1
 _TAIL_LINES = 20
@@ -105,6 +107,8 @@ class Supervisor:
         self.children: list[Child] = []
         self.lock = threading.Lock()
         self.stop_signal = 0
+        #: Nodes that ended the run as a failure (exit code EXIT_RUN_FAILED): the launch exits 1.
+        self.run_failures: list[str] = []
         self.external_specs: list[Path] = []
         for spec in process_specs:
             node = graph.by_name[spec.name]
@@ -195,6 +199,9 @@ class Supervisor:
                     continue
                 if code == 0:
                     continue
+                if code == EXIT_RUN_FAILED:  # an orderly stop, asked for as a failure: the others still close
+                    self._note_run_failure(child)
+                    continue
                 if child.node.respawn and child.restarts < child.node.max_restarts:
                     child.restarts += 1
                     self._report(child, code, f"respawning ({child.restarts}/{child.node.max_restarts})")
@@ -204,7 +211,7 @@ class Supervisor:
                 self._report(child, code, "stopping the launch")
                 return 1
             if running == 0:
-                return 0
+                return 1 if self.run_failures else 0
             clock_done = clock is not None and any(
                 c.node is clock and c.proc is not None and c.proc.poll() == 0 for c in self.children
             )
@@ -220,12 +227,22 @@ class Supervisor:
             if all(code is not None for code in codes):
                 failed = [c for c in self.children if c.proc is not None and c.proc.returncode not in (0, None)]
                 for child in failed:
-                    self._report(child, child.proc.returncode if child.proc else -1, "failed at shutdown")
-                return 1 if failed else 0
+                    if child.proc is not None and child.proc.returncode == EXIT_RUN_FAILED:
+                        self._note_run_failure(child)
+                    else:
+                        self._report(child, child.proc.returncode if child.proc else -1, "failed at shutdown")
+                return 1 if failed or self.run_failures else 0
             time.sleep(0.05)
         late = [c.node.name for c in self.children if c.proc is not None and c.proc.poll() is None]
         self._say(f"nodes still running {timeout_s:.0f} s after the clock source finished: {late}; terminating")
         return 1
+
+    def _note_run_failure(self, child: Child) -> None:
+        """Say once that `child` ended the run as a failure (its own log line gives the reason)."""
+        if child.node.name in self.run_failures:
+            return
+        self.run_failures.append(child.node.name)
+        self._say(f"node {child.node.name!r} ({child.node.type}) ended the run as a failure; the launch exits 1")
 
     def _report(self, child: Child, code: int, action: str) -> None:
         for pump in child.pumps:

@@ -80,6 +80,8 @@ class InProcessGraph:
         self.seq = 0
         self.tick = -1
         self.stop_reason = ""
+        #: The reason of the first stop a node asked for as a failure ("" if none).
+        self.failure = ""
         self.members: list[_Member] = []
         for rank, (spec, process) in enumerate(nodes):
             ranked = {process.topic_order.get(topic, rank) for topic in process.publishes.values()}
@@ -198,6 +200,8 @@ class InProcessGraph:
     def _collect_stop(self, member: _Member) -> None:
         if member.ctx.stop_requested and not self.stop_reason:
             self.stop_reason = member.ctx.stop_requested
+        if member.ctx.failure and not self.failure:
+            self.failure = member.ctx.failure
 
     def node(self, name: str) -> Any:
         """The node object called `name` (for reading results after a run)."""

@@ -45,7 +45,7 @@ from palpate.messages import codec, topics
 from palpate.messages.base import Message
 from palpate.messages.schemas import Clock, LockstepAck, NodeStatus, RunControl
 from palpate.runtime import bus, memory, timing
-from palpate.runtime.spec import ClockSource, NodeLike, NodeProcessSpec, NodeSpec
+from palpate.runtime.spec import EXIT_RUN_FAILED, ClockSource, NodeLike, NodeProcessSpec, NodeSpec
 
 STOP_TOPIC = topics.GRAPH_CONTROL
 _INTERNAL = (topics.CLOCK, topics.LOCKSTEP_ACK, STOP_TOPIC)
@@ -95,6 +95,8 @@ class NodeContext:
         self.metrics: dict[str, float] = {}
         self.timings: dict[str, float] = {}
         self.stop_requested = ""
+        #: The reason of the first stop this node asked for with ``failed=True`` ("" if none).
+        self.failure = ""
         self._send = send
         self._send_checks = send_checks
         self._may_stop = may_stop
@@ -115,14 +117,17 @@ class NodeContext:
                 f"node {self.name!r} published an invalid {message.TYPE} on port {port!r}: {exc}"
             ) from exc
 
-    def request_stop(self, reason: str) -> None:
-        """Ask the graph to end the run after this tick."""
+    def request_stop(self, reason: str, *, failed: bool = False) -> None:
+        """Ask the graph to end the run after this tick; ``failed``: because something went wrong (the
+        node's process then exits with EXIT_RUN_FAILED, and ``palpate launch`` with 1)."""
         if not self._may_stop:  # the clock source may be ticks ahead of this node: no stop at this tick
             raise RuntimeError(
                 f"node {self.name!r} asked to stop the run ({reason}), but its NodeSpec says may_trail=True, "
                 "which promises it never does: remove may_trail from the spec"
             )
         self.stop_requested = reason
+        if failed and not self.failure:
+            self.failure = reason
 
     def count(self, name: str, n: int = 1) -> None:
         self.counters[name] = self.counters.get(name, 0) + n
@@ -387,10 +392,14 @@ class NodeRunner:
                 self._run_clock_source()
             else:
                 self._run_follower()
-            self.publish_status("finished", self.ctx.stop_requested)
             if self.lockstep and self.ctx.timings:
                 timings = ", ".join(f"{k} {v:.4g}" for k, v in sorted(self.ctx.timings.items()))
                 log.info("node %s wall-clock timings: %s", self.process.name, timings)
+            if self.ctx.failure:
+                log.error("node %s ended the run as a failure: %s", self.process.name, self.ctx.failure)
+                self.publish_status("error", self.ctx.failure)
+                return EXIT_RUN_FAILED
+            self.publish_status("finished", self.ctx.stop_requested)
             return 0
         except TimeoutError as exc:
             log.error("node %s: %s", self.process.name, exc)

@@ -21,6 +21,10 @@ C = TypeVar("C")
 #: its input wait in its queue.
 TRAIL_TICKS = 3
 
+#: Exit code of a node process that ended the run with ``ctx.request_stop(reason, failed=True)``, after
+#: the orderly stop (the other nodes still finish the tick and close); ``palpate launch`` then exits 1.
+EXIT_RUN_FAILED = 4
+
 
 @dataclass(frozen=True)
 class Port:
@@ -80,8 +84,9 @@ class Context(Protocol):
         """Add `n` to the counter `name`."""
         ...
 
-    def request_stop(self, reason: str) -> None:
-        """Ask the graph to end the run after this tick (not for a node whose spec says ``may_trail``)."""
+    def request_stop(self, reason: str, *, failed: bool = False) -> None:
+        """Ask the graph to end the run after this tick (not for a node whose spec says ``may_trail``).
+        ``failed``: the run ends because something went wrong (``palpate launch`` then exits 1)."""
         ...
 
 

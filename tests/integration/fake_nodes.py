@@ -40,6 +40,8 @@ class Crasher:
 @dataclass(frozen=True, kw_only=True)
 class QuitterConfig:
     after_ticks: int = 5
+    #: Stop as a failure (``request_stop(..., failed=True)``).
+    failed: bool = False
 
 
 class Quitter:
@@ -52,7 +54,7 @@ class Quitter:
     def on_tick(self, stamp_ns: int) -> None:
         self.ticks += 1
         if self.ticks == self.config.after_ticks:
-            self.ctx.request_stop(f"quitter: done after {self.ticks} ticks")
+            self.ctx.request_stop(f"quitter: done after {self.ticks} ticks", failed=self.config.failed)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -53,20 +53,33 @@ def test_demo_minimal_runs_and_exits_zero(tmp_path: Path) -> None:
     assert not list((tmp_path / "bus").glob("*.pub"))  # and the ipc socket files
 
 
-def run_until_quitter(tmp_path: Path, after_ticks: int) -> str:
-    """The long lockstep graph with a node that stops the run after ``after_ticks`` ticks: its output."""
+def run_until_quitter(tmp_path: Path, after_ticks: int, failed: bool = False) -> str:
+    """The long lockstep graph with a node that stops the run after ``after_ticks`` ticks (as a failure
+    with `failed`, and then the launch must exit 1): its output."""
     extra = f"""  - name: quitter
     type: {QUITTER}
-    params: {{after_ticks: {after_ticks}}}"""
+    params: {{after_ticks: {after_ticks}, failed: {str(failed).lower()}}}"""
     log = tmp_path / "launch.log"
     with launched(write(tmp_path, long_graph("lockstep", extra)), tmp_path / "bus", log) as proc:
-        assert proc.wait(timeout=60) == 0, text(log)
+        assert proc.wait(timeout=60) == (1 if failed else 0), text(log)
     return text(log)
 
 
 def test_a_node_that_stops_the_run_is_named_with_its_reason(tmp_path: Path) -> None:
     out = run_until_quitter(tmp_path, 5)
     assert re.search(r"\[cube\] INFO run stopped at t = 0\.0[45]0 s: quitter: done after 5 ticks", out), out
+    assert "failure" not in out, out
+
+
+def test_a_node_that_stops_the_run_as_a_failure_makes_the_launch_exit_1(tmp_path: Path) -> None:
+    """The stop is as orderly as any (every node closes, the clock source names the reason), but the
+    launch's exit code says the run failed, as a controller that found no surface asks."""
+    out = run_until_quitter(tmp_path, 5, failed=True)
+    assert re.search(r"\[cube\] INFO run stopped at t = 0\.0[45]0 s: quitter: done after 5 ticks", out), out
+    assert "ERROR node quitter ended the run as a failure: quitter: done after 5 ticks" in out, out
+    assert "[launch] node 'quitter' (tests.integration.fake_nodes:QUITTER) ended the run as a failure" in out, out
+    assert "died" not in out, out
+    assert node_pids(tmp_path / "bus") == {}  # every node closed
 
 
 def test_trailing_nodes_handle_each_input_in_its_own_tick(tmp_path: Path) -> None:

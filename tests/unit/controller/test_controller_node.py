@@ -22,13 +22,15 @@ class FakeCtx:
         self.metrics: dict[str, float] = {}
         self.published: list[tuple[str, Any]] = []
         self.stop_reason = ""
+        self.stop_failed = False
 
     def publish(self, port: str, message: Message) -> None:
         codec.validate(message)
         self.published.append((port, message))
 
-    def request_stop(self, reason: str) -> None:
+    def request_stop(self, reason: str, *, failed: bool = False) -> None:
         self.stop_reason = self.stop_reason or reason
+        self.stop_failed = self.stop_failed or failed
 
 
 def _pose(position: np.ndarray) -> Pose:
@@ -61,7 +63,7 @@ def test_initial_approach_that_finds_no_surface_stops_with_the_target_and_the_la
             break
         _, velocity = ctx.published[-1]
         position = position + dt * np.asarray(velocity.linear_m_s)
-    assert "initial approach" in ctx.stop_reason
+    assert "initial approach" in ctx.stop_reason and ctx.stop_failed
     assert "[0.0, 0.0, 0.0]" in ctx.stop_reason and "target:=" in ctx.stop_reason
     assert 0.059 < -position[2] + 0.05 < 0.062  # it went 1 cm past the target before giving up
 

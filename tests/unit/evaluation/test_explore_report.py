@@ -101,6 +101,23 @@ def test_tables_state_counts_and_mark_incomplete_objects() -> None:
     assert "| 86 |" in row_b  # the covering bound beside the travel
 
 
+def test_tables_of_a_single_strategy_show_it_once_without_an_improvement(tmp_path: Path) -> None:
+    igef = [r for r in RESULTS if r["strategy"] == "igef"]
+    t2 = report.table2(igef, "igef", "igef")
+    assert "| Coverage | Metric | IGEF |" in t2 and "improvement" not in t2.lower()
+    assert "| 80 % | Avg. traveled distance | 55.0 cm |" in t2  # objects a (80) and c (30), b incomplete
+    assert "80 %: 3 paired runs on 2 objects; completed IGEF 3/4." in t2
+    t4 = report.table4(igef, "igef", "igef")
+    header, rule, *rows = t4.splitlines()
+    assert header.count("IGEF") == 3 and rule.count("|") == header.count("|")
+    assert all(row.count("|") == header.count("|") for row in rows if row.startswith("|"))
+    assert "| a | 80.0 cm (2/2) | 10 | 86 | 80 % |" in t4
+    summary = report.summary_json(igef, ("igef",), "igef", "igef")
+    assert "ratios" not in summary and summary["igef"]["runs_completed"] == 3
+    report.plot_travel_per_object(tmp_path / "t.png", igef, "igef", "igef")
+    assert (tmp_path / "t.png").stat().st_size > 1000
+
+
 def test_csv_has_one_row_per_run_with_milestone_columns(tmp_path: Path) -> None:
     path = tmp_path / "runs.csv"
     report.write_csv(path, RESULTS)

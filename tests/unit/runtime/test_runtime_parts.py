@@ -187,6 +187,25 @@ def test_realtime_keeps_only_the_latest_state_message_but_every_event() -> None:
     assert [seq for _, _, seq, _, _ in kept] == [2, 4, 5]
 
 
+@pytest.mark.parametrize("failed", [False, True])
+def test_in_process_graph_keeps_the_stop_reason_and_whether_it_was_a_failure(tmp_path: Path, failed: bool) -> None:
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch
+    from palpate.paths import LAUNCH_DIR
+    from palpate.runtime.inprocess import InProcessGraph
+
+    launch = tmp_path / "quits.yaml"
+    launch.write_text(
+        (LAUNCH_DIR / "demo_minimal.yaml").read_text()
+        + "  - name: quitter\n    type: tests.integration.fake_nodes:QUITTER\n"
+        f"    params: {{after_ticks: 3, failed: {str(failed).lower()}}}\n"
+    )
+    graph = InProcessGraph(resolve(load_launch(launch), bus_dir=tmp_path / "bus").in_process_members())
+    assert graph.run(max_ticks=50) == 3
+    assert graph.stop_reason == "quitter: done after 3 ticks"
+    assert graph.failure == (graph.stop_reason if failed else "")
+
+
 def test_in_process_graph_refuses_nodes_out_of_rank_order(tmp_path: Path) -> None:
     from palpate.launch.graph import resolve
     from palpate.launch.loader import load_launch

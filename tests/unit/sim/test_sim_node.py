@@ -45,7 +45,7 @@ class FakeCtx:
         codec.validate(message)  # raises on NaN or a malformed array, as the real context does
         self.published.append((port, message))
 
-    def request_stop(self, reason: str) -> None:
+    def request_stop(self, reason: str, *, failed: bool = False) -> None:
         self.stop_requested = reason
 
     def of(self, port: str) -> list[Any]:
