@@ -125,7 +125,9 @@ class Trajectory(Message):
     VERSION: ClassVar[int] = 1
     TOPIC: ClassVar[str] = topics.TRAJECTORY
 
-    kind: str = scalar("str", "'initial', 'approach' (Eq. 15) or 'recovery' (Eq. 17)")
+    kind: str = scalar(
+        "str", "'initial', 'approach' (Eq. 15), 'recovery' (Eq. 17) or 'slide' (a straight line along the surface)"
+    )
     control_points_m: np.ndarray = array((4, 3), "float64", "Bezier control points p0..p3, world frame", "m")
     start_quaternion_wxyz: np.ndarray = array((4,), "float64", "fingertip orientation at the start")
     end_quaternion_wxyz: np.ndarray = array((4,), "float64", "fingertip orientation at the target")
@@ -136,16 +138,22 @@ class TouchTarget(Message):
     """The next best touch chosen by the planner, with the candidates it scored."""
 
     TYPE: ClassVar[str] = "TouchTarget"
-    VERSION: ClassVar[int] = 1
+    VERSION: ClassVar[int] = 2
     TOPIC: ClassVar[str] = topics.TOUCH_TARGET
 
-    strategy: str = scalar("str", "'igef', 'gpv' or 'random'")
+    strategy: str = scalar("str", "'igef', 'gpv', 'random', 'area' or 'tour'")
     position_m: np.ndarray = array((3,), "float64", "target point on the estimated surface", "m")
     normal: np.ndarray = array((3,), "float64", "estimated outward surface normal at the target")
     predicted_contact_m: np.ndarray = array((3,), "float64", "where the planner expects the contact", "m")
     score: float = scalar("float", "score of the chosen candidate")
     candidates_m: np.ndarray = array(("m", 3), "float64", "scored candidate points", "m")
     candidate_scores: np.ndarray = array(("m",), "float64", "score of each candidate")
+    slide: bool = scalar(
+        "bool",
+        "reach the target by sliding along the surface from the last contact instead of the Eq. 15 curve "
+        "(version 2; not in the paper)",
+        default=False,
+    )
 
 
 class TouchEvent(Message):

@@ -58,7 +58,10 @@ class TouchConfig(Validated):
     rearm_distance_m: NonNegativeFloat = 0.003
     #: ... or once the fingertip has pushed against the surface (normal force > 0) without interruption
     #: for this long, seconds (not in the paper): a curve blocked by the object (under the lip of a cup)
-    #: otherwise pushes in place for ever. 0 disables it.
+    #: otherwise pushes in place for ever. So does a fingertip held in contact that moved less than
+    #: HELD_M in that time, whatever the force of its strongest contact: wedged in a narrow gap, the
+    #: contact that blocks it need not be the one reported (measured on the YCB large clamp, after a
+    #: slide). 0 disables both.
     rearm_push_s: NonNegativeFloat = 0.1
     #: Not in the paper: the next curve retracts along -v_n (Eq. 15) only when v_n points into the
     #: surface, v_n . (-n) >= this cosine (n the measured contact normal); otherwise it retracts along
@@ -66,6 +69,16 @@ class TouchConfig(Validated):
     #: surface, and the fingertip touches again a few millimetres on (measured: 600 contacts on 2 % of
     #: the YCB sponge with GP-V). 0.5 = 60 degrees; -1 keeps Eq. 15 as written.
     retract_min_cos: Annotated[float, Range(ge=-1.0, le=1.0)] = 0.5
+    #: A slide (TouchTarget.slide, not in the paper) keeps the fingertip on the surface while it moves
+    #: towards the target at v0, along the tangent plane of its strongest contact: it presses into the
+    #: surface at this speed, m/s (the contact keeps it out), and ends with a touch once that contact is
+    #: within ``slide_arrive_m`` of the target in its tangent plane (two control steps at v0), or has
+    #: passed it by more than that, or the fingertip has moved twice as far as the slide's
+    #: start was from the target plus ``slide_slack_m`` (blocked by a wall). Where the fingertip loses
+    #: the surface (an edge) it finishes along the Eq. 15 curve (see MIN_SLIDE_CURVE_M).
+    slide_press_m_s: NonNegativeFloat = 0.01
+    slide_arrive_m: PositiveFloat = 0.001
+    slide_slack_m: NonNegativeFloat = 0.01
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -333,6 +346,18 @@ class TrajectoryController:
         """Abandon the current motion without a contact (state IDLE)."""
         self._state = ControllerState.IDLE
 
+    def go_straight(self, start_r: ArrayLike, target_p: ArrayLike) -> None:
+        """Move straight from start_r towards target_p (3,) m as an exploratory action, failing once
+        the fingertip is Delta_m beyond target_p without a contact (a slide that lost the surface goes
+        back to the last point it touched)."""
+        start = _vector("start_r", start_r)
+        target = _vector("target_p", target_p)
+        self._go_straight(start, target, _unit("target_p - start_r", target - start))
+
+    def steer(self, direction: FloatArray) -> None:
+        """Record the unit direction of a velocity commanded outside the curves (a slide), as v_n."""
+        self._direction = np.array(direction, dtype=np.float64)
+
     def command(self, r: ArrayLike, R: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """One control step (Alg. 1 lines 23-39) from the measured pose.
 
@@ -454,6 +479,12 @@ def _distance(a: FloatArray, b: FloatArray) -> float:
     return math.sqrt(float(d @ d))
 
 
+#: A fingertip in contact that stays within this distance of a point for rearm_push_s is held in place,
+#: metres: a fifth of the way it moves at v0 = 5 cm/s in 0.1 s. Wedged in a gap it jumps between the
+#: two surfaces that hold it, by 0.13-0.26 mm a tick (measured on the YCB large clamp).
+HELD_M = 1e-3
+
+
 class TouchArming:
     """Whether a contact may count as a new touch (Alg. 1 line 6 with re-arming rules not in the paper).
 
@@ -461,13 +492,15 @@ class TouchArming:
     It re-arms when a tick has no contact (the fingertip left the surface) or, after the first touch,
     while the fingertip stays in contact: when both the fingertip and the strongest contact point are
     more than ``rearm_distance_m`` from where they were at the last touch, or when the strongest contact
-    has pushed (force > 0) without interruption for ``rearm_push_s`` (see TouchConfig).
+    has pushed (force > 0) without interruption for ``rearm_push_s``, or the fingertip has been held
+    in place (within HELD_M) that long (see TouchConfig).
     """
 
     def __init__(self, config: TouchConfig) -> None:
         self.config = config
         self.armed = True
         self.push_since_ns: int | None = None  # stamp since which the fingertip pushes without a touch
+        self.held: tuple[int, FloatArray] | None = None  # since when, and where, it has not moved
         self.last_contact = np.zeros(3)  # position of the last touch (3,), metres
         self.last_fingertip = np.zeros(3)  # fingertip position at the last touch (3,), metres
         self.touches = 0
@@ -475,6 +508,7 @@ class TouchArming:
     def disarm(self) -> None:
         """A new target: the contact the fingertip is in is the last touch, not a new one."""
         self.armed = False
+        self.held = None
 
     def update(self, stamp_ns: int, fingertip_m: FloatArray, positions_m: FloatArray, forces_n: FloatArray) -> bool:
         """Fold in one tick: the fingertip position (3,) m and its contacts (positions (n, 3) m, normal
@@ -495,8 +529,13 @@ class TouchArming:
                     self.armed = True
             else:
                 self.push_since_ns = None
+            if self.held is None or _distance(fingertip_m, self.held[1]) > HELD_M:
+                self.held = (stamp_ns, np.array(fingertip_m))
+            elif cfg.rearm_push_s > 0.0 and stamp_ns - self.held[0] >= cfg.rearm_push_s * 1e9:
+                self.armed = True
         if self.armed:
             self.push_since_ns = None
+            self.held = None
         return self.armed
 
     def touched(self, position_m: FloatArray, fingertip_m: FloatArray) -> None:
@@ -541,9 +580,41 @@ class ControlStep:
 MIN_APPROACH_M = 1e-9
 
 
+#: A slide that loses the surface finishes along the Eq. 15 curve to its target when the fingertip is
+#: at least this far from its place there, metres (the planner's min_hop_m); nearer, the curve is too
+#: short for the controller to follow (it looks ahead less than one control step), and the fingertip
+#: goes straight back to the last point it touched.
+MIN_SLIDE_CURVE_M = 0.006
+
+#: A slide turns the fingertip towards the target's normal over the time left to get there, and no
+#: faster than over this long, seconds (two control steps at 100 Hz).
+MIN_SLIDE_TURN_S = 0.02
+
+
+@dataclass
+class Slide:
+    """A slide in progress (TouchTarget.slide). target_m, normal: t_p (3,) m and t_n (3,); centre_m: the
+    fingertip centre at the target (where the Eq. 15 curve goes if the fingertip loses the surface);
+    touched_m: the strongest contact point of the last tick in contact (where it goes back to when
+    the curve would be too short); budget_m: how far the fingertip may move before the slide ends
+    wherever it is (at v0 that also bounds its time, for a fingertip held in place); closest_m: the
+    least distance to the target in the contact's tangent plane so far. The odometer reading and the
+    stamp at which it ends are set at its first tick."""
+
+    target_m: FloatArray
+    normal: FloatArray
+    centre_m: FloatArray
+    touched_m: FloatArray
+    budget_m: float
+    closest_m: float = math.inf
+    end_travel_m: float = math.inf
+    deadline_ns: int | None = None
+
+
 class TouchLoop:
-    """Algorithm 1's controller side: approach the initial target, follow the curve to each target,
-    stop on a new touch and announce it. Feed it the fingertip pose and contacts once per tick."""
+    """Algorithm 1's controller side: approach the initial target, follow the curve to each target (or
+    slide to it along the surface, when the target says so), stop on a new touch and announce it. Feed
+    it the fingertip pose and contacts once per tick."""
 
     def __init__(self, config: TouchConfig, controller: ControllerConfig, initial_target_m: ArrayLike) -> None:
         self.config = config
@@ -554,6 +625,10 @@ class TouchLoop:
         self.missed_before = 0  # recoveries counted at the last touch
         self.retract_from = np.zeros(3)  # v_n of the next curve (Eq. 15), set at each touch
         self.predicted = np.full(3, np.nan)  # predicted contact of the current target
+        self.slide: Slide | None = None  # the slide in progress
+        self.in_contact = False  # the last tick had a contact
+        self.last_normal = np.zeros(3)  # measured normal of the last touch
+        self.slides = 0  # slides started
 
     @property
     def touches(self) -> int:
@@ -569,22 +644,38 @@ class TouchLoop:
         return self.controller.rotation_deg
 
     def aim(
-        self, r: ArrayLike, R: ArrayLike, target_m: ArrayLike, normal: ArrayLike, predicted_contact_m: ArrayLike
+        self,
+        r: ArrayLike,
+        R: ArrayLike,
+        target_m: ArrayLike,
+        normal: ArrayLike,
+        predicted_contact_m: ArrayLike,
+        slide: bool = False,
     ) -> FloatArray:
         """A new touch target (Alg. 1 lines 19-20): start its Eq. 15 curve from the fingertip at r (3,) m,
         orientation R (3, 3), to the target point t_p (3,) m with outward unit normal t_n (3,); the curve
         guides the fingertip centre to t_p + radius t_n. Returns the control points (4, 3).
 
-        A target beyond the sanity bounds of palpate.inputs or a normal that is not unit is an InputError
-        naming the TouchTarget field; the loop then keeps its state."""
+        ``slide`` (not in the paper): while the fingertip is still in contact, slide along the surface
+        to the target instead (the returned control points are then the straight line from r to the
+        fingertip centre at the target, for display). A target beyond the sanity bounds of
+        palpate.inputs or a normal that is not unit is an InputError naming the TouchTarget field; the
+        loop then keeps its state."""
         target = coordinates(target_m, "position_m")
         normal = unit_vectors(normal, "normal")
         predicted = coordinates(predicted_contact_m, "predicted_contact_m")
         centre_at_target = target + self.config.tip_radius_m * normal
-        P = self.controller.start(r, self.retract_from, R, centre_at_target, normal)
         self.predicted = np.array(predicted)
         self.arming.disarm()
-        return P
+        if slide and self.in_contact and self.controller.state is ControllerState.IDLE:
+            start = np.array(coordinates(r, "r"))
+            budget = 2.0 * float(np.linalg.norm(centre_at_target - start)) + self.config.slide_slack_m
+            touched = self.arming.last_contact.copy()
+            self.slide = Slide(np.array(target), np.array(normal), centre_at_target, touched, budget)
+            self.slides += 1
+            return start + np.outer(np.arange(4) / 3.0, centre_at_target - start)
+        self.slide = None
+        return self.controller.start(r, self.retract_from, R, centre_at_target, normal)
 
     def step(
         self,
@@ -605,6 +696,9 @@ class TouchLoop:
             self.controller.initial_approach(r, self.initial_target_m)
             self.started = True
         armed = self.arming.update(stamp_ns, r, positions_m, forces_n)
+        self.in_contact = len(forces_n) > 0
+        if self.slide is not None:
+            return self._slide_step(stamp_ns, r, R, positions_m, normals, forces_n)
         touch = None
         if self.controller.moving and len(forces_n) > 0 and armed:
             touch = self._touch(r, R, positions_m, normals, forces_n)  # Alg. 1 lines 6-10: stop until the next target
@@ -613,11 +707,63 @@ class TouchLoop:
             linear, angular = self.controller.command(r, R)
         return ControlStep(linear, angular, touch, failed=self.controller.state is ControllerState.FAILED)
 
+    def _slide_step(
+        self,
+        stamp_ns: int,
+        r: FloatArray,
+        R: FloatArray,
+        positions_m: FloatArray,
+        normals: FloatArray,
+        forces_n: FloatArray,
+    ) -> ControlStep:
+        """One tick of a slide: steer the strongest contact towards the target along the surface,
+        pressing lightly; a touch where it ends (see TouchConfig.slide_press_m_s)."""
+        slide = self.slide
+        assert slide is not None
+        cfg = self.config
+        v0 = self.controller.config.v0_m_s
+        if slide.deadline_ns is None:
+            slide.end_travel_m = self.controller.travelled_m + slide.budget_m
+            slide.deadline_ns = stamp_ns + int(1e9 * slide.budget_m / v0)
+        if not len(forces_n):  # the surface fell away (an edge)
+            self.slide = None
+            if float(np.linalg.norm(slide.centre_m - r)) >= MIN_SLIDE_CURVE_M:  # the Eq. 15 curve from here
+                self.controller.start(r, -self.last_normal, R, slide.centre_m, slide.normal)
+            else:  # too short a curve to follow: straight back to the last point touched
+                self.controller.go_straight(r, slide.touched_m)
+            linear, angular = self.controller.command(r, R)
+            return ControlStep(linear, angular, None, failed=self.controller.state is ControllerState.FAILED)
+        strongest = int(np.argmax(forces_n))
+        normal = normals[strongest]
+        slide.touched_m = np.array(positions_m[strongest])
+        to_target = slide.target_m - positions_m[strongest]
+        along = to_target - float(to_target @ normal) * normal  # the way to the target in the tangent plane
+        distance = float(np.linalg.norm(along))
+        ended = (
+            distance <= cfg.slide_arrive_m
+            or distance > slide.closest_m + cfg.slide_arrive_m  # passed it
+            or self.controller.travelled_m >= slide.end_travel_m
+            or stamp_ns >= slide.deadline_ns  # held in place (against a wall)
+        )
+        if ended:
+            self.slide = None
+            return ControlStep(np.zeros(3), np.zeros(3), self._touch(r, R, positions_m, normals, forces_n), False)
+        slide.closest_m = min(slide.closest_m, distance)
+        self.controller.observe(r, R)
+        direction = along / distance
+        self.controller.steer(direction)
+        linear = v0 * direction - cfg.slide_press_m_s * normal
+        # turn to face the target's normal by the time the fingertip gets there, as a curve does
+        turn = R @ rotations.log_so3(R.T @ rotations.get_rotation(R, slide.normal))
+        angular = turn / max(distance / v0, MIN_SLIDE_TURN_S)
+        return ControlStep(linear, angular, None, failed=False)
+
     def _touch(
         self, r: FloatArray, R: FloatArray, positions_m: FloatArray, normals: FloatArray, forces_n: FloatArray
     ) -> Touch:
         strongest = int(np.argmax(forces_n))
         normal = np.array(normals[strongest])
+        self.last_normal = normal
         direction = retract_direction(self.controller.direction, normal, self.config.retract_min_cos)
         self.retract_from = direction
         self.controller.on_contact(r, R)

@@ -51,13 +51,13 @@ class ControllerNode:
         if self.pose is None:
             return
         r, R = self.pose
-        P = self.core.aim(r, R, message.position_m, message.normal, message.predicted_contact_m)
+        P = self.core.aim(r, R, message.position_m, message.normal, message.predicted_contact_m, message.slide)
         R1 = matrix_to_quat(R)
         self.ctx.publish(
             "trajectory",
             Trajectory(
                 stamp_ns=self.ctx.stamp_ns,
-                kind="approach",
+                kind="slide" if self.core.slide is not None else "approach",
                 control_points_m=P,
                 start_quaternion_wxyz=R1,
                 end_quaternion_wxyz=R1,

@@ -30,17 +30,18 @@ Choices where the paper disagrees with itself (both configurable):
 
 from __future__ import annotations
 
+import math
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from itertools import permutations
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
-from palpate.config import NonNegativeFloat, PositiveFloat, PositiveInt, Validated
+from palpate.config import NonNegativeFloat, PositiveFloat, PositiveInt, Range, Validated
 from palpate.errors import InputError, PlanningError
 from palpate.geometry.bezier import approach_curve, bezier_length, bezier_point
 from palpate.geometry.rotations import quat_to_matrix
@@ -130,6 +131,22 @@ class PlannerConfig(Validated):
     #: no variance for the tour; kappa 1 with a 3 cm touch cost buys a better whole estimate with 20 %
     #: more travel (docs/exploration.md compares the settings on the 30 shared objects).
     tour_variance_weight: NonNegativeFloat = 0.0
+    #: Not in the paper: reach a target by sliding the fingertip along the surface from the last contact
+    #: (``TouchTarget.slide``; the controller keeps it in contact and steers it to the target) instead of
+    #: lifting it along the Eq. 15 curve, when the target lies within this distance of the last contact
+    #: and its normal within ``slide_max_angle_deg`` of that contact's, metres. ``slide_max_m`` holds
+    #: for every strategy (0, the default: the paper's strategies lift); ``tour_slide_max_m`` for the
+    #: tour alone, which slides to any target in its view (6 cm) by default. 60 degrees against 45 and
+    #: 90: the least whole-estimate error for the same travel on the 30 shared objects
+    #: (docs/exploration.md, "Slides").
+    slide_max_m: NonNegativeFloat = 0.0
+    tour_slide_max_m: NonNegativeFloat = 0.06
+    slide_max_angle_deg: Annotated[float, Range(ge=0.0, le=90.0)] = 60.0
+
+    @property
+    def slide_reach_m(self) -> float:
+        """How far from the last contact this strategy slides to a target (0: it never slides)."""
+        return max(self.slide_max_m, self.tour_slide_max_m if self.strategy == "tour" else 0.0)
 
     @property
     def uses_variance(self) -> bool:
@@ -179,6 +196,8 @@ class Selection:
     score: float
     scores: FloatArray
     psi: FloatArray | None = None
+    #: Reach it by sliding along the surface from the last contact (PlannerConfig.slide_max_m).
+    slide: bool = False
 
 
 def _points(name: str, value: ArrayLike) -> FloatArray:
@@ -703,21 +722,31 @@ class TouchPlanner:
         self.config = self.planner.config
         self.contacts: list[FloatArray] = []
         self.approach = np.zeros(3)
+        self.normal = np.zeros(3)  # measured outward normal of the last contact (zero: not given)
         self.unreached: list[FloatArray] = []  # targets whose touch landed elsewhere
         self.planned_for = 0  # number of contacts the last plan was made for
         self.counts: Counter[str] = Counter()
 
-    def add_touch(self, position_m: ArrayLike, predicted_contact_m: ArrayLike, approach_direction: ArrayLike) -> None:
+    def add_touch(
+        self,
+        position_m: ArrayLike,
+        predicted_contact_m: ArrayLike,
+        approach_direction: ArrayLike,
+        normal: ArrayLike = (0.0, 0.0, 0.0),
+    ) -> None:
         """A touch at position_m (3,) m, aimed at predicted_contact_m (3,) m (NaN: no target), made
-        moving along approach_direction (3,), the v_n of the next curve (unit, or zero for none).
+        moving along approach_direction (3,), the v_n of the next curve (unit, or zero for none), with
+        the measured outward normal (3,) (unit, or zero when unknown: no slide starts from it).
 
         InputError (naming the TouchEvent field, the planner unchanged) for positions beyond the
         bounds of palpate.inputs or a direction that is neither unit nor zero."""
         position = np.array(coordinates(position_m, "position_m"))
         predicted = np.array(coordinates(predicted_contact_m, "predicted_contact_m", allow_nan=True))
         approach = np.array(unit_or_zero(approach_direction, "approach_direction"))
+        measured = np.array(unit_or_zero(normal, "normal"))
         self.contacts.append(position)
         self.approach = approach
+        self.normal = measured
         if np.all(np.isfinite(predicted)) and np.linalg.norm(position - predicted) > self.config.unreached_miss_m:
             self.unreached.append(predicted)
 
@@ -798,7 +827,17 @@ class TouchPlanner:
         choice = self.planner.select(*args, rng, admissible=admissible)
         if cfg.check_curves and cfg.strategy != "random" and admissible is not None:
             choice = self._best_clear(choice, surface, candidates, centres, admissible)
-        return Plan(candidates, choice)
+        return Plan(candidates, replace(choice, slide=self._slides_to(choice)))
+
+    def _slides_to(self, choice: Selection) -> bool:
+        """Whether to slide to the chosen target: it lies within the strategy's slide reach of the last
+        contact and its normal within slide_max_angle_deg of that contact's (PlannerConfig)."""
+        cfg = self.config
+        reach = cfg.slide_reach_m
+        if reach <= 0.0 or not self.normal.any():
+            return False
+        near = float(np.linalg.norm(choice.target_m - self.contacts[-1])) <= reach
+        return near and float(choice.normal @ self.normal) >= math.cos(math.radians(cfg.slide_max_angle_deg))
 
     def _clear(
         self,

@@ -20,7 +20,7 @@ class PlannerNode:
         self.fingertip: tuple[np.ndarray, np.ndarray] | None = None  # centre (3,) m, quaternion wxyz (4,)
 
     def on_touches(self, message: TouchEvent) -> None:
-        self.core.add_touch(message.position_m, message.predicted_contact_m, message.approach_direction)
+        self.core.add_touch(message.position_m, message.predicted_contact_m, message.approach_direction, message.normal)
 
     def on_pose(self, message: Pose) -> None:
         position = coordinates(message.position_m, "position_m")
@@ -59,6 +59,7 @@ class PlannerNode:
                 score=choice.score,
                 candidates_m=plan.candidates.points_m,
                 candidate_scores=choice.scores,
+                slide=choice.slide,
             ),
         )
 

@@ -68,7 +68,7 @@ def test_initial_approach_that_finds_no_surface_stops_with_the_target_and_the_la
     assert 0.059 < -position[2] + 0.05 < 0.062  # it went 1 cm past the target before giving up
 
 
-def _target(position: list[float], normal: list[float]) -> TouchTarget:
+def _target(position: list[float], normal: list[float], slide: bool = False) -> TouchTarget:
     return TouchTarget(
         stamp_ns=0,
         strategy="igef",
@@ -78,7 +78,39 @@ def _target(position: list[float], normal: list[float]) -> TouchTarget:
         score=1.0,
         candidates_m=np.zeros((0, 3)),
         candidate_scores=np.zeros(0),
+        slide=slide,
     )
+
+
+def _contact(position: list[float]) -> ContactSet:
+    return ContactSet(
+        stamp_ns=0,
+        positions_m=np.array([position]),
+        local_positions_m=np.zeros((1, 3)),
+        normals=np.array([[0.0, 0.0, 1.0]]),
+        forces_n=np.ones(1),
+        links=["probe"],
+    )
+
+
+@pytest.mark.parametrize(("slide", "kind"), [(False, "approach"), (True, "slide")])
+def test_a_target_to_slide_to_is_published_as_a_slide_and_followed_along_the_surface(slide: bool, kind: str) -> None:
+    ctx = FakeCtx()
+    node = ControllerNode(ControllerNodeConfig(initial_target_m=(0.0, 0.0, -0.01)), ctx)
+    centre = np.array([0.0, 0.0, 0.008])  # the fingertip resting on the plane z = 0 at the origin
+    node.on_pose(_pose(centre))
+    node.on_contacts(_contact([0.0, 0.0, 0.0]))
+    node.on_tick(0)
+    assert [m for port, m in ctx.published if port == "touches"]  # the first touch
+    node.on_target(_target([0.02, 0.0, 0.0], [0.0, 0.0, 1.0], slide=slide))
+    [trajectory] = [m for port, m in ctx.published if port == "trajectory"]
+    assert trajectory.kind == kind
+    node.on_tick(10_000_000)
+    velocity = ctx.published[-1][1].linear_m_s
+    if slide:  # along the surface, pressing lightly
+        np.testing.assert_allclose(velocity, [0.05, 0.0, -0.01])
+    else:  # Eq. 15: up first
+        assert velocity[2] > 0.0
 
 
 def test_bad_poses_and_targets_are_refused_and_change_nothing() -> None:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from palpate.nodes.controller.core import (
+    HELD_M,
     ControllerConfig,
     ControllerState,
     ControlStep,
@@ -101,16 +102,34 @@ def test_a_contact_reading_that_jumps_while_the_fingertip_stays_does_not_rearm()
 
 def test_pushing_without_interruption_for_rearm_push_s_rearms() -> None:
     arming = touched_arming(TouchConfig(rearm_distance_m=0.0, rearm_push_s=0.1))
-    push = slid(0.0)
-    assert not arming.update(1 * TICK_NS, *push)  # the push starts here
-    assert not arming.update(10 * TICK_NS, *push)  # 0.09 s
-    assert not arming.update(11 * TICK_NS, *push[:2], np.array([0.0]))  # an interruption: the clock restarts
-    assert not arming.update(12 * TICK_NS, *push)
-    assert not arming.update(21 * TICK_NS, *push)  # 0.09 s since the restart
-    assert arming.update(22 * TICK_NS, *push)  # 0.1 s
+
+    def push(tick: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return slid(0.2 * HELD_M * tick)  # creeping, so never held in place for 0.1 s
+
+    assert not arming.update(1 * TICK_NS, *push(1))  # the push starts here
+    assert not arming.update(10 * TICK_NS, *push(10))  # 0.09 s
+    assert not arming.update(11 * TICK_NS, *push(11)[:2], np.array([0.0]))  # an interruption: the clock restarts
+    assert not arming.update(12 * TICK_NS, *push(12))
+    assert not arming.update(21 * TICK_NS, *push(21))  # 0.09 s since the restart
+    assert arming.update(22 * TICK_NS, *push(22))  # 0.1 s
     assert arming.push_since_ns is None
     off = touched_arming(TouchConfig(rearm_distance_m=0.0, rearm_push_s=0.0))
-    assert not any(off.update(tick * TICK_NS, *push) for tick in range(1, 200))  # 0 disables it
+    assert not any(off.update(tick * TICK_NS, *slid(0.0)) for tick in range(1, 200))  # 0 disables it
+
+
+def test_a_fingertip_held_in_place_in_contact_for_rearm_push_s_rearms_whatever_the_force() -> None:
+    """Wedged in a gap, the reported contact need not push (force 0) while another blocks the fingertip."""
+    arming = touched_arming(TouchConfig(rearm_distance_m=0.0, rearm_push_s=0.1))
+    tip, positions = slid(0.0)[:2]
+    unforced = np.array([0.0])
+    assert not arming.update(1 * TICK_NS, tip, positions, unforced)  # held from here
+    assert not arming.update(10 * TICK_NS, tip + 0.5 * HELD_M, positions, unforced)  # 0.09 s, within HELD_M
+    assert not arming.update(11 * TICK_NS, tip + 2 * HELD_M, positions, unforced)  # it moved: the clock restarts
+    assert not arming.update(20 * TICK_NS, tip + 2 * HELD_M, positions, unforced)
+    assert arming.update(21 * TICK_NS, tip + 2 * HELD_M, positions, unforced)  # 0.1 s since
+    assert arming.held is None
+    arming.disarm()  # a new target: the fingertip waited in place for it, which is no hold
+    assert not arming.update(100 * TICK_NS, tip, positions, unforced)
 
 
 # --- TouchLoop ----------------------------------------------------------------------------------------

@@ -94,3 +94,15 @@ def test_a_contact_that_cannot_be_planned_for_ends_the_run_with_the_reason() -> 
     assert not sent and ctx.counters["planning_failed"] == 1
     assert ctx.stop_requested.startswith("planner: no candidate target within")
     assert ctx.failure == ctx.stop_requested  # a failure: palpate launch exits 1
+
+
+@pytest.mark.parametrize(("reach_m", "slide"), [(0.0, False), (0.06, True)])
+def test_the_target_says_whether_to_slide_to_it(reach_m: float, slide: bool) -> None:
+    sent: list[Message] = []
+    ctx = NodeContext("planner", 0, lambda topic, message: sent.append(message), {"target": "planner/target"})
+    node = PlannerNode(PlannerConfig(strategy="tour", tour_slide_max_m=reach_m), ctx)
+    node.on_touches(touch([0.0, 0.0, 0.0], [0.0, 0.0, -1.0]))  # the touch's normal: +z, as the plane's
+    node.on_pose(pose([0.0, 1.0, 0.0, 0.0]))
+    node.on_surface(plane(1e-6))
+    [target] = sent
+    assert isinstance(target, TouchTarget) and target.slide is slide

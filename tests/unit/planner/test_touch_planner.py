@@ -221,3 +221,29 @@ def test_gpv_on_a_mesh_without_variance_names_the_gpis_setting() -> None:
     planner = touched_at_origin(PlannerConfig(strategy="gpv"))
     with pytest.raises(PlanningError, match="vertex_variance to candidates or all"):
         planner.plan("local", 1, V, N, np.zeros(0), over(np.zeros(3)), np.random.default_rng(0), variance_vertices=[])
+
+
+@pytest.mark.parametrize(
+    ("config", "normal", "slides"),
+    [
+        (PlannerConfig(strategy="tour"), [0.0, 0.0, 1.0], True),  # the tour slides by default
+        (PlannerConfig(strategy="igef"), [0.0, 0.0, 1.0], False),  # the paper's strategies lift
+        (PlannerConfig(strategy="igef", slide_max_m=0.06), [0.0, 0.0, 1.0], True),  # any strategy may
+        (PlannerConfig(strategy="igef", tour_slide_max_m=0.06), [0.0, 0.0, 1.0], False),  # the tour's alone
+        (PlannerConfig(strategy="tour", tour_slide_max_m=0.0), [0.0, 0.0, 1.0], False),  # the tour lifting
+        (PlannerConfig(strategy="tour", tour_slide_max_m=0.001), [0.0, 0.0, 1.0], False),  # too far
+        (PlannerConfig(strategy="tour", slide_max_angle_deg=30.0), [0.0, 0.6, 0.8], False),  # 37 deg off
+        (PlannerConfig(strategy="tour", slide_max_angle_deg=40.0), [0.0, 0.6, 0.8], True),
+        (PlannerConfig(strategy="tour"), [0.0, 0.0, 0.0], False),  # no normal given
+    ],
+)
+def test_a_target_near_the_last_contact_and_facing_as_it_does_is_reached_by_a_slide(
+    config: PlannerConfig, normal: list[float], slides: bool
+) -> None:
+    V, N = plane()
+    planner = TouchPlanner(config)
+    planner.add_touch(np.zeros(3), np.full(3, np.nan), [0.0, 0.0, -1.0], normal)
+    plan = planner.plan("local", 1, V, N, np.ones(len(V)), over(np.zeros(3)), np.random.default_rng(0))
+    assert plan is not None
+    assert np.linalg.norm(plan.selection.target_m) > 0.001  # every target of the plane lies that far
+    assert plan.selection.slide is slides

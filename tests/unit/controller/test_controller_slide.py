@@ -1,0 +1,111 @@
+"""Slides (TouchTarget.slide, not in the paper): the fingertip moves to the target along the surface."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from palpate.nodes.controller.core import ControllerConfig, ControllerState, Touch, TouchConfig, TouchLoop
+
+DT_S = 0.01
+TICK_NS = 10_000_000
+UP = np.array([0.0, 0.0, 1.0])
+R_DOWN = np.diag([1.0, -1.0, -1.0])  # the fingertip pokes along -z
+NONE = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+
+#: Projects a point fingertip out of the object (as the simulated probe is) and says whether it touches.
+Surface = Callable[[np.ndarray], tuple[np.ndarray, bool]]
+
+
+def floor(p: np.ndarray) -> tuple[np.ndarray, bool]:
+    """The plane z = 0, object below."""
+    return (np.array([p[0], p[1], 0.0]), True) if p[2] <= 0.0 else (p, False)
+
+
+def step_down_at_1cm(p: np.ndarray) -> tuple[np.ndarray, bool]:
+    """A top face z = 0 for x < 1 cm, and 2 mm lower beyond: an edge the fingertip slides off."""
+    height = 0.0 if p[0] < 0.01 else -0.002
+    return (np.array([p[0], p[1], height]), True) if p[2] <= height else (p, False)
+
+
+def wall_at_5mm(p: np.ndarray) -> tuple[np.ndarray, bool]:
+    """The floor and a wall x >= 5 mm that the fingertip cannot pass."""
+    q, touching = floor(p)
+    if q[0] > 0.005:
+        q, touching = np.array([0.005, q[1], q[2]]), True
+    return q, touching
+
+
+def touched_at_origin() -> TouchLoop:
+    """A point fingertip (radius 0) that has touched the floor at the origin and waits for a target."""
+    loop = TouchLoop(TouchConfig(tip_radius_m=0.0), ControllerConfig(), initial_target_m=(0.0, 0.0, -0.01))
+    r = np.array([0.0, 0.0, 0.01])
+    for tick in range(100):
+        r, touching = floor(r)
+        contacts = (r[None, :], UP[None, :], np.ones(1)) if touching else NONE
+        step = loop.step(tick * TICK_NS, r, R_DOWN, *contacts)
+        if step.touch is not None:
+            return loop
+        r = r + DT_S * step.linear_m_s
+    raise AssertionError("no first touch")
+
+
+def slide(loop: TouchLoop, surface: Surface, target: list[float], ticks: int = 500) -> tuple[Touch | None, int, float]:
+    """Aim at `target` (normal +z) with a slide from the fingertip at the origin and drive it: the touch,
+    the ticks it took and the highest the fingertip rose above the surface on the way (metres)."""
+    r = loop.arming.last_fingertip.copy()
+    P = loop.aim(r, R_DOWN, np.array(target), UP, np.array(target), slide=True)
+    np.testing.assert_allclose(P[[0, 3]], [r, target], atol=1e-15)  # displayed as the straight line
+    lift = 0.0
+    for tick in range(ticks):
+        r, touching = surface(r)
+        contacts = (r[None, :], UP[None, :], np.ones(1)) if touching else NONE
+        if not touching:
+            lift = max(lift, float(r[2] - surface(r - 0.05 * UP)[0][2]))
+        step = loop.step((1000 + tick) * TICK_NS, r, R_DOWN, *contacts)
+        assert not step.failed
+        if step.touch is not None:
+            return step.touch, tick, lift
+        r = r + DT_S * step.linear_m_s
+    return None, ticks, lift
+
+
+def test_a_slide_reaches_its_target_along_the_surface_and_travels_its_length() -> None:
+    loop = touched_at_origin()
+    target = [0.02, 0.01, 0.0]
+    touch, _, lift = slide(loop, floor, target)
+    assert touch is not None and touch.index == 1 and not touch.missed
+    assert np.linalg.norm(touch.position_m - target) <= TouchConfig().slide_arrive_m
+    assert lift == 0.0  # in contact all the way
+    distance = float(np.linalg.norm(target))
+    assert distance - 0.001 <= touch.travelled_m <= distance + 0.0005  # no lift: the chord, to a step
+    np.testing.assert_allclose(touch.approach_direction, -UP)  # slid in: the next curve lifts off along +z
+    assert loop.slides == 1 and loop.slide is None and loop.controller.state is ControllerState.IDLE
+
+
+def test_a_slide_off_an_edge_finishes_along_the_curve_and_touches_the_target() -> None:
+    loop = touched_at_origin()
+    target = [0.025, 0.0, -0.002]
+    touch, _, lift = slide(loop, step_down_at_1cm, target)
+    assert touch is not None and lift > 0.0  # it left the surface at the edge
+    assert np.linalg.norm(touch.position_m - target) < 0.002
+    assert touch.travelled_m < 0.035
+
+
+def test_a_slide_held_by_a_wall_ends_with_a_touch_in_bounded_time() -> None:
+    loop = touched_at_origin()
+    touch, ticks, _ = slide(loop, wall_at_5mm, [0.01, 0.0, 0.0])
+    assert touch is not None
+    assert touch.position_m[0] == pytest.approx(0.005)
+    # its budget: twice the distance plus slide_slack_m, 3 cm, at 5 cm/s: 60 ticks
+    assert ticks <= 62
+
+
+def test_a_slide_asked_for_out_of_contact_is_an_ordinary_curve() -> None:
+    loop = touched_at_origin()
+    r = loop.arming.last_fingertip.copy()
+    loop.step(2000 * TICK_NS, r + 0.003 * UP, R_DOWN, *NONE)  # the fingertip has left the surface
+    loop.aim(r + 0.003 * UP, R_DOWN, np.array([0.02, 0.0, 0.0]), UP, np.zeros(3), slide=True)
+    assert loop.slide is None and loop.controller.state is ControllerState.APPROACH
