@@ -70,12 +70,15 @@ class TouchConfig(Validated):
     #: the YCB sponge with GP-V). 0.5 = 60 degrees; -1 keeps Eq. 15 as written.
     retract_min_cos: Annotated[float, Range(ge=-1.0, le=1.0)] = 0.5
     #: A slide (TouchTarget.slide, not in the paper) keeps the fingertip on the surface while it moves
-    #: towards the target at v0, along the tangent plane of its strongest contact: it presses into the
-    #: surface at this speed, m/s (the contact keeps it out), and ends with a touch once that contact is
-    #: within ``slide_arrive_m`` of the target in its tangent plane (two control steps at v0), or has
-    #: passed it by more than that, or the fingertip has moved twice as far as the slide's
-    #: start was from the target plus ``slide_slack_m`` (blocked by a wall). Where the fingertip loses
-    #: the surface (an edge) it finishes along the Eq. 15 curve (see MIN_SLIDE_CURVE_M).
+    #: its contact point towards the target at v0, in the tangent plane of the strongest contact: it
+    #: presses into the surface at this speed, m/s (the contact keeps it out), and ends with a touch
+    #: once the contact point is within ``slide_arrive_m`` of the target in that plane (two control
+    #: steps at v0), or has passed it by more than that, or the fingertip has moved twice as far as the
+    #: slide's start was from the target plus ``slide_slack_m``, or for as long as that takes at v0
+    #: (held by a wall). The contact point is placed by the fingertip's pose and the contact normal,
+    #: fingertip centre - tip_radius_m n, not read: a noisy reading would end a slide at once. Where
+    #: the fingertip loses the surface (an edge) it finishes along the Eq. 15 curve (see
+    #: MIN_SLIDE_CURVE_M).
     slide_press_m_s: NonNegativeFloat = 0.01
     slide_arrive_m: PositiveFloat = 0.001
     slide_slack_m: NonNegativeFloat = 0.01
@@ -301,27 +304,34 @@ class TrajectoryController:
 
         Fails (state FAILED) if the fingertip gets more than Delta_m beyond target_p without contact.
         """
-        start = _vector("start_r", start_r)
-        target = _vector("target_p", target_p)
-        self._go_straight(start, target, _unit("target_p - start_r", target - start))  # v_n = (t_p - r)/|t_p - r|
+        self.go_straight(start_r, target_p)  # v_n = (t_p - r)/|t_p - r|
         self._exploring = False
 
     def start(
-        self, c_p: ArrayLike, v_n: ArrayLike, R0: ArrayLike, target_p: ArrayLike, target_n: ArrayLike
+        self,
+        c_p: ArrayLike,
+        v_n: ArrayLike,
+        R0: ArrayLike,
+        target_p: ArrayLike,
+        target_n: ArrayLike,
+        touched_m: ArrayLike | None = None,
     ) -> FloatArray:
         """Alg. 1 lines 19-24: the Eq. 15 curve from the last contact c_p to the target.
 
         c_p: last contact (3,) m, also the curve start; v_n: velocity direction just before that contact
         (normalised here; zero means no retraction); R0: current orientation (3, 3); target_p, target_n:
-        target position (m) and outward unit normal. Returns the control points (4, 3).
+        target position (m) and outward unit normal; touched_m: where the fingertip last touched, the
+        recovery's target, when the curve does not start there (a slide that lost the surface; default
+        c_p). Returns the control points (4, 3).
         """
         cfg = self.config
         c = _vector("c_p", c_p)
+        touched = c if touched_m is None else _vector("touched_m", touched_m)
         v = _unit("v_n", v_n, allow_zero=True)
         R = _rotation("R0", R0)
         t_p = _vector("target_p", target_p)
         t_n = _unit("target_n", target_n)
-        self._last_contact = c
+        self._last_contact = touched
         self._target_p, self._target_n = t_p, t_n
         self._exploring = True
         # Eq. 15: T_p = bezier(c_p, c_p - beta v_n, t_p + beta t_n, t_p), beta = |c_p - t_p| / 3
@@ -594,17 +604,19 @@ MIN_SLIDE_TURN_S = 0.02
 @dataclass
 class Slide:
     """A slide in progress (TouchTarget.slide). target_m, normal: t_p (3,) m and t_n (3,); centre_m: the
-    fingertip centre at the target (where the Eq. 15 curve goes if the fingertip loses the surface);
-    touched_m: the strongest contact point of the last tick in contact (where it goes back to when
-    the curve would be too short); budget_m: how far the fingertip may move before the slide ends
+    fingertip centre at the target; touched_m, fingertip_m, touched_normal: the strongest contact point,
+    the fingertip centre and the contact normal of the last tick in contact (where the fingertip goes
+    back to if it loses the surface); budget_m: how far the fingertip may move before the slide ends
     wherever it is (at v0 that also bounds its time, for a fingertip held in place); closest_m: the
-    least distance to the target in the contact's tangent plane so far. The odometer reading and the
-    stamp at which it ends are set at its first tick."""
+    least distance from the contact point to the target in the contact's tangent plane so far. The
+    odometer reading and the stamp at which it ends are set at its first tick."""
 
     target_m: FloatArray
     normal: FloatArray
     centre_m: FloatArray
     touched_m: FloatArray
+    fingertip_m: FloatArray
+    touched_normal: FloatArray
     budget_m: float
     closest_m: float = math.inf
     end_travel_m: float = math.inf
@@ -665,17 +677,19 @@ class TouchLoop:
         normal = unit_vectors(normal, "normal")
         predicted = coordinates(predicted_contact_m, "predicted_contact_m")
         centre_at_target = target + self.config.tip_radius_m * normal
-        self.predicted = np.array(predicted)
-        self.arming.disarm()
         if slide and self.in_contact and self.controller.state is ControllerState.IDLE:
             start = np.array(coordinates(r, "r"))
             budget = 2.0 * float(np.linalg.norm(centre_at_target - start)) + self.config.slide_slack_m
-            touched = self.arming.last_contact.copy()
-            self.slide = Slide(np.array(target), np.array(normal), centre_at_target, touched, budget)
+            touched = (self.arming.last_contact.copy(), start.copy(), self.last_normal.copy())
+            self.slide = Slide(np.array(target), np.array(normal), centre_at_target, *touched, budget)
             self.slides += 1
-            return start + np.outer(np.arange(4) / 3.0, centre_at_target - start)
-        self.slide = None
-        return self.controller.start(r, self.retract_from, R, centre_at_target, normal)
+            P = start + np.outer(np.arange(4) / 3.0, centre_at_target - start)
+        else:
+            P = self.controller.start(r, self.retract_from, R, centre_at_target, normal)
+            self.slide = None
+        self.predicted = np.array(predicted)
+        self.arming.disarm()
+        return P
 
     def step(
         self,
@@ -725,19 +739,17 @@ class TouchLoop:
         if slide.deadline_ns is None:
             slide.end_travel_m = self.controller.travelled_m + slide.budget_m
             slide.deadline_ns = stamp_ns + int(1e9 * slide.budget_m / v0)
-        if not len(forces_n):  # the surface fell away (an edge)
-            self.slide = None
-            if float(np.linalg.norm(slide.centre_m - r)) >= MIN_SLIDE_CURVE_M:  # the Eq. 15 curve from here
-                self.controller.start(r, -self.last_normal, R, slide.centre_m, slide.normal)
-            else:  # too short a curve to follow: straight back to the last point touched
-                self.controller.go_straight(r, slide.touched_m)
-            linear, angular = self.controller.command(r, R)
-            return ControlStep(linear, angular, None, failed=self.controller.state is ControllerState.FAILED)
+        if not len(forces_n):
+            return self._leave_slide(slide, r, R)
         strongest = int(np.argmax(forces_n))
         normal = normals[strongest]
         slide.touched_m = np.array(positions_m[strongest])
-        to_target = slide.target_m - positions_m[strongest]
-        along = to_target - float(to_target @ normal) * normal  # the way to the target in the tangent plane
+        slide.fingertip_m = np.array(r)
+        slide.touched_normal = np.array(normal)
+        # the contact point as the fingertip's pose and the contact normal place it (the reported point
+        # is as good without noise, and with noise would end a slide at its first ticks)
+        to_target = slide.target_m - (r - cfg.tip_radius_m * normal)
+        along = to_target - float(to_target @ normal) * normal  # the way there in the tangent plane
         distance = float(np.linalg.norm(along))
         ended = (
             distance <= cfg.slide_arrive_m
@@ -757,6 +769,18 @@ class TouchLoop:
         turn = R @ rotations.log_so3(R.T @ rotations.get_rotation(R, slide.normal))
         angular = turn / max(distance / v0, MIN_SLIDE_TURN_S)
         return ControlStep(linear, angular, None, failed=False)
+
+    def _leave_slide(self, slide: Slide, r: FloatArray, R: FloatArray) -> ControlStep:
+        """The surface fell away under a slide (an edge): the Eq. 15 curve to the target from here, leaving
+        along the last contact's normal, its recovery aimed at the fingertip's last place in contact; or,
+        nearer the target than MIN_SLIDE_CURVE_M, straight back to the last point touched."""
+        self.slide = None
+        if float(np.linalg.norm(slide.centre_m - r)) >= MIN_SLIDE_CURVE_M:
+            self.controller.start(r, -slide.touched_normal, R, slide.centre_m, slide.normal, slide.fingertip_m)
+        else:
+            self.controller.go_straight(r, slide.touched_m)
+        linear, angular = self.controller.command(r, R)
+        return ControlStep(linear, angular, None, failed=self.controller.state is ControllerState.FAILED)
 
     def _touch(
         self, r: FloatArray, R: FloatArray, positions_m: FloatArray, normals: FloatArray, forces_n: FloatArray

@@ -196,7 +196,8 @@ class Selection:
     score: float
     scores: FloatArray
     psi: FloatArray | None = None
-    #: Reach it by sliding along the surface from the last contact (PlannerConfig.slide_max_m).
+    #: Reach it by sliding along the surface from the last contact (PlannerConfig.slide_reach_m and
+    #: slide_max_angle_deg decide).
     slide: bool = False
 
 

@@ -186,8 +186,9 @@ def table2(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: 
             lines.append(f"| {percent} % | {label} | " + " | ".join(cells) + " |")
         first = means[shown[0]]
         completed = ", ".join(f"{s.upper()} {int(means[s]['runs_completed'])}/{int(means[s]['runs'])}" for s in shown)
+        counted = "paired runs" if len(shown) == 2 else "runs"
         notes.append(
-            f"{percent} %: {int(first['paired_runs'])} paired runs on {int(first['objects'])} objects; "
+            f"{percent} %: {int(first['paired_runs'])} {counted} on {int(first['objects'])} objects; "
             f"completed {completed}"
         )
     lines.append("")

@@ -212,8 +212,8 @@ class Supervisor:
                 return 1
             if running == 0:
                 return 1 if self.run_failures else 0
-            clock_done = clock is not None and any(
-                c.node is clock and c.proc is not None and c.proc.poll() == 0 for c in self.children
+            clock_done = clock is not None and any(  # finished, or ended the run as a failure
+                c.node is clock and c.proc is not None and c.proc.poll() in (0, EXIT_RUN_FAILED) for c in self.children
             )
             if clock_done:
                 return self._drain()

@@ -145,7 +145,37 @@ class TickCheck:
         print(f"{self.config.label}: {self.ticks} ticks, {self.inputs} inputs, {self.misfiled} misfiled", flush=True)
 
 
+@dataclass(frozen=True, kw_only=True)
+class FailingClockConfig:
+    after_ticks: int = 5
+
+
+class FailingClock:
+    """A clock source (10 ms ticks) that ends the run as a failure after `after_ticks` ticks."""
+
+    def __init__(self, config: FailingClockConfig, ctx: Context):
+        self.config, self.ctx = config, ctx
+        self.period_ns = 10_000_000
+        self.tick = 0
+
+    def step(self) -> int | None:
+        self.tick += 1
+        if self.tick == self.config.after_ticks:
+            self.ctx.request_stop(f"failing clock: gave up after {self.tick} ticks", failed=True)
+        return self.tick * self.period_ns
+
+    def on_tick(self, stamp_ns: int) -> None:
+        """A clock source works in step()."""
+
+
 CRASHER = NodeSpec(name="crasher", config=CrasherConfig, factory=Crasher, doc="dies after a few ticks")
+FAILING_CLOCK = NodeSpec(
+    name="failing_clock",
+    config=FailingClockConfig,
+    factory=FailingClock,
+    clock_source=True,
+    doc="a clock source that ends the run as a failure",
+)
 QUITTER = NodeSpec(name="quitter", config=QuitterConfig, factory=Quitter, doc="requests a stop after a few ticks")
 STUBBORN = NodeSpec(name="stubborn", config=StubbornConfig, factory=Stubborn, doc="ignores SIGTERM")
 JOINT_SINK = NodeSpec(

@@ -17,6 +17,7 @@ from tests.integration.launch_helpers import alive, child_env, descendants, laun
 
 CRASHER = "tests.integration.fake_nodes:CRASHER"
 QUITTER = "tests.integration.fake_nodes:QUITTER"
+FAILING_CLOCK = "tests.integration.fake_nodes:FAILING_CLOCK"
 STUBBORN = "tests.integration.fake_nodes:STUBBORN"
 TRAILING_ECHO = "tests.integration.fake_nodes:TRAILING_ECHO"
 TICK_CHECK = "tests.integration.fake_nodes:TICK_CHECK"
@@ -80,6 +81,29 @@ def test_a_node_that_stops_the_run_as_a_failure_makes_the_launch_exit_1(tmp_path
     assert "[launch] node 'quitter' (tests.integration.fake_nodes:QUITTER) ended the run as a failure" in out, out
     assert "died" not in out, out
     assert node_pids(tmp_path / "bus") == {}  # every node closed
+
+
+def test_a_clock_source_that_ends_the_run_as_a_failure_lets_the_others_close_and_exits_1(tmp_path: Path) -> None:
+    graph = write(
+        tmp_path,
+        f"""
+mode: lockstep
+nodes:
+  - name: clock
+    type: {FAILING_CLOCK}
+  - name: quitter
+    type: {QUITTER}
+    params: {{after_ticks: 1000}}
+""",
+    )
+    log = tmp_path / "launch.log"
+    with launched(graph, tmp_path / "bus", log) as proc:
+        assert proc.wait(timeout=60) == 1, text(log)
+    out = text(log)
+    assert "ERROR node clock ended the run as a failure: failing clock: gave up after 5 ticks" in out, out
+    assert "[launch] node 'clock' (tests.integration.fake_nodes:FAILING_CLOCK) ended the run as a failure" in out
+    assert "died" not in out, out
+    assert node_pids(tmp_path / "bus") == {}
 
 
 def test_trailing_nodes_handle_each_input_in_its_own_tick(tmp_path: Path) -> None:

@@ -52,16 +52,21 @@ def touched_at_origin() -> TouchLoop:
     raise AssertionError("no first touch")
 
 
-def slide(loop: TouchLoop, surface: Surface, target: list[float], ticks: int = 500) -> tuple[Touch | None, int, float]:
+def run_slide(
+    loop: TouchLoop, surface: Surface, target: list[float], ticks: int = 500, noise_m: float = 0.0
+) -> tuple[Touch | None, int, float]:
     """Aim at `target` (normal +z) with a slide from the fingertip at the origin and drive it: the touch,
-    the ticks it took and the highest the fingertip rose above the surface on the way (metres)."""
+    the ticks it took and the highest the fingertip rose above the surface on the way (metres);
+    ``noise_m``: Gaussian noise on each reported contact position (seeded)."""
+    rng = np.random.default_rng(0)
     r = loop.arming.last_fingertip.copy()
     P = loop.aim(r, R_DOWN, np.array(target), UP, np.array(target), slide=True)
     np.testing.assert_allclose(P[[0, 3]], [r, target], atol=1e-15)  # displayed as the straight line
     lift = 0.0
     for tick in range(ticks):
         r, touching = surface(r)
-        contacts = (r[None, :], UP[None, :], np.ones(1)) if touching else NONE
+        reported = r + rng.normal(0.0, noise_m, 3) if noise_m else r
+        contacts = (reported[None, :], UP[None, :], np.ones(1)) if touching else NONE
         if not touching:
             lift = max(lift, float(r[2] - surface(r - 0.05 * UP)[0][2]))
         step = loop.step((1000 + tick) * TICK_NS, r, R_DOWN, *contacts)
@@ -75,7 +80,7 @@ def slide(loop: TouchLoop, surface: Surface, target: list[float], ticks: int = 5
 def test_a_slide_reaches_its_target_along_the_surface_and_travels_its_length() -> None:
     loop = touched_at_origin()
     target = [0.02, 0.01, 0.0]
-    touch, _, lift = slide(loop, floor, target)
+    touch, _, lift = run_slide(loop, floor, target)
     assert touch is not None and touch.index == 1 and not touch.missed
     assert np.linalg.norm(touch.position_m - target) <= TouchConfig().slide_arrive_m
     assert lift == 0.0  # in contact all the way
@@ -85,10 +90,30 @@ def test_a_slide_reaches_its_target_along_the_surface_and_travels_its_length() -
     assert loop.slides == 1 and loop.slide is None and loop.controller.state is ControllerState.IDLE
 
 
+def test_noise_on_the_contact_points_does_not_end_a_slide_early() -> None:
+    """Progress is measured on the fingertip's pose: 1 mm of noise on the contact points (the noise
+    sweep's largest) neither stops the slide at its first ticks nor makes it wander."""
+    loop = touched_at_origin()
+    target = [0.03, 0.0, 0.0]
+    touch, ticks, _ = run_slide(loop, floor, target, noise_m=0.001)
+    assert touch is not None and ticks >= 58  # 3 cm at 0.5 mm per tick
+    assert np.linalg.norm(loop.arming.last_fingertip - target) <= TouchConfig().slide_arrive_m
+    assert touch.travelled_m < 0.0305
+
+
+def test_a_slide_that_loses_the_surface_next_to_its_target_goes_back_to_where_it_touched() -> None:
+    """Within MIN_SLIDE_CURVE_M of the target the curve would be too short to follow."""
+    loop = touched_at_origin()
+    target = [0.013, 0.0, -0.002]
+    touch, _, lift = run_slide(loop, step_down_at_1cm, target)
+    assert touch is not None and lift > 0.0
+    assert 0.0095 <= touch.position_m[0] <= 0.0101 and touch.position_m[2] == 0.0  # the top face, at the edge
+
+
 def test_a_slide_off_an_edge_finishes_along_the_curve_and_touches_the_target() -> None:
     loop = touched_at_origin()
     target = [0.025, 0.0, -0.002]
-    touch, _, lift = slide(loop, step_down_at_1cm, target)
+    touch, _, lift = run_slide(loop, step_down_at_1cm, target)
     assert touch is not None and lift > 0.0  # it left the surface at the edge
     assert np.linalg.norm(touch.position_m - target) < 0.002
     assert touch.travelled_m < 0.035
@@ -96,7 +121,7 @@ def test_a_slide_off_an_edge_finishes_along_the_curve_and_touches_the_target() -
 
 def test_a_slide_held_by_a_wall_ends_with_a_touch_in_bounded_time() -> None:
     loop = touched_at_origin()
-    touch, ticks, _ = slide(loop, wall_at_5mm, [0.01, 0.0, 0.0])
+    touch, ticks, _ = run_slide(loop, wall_at_5mm, [0.01, 0.0, 0.0])
     assert touch is not None
     assert touch.position_m[0] == pytest.approx(0.005)
     # its budget: twice the distance plus slide_slack_m, 3 cm, at 5 cm/s: 60 ticks

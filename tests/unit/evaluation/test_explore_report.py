@@ -106,7 +106,7 @@ def test_tables_of_a_single_strategy_show_it_once_without_an_improvement(tmp_pat
     t2 = report.table2(igef, "igef", "igef")
     assert "| Coverage | Metric | IGEF |" in t2 and "improvement" not in t2.lower()
     assert "| 80 % | Avg. traveled distance | 55.0 cm |" in t2  # objects a (80) and c (30), b incomplete
-    assert "80 %: 3 paired runs on 2 objects; completed IGEF 3/4." in t2
+    assert "80 %: 3 runs on 2 objects; completed IGEF 3/4." in t2
     t4 = report.table4(igef, "igef", "igef")
     header, rule, *rows = t4.splitlines()
     assert header.count("IGEF") == 3 and rule.count("|") == header.count("|")
