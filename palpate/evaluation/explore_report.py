@@ -169,24 +169,21 @@ def table2(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: 
     """Markdown table in the form of the paper's Table 2 (averages at 50 % and 80 % coverage); with
     baseline == method (a single strategy) its averages alone, without the improvement column."""
     shown = _compared(baseline, method)
-    names = " | ".join(s.upper() for s in shown)
-    lines = (
-        [f"| Coverage | Metric | {names} | Avg. improvement |", "|---|---|---:|---:|---:|"]
-        if len(shown) == 2
-        else [f"| Coverage | Metric | {names} |", "|---|---|---:|"]
-    )
+    pair = len(shown) == 2
+    header = ["Coverage", "Metric", *(s.upper() for s in shown)] + (["Avg. improvement"] if pair else [])
+    lines = ["| " + " | ".join(header) + " |", "|---|---|" + "---:|" * (len(header) - 2)]
     notes = []
     for percent in MILESTONES:
         means = paired_means(results, shown, percent)
         for key, label, unit in METRICS:
             digits = 2 if (unit == "mm" and "miss" not in key) or key == "confident_fraction" else 1
             cells = [_fmt(means[s][key], unit, digits) for s in shown]
-            if len(shown) == 2:
+            if pair:
                 cells.append(_fmt(improvement_pct(means[baseline][key], means[method][key]), "%", 0))
             lines.append(f"| {percent} % | {label} | " + " | ".join(cells) + " |")
         first = means[shown[0]]
         completed = ", ".join(f"{s.upper()} {int(means[s]['runs_completed'])}/{int(means[s]['runs'])}" for s in shown)
-        counted = "paired runs" if len(shown) == 2 else "runs"
+        counted = "paired runs" if pair else "runs"
         notes.append(
             f"{percent} %: {int(first['paired_runs'])} {counted} on {int(first['objects'])} objects; "
             f"completed {completed}"
@@ -195,7 +192,7 @@ def table2(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: 
     lines.append(
         "Averages over paired runs only (every strategy reached the coverage in that (object, run)): "
         "per object, then over objects."
-        + (" Improvement = (baseline - method) / baseline. " if len(shown) == 2 else " ")
+        + (" Improvement = (baseline - method) / baseline. " if pair else " ")
         + "; ".join(notes)
         + "."
     )
