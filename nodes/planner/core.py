@@ -366,6 +366,10 @@ def area_scores(
     return np.asarray(explored_by * psi4 / cost, dtype=np.float64)
 
 
+#: A tour site lies at least this fraction of the coverage radius rho from every contact (``tour_plan``).
+SITE_AWAY = 0.5
+
+
 @dataclass(frozen=True)
 class Tour:
     """A planned tour: the candidate rows of its sites in visiting order (k,), the new (weighted) area
@@ -491,6 +495,9 @@ def tour_plan(
     candidates with the largest G(s) / (Len(r -> s) + L0) (one site tours are area's choice).
     A one-site tour is the myopic choice; a longer one goes first to the site on the way (a hole next
     to the path) and keeps a far uncovered region in the plan.
+    A candidate within rho / 2 of a contact is no site (``SITE_AWAY``): its touch lands on ground
+    explored already, and the patches it would add at the rim of its disc may stay unexplored when it
+    lands a millimetre off (two such sites were touched in turn 700 times on the YCB wood blocks).
     When no candidate explores anything, the tour is the single best of the distance to the nearest
     contact per unit of travel (as in area). Scores (m,): the tour's sites get J + k - i (i = 0 first),
     the other candidates G(s) / (Len(r -> s) + L0) scaled below J, so a caller that must skip the first
@@ -504,15 +511,18 @@ def tour_plan(
     w = patch_weights(candidates_m, explored_by, config, variance, tree)
     psi4 = rotation_factor(normals, R_z, config)  # Eq. 11
     reach = path_length(r, v_n, candidates_m, normals, config)  # Len(r -> s), (m,)
-    if not w.any():
+    gain = np.zeros(len(candidates_m))
+    if w.any():
+        pairs = tree.sparse_distance_matrix(tree, rho, output_type="ndarray")
+        pairs = pairs[w[pairs["j"]] > 0.0]
+        gain = np.bincount(pairs["i"], weights=w[pairs["j"]], minlength=len(candidates_m)) * psi4  # G(s)
+        gain[explored_by < SITE_AWAY * rho] = 0.0
+    if not gain.any():
         own = explored_by * psi4 / (reach + L0)
         index = int(np.argmax(own))
         scores = own / max(float(own.max()), 1e-300)
         scores[index] = 2.0
         return Tour(np.array([index]), np.zeros(1), float(reach[index] + L0), scores)
-    pairs = tree.sparse_distance_matrix(tree, rho, output_type="ndarray")
-    pairs = pairs[w[pairs["j"]] > 0.0]
-    gain = np.bincount(pairs["i"], weights=w[pairs["j"]], minlength=len(candidates_m)) * psi4  # G(s)
     own = gain / (reach + L0)
     pool = np.argsort(-own, kind="stable")[: config.tour_pool]
     pool = pool[gain[pool] > 0.0]

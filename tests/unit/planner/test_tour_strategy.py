@@ -92,3 +92,20 @@ def test_the_planner_selects_the_tours_first_site_within_the_tour_radius() -> No
     assert np.all(choice.scores[np.linalg.norm(S, axis=1) > 0.06] == 0.0)
     again = Planner(config).select(S, N, np.zeros(len(S)), C, C[-1], DOWN, DOWN, np.random.default_rng(5))
     np.testing.assert_array_equal(choice.scores, again.scores)  # deterministic, whatever the rng
+
+
+def test_no_site_lies_on_explored_ground_next_to_a_contact() -> None:
+    """A strip explored up to 5 mm from a contact: its last patches (6 and 7 mm out) are explored from
+    a site at least rho / 2 from the contact, not from the site 1 mm beside it, whose touch, landing a
+    millimetre off, could leave them unexplored again and again."""
+    x = np.arange(-0.007, 0.0075, 0.001)
+    S = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    N = np.tile(UP, (len(S), 1))
+    C = np.array([[-0.001, 0.0, 0.0]])
+    config = PlannerConfig(strategy="tour")
+    tour = tour_plan(S, N, C, C[-1] + [0.0, 0.0, 0.008], DOWN, DOWN, config)
+    rho = config.area_radius_m
+    assert len(tour.sites) == 1
+    site = S[tour.sites[0]]
+    assert np.linalg.norm(site - C[0]) >= rho / 2
+    assert np.linalg.norm(site - [0.007, 0.0, 0.0]) <= rho  # it still explores the strip's end
