@@ -138,7 +138,7 @@ class TouchTarget(Message):
     """The next best touch chosen by the planner, with the candidates it scored."""
 
     TYPE: ClassVar[str] = "TouchTarget"
-    VERSION: ClassVar[int] = 2
+    VERSION: ClassVar[int] = 3
     TOPIC: ClassVar[str] = topics.TOUCH_TARGET
 
     strategy: str = scalar("str", "'igef', 'gpv', 'random', 'area' or 'tour'")
@@ -153,6 +153,13 @@ class TouchTarget(Message):
         "reach the target by sliding along the surface from the last contact instead of the Eq. 15 curve "
         "(version 2; not in the paper)",
         default=False,
+    )
+    miss_distance_m: float = scalar(
+        "float",
+        "how far past the target the fingertip may go without a contact before the recovery curve "
+        "(Delta_m of Algorithm 1 line 26); 0: the controller's own (version 3; not in the paper)",
+        "m",
+        default=0.0,
     )
 
 

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from palpate.config import NonNegativeFloat, PositiveFloat, Range, Validated
-from palpate.errors import PlanningError
+from palpate.errors import InputError, PlanningError
 from palpate.geometry import rotations
 from palpate.geometry.bezier import Cubic, approach_curve, recovery_curve
 from palpate.geometry.rotations import dot3
@@ -212,6 +212,7 @@ class TrajectoryController:
         self._direction = np.zeros(3)  # unit direction of the last commanded velocity (v_n)
         self._direct_start = np.zeros(3)
         self._direct_budget_m = 0.0
+        self._miss_m = self.config.miss_distance_m  # Delta_m of the motion under way
         self._recoveries = 0
         self._straight_returns = 0
         self._R0_w01 = np.zeros(3)  # R0 w01: the slerp's rotation vector in the world frame
@@ -304,6 +305,7 @@ class TrajectoryController:
 
         Fails (state FAILED) if the fingertip gets more than Delta_m beyond target_p without contact.
         """
+        self._miss_m = self.config.miss_distance_m
         self.go_straight(start_r, target_p)  # v_n = (t_p - r)/|t_p - r|
         self._exploring = False
 
@@ -315,6 +317,7 @@ class TrajectoryController:
         target_p: ArrayLike,
         target_n: ArrayLike,
         touched_m: ArrayLike | None = None,
+        miss_distance_m: float = 0.0,
     ) -> FloatArray:
         """Alg. 1 lines 19-24: the Eq. 15 curve from the last contact c_p to the target.
 
@@ -322,9 +325,11 @@ class TrajectoryController:
         (normalised here; zero means no retraction); R0: current orientation (3, 3); target_p, target_n:
         target position (m) and outward unit normal; touched_m: where the fingertip last touched, the
         recovery's target, when the curve does not start there (a slide that lost the surface; default
-        c_p). Returns the control points (4, 3).
+        c_p); miss_distance_m: Delta_m for this target, its recovery and return (0: the config's).
+        Returns the control points (4, 3).
         """
         cfg = self.config
+        self._miss_m = miss_distance_m if miss_distance_m > 0.0 else cfg.miss_distance_m
         c = _vector("c_p", c_p)
         touched = c if touched_m is None else _vector("touched_m", touched_m)
         v = _unit("v_n", v_n, allow_zero=True)
@@ -392,7 +397,7 @@ class TrajectoryController:
         self._tau = self._curve.closest_tau(r_, self._tau, self._tau_max, samples=cfg.closest_samples)
         if self._tau >= 1.0:
             off = _minus(xyz, self._curve.end.tolist())
-            if math.sqrt(dot3(off, off)) > cfg.miss_distance_m:  # line 26
+            if math.sqrt(dot3(off, off)) > self._miss_m:  # line 26
                 if self._state is ControllerState.RECOVERY:
                     if not cfg.return_after_recovery or not self._start_return(r_):
                         self._state = ControllerState.FAILED
@@ -444,7 +449,7 @@ class TrajectoryController:
         self._tau = 0.0
         end_speed = float(np.linalg.norm(self._curve.end_tangent))  # |T'(1)|
         # Search far enough past T(1) that passing it by Delta_m is seen (tau > 1 branch of line 26).
-        self._tau_max = 1.0 + cfg.d_tau + 2.0 * cfg.miss_distance_m / max(end_speed, 1e-12)
+        self._tau_max = 1.0 + cfg.d_tau + 2.0 * self._miss_m / max(end_speed, 1e-12)
         R1 = rotations.get_rotation(R0, face_n)  # Alg. 1 line 20: R1 <- getRotation(R0, t_n)
         self._R0 = R0
         self._w01 = rotations.log_so3(R0.T @ R1)  # T_R(tau) = R0 exp(tau w01)
@@ -478,7 +483,7 @@ class TrajectoryController:
         fingertip is more than Delta_m beyond target without a contact."""
         self._direction = direction
         self._direct_start = start
-        self._direct_budget_m = float(np.linalg.norm(target - start)) + self.config.miss_distance_m
+        self._direct_budget_m = float(np.linalg.norm(target - start)) + self._miss_m
         self._target_p, self._target_n = target, -direction
         self._curve = None
         self._state = ControllerState.DIRECT
@@ -623,6 +628,11 @@ class Slide:
     deadline_ns: int | None = None
 
 
+#: The largest Delta_m a target may ask for, metres (TouchTarget.miss_distance_m): past it a missed
+#: touch would wander far from the object.
+MAX_MISS_DISTANCE_M = 0.2
+
+
 class TouchLoop:
     """Algorithm 1's controller side: approach the initial target, follow the curve to each target (or
     slide to it along the surface, when the target says so), stop on a new touch and announce it. Feed
@@ -641,6 +651,7 @@ class TouchLoop:
         self.in_contact = False  # the last tick had a contact
         self.last_normal = np.zeros(3)  # measured normal of the last touch
         self.slides = 0  # slides started
+        self.miss_m = 0.0  # Delta_m the last target asked for (0: the controller's own)
 
     @property
     def touches(self) -> int:
@@ -663,6 +674,7 @@ class TouchLoop:
         normal: ArrayLike,
         predicted_contact_m: ArrayLike,
         slide: bool = False,
+        miss_distance_m: float = 0.0,
     ) -> FloatArray:
         """A new touch target (Alg. 1 lines 19-20): start its Eq. 15 curve from the fingertip at r (3,) m,
         orientation R (3, 3), to the target point t_p (3,) m with outward unit normal t_n (3,); the curve
@@ -676,16 +688,23 @@ class TouchLoop:
         target = coordinates(target_m, "position_m")
         normal = unit_vectors(normal, "normal")
         predicted = coordinates(predicted_contact_m, "predicted_contact_m")
+        miss = float(miss_distance_m)
+        if not (math.isfinite(miss) and 0.0 <= miss <= MAX_MISS_DISTANCE_M):
+            raise InputError(
+                "miss_distance_m", f"is {miss!r}; give 0 (the controller's own) up to {MAX_MISS_DISTANCE_M} m"
+            )
         centre_at_target = target + self.config.tip_radius_m * normal
         if slide and self.in_contact and self.controller.state is ControllerState.IDLE:
             start = np.array(coordinates(r, "r"))
             budget = 2.0 * float(np.linalg.norm(centre_at_target - start)) + self.config.slide_slack_m
             touched = (self.arming.last_contact.copy(), start.copy(), self.last_normal.copy())
             self.slide = Slide(np.array(target), np.array(normal), centre_at_target, *touched, budget)
+            self.miss_m = miss
             self.slides += 1
             P = start + np.outer(np.arange(4) / 3.0, centre_at_target - start)
         else:
-            P = self.controller.start(r, self.retract_from, R, centre_at_target, normal)
+            self.miss_m = miss
+            P = self.controller.start(r, self.retract_from, R, centre_at_target, normal, miss_distance_m=miss)
             self.slide = None
         self.predicted = np.array(predicted)
         self.arming.disarm()
@@ -776,7 +795,9 @@ class TouchLoop:
         nearer the target than MIN_SLIDE_CURVE_M, straight back to the last point touched."""
         self.slide = None
         if float(np.linalg.norm(slide.centre_m - r)) >= MIN_SLIDE_CURVE_M:
-            self.controller.start(r, -slide.touched_normal, R, slide.centre_m, slide.normal, slide.fingertip_m)
+            self.controller.start(
+                r, -slide.touched_normal, R, slide.centre_m, slide.normal, slide.fingertip_m, self.miss_m
+            )
         else:
             self.controller.go_straight(r, slide.touched_m)
         linear, angular = self.controller.command(r, R)

@@ -52,7 +52,15 @@ class ControllerNode:
         if self.pose is None:
             return
         r, R = self.pose
-        P = self.core.aim(r, R, message.position_m, message.normal, message.predicted_contact_m, message.slide)
+        P = self.core.aim(
+            r,
+            R,
+            message.position_m,
+            message.normal,
+            message.predicted_contact_m,
+            message.slide,
+            message.miss_distance_m,
+        )
         R1 = matrix_to_quat(R)
         self.ctx.publish(
             "trajectory",

@@ -142,11 +142,29 @@ class PlannerConfig(Validated):
     slide_max_m: NonNegativeFloat = 0.0
     tour_slide_max_m: NonNegativeFloat = 0.06
     slide_max_angle_deg: Annotated[float, Range(ge=0.0, le=90.0)] = 60.0
+    #: Not in the paper: how far past its target the fingertip may go without a contact before Algorithm
+    #: 1's recovery (Delta_m, ``TouchTarget.miss_distance_m``), metres; 0 leaves it to the controller
+    #: (``miss_distance_m``, 1 cm). ``miss_distance_m`` holds for every strategy (0, the default),
+    #: ``tour_miss_distance_m`` for the tour: 3 cm, so that a touch aimed at surface the estimate
+    #: invents (the GP closes a cup's unexplored inside with a false floor) goes on to the true surface
+    #: behind it, where 1 cm ends in the recovery and a touch where the fingertip left
+    #: (docs/exploration.md, "A longer reach past a missed target").
+    miss_distance_m: NonNegativeFloat = 0.0
+    tour_miss_distance_m: NonNegativeFloat = 0.03
 
     @property
     def slide_reach_m(self) -> float:
         """How far from the last contact this strategy slides to a target (0: it never slides)."""
         return max(self.slide_max_m, self.tour_slide_max_m if self.strategy == "tour" else 0.0)
+
+    @property
+    def target_miss_distance_m(self) -> float:
+        """Delta_m this strategy asks of the controller with each target (0: the controller's own)."""
+        return (
+            self.tour_miss_distance_m
+            if self.strategy == "tour" and self.tour_miss_distance_m > 0.0
+            else self.miss_distance_m
+        )
 
     @property
     def uses_variance(self) -> bool:

@@ -60,6 +60,7 @@ class PlannerNode:
                 candidates_m=plan.candidates.points_m,
                 candidate_scores=choice.scores,
                 slide=choice.slide,
+                miss_distance_m=self.core.config.target_miss_distance_m,
             ),
         )
 

@@ -218,3 +218,30 @@ def test_retract_direction_keeps_v_n_into_the_surface_and_lifts_off_after_slidin
     np.testing.assert_allclose(retract_direction(sliding, normal, 0.5), [0.0, 0.0, -1.0], atol=1e-15)
     np.testing.assert_allclose(retract_direction(sliding, normal, -1.0), sliding, atol=0)  # Eq. 15 as written
     np.testing.assert_allclose(retract_direction(sliding, np.full(3, np.nan), 0.5), sliding, atol=0)
+
+
+def floor_2cm_down(p: np.ndarray) -> bool:
+    """The true surface 2 cm below the one the target was planned on (a false floor in the estimate)."""
+    return bool(p[2] <= -0.02)
+
+
+@pytest.mark.parametrize(("miss_distance_m", "recovers"), [(0.0, True), (0.03, False)])
+def test_a_target_may_ask_for_a_longer_reach_past_it_before_the_recovery(
+    miss_distance_m: float, recovers: bool
+) -> None:
+    """A target on a false floor 2 cm above the true one: with the controller's own Delta_m (1 cm) the
+    fingertip gives up and recovers; with 3 cm asked by the target it goes on and touches the true floor."""
+    ctrl = TrajectoryController()
+    t_p = np.array([0.03, 0.0, 0.0])
+    ctrl.start(np.zeros(3), V_DOWN, R_DOWN, t_p, np.array([0.0, 0.0, 1.0]), miss_distance_m=miss_distance_m)
+    run = drive(ctrl, np.zeros(3), R_DOWN, floor_2cm_down)
+    assert ctrl.recoveries == int(recovers)
+    if not recovers:
+        assert run.contact_state is ControllerState.APPROACH
+        np.testing.assert_allclose(run.r, [0.03, 0.0, -0.02], atol=1e-3)  # straight on below the target
+    # the next target, without a Delta_m of its own, has the controller's: it recovers 1 cm past it
+    target = run.r + np.array([0.03, 0.0, 0.02])
+    ctrl.start(run.r, V_DOWN, R_DOWN, target, np.array([0.0, 0.0, 1.0]))
+    again = drive(ctrl, run.r, R_DOWN, nothing)
+    switch = again.trail[again.states.index(ControllerState.RECOVERY)]
+    assert np.linalg.norm(switch - target) == pytest.approx(ControllerConfig().miss_distance_m, abs=1e-4)

@@ -68,7 +68,9 @@ def test_initial_approach_that_finds_no_surface_stops_with_the_target_and_the_la
     assert 0.059 < -position[2] + 0.05 < 0.062  # it went 1 cm past the target before giving up
 
 
-def _target(position: list[float], normal: list[float], slide: bool = False) -> TouchTarget:
+def _target(
+    position: list[float], normal: list[float], slide: bool = False, miss_distance_m: float = 0.0
+) -> TouchTarget:
     return TouchTarget(
         stamp_ns=0,
         strategy="igef",
@@ -79,6 +81,7 @@ def _target(position: list[float], normal: list[float], slide: bool = False) -> 
         candidates_m=np.zeros((0, 3)),
         candidate_scores=np.zeros(0),
         slide=slide,
+        miss_distance_m=miss_distance_m,
     )
 
 
@@ -134,6 +137,9 @@ def test_bad_poses_and_targets_are_refused_and_change_nothing() -> None:
         for p, n in bad_targets:
             with pytest.raises(InputError, match=r"^(position_m|normal): "):
                 fed.on_target(_target(p, n))
+        for miss in (-0.01, 1.0):  # a negative reach past the target, or one far beyond any object
+            with pytest.raises(InputError, match=r"^miss_distance_m: "):
+                fed.on_target(_target([0.01, 0.0, 0.0], [0.0, 0.0, 1.0], miss_distance_m=miss))
         for node in (clean, fed):
             node.on_tick(tick * 10_000_000)
         position = position + 0.01 * np.asarray(clean.ctx.published[-1][1].linear_m_s)

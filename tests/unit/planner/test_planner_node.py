@@ -106,3 +106,23 @@ def test_the_target_says_whether_to_slide_to_it(reach_m: float, slide: bool) -> 
     node.on_surface(plane(1e-6))
     [target] = sent
     assert isinstance(target, TouchTarget) and target.slide is slide
+
+
+@pytest.mark.parametrize(
+    ("config", "miss_m"),
+    [
+        (PlannerConfig(strategy="tour"), 0.03),
+        (PlannerConfig(strategy="igef"), 0.0),  # the controller's own Delta_m, as in the paper
+        (PlannerConfig(strategy="igef", miss_distance_m=0.02), 0.02),
+        (PlannerConfig(strategy="tour", tour_miss_distance_m=0.0, miss_distance_m=0.02), 0.02),
+    ],
+)
+def test_the_target_says_how_far_past_it_the_fingertip_may_go(config: PlannerConfig, miss_m: float) -> None:
+    sent: list[Message] = []
+    ctx = NodeContext("planner", 0, lambda topic, message: sent.append(message), {"target": "planner/target"})
+    node = PlannerNode(config, ctx)
+    node.on_touches(touch([0.0, 0.0, 0.0], [0.0, 0.0, -1.0]))
+    node.on_pose(pose([0.0, 1.0, 0.0, 0.0]))
+    node.on_surface(plane(1e-6))
+    [target] = sent
+    assert isinstance(target, TouchTarget) and target.miss_distance_m == miss_m
