@@ -134,6 +134,11 @@ class Trajectory(Message):
     length_m: float = scalar("float", "arc length of the curve", "m")
 
 
+#: The largest ``TouchTarget.miss_distance_m`` a controller accepts, metres: past it a missed touch would
+#: wander far from the object.
+MAX_MISS_DISTANCE_M = 0.2
+
+
 class TouchTarget(Message):
     """The next best touch chosen by the planner, with the candidates it scored."""
 
@@ -157,7 +162,7 @@ class TouchTarget(Message):
     miss_distance_m: float = scalar(
         "float",
         "how far past the target the fingertip may go without a contact before the recovery curve "
-        "(Delta_m of Algorithm 1 line 26); 0: the controller's own (version 3; not in the paper)",
+        "(Delta_m of Algorithm 1 line 26), 0 to 0.2; 0: the controller's own (version 3; not in the paper)",
         "m",
         default=0.0,
     )

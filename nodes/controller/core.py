@@ -36,6 +36,7 @@ from palpate.geometry import rotations
 from palpate.geometry.bezier import Cubic, approach_curve, recovery_curve
 from palpate.geometry.rotations import dot3
 from palpate.inputs import coordinates, unit_vectors
+from palpate.messages.schemas import MAX_MISS_DISTANCE_M
 
 FloatArray = NDArray[np.float64]
 
@@ -145,6 +146,13 @@ def _vector(name: str, value: ArrayLike) -> FloatArray:
     if v.shape != (3,) or not all(map(math.isfinite, v.tolist())):
         raise PlanningError(f"{name} must be a finite 3-vector, got {value!r}")
     return v
+
+
+def _miss(value: float, config: ControllerConfig) -> float:
+    """Delta_m for one motion: ``value`` (m), or the config's for 0."""
+    if not (math.isfinite(value) and value >= 0.0):
+        raise PlanningError(f"miss_distance_m must be finite and >= 0 (0: the config's), got {value!r}")
+    return value if value > 0.0 else config.miss_distance_m
 
 
 def _unit(name: str, value: ArrayLike, *, allow_zero: bool = False) -> FloatArray:
@@ -305,7 +313,6 @@ class TrajectoryController:
 
         Fails (state FAILED) if the fingertip gets more than Delta_m beyond target_p without contact.
         """
-        self._miss_m = self.config.miss_distance_m
         self.go_straight(start_r, target_p)  # v_n = (t_p - r)/|t_p - r|
         self._exploring = False
 
@@ -329,7 +336,7 @@ class TrajectoryController:
         Returns the control points (4, 3).
         """
         cfg = self.config
-        self._miss_m = miss_distance_m if miss_distance_m > 0.0 else cfg.miss_distance_m
+        self._miss_m = _miss(miss_distance_m, cfg)
         c = _vector("c_p", c_p)
         touched = c if touched_m is None else _vector("touched_m", touched_m)
         v = _unit("v_n", v_n, allow_zero=True)
@@ -361,12 +368,13 @@ class TrajectoryController:
         """Abandon the current motion without a contact (state IDLE)."""
         self._state = ControllerState.IDLE
 
-    def go_straight(self, start_r: ArrayLike, target_p: ArrayLike) -> None:
+    def go_straight(self, start_r: ArrayLike, target_p: ArrayLike, miss_distance_m: float = 0.0) -> None:
         """Move straight from start_r towards target_p (3,) m as an exploratory action, failing once
-        the fingertip is Delta_m beyond target_p without a contact (a slide that lost the surface goes
-        back to the last point it touched)."""
+        the fingertip is Delta_m (miss_distance_m; 0: the config's) beyond target_p without a contact
+        (a slide that lost the surface goes back to the last point it touched)."""
         start = _vector("start_r", start_r)
         target = _vector("target_p", target_p)
+        self._miss_m = _miss(miss_distance_m, self.config)
         self._go_straight(start, target, _unit("target_p - start_r", target - start))
 
     def steer(self, direction: FloatArray) -> None:
@@ -628,11 +636,6 @@ class Slide:
     deadline_ns: int | None = None
 
 
-#: The largest Delta_m a target may ask for, metres (TouchTarget.miss_distance_m): past it a missed
-#: touch would wander far from the object.
-MAX_MISS_DISTANCE_M = 0.2
-
-
 class TouchLoop:
     """Algorithm 1's controller side: approach the initial target, follow the curve to each target (or
     slide to it along the surface, when the target says so), stop on a new touch and announce it. Feed
@@ -799,7 +802,7 @@ class TouchLoop:
                 r, -slide.touched_normal, R, slide.centre_m, slide.normal, slide.fingertip_m, self.miss_m
             )
         else:
-            self.controller.go_straight(r, slide.touched_m)
+            self.controller.go_straight(r, slide.touched_m, self.miss_m)
         linear, angular = self.controller.command(r, R)
         return ControlStep(linear, angular, None, failed=self.controller.state is ControllerState.FAILED)
 

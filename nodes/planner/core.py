@@ -47,6 +47,7 @@ from palpate.geometry.bezier import approach_curve, bezier_length, bezier_point
 from palpate.geometry.rotations import quat_to_matrix
 from palpate.geometry.thinning import thin_near
 from palpate.inputs import MAX_COORDINATE_M, UNIT_TOLERANCE, bounded, coordinates, unit_or_zero, vertex_subset
+from palpate.messages.schemas import MAX_MISS_DISTANCE_M
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -143,14 +144,15 @@ class PlannerConfig(Validated):
     tour_slide_max_m: NonNegativeFloat = 0.06
     slide_max_angle_deg: Annotated[float, Range(ge=0.0, le=90.0)] = 60.0
     #: Not in the paper: how far past its target the fingertip may go without a contact before Algorithm
-    #: 1's recovery (Delta_m, ``TouchTarget.miss_distance_m``), metres; 0 leaves it to the controller
-    #: (``miss_distance_m``, 1 cm). ``miss_distance_m`` holds for every strategy (0, the default),
-    #: ``tour_miss_distance_m`` for the tour: 3 cm, so that a touch aimed at surface the estimate
-    #: invents (the GP closes a cup's unexplored inside with a false floor) goes on to the true surface
-    #: behind it, where 1 cm ends in the recovery and a touch where the fingertip left
-    #: (docs/exploration.md, "A longer reach past a missed target").
-    miss_distance_m: NonNegativeFloat = 0.0
-    tour_miss_distance_m: NonNegativeFloat = 0.03
+    #: 1's recovery (Delta_m, sent as ``TouchTarget.miss_distance_m``), metres, at most
+    #: MAX_MISS_DISTANCE_M; 0 sends 0, which leaves it to the controller's own Delta_m (its
+    #: ``miss_distance_m``, 1 cm). ``miss_distance_m`` holds for every strategy (0, the default: the
+    #: paper's strategies keep the controller's), ``tour_miss_distance_m`` for the tour when not 0: 3 cm,
+    #: so that a touch aimed at surface the estimate invents (the GP closes a cup's unexplored inside
+    #: with a false floor) goes on to the true surface behind it, where 1 cm ends in the recovery and a
+    #: touch where the fingertip left (docs/exploration.md, "A longer reach past a missed target").
+    miss_distance_m: Annotated[float, Range(ge=0.0, le=MAX_MISS_DISTANCE_M)] = 0.0
+    tour_miss_distance_m: Annotated[float, Range(ge=0.0, le=MAX_MISS_DISTANCE_M)] = 0.03
 
     @property
     def slide_reach_m(self) -> float:
@@ -516,8 +518,9 @@ def tour_plan(
     A candidate within rho / 2 of a contact is no site (``SITE_AWAY``): its touch lands on ground
     explored already, and the patches it would add at the rim of its disc may stay unexplored when it
     lands a millimetre off (two such sites were touched in turn 700 times on the YCB wood blocks).
-    When no candidate explores anything, the tour is the single best of the distance to the nearest
-    contact per unit of travel (as in area). Scores (m,): the tour's sites get J + k - i (i = 0 first),
+    When no candidate explores anything (or every one that does lies within rho / 2 of a contact),
+    the tour is the single best of the distance to the nearest contact per unit of travel (as in
+    area). Scores (m,): the tour's sites get J + k - i (i = 0 first),
     the other candidates G(s) / (Len(r -> s) + L0) scaled below J, so a caller that must skip the first
     site (its curve is blocked) takes the next one of the tour.
     candidates_m, normals (unit): (m, 3); contacts_m: (n, 3); r, v_n, R_z as in igef_terms; variance (m,).

@@ -245,3 +245,20 @@ def test_a_target_may_ask_for_a_longer_reach_past_it_before_the_recovery(
     again = drive(ctrl, run.r, R_DOWN, nothing)
     switch = again.trail[again.states.index(ControllerState.RECOVERY)]
     assert np.linalg.norm(switch - target) == pytest.approx(ControllerConfig().miss_distance_m, abs=1e-4)
+
+
+def test_a_straight_move_has_its_own_delta_m_and_none_left_from_an_earlier_target() -> None:
+    """The straight move back after a slide that lost the surface takes the slide target's Delta_m; one
+    asked without a Delta_m has the config's, whatever the target before asked for."""
+    for asked, expected in ((0.03, 0.03), (0.0, ControllerConfig().miss_distance_m)):
+        ctrl = TrajectoryController()
+        ctrl.start(
+            np.zeros(3), V_DOWN, R_DOWN, np.array([0.03, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), miss_distance_m=0.03
+        )
+        target = np.array([0.0, 0.0, -0.02])
+        ctrl.go_straight(np.zeros(3), target, asked)
+        run = drive(ctrl, np.zeros(3), R_DOWN, nothing)
+        assert ctrl.state is ControllerState.FAILED
+        assert np.linalg.norm(run.r - target) == pytest.approx(expected, abs=1e-4)
+    with pytest.raises(PlanningError, match="miss_distance_m"):
+        TrajectoryController().go_straight(np.zeros(3), np.ones(3), float("inf"))
