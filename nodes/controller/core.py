@@ -621,8 +621,10 @@ class Slide:
     the fingertip centre and the contact normal of the last tick in contact (where the fingertip goes
     back to if it loses the surface); budget_m: how far the fingertip may move before the slide ends
     wherever it is (at v0 that also bounds its time, for a fingertip held in place); closest_m: the
-    least distance from the contact point to the target in the contact's tangent plane so far. The
-    odometer reading and the stamp at which it ends are set at its first tick."""
+    least distance from the contact point to the target in the contact's tangent plane so far;
+    miss_distance_m: the target's Delta_m (0: the controller's own), for the curve or the straight move
+    that follows where the fingertip loses the surface. The odometer reading and the stamp at which it
+    ends are set at its first tick."""
 
     target_m: FloatArray
     normal: FloatArray
@@ -631,6 +633,7 @@ class Slide:
     fingertip_m: FloatArray
     touched_normal: FloatArray
     budget_m: float
+    miss_distance_m: float = 0.0
     closest_m: float = math.inf
     end_travel_m: float = math.inf
     deadline_ns: int | None = None
@@ -654,7 +657,6 @@ class TouchLoop:
         self.in_contact = False  # the last tick had a contact
         self.last_normal = np.zeros(3)  # measured normal of the last touch
         self.slides = 0  # slides started
-        self.miss_m = 0.0  # Delta_m the last target asked for (0: the controller's own)
 
     @property
     def touches(self) -> int:
@@ -701,12 +703,10 @@ class TouchLoop:
             start = np.array(coordinates(r, "r"))
             budget = 2.0 * float(np.linalg.norm(centre_at_target - start)) + self.config.slide_slack_m
             touched = (self.arming.last_contact.copy(), start.copy(), self.last_normal.copy())
-            self.slide = Slide(np.array(target), np.array(normal), centre_at_target, *touched, budget)
-            self.miss_m = miss
+            self.slide = Slide(np.array(target), np.array(normal), centre_at_target, *touched, budget, miss)
             self.slides += 1
             P = start + np.outer(np.arange(4) / 3.0, centre_at_target - start)
         else:
-            self.miss_m = miss
             P = self.controller.start(r, self.retract_from, R, centre_at_target, normal, miss_distance_m=miss)
             self.slide = None
         self.predicted = np.array(predicted)
@@ -799,10 +799,10 @@ class TouchLoop:
         self.slide = None
         if float(np.linalg.norm(slide.centre_m - r)) >= MIN_SLIDE_CURVE_M:
             self.controller.start(
-                r, -slide.touched_normal, R, slide.centre_m, slide.normal, slide.fingertip_m, self.miss_m
+                r, -slide.touched_normal, R, slide.centre_m, slide.normal, slide.fingertip_m, slide.miss_distance_m
             )
         else:
-            self.controller.go_straight(r, slide.touched_m, self.miss_m)
+            self.controller.go_straight(r, slide.touched_m, slide.miss_distance_m)
         linear, angular = self.controller.command(r, R)
         return ControlStep(linear, angular, None, failed=self.controller.state is ControllerState.FAILED)
 
