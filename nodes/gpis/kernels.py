@@ -97,12 +97,20 @@ class IsotropicKernel(ABC):
 
     def check_range(self, x: FloatArray, y: FloatArray) -> None:
         """``check_distances`` for every pair of x (m, 3) and y (n, 3), without forming the (m, n) distances
-        when the bounding boxes are close enough (the farthest corners bound every distance)."""
+        when a bound passes: first the farthest corners of the two bounding boxes, then (O(n)) the corner
+        of x's box farthest from each y; only when both fail, the largest distance itself."""
         if not (len(x) and len(y)):
             return
-        span = np.maximum(x.max(axis=0) - y.min(axis=0), y.max(axis=0) - x.min(axis=0))
+        lower, upper = x.min(axis=0), x.max(axis=0)
+        span = np.maximum(upper - y.min(axis=0), y.max(axis=0) - lower)
         try:
             self.check_distances(float(np.sqrt(span @ span)))
+            return
+        except EstimationError:
+            pass
+        farthest = np.maximum(np.abs(y - lower), np.abs(y - upper))
+        try:
+            self.check_distances(float(np.sqrt(np.max(np.einsum("ij,ij->i", farthest, farthest)))))
         except EstimationError:
             self.check_distances(dense_kernels.max_distance(x, y))
 

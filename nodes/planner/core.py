@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, replace
+from functools import cached_property
 from itertools import permutations
 from typing import Annotated, Literal
 
@@ -600,6 +601,7 @@ def curves_clear(
     samples: int = 16,
     min_chord_m: float = 1e-4,
     max_reach_m: float = 0.03,
+    tree: cKDTree | None = None,
 ) -> NDArray[np.bool_]:
     """Which fingertip curves keep clear of the estimated surface: a boolean mask (m,).
 
@@ -611,6 +613,7 @@ def curves_clear(
     is >= ``clearance_m`` at ``samples`` points with tau in (0, 1) (the fingertip sphere of radius
     about clearance_m does not touch the estimate before the end); points farther than
     ``max_reach_m`` from every vertex (beyond the meshed patch) count as clear. Not in the paper.
+    ``tree``: a ``cKDTree`` of ``vertices``, for callers that check several batches on one mesh.
     """
     V = _points("vertices", vertices)
     N = np.asarray(vertex_normals, dtype=np.float64)
@@ -620,11 +623,26 @@ def curves_clear(
     P = approach_curve(start_m, v_n, C, target_normals, min_chord_m=min_chord_m)  # (m, 4, 3)
     tau = (np.arange(samples) + 0.5) / samples
     Q = bezier_point(P, tau).reshape(-1, 3)  # (m * samples, 3)
-    dist, idx = cKDTree(V).query(Q, distance_upper_bound=max_reach_m)
+    dist, idx = (cKDTree(V) if tree is None else tree).query(Q, distance_upper_bound=max_reach_m)
     near = np.isfinite(dist)
     signed = np.full(len(Q), np.inf)
     signed[near] = np.einsum("ij,ij->i", Q[near] - V[idx[near]], N[idx[near]])
     return np.asarray(np.all(signed.reshape(C.shape[0], samples) >= clearance_m, axis=1))
+
+
+@dataclass
+class _CurveSurface:
+    """What ``curves_clear`` checks the fingertip's curves against: the local mesh's vertices (k, 3) m and
+    outward unit vertex normals (k, 3), the fingertip centre (3,) m, and (built on first use, once per
+    plan) the vertices' k-d tree."""
+
+    vertices_m: FloatArray
+    vertex_normals: FloatArray
+    fingertip_m: FloatArray
+
+    @cached_property
+    def tree(self) -> cKDTree:
+        return cKDTree(self.vertices_m)
 
 
 class Planner:
@@ -841,7 +859,7 @@ class TouchPlanner:
             candidates = self.planner.sample(V[sites], np.asarray(vertex_normals)[sites], Q, last)
         else:
             candidates = self.planner.sample(V, vertex_normals, np.zeros(len(V)), last)
-        surface = (vertices_m, vertex_normals, fingertip_m)
+        surface = _CurveSurface(V, vertex_normals, fingertip_m)
         contacts = np.array(self.contacts)
         admissible = None
         centres = candidates.points_m + cfg.tip_radius_m * candidates.normals  # fingertip centre at each target
@@ -872,31 +890,26 @@ class TouchPlanner:
         return near and float(choice.normal @ self.normal) >= math.cos(math.radians(cfg.slide_max_angle_deg))
 
     def _clear(
-        self,
-        surface: tuple[FloatArray, FloatArray, FloatArray],
-        centres: FloatArray,
-        normals: FloatArray,
-        rows: IntArray,
+        self, surface: _CurveSurface, centres: FloatArray, normals: FloatArray, rows: IntArray
     ) -> NDArray[np.bool_]:
-        """curves_clear from the fingertip for the candidate rows ``rows``: boolean (len(rows),).
-        surface: the mesh's vertices (k, 3) m and vertex normals (k, 3), and the fingertip centre (3,) m."""
-        vertices_m, vertex_normals, fingertip_m = surface
+        """curves_clear from the fingertip for the candidate rows ``rows``: boolean (len(rows),)."""
         cfg = self.config
         return curves_clear(
-            vertices_m,
-            vertex_normals,
-            fingertip_m,
+            surface.vertices_m,
+            surface.vertex_normals,
+            surface.fingertip_m,
             self.approach,
             centres[rows],
             normals[rows],
             cfg.tip_radius_m - cfg.curve_margin_m,
             samples=cfg.curve_samples,
+            tree=surface.tree,
         )
 
     def _best_clear(
         self,
         choice: Selection,
-        surface: tuple[FloatArray, FloatArray, FloatArray],
+        surface: _CurveSurface,
         candidates: Candidates,
         centres: FloatArray,
         mask: NDArray[np.bool_],

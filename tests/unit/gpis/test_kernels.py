@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from palpate.errors import ConfigError, EstimationError
+from palpate.nodes.gpis import kernels
 from palpate.nodes.gpis.kernels import GaussianKernel, IsotropicKernel, ThinPlateKernel
 
 R = 0.7  # thin-plate R (m); distances up to 0.9 R are tested
@@ -159,6 +160,19 @@ def test_range_check_without_distances_is_exact() -> None:
     with pytest.raises(EstimationError, match="R_m"):
         k.check_range(x * 1.5, y * 1.5)
     k.value_contract(x, y, np.ones((2, 4)))
+
+
+def test_range_check_bounds_each_contact_before_forming_distances(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where the two boxes' corners are farther apart than R, the corner of x's box farthest from each
+    y decides without the (m, n) distances; a pair beyond R is still refused."""
+    k = ThinPlateKernel(1.0)
+    x = np.zeros((1, 3))
+    y = np.array([[0.8, 0.0, 0.0], [0.0, 0.8, 0.0]])  # box corners 1.13 apart, every pair 0.8
+    with monkeypatch.context() as patched:
+        patched.setattr(kernels.dense_kernels, "max_distance", lambda *_: pytest.fail("formed the distances"))
+        k.check_range(x, y)
+    with pytest.raises(EstimationError, match="R_m"):
+        k.check_range(x, y * 1.3)
 
 
 def test_thin_plate_covariance_positive_definite_within_its_valid_span() -> None:
