@@ -58,6 +58,9 @@ _INSTABILITY_WARNINGS = (
     (mujoco.mjtWarning.mjWARN_BADQVEL, "bad velocity"),
     (mujoco.mjtWarning.mjWARN_BADQPOS, "bad position"),
 )
+_INSTABILITY_INDEX = [int(warning) for warning, _ in _INSTABILITY_WARNINGS]
+#: Up to this many contacts, ``Simulation.contacts`` checks their values for finiteness in one sum.
+_FEW_CONTACTS = 4
 #: No contact: read-only arrays over an empty bytes object, shared by every empty Contacts (nothing can
 #: change them, so the message codec passes them on without a copy).
 _NO_ROWS = codec.frozen(np.zeros((0, 3)))
@@ -173,6 +176,8 @@ class Simulation:
             self._probe_force_gain = float(probe.force_gain_n_s_per_m)
             self._cmd_lin = np.zeros(3)
             self._cmd_ang = np.zeros(3)
+            self._speed_per_step = 0.0  # |linear| x dt and whether the probe turns: set with the command
+            self._turning = False
             self.joint_names: list[str] = []
             self._ranges = np.zeros((0, 2))
             # the last query (centre, signed distance) and its hit (point, distance, normal), in one
@@ -256,6 +261,8 @@ class Simulation:
             raise ValueError(f"velocities must be finite, got linear {v!r}, angular {w!r}")
         self._cmd_lin = v.copy()
         self._cmd_ang = w.copy()
+        self._speed_per_step = float(np.linalg.norm(v)) * self._dt  # the probe's steps read these
+        self._turning = bool(w.any())
 
     # --- stepping ----------------------------------------------------------------------------------
     def step(self, n: int = 1) -> None:
@@ -286,8 +293,15 @@ class Simulation:
 
     def _check_diverged(self, t0: float, force: bool = False) -> None:
         d = self.data
-        problems = []
         counts = self._warning_counts.tolist()
+        if (
+            not force
+            and [counts[i] for i in _INSTABILITY_INDEX] == self._warnings_seen
+            and all_finite(d.qpos)
+            and all_finite(d.qvel)
+        ):
+            return
+        problems = []
         for i, (warning, what) in enumerate(_INSTABILITY_WARNINGS):
             count = counts[int(warning)]
             if count > self._warnings_seen[i]:
@@ -319,8 +333,8 @@ class Simulation:
         d = self.data
         qvel = d.qvel
         cache = self._probe_cache
-        speed_per_step = float(np.linalg.norm(self._cmd_lin)) * self._dt
-        turning = bool(self._cmd_ang.any())
+        speed_per_step = self._speed_per_step
+        turning = self._turning
         remaining = n
         projected = False
         while remaining > 0:
@@ -833,6 +847,8 @@ class Simulation:
             pos = d.qpos[0:3].copy()
             quat = d.qpos[3:7].copy()
             quat /= math.sqrt(quat.dot(quat))  # np.linalg.norm's own expression
+            if math.isfinite(sum(pos.tolist()) + sum(quat.tolist())):  # as below, in one sum
+                return pos, quat
         else:
             self._refresh()
             pos = np.array(d.site_xpos[self._tip_site], dtype=np.float64)
@@ -846,6 +862,13 @@ class Simulation:
         else:
             self._refresh()
             out = self._penalty_contacts() if self._exact else self._native_contacts()
+        if len(out) <= _FEW_CONTACTS and math.isfinite(
+            sum(out.positions_m.ravel().tolist())
+            + sum(out.local_positions_m.ravel().tolist())
+            + sum(out.normals.ravel().tolist())
+            + sum(out.forces_n.tolist())
+        ):  # a NaN or infinity makes the sum so (as in all_finite); an overflowing sum takes the loop
+            return out
         for name, array in (
             ("contact positions", out.positions_m),
             ("contact local positions", out.local_positions_m),
