@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import trimesh
+from scipy.spatial import cKDTree
 
 from palpate.nodes.planner.core import curves_clear
 
@@ -35,6 +36,19 @@ def test_curve_to_the_far_side_of_a_small_ball_is_rejected() -> None:
     targets = np.vstack([0.028 * side, 0.028 * far])
     clear = curves_clear(V, N, start, down, targets, np.vstack([side, far]), 0.007)
     np.testing.assert_array_equal(clear, [True, False])
+
+
+def test_a_shared_tree_of_the_mesh_gives_the_same_answer() -> None:
+    """The planner builds the mesh's k-d tree once per plan and passes it to every batch of curves."""
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.02)
+    V, N = np.asarray(ball.vertices), np.asarray(ball.vertex_normals)
+    rng = np.random.default_rng(3)
+    normals = rng.normal(size=(40, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    args = (V, N, np.array([0.0, 0.0, 0.028]), np.array([0.0, 0.0, -1.0]), 0.028 * normals, normals, 0.007)
+    alone = curves_clear(*args)
+    assert alone.any() and not alone.all()
+    np.testing.assert_array_equal(curves_clear(*args, tree=cKDTree(V)), alone)
 
 
 def test_points_beyond_the_patch_count_as_clear() -> None:
