@@ -58,6 +58,7 @@ _INSTABILITY_WARNINGS = (
     (mujoco.mjtWarning.mjWARN_BADQVEL, "bad velocity"),
     (mujoco.mjtWarning.mjWARN_BADQPOS, "bad position"),
 )
+#: Their indices in MjData.warning, which the divergence check compares with the counts it has seen.
 _INSTABILITY_INDEX = [int(warning) for warning, _ in _INSTABILITY_WARNINGS]
 #: Up to this many contacts, ``Simulation.contacts`` checks their values for finiteness in one sum.
 _FEW_CONTACTS = 4
