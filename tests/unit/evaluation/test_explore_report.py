@@ -75,6 +75,21 @@ def test_paired_means_average_per_object_then_over_objects() -> None:
     assert half["gpv"]["travel_cm"] == pytest.approx((75.0 + 25.0 + 499.5) / 3)
 
 
+def test_contacts_per_covering_bound_is_averaged_like_the_milestone_figures() -> None:
+    rows = [
+        run("a", "tour", 0, 10.0, contacts=43),
+        run("a", "tour", 1, 10.0, contacts=129),  # object a: (0.5 + 1.5) / 2 = 1.0 of its 86-contact bound
+        run("b", "tour", 0, 10.0, contacts=172),  # object b: 2.0
+        run("c", "tour", 0, None, contacts=86),  # not at 80 %: left out
+    ]
+    means = report.paired_means(rows, ("tour",), "80")
+    assert means["tour"]["contacts_over_bound"] == pytest.approx((1.0 + 2.0) / 2)
+    assert report.summary_json(rows, ("tour",))["tour"]["contacts_over_bound"] == pytest.approx(1.5)
+    del rows[2]["covering_bound_contacts"]  # a row of an older runs.jsonl: its object drops out of this figure
+    assert report.paired_means(rows, ("tour",), "80")["tour"]["contacts_over_bound"] == pytest.approx(1.0)
+    assert "| 80 % | Avg. contacts / covering bound | 1.00 |" in report.table2(rows, "tour", "tour")
+
+
 def test_improvement_is_relative_to_the_baseline() -> None:
     assert report.improvement_pct(159.0, 117.0) == pytest.approx(26.4, abs=0.1)
     assert math.isnan(report.improvement_pct(0.0, 1.0))
