@@ -107,6 +107,10 @@ def _reached(result: Mapping[str, Any], percent: str) -> bool:
 
 
 def _value(result: Mapping[str, Any], percent: str, key: str) -> float:
+    """A run's figure at milestone ``percent``: a milestone value, or BOUND_METRIC (NaN without a bound)."""
+    if key == BOUND_METRIC[0]:
+        bound = float(result.get("covering_bound_contacts") or 0.0)
+        return _value(result, percent, "contacts") / bound if bound > 0.0 else math.nan
     v = result["milestones"][percent].get(key)
     return math.nan if v is None else float(v)
 
@@ -119,7 +123,7 @@ def paired_means(
 
     Returns {strategy: {metric: mean, "contacts_over_bound": mean, "runs": n, "runs_completed": n,
     "paired_runs": n, "objects": n}}; contacts_over_bound is each run's contacts at the milestone over
-    its object's covering bound, averaged the same way (objects whose rows lack the bound left out).
+    its object's covering bound, averaged the same way (runs whose rows lack the bound left out).
     """
     by_key: dict[tuple[str, int], dict[str, Mapping[str, Any]]] = {}
     for r in results:
@@ -141,19 +145,13 @@ def paired_means(
             "paired_runs": float(len(paired)),
             "objects": float(len(per_object)),
         }
-        for key, _, _ in METRICS:
+        for key, _, _ in (*METRICS, BOUND_METRIC):
             object_means = [
                 float(np.nanmean([_value(r, percent, key) for r in rs]))
                 for rs in per_object.values()
                 if not all(math.isnan(_value(r, percent, key)) for r in rs)
             ]
             stats[key] = float(np.mean(object_means)) if object_means else math.nan
-        object_ratios = [
-            float(np.mean([_value(r, percent, "contacts") / float(r["covering_bound_contacts"]) for r in rs]))
-            for rs in per_object.values()
-            if all(float(r.get("covering_bound_contacts") or 0.0) > 0.0 for r in rs)
-        ]
-        stats[BOUND_METRIC[0]] = float(np.mean(object_ratios)) if object_ratios else math.nan
         out[s] = stats
     return out
 
