@@ -34,6 +34,7 @@ GPISConfig.estimator.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Annotated, Protocol
 
@@ -57,6 +58,9 @@ REFERENCE_SIZE_M = 0.2
 
 # A normal shorter than this is treated as missing rather than normalised.
 _MIN_NORMAL_NORM = 1e-9
+#: A free-space point's gradient rows carry this many times the prior's gradient variance as noise:
+#: next to it, the prior's own (and the contacts') say everything (``GPIS.add_free_space``).
+FREE_SPACE_GRADIENT_VARIANCE = 1e6
 # Entries of k_* per chunk in variance(): large, so the triangular solve sees many right-hand sides.
 _VARIANCE_CHUNK_ENTRIES = 1 << 22
 
@@ -249,9 +253,17 @@ class SurfaceEstimator(Protocol):
     def normals(self) -> FloatArray: ...
 
     @property
+    def observed_m(self) -> FloatArray: ...
+
+    @property
+    def supports_free_space(self) -> bool: ...
+
+    @property
     def prior_centre_m(self) -> FloatArray | None: ...
 
     def add_contact(self, position_m: ArrayLike, normal: ArrayLike) -> None: ...
+
+    def add_free_space(self, points_m: ArrayLike, distance_m: float) -> None: ...
 
     def add_contacts(self, positions_m: ArrayLike, normals: ArrayLike) -> None: ...
 
@@ -275,8 +287,10 @@ class GPIS:
         if prior_centre_m is not None:
             self._centre = _points(prior_centre_m, "prior_centre_m")[0].copy()
         self._given_centre = self._centre
-        self._P = np.zeros((0, 3))
-        self._N = np.zeros((0, 3))
+        self._P = np.zeros((0, 3))  # every observed point: the contacts and the free-space points
+        self._N = np.zeros((0, 3))  # their normals (zero rows for free-space points)
+        self._is_contact = np.zeros(0, dtype=bool)
+        self._n_contacts = 0
         self._L = GrowingCholesky()  # lower Cholesky factor of K + noise, (4n, 4n), in a larger buffer
         self._z = np.zeros(0)  # L^{-1} (y - m_obs), (4n,)
         self._alpha: FloatArray | None = None  # K~^{-1} (y - m_obs) as (n, 4), computed lazily
@@ -286,21 +300,39 @@ class GPIS:
             [cfg.value_noise_m**2 + cfg.jitter * kern.value_variance]
             + [cfg.gradient_noise**2 + cfg.jitter * kern.gradient_variance] * 3
         )
+        # ... and per free-space point: its gradient rows carry no information (see add_free_space).
+        self._free_diag = self._diag.copy()
+        self._free_diag[1:] = FREE_SPACE_GRADIENT_VARIANCE * kern.gradient_variance
+        self._diag_rows = np.zeros((0, ROWS_PER_POINT))  # the diagonal of every observed point
 
     # --- state -------------------------------------------------------------------------------------
     @property
     def n_contacts(self) -> int:
-        return len(self._P)
+        return self._n_contacts
+
+    @property
+    def n_free_space(self) -> int:
+        """Free-space observations held (``add_free_space``)."""
+        return len(self._P) - self._n_contacts
 
     @property
     def positions_m(self) -> FloatArray:
         """Contact positions (n, 3), a copy."""
-        return self._P.copy()
+        return self._P.copy() if self.n_free_space == 0 else self._P[self._is_contact]
 
     @property
     def normals(self) -> FloatArray:
         """Contact unit normals (n, 3), a copy."""
-        return self._N.copy()
+        return self._N.copy() if self.n_free_space == 0 else self._N[self._is_contact]
+
+    @property
+    def observed_m(self) -> FloatArray:
+        """Every observed point (k, 3), contacts and free-space points, a copy (for range checks)."""
+        return self._P.copy()
+
+    @property
+    def supports_free_space(self) -> bool:
+        return True
 
     @property
     def prior_centre_m(self) -> FloatArray | None:
@@ -324,7 +356,7 @@ class GPIS:
     def observation_covariance(self) -> FloatArray:
         """K + noise (4n, 4n) recomputed from scratch (for checks; the GP itself never does this)."""
         K = self.kernel.observation_cov(self._P, self._P)
-        K[np.diag_indices_from(K)] += np.tile(self._diag, self.n_contacts)
+        K[np.diag_indices_from(K)] += self._diag_rows.ravel()
         return K
 
     # --- updates -----------------------------------------------------------------------------------
@@ -339,17 +371,51 @@ class GPIS:
         if len(P) == 0:
             return
         centre = first_centre(self.config, self._centre, P, N)
-        n_old, b = self.n_contacts, len(P)
-        m_add = ROWS_PER_POINT * b
-
         # Residual targets y - m_obs: value rows 0 - m(c_p), gradient rows c_n - grad m(c_p).
-        targets = np.empty((b, ROWS_PER_POINT))
+        targets = np.empty((len(P), ROWS_PER_POINT))
         targets[:, 0] = -self._prior_mean(P, centre)
         targets[:, 1:] = N - self._prior_gradient(P, centre)
+        self._append(P, N, targets, self._diag, centre, contact=True)
+
+    def add_free_space(self, points_m: ArrayLike, distance_m: float) -> None:
+        """Observe f = distance_m at points of free space (k, 3), value rows only (their gradient rows
+        carry FREE_SPACE_GRADIENT_VARIANCE times the prior's gradient variance: no information).
+
+        For the inequality f >= r at points a fingertip of radius r swept without a contact: add the
+        points where the mean breaks it, with distance_m = r (``free_space.enforce``). They are no
+        contacts: n_contacts, positions_m and normals leave them out. Atomic, like add_contacts.
+        """
+        P = _points(points_m, "free-space points")
+        if not (math.isfinite(distance_m) and distance_m >= 0.0):
+            raise EstimationError(f"free-space distance must be finite and >= 0, got {distance_m!r}")
+        if len(P) == 0:
+            return
+        if self._n_contacts == 0:
+            raise EstimationError("free space needs a contact first (the prior's centre comes from it)")
+        centre = self._require_centre()
+        targets = np.zeros((len(P), ROWS_PER_POINT))
+        targets[:, 0] = distance_m - self._prior_mean(P, centre)
+        self._append(P, np.zeros_like(P), targets, self._free_diag, centre, contact=False)
+
+    def _append(
+        self,
+        P: FloatArray,
+        N: FloatArray,
+        targets: FloatArray,
+        diag: FloatArray,
+        centre: FloatArray | None,
+        *,
+        contact: bool,
+    ) -> None:
+        """Add b observed points (b, 3) with residual targets (b, 4) and diagonal (4,) by one block
+        Cholesky update; nothing changes on error."""
+        n_old, b = len(self._P), len(P)
+        m_add = ROWS_PER_POINT * b
+        what = "contact" if contact else "free-space point"
         y2 = targets.ravel()
 
         K22 = self.kernel.observation_cov(P, P)
-        K22[np.diag_indices_from(K22)] += np.tile(self._diag, b)
+        K22[np.diag_indices_from(K22)] += np.tile(diag, b)
         if n_old:
             K12 = self.kernel.observation_cov(self._P, P)  # (4 n_old, 4 b)
             X = self._L.solve(K12)  # L11 X = K12
@@ -362,7 +428,7 @@ class GPIS:
             L22 = np.linalg.cholesky(S)
         except np.linalg.LinAlgError as exc:
             raise EstimationError(
-                f"GPIS covariance is not positive definite after adding {b} contact(s) to {n_old}: "
+                f"GPIS covariance is not positive definite after adding {b} {what}(s) to {n_old}: "
                 + (
                     f"the contacts probably span more than about 0.8 R_m = {0.8 * self.config.R_m:.3g} m "
                     "(raise GPISConfig.R_m to >= 1.25 x the object's diameter)"
@@ -378,16 +444,23 @@ class GPIS:
         self._z = np.concatenate([self._z, z2])
         self._P = np.vstack([self._P, P])
         self._N = np.vstack([self._N, N])
+        self._is_contact = np.concatenate([self._is_contact, np.full(b, contact)])
+        self._diag_rows = np.vstack([self._diag_rows, np.tile(diag, (b, 1))])
+        self._n_contacts += b if contact else 0
         self._alpha = None
 
     def truncate(self, n_contacts: int) -> None:
         """Keep the first n_contacts contacts only (exact: the factor's leading block is their factor)."""
         if not 0 <= n_contacts <= self.n_contacts:
             raise EstimationError(f"cannot keep {n_contacts} of {self.n_contacts} contacts")
+        if self.n_free_space:
+            raise EstimationError("cannot truncate a GP that holds free-space observations")
         rows = ROWS_PER_POINT * n_contacts
         self._L.truncate(rows)
         self._z = self._z[:rows].copy()
         self._P, self._N = self._P[:n_contacts].copy(), self._N[:n_contacts].copy()
+        self._is_contact, self._diag_rows = self._is_contact[:n_contacts].copy(), self._diag_rows[:n_contacts].copy()
+        self._n_contacts = n_contacts
         self._alpha = None
         if n_contacts == 0 and self._given_centre is None:
             self._centre = None
@@ -397,7 +470,7 @@ class GPIS:
         """Posterior mean f(x) (m,) for points x (m, 3), Eq. 2; negative inside, positive outside."""
         x = _points(x, "query points")
         out = self._prior_mean(x, self._require_centre())
-        if self.n_contacts:
+        if len(self._P):
             out += self.kernel.value_contract(x, self._P, self._weights())
         return out
 
@@ -405,7 +478,7 @@ class GPIS:
         """Gradient of the posterior mean (m, 3) at x (m, 3); outward where f = 0."""
         x = _points(x, "query points")
         out = self._prior_gradient(x, self._require_centre())
-        if self.n_contacts:
+        if len(self._P):
             out += self.kernel.gradient_contract(x, self._P, self._weights())
         return out
 
@@ -413,8 +486,8 @@ class GPIS:
         """Posterior variance of f (m,) at x (m, 3), Eq. 6, in m^2 (clamped at 0)."""
         x = _points(x, "query points")
         out = np.full(len(x), self.kernel.value_variance)
-        if self.n_contacts:
-            for s in self._chunks(len(x), ROWS_PER_POINT * self.n_contacts):
+        if len(self._P):
+            for s in self._chunks(len(x), ROWS_PER_POINT * len(self._P)):
                 out[s] -= self.explained_variance(x[s])
         return np.maximum(out, 0.0, out=out)
 
@@ -433,7 +506,7 @@ class GPIS:
         mean(x) = m(x) + sum_j cov(f(x), obs_j) alpha_j (Eq. 2): what a caller needs to evaluate the
         posterior mean with its own contraction.
         """
-        return self._P, (self._weights() if self.n_contacts else np.zeros((0, ROWS_PER_POINT)))
+        return self._P, (self._weights() if len(self._P) else np.zeros((0, ROWS_PER_POINT)))
 
     def solve_factor_in_place(self, B: FloatArray) -> None:
         """Overwrite the column-major B (4n, k) with L^{-1} B (for callers that build k_* themselves)."""
@@ -444,7 +517,7 @@ class GPIS:
 
         k_* rows (m, 4n); L V = k_*^T with every point's column in one triangular solve.
         """
-        if not self.n_contacts:
+        if not len(self._P):
             return np.zeros(len(x))
         V = self.kernel.value_obs_cov(x, self._P).T  # column-major (4n, m): solved in place
         self._L.solve_in_place(V)
@@ -455,7 +528,7 @@ class GPIS:
         """alpha = K~^{-1} (y - m_obs) = L^{-T} z as (n, 4)."""
         if self._alpha is None:
             alpha = self._L.solve(self._z, trans=True)
-            self._alpha = alpha.reshape(self.n_contacts, ROWS_PER_POINT)
+            self._alpha = alpha.reshape(len(self._P), ROWS_PER_POINT)
         return self._alpha
 
     def _require_centre(self) -> FloatArray | None:

@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Annotated, Literal
 
-from palpate.config import NonNegativeFloat, PositiveFloat, Validated
+import numpy as np
+
+from palpate.config import NonNegativeFloat, PositiveFloat, Range, Validated
 from palpate.errors import EstimationError, InputError
-from palpate.messages.schemas import SurfaceMesh, SurfaceRequest, TouchEvent
+from palpate.inputs import coordinates
+from palpate.messages.schemas import ContactSet, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.gpis.core import GPISConfig, SurfaceEstimator
+from palpate.nodes.gpis.free_space import SweptSpace, enforce, within_box
 from palpate.nodes.gpis.local import make_estimator
 from palpate.nodes.gpis.reach import holding, touch_reach
-from palpate.nodes.gpis.surface import SurfaceMeshArrays, add_touch, whole_surface
+from palpate.nodes.gpis.surface import SurfaceMeshArrays, add_touch, whole_box, whole_surface
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
@@ -44,6 +48,22 @@ class GPISNodeConfig(Validated):
     #: Largest R_m growing may reach, metres (objects up to about 6 m across); beyond it the fit degrades
     #: (the relative jitter, a fraction of R_m^3, outweighs the value noise) and touches are refused.
     kernel_radius_cap_m: PositiveFloat = 8.0
+    #: Not in the paper: the free space the fingertip swept as an inequality, f >= fingertip_radius_m at
+    #: every centre it passed without a contact (``free_space``; the node then reads the fingertip pose
+    #: and the contacts every tick). At each touch, the swept centres in the whole-object box where the
+    #: mean breaks it get f = fingertip_radius_m, one per free_space_spacing_m voxel, for up to
+    #: free_space_rounds rounds. Exact estimator only (the local one takes none). Off by default: it
+    #: changes every strategy's estimate (docs/exploration.md, "Free space as an inequality").
+    free_space: bool = False
+    #: The fingertip's radius, metres (the controller's tip_radius_m).
+    fingertip_radius_m: PositiveFloat = 0.008
+    #: Swept centres are kept one per voxel of this edge.
+    free_space_voxel_m: PositiveFloat = 0.002
+    free_space_spacing_m: PositiveFloat = 0.004
+    free_space_rounds: Annotated[int, Range(ge=1)] = 6
+    #: A centre counts as breaking f >= r only below r - this (the value noise keeps an observed
+    #: centre a fraction of a millimetre off r).
+    free_space_tolerance_m: NonNegativeFloat = 0.0005
 
 
 class GPISNode:
@@ -52,6 +72,15 @@ class GPISNode:
     def __init__(self, config: GPISNodeConfig, ctx: Context):
         self.config, self.ctx = config, ctx
         self.gp: SurfaceEstimator = make_estimator(config.gp, prior_centre_m=config.prior_centre_m)
+        self.swept = SweptSpace(config.free_space_voxel_m)
+        self.fingertip_m: np.ndarray | None = None  # the fingertip centre at the last pose
+
+    def on_pose(self, message: Pose) -> None:
+        self.fingertip_m = np.array(coordinates(message.position_m, "position_m"))
+
+    def on_contacts(self, message: ContactSet) -> None:
+        if len(message.forces_n) == 0 and self.fingertip_m is not None:
+            self.swept.add(self.fingertip_m)
 
     def on_touches(self, message: TouchEvent) -> None:
         cfg = self.config
@@ -64,6 +93,7 @@ class GPISNode:
             cfg.local_resolution_m,
             with_variance=cfg.vertex_variance != "none",
             variance_near=(cfg.variance_step_m, cfg.variance_radius_m) if cfg.vertex_variance == "candidates" else None,
+            before_mesh=self._enforce_free_space if cfg.free_space else None,
         )
         if gp is not self.gp:  # grown, and the touch was usable: keep it
             self.gp = gp
@@ -77,6 +107,31 @@ class GPISNode:
         cfg = self.config
         mesh = whole_surface(self.gp, cfg.global_margin_m, cfg.global_resolution_m, with_variance=message.variance)
         self._publish(mesh, "global")
+
+    def _enforce_free_space(self, gp: SurfaceEstimator) -> None:
+        """f >= fingertip radius at the swept centres in the whole-object box (see GPISNodeConfig)."""
+        cfg = self.config
+        if not len(self.swept) or not gp.supports_free_space:
+            return
+        lower, upper = whole_box(gp.positions_m, cfg.global_margin_m)
+        index, centres = self.swept.unobserved()
+        inside = within_box(centres, lower, upper)
+        index, centres = index[inside], centres[inside]
+        try:
+            added = enforce(
+                gp,
+                centres,
+                cfg.fingertip_radius_m,
+                cfg.free_space_spacing_m,
+                cfg.free_space_rounds,
+                cfg.free_space_tolerance_m,
+            )
+        except EstimationError:  # the covariance would not factor: the touch stands without them
+            self.ctx.count("free_space_refused")
+            return
+        self.swept.mark_observed(index[added])
+        if len(added):
+            self.ctx.count("free_space_points", len(added))
 
     def _holding(self, message: TouchEvent) -> SurfaceEstimator:
         """With grow_kernel, the GP grown to hold this touch's local mesh and the whole-object mesh after
@@ -112,11 +167,17 @@ class GPISNode:
         """The surface changes only with touches."""
 
 
+def _ports(config: GPISNodeConfig) -> tuple[dict[str, Port], dict[str, Port]]:
+    inputs = {"touches": Port(TouchEvent), "request": Port(SurfaceRequest, optional=True)}
+    if config.free_space:
+        inputs |= {"pose": Port(Pose), "contacts": Port(ContactSet)}
+    return inputs, {"surface": Port(SurfaceMesh)}
+
+
 SPEC = NodeSpec(
     name="gpis",
     config=GPISNodeConfig,
     factory=GPISNode,
-    inputs={"touches": Port(TouchEvent), "request": Port(SurfaceRequest, optional=True)},
-    outputs={"surface": Port(SurfaceMesh)},
+    ports_from_config=_ports,
     doc="Gaussian process implicit surface of paper 002: local mesh per touch, whole mesh on request.",
 )

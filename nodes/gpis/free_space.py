@@ -1,0 +1,103 @@
+"""Free space swept by the fingertip, as an inequality on the implicit surface (not in paper 002).
+
+Wherever the centre of a fingertip of radius r passed without a contact, the object's signed
+distance is at least r: f >= r. A GP takes equalities only, so the inequality is kept by an active
+set: at each touch, the swept centres where the posterior mean breaks it (f < r) get the value-only
+observation f = r, the least that satisfies it there (``GPIS.add_free_space``), thinned to one per
+``spacing_m`` voxel, for up to ``rounds`` rounds (each observation moves the mean elsewhere too).
+An observation where the mean already satisfies it would say more than the evidence (the true
+distance may be far larger) and pull the surface out; this form never adds one there.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+class TakesFreeSpace(Protocol):
+    """An estimator that may take free-space observations (``GPIS``; ``AutoGPIS`` while exact)."""
+
+    @property
+    def supports_free_space(self) -> bool: ...
+
+    def mean(self, x: ArrayLike) -> FloatArray: ...
+
+    def add_free_space(self, points_m: ArrayLike, distance_m: float) -> None: ...
+
+
+class SweptSpace:
+    """Fingertip centres swept without a contact, one per voxel of edge voxel_m (the first kept), and
+    which of them the GP observes already (each is observed at most once)."""
+
+    def __init__(self, voxel_m: float) -> None:
+        if not voxel_m > 0.0:
+            raise ValueError(f"voxel_m must be > 0, got {voxel_m!r}")
+        self.voxel_m = float(voxel_m)
+        self._index: dict[tuple[int, int, int], int] = {}
+        self._points: list[tuple[float, float, float]] = []
+        self._observed: list[bool] = []
+
+    def __len__(self) -> int:
+        return len(self._points)
+
+    def add(self, centre_m: ArrayLike) -> None:
+        """A fingertip centre (3,) m with no contact."""
+        x, y, z = (float(v) for v in np.asarray(centre_m, dtype=np.float64).reshape(3))
+        s = self.voxel_m
+        key = (int(np.floor(x / s)), int(np.floor(y / s)), int(np.floor(z / s)))
+        if key not in self._index:
+            self._index[key] = len(self._points)
+            self._points.append((x, y, z))
+            self._observed.append(False)
+
+    def unobserved(self) -> tuple[NDArray[np.int64], FloatArray]:
+        """(indices (k,), centres (k, 3)) of the centres the GP does not observe yet."""
+        index = np.flatnonzero(~np.array(self._observed, dtype=bool))
+        return index, np.array(self._points, dtype=np.float64).reshape(-1, 3)[index]
+
+    def mark_observed(self, indices: ArrayLike) -> None:
+        for i in np.asarray(indices, dtype=np.int64).tolist():
+            self._observed[i] = True
+
+
+def within_box(points_m: FloatArray, lower_m: FloatArray, upper_m: FloatArray) -> NDArray[np.bool_]:
+    """Which points (k, 3) lie inside the box [lower_m, upper_m] (3,): a mask (k,)."""
+    return np.asarray(np.all((points_m >= lower_m) & (points_m <= upper_m), axis=1))
+
+
+def most_broken_per_voxel(points_m: FloatArray, slack: FloatArray, spacing_m: float) -> NDArray[np.int64]:
+    """Indices of one point per voxel of edge spacing_m: the one with the smallest slack (k,) in it."""
+    order = np.argsort(slack, kind="stable")
+    keys = np.floor(points_m[order] / spacing_m).astype(np.int64)
+    _, first = np.unique(keys, axis=0, return_index=True)
+    return np.asarray(order[np.sort(first)], dtype=np.int64)
+
+
+def enforce(
+    gp: TakesFreeSpace, swept_m: FloatArray, radius_m: float, spacing_m: float, rounds: int, tolerance_m: float
+) -> NDArray[np.int64]:
+    """Add f = radius_m at the swept centres (k, 3) where the mean of ``gp`` is below radius_m -
+    tolerance_m, one per spacing_m voxel, for up to ``rounds`` rounds, each centre at most once.
+    Returns the indices (into swept_m) of the centres added (none when the estimator takes no free
+    space: ``supports_free_space`` False)."""
+    added = np.zeros(0, dtype=np.int64)
+    if not gp.supports_free_space or len(swept_m) == 0:
+        return added
+    left = np.arange(len(swept_m))
+    for _ in range(rounds):
+        slack = gp.mean(swept_m[left]) - radius_m
+        broken = np.flatnonzero(slack < -tolerance_m)
+        if not len(broken):
+            break
+        picked = broken[most_broken_per_voxel(swept_m[left[broken]], slack[broken], spacing_m)]
+        gp.add_free_space(swept_m[left[picked]], radius_m)
+        added = np.concatenate([added, left[picked]])
+        left = np.delete(left, picked)
+        if not len(left):
+            break
+    return added

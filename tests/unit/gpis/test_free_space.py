@@ -1,0 +1,155 @@
+"""Free space swept by the fingertip as the inequality f >= r (nodes/gpis/free_space.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from palpate.errors import EstimationError
+from palpate.messages.base import Message
+from palpate.messages.schemas import ContactSet, Pose, TouchEvent
+from palpate.nodes.gpis.core import GPIS, GPISConfig
+from palpate.nodes.gpis.free_space import SweptSpace, enforce, most_broken_per_voxel, within_box
+from palpate.nodes.gpis.local import LocalGPIS
+from palpate.nodes.gpis.node import SPEC, GPISNode, GPISNodeConfig
+from palpate.runtime.node import NodeContext
+
+R_TIP = 0.008
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def plate_seen_from_above(spacing: float = 0.01) -> GPIS:
+    """Contacts on the top of a 6 x 6 cm plate at z = 0 only: nothing says where its bottom is."""
+    xs = np.arange(-0.03, 0.0301, spacing)
+    X, Y = np.meshgrid(xs, xs)
+    P = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
+    gp = GPIS(GPISConfig(), prior_centre_m=[0.0, 0.0, -0.005])
+    gp.add_contacts(P, np.tile(UP, (len(P), 1)))
+    return gp
+
+
+def below_the_plate() -> np.ndarray:
+    """Fingertip centres 2 cm under the plate, where it swept without a contact."""
+    xs = np.arange(-0.02, 0.0201, 0.004)
+    X, Y = np.meshgrid(xs, xs)
+    return np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, -0.02)])
+
+
+def test_a_free_space_point_is_observed_at_its_value_and_is_no_contact() -> None:
+    gp = plate_seen_from_above()
+    n, P = gp.n_contacts, gp.positions_m
+    x = np.array([[0.0, 0.0, -0.02]])
+    assert gp.mean(x)[0] < 0.0  # seen from one side, the plate's inside runs on below it
+    gp.add_free_space(x, R_TIP)
+    assert gp.mean(x)[0] == pytest.approx(R_TIP, abs=5e-4)
+    assert gp.n_contacts == n and gp.n_free_space == 1
+    np.testing.assert_array_equal(gp.positions_m, P)
+    assert len(gp.normals) == n and len(gp.observed_m) == n + 1
+    assert np.all(np.isfinite(gp.variance(x))) and gp.variance(x)[0] >= 0.0
+    gp.add_contact([0.0, 0.0, -0.004], -UP)  # contacts go on after free space
+    assert gp.n_contacts == n + 1 and gp.n_free_space == 1
+    with pytest.raises(EstimationError, match="free-space observations"):
+        gp.truncate(1)
+
+
+def test_free_space_is_refused_before_a_contact_and_for_a_bad_distance() -> None:
+    with pytest.raises(EstimationError, match="needs a contact first"):
+        GPIS(GPISConfig()).add_free_space([[0.0, 0.0, 0.0]], R_TIP)
+    gp = plate_seen_from_above()
+    factor = gp.cholesky_factor()
+    for bad in (-0.001, float("nan")):
+        with pytest.raises(EstimationError, match="finite and >= 0"):
+            gp.add_free_space([[0.0, 0.0, -0.02]], bad)
+    np.testing.assert_array_equal(gp.cholesky_factor(), factor)
+    assert gp.n_free_space == 0
+
+
+def test_enforce_lifts_the_mean_to_the_radius_where_it_was_broken_and_nowhere_else() -> None:
+    gp = plate_seen_from_above()
+    swept = below_the_plate()
+    assert (gp.mean(swept) < R_TIP).all()
+    added = enforce(gp, swept, R_TIP, 0.004, rounds=6, tolerance_m=5e-4)
+    assert 0 < len(added) <= len(swept) and len(set(added.tolist())) == len(added)
+    assert gp.mean(swept).min() >= R_TIP - 5e-4 - 1e-9  # no swept centre breaks f >= r any more
+    # above the plate the mean already says f >= r: nothing to add there
+    above = swept + np.array([0.0, 0.0, 0.04])
+    assert (gp.mean(above) >= R_TIP).all()
+    assert len(enforce(gp, above, R_TIP, 0.004, rounds=6, tolerance_m=5e-4)) == 0
+
+
+def test_the_local_estimator_takes_no_free_space() -> None:
+    gp = LocalGPIS(GPISConfig())
+    gp.add_contact([0.0, 0.0, 0.0], UP)
+    assert not gp.supports_free_space
+    assert len(enforce(gp, below_the_plate(), R_TIP, 0.004, rounds=3, tolerance_m=5e-4)) == 0
+    with pytest.raises(EstimationError, match="no free-space observations"):
+        gp.add_free_space([[0.0, 0.0, -0.02]], R_TIP)
+
+
+def test_the_most_broken_point_of_each_voxel_is_kept() -> None:
+    points = np.array([[0.001, 0.0, 0.0], [0.002, 0.0, 0.0], [0.011, 0.0, 0.0]])
+    slack = np.array([-0.001, -0.003, -0.002])
+    np.testing.assert_array_equal(most_broken_per_voxel(points, slack, 0.01), [1, 2])
+    box = within_box(points, np.zeros(3), np.array([0.005, 1.0, 1.0]))
+    np.testing.assert_array_equal(box, [True, True, False])
+
+
+def test_swept_space_keeps_one_centre_per_voxel_and_which_are_observed() -> None:
+    swept = SweptSpace(0.002)
+    for x in (0.0001, 0.0009, 0.0031):
+        swept.add([x, 0.0, 0.0])
+    assert len(swept) == 2
+    index, centres = swept.unobserved()
+    np.testing.assert_array_equal(index, [0, 1])
+    np.testing.assert_allclose(centres[:, 0], [0.0001, 0.0031])
+    swept.mark_observed([0])
+    index, _ = swept.unobserved()
+    np.testing.assert_array_equal(index, [1])
+
+
+def test_the_node_reads_pose_and_contacts_only_with_free_space_and_keeps_the_swept_centres() -> None:
+    assert set(SPEC.with_config(GPISNodeConfig()).inputs) == {"touches", "request"}
+    config = GPISNodeConfig(free_space=True)
+    assert set(SPEC.with_config(config).inputs) == {"touches", "request", "pose", "contacts"}
+    sent: list[Message] = []
+    ctx = NodeContext("gpis", 0, lambda topic, message: sent.append(message), {"surface": "surface/mesh"})
+    node = GPISNode(config, ctx)
+    no_contact = ContactSet(
+        stamp_ns=0,
+        positions_m=np.zeros((0, 3)),
+        local_positions_m=np.zeros((0, 3)),
+        normals=np.zeros((0, 3)),
+        forces_n=np.zeros(0),
+        links=[],
+    )
+    node.on_contacts(no_contact)  # no pose yet: nothing is known to be free
+    for centre in below_the_plate()[:5]:
+        node.on_pose(
+            Pose(
+                stamp_ns=0,
+                frame="fingertip",
+                position_m=centre,
+                quaternion_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
+                linear_velocity_m_s=np.zeros(3),
+                angular_velocity_rad_s=np.zeros(3),
+            )
+        )
+        node.on_contacts(no_contact)
+    assert len(node.swept) == 5
+    node.on_touches(
+        TouchEvent(
+            stamp_ns=0,
+            index=0,
+            position_m=np.zeros(3),
+            normal=UP,
+            approach_direction=-UP,
+            predicted_contact_m=np.full(3, np.nan),
+            missed=False,
+            travelled_m=0.0,
+            rotation_deg=0.0,
+        )
+    )
+    assert node.gp.n_contacts == 1 and len(sent) == 1
+    # the prior sphere, tangent inside at the touch, holds the centres 2 cm below it: they break f >= r
+    assert ctx.counters["free_space_points"] > 0
+    assert node.gp.mean(below_the_plate()[:5]).min() >= R_TIP - config.free_space_tolerance_m - 1e-9
