@@ -16,6 +16,8 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from palpate.errors import EstimationError
+
 FloatArray = NDArray[np.float64]
 
 
@@ -64,6 +66,10 @@ class SweptSpace:
         for i in np.asarray(indices, dtype=np.int64).tolist():
             self._observed[i] = True
 
+    def forget_observed(self) -> None:
+        """The GP was rebuilt from its contacts alone: no centre is observed any more."""
+        self._observed = [False] * len(self._points)
+
 
 def within_box(points_m: FloatArray, lower_m: FloatArray, upper_m: FloatArray) -> NDArray[np.bool_]:
     """Which points (k, 3) lie inside the box [lower_m, upper_m] (3,): a mask (k,)."""
@@ -80,14 +86,15 @@ def most_broken_per_voxel(points_m: FloatArray, slack: FloatArray, spacing_m: fl
 
 def enforce(
     gp: TakesFreeSpace, swept_m: FloatArray, radius_m: float, spacing_m: float, rounds: int, tolerance_m: float
-) -> NDArray[np.int64]:
+) -> tuple[NDArray[np.int64], bool]:
     """Add f = radius_m at the swept centres (k, 3) where the mean of ``gp`` is below radius_m -
     tolerance_m, one per spacing_m voxel, for up to ``rounds`` rounds, each centre at most once.
     Returns the indices (into swept_m) of the centres added (none when the estimator takes no free
-    space: ``supports_free_space`` False)."""
+    space: ``supports_free_space`` False) and whether a round was refused (its covariance would not
+    factor: the rounds stop there, the earlier ones stay)."""
     added = np.zeros(0, dtype=np.int64)
     if not gp.supports_free_space or len(swept_m) == 0:
-        return added
+        return added, False
     left = np.arange(len(swept_m))
     for _ in range(rounds):
         slack = gp.mean(swept_m[left]) - radius_m
@@ -95,9 +102,12 @@ def enforce(
         if not len(broken):
             break
         picked = broken[most_broken_per_voxel(swept_m[left[broken]], slack[broken], spacing_m)]
-        gp.add_free_space(swept_m[left[picked]], radius_m)
+        try:
+            gp.add_free_space(swept_m[left[picked]], radius_m)
+        except EstimationError:
+            return added, True
         added = np.concatenate([added, left[picked]])
         left = np.delete(left, picked)
         if not len(left):
             break
-    return added
+    return added, False

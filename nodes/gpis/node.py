@@ -109,29 +109,25 @@ class GPISNode:
         self._publish(mesh, "global")
 
     def _enforce_free_space(self, gp: SurfaceEstimator) -> None:
-        """f >= fingertip radius at the swept centres in the whole-object box (see GPISNodeConfig)."""
+        """f >= fingertip radius at the swept centres in the whole-object box (see GPISNodeConfig).
+        A GP grown for this touch (``_holding``) was rebuilt from the contacts alone: every centre is
+        checked afresh against it."""
         cfg = self.config
         if not len(self.swept) or not gp.supports_free_space:
             return
+        if gp is not self.gp:
+            self.swept.forget_observed()
         lower, upper = whole_box(gp.positions_m, cfg.global_margin_m)
         index, centres = self.swept.unobserved()
         inside = within_box(centres, lower, upper)
         index, centres = index[inside], centres[inside]
-        try:
-            added = enforce(
-                gp,
-                centres,
-                cfg.fingertip_radius_m,
-                cfg.free_space_spacing_m,
-                cfg.free_space_rounds,
-                cfg.free_space_tolerance_m,
-            )
-        except EstimationError:  # the covariance would not factor: the touch stands without them
-            self.ctx.count("free_space_refused")
-            return
+        radius, spacing, tolerance = cfg.fingertip_radius_m, cfg.free_space_spacing_m, cfg.free_space_tolerance_m
+        added, refused = enforce(gp, centres, radius, spacing, cfg.free_space_rounds, tolerance)
         self.swept.mark_observed(index[added])
         if len(added):
             self.ctx.count("free_space_points", len(added))
+        if refused:  # the covariance would not factor with more: the touch stands with what was added
+            self.ctx.count("free_space_refused")
 
     def _holding(self, message: TouchEvent) -> SurfaceEstimator:
         """With grow_kernel, the GP grown to hold this touch's local mesh and the whole-object mesh after

@@ -68,20 +68,20 @@ def test_enforce_lifts_the_mean_to_the_radius_where_it_was_broken_and_nowhere_el
     gp = plate_seen_from_above()
     swept = below_the_plate()
     assert (gp.mean(swept) < R_TIP).all()
-    added = enforce(gp, swept, R_TIP, 0.004, rounds=6, tolerance_m=5e-4)
-    assert 0 < len(added) <= len(swept) and len(set(added.tolist())) == len(added)
+    added, refused = enforce(gp, swept, R_TIP, 0.004, rounds=6, tolerance_m=5e-4)
+    assert not refused and 0 < len(added) <= len(swept) and len(set(added.tolist())) == len(added)
     assert gp.mean(swept).min() >= R_TIP - 5e-4 - 1e-9  # no swept centre breaks f >= r any more
     # above the plate the mean already says f >= r: nothing to add there
     above = swept + np.array([0.0, 0.0, 0.04])
     assert (gp.mean(above) >= R_TIP).all()
-    assert len(enforce(gp, above, R_TIP, 0.004, rounds=6, tolerance_m=5e-4)) == 0
+    assert len(enforce(gp, above, R_TIP, 0.004, rounds=6, tolerance_m=5e-4)[0]) == 0
 
 
 def test_the_local_estimator_takes_no_free_space() -> None:
     gp = LocalGPIS(GPISConfig())
     gp.add_contact([0.0, 0.0, 0.0], UP)
     assert not gp.supports_free_space
-    assert len(enforce(gp, below_the_plate(), R_TIP, 0.004, rounds=3, tolerance_m=5e-4)) == 0
+    assert len(enforce(gp, below_the_plate(), R_TIP, 0.004, rounds=3, tolerance_m=5e-4)[0]) == 0
     with pytest.raises(EstimationError, match="no free-space observations"):
         gp.add_free_space([[0.0, 0.0, -0.02]], R_TIP)
 
@@ -105,6 +105,8 @@ def test_swept_space_keeps_one_centre_per_voxel_and_which_are_observed() -> None
     swept.mark_observed([0])
     index, _ = swept.unobserved()
     np.testing.assert_array_equal(index, [1])
+    swept.forget_observed()
+    np.testing.assert_array_equal(swept.unobserved()[0], [0, 1])
 
 
 def test_the_node_reads_pose_and_contacts_only_with_free_space_and_keeps_the_swept_centres() -> None:
