@@ -35,6 +35,11 @@ def below_the_plate() -> np.ndarray:
     return np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, -0.02)])
 
 
+def _no_contact() -> ContactSet:
+    no = np.zeros((0, 3))
+    return ContactSet(stamp_ns=0, positions_m=no, local_positions_m=no, normals=no, forces_n=np.zeros(0), links=[])
+
+
 def test_a_free_space_point_is_observed_at_its_value_and_is_no_contact() -> None:
     gp = plate_seen_from_above()
     n, P = gp.n_contacts, gp.positions_m
@@ -116,14 +121,7 @@ def test_the_node_reads_pose_and_contacts_only_with_free_space_and_keeps_the_swe
     sent: list[Message] = []
     ctx = NodeContext("gpis", 0, lambda topic, message: sent.append(message), {"surface": "surface/mesh"})
     node = GPISNode(config, ctx)
-    no_contact = ContactSet(
-        stamp_ns=0,
-        positions_m=np.zeros((0, 3)),
-        local_positions_m=np.zeros((0, 3)),
-        normals=np.zeros((0, 3)),
-        forces_n=np.zeros(0),
-        links=[],
-    )
+    no_contact = _no_contact()
     node.on_contacts(no_contact)  # no pose yet: nothing is known to be free
     for centre in below_the_plate()[:5]:
         node.on_pose(
@@ -155,3 +153,32 @@ def test_the_node_reads_pose_and_contacts_only_with_free_space_and_keeps_the_swe
     # the prior sphere, tangent inside at the touch, holds the centres 2 cm below it: they break f >= r
     assert ctx.counters["free_space_points"] > 0
     assert node.gp.mean(below_the_plate()[:5]).min() >= R_TIP - config.free_space_tolerance_m - 1e-9
+
+
+def test_a_gp_grown_for_a_far_touch_gets_the_free_space_again() -> None:
+    """The grown GP is rebuilt from the contacts alone (reach.holding): the swept centres that the old
+    one observed are checked afresh against it, not taken as observed."""
+    ctx = NodeContext("gpis", 0, lambda topic, message: None, {"surface": "surface/mesh"})
+    node = GPISNode(GPISNodeConfig(free_space=True), ctx)
+    node.fingertip_m = np.array([0.0, 0.0, -0.02])  # under the first touch, inside its prior sphere
+    node.on_contacts(_no_contact())
+
+    def touch_at(x: float, normal: list[float]) -> TouchEvent:
+        return TouchEvent(
+            stamp_ns=0,
+            index=0,
+            position_m=np.array([x, 0.0, 0.0]),
+            normal=np.array(normal),
+            approach_direction=-UP,
+            predicted_contact_m=np.full(3, np.nan),
+            missed=False,
+            travelled_m=0.0,
+            rotation_deg=0.0,
+        )
+
+    node.on_touches(touch_at(0.0, [0.0, 0.0, 1.0]))
+    assert len(node.gp.observed_m) == 2  # the contact and the swept centre
+    node.on_touches(touch_at(0.45, [1.0, 0.0, 0.0]))  # needs R_m 0.55 m: grown to 1 m
+    assert ctx.counters["kernel_grown"] == 1 and node.gp.n_contacts == 2
+    assert len(node.gp.observed_m) == 3  # observed again by the grown GP
+    assert ctx.counters["free_space_points"] == 2
