@@ -253,9 +253,6 @@ class SurfaceEstimator(Protocol):
     def normals(self) -> FloatArray: ...
 
     @property
-    def observed_m(self) -> FloatArray: ...
-
-    @property
     def supports_free_space(self) -> bool: ...
 
     @property
@@ -264,6 +261,8 @@ class SurfaceEstimator(Protocol):
     def add_contact(self, position_m: ArrayLike, normal: ArrayLike) -> None: ...
 
     def add_free_space(self, points_m: ArrayLike, distance_m: float) -> None: ...
+
+    def drop_free_space(self) -> None: ...
 
     def add_contacts(self, positions_m: ArrayLike, normals: ArrayLike) -> None: ...
 
@@ -324,11 +323,6 @@ class GPIS:
     def normals(self) -> FloatArray:
         """Contact unit normals (n, 3), a copy."""
         return self._N.copy() if self.n_free_space == 0 else self._N[self._is_contact]
-
-    @property
-    def observed_m(self) -> FloatArray:
-        """Every observed point (k, 3), contacts and free-space points, a copy (for range checks)."""
-        return self._P.copy()
 
     @property
     def supports_free_space(self) -> bool:
@@ -447,6 +441,20 @@ class GPIS:
         self._is_contact = np.concatenate([self._is_contact, np.full(b, contact)])
         self._diag_rows = np.vstack([self._diag_rows, np.tile(diag, (b, 1))])
         self._n_contacts += b if contact else 0
+        self._alpha = None
+
+    def drop_free_space(self) -> None:
+        """Remove the free-space observations, which must all come after the last contact (exact: the
+        factor's leading block is the contacts' own, as in ``truncate``)."""
+        if self.n_free_space == 0:
+            return
+        if self._is_contact[self._n_contacts :].any() or not self._is_contact[: self._n_contacts].all():
+            raise EstimationError("free-space observations lie between contacts; they cannot be dropped")
+        n = self._n_contacts
+        self._L.truncate(ROWS_PER_POINT * n)
+        self._z = self._z[: ROWS_PER_POINT * n].copy()
+        self._P, self._N = self._P[:n].copy(), self._N[:n].copy()
+        self._is_contact, self._diag_rows = self._is_contact[:n].copy(), self._diag_rows[:n].copy()
         self._alpha = None
 
     def truncate(self, n_contacts: int) -> None:

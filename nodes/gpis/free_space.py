@@ -2,11 +2,16 @@
 
 Wherever the centre of a fingertip of radius r passed without a contact, the object's signed
 distance is at least r: f >= r. A GP takes equalities only, so the inequality is kept by an active
-set: at each touch, the swept centres where the posterior mean breaks it (f < r) get the value-only
-observation f = r, the least that satisfies it there (``GPIS.add_free_space``), thinned to one per
-``spacing_m`` voxel, for up to ``rounds`` rounds (each observation moves the mean elsewhere too).
-An observation where the mean already satisfies it would say more than the evidence (the true
-distance may be far larger) and pull the surface out; this form never adds one there.
+set: the swept centres where the posterior mean breaks it (f < r) get the value-only observation
+f = r, the least that satisfies it there (``GPIS.add_free_space``), thinned to one per ``spacing_m``
+voxel, for up to ``rounds`` rounds (each observation moves the mean elsewhere too). An observation
+where the mean already satisfies it would say more than the evidence (the true distance may be far
+larger) and pull the surface out; this form never adds one there.
+
+The active set belongs to the contacts it was found for: kept across touches, an observation made
+when the estimate was coarse stays at f = r where the true distance is larger, and pulls the surface
+out (measured: it made every strategy's whole estimate worse). So the GPIS node applies it to the
+whole-object estimate it is asked for, from all the contacts so far, and drops it again.
 """
 
 from __future__ import annotations
@@ -33,16 +38,14 @@ class TakesFreeSpace(Protocol):
 
 
 class SweptSpace:
-    """Fingertip centres swept without a contact, one per voxel of edge voxel_m (the first kept), and
-    which of them the GP observes already (each is observed at most once)."""
+    """Fingertip centres swept without a contact, one per voxel of edge voxel_m (the first kept)."""
 
     def __init__(self, voxel_m: float) -> None:
         if not voxel_m > 0.0:
             raise ValueError(f"voxel_m must be > 0, got {voxel_m!r}")
         self.voxel_m = float(voxel_m)
-        self._index: dict[tuple[int, int, int], int] = {}
+        self._keys: set[tuple[int, int, int]] = set()
         self._points: list[tuple[float, float, float]] = []
-        self._observed: list[bool] = []
 
     def __len__(self) -> int:
         return len(self._points)
@@ -52,23 +55,13 @@ class SweptSpace:
         x, y, z = (float(v) for v in np.asarray(centre_m, dtype=np.float64).reshape(3))
         s = self.voxel_m
         key = (int(np.floor(x / s)), int(np.floor(y / s)), int(np.floor(z / s)))
-        if key not in self._index:
-            self._index[key] = len(self._points)
+        if key not in self._keys:
+            self._keys.add(key)
             self._points.append((x, y, z))
-            self._observed.append(False)
 
-    def unobserved(self) -> tuple[NDArray[np.int64], FloatArray]:
-        """(indices (k,), centres (k, 3)) of the centres the GP does not observe yet."""
-        index = np.flatnonzero(~np.array(self._observed, dtype=bool))
-        return index, np.array(self._points, dtype=np.float64).reshape(-1, 3)[index]
-
-    def mark_observed(self, indices: ArrayLike) -> None:
-        for i in np.asarray(indices, dtype=np.int64).tolist():
-            self._observed[i] = True
-
-    def forget_observed(self) -> None:
-        """The GP was rebuilt from its contacts alone: no centre is observed any more."""
-        self._observed = [False] * len(self._points)
+    def points_m(self) -> FloatArray:
+        """The kept centres (k, 3)."""
+        return np.array(self._points, dtype=np.float64).reshape(-1, 3)
 
 
 def within_box(points_m: FloatArray, lower_m: FloatArray, upper_m: FloatArray) -> NDArray[np.bool_]:

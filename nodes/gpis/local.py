@@ -130,17 +130,15 @@ class LocalGPIS:
         return self._N[: self._count].copy()
 
     @property
-    def observed_m(self) -> FloatArray:
-        """The contacts (it observes nothing else), a copy."""
-        return self.positions_m
-
-    @property
     def supports_free_space(self) -> bool:
         return False
 
     def add_free_space(self, points_m: ArrayLike, distance_m: float) -> None:
         """Refused: the experts hold contacts only (``supports_free_space`` is False)."""
         raise EstimationError("the local GPIS takes no free-space observations; use the exact estimator")
+
+    def drop_free_space(self) -> None:
+        """Nothing to drop (it takes none)."""
 
     @property
     def prior_centre_m(self) -> FloatArray | None:
@@ -460,16 +458,15 @@ class AutoGPIS:
         return self._impl.prior_centre_m
 
     @property
-    def observed_m(self) -> FloatArray:
-        return self._impl.observed_m
-
-    @property
     def supports_free_space(self) -> bool:
         """While exact; the local estimator takes no free space (its experts hold contacts only)."""
         return self._impl.supports_free_space
 
     def add_free_space(self, points_m: ArrayLike, distance_m: float) -> None:
         self._impl.add_free_space(points_m, distance_m)
+
+    def drop_free_space(self) -> None:
+        self._impl.drop_free_space()
 
     @property
     def factor_bytes(self) -> int:

@@ -48,12 +48,13 @@ class GPISNodeConfig(Validated):
     #: Largest R_m growing may reach, metres (objects up to about 6 m across); beyond it the fit degrades
     #: (the relative jitter, a fraction of R_m^3, outweighs the value noise) and touches are refused.
     kernel_radius_cap_m: PositiveFloat = 8.0
-    #: Not in the paper: the free space the fingertip swept as an inequality, f >= fingertip_radius_m at
-    #: every centre it passed without a contact (``free_space``; the node then reads the fingertip pose
-    #: and the contacts every tick). At each touch, the swept centres in the whole-object box where the
-    #: mean breaks it get f = fingertip_radius_m, one per free_space_spacing_m voxel, for up to
-    #: free_space_rounds rounds. Exact estimator only (the local one takes none). Off by default: it
-    #: changes every strategy's estimate (docs/exploration.md, "Free space as an inequality").
+    #: Not in the paper: the whole-object mesh keeps the free space the fingertip swept, f >=
+    #: fingertip_radius_m at every centre it passed without a contact (``free_space``; the node then
+    #: reads the fingertip pose and the contacts every tick). For each whole-object mesh, the swept
+    #: centres in its box where the mean breaks it get f = fingertip_radius_m, one per
+    #: free_space_spacing_m voxel, for up to free_space_rounds rounds, and lose it after the mesh. The
+    #: local meshes (the planner's) do not. Exact estimator only (the local one takes none).
+    #: docs/exploration.md, "Free space as an inequality".
     free_space: bool = False
     #: The fingertip's radius, metres (the controller's tip_radius_m).
     fingertip_radius_m: PositiveFloat = 0.008
@@ -61,9 +62,8 @@ class GPISNodeConfig(Validated):
     free_space_voxel_m: PositiveFloat = 0.002
     free_space_spacing_m: PositiveFloat = 0.004
     free_space_rounds: Annotated[int, Range(ge=1)] = 6
-    #: A centre counts as breaking f >= r only below r - this (the value noise keeps an observed
-    #: centre a fraction of a millimetre off r).
-    free_space_tolerance_m: NonNegativeFloat = 0.0005
+    #: A centre counts as breaking f >= r only below r - this.
+    free_space_tolerance_m: NonNegativeFloat = 0.0
 
 
 class GPISNode:
@@ -93,7 +93,6 @@ class GPISNode:
             cfg.local_resolution_m,
             with_variance=cfg.vertex_variance != "none",
             variance_near=(cfg.variance_step_m, cfg.variance_radius_m) if cfg.vertex_variance == "candidates" else None,
-            before_mesh=self._enforce_free_space if cfg.free_space else None,
         )
         if gp is not self.gp:  # grown, and the touch was usable: keep it
             self.gp = gp
@@ -105,29 +104,31 @@ class GPISNode:
         if message.region != "global":
             raise InputError("region", f"{message.region!r} is no region a request can name; use 'global'")
         cfg = self.config
-        mesh = whole_surface(self.gp, cfg.global_margin_m, cfg.global_resolution_m, with_variance=message.variance)
+        added = self._enforce_free_space() if cfg.free_space else 0
+        try:
+            mesh = whole_surface(self.gp, cfg.global_margin_m, cfg.global_resolution_m, with_variance=message.variance)
+        finally:
+            if added:
+                self.gp.drop_free_space()
         self._publish(mesh, "global")
 
-    def _enforce_free_space(self, gp: SurfaceEstimator) -> None:
-        """f >= fingertip radius at the swept centres in the whole-object box (see GPISNodeConfig).
-        A GP grown for this touch (``_holding``) was rebuilt from the contacts alone: every centre is
-        checked afresh against it."""
+    def _enforce_free_space(self) -> int:
+        """f >= fingertip radius at the swept centres in the whole-object box (see GPISNodeConfig);
+        returns how many observations were added."""
         cfg = self.config
-        if not len(self.swept) or not gp.supports_free_space:
-            return
-        if gp is not self.gp:
-            self.swept.forget_observed()
+        gp = self.gp
+        if not len(self.swept) or not gp.n_contacts or not gp.supports_free_space:
+            return 0
         lower, upper = whole_box(gp.positions_m, cfg.global_margin_m)
-        index, centres = self.swept.unobserved()
-        inside = within_box(centres, lower, upper)
-        index, centres = index[inside], centres[inside]
+        centres = self.swept.points_m()
+        centres = centres[within_box(centres, lower, upper)]
         radius, spacing, tolerance = cfg.fingertip_radius_m, cfg.free_space_spacing_m, cfg.free_space_tolerance_m
         added, refused = enforce(gp, centres, radius, spacing, cfg.free_space_rounds, tolerance)
-        self.swept.mark_observed(index[added])
         if len(added):
             self.ctx.count("free_space_points", len(added))
-        if refused:  # the covariance would not factor with more: the touch stands with what was added
+        if refused:  # the covariance would not factor with more: the mesh has what was added
             self.ctx.count("free_space_refused")
+        return len(added)
 
     def _holding(self, message: TouchEvent) -> SurfaceEstimator:
         """With grow_kernel, the GP grown to hold this touch's local mesh and the whole-object mesh after

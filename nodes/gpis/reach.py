@@ -38,7 +38,7 @@ def touch_reach(gp: SurfaceEstimator, position_m: ArrayLike, half_extent_m: floa
     if not gp.n_contacts:
         return 0.0
     P = gp.positions_m
-    local = grid_reach(gp.observed_m, p, half_extent_m)  # free-space points lie in the whole box
+    local = grid_reach(P, p, half_extent_m)
     lower, upper = whole_box(np.vstack([P, p]), margin_m)
     return max(local, float(np.linalg.norm(upper - lower)))
 

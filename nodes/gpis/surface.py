@@ -264,11 +264,8 @@ def add_touch(
     *,
     with_variance: bool = True,
     variance_near: tuple[float, float] | None = None,
-    before_mesh: Callable[[SurfaceEstimator], object] | None = None,
 ) -> SurfaceMeshArrays:
     """Add a touch (position (3,) m, outward unit normal (3,)) to the GP and mesh the surface around it.
-
-    before_mesh(gp) runs once the touch is in the GP, before the mesh (the node's free space).
 
     variance_near = (step_m, radius_m): the variance only at the vertices a planner samples around this
     touch (``thinning.thin_near``, one per step_m voxel within radius_m); None: at every vertex.
@@ -284,14 +281,12 @@ def add_touch(
     if gp.n_contacts:
         # every local grid has these half extents, so the same bound holds both ways round
         e = np.array([0.5 * float(a[-1] - a[0]) for a in axes])
-        reach = grid_reach(gp.observed_m, np.asarray(p), e)
+        reach = grid_reach(gp.positions_m, np.asarray(p), e)
         try:
             gp.kernel.check_distances(reach)
         except EstimationError as exc:
             reason = f"the GPIS cannot add this touch to its {gp.n_contacts} contacts: {exc}"
             raise InputError("position_m", reason) from exc
     gp.add_contact(p, n)
-    if before_mesh is not None:
-        before_mesh(gp)
     sites = None if variance_near is None else (lambda v: thin_near(v, p, *variance_near))
     return mesh_from_grid(gp, axes, with_variance=with_variance, variance_sites=sites)

@@ -7,10 +7,10 @@ import pytest
 
 from palpate.errors import EstimationError
 from palpate.messages.base import Message
-from palpate.messages.schemas import ContactSet, Pose, TouchEvent
+from palpate.messages.schemas import ContactSet, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.gpis.core import GPIS, GPISConfig
 from palpate.nodes.gpis.free_space import SweptSpace, enforce, most_broken_per_voxel, within_box
-from palpate.nodes.gpis.local import LocalGPIS
+from palpate.nodes.gpis.local import AutoGPIS, LocalGPIS
 from palpate.nodes.gpis.node import SPEC, GPISNode, GPISNodeConfig
 from palpate.runtime.node import NodeContext
 
@@ -40,19 +40,26 @@ def _no_contact() -> ContactSet:
     return ContactSet(stamp_ns=0, positions_m=no, local_positions_m=no, normals=no, forces_n=np.zeros(0), links=[])
 
 
-def test_a_free_space_point_is_observed_at_its_value_and_is_no_contact() -> None:
+def test_a_free_space_point_is_observed_at_its_value_is_no_contact_and_drops_exactly() -> None:
     gp = plate_seen_from_above()
     n, P = gp.n_contacts, gp.positions_m
     x = np.array([[0.0, 0.0, -0.02]])
-    assert gp.mean(x)[0] < 0.0  # seen from one side, the plate's inside runs on below it
+    before = gp.mean(x)
+    assert before[0] < 0.0  # seen from one side, the plate's inside runs on below it
     gp.add_free_space(x, R_TIP)
     assert gp.mean(x)[0] == pytest.approx(R_TIP, abs=5e-4)
     assert gp.n_contacts == n and gp.n_free_space == 1
     np.testing.assert_array_equal(gp.positions_m, P)
-    assert len(gp.normals) == n and len(gp.observed_m) == n + 1
+    assert len(gp.normals) == n
     assert np.all(np.isfinite(gp.variance(x))) and gp.variance(x)[0] >= 0.0
-    gp.add_contact([0.0, 0.0, -0.004], -UP)  # contacts go on after free space
+    gp.drop_free_space()  # the factor's leading block is the contacts' own: the same bits as before
+    assert gp.n_free_space == 0
+    np.testing.assert_array_equal(gp.mean(x), before)
+    gp.add_free_space(x, R_TIP)
+    gp.add_contact([0.0, 0.0, -0.004], -UP)  # a contact after free space ...
     assert gp.n_contacts == n + 1 and gp.n_free_space == 1
+    with pytest.raises(EstimationError, match="between contacts"):  # ... keeps it
+        gp.drop_free_space()
     with pytest.raises(EstimationError, match="free-space observations"):
         gp.truncate(1)
 
@@ -99,86 +106,70 @@ def test_the_most_broken_point_of_each_voxel_is_kept() -> None:
     np.testing.assert_array_equal(box, [True, True, False])
 
 
-def test_swept_space_keeps_one_centre_per_voxel_and_which_are_observed() -> None:
+def test_swept_space_keeps_one_centre_per_voxel() -> None:
     swept = SweptSpace(0.002)
     for x in (0.0001, 0.0009, 0.0031):
         swept.add([x, 0.0, 0.0])
     assert len(swept) == 2
-    index, centres = swept.unobserved()
-    np.testing.assert_array_equal(index, [0, 1])
-    np.testing.assert_allclose(centres[:, 0], [0.0001, 0.0031])
-    swept.mark_observed([0])
-    index, _ = swept.unobserved()
-    np.testing.assert_array_equal(index, [1])
-    swept.forget_observed()
-    np.testing.assert_array_equal(swept.unobserved()[0], [0, 1])
+    np.testing.assert_allclose(swept.points_m()[:, 0], [0.0001, 0.0031])
 
 
-def test_the_node_reads_pose_and_contacts_only_with_free_space_and_keeps_the_swept_centres() -> None:
+def _pose(centre: np.ndarray) -> Pose:
+    return Pose(
+        stamp_ns=0,
+        frame="fingertip",
+        position_m=centre,
+        quaternion_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
+        linear_velocity_m_s=np.zeros(3),
+        angular_velocity_rad_s=np.zeros(3),
+    )
+
+
+def _touch(position: list[float]) -> TouchEvent:
+    return TouchEvent(
+        stamp_ns=0,
+        index=0,
+        position_m=np.array(position),
+        normal=UP,
+        approach_direction=-UP,
+        predicted_contact_m=np.full(3, np.nan),
+        missed=False,
+        travelled_m=0.0,
+        rotation_deg=0.0,
+    )
+
+
+def test_only_the_whole_object_mesh_keeps_the_swept_free_space() -> None:
+    """With free_space the node reads pose and contacts and keeps the centres swept without a contact.
+    The local mesh of a touch is the same as without; the whole-object mesh is not (the swept centres
+    under the plate are no longer inside it), and after it the GP holds its contacts only."""
     assert set(SPEC.with_config(GPISNodeConfig()).inputs) == {"touches", "request"}
     config = GPISNodeConfig(free_space=True)
     assert set(SPEC.with_config(config).inputs) == {"touches", "request", "pose", "contacts"}
-    sent: list[Message] = []
-    ctx = NodeContext("gpis", 0, lambda topic, message: sent.append(message), {"surface": "surface/mesh"})
-    node = GPISNode(config, ctx)
-    no_contact = _no_contact()
-    node.on_contacts(no_contact)  # no pose yet: nothing is known to be free
-    for centre in below_the_plate()[:5]:
-        node.on_pose(
-            Pose(
-                stamp_ns=0,
-                frame="fingertip",
-                position_m=centre,
-                quaternion_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
-                linear_velocity_m_s=np.zeros(3),
-                angular_velocity_rad_s=np.zeros(3),
-            )
-        )
-        node.on_contacts(no_contact)
-    assert len(node.swept) == 5
-    node.on_touches(
-        TouchEvent(
-            stamp_ns=0,
-            index=0,
-            position_m=np.zeros(3),
-            normal=UP,
-            approach_direction=-UP,
-            predicted_contact_m=np.full(3, np.nan),
-            missed=False,
-            travelled_m=0.0,
-            rotation_deg=0.0,
-        )
-    )
-    assert node.gp.n_contacts == 1 and len(sent) == 1
-    # the prior sphere, tangent inside at the touch, holds the centres 2 cm below it: they break f >= r
-    assert ctx.counters["free_space_points"] > 0
-    assert node.gp.mean(below_the_plate()[:5]).min() >= R_TIP - config.free_space_tolerance_m - 1e-9
-
-
-def test_a_gp_grown_for_a_far_touch_gets_the_free_space_again() -> None:
-    """The grown GP is rebuilt from the contacts alone (reach.holding): the swept centres that the old
-    one observed are checked afresh against it, not taken as observed."""
-    ctx = NodeContext("gpis", 0, lambda topic, message: None, {"surface": "surface/mesh"})
-    node = GPISNode(GPISNodeConfig(free_space=True), ctx)
-    node.fingertip_m = np.array([0.0, 0.0, -0.02])  # under the first touch, inside its prior sphere
-    node.on_contacts(_no_contact())
-
-    def touch_at(x: float, normal: list[float]) -> TouchEvent:
-        return TouchEvent(
-            stamp_ns=0,
-            index=0,
-            position_m=np.array([x, 0.0, 0.0]),
-            normal=np.array(normal),
-            approach_direction=-UP,
-            predicted_contact_m=np.full(3, np.nan),
-            missed=False,
-            travelled_m=0.0,
-            rotation_deg=0.0,
-        )
-
-    node.on_touches(touch_at(0.0, [0.0, 0.0, 1.0]))
-    assert len(node.gp.observed_m) == 2  # the contact and the swept centre
-    node.on_touches(touch_at(0.45, [1.0, 0.0, 0.0]))  # needs R_m 0.55 m: grown to 1 m
-    assert ctx.counters["kernel_grown"] == 1 and node.gp.n_contacts == 2
-    assert len(node.gp.observed_m) == 3  # observed again by the grown GP
-    assert ctx.counters["free_space_points"] == 2
+    meshes: dict[bool, list[SurfaceMesh]] = {}
+    for free in (False, True):
+        sent: list[Message] = []
+        ctx = NodeContext("gpis", 0, lambda _, message, sent=sent: sent.append(message), {"surface": "surface/mesh"})
+        node = GPISNode(GPISNodeConfig(free_space=free), ctx)
+        node.on_contacts(_no_contact())  # no pose yet: nothing is known to be free
+        for centre in below_the_plate():
+            node.on_pose(_pose(centre))
+            node.on_contacts(_no_contact())
+        assert len(node.swept) == len(below_the_plate())
+        for x in (-0.02, 0.0, 0.02):
+            for y in (-0.02, 0.0, 0.02):
+                node.on_touches(_touch([x, y, 0.0]))
+        node.on_request(SurfaceRequest(stamp_ns=0, region="global", variance=False))
+        meshes[free] = [m for m in sent if isinstance(m, SurfaceMesh)]
+        exact = node.gp.estimator if isinstance(node.gp, AutoGPIS) else node.gp
+        assert isinstance(exact, GPIS) and exact.n_free_space == 0 and exact.n_contacts == 9
+        if free:
+            assert ctx.counters["free_space_points"] > 0
+            inside = exact.mean(below_the_plate()) < R_TIP
+            assert inside.any()  # the contacts alone put the swept centres inside ...
+    for without, with_free in zip(meshes[False][:-1], meshes[True][:-1], strict=True):
+        np.testing.assert_array_equal(without.vertices_m, with_free.vertices_m)  # local meshes: the same
+    whole_without, whole_with = meshes[False][-1], meshes[True][-1]
+    assert whole_without.region == whole_with.region == "global"
+    # ... the whole-object mesh with free space keeps them out: no estimated surface below them
+    assert whole_without.vertices_m[:, 2].min() < -0.02 < whole_with.vertices_m[:, 2].min()
