@@ -104,21 +104,20 @@ class GPISNode:
         if message.region != "global":
             raise InputError("region", f"{message.region!r} is no region a request can name; use 'global'")
         cfg = self.config
-        added = self._enforce_free_space() if cfg.free_space else 0
         try:
+            if cfg.free_space:
+                self._enforce_free_space()
             mesh = whole_surface(self.gp, cfg.global_margin_m, cfg.global_resolution_m, with_variance=message.variance)
         finally:
-            if added:
-                self.gp.drop_free_space()
+            self.gp.drop_free_space()  # the active set is this mesh's own (see GPISNodeConfig.free_space)
         self._publish(mesh, "global")
 
-    def _enforce_free_space(self) -> int:
-        """f >= fingertip radius at the swept centres in the whole-object box (see GPISNodeConfig);
-        returns how many observations were added."""
+    def _enforce_free_space(self) -> None:
+        """f >= fingertip radius at the swept centres in the whole-object box (see GPISNodeConfig)."""
         cfg = self.config
         gp = self.gp
         if not len(self.swept) or not gp.n_contacts or not gp.supports_free_space:
-            return 0
+            return
         lower, upper = whole_box(gp.positions_m, cfg.global_margin_m)
         centres = self.swept.points_m()
         centres = centres[within_box(centres, lower, upper)]
@@ -128,7 +127,6 @@ class GPISNode:
             self.ctx.count("free_space_points", len(added))
         if refused:  # the covariance would not factor with more: the mesh has what was added
             self.ctx.count("free_space_refused")
-        return len(added)
 
     def _holding(self, message: TouchEvent) -> SurfaceEstimator:
         """With grow_kernel, the GP grown to hold this touch's local mesh and the whole-object mesh after
