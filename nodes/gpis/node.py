@@ -60,7 +60,9 @@ class GPISNodeConfig(Validated):
     fingertip_radius_m: PositiveFloat = 0.008
     #: Swept centres are kept one per voxel of this edge.
     free_space_voxel_m: PositiveFloat = 0.002
+    #: Each round observes at most one swept centre (the most broken) per voxel of this edge.
     free_space_spacing_m: PositiveFloat = 0.004
+    #: Rounds of the active set per whole-object mesh (each observation moves the mean elsewhere too).
     free_space_rounds: Annotated[int, Range(ge=1)] = 6
     #: A centre counts as breaking f >= r only below r - this.
     free_space_tolerance_m: NonNegativeFloat = 0.0
