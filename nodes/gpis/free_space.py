@@ -16,25 +16,13 @@ whole-object estimate it is asked for, from all the contacts so far, and drops i
 
 from __future__ import annotations
 
-from typing import Protocol
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from palpate.errors import EstimationError
+from palpate.nodes.gpis.core import SurfaceEstimator
 
 FloatArray = NDArray[np.float64]
-
-
-class TakesFreeSpace(Protocol):
-    """An estimator that may take free-space observations (``GPIS``; ``AutoGPIS`` while exact)."""
-
-    @property
-    def supports_free_space(self) -> bool: ...
-
-    def mean(self, x: ArrayLike) -> FloatArray: ...
-
-    def add_free_space(self, points_m: ArrayLike, distance_m: float) -> None: ...
 
 
 class SweptSpace:
@@ -78,7 +66,7 @@ def most_broken_per_voxel(points_m: FloatArray, slack: FloatArray, spacing_m: fl
 
 
 def enforce(
-    gp: TakesFreeSpace, swept_m: FloatArray, radius_m: float, spacing_m: float, rounds: int, tolerance_m: float
+    gp: SurfaceEstimator, swept_m: FloatArray, radius_m: float, spacing_m: float, rounds: int, tolerance_m: float
 ) -> tuple[NDArray[np.int64], bool]:
     """Add f = radius_m at the swept centres (k, 3) where the mean of ``gp`` is below radius_m -
     tolerance_m, one per spacing_m voxel, for up to ``rounds`` rounds, each centre at most once.
