@@ -10,8 +10,12 @@ import pytest
 from palpate.errors import InputError
 from palpate.messages import codec
 from palpate.messages.base import Message
-from palpate.messages.schemas import ContactSet, Pose, TouchTarget
+from palpate.messages.schemas import ContactSet, TouchTarget
 from palpate.nodes.controller.node import ControllerNode, ControllerNodeConfig
+from tests.unit.node_messages import no_contacts, pose
+
+#: The probe's orientation in these tests: its poking axis along -z.
+FACING_DOWN = (0.0, 1.0, 0.0, 0.0)
 
 
 class FakeCtx:
@@ -33,31 +37,13 @@ class FakeCtx:
         self.stop_failed = self.stop_failed or failed
 
 
-def _pose(position: np.ndarray) -> Pose:
-    return Pose(
-        stamp_ns=0,
-        frame="probe",
-        position_m=position,
-        quaternion_wxyz=np.array([0.0, 1.0, 0.0, 0.0]),
-        linear_velocity_m_s=np.zeros(3),
-        angular_velocity_rad_s=np.zeros(3),
-    )
-
-
-def _no_contacts() -> ContactSet:
-    empty = np.zeros((0, 3))
-    return ContactSet(
-        stamp_ns=0, positions_m=empty, local_positions_m=empty, normals=empty, forces_n=np.zeros(0), links=[]
-    )
-
-
 def test_initial_approach_that_finds_no_surface_stops_with_the_target_and_the_launch_arguments() -> None:
     ctx = FakeCtx()
     node = ControllerNode(ControllerNodeConfig(initial_target_m=(0.0, 0.0, 0.0)), ctx)
     position, dt = np.array([0.0, 0.0, 0.05]), 0.01
-    node.on_contacts(_no_contacts())
+    node.on_contacts(no_contacts())
     for tick in range(200):  # 5 cm + 1 cm miss distance at 5 cm/s: fails after about 1.2 s
-        node.on_pose(_pose(position))
+        node.on_pose(pose(position, FACING_DOWN, "probe"))
         node.on_tick(tick * 10_000_000)
         if ctx.stop_reason:
             break
@@ -101,7 +87,7 @@ def test_a_target_to_slide_to_is_published_as_a_slide_and_followed_along_the_sur
     ctx = FakeCtx()
     node = ControllerNode(ControllerNodeConfig(initial_target_m=(0.0, 0.0, -0.01)), ctx)
     centre = np.array([0.0, 0.0, 0.008])  # the fingertip resting on the plane z = 0 at the origin
-    node.on_pose(_pose(centre))
+    node.on_pose(pose(centre, FACING_DOWN, "probe"))
     node.on_contacts(_contact([0.0, 0.0, 0.0]))
     node.on_tick(0)
     assert [m for port, m in ctx.published if port == "touches"]  # the first touch
@@ -126,11 +112,11 @@ def test_bad_poses_and_targets_are_refused_and_change_nothing() -> None:
     position = np.array([0.0, 0.0, 0.05])
     for tick in range(30):
         for node in (clean, fed):
-            node.on_pose(_pose(position))
+            node.on_pose(pose(position, FACING_DOWN, "probe"))
             if tick == 10:
                 node.on_target(_target([0.01, 0.0, 0.0], [0.0, 0.0, 1.0]))
         for q in bad_poses:
-            bad = _pose(position)
+            bad = pose(position, FACING_DOWN, "probe")
             object.__setattr__(bad, "quaternion_wxyz", np.array(q))
             with pytest.raises(InputError, match=r"^quaternion_wxyz: norm"):
                 fed.on_pose(bad)

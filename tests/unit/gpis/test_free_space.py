@@ -7,12 +7,13 @@ import pytest
 
 from palpate.errors import EstimationError
 from palpate.messages.base import Message
-from palpate.messages.schemas import ContactSet, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
+from palpate.messages.schemas import SurfaceMesh, SurfaceRequest
 from palpate.nodes.gpis.core import GPIS, GPISConfig
 from palpate.nodes.gpis.free_space import SweptSpace, enforce, most_broken_per_voxel, within_box
 from palpate.nodes.gpis.local import AutoGPIS, LocalGPIS
 from palpate.nodes.gpis.node import SPEC, GPISNode, GPISNodeConfig
 from palpate.runtime.node import NodeContext
+from tests.unit.node_messages import no_contacts, pose, touch
 
 R_TIP = 0.008
 UP = np.array([0.0, 0.0, 1.0])
@@ -33,11 +34,6 @@ def below_the_plate() -> np.ndarray:
     xs = np.arange(-0.02, 0.0201, 0.004)
     X, Y = np.meshgrid(xs, xs)
     return np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, -0.02)])
-
-
-def _no_contact() -> ContactSet:
-    no = np.zeros((0, 3))
-    return ContactSet(stamp_ns=0, positions_m=no, local_positions_m=no, normals=no, forces_n=np.zeros(0), links=[])
 
 
 def test_a_free_space_point_is_observed_at_its_value_is_no_contact_and_drops_exactly() -> None:
@@ -114,31 +110,6 @@ def test_swept_space_keeps_one_centre_per_voxel() -> None:
     np.testing.assert_allclose(swept.points_m()[:, 0], [0.0001, 0.0031])
 
 
-def _pose(centre: np.ndarray) -> Pose:
-    return Pose(
-        stamp_ns=0,
-        frame="fingertip",
-        position_m=centre,
-        quaternion_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
-        linear_velocity_m_s=np.zeros(3),
-        angular_velocity_rad_s=np.zeros(3),
-    )
-
-
-def _touch(position: list[float]) -> TouchEvent:
-    return TouchEvent(
-        stamp_ns=0,
-        index=0,
-        position_m=np.array(position),
-        normal=UP,
-        approach_direction=-UP,
-        predicted_contact_m=np.full(3, np.nan),
-        missed=False,
-        travelled_m=0.0,
-        rotation_deg=0.0,
-    )
-
-
 def test_only_the_whole_object_mesh_keeps_the_swept_free_space() -> None:
     """With free_space the node reads pose and contacts and keeps the centres swept without a contact.
     The local mesh of a touch is the same as without; the whole-object mesh is not (the swept centres
@@ -151,14 +122,14 @@ def test_only_the_whole_object_mesh_keeps_the_swept_free_space() -> None:
         sent: list[Message] = []
         ctx = NodeContext("gpis", 0, lambda _, message, sent=sent: sent.append(message), {"surface": "surface/mesh"})
         node = GPISNode(GPISNodeConfig(free_space=free), ctx)
-        node.on_contacts(_no_contact())  # no pose yet: nothing is known to be free
+        node.on_contacts(no_contacts())  # no pose yet: nothing is known to be free
         for centre in below_the_plate():
-            node.on_pose(_pose(centre))
-            node.on_contacts(_no_contact())
+            node.on_pose(pose(centre))
+            node.on_contacts(no_contacts())
         assert len(node.swept) == len(below_the_plate())
         for x in (-0.02, 0.0, 0.02):
             for y in (-0.02, 0.0, 0.02):
-                node.on_touches(_touch([x, y, 0.0]))
+                node.on_touches(touch([x, y, 0.0], UP))
         node.on_request(SurfaceRequest(stamp_ns=0, region="global", variance=False))
         meshes[free] = [m for m in sent if isinstance(m, SurfaceMesh)]
         exact = node.gp.estimator if isinstance(node.gp, AutoGPIS) else node.gp

@@ -9,25 +9,12 @@ import pytest
 
 from palpate.errors import InputError
 from palpate.messages.base import Message
-from palpate.messages.schemas import SurfaceMesh, SurfaceRequest, TouchEvent
+from palpate.messages.schemas import SurfaceMesh, SurfaceRequest
 from palpate.nodes.gpis.core import GPIS, GPISConfig
 from palpate.nodes.gpis.local import AutoGPIS
 from palpate.nodes.gpis.node import GPISNode, GPISNodeConfig
 from palpate.runtime.node import NodeContext
-
-
-def touch(position: list[float], normal: list[float]) -> TouchEvent:
-    return TouchEvent(
-        stamp_ns=0,
-        index=0,
-        position_m=np.array(position),
-        normal=np.array(normal),
-        approach_direction=np.array([0.0, 0.0, -1.0]),
-        predicted_contact_m=np.full(3, np.nan),
-        missed=False,
-        travelled_m=0.0,
-        rotation_deg=0.0,
-    )
+from tests.unit.node_messages import touch
 
 
 def test_unusable_touches_leave_the_gp_unchanged() -> None:
