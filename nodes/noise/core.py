@@ -17,7 +17,7 @@ import numpy as np
 
 from palpate.config import NonNegativeFloat, Validated
 from palpate.errors import InputError
-from palpate.inputs import coordinates, unique_names, unit_vectors
+from palpate.inputs import MAX_COORDINATE_M, UNIT_TOLERANCE, coordinates, unique_names, unit_vectors
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -101,30 +101,66 @@ class ContactNoise:
 
     def __init__(self, config: ContactNoiseConfig, rng: np.random.Generator) -> None:
         self.config = config
+        self._sigma_position_m = float(config.position_sigma_m)
         self._sigma_normal_rad = math.radians(config.normal_sigma_deg)
+        #: How many (n, 3) blocks of standard normal values a reading of n contacts draws.
+        self._blocks = int(self._sigma_position_m > 0) + int(self._sigma_normal_rad > 0)
         self._rng = rng
 
     def apply(self, positions_m: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Noisy copies of positions (n, 3) m and unit normals (n, 3); the normals stay unit length.
 
-        InputError (naming the ContactSet field) for positions beyond palpate.inputs' bounds or normals
-        that are not unit vectors."""
-        p = coordinates(positions_m, "positions_m")
-        n = unit_vectors(normals, "normals")
+        One draw of standard normal values per reading: the positions' block (n, 3) first, then the
+        normals' (the values of two draws in that order). InputError (naming the ContactSet field)
+        for positions beyond palpate.inputs' bounds or normals that are not unit vectors."""
+        p = np.asarray(positions_m, dtype=np.float64)
+        n = np.asarray(normals, dtype=np.float64)
+        if 0 < len(p) <= FEW_DIRECTIONS and self._blocks and p.shape == n.shape == (len(p), 3):
+            few = self._apply_few(p.ravel().tolist(), n.ravel().tolist())
+            if few is not None:
+                return few
+        p = coordinates(p, "positions_m")
+        n = unit_vectors(n, "normals")
         if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
             raise ValueError(f"positions and normals must both have shape (n, 3), got {p.shape} and {n.shape}")
-        if not len(p):  # no contact: nothing to draw (drawing no values leaves the generator as it is)
+        if not len(p) or not self._blocks:  # nothing to draw (drawing no values leaves the generator as it is)
             return np.array(p), np.array(n)
-        if self.config.position_sigma_m > 0:  # each branch makes a new array
-            p = p + self.config.position_sigma_m * self._rng.standard_normal(p.shape)
+        z = self._rng.standard_normal((self._blocks, *p.shape))
+        if self._sigma_position_m > 0:
+            p, z = p + self._sigma_position_m * z[0], z[1:]
         else:
             p = np.array(p)
-        n = perturb_directions(n, self._sigma_normal_rad, self._rng) if self._sigma_normal_rad > 0 else np.array(n)
+        n = _perturb(n, self._sigma_normal_rad * z[0]) if self._sigma_normal_rad > 0 else np.array(n)
         return p, n
 
+    def _apply_few(self, p: list[float], n: list[float]) -> tuple[np.ndarray, np.ndarray] | None:
+        """`apply` of a few rows (flattened) in Python scalars, with the same draw and the same bits; None
+        when a value is not surely valid (the general path then checks it and names the fault)."""
+        if not (math.isfinite(sum(p) + sum(n)) and max(map(abs, p)) <= MAX_COORDINATE_M):
+            return None
+        lengths = []
+        for i in range(0, len(n), 3):
+            squared = n[i] * n[i] + n[i + 1] * n[i + 1] + n[i + 2] * n[i + 2]
+            if not _SURELY_UNIT[0] < squared < _SURELY_UNIT[1]:
+                return None
+            lengths.append(math.sqrt(squared))  # numpy's norm of a row of three, for these values
+        rows = len(lengths)
+        z = self._rng.standard_normal(self._blocks * 3 * rows).tolist()
+        if self._sigma_position_m > 0:
+            s = self._sigma_position_m
+            p = [v + s * dz for v, dz in zip(p, z, strict=False)]
+            z = z[3 * rows :]
+        if self._sigma_normal_rad > 0:
+            s = self._sigma_normal_rad
+            n = _turned_few(n, lengths, [s * dz for dz in z])
+        return np.array(p).reshape(rows, 3), np.array(n).reshape(rows, 3)
 
-#: Up to this many directions, `perturb_directions` computes in Python (numpy's call overhead is most of
-#: the cost of a few rows), with the same operations in the same order, so the same bits.
+
+#: Squared norms surely within `unit_vectors`' tolerance (a hair inside it; the rest is checked there).
+_SURELY_UNIT = ((1.0 - UNIT_TOLERANCE + 1e-9) ** 2, (1.0 + UNIT_TOLERANCE - 1e-9) ** 2)
+
+#: Up to this many directions, `_perturb` computes in Python (numpy's call overhead is most of the cost
+#: of a few rows), with the same operations in the same order, so the same bits.
 FEW_DIRECTIONS = 4
 
 
@@ -134,7 +170,11 @@ def perturb_directions(normals: np.ndarray, sigma_rad: float, rng: np.random.Gen
     Exponential map on the sphere: n' = cos|t| n + sin|t| t/|t|, so angle(n, n') = |t| exactly and the
     result is unit length.
     """
-    z = sigma_rad * rng.standard_normal(np.shape(normals))
+    return _perturb(normals, sigma_rad * rng.standard_normal(np.shape(normals)))
+
+
+def _perturb(normals: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """`perturb_directions` with the step z (n, 3) drawn."""
     few = 0 < len(normals) <= FEW_DIRECTIONS and normals.shape[1:] == (3,)
     if few and math.isfinite(sum(normals.ravel().tolist())):
         return _perturb_few(normals, z)
@@ -142,9 +182,10 @@ def perturb_directions(normals: np.ndarray, sigma_rad: float, rng: np.random.Gen
 
 
 def _perturb_many(normals: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """`perturb_directions` with the step z (n, 3) drawn: the vectorised maths."""
+    """`_perturb` in vectorised maths. The dot products sum their three products left to right
+    (``(z * n).sum(axis=1)``; einsum may fuse or reorder them), as `_perturb_few` does."""
     n = normals / np.linalg.norm(normals, axis=1, keepdims=True)
-    t = z - np.einsum("ij,ij->i", z, n)[:, None] * n  # project onto the tangent plane
+    t = z - (z * n).sum(axis=1)[:, None] * n  # project onto the tangent plane
     angle = np.linalg.norm(t, axis=1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
         direction = np.where(angle > 0, t / angle, 0.0)
@@ -153,25 +194,30 @@ def _perturb_many(normals: np.ndarray, z: np.ndarray) -> np.ndarray:
 
 
 def _perturb_few(normals: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """`_perturb_many` of a few finite rows, mostly in Python: numpy's norm of a row of three sums left to
-    right, so those lines give its bits; the dot products (einsum's own summation order), cos and sin
-    (numpy's float64 kernels may differ from libm's) stay numpy's calls."""
-    units = []
-    for a, b, c in normals.tolist():
-        length = math.sqrt(a * a + b * b + c * c)
-        units.append((a / length, b / length, c / length))
-    dots = np.einsum("ij,ij->i", z, np.array(units)).tolist()
-    tangents, angles = [], []
-    for (a, b, c), (za, zb, zc), dot in zip(units, z.tolist(), dots, strict=True):
+    """`_perturb_many` of a few finite rows in Python scalars (`_turned_few`), with its bits."""
+    n = normals.ravel().tolist()
+    lengths = [math.sqrt(n[i] * n[i] + n[i + 1] * n[i + 1] + n[i + 2] * n[i + 2]) for i in range(0, len(n), 3)]
+    return np.array(_turned_few(n, lengths, z.ravel().tolist()), dtype=np.float64).reshape(-1, 3)
+
+
+def _turned_few(n: list[float], lengths: list[float], z: list[float]) -> list[float]:
+    """Rows of three (flattened) n turned by the steps z: numpy's norm of a row of three and the sum of
+    three products both add left to right, so these lines give `_perturb_many`'s bits; cos and sin are
+    numpy's (its float64 kernels may differ from libm's)."""
+    units, tangents, angles = [], [], []
+    for i, length in zip(range(0, len(n), 3), lengths, strict=True):
+        a, b, c = n[i] / length, n[i + 1] / length, n[i + 2] / length
+        za, zb, zc = z[i], z[i + 1], z[i + 2]
+        dot = za * a + zb * b + zc * c
         ta, tb, tc = za - dot * a, zb - dot * b, zc - dot * c  # project onto the tangent plane
         angle = math.sqrt(ta * ta + tb * tb + tc * tc)
+        units.append((a, b, c))
         tangents.append((ta / angle, tb / angle, tc / angle) if angle > 0 else (0.0, 0.0, 0.0))
         angles.append(angle)
-    cos = np.cos(np.array(angles)).tolist()
-    sin = np.sin(np.array(angles)).tolist()
-    out = []
+    out: list[float] = []
+    cos, sin = np.cos(angles).tolist(), np.sin(angles).tolist()
     for (a, b, c), (ta, tb, tc), ca, sa in zip(units, tangents, cos, sin, strict=True):
         x, y, w = ca * a + sa * ta, ca * b + sa * tb, ca * c + sa * tc
         length = math.sqrt(x * x + y * y + w * w)
-        out.append((x / length, y / length, w / length))
-    return np.array(out, dtype=np.float64)
+        out += (x / length, y / length, w / length)
+    return out

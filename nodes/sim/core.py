@@ -97,15 +97,6 @@ class Contacts:
         return len(self.links)
 
 
-def _quat_to_mat(q: np.ndarray) -> np.ndarray:
-    """MuJoCo's own conversion of its state quaternion (w, x, y, z) -> (3, 3). Not
-    ``palpate.geometry.rotations.quat_to_matrix``: that rounds differently, and the result feeds back
-    into the physics (the probe's body-frame angular velocity)."""
-    R = np.zeros(9)
-    mujoco.mju_quat2Mat(R, np.asarray(q, dtype=np.float64))
-    return R.reshape(3, 3)
-
-
 def _mat_to_quat(R: np.ndarray) -> np.ndarray:
     """MuJoCo's own conversion (3, 3) -> (w, x, y, z) of a site frame (0.4 us; scipy's takes 60 us and
     picks the other sign for some rotations)."""
@@ -186,6 +177,7 @@ class Simulation:
             self._probe_cache = np.zeros(probe_kernels.CACHE_SIZE)
             self._probe_cache[probe_kernels.CACHE_D] = -np.inf  # no query yet: the bound never skips
             self._R = np.zeros(9)  # rotation matrix of the probe, row-major (mju_quat2Mat's buffer)
+            self._R_contact = np.zeros(9)  # the same, for a contact's local position
             assert self._sensor is not None
             self._warm: WarmClosest | None = WarmClosest(self._sensor)
             #: Run the probe's steps in compiled code (probe_kernels) when MuJoCo's library is found.
@@ -258,12 +250,14 @@ class Simulation:
         w = np.asarray(angular_rad_s, dtype=np.float64)
         if v.shape != (3,) or w.shape != (3,):
             raise ValueError(f"velocities have shapes {v.shape} and {w.shape}; expected (3,) and (3,)")
-        if not (all_finite(v) and all_finite(w)):
+        linear, angular = v.tolist(), w.tolist()
+        if not math.isfinite(sum(linear) + sum(angular)) and not (all_finite(v) and all_finite(w)):
             raise ValueError(f"velocities must be finite, got linear {v!r}, angular {w!r}")
-        self._cmd_lin = v.copy()
-        self._cmd_ang = w.copy()
-        self._speed_per_step = float(np.linalg.norm(v)) * self._dt  # the probe's steps read these
-        self._turning = bool(w.any())
+        self._cmd_lin = np.array(linear)
+        self._cmd_ang = np.array(angular)
+        # the probe's steps read these; |v| as np.linalg.norm computes it, sqrt(v . v)
+        self._speed_per_step = math.sqrt(v.dot(v)) * self._dt
+        self._turning = any(angular)
 
     # --- stepping ----------------------------------------------------------------------------------
     def step(self, n: int = 1) -> None:
@@ -295,11 +289,12 @@ class Simulation:
     def _check_diverged(self, t0: float, force: bool = False) -> None:
         d = self.data
         counts = self._warning_counts.tolist()
+        # a finite state: one sum of Python floats (NaN and infinity propagate), else the exact test
+        finite = math.isfinite(sum(d.qpos.tolist()) + sum(d.qvel.tolist()))
         if (
             not force
             and [counts[i] for i in _INSTABILITY_INDEX] == self._warnings_seen
-            and all_finite(d.qpos)
-            and all_finite(d.qvel)
+            and (finite or (all_finite(d.qpos) and all_finite(d.qvel)))
         ):
             return
         problems = []
@@ -507,10 +502,19 @@ class Simulation:
             return Contacts.empty()
         point, _, normal = hit
         q = self.data.qpos
-        R = _quat_to_mat(q[3:7])
-        local = R.T @ (point - q[0:3])
-        force = self._probe_force_gain * max(0.0, -float(self._cmd_lin @ normal))
-        return Contacts(point[None, :], local[None, :], normal[None, :], np.array([force]), ["probe"])
+        mujoco.mju_quat2Mat(self._R_contact, q[3:7])  # MuJoCo's rotation matrix, row-major
+        r = self._R_contact.tolist()
+        (px, py, pz), (nx, ny, nz), (cx, cy, cz) = point.tolist(), normal.tolist(), q[0:3].tolist()
+        vx, vy, vz = self._cmd_lin.tolist()
+        ox, oy, oz = px - cx, py - cy, pz - cz
+        # R^T (p - c) and the force, summed left to right as numpy's 3-element products are
+        local = (
+            r[0] * ox + r[3] * oy + r[6] * oz,
+            r[1] * ox + r[4] * oy + r[7] * oz,
+            r[2] * ox + r[5] * oy + r[8] * oz,
+        )
+        force = self._probe_force_gain * max(0.0, -(vx * nx + vy * ny + vz * nz))
+        return Contacts(point.reshape(1, 3), np.array([local]), normal.reshape(1, 3), np.array([force]), ["probe"])
 
     # --- hand / finger on non-convex objects: exact-mesh penalty contacts ---------------------------
     def _setup_capsule_spheres(self) -> None:

@@ -46,7 +46,7 @@ import numpy as np
 from palpate import jsonio
 from palpate.config import NonNegativeFloat, Validated, load
 from palpate.errors import BenchmarkError, InputError
-from palpate.inputs import contact_arrays
+from palpate.inputs import unit_vectors
 from palpate.launch.loader import LaunchFile, load_launch, parse_cli_args
 from palpate.launch.placement import PLACEMENTS
 from palpate.messages import codec
@@ -114,41 +114,46 @@ class ProbeDriver:
     def __init__(self, config: ProbeDriverConfig, ctx: Context) -> None:
         self.config, self.ctx = config, ctx
         self.times = _TickTimes(config.timing_path)
-        self.normal: np.ndarray | None = None  # last contact normal
+        self.normal: tuple[float, float, float] | None = None  # last contact normal
         self.touching = False
         self.contacts = 0
         self.ticks_in_contact = 0
 
     def on_contacts(self, message: ContactSet) -> None:
-        _, normals, _ = contact_arrays(message.positions_m, message.normals, message.forces_n)
-        # the mean of one row is that row, bit for bit; the norm is np.linalg.norm's sqrt(n . n)
-        n = normals[0].copy() if len(normals) == 1 else normals.mean(axis=0) if len(normals) else np.zeros(3)
-        length = math.sqrt(n.dot(n))
-        if len(normals) and not length > 1e-6:  # opposite normals cancel: no direction to press along
+        rows = unit_vectors(message.normals, "normals").tolist()  # the one field the driver reads
+        self.touching = len(rows) > 0
+        if not self.touching:
+            return
+        x, y, z = rows[0] if len(rows) == 1 else np.mean(rows, axis=0).tolist()
+        length = math.sqrt(x * x + y * y + z * z)
+        if not length > 1e-6:  # opposite normals cancel: no direction to press along
             raise InputError("normals", "the contact normals cancel out; no direction to press along")
-        self.touching = len(normals) > 0
-        if self.touching:
-            self.normal = n / length
-            self.contacts += len(message.normals)
-            self.ticks_in_contact += 1
+        self.normal = (x / length, y / length, z / length)
+        self.contacts += len(rows)
+        self.ticks_in_contact += 1
 
     def on_tick(self, stamp_ns: int) -> None:
         self.times.tick(stamp_ns)
         cfg = self.config
         if self.normal is None:
-            linear = np.array([0.0, 0.0, -cfg.approach_speed_m_s])
+            linear = (0.0, 0.0, -cfg.approach_speed_m_s)
         elif not self.touching:
-            linear = -cfg.approach_speed_m_s * self.normal
+            nx, ny, nz = self.normal
+            speed = cfg.approach_speed_m_s
+            linear = (-speed * nx, -speed * ny, -speed * nz)
         else:
-            n = self.normal
+            nx, ny, nz = self.normal
             angle = cfg.turn_rate_rad_s * stamp_ns * 1e-9
-            d = np.array([math.cos(angle), math.sin(angle), 0.0])
-            t = d - (d @ n) * n
-            length = math.sqrt(t.dot(t))
-            tangent = t / length if length > 1e-6 else np.zeros(3)
-            linear = cfg.slide_speed_m_s * tangent - cfg.press_speed_m_s * n
+            dx, dy = math.cos(angle), math.sin(angle)
+            along = dx * nx + dy * ny
+            tx, ty, tz = dx - along * nx, dy - along * ny, -along * nz  # d projected onto the tangent plane
+            length = math.sqrt(tx * tx + ty * ty + tz * tz)
+            scale = cfg.slide_speed_m_s / length if length > 1e-6 else 0.0
+            press = cfg.press_speed_m_s
+            linear = (scale * tx - press * nx, scale * ty - press * ny, scale * tz - press * nz)
         self.ctx.publish(
-            "velocity", CartesianVelocityCommand(stamp_ns=stamp_ns, linear_m_s=linear, angular_rad_s=_NO_TURN)
+            "velocity",
+            CartesianVelocityCommand(stamp_ns=stamp_ns, linear_m_s=np.array(linear), angular_rad_s=_NO_TURN),
         )
 
     def close(self) -> None:

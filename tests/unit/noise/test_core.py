@@ -190,6 +190,21 @@ def test_contact_noise_same_seed_same_stream() -> None:
         ContactNoiseConfig(normal_sigma_deg=-2)
 
 
+def test_contact_noise_draws_the_positions_then_the_normals() -> None:
+    """One draw per reading gives the values of two: the positions' block first, then the normals'."""
+    from palpate.nodes.noise.core import _perturb_many
+
+    config = ContactNoiseConfig(position_sigma_m=1e-3, normal_sigma_deg=2.0)
+    for rows in (1, 7):
+        p = np.arange(3.0 * rows).reshape(rows, 3) * 0.01
+        n = np.tile([[0.0, 0.6, 0.8]], (rows, 1))
+        out_p, out_n = ContactNoise(config, np.random.default_rng(3)).apply(p, n)
+        rng = np.random.default_rng(3)
+        z_p, z_n = rng.standard_normal((rows, 3)), rng.standard_normal((rows, 3))
+        assert out_p.tobytes() == (p + 1e-3 * z_p).tobytes()
+        assert out_n.tobytes() == _perturb_many(n, math.radians(2.0) * z_n).tobytes()
+
+
 def test_few_directions_take_the_scalar_path_with_numpys_bits() -> None:
     """perturb_directions computes up to FEW_DIRECTIONS rows in Python: the same bits as the
     vectorised maths for the same draw (normals within the unit tolerance, small and large steps)."""
