@@ -314,9 +314,18 @@ class Simulation:
             )
 
     def _refresh(self) -> None:
-        """Recompute kinematics and contacts for the current state (once per step batch)."""
+        """Recompute what the accessors read for the current state (once per step batch): MuJoCo's
+        contacts too (mj_forward) where they are the sensor; with the exact-mesh sensor, the frames
+        and the bodies' velocities alone (what the penalty contacts and the effector pose read; the
+        same functions mj_forward calls first, so the same values)."""
         if not self._fresh:
-            mujoco.mj_forward(self.model, self.data)
+            m, d = self.model, self.data
+            if self._exact:
+                mujoco.mj_kinematics(m, d)
+                mujoco.mj_comPos(m, d)
+                mujoco.mj_comVel(m, d)
+            else:
+                mujoco.mj_forward(m, d)
             self._fresh = True
 
     # --- probe -------------------------------------------------------------------------------------
