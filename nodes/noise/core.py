@@ -148,7 +148,7 @@ class ContactNoise:
         z = self._rng.standard_normal(self._blocks * 3 * rows).tolist()
         if self._sigma_position_m > 0:
             s = self._sigma_position_m
-            p = [v + s * dz for v, dz in zip(p, z, strict=False)]
+            p = [v + s * dz for v, dz in zip(p, z[: 3 * rows], strict=True)]
             z = z[3 * rows :]
         if self._sigma_normal_rad > 0:
             s = self._sigma_normal_rad
@@ -183,7 +183,7 @@ def _perturb(normals: np.ndarray, z: np.ndarray) -> np.ndarray:
 
 def _perturb_many(normals: np.ndarray, z: np.ndarray) -> np.ndarray:
     """`_perturb` in vectorised maths. The dot products sum their three products left to right
-    (``(z * n).sum(axis=1)``; einsum may fuse or reorder them), as `_perturb_few` does."""
+    (``(z * n).sum(axis=1)``; einsum sums them as (p0 + p2) + p1), as `_perturb_few` does."""
     n = normals / np.linalg.norm(normals, axis=1, keepdims=True)
     t = z - (z * n).sum(axis=1)[:, None] * n  # project onto the tangent plane
     angle = np.linalg.norm(t, axis=1, keepdims=True)
