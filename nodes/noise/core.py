@@ -109,6 +109,8 @@ class ContactNoise:
 
     def apply(self, positions_m: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Noisy copies of positions (n, 3) m and unit normals (n, 3); the normals stay unit length.
+        Without noise (or contacts) the values pass unchanged: read-only inputs as they are, others
+        copied.
 
         One draw of standard normal values per reading: the positions' block (n, 3) first, then the
         normals' (the values of two draws in that order). InputError (naming the ContactSet field)
@@ -124,7 +126,7 @@ class ContactNoise:
         if p.ndim != 2 or p.shape[1] != 3 or n.shape != p.shape:
             raise ValueError(f"positions and normals must both have shape (n, 3), got {p.shape} and {n.shape}")
         if not len(p) or not self._blocks:  # nothing to draw (drawing no values leaves the generator as it is)
-            return np.array(p), np.array(n)
+            return _unchanged(p), _unchanged(n)
         z = self._rng.standard_normal((self._blocks, *p.shape))
         if self._sigma_position_m > 0:
             p, z = p + self._sigma_position_m * z[0], z[1:]
@@ -154,6 +156,12 @@ class ContactNoise:
             s = self._sigma_normal_rad
             n = _turned_few(n, lengths, [s * dz for dz in z])
         return np.array(p).reshape(rows, 3), np.array(n).reshape(rows, 3)
+
+
+def _unchanged(a: np.ndarray) -> np.ndarray:
+    """`a` itself when it is read-only (a received array: nothing can change it, and the codec passes
+    it on without a copy), else a copy."""
+    return a if not a.flags.writeable else np.array(a)
 
 
 #: Squared norms surely within `unit_vectors`' tolerance (a hair inside it; the rest is checked there).

@@ -229,5 +229,14 @@ def test_contact_noise_of_no_contact_is_empty_and_draws_nothing() -> None:
     empty.flags.writeable = False  # as received
     p, n = ContactNoise(config, rng).apply(empty, empty)
     assert p.shape == n.shape == (0, 3) and p.dtype == n.dtype == np.float64
-    assert p.flags.writeable and n.flags.writeable and not np.shares_memory(p, empty)
+    assert p is empty and n is empty  # read-only: nothing can change them, so no copy
     assert rng.bit_generator.state == state
+
+
+def test_contact_noise_zero_passes_received_arrays_and_copies_others() -> None:
+    p, n = np.array([[0.1, 0.2, 0.3]]), np.array([[0.0, 0.0, 1.0]])
+    out_p, out_n = ContactNoise(ContactNoiseConfig(), np.random.default_rng(1)).apply(p, n)
+    assert not np.shares_memory(out_p, p) and not np.shares_memory(out_n, n)  # writable: copied
+    p.flags.writeable = n.flags.writeable = False  # as received
+    out_p, out_n = ContactNoise(ContactNoiseConfig(), np.random.default_rng(1)).apply(p, n)
+    assert out_p is p and out_n is n
