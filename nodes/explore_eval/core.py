@@ -67,11 +67,24 @@ class EvalConfig(Validated):
     #: Whole-shape scores (Chamfer distance, F-scores, palpate.metrics.shape) of the whole estimate
     #: every this many contacts, at each milestone and at the end; 0: only at milestones and the end.
     shape_every_contacts: NonNegativeInt = 10
+    #: At most this many shape checkpoints per contact of the covering bound's worth of touches: a large
+    #: object's run (a 0.6 m box: a bound of 7,600 contacts) spaces them wider than shape_every_contacts,
+    #: so its whole-object meshes (seconds each there) do not outweigh the run. Every 10 contacts for any
+    #: object with a bound up to 600 (all 30 shared YCB objects). 0: always shape_every_contacts.
+    shape_checkpoints_per_bound: NonNegativeFloat = 60.0
     shape_samples: PositiveInt = 5000
 
     def covering_bound(self, area_m2: float) -> float:
         """The fewest discs of radius_m that cover coverage_goal of a surface of area_m2 (contacts)."""
         return covering_bound_contacts(area_m2, self.coverage_goal, self.radius_m)
+
+    def shape_interval(self, bound: float) -> int:
+        """Contacts between shape checkpoints: shape_every_contacts, or more for a large covering bound
+        (bound / shape_checkpoints_per_bound, rounded up); 0 when the checkpoints are off."""
+        every = self.shape_every_contacts
+        if every == 0 or self.shape_checkpoints_per_bound == 0:
+            return every
+        return max(every, math.ceil(bound / self.shape_checkpoints_per_bound))
 
     def contact_budget(self, bound: float) -> int:
         """max(max_contacts, contacts_per_bound * covering bound)."""
@@ -166,16 +179,17 @@ class RunControl:
     and when the run ends (around an ExplorationEvaluator).
 
     A touch that reaches milestones, finishes the run (goal or budget) or is a shape checkpoint (every
-    EvalConfig.shape_every_contacts) asks for the surface. The surfaces answer the requests in order
-    (the estimator answers each once, first come first served), and a surface also answers the later
-    requests that its contact count covers, so that a request never answered does not hold up the
-    rest (see ``surface``): it gets its shape scores at the touch count of the newest request it
-    answers, scores their milestones and, when it answers the finishing touch's request, ends the run;
-    a surface that answers no request is ignored. So a surface that comes late (a slow estimator,
-    off lockstep) is neither scored as a later one nor ends the run early; off lockstep it may also
-    hold touches made after its request. A run with no touch for EvalConfig.max_idle_s of simulated
-    time finishes as "stalled" (its last surface is scored the same way). A run whose last surface
-    does not come within EvalConfig.surface_wait_s is ``overdue``: it ends without it.
+    ``EvalConfig.shape_interval`` contacts for the object's covering bound) asks for the surface. The
+    surfaces answer the requests in order (the estimator answers each once, first come first served),
+    and a surface also answers the later requests that its contact count covers, so that a request
+    never answered does not hold up the rest (see ``surface``): it gets its shape scores at the touch
+    count of the newest request it answers, scores their milestones and, when it answers the
+    finishing touch's request, ends the run; a surface that answers no request is ignored. So a
+    surface that comes late (a slow estimator, off lockstep) is neither scored as a later one nor
+    ends the run early; off lockstep it may also hold touches made after its request. A run with no
+    touch for EvalConfig.max_idle_s of simulated time finishes as "stalled" (its last surface is
+    scored the same way). A run whose last surface does not come within EvalConfig.surface_wait_s is
+    ``overdue``: it ends without it.
     """
 
     def __init__(self, evaluator: ExplorationEvaluator) -> None:
@@ -205,7 +219,7 @@ class RunControl:
         self.last_touch_ns = stamp_ns
         axis = np.array([0.0, 0.0, -1.0]) if fingertip_axis is None else fingertip_axis
         reached = ev.add_touch(position_m, predicted_m, travel_m, rotation_deg, axis, missed)
-        every = ev.config.shape_every_contacts
+        every = ev.shape_interval
         checkpoint = every > 0 and len(ev.touches) % every == 0
         if reached or ev.finished or checkpoint:
             self._ask(stamp_ns, tuple(reached), final=bool(ev.finished))
@@ -296,6 +310,11 @@ class ExplorationEvaluator:
     def covering_bound(self) -> float:
         """The fewest 6 mm discs that cover the goal's share of the true surface (contacts)."""
         return self.config.covering_bound(self.area_m2)
+
+    @property
+    def shape_interval(self) -> int:
+        """EvalConfig.shape_interval of this object (contacts between shape checkpoints)."""
+        return self.config.shape_interval(self.covering_bound)
 
     @property
     def contact_budget(self) -> int:

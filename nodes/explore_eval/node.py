@@ -2,7 +2,7 @@
 
 It asks the GPIS node for the whole-object surface when coverage first reaches each milestone (50 %
 and 80 %) to measure the surface RMSE there (with the GP variance, for the confident part), every
-``shape_every_contacts`` contacts for the shape scores (without it), and ends the run at the coverage
+``EvalConfig.shape_interval`` contacts for the shape scores (without it), and ends the run at the coverage
 goal or a budget.
 At the end it prints one line `explore_result: {json}` and optionally writes JSON and a PNG.
 """

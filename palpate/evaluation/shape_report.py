@@ -2,7 +2,7 @@
 
 Input: the rows of :func:`palpate.evaluation.explore.run_episode`, each with its ``shape`` series
 (the whole estimate's scores every few contacts, at each milestone and at the end; see
-``EvalConfig.shape_every_contacts``). Per strategy:
+``EvalConfig.shape_interval``). Per strategy:
 
 - the travel and the contacts to the first estimate with F-score@2 mm >= 0.9, averaged over the
   PAIRED runs (every strategy got there from the same start), per object first, then over objects;
@@ -10,8 +10,9 @@ Input: the rows of :func:`palpate.evaluation.explore.run_episode`, each with its
   travel): the last estimate within the budget (a run that ended earlier counts with its final
   estimate), averaged per object, then over objects.
 
-The series is sampled every ``shape_every_contacts`` contacts, so "travel to F >= 0.9" is that of the
-first sampled estimate that reaches it: an upper bound, coarse by at most that many contacts.
+The series is sampled every ``EvalConfig.shape_interval`` contacts (10; more on an object whose
+covering bound exceeds 600 contacts), so "travel to F >= 0.9" is that of the first sampled estimate
+that reaches it: an upper bound, coarse by at most that many contacts.
 """
 
 from __future__ import annotations

@@ -67,6 +67,17 @@ def test_budgets_grow_with_the_objects_covering_bound() -> None:
     assert summary["contact_budget"] == big.contact_budget and summary["travel_budget_m"] == big.travel_budget_m
 
 
+def test_shape_checkpoints_spread_out_on_an_object_with_a_large_bound() -> None:
+    """Every 10 contacts up to a bound of 600; beyond, bound / 60 contacts apart (rounded up)."""
+    config = EvalConfig()
+    assert [config.shape_interval(b) for b in (5.0, 171.0, 600.0, 600.5, 9237.6)] == [10, 10, 10, 11, 154]
+    assert EvalConfig(shape_checkpoints_per_bound=0.0).shape_interval(9237.6) == 10
+    assert EvalConfig(shape_every_contacts=0).shape_interval(9237.6) == 0  # checkpoints off
+    small = ExplorationEvaluator(*_cube(0.05), EvalConfig(coverage_samples=1000))
+    big = ExplorationEvaluator(*_cube(0.5), EvalConfig(coverage_samples=1000))  # bound ~4000
+    assert small.shape_interval == 10 and big.shape_interval == int(np.ceil(big.covering_bound / 60))
+
+
 def test_a_run_ends_at_the_scaled_contact_budget() -> None:
     config = EvalConfig(coverage_samples=1000, max_contacts=3, contacts_per_bound=0.0)
     ev = ExplorationEvaluator(*_cube(0.05), config)

@@ -21,6 +21,7 @@ class FakeEvaluator:
         self.touches: list[tuple[Any, ...]] = []
         self.scored: list[tuple[float, Any]] = []
         self.shapes: list[int] = []  # contacts at each shape scoring
+        self.shape_interval = self.config.shape_every_contacts  # a small object's
 
     def add_touch(self, *args: Any) -> list[float]:
         self.touches.append(args)
@@ -90,6 +91,14 @@ def test_every_nth_contact_asks_for_the_surface_for_its_shape_scores() -> None:
     run.surface(*surface(6))
     assert not run.needs_variance
     assert ev.shapes == [3, 6] and ev.scored == [(0.5, ("scores of", 6))]
+
+
+def test_the_checkpoints_follow_the_objects_shape_interval() -> None:
+    """A large object's evaluator spaces its checkpoints wider than shape_every_contacts."""
+    ev = FakeEvaluator([([], "")] * 8, EvalConfig(shape_every_contacts=2))
+    ev.shape_interval = 4  # what EvalConfig.shape_interval gives an object with a large covering bound
+    run = RunControl(ev)  # type: ignore[arg-type]
+    assert [touch(run, k * S_NS) for k in range(1, 9)] == [False, False, False, True] * 2
 
 
 def test_surfaces_answer_the_requests_in_order_so_a_late_one_is_not_the_last() -> None:
