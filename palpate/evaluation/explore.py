@@ -219,6 +219,7 @@ def episodes(
     for case in cases:
         vertices, faces = case.true_mesh()
         _note_size(case.name, vertices, faces, params or {})
+        clock_s = max(duration_s, budget_clock_s(vertices, faces, params or {}))
         for run in range(runs):
             a = approach(vertices, faces, run)
             q = probe_quaternion(a.direction)
@@ -231,11 +232,30 @@ def episodes(
                         start_m=_triple(a.start_m),
                         target_m=_triple(a.target_m),
                         quaternion_wxyz=q,
-                        duration_s=duration_s,
+                        duration_s=clock_s,
                         params=frozen,
                     )
                 )
     return out
+
+
+#: Simulated time a run may take per second of travelling its whole travel budget at the controller's
+#: speed v0 (touches, turns and the controller's slower steps near a target take the rest).
+CLOCK_PER_TRAVEL_BUDGET = 2.0
+
+
+def budget_clock_s(vertices: FloatArray, faces: NDArray[np.int64], params: Mapping[str, Any]) -> float:
+    """Simulated seconds that let a run on this object use its travel budget (the evaluator's, after
+    ``params``) at the controller's speed, CLOCK_PER_TRAVEL_BUDGET times over: the budgets, not the
+    launch file's clock, end a run on a large object."""
+    from palpate.metrics.exploration import triangle_areas
+    from palpate.nodes.controller.core import ControllerConfig
+    from palpate.nodes.explore_eval.core import EvalConfig
+
+    config = load(EvalConfig, overrides_under(params.items(), "eval.eval."), "eval params")
+    speed = load(ControllerConfig, overrides_under(params.items(), "controller.controller."), "controller params")
+    travel_m = config.travel_budget_m(config.covering_bound(float(triangle_areas(vertices, faces).sum())))
+    return CLOCK_PER_TRAVEL_BUDGET * travel_m / speed.v0_m_s
 
 
 #: Below this covering bound (contacts) coverage is reached by a touch or two.

@@ -210,6 +210,19 @@ def test_an_object_a_touch_or_two_cover_is_noted(capsys: pytest.CaptureFixture[s
     assert "budgets are 300 contacts" in capsys.readouterr().err  # as --max-contacts 300 sets them
 
 
+def test_a_large_objects_clock_lets_its_runs_use_their_travel_budget() -> None:
+    """The launch file's clock (3600 s) ends no run before its budgets: a 60 cm crate's travel budget
+    (924 m at 5 cm/s: 18,475 s) gets twice that; a ball keeps 3600 s; a faster controller needs less."""
+    ball = episodes([ObjectCase(name="ball", kind="sphere", size_m=(0.03,))], 1, ["igef"])[0]
+    assert ball.duration_s == 3600.0
+    crate = ObjectCase(name="crate", kind="box", size_m=(0.6, 0.6, 0.6))
+    (slow,) = episodes([crate], 1, ["igef"])
+    (fast,) = episodes([crate], 1, ["igef"], params={"controller.controller.v0_m_s": 0.1})
+    assert slow.duration_s == pytest.approx(2.0 * 0.05 * 18_475.2 / 0.05, rel=1e-4)
+    assert fast.duration_s == pytest.approx(slow.duration_s / 2)
+    assert slow.launch_args()["duration_s"] == slow.duration_s
+
+
 @pytest.mark.parametrize("text", ["0", "-1", "nan", "inf", "mm"])
 def test_a_scale_that_is_not_a_finite_positive_number_is_refused(text: str) -> None:
     import argparse
