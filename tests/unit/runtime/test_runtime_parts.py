@@ -288,6 +288,34 @@ def test_a_node_that_may_trail_cannot_stop_the_run() -> None:
     assert ctx.stop_requested == ""
 
 
+def test_in_process_a_message_on_a_second_topic_nobody_reads_is_not_checked_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The finger sim publishes each JointState on joint_states (read by the noise node: transferred, so
+    checked) and then on truth/joint_states (read by no node): the executor does not validate it again."""
+    from palpate.bench.sim import FALLBACK_OBJECT, SimBenchConfig, scene_launch
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch, parse_cli_args
+    from palpate.messages import codec
+    from palpate.runtime import inprocess
+
+    validated: list[str] = []
+    real = codec.validate
+
+    def counting(message: Any) -> None:
+        validated.append(message.TYPE)
+        real(message)
+
+    monkeypatch.setattr(inprocess.codec, "validate", counting)
+    launch, args = scene_launch("finger", FALLBACK_OBJECT, SimBenchConfig(duration_s=0.05), tmp_path)
+    graph = resolve(load_launch(launch, parse_cli_args(args)), bus_dir=tmp_path / "bus")
+    runner = inprocess.InProcessGraph(graph.in_process_members())
+    assert runner.run(max_ticks=3) == 3
+    sim = runner.members[[m.process.name for m in runner.members].index("sim")]
+    assert sim.ctx.counters["messages_out"] >= 3 * 4  # pose, contacts, joint states twice per tick
+    assert "JointState" not in validated
+
+
 def test_in_process_messages_nobody_reads_are_validated_not_transferred(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
