@@ -67,9 +67,9 @@ class EvalConfig(Validated):
     #: Whole-shape scores (Chamfer distance, F-scores, palpate.metrics.shape) of the whole estimate
     #: every this many contacts, at each milestone and at the end; 0: only at milestones and the end.
     shape_every_contacts: NonNegativeInt = 10
-    #: At most this many shape checkpoints per contact of the covering bound's worth of touches: a large
-    #: object's run (a 0.6 m box: a bound of 7,600 contacts) spaces them wider than shape_every_contacts,
-    #: so its whole-object meshes (seconds each there) do not outweigh the run. Every 10 contacts for any
+    #: At most this many shape checkpoints per covering bound of contacts: a large object's run (a 0.6 x
+    #: 0.4 x 0.3 m box: a bound of 9,238 contacts) spaces them wider than shape_every_contacts, so its
+    #: whole-object meshes (seconds each there) do not outweigh the run. Every 10 contacts for any
     #: object with a bound up to 600 (all 30 shared YCB objects). 0: always shape_every_contacts.
     shape_checkpoints_per_bound: NonNegativeFloat = 60.0
     shape_samples: PositiveInt = 5000

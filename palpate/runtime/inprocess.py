@@ -14,8 +14,9 @@ Messages go through the codec (`codec.transfer`: what `decode(encode(message))` 
 bytes), so nodes see exactly what they would see on the bus; a message on a topic that no node reads
 (and no listener) is only validated, as a node process only validates what no subscriber receives.
 A message published on several topics in a row (a sim's joint states, also its truth) is transferred
-or validated once. A test runs a launch file both ways and compares the contacts. The executor takes the nodes already
-resolved (a launch file's `Graph.in_process_members()`), so the runtime needs no launcher.
+or validated once. A test runs a launch file both ways and compares the contacts. The executor takes
+the nodes already resolved (a launch file's `Graph.in_process_members()`), so the runtime needs no
+launcher.
 """
 
 from __future__ import annotations
