@@ -302,7 +302,6 @@ class GPIS:
         # ... and per free-space point: its gradient rows carry no information (see add_free_space).
         self._free_diag = self._diag.copy()
         self._free_diag[1:] = FREE_SPACE_GRADIENT_VARIANCE * kern.gradient_variance
-        self._diag_rows = np.zeros((0, ROWS_PER_POINT))  # the diagonal of every observed point
 
     # --- state -------------------------------------------------------------------------------------
     @property
@@ -350,7 +349,7 @@ class GPIS:
     def observation_covariance(self) -> FloatArray:
         """K + noise (4n, 4n) recomputed from scratch (for checks; the GP itself never does this)."""
         K = self.kernel.observation_cov(self._P, self._P)
-        K[np.diag_indices_from(K)] += self._diag_rows.ravel()
+        K[np.diag_indices_from(K)] += np.where(self._is_contact[:, None], self._diag, self._free_diag).ravel()
         return K
 
     # --- updates -----------------------------------------------------------------------------------
@@ -439,7 +438,6 @@ class GPIS:
         self._P = np.vstack([self._P, P])
         self._N = np.vstack([self._N, N])
         self._is_contact = np.concatenate([self._is_contact, np.full(b, contact)])
-        self._diag_rows = np.vstack([self._diag_rows, np.tile(diag, (b, 1))])
         self._n_contacts += b if contact else 0
         self._alpha = None
 
@@ -448,13 +446,13 @@ class GPIS:
         factor's leading block is the contacts' own, as in ``truncate``)."""
         if self.n_free_space == 0:
             return
-        if self._is_contact[self._n_contacts :].any() or not self._is_contact[: self._n_contacts].all():
-            raise EstimationError("free-space observations lie between contacts; they cannot be dropped")
         n = self._n_contacts
+        if not self._is_contact[:n].all():  # the n contacts are not the leading block
+            raise EstimationError("free-space observations lie between contacts; they cannot be dropped")
         self._L.truncate(ROWS_PER_POINT * n)
         self._z = self._z[: ROWS_PER_POINT * n].copy()
         self._P, self._N = self._P[:n].copy(), self._N[:n].copy()
-        self._is_contact, self._diag_rows = self._is_contact[:n].copy(), self._diag_rows[:n].copy()
+        self._is_contact = self._is_contact[:n].copy()
         self._alpha = None
 
     def truncate(self, n_contacts: int) -> None:
@@ -467,7 +465,7 @@ class GPIS:
         self._L.truncate(rows)
         self._z = self._z[:rows].copy()
         self._P, self._N = self._P[:n_contacts].copy(), self._N[:n_contacts].copy()
-        self._is_contact, self._diag_rows = self._is_contact[:n_contacts].copy(), self._diag_rows[:n_contacts].copy()
+        self._is_contact = self._is_contact[:n_contacts].copy()
         self._n_contacts = n_contacts
         self._alpha = None
         if n_contacts == 0 and self._given_centre is None:

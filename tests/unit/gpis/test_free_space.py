@@ -48,6 +48,8 @@ def test_a_free_space_point_is_observed_at_its_value_is_no_contact_and_drops_exa
     np.testing.assert_array_equal(gp.positions_m, P)
     assert len(gp.normals) == n
     assert np.all(np.isfinite(gp.variance(x))) and gp.variance(x)[0] >= 0.0
+    K = gp.observation_covariance()  # its diagonal: the contacts' noise, then the free-space point's
+    np.testing.assert_allclose(gp.cholesky_factor() @ gp.cholesky_factor().T, K, rtol=0, atol=1e-12 * np.abs(K).max())
     gp.drop_free_space()  # the factor's leading block is the contacts' own: the same bits as before
     assert gp.n_free_space == 0
     np.testing.assert_array_equal(gp.mean(x), before)
