@@ -28,7 +28,7 @@ import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any, get_args
+from typing import TYPE_CHECKING, Any, get_args
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,6 +52,9 @@ from palpate.evaluation.dask_runs import (
 from palpate.evaluation.dask_runs import add_arguments as add_cluster_arguments
 from palpate.evaluation.dask_runs import config_from_args as cluster_config
 from palpate.paths import LAUNCH_DIR
+
+if TYPE_CHECKING:
+    from palpate.nodes.explore_eval.core import EvalConfig
 
 FloatArray = NDArray[np.float64]
 
@@ -213,13 +216,26 @@ def episodes(
     duration_s: float = 3600.0,
     params: Mapping[str, Any] | None = None,
 ) -> list[Episode]:
-    """Every (object, run, strategy) episode; the start geometry depends on the object and run only."""
+    """Every (object, run, strategy) episode; the start geometry depends on the object and run only.
+
+    Each run's simulated clock is at least ``duration_s`` and lets it use its travel budget (the
+    evaluator's, after ``params``) at the controller's speed v0, CLOCK_PER_TRAVEL_BUDGET times over:
+    the budgets, not the launch file's clock, end a run on a large object."""
+    from palpate.metrics.exploration import triangle_areas
+    from palpate.nodes.controller.core import ControllerConfig
+    from palpate.nodes.explore_eval.core import EvalConfig
+
+    params = params or {}
+    config = load(EvalConfig, overrides_under(params.items(), "eval.eval."), "eval params")
+    controller = load(ControllerConfig, overrides_under(params.items(), "controller.controller."), "controller params")
     out = []
-    frozen = tuple(sorted((params or {}).items()))
+    frozen = tuple(sorted(params.items()))
     for case in cases:
         vertices, faces = case.true_mesh()
-        _note_size(case.name, vertices, faces, params or {})
-        clock_s = max(duration_s, budget_clock_s(vertices, faces, params or {}))
+        area = float(triangle_areas(vertices, faces).sum())
+        bound = config.covering_bound(area)
+        _note_size(case.name, area, bound, config)
+        clock_s = max(duration_s, CLOCK_PER_TRAVEL_BUDGET * config.travel_budget_m(bound) / controller.v0_m_s)
         for run in range(runs):
             a = approach(vertices, faces, run)
             q = probe_quaternion(a.direction)
@@ -244,20 +260,6 @@ def episodes(
 CLOCK_PER_TRAVEL_BUDGET = 2.0
 
 
-def budget_clock_s(vertices: FloatArray, faces: NDArray[np.int64], params: Mapping[str, Any]) -> float:
-    """Simulated seconds that let a run on this object use its travel budget (the evaluator's, after
-    ``params``) at the controller's speed, CLOCK_PER_TRAVEL_BUDGET times over: the budgets, not the
-    launch file's clock, end a run on a large object."""
-    from palpate.metrics.exploration import triangle_areas
-    from palpate.nodes.controller.core import ControllerConfig
-    from palpate.nodes.explore_eval.core import EvalConfig
-
-    config = load(EvalConfig, overrides_under(params.items(), "eval.eval."), "eval params")
-    speed = load(ControllerConfig, overrides_under(params.items(), "controller.controller."), "controller params")
-    travel_m = config.travel_budget_m(config.covering_bound(float(triangle_areas(vertices, faces).sum())))
-    return CLOCK_PER_TRAVEL_BUDGET * travel_m / speed.v0_m_s
-
-
 #: Below this covering bound (contacts) coverage is reached by a touch or two.
 FEW_TOUCHES = 3.0
 #: ... or so large that a run to the goal takes more touches than this (about 4x the covering bound of the
@@ -265,18 +267,12 @@ FEW_TOUCHES = 3.0
 MANY_TOUCHES = 2000.0
 
 
-def _note_size(name: str, vertices: FloatArray, faces: NDArray[np.int64], params: Mapping[str, Any]) -> None:
-    """Say on stderr when an object is so small that a touch or two reach its coverage goal (the
-    evaluator's, after ``params``): its run then completes at once, and only its shape scores
+def _note_size(name: str, area: float, bound: float, config: EvalConfig) -> None:
+    """Say on stderr when an object (area m^2, covering bound in contacts) is so small that a touch or
+    two reach the evaluator's coverage goal: its run then completes at once, and only its shape scores
     (F-score, Chamfer) tell how well it was learnt; or so large that its run takes hours, with the
     budgets it gets and how to cap them."""
-    from palpate.metrics.exploration import triangle_areas
-    from palpate.nodes.explore_eval.core import EvalConfig
-
-    config = load(EvalConfig, overrides_under(params.items(), "eval.eval."), "eval params")
     goal, radius_m = config.coverage_goal, config.radius_m
-    area = float(triangle_areas(vertices, faces).sum())
-    bound = config.covering_bound(area)
     if bound < FEW_TOUCHES:
         print(
             f"note: {name} has {area * 1e4:.3g} cm^2 of surface: {bound:.2g} touches of {radius_m * 1e3:g} mm "
