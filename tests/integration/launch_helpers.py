@@ -20,13 +20,18 @@ from palpate.runtime import bus
 
 
 def child_env(bus_dir: Path) -> dict[str, str]:
-    """Environment for processes that must import `tests.integration.fake_nodes` and use `bus_dir`."""
+    """Environment for processes that must import `tests.integration.fake_nodes` and use `bus_dir`.
+
+    Temporary files go beside `bus_dir` (the test's own directory): a launcher that a test kills
+    cannot remove its run directory.
+    """
     path = os.environ.get("PYTHONPATH", "")
     return dict(
         os.environ,
         PYTHONPATH=f"{REPO_ROOT}{os.pathsep}{path}" if path else str(REPO_ROOT),
         PALPATE_BUS=str(bus_dir),
         PYTHONUNBUFFERED="1",
+        TMPDIR=str(bus_dir.parent),
     )
 
 

@@ -35,7 +35,8 @@ TICKS = 100  # demo_minimal: duration 1 s at 10 ms per tick
 
 
 def _env(bus_dir: Path) -> dict[str, str]:
-    return dict(os.environ, PALPATE_BUS=str(bus_dir), PYTHONUNBUFFERED="1")
+    # temporary files beside the bus, in the test's directory: a killed launcher leaves its run directory
+    return dict(os.environ, PALPATE_BUS=str(bus_dir), PYTHONUNBUFFERED="1", TMPDIR=str(bus_dir.parent))
 
 
 def palpate(bus_dir: Path, *args: str, timeout_s: float = 120) -> subprocess.CompletedProcess[str]:
