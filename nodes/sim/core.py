@@ -160,6 +160,8 @@ class Simulation:
         self._is_effector_body[[0, object_body]] = False
         self._body_names = [m.body(i).name for i in range(m.nbody)]
         self._fresh = False
+        #: The compiled steps' query buffers hold the current state's answers (see contacts()).
+        self._hits_current = False
 
         if scene.effector == "probe":
             self._probe_body = m.body("probe").id
@@ -284,6 +286,7 @@ class Simulation:
             mujoco.mj_step(m, d, nstep=n)
             self._steps += n
         self._fresh = False
+        self._hits_current = False
         self._check_diverged(t0)
 
     def _check_diverged(self, t0: float, force: bool = False) -> None:
@@ -529,7 +532,9 @@ class Simulation:
     def _setup_capsule_spheres(self) -> None:
         m = self.model
         spheres = capsule_spheres(m, self._is_effector_body)
-        self._sph_geom, self._sph_offset, self._sph_radius, self._sph_runs = spheres
+        self._sph_geom, self._sph_offset, self._sph_radius, runs = spheres
+        #: Each sphere's capsule (the index of its run).
+        self._sph_capsule = [c for c, (start, stop) in enumerate(runs) for _ in range(start, stop)]
         count = len(self._sph_geom)
         self._sph_body = m.geom_bodyid[self._sph_geom]
         self._sph_cache_p = np.zeros((count, 3))
@@ -588,7 +593,7 @@ class Simulation:
         assert functions is not None
         addresses = (*functions, self.model._address, self.data._address)
         k = penalty_kernels
-        remaining, resume = n, -1
+        remaining, resume = n, k.HITS_CURRENT if self._hits_current else -1
         while remaining > 0:
             taken, status, at = k.penalty_steps(
                 addresses,
@@ -751,11 +756,18 @@ class Simulation:
     def _sphere_forces(self, idx: np.ndarray, points: np.ndarray, dist: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """Penalty normal force (t,) >= 0 of touching spheres: k (r - d) - b v_n."""
         d = self.data
-        bodies = self._sph_body[idx]
-        # cvel is (angular, linear) at the subtree centre of mass of the body's root, world frame
-        origin = d.subtree_com[self.model.body_rootid[bodies]]
         k = self.scene.mesh_contact_stiffness_n_per_m
         b = self.scene.mesh_contact_damping_n_s_per_m
+        # cvel is (angular, linear) at the subtree centre of mass of the body's root, world frame
+        if self.compiled_penalty:  # the same bits (penalty_kernels.matches_numpy)
+            forces = np.empty(len(idx))
+            body, radius, root = self._sph_body, self._sph_radius, self._pk_dynamics[0]
+            penalty_kernels.penalty_forces(
+                idx, points, dist, normals, body, radius, root, d.cvel, d.subtree_com, k, b, forces
+            )
+            return forces
+        bodies = self._sph_body[idx]
+        origin = d.subtree_com[self.model.body_rootid[bodies]]
         return penalty_kernels.numpy_forces(bodies, self._sph_radius[idx], points, dist, normals, d.cvel, origin, k, b)
 
     def _apply_penalty_forces(self) -> None:
@@ -787,20 +799,20 @@ class Simulation:
         if len(idx) == 0:
             return Contacts.empty()
         forces = self._sphere_forces(idx, points, dist, normals)
-        order = {int(k): j for j, k in enumerate(idx)}
+        # idx is increasing: a run of touching spheres is a stretch of consecutive indices on one capsule
+        spheres = idx.tolist()
+        depth = (dist - self._sph_radius[idx]).tolist()
+        capsule = self._sph_capsule
         rows: list[int] = []
         sums: list[float] = []
-        for start, stop in self._sph_runs:
-            j_run: list[int] = []
-            for k in [*range(start, stop), -1]:
-                if k in order:
-                    j_run.append(order[k])
-                    continue
-                if j_run:  # a run of touching spheres ends: report its deepest sphere
-                    deepest = min(j_run, key=lambda j: dist[j] - self._sph_radius[idx[j]])
-                    rows.append(deepest)
-                    sums.append(float(forces[j_run].sum()))
-                    j_run = []
+        first = 0
+        for j in range(1, len(spheres) + 1):
+            k = spheres[j - 1]
+            if j < len(spheres) and spheres[j] == k + 1 and capsule[k + 1] == capsule[k]:
+                continue
+            rows.append(min(range(first, j), key=depth.__getitem__))  # the run's deepest sphere
+            sums.append(float(forces[first:j].sum()))
+            first = j
         sel = np.array(rows, dtype=np.int64)
         bodies = self._sph_body[idx[sel]]
         return self._make_contacts(points[sel], normals[sel], np.array(sums), bodies)
@@ -876,6 +888,10 @@ class Simulation:
         else:
             self._refresh()
             out = self._penalty_contacts() if self._exact else self._native_contacts()
+            # the next step's first queries are these (the per-sphere queries: a batch rounds differently)
+            self._hits_current = (
+                self._exact and self.compiled_penalty and self._pk_buffers[6][penalty_kernels.S_NEAR] <= FEW_POINTS
+            )
         if len(out) <= _FEW_CONTACTS and math.isfinite(
             sum(out.positions_m.ravel().tolist())
             + sum(out.local_positions_m.ravel().tolist())

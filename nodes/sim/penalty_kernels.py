@@ -46,6 +46,9 @@ P_REACH, P_WEAK_PSEUDO_NORMAL, P_WEAK_SIGN_COS, P_STIFFNESS, P_DAMPING = range(5
 #: largest face radius (face_grid).
 P_MAX_DISTANCE, P_MAX_FACES, P_CELL, P_LARGEST = range(5, 9)
 PARAMS = 9
+#: ``resume`` of :func:`penalty_steps` when the buffers already hold the queries of the current state
+#: (``Simulation.contacts`` made them, and nothing has moved since): its first step asks nothing again.
+HITS_CURRENT = -2
 #: Layout of the state vector: how many spheres are near, how many of them touch.
 S_NEAR, S_TOUCHING = 0, 1
 #: Layout of the search vector: the query point (3, shifted frame), then warm_query's face, point (3),
@@ -97,6 +100,79 @@ def numpy_wrench(bodies: A, points: A, normals: A, forces: A, xipos: A) -> A:
 
 
 @numba.njit(cache=True)
+def sphere_force(
+    s: int,
+    p0: float,
+    p1: float,
+    p2: float,
+    distance: float,
+    n0: float,
+    n1: float,
+    n2: float,
+    body: A,
+    radius: A,
+    body_rootid: A,
+    cvel: A,
+    subtree_com: A,
+    k: float,
+    b: float,
+) -> float:
+    """:func:`numpy_forces` of sphere ``s`` touching at (p0, p1, p2), ``distance`` from its centre,
+    along the outward normal (n0, n1, n2)."""
+    bd = body[s]
+    root = body_rootid[bd]
+    a0, a1, a2 = cvel[bd, 0], cvel[bd, 1], cvel[bd, 2]
+    r0 = p0 - subtree_com[root, 0]
+    r1 = p1 - subtree_com[root, 1]
+    r2 = p2 - subtree_com[root, 2]
+    v0 = cvel[bd, 3] + (a1 * r2 - a2 * r1)  # v = v_lin + w x (p - com)
+    v1 = cvel[bd, 4] + (a2 * r0 - a0 * r2)
+    v2 = cvel[bd, 5] + (a0 * r1 - a1 * r0)
+    v_n = (v0 * n0 + v2 * n2) + v1 * n1  # einsum's order
+    force = k * (radius[s] - distance) - b * v_n
+    if not force > 0.0:
+        force = 0.0 if force <= 0.0 else force  # np.maximum: NaN stays NaN
+    return force
+
+
+@numba.njit(cache=True)
+def penalty_forces(
+    spheres: A,
+    points: A,
+    dist: A,
+    normals: A,
+    body: A,
+    radius: A,
+    body_rootid: A,
+    cvel: A,
+    subtree_com: A,
+    k: float,
+    b: float,
+    out: A,
+) -> None:
+    """:func:`numpy_forces` of the touching ``spheres`` (t,) into out (t,): their hits (t, 3), distances
+    (t,) and outward normals (t, 3); MuJoCo's cvel (nbody, 6) and subtree_com (nbody, 3)."""
+    for j in range(spheres.shape[0]):
+        out[j] = sphere_force(
+            spheres[j],
+            points[j, 0],
+            points[j, 1],
+            points[j, 2],
+            dist[j],
+            normals[j, 0],
+            normals[j, 1],
+            normals[j, 2],
+            body,
+            radius,
+            body_rootid,
+            cvel,
+            subtree_com,
+            k,
+            b,
+        )
+
+
+@numba.njit(cache=True)
 def penalty_wrench(
     rows: A,
     near: A,
@@ -120,19 +196,24 @@ def penalty_wrench(
     for j in rows:
         s = near[j]
         bd = body[s]
-        root = body_rootid[bd]
-        a0, a1, a2 = cvel[bd, 0], cvel[bd, 1], cvel[bd, 2]
-        r0 = points[j, 0] - subtree_com[root, 0]
-        r1 = points[j, 1] - subtree_com[root, 1]
-        r2 = points[j, 2] - subtree_com[root, 2]
-        v0 = cvel[bd, 3] + (a1 * r2 - a2 * r1)  # v = v_lin + w x (p - com)
-        v1 = cvel[bd, 4] + (a2 * r0 - a0 * r2)
-        v2 = cvel[bd, 5] + (a0 * r1 - a1 * r0)
         n0, n1, n2 = face_normals[faces[j], 0], face_normals[faces[j], 1], face_normals[faces[j], 2]
-        v_n = (v0 * n0 + v2 * n2) + v1 * n1  # einsum's order
-        force = k * (radius[s] - dist[j]) - b * v_n
-        if not force > 0.0:
-            force = 0.0 if force <= 0.0 else force  # np.maximum: NaN stays NaN
+        force = sphere_force(
+            s,
+            points[j, 0],
+            points[j, 1],
+            points[j, 2],
+            dist[j],
+            n0,
+            n1,
+            n2,
+            body,
+            radius,
+            body_rootid,
+            cvel,
+            subtree_com,
+            k,
+            b,
+        )
         f0, f1, f2 = force * n0, force * n1, force * n2
         p0 = points[j, 0] - xipos[bd, 0]
         p1 = points[j, 1] - xipos[bd, 1]
@@ -147,8 +228,8 @@ def penalty_wrench(
 
 @cache
 def matches_numpy(samples: int = 500) -> bool:
-    """Whether :func:`penalty_wrench` gives the bits of :func:`numpy_forces` and :func:`numpy_wrench`
-    here (random spheres, hits and velocities)."""
+    """Whether :func:`penalty_wrench` and :func:`penalty_forces` give the bits of :func:`numpy_forces`
+    and :func:`numpy_wrench` here (random spheres, hits and velocities)."""
     rng = np.random.default_rng(20260102)
     nbody, count = 6, 40
     for _ in range(samples):
@@ -173,7 +254,9 @@ def matches_numpy(samples: int = 500) -> bool:
         penalty_wrench(
             rows, near, points, dist, faces, face_normals, body, radius, rootid, (cvel, com, xipos, got), 2000.0, 5.0
         )
-        if got.tobytes() != expected.tobytes():
+        got_forces = np.empty(t)
+        penalty_forces(near, points, dist, face_normals, body, radius, rootid, cvel, com, 2000.0, 5.0, got_forces)
+        if got.tobytes() != expected.tobytes() or got_forces.tobytes() != forces.tobytes():
             return False
     return True
 
@@ -529,7 +612,8 @@ def penalty_steps(
     params: A,
 ) -> tuple[int, int, int]:
     """Up to ``steps`` steps of ``Simulation.step`` on the exact-mesh path. resume >= 0 goes on with the
-    queries of a step that ended a call with NEEDS_PYTHON. Returns (steps completed, DONE |
+    queries of a step that ended a call with NEEDS_PYTHON; HITS_CURRENT takes the first step's queries
+    from the buffers (the same bits: each query's answer depends only on its point). Returns (steps completed, DONE |
     NEEDS_PYTHON | PENETRATED | NOT_FINITE, the position to answer | BATCH).
 
     functions: (mj_step1, mj_step2, model, data) addresses; dynamics: (body_rootid, (cvel, subtree_com,
@@ -544,7 +628,10 @@ def penalty_steps(
     while taken < steps:
         if resume < 0:
             call_void2(step1, model, data)  # kinematics and velocities of the current state
-        status, at = sphere_hits(resume, few_points, frames, spheres, mesh, grid, warm, buffers, params)
+        if resume == HITS_CURRENT:
+            status, at = DONE, 0
+        else:
+            status, at = sphere_hits(resume, few_points, frames, spheres, mesh, grid, warm, buffers, params)
         resume = -1
         if status != DONE:
             return taken, status, at
