@@ -585,6 +585,8 @@ class Simulation:
         )
         self._pk_params[penalty_kernels.P_STIFFNESS] = self.scene.mesh_contact_stiffness_n_per_m
         self._pk_params[penalty_kernels.P_DAMPING] = self.scene.mesh_contact_damping_n_s_per_m
+        if self.compiled_penalty:  # load the forces' kernel for these argument types now, not at the first touch
+            self._sphere_forces(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
 
     def _penalty_advance(self, n: int, t0: float) -> None:
         """``n`` steps in ``penalty_kernels.penalty_steps`` (the bits of the Python loop); the queries
