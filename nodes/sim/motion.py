@@ -299,8 +299,8 @@ class ExplorationMotion:
             return True
         return False
 
-    def _slide_path(self, i: int) -> np.ndarray | None:
-        """Pressed configurations (m, J) sliding from touch i to a neighbour on the same face."""
+    def _slide_end(self, i: int) -> tuple[int, float] | None:
+        """A random neighbour of touch i on the same face to slide to, and its distance."""
         t, cfg = self.touches, self.config
         dist = np.linalg.norm(t.points_m - t.points_m[i], axis=1)
         same_face = t.normals @ t.normals[i] > math.cos(math.radians(cfg.slide_max_turn_deg))
@@ -309,7 +309,12 @@ class ExplorationMotion:
         if len(options) == 0:
             return None
         j = int(options[self._rng.integers(len(options))])
-        steps = max(2, math.ceil(dist[j] / 0.004))
+        return j, float(dist[j])
+
+    def _slide_path(self, i: int, j: int, length_m: float) -> np.ndarray | None:
+        """Pressed configurations (m, J) sliding from touch i to touch j, ``length_m`` away."""
+        t, cfg = self.touches, self.config
+        steps = max(2, math.ceil(length_m / 0.004))
         alphas = np.linspace(0.0, 1.0, steps + 1)
         line = t.q_touch[i][None, :] + alphas[:, None] * (t.q_touch[j] - t.q_touch[i])[None, :]
         line, residual, _, normals = self._project(line)
@@ -321,9 +326,10 @@ class ExplorationMotion:
         t, cfg = self.touches, self.config
         for _ in range(20):
             i = int(self._rng.integers(len(t.q_touch)))
-            slide = self._slide_path(i) if self._rng.random() < cfg.slide_probability else None
+            end = self._slide_end(i) if self._rng.random() < cfg.slide_probability else None
             if not self._transit(t.q_hover[i]):
                 continue
+            slide = self._slide_path(i, *end) if end is not None else None  # draws nothing: planned once reached
             self._add(t.q_press[i], cfg.approach_s)
             self._add(t.q_press[i], cfg.hold_s)
             if slide is not None:
