@@ -77,6 +77,32 @@ def test_compiled_steps_give_the_python_loops_trajectory(effector: str) -> None:
     assert python[2]["builds"] > compiled[2]["builds"]
 
 
+@pytest.mark.parametrize("few_points", [4, 0])
+def test_reading_the_contacts_between_steps_leaves_the_trajectory_as_it_is(
+    few_points: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """contacts() fills the query buffers that the next step then takes (HITS_CURRENT): the same
+    trajectory to the bit as stepping without reading them (FEW_POINTS 0: every query a batch, which
+    the step asks again)."""
+    monkeypatch.setattr("palpate.nodes.sim.core.FEW_POINTS", few_points)
+    trajectories, touching = [], 0
+    for read in (True, False):
+        scene = SceneConfig(effector="finger", object=TORUS)
+        sim = Simulation(scene)
+        _compiled_or_skip(sim)
+        motion = ExplorationMotion(scene, np.random.default_rng(0), MotionConfig(candidate_samples=400), obj=sim.object)
+        digest = hashlib.sha256()
+        for tick in range(200):
+            sim.set_joint_targets(motion.targets(sim.time_s))
+            sim.step(5)
+            digest.update(sim.data.qpos.tobytes() + sim.data.qvel.tobytes())
+            if read and tick % 3:  # and a tick now and then without: the next step asks again
+                touching += len(sim.contacts())
+        trajectories.append(digest.hexdigest())
+    assert touching > 10  # the reused answers held touching spheres
+    assert trajectories[0] == trajectories[1]
+
+
 def test_a_full_arena_hands_the_build_to_python_and_grows() -> None:
     python = _explore("finger", compiled=False, ticks=150)
     compiled = _explore("finger", compiled=True, ticks=150, arena_faces=64)
