@@ -890,10 +890,11 @@ class Simulation:
         else:
             self._refresh()
             out = self._penalty_contacts() if self._exact else self._native_contacts()
-            # the next step's first queries are these (the per-sphere queries: a batch rounds differently)
-            self._hits_current = (
-                self._exact and self.compiled_penalty and self._pk_buffers[6][penalty_kernels.S_NEAR] <= FEW_POINTS
-            )
+            if self._exact and self.compiled_penalty:
+                # the next step's first queries are these, if they were asked one by one (a batch rounds
+                # differently, and the next step may ask fewer): buffers as in penalty_kernels.sphere_hits
+                state = self._pk_buffers[6]
+                self._hits_current = bool(state[penalty_kernels.S_NEAR] <= FEW_POINTS)
         if len(out) <= _FEW_CONTACTS and math.isfinite(
             sum(out.positions_m.ravel().tolist())
             + sum(out.local_positions_m.ravel().tolist())
