@@ -4,10 +4,12 @@ One point against one triangle (Ericson's Voronoi regions, the pseudo-normal sig
 prunes faces, and the warm-started patch search of ``WarmClosest``. ``ExactContactSensor``'s
 few-point path and ``WarmClosest`` both call these, so they compute the same bits; the vectorised
 numpy path (``closest_points_on_triangles``) agrees with them to rounding (about 1e-17 m,
-tests/unit/geometry/test_mesh_query_few_points.py). Compiled without fast-math (no reassociation,
-no fused multiply-add), once per machine, and cached on disk beside this module (``cache=True``):
-one point and one triangle cost about a microsecond from Python, a patch of a few hundred faces a
-few microseconds.
+tests/unit/geometry/test_mesh_query_few_points.py). :func:`refine_batch` is that vectorised path's
+refinement with its own arithmetic (numpy's einsum and norm orders), so its bits, which
+``mesh_query.refine_matches_numpy`` checks once per process before the sensor uses it. Compiled
+without fast-math (no reassociation, no fused multiply-add), once per machine, and cached on disk
+beside this module (``cache=True``): one point and one triangle cost about a microsecond from
+Python, a patch of a few hundred faces a few microseconds.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import numpy as np
 _FACE, _VERTEX_A, _VERTEX_B, _VERTEX_C, _EDGE_AB, _EDGE_BC, _EDGE_CA = range(7)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")  # a degenerate triangle divides by zero as numpy does
 def closest_region(d1: float, d2: float, d3: float, d4: float, d5: float, d6: float) -> tuple[int, float, float]:
     """Region of the closest point of a triangle and its weights (Ericson 5.1.5).
 
@@ -192,3 +194,90 @@ def build_patch(
         patch_offsets[k] = offsets[h]
         patch_lower[k] = lower[i]
     return faces, patch_planes, patch_offsets, patch_lower
+
+
+@numba.njit(cache=True)
+def _dot_einsum(ax: float, ay: float, az: float, bx: float, by: float, bz: float) -> float:
+    """numpy's ``einsum("ij,ij->i")`` of one row of three: (x + z) + y (``refine_matches_numpy`` checks it)."""
+    return (ax * bx + az * bz) + ay * by
+
+
+@numba.njit(cache=True, error_model="numpy")
+def refine_batch(
+    local: np.ndarray,
+    found: np.ndarray,
+    ring: np.ndarray,
+    triangles: np.ndarray,
+    sign_normals: np.ndarray,
+    weak_pseudo_normal: float,
+    weak_sign_cos: float,
+    faces_out: np.ndarray,
+    points_out: np.ndarray,
+    distance_out: np.ndarray,
+    inside_out: np.ndarray,
+    weak_out: np.ndarray,
+) -> None:
+    """The float64 refinement of ``ExactContactSensor.closest``'s vectorised path, point by point with
+    its arithmetic (numpy's einsum and norm orders, its NaN and tie rules), so the same bits.
+
+    local (n, 3) points (shifted frame), found (n,) Open3D's faces, ring (F, K) each face's ring
+    (``face_rings``); writes each point's face, closest point, unsigned distance, inside (by the
+    pseudo-normal) and whether that sign is weak (then the caller counts ray crossings).
+    """
+    K = ring.shape[1]
+    squared = np.empty(K)
+    regions = np.empty(K, dtype=np.int64)
+    weights = np.empty((K, 2))
+    for i in range(local.shape[0]):
+        px, py, pz = local[i, 0], local[i, 1], local[i, 2]
+        row = ring[found[i]]
+        least = np.inf
+        has_nan = False
+        for k in range(K):
+            f = row[k]
+            ax, ay, az = triangles[f, 0, 0], triangles[f, 0, 1], triangles[f, 0, 2]
+            abx, aby, abz = triangles[f, 1, 0] - ax, triangles[f, 1, 1] - ay, triangles[f, 1, 2] - az
+            acx, acy, acz = triangles[f, 2, 0] - ax, triangles[f, 2, 1] - ay, triangles[f, 2, 2] - az
+            apx, apy, apz = px - ax, py - ay, pz - az
+            bpx, bpy, bpz = px - triangles[f, 1, 0], py - triangles[f, 1, 1], pz - triangles[f, 1, 2]
+            cpx, cpy, cpz = px - triangles[f, 2, 0], py - triangles[f, 2, 1], pz - triangles[f, 2, 2]
+            region, wb, wc = closest_region(
+                _dot_einsum(abx, aby, abz, apx, apy, apz),
+                _dot_einsum(acx, acy, acz, apx, apy, apz),
+                _dot_einsum(abx, aby, abz, bpx, bpy, bpz),
+                _dot_einsum(acx, acy, acz, bpx, bpy, bpz),
+                _dot_einsum(abx, aby, abz, cpx, cpy, cpz),
+                _dot_einsum(acx, acy, acz, cpx, cpy, cpz),
+            )
+            dx = ((ax + wb * abx) + wc * acx) - px  # q - p, q = a + wb ab + wc ac
+            dy = ((ay + wb * aby) + wc * acy) - py
+            dz = ((az + wb * abz) + wc * acz) - pz
+            d = _dot_einsum(dx, dy, dz, dx, dy, dz)
+            squared[k], regions[k], weights[k, 0], weights[k, 1] = d, region, wb, wc
+            if d != d:
+                has_nan = True
+            elif d < least:
+                least = d
+        best = 0  # numpy's min is NaN when one is: no ring face ties with it, and argmin takes the first
+        if not has_nan:
+            lowest = np.iinfo(np.int64).max
+            for k in range(K):
+                if squared[k] == least and row[k] < lowest:
+                    best, lowest = k, row[k]
+        f = row[best]
+        wb, wc = weights[best, 0], weights[best, 1]
+        ax, ay, az = triangles[f, 0, 0], triangles[f, 0, 1], triangles[f, 0, 2]
+        qx = (ax + wb * (triangles[f, 1, 0] - ax)) + wc * (triangles[f, 2, 0] - ax)
+        qy = (ay + wb * (triangles[f, 1, 1] - ay)) + wc * (triangles[f, 2, 1] - ay)
+        qz = (az + wb * (triangles[f, 1, 2] - az)) + wc * (triangles[f, 2, 2] - az)
+        ox, oy, oz = px - qx, py - qy, pz - qz
+        distance = math.sqrt((ox * ox + oy * oy) + oz * oz)  # numpy's norm: left to right
+        region = regions[best]
+        nx, ny, nz = sign_normals[f, region, 0], sign_normals[f, region, 1], sign_normals[f, region, 2]
+        side = _dot_einsum(ox, oy, oz, nx, ny, nz)
+        strength = math.sqrt((nx * nx + ny * ny) + nz * nz)
+        faces_out[i] = f
+        points_out[i, 0], points_out[i, 1], points_out[i, 2] = qx, qy, qz
+        distance_out[i] = distance
+        inside_out[i] = side < 0.0
+        weak_out[i] = strength < weak_pseudo_normal or abs(side) < weak_sign_cos * distance * strength

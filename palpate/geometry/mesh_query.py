@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cache
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -307,6 +308,20 @@ class ExactContactSensor:
         if len(local) <= FEW_POINTS:
             return self._closest_few(local)
         found, _ = self._scene.closest(local)
+        refine = self._refine_compiled if refine_matches_numpy() else self._refine
+        faces, q, distance, inside, weak = refine(local, found)
+        if np.any(weak):
+            inside[weak] = self._scene.occupied(local[weak])
+        return ClosestPoints(
+            points_m=q + self._centre,
+            distance_m=np.where(inside, -distance, distance),
+            normals=self._face_normals[faces].copy(),
+            face_ids=faces,
+        )
+
+    def _refine(self, local: np.ndarray, found: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The vectorised path's float64 refinement of Open3D's faces ``found`` (n,) for points (n, 3):
+        faces, closest points (shifted frame), unsigned distances, inside by the pseudo-normal, weak."""
         # float64 projection onto Open3D's triangle and the faces around it (float32 near-ties);
         # exact ties go to the lowest face id
         ring = self._ring[found]  # (n, K)
@@ -323,20 +338,33 @@ class ExactContactSensor:
         # sign from the pseudo-normal of the feature (face, edge, vertex) holding q
         pseudo = self._sign_normals[faces, region]
         side = np.einsum("ij,ij->i", offset, pseudo)
-        inside = side < 0.0
         # A folded scan (a triangle turned back against its neighbours) cancels the pseudo-normal of
-        # its vertices and edges: where it is short, or nearly orthogonal to the offset, count ray
-        # crossings instead (also taken at knife edges, where it is merely slower).
+        # its vertices and edges: where it is short, or nearly orthogonal to the offset, the caller
+        # counts ray crossings instead (also taken at knife edges, where it is merely slower).
         strength = np.linalg.norm(pseudo, axis=1)
         weak = (strength < WEAK_PSEUDO_NORMAL) | (np.abs(side) < WEAK_SIGN_COS * distance * strength)
-        if np.any(weak):
-            inside[weak] = self._scene.occupied(local[weak])
-        return ClosestPoints(
-            points_m=q + self._centre,
-            distance_m=np.where(inside, -distance, distance),
-            normals=self._face_normals[faces].copy(),
-            face_ids=faces,
+        return faces, q, distance, side < 0.0, weak
+
+    def _refine_compiled(self, local: np.ndarray, found: np.ndarray) -> tuple[np.ndarray, ...]:
+        """:meth:`_refine` in compiled code (``closest_kernels.refine_batch``), the same bits."""
+        n = len(local)
+        faces, q, distance = np.empty(n, dtype=np.int64), np.empty((n, 3)), np.empty(n)
+        inside, weak = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
+        self._kernels.refine_batch(
+            local,
+            np.ascontiguousarray(found, dtype=np.int64),
+            self._ring,
+            self._triangles,
+            self._sign_normals,
+            WEAK_PSEUDO_NORMAL,
+            WEAK_SIGN_COS,
+            faces,
+            q,
+            distance,
+            inside,
+            weak,
         )
+        return faces, q, distance, inside, weak
 
     def _closest_few(self, local: np.ndarray) -> ClosestPoints:
         """:meth:`closest` for a few points (n <= FEW_POINTS, shifted frame): same answer, less overhead.
@@ -428,6 +456,29 @@ class ExactContactSensor:
         """
         closest = self.closest(centres_m)
         return closest.distance_m <= radius_m + tolerance_m, closest
+
+
+@cache
+def refine_matches_numpy(samples: int = 900) -> bool:
+    """Whether ``closest_kernels.refine_batch`` gives the bits of ``ExactContactSensor._refine`` here:
+    points on, near, inside and far from a sphere and a box (vertices, edges, faces), checked once per
+    process; where it does not, the sensor keeps numpy's path."""
+    import trimesh
+
+    rng = np.random.default_rng(20261127)
+    for mesh in (trimesh.creation.icosphere(subdivisions=2, radius=0.05), trimesh.creation.box((0.04, 0.03, 0.02))):
+        sensor = ExactContactSensor(mesh)
+        corners = np.asarray(mesh.vertices)[rng.integers(len(mesh.vertices), size=samples // 3)]
+        on = np.asarray(mesh.sample(samples // 3, seed=1))
+        points = np.concatenate([corners, on, 0.06 * rng.standard_normal((samples // 3, 3))])
+        scale = rng.choice([0.0, 1e-9, 1e-4, 0.005], size=(len(points), 1))
+        points = points + scale * rng.standard_normal(points.shape)
+        local = points - sensor._centre
+        found, _ = sensor._scene.closest(local)
+        for got, expected in zip(sensor._refine_compiled(local, found), sensor._refine(local, found), strict=True):
+            if got.dtype != expected.dtype or got.tobytes() != expected.tobytes():
+                return False
+    return True
 
 
 class WarmClosest:
