@@ -168,6 +168,38 @@ def warm_query(
 
 
 @numba.njit(cache=True)
+def ring_query(
+    triangles: np.ndarray,
+    sign_normals: np.ndarray,
+    ring: np.ndarray,
+    planes: np.ndarray,
+    offsets: np.ndarray,
+    px: float,
+    py: float,
+    pz: float,
+    weak_pseudo_normal: float,
+    weak_sign_cos: float,
+) -> tuple[int, float, float, float, float, bool, bool]:
+    """``ExactContactSensor``'s few-point query of p on one ring (Open3D's face first, then the faces
+    around it, ``face_rings``): a face is projected unless its plane bound (planes (F, 4, 3), offsets
+    (F, 4)) cannot reach the best so far; exact ties go to the lowest id. Returns (face, qx, qy, qz,
+    distance, inside, weak) as :func:`warm_query`."""
+    best, face, region, wb, wc = np.inf, -1, _FACE, 0.0, 0.0
+    for k in range(ring.shape[0]):
+        h = ring[k]
+        # slack above the bound's rounding (~1e-17 m), so faces that may tie are projected
+        if k and bound_squared(planes, offsets, h, px, py, pz) > best * (1.0 + 1e-9) + 1e-24:
+            continue
+        squared, h_region, h_wb, h_wc = project(triangles, h, px, py, pz)
+        if squared < best or (squared == best and h < face):
+            best, face, region, wb, wc = squared, h, h_region, h_wb, h_wc
+    qx, qy, qz, dist, inside, weak = finish(
+        triangles, sign_normals, face, region, wb, wc, px, py, pz, weak_pseudo_normal, weak_sign_cos
+    )
+    return face, qx, qy, qz, dist, inside, weak
+
+
+@numba.njit(cache=True)
 def build_patch(
     planes: np.ndarray, offsets: np.ndarray, near: np.ndarray, px: float, py: float, pz: float, radius: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -370,8 +370,9 @@ class ExactContactSensor:
         """:meth:`closest` for a few points (n <= FEW_POINTS, shifted frame): same answer, less overhead.
 
         The same steps as the vectorised path (Open3D's face, float64 projection onto it and onto its
-        ring, pseudo-normal sign, ray parity where the sign is weak), in Python scalars, whose cost
-        here is a fraction of numpy's per-call overhead on arrays of 3 to 20 elements. A ring face is
+        ring, pseudo-normal sign, ray parity where the sign is weak), point by point in compiled
+        scalar code (``closest_kernels.ring_query``), whose cost is a fraction of numpy's per-call
+        overhead on arrays of 3 to 20 elements. A ring face is
         projected only when its distance can beat the best so far: its lower bound is
         plane^2 + max(0, max_e out_e)^2 (squared distance to the face's plane plus how far the point
         lies outside the face's edges within that plane; exact on the face and edge regions). Exact
@@ -381,22 +382,22 @@ class ExactContactSensor:
         found = self._scene.closest_face_ids(local)
         points, distance, faces = [], [], []
         for p, f in zip(local.tolist(), found, strict=True):
-            ring = self._ring[f]
-            planes = (self._bound_planes[ring] @ p - self._bound_offsets[ring]).tolist()  # (K, 4), see __init__
-            best, face, pick = math.inf, -1, (FACE, 0.0, 0.0)
-            for k, (plane, out_ab, out_bc, out_ca) in enumerate(planes):  # Open3D's face first
-                outside = max(out_ab, out_bc, out_ca, 0.0)
-                # slack above the bound's rounding (~1e-17 m), so faces that may tie are projected
-                if k and plane * plane + outside * outside > best * (1.0 + 1e-9) + 1e-24:
-                    continue
-                h = int(ring[k])
-                squared, region, wb, wc = self._kernels.project(self._triangles, h, p[0], p[1], p[2])
-                if squared < best or (squared == best and h < face):
-                    best, face, pick = squared, h, (region, wb, wc)
-            region, wb, wc = pick
-            q, signed = self._finish_scalar(p, face, region, wb, wc)
-            points.append(q)
-            distance.append(signed)
+            face, qx, qy, qz, dist, inside, weak = self._kernels.ring_query(
+                self._triangles,
+                self._sign_normals,
+                self._ring[f],
+                self._bound_planes,
+                self._bound_offsets,
+                p[0],
+                p[1],
+                p[2],
+                WEAK_PSEUDO_NORMAL,
+                WEAK_SIGN_COS,
+            )
+            if weak:
+                inside = bool(self._scene.occupied(np.array([p]))[0])
+            points.append((qx, qy, qz))
+            distance.append(-dist if inside else dist)
             faces.append(face)
         face_ids = np.array(faces, dtype=np.int64)
         return ClosestPoints(
@@ -405,29 +406,6 @@ class ExactContactSensor:
             normals=self._face_normals[face_ids],
             face_ids=face_ids,
         )
-
-    def _finish_scalar(
-        self, p: list[float], face: int, region: int, wb: float, wc: float
-    ) -> tuple[tuple[float, float, float], float]:
-        """Closest point q (shifted frame) and signed distance of ``p`` whose projection onto ``face`` is
-        (region, wb, wc): the sign from the pseudo-normal of the feature holding q, ray parity where it
-        is weak (see the module docstring)."""
-        qx, qy, qz, dist, inside, weak = self._kernels.finish(
-            self._triangles,
-            self._sign_normals,
-            face,
-            region,
-            wb,
-            wc,
-            p[0],
-            p[1],
-            p[2],
-            WEAK_PSEUDO_NORMAL,
-            WEAK_SIGN_COS,
-        )
-        if weak:
-            inside = bool(self._scene.occupied(np.array([p]))[0])
-        return (qx, qy, qz), -dist if inside else dist
 
     def face_index(self) -> tuple[Any, np.ndarray, float]:
         """A k-d tree of the face centroids (shifted frame), each face's radius about its centroid (F,)
