@@ -23,6 +23,25 @@ A = np.ndarray  # the arrays of both functions, as sphere_bounds documents them
 
 
 @numba.njit(cache=True)
+def place(k: int, xpos: A, xmat: A, geoms: A, offsets: A, centres: A) -> None:
+    """World centre of sphere k into centres[k], as :func:`sphere_bounds` documents the arrays."""
+    g = geoms[k]
+    o0, o1, o2 = offsets[k, 0], offsets[k, 1], offsets[k, 2]
+    for i in range(3):
+        p0 = xmat[g, 3 * i] * o0
+        p1 = xmat[g, 3 * i + 1] * o1
+        p2 = xmat[g, 3 * i + 2] * o2
+        centres[k, i] = xpos[g, i] + ((p0 + p2) + p1)  # c = x + R o, in einsum's order
+
+
+@numba.njit(cache=True)
+def place_all(xpos: A, xmat: A, geoms: A, offsets: A, centres: A) -> None:
+    """World centres (K, 3) of all spheres (``core.sphere_centres``' bits, where :func:`matches_numpy`)."""
+    for k in range(geoms.shape[0]):
+        place(k, xpos, xmat, geoms, offsets, centres)
+
+
+@numba.njit(cache=True)
 def sphere_bounds(
     xpos: np.ndarray,
     xmat: np.ndarray,
@@ -44,13 +63,7 @@ def sphere_bounds(
     """
     count = 0
     for k in range(geoms.shape[0]):
-        g = geoms[k]
-        o0, o1, o2 = offsets[k, 0], offsets[k, 1], offsets[k, 2]
-        for i in range(3):
-            p0 = xmat[g, 3 * i] * o0
-            p1 = xmat[g, 3 * i + 1] * o1
-            p2 = xmat[g, 3 * i + 2] * o2
-            centres[k, i] = xpos[g, i] + ((p0 + p2) + p1)  # c = x + R o, in einsum's order
+        place(k, xpos, xmat, geoms, offsets, centres)
         d0 = centres[k, 0] - cache_p[k, 0]
         d1 = centres[k, 1] - cache_p[k, 1]
         d2 = centres[k, 2] - cache_p[k, 2]

@@ -35,6 +35,7 @@ import numpy as np
 from palpate.config import Fraction, NonNegativeFloat, PositiveFloat, PositiveInt, Range, Validated
 from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.jsonio import dumps as json_dumps
+from palpate.nodes.sim import capsule_kernels
 from palpate.nodes.sim.core import Simulation, capsule_spheres, sphere_centres
 from palpate.nodes.sim.effectors import LONG_FINGERS, FingerConfig, HandConfig, finger_joint_names
 from palpate.nodes.sim.objects import ObjectModel, load_object, sample_surface
@@ -130,8 +131,13 @@ class FingerKinematics:
 
     def spheres(self, q: np.ndarray) -> np.ndarray:
         """Centres (K, 3) of the spheres covering the effector's capsules at q."""
-        self.forward(q)
-        return sphere_centres(self.data, self.sph_geoms, self.sph_offsets)
+        self.data.qpos[:] = q
+        mujoco.mj_kinematics(self.model, self.data)  # the geom frames (forward's mj_comPos adds nothing here)
+        if not capsule_kernels.matches_numpy():
+            return sphere_centres(self.data, self.sph_geoms, self.sph_offsets)
+        centres = np.empty((len(self.sph_geoms), 3))
+        capsule_kernels.place_all(self.data.geom_xpos, self.data.geom_xmat, self.sph_geoms, self.sph_offsets, centres)
+        return centres
 
 
 def _dls(J: np.ndarray, x: np.ndarray, damping: float = 1e-3) -> np.ndarray:

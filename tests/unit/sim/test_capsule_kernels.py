@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from palpate.nodes.sim import capsule_kernels
-from palpate.nodes.sim.core import Simulation
+from palpate.nodes.sim.core import Simulation, sphere_centres
 from palpate.nodes.sim.motion import ExplorationMotion, MotionConfig
 from palpate.nodes.sim.objects import ObjectSpec
 from palpate.nodes.sim.scene import SceneConfig
@@ -77,3 +77,22 @@ def test_compiled_bounds_give_the_numpy_paths_trajectory(effector: str) -> None:
 def test_the_simulation_keeps_the_numpy_path_where_the_bits_differ(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(capsule_kernels, "matches_numpy", lambda: False)
     assert not Simulation(SceneConfig(effector="finger", object=ObjectSpec(kind="torus"))).compiled_bounds
+
+
+@pytest.mark.parametrize("effector", ["finger", "hand"])
+def test_the_motions_spheres_are_the_simulations_centres(effector: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The scripted motion places its clearance spheres in compiled code: sphere_centres' bits."""
+    if not capsule_kernels.matches_numpy():
+        pytest.skip("numpy sums in another order on this machine: the motion keeps the numpy path")
+    scene = SceneConfig(effector=effector, object=ObjectSpec(kind="torus"))
+    kin = ExplorationMotion(scene, np.random.default_rng(0), MotionConfig(candidate_samples=400)).kin
+    lo, hi = kin.limits[:, 0], kin.limits[:, 1]
+    rng = np.random.default_rng(7)
+    for q in lo + (hi - lo) * rng.random((50, len(lo))):
+        compiled = kin.spheres(q)
+        with monkeypatch.context() as patch:
+            patch.setattr(capsule_kernels, "matches_numpy", lambda: False)
+            reference = kin.spheres(q)
+        assert compiled.tobytes() == reference.tobytes()
+        kin.forward(q)
+        assert compiled.tobytes() == sphere_centres(kin.data, kin.sph_geoms, kin.sph_offsets).tobytes()
