@@ -248,7 +248,8 @@ class ClosestPoints:
 class ExactContactSensor:
     """Closest points, signed distances and sphere touches on a triangle mesh (world frame, metres)."""
 
-    def __init__(self, mesh: trimesh.Trimesh) -> None:
+    def __init__(self, mesh: trimesh.Trimesh, *, warm_up: bool = True) -> None:
+        """``warm_up``: make one query of each kind now (see :meth:`_warm_up`)."""
         if len(mesh.faces) == 0:
             raise ValueError("ExactContactSensor needs a mesh with faces")
         self.mesh = mesh
@@ -290,6 +291,17 @@ class ExactContactSensor:
             ],
             axis=1,
         )
+        if warm_up:
+            self._warm_up()
+
+    def _warm_up(self) -> None:
+        """One query of each kind now (a point, a batch, a ray-parity test at the mesh's centre): Open3D
+        builds its search structures and numba loads the kernels at the first query (10 ms and more), which
+        would otherwise stall the first contact of a running simulation."""
+        centre = self._centre[None, :]
+        self.closest(centre)
+        self.closest(np.repeat(centre, FEW_POINTS + 1, axis=0))
+        self._scene.occupied(np.zeros((1, 3)))
 
     def _check(self, points_m: np.ndarray) -> np.ndarray:
         p = np.asarray(points_m, dtype=np.float64)
@@ -445,7 +457,7 @@ def refine_matches_numpy(samples: int = 900) -> bool:
 
     rng = np.random.default_rng(20261127)
     for mesh in (trimesh.creation.icosphere(subdivisions=2, radius=0.05), trimesh.creation.box((0.04, 0.03, 0.02))):
-        sensor = ExactContactSensor(mesh)
+        sensor = ExactContactSensor(mesh, warm_up=False)  # its warm-up asks this function
         corners = np.asarray(mesh.vertices)[rng.integers(len(mesh.vertices), size=samples // 3)]
         on = np.asarray(mesh.sample(samples // 3, seed=1))
         points = np.concatenate([corners, on, 0.06 * rng.standard_normal((samples // 3, 3))])
