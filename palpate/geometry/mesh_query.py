@@ -506,7 +506,7 @@ class WarmClosest:
     def __init__(
         self,
         sensor: ExactContactSensor,
-        reach_m: float = 0.002,
+        reach_m: float = 0.001,
         max_distance_m: float = 0.03,
         max_patch_faces: int = 4096,
     ) -> None:
