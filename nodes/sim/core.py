@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from functools import cache
 from typing import Any
 
 import mujoco
@@ -95,6 +96,50 @@ class Contacts:
 
     def __len__(self) -> int:
         return len(self.links)
+
+
+def _unit_and_local_numpy(
+    normals: np.ndarray, points: np.ndarray, bodies: np.ndarray, xmat: np.ndarray, xpos: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (n, 3) and contact points (n, 3) in their bodies' frames, R^T (p - x), from MuJoCo's
+    body frames xmat (nbody, 9) and xpos (nbody, 3)."""
+    unit = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    R = xmat[bodies].reshape(-1, 3, 3)
+    return unit, np.einsum("kji,kj->ki", R, points - xpos[bodies])
+
+
+def _unit_and_local(
+    normals: np.ndarray, points: np.ndarray, bodies: list[int], xmat: np.ndarray, xpos: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`_unit_and_local_numpy` of a few contacts in Python scalars (numpy's norm adds its three
+    squares left to right, and this einsum its three products: ``frames_match_numpy`` checks both);
+    None for a normal of length zero, which numpy's path turns into NaN (and the caller's check names)."""
+    unit, local = [], []
+    for (n0, n1, n2), (p0, p1, p2), b in zip(normals.tolist(), points.tolist(), bodies, strict=True):
+        length = math.sqrt((n0 * n0 + n1 * n1) + n2 * n2)
+        if length == 0.0:
+            return None
+        unit.append((n0 / length, n1 / length, n2 / length))
+        R, (x0, x1, x2) = xmat[b].tolist(), xpos[b].tolist()
+        v0, v1, v2 = p0 - x0, p1 - x1, p2 - x2
+        local.append(tuple((R[i] * v0 + R[3 + i] * v1) + R[6 + i] * v2 for i in range(3)))
+    return np.array(unit, dtype=np.float64).reshape(-1, 3), np.array(local, dtype=np.float64).reshape(-1, 3)
+
+
+@cache
+def frames_match_numpy(samples: int = 300) -> bool:
+    """Whether :func:`_unit_and_local` gives numpy's bits here (random normals, points and frames)."""
+    rng = np.random.default_rng(20261127)
+    for _ in range(samples):
+        n = int(rng.integers(1, _FEW_CONTACTS + 1))
+        normals, points = rng.standard_normal((n, 3)), 0.1 * rng.standard_normal((n, 3))
+        xmat, xpos = rng.standard_normal((5, 9)), 0.1 * rng.standard_normal((5, 3))
+        bodies = rng.integers(0, 5, n)
+        got = _unit_and_local(normals, points, bodies.tolist(), xmat, xpos)
+        expected = _unit_and_local_numpy(normals, points, bodies, xmat, xpos)
+        if got is None or any(a.tobytes() != e.tobytes() for a, e in zip(got, expected, strict=True)):
+            return False
+    return True
 
 
 def _mat_to_quat(R: np.ndarray) -> np.ndarray:
@@ -849,9 +894,10 @@ class Simulation:
         self, points: np.ndarray, normals: np.ndarray, forces: np.ndarray, bodies: np.ndarray
     ) -> Contacts:
         d = self.data
-        normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
-        R = d.xmat[bodies].reshape(-1, 3, 3)
-        local = np.einsum("kji,kj->ki", R, points - d.xpos[bodies])  # R^T (p - x)
+        few = None
+        if len(bodies) <= _FEW_CONTACTS and frames_match_numpy():
+            few = _unit_and_local(normals, points, bodies.tolist(), d.xmat, d.xpos)
+        normals, local = few if few is not None else _unit_and_local_numpy(normals, points, bodies, d.xmat, d.xpos)
         return Contacts(
             np.ascontiguousarray(points, dtype=np.float64),
             np.ascontiguousarray(local, dtype=np.float64),

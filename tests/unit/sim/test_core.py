@@ -288,3 +288,15 @@ def test_a_non_finite_state_raises() -> None:
     sim.data.qvel[4] = np.nan
     with pytest.raises(SimulationDivergedError, match="non-finite state"):
         sim._check_diverged(0.0)
+
+
+def test_a_few_contacts_frames_in_scalars_give_numpys_bits() -> None:
+    """Unit normals and body-frame points of up to four contacts in Python scalars, as numpy's path."""
+    from palpate.nodes.sim.core import _unit_and_local, _unit_and_local_numpy, frames_match_numpy
+
+    assert frames_match_numpy(samples=2000)
+    normals = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    points, xmat, xpos = np.zeros((2, 3)), np.eye(3).reshape(1, 9), np.zeros((1, 3))
+    assert _unit_and_local(normals, points, [0, 0], xmat, xpos) is None  # numpy's path makes the NaN
+    with np.errstate(invalid="ignore"):
+        assert np.isnan(_unit_and_local_numpy(normals, points, np.array([0, 0]), xmat, xpos)[0][0]).all()
