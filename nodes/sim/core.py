@@ -242,6 +242,7 @@ class Simulation:
             tip = cfg.pose_finger if isinstance(cfg, HandConfig) else cfg.finger
             self._tip_site = m.site(f"{tip}_tip").id
             self.set_joint_targets(np.zeros(len(self.joint_names)))
+            frames_match_numpy()  # checked now (a few ms), not at the first contact
             if self._exact:
                 self._setup_capsule_spheres()
         mujoco.mj_forward(m, self.data)
