@@ -451,13 +451,19 @@ def drop_patch(k: int, start: A, size: A, used: A) -> None:
 @numba.njit(cache=True)
 def build(k: int, px: float, py: float, pz: float, mesh: Any, grid: Any, warm: Any, params: A, candidates: A) -> bool:
     """``WarmClosest._build`` of sphere k's patch at p (shifted frame) into the arena; False where it
-    needs Python (no face yet, no patch: too far or too many faces, a full arena). The old patch is
+    needs Python (no face yet here or at a neighbouring sphere, no patch: too far or too many faces,
+    a full arena). The old patch is
     dropped either way (p left its reach), and if it was the arena's last the new one takes its room."""
     _, triangles, _, bound_planes, bound_offsets = mesh
     p0, face, start, size, _, faces, planes, offsets, lower0, used = warm
     drop_patch(k, start, size, used)
-    if face[k] < 0:
-        return False
+    if face[k] < 0:  # a first query: start from a neighbour's face (any face gives the same answer)
+        for other in (k - 1, k + 1):
+            if 0 <= other < face.shape[0] and face[other] >= 0:
+                face[k] = face[other]
+                break
+        else:
+            return False
     upper, _, _, _ = closest_kernels.project(triangles, face[k], px, py, pz)
     radius = math.sqrt(upper) + 2.0 * params[P_REACH]
     if radius > params[P_MAX_DISTANCE]:
