@@ -928,6 +928,8 @@ class Simulation:
             self._refresh()
             pos = np.array(d.site_xpos[self._tip_site], dtype=np.float64)
             quat = _mat_to_quat(d.site_xmat[self._tip_site])
+            if math.isfinite(sum(pos.tolist()) + sum(quat.tolist())):  # as the probe's, in one sum
+                return pos, quat
         return self._finite(pos, "effector position"), self._finite(quat, "effector orientation")
 
     def contacts(self) -> Contacts:

@@ -300,3 +300,13 @@ def test_a_few_contacts_frames_in_scalars_give_numpys_bits() -> None:
     assert _unit_and_local(normals, points, [0, 0], xmat, xpos) is None  # numpy's path makes the NaN
     with np.errstate(invalid="ignore"):
         assert np.isnan(_unit_and_local_numpy(normals, points, np.array([0, 0]), xmat, xpos)[0][0]).all()
+
+
+def test_a_finger_pose_that_is_not_finite_is_named() -> None:
+    sim = Simulation(SceneConfig(effector="finger", object=ObjectSpec(kind="torus")))
+    position, quaternion = sim.effector_pose()
+    assert np.isfinite(position).all() and np.isfinite(quaternion).all()
+    sim.data.qpos[0] = np.nan
+    sim._fresh = False  # as after a step
+    with pytest.raises(SimulationDivergedError, match="effector position are not finite"):
+        sim.effector_pose()
