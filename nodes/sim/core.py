@@ -681,6 +681,8 @@ class Simulation:
             count = int(state[k.S_NEAR])
             hit = self._sensor.closest(centres[near[:count]])
             points[:count], dist[:count], faces[:count] = hit.points_m, hit.distance_m, hit.face_ids
+            # each sphere's next query starts from its face here (any start gives the same answer)
+            self._patches.face[near[:count]] = hit.face_ids
             return count
         sphere = int(near[at])
         if search[k.SEARCH_PENDING]:  # a weak sign of the compiled search
