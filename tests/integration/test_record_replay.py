@@ -28,15 +28,11 @@ from palpate.messages import codec, topics
 from palpate.messages.schemas import Clock, NodeStatus
 from palpate.paths import REPO_ROOT
 from palpate.record.mcap_io import copy_log, read_messages, summarize
+from tests.integration.launch_helpers import child_env
 
 DEMO = REPO_ROOT / "launch" / "demo_minimal.yaml"
 FASTSLAM = REPO_ROOT / "launch" / "fastslam.yaml"
 TICKS = 100  # demo_minimal: duration 1 s at 10 ms per tick
-
-
-def _env(bus_dir: Path) -> dict[str, str]:
-    # temporary files beside the bus, in the test's directory: a killed launcher leaves its run directory
-    return dict(os.environ, PALPATE_BUS=str(bus_dir), PYTHONUNBUFFERED="1", TMPDIR=str(bus_dir.parent))
 
 
 def palpate(bus_dir: Path, *args: str, timeout_s: float = 120) -> subprocess.CompletedProcess[str]:
@@ -44,7 +40,7 @@ def palpate(bus_dir: Path, *args: str, timeout_s: float = 120) -> subprocess.Com
     return subprocess.run(
         [sys.executable, "-m", "palpate.cli", *args],
         cwd=REPO_ROOT,
-        env=_env(bus_dir),
+        env=child_env(bus_dir),
         capture_output=True,
         text=True,
         timeout=timeout_s,
@@ -58,7 +54,7 @@ def started(bus_dir: Path, log: Path, *args: str) -> Iterator[subprocess.Popen[b
         proc = subprocess.Popen(
             [sys.executable, "-m", "palpate.cli", *args],
             cwd=REPO_ROOT,
-            env=_env(bus_dir),
+            env=child_env(bus_dir),
             stdout=out,
             stderr=subprocess.STDOUT,
             start_new_session=True,
