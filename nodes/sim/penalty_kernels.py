@@ -449,13 +449,60 @@ def drop_patch(k: int, start: A, size: A, used: A) -> None:
 
 
 @numba.njit(cache=True)
-def build(k: int, px: float, py: float, pz: float, mesh: Any, grid: Any, warm: Any, params: A, candidates: A) -> bool:
-    """``WarmClosest._build`` of sphere k's patch at p (shifted frame) into the arena; False where it
-    needs Python (no face yet here or at a neighbouring sphere, no patch: too far or too many faces,
-    a full arena). The old patch is
-    dropped either way (p left its reach), and if it was the arena's last the new one takes its room."""
-    _, triangles, _, bound_planes, bound_offsets = mesh
-    p0, face, start, size, _, faces, planes, offsets, lower0, used = warm
+def tighten(
+    centroids: A,
+    triangles: A,
+    face: A,
+    k: int,
+    px: float,
+    py: float,
+    pz: float,
+    upper: float,
+    params: A,
+    candidates: A,
+    count: int,
+) -> tuple[int, float]:
+    """A patch's radius from the face of the candidate centroid nearest p, where that face is nearer
+    than ``upper`` (the squared distance to sphere k's face, which may be stale: its last query
+    was elsewhere), and the candidates (count,) kept in place that ``grid_faces`` would give for it,
+    sphere k's face first; returns (count, radius). face[k] becomes the nearer face (any start gives
+    the same answers)."""
+    nearest, best = -1, math.inf
+    for i in range(count):
+        f = candidates[i]
+        dx, dy, dz = centroids[f, 0] - px, centroids[f, 1] - py, centroids[f, 2] - pz
+        squared = dx * dx + dy * dy + dz * dz
+        if squared < best:
+            nearest, best = f, squared
+    if nearest >= 0:
+        squared, _, _, _ = closest_kernels.project(triangles, nearest, px, py, pz)
+        if squared < upper:
+            upper, face[k] = squared, nearest
+    radius = math.sqrt(upper) + 2.0 * params[P_REACH]
+    reach = radius + params[P_LARGEST]
+    kept = 0
+    for i in range(count):
+        f = candidates[i]
+        dx, dy, dz = centroids[f, 0] - px, centroids[f, 1] - py, centroids[f, 2] - pz
+        if dx * dx + dy * dy + dz * dz <= reach * reach:
+            candidates[kept] = f
+            if f == face[k]:  # the nearest face known goes first (a search's first bound)
+                candidates[kept], candidates[0] = candidates[0], f
+            kept += 1
+    return kept, radius
+
+
+@numba.njit(cache=True)
+def patch_candidates(
+    k: int, px: float, py: float, pz: float, mesh: Any, grid: Any, warm: Any, params: A, candidates: A
+) -> tuple[int, float]:
+    """The first half of ``WarmClosest._build`` for sphere k at p (shifted frame): drops its old patch
+    (p left its reach; if it was the arena's last the next one takes its room), then finds the radius
+    of the new one and the faces (candidates[:count]) that may lie within it. Returns (count, radius),
+    count -1 where Python must answer (no face yet here or at a neighbouring sphere, too far from the
+    surface, too many faces)."""
+    _, triangles, _, _, _ = mesh
+    _, face, start, size, _, _, _, _, _, used = warm
     drop_patch(k, start, size, used)
     if face[k] < 0:  # a first query: start from a neighbour's face (any face gives the same answer)
         for other in (k - 1, k + 1):
@@ -463,15 +510,31 @@ def build(k: int, px: float, py: float, pz: float, mesh: Any, grid: Any, warm: A
                 face[k] = face[other]
                 break
         else:
-            return False
+            return -1, 0.0
     upper, _, _, _ = closest_kernels.project(triangles, face[k], px, py, pz)
+    for other in (k - 1, k + 1):  # a neighbour's face may be nearer than this sphere's last one
+        if 0 <= other < face.shape[0] and face[other] >= 0:
+            squared, _, _, _ = closest_kernels.project(triangles, face[other], px, py, pz)
+            if squared < upper:
+                upper, face[k] = squared, face[other]
     radius = math.sqrt(upper) + 2.0 * params[P_REACH]
     if radius > params[P_MAX_DISTANCE]:
-        return False
+        return -1, 0.0
     limit = int(params[P_MAX_FACES])
     count = grid_faces(grid, params[P_CELL], px, py, pz, radius + params[P_LARGEST], candidates, limit)
     if count > limit:
-        return False
+        return -1, 0.0
+    return tighten(grid[4], triangles, face, k, px, py, pz, upper, params, candidates, count)
+
+
+@numba.njit(cache=True)
+def store_patch(
+    k: int, px: float, py: float, pz: float, mesh: Any, warm: Any, candidates: A, count: int, radius: float
+) -> bool:
+    """The second half of ``WarmClosest._build``: sphere k's patch of the given radius at p from
+    candidates[:count] (:func:`patch_candidates`) into the arena; False when the arena is full."""
+    _, _, _, bound_planes, bound_offsets = mesh
+    p0, _, start, size, _, faces, planes, offsets, lower0, used = warm
     new_faces, new_planes, new_offsets, new_lower = closest_kernels.build_patch(
         bound_planes, bound_offsets, candidates[:count], px, py, pz, radius
     )
@@ -490,11 +553,20 @@ def build(k: int, px: float, py: float, pz: float, mesh: Any, grid: Any, warm: A
 
 
 @numba.njit(cache=True)
+def build(k: int, px: float, py: float, pz: float, mesh: Any, grid: Any, warm: Any, params: A, candidates: A) -> bool:
+    """``WarmClosest._build`` of sphere k's patch at p (shifted frame) into the arena; False where it
+    needs Python (see :func:`patch_candidates` and :func:`store_patch`)."""
+    count, radius = patch_candidates(k, px, py, pz, mesh, grid, warm, params, candidates)
+    return count >= 0 and store_patch(k, px, py, pz, mesh, warm, candidates, count, radius)
+
+
+@numba.njit(cache=True)
 def query_near(
     j0: int,
     centres: A,
     near: A,
     count: int,
+    sphere_reach: A,
     mesh: Any,
     grid: Any,
     warm: Any,
@@ -507,14 +579,15 @@ def query_near(
 ) -> int:
     """``WarmClosest.query`` for the spheres near[j0:count] at their centres (K, 3),
     as far as it needs no Python: writes each answer at its position j in points (K, 3), dist (K,) and
-    hit_faces (K,). Returns count, or the first position whose query needs Python.
+    hit_faces (K,). Returns count, or the first position whose query needs Python. sphere_reach (K,):
+    each sphere's radius plus tolerance (the spheres' ``reach`` of :func:`sphere_hits`).
 
     mesh: the sensor's (centre (3,), triangles (F, 3, 3), sign normals (F, 7, 3), bound planes (F, 4,
     3), bound offsets (F, 4)); grid: :func:`face_grid`'s; warm: :meth:`WarmPatches.arrays`;
     candidates (F,): scratch. A search that ends in a weak sign leaves p and its result in
     ``search`` (the SEARCH_* layout; SEARCH_PENDING 1) for ``WarmClosest.settle``.
     """
-    centre, triangles, sign_normals, _, _ = mesh
+    centre, triangles, sign_normals, bound_planes, bound_offsets = mesh
     p0, face, start, size, searches, faces, planes, offsets, lower0, _ = warm
     reach = params[P_REACH]
     for j in range(j0, count):
@@ -524,27 +597,49 @@ def query_near(
             return j
         px, py, pz = x - centre[0], y - centre[1], z - centre[2]
         x0, y0, z0 = p0[k, 0], p0[k, 1], p0[k, 2]
+        once = False
         if size[k] == 0 or (px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2 > reach**2:
-            if not build(k, px, py, pz, mesh, grid, warm, params, candidates):
+            found_count, radius = patch_candidates(k, px, py, pz, mesh, grid, warm, params, candidates)
+            if found_count < 0:
                 return j
-            x0, y0, z0 = px, py, pz
-        moved = math.sqrt((px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2)
-        a, e = start[k], start[k] + size[k]
-        found, qx, qy, qz, unsigned, inside, weak = closest_kernels.warm_query(
-            triangles,
-            sign_normals,
-            faces[a:e],
-            planes[a:e],
-            offsets[a:e],
-            lower0[a:e],
-            moved * (1.0 + 1e-12) + 1e-18,
-            face[k],
-            px,
-            py,
-            pz,
-            params[P_WEAK_PSEUDO_NORMAL],
-            params[P_WEAK_SIGN_COS],
-        )
+            # The same answer as a search of the patch (the closest face, exact ties to the lowest id).
+            # A sphere this far out is asked again only once it has moved more than the patch's reach
+            # (sphere_bounds), so its patch would never be searched: none is kept.
+            found, qx, qy, qz, unsigned, inside, weak = closest_kernels.ring_query(
+                triangles,
+                sign_normals,
+                candidates[:found_count],
+                bound_planes,
+                bound_offsets,
+                px,
+                py,
+                pz,
+                params[P_WEAK_PSEUDO_NORMAL],
+                params[P_WEAK_SIGN_COS],
+            )
+            once = not (inside or weak) and unsigned - sphere_reach[k] > reach * (1.0 + 1e-6)
+            if not once:
+                if not store_patch(k, px, py, pz, mesh, warm, candidates, found_count, radius):
+                    return j
+                x0, y0, z0 = px, py, pz
+        if not once:
+            moved = math.sqrt((px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2)
+            a, e = start[k], start[k] + size[k]
+            found, qx, qy, qz, unsigned, inside, weak = closest_kernels.warm_query(
+                triangles,
+                sign_normals,
+                faces[a:e],
+                planes[a:e],
+                offsets[a:e],
+                lower0[a:e],
+                moved * (1.0 + 1e-12) + 1e-18,
+                face[k],
+                px,
+                py,
+                pz,
+                params[P_WEAK_PSEUDO_NORMAL],
+                params[P_WEAK_SIGN_COS],
+            )
         if weak:  # a weak sign: Python decides it by ray parity
             search[SEARCH_P], search[SEARCH_P + 1], search[SEARCH_P + 2] = px, py, pz
             search[SEARCH_FACE] = found
@@ -585,7 +680,9 @@ def sphere_hits(
             return NEEDS_PYTHON, BATCH  # the sensor's vectorised query
         resume = 0
     count = state[S_NEAR]
-    j = query_near(resume, centres, near, count, mesh, grid, warm, params, points, dist, hit_faces, candidates, search)
+    j = query_near(
+        resume, centres, near, count, reach, mesh, grid, warm, params, points, dist, hit_faces, candidates, search
+    )
     if j < count:
         return NEEDS_PYTHON, j
     touching = 0

@@ -170,3 +170,44 @@ def test_a_segment_overrun_by_a_huge_time_step_raises_on_the_compiled_path() -> 
     sim.set_joint_targets(np.array([0.0, 1.4, 0.6, 0.0]))
     with pytest.raises(SimulationDivergedError, match=r"time step 0.05 s.*timestep_s: 0.025"):
         sim.step(100)
+
+
+def test_a_query_from_a_stale_face_gives_the_sensors_answer_and_keeps_a_patch_only_within_reach() -> None:
+    """query_near from a face the sphere found far away (its last query was elsewhere): the sensor's
+    own answer; a sphere farther out than its reach plus the patch reach keeps no patch (it is asked
+    again only after leaving that patch), a nearer one keeps one."""
+    sim = Simulation(SceneConfig(effector="finger", object=TORUS))
+    _compiled_or_skip(sim)
+    sensor = sim._sensor
+    assert sensor is not None
+    k = penalty_kernels
+    reach_m = float(sim._pk_params[k.P_REACH])
+    sphere_reach = np.array([0.008])
+    rng = np.random.default_rng(11)
+    kept, dropped, python = 0, 0, 0
+    for _ in range(150):
+        surface = sensor.closest(0.06 * rng.standard_normal((1, 3)))
+        depth = float(rng.uniform(0.0, 0.025))
+        centre = surface.points_m + depth * surface.normals  # outside, depth from the surface
+        patches = k.WarmPatches(1, WarmClosest(sensor).max_patch_faces)
+        elsewhere = surface.points_m + rng.uniform(-0.01, 0.01, 3)
+        patches.face[0] = int(sensor.closest(elsewhere).face_ids[0])  # a stale face, up to 1.7 cm away
+        points, dist, hit = np.zeros((1, 3)), np.zeros(1), np.zeros(1, dtype=np.int64)
+        scratch, search = np.zeros(len(sensor.face_normals), dtype=np.int64), np.zeros(k.SEARCH_SIZE)
+        done = k.query_near(
+            0, centre, np.zeros(1, dtype=np.int64), 1, sphere_reach, sim._pk_mesh, sim._pk_grid,
+            patches.arrays(), sim._pk_params, points, dist, hit, scratch, search,
+        )  # fmt: skip
+        if done == 0:  # Python's turn (too far from the face to build a patch, a weak sign)
+            python += 1
+            continue
+        expected = sensor.closest(centre)
+        np.testing.assert_array_equal(points, expected.points_m)
+        np.testing.assert_array_equal(dist, expected.distance_m)
+        np.testing.assert_array_equal(hit, expected.face_ids)
+        far = dist[0] - sphere_reach[0] > reach_m * 1.001
+        near = dist[0] - sphere_reach[0] < reach_m * 0.999
+        assert (patches.size[0] == 0) == far or not (far or near)
+        kept += int(near)
+        dropped += int(far)
+    assert kept > 20 and dropped > 20 and python < 30, (kept, dropped, python)
