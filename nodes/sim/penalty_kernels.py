@@ -557,7 +557,7 @@ def build(k: int, px: float, py: float, pz: float, mesh: Any, grid: Any, warm: A
     """``WarmClosest._build`` of sphere k's patch at p (shifted frame) into the arena; False where it
     needs Python (see :func:`patch_candidates` and :func:`store_patch`)."""
     count, radius = patch_candidates(k, px, py, pz, mesh, grid, warm, params, candidates)
-    return count >= 0 and store_patch(k, px, py, pz, mesh, warm, candidates, count, radius)
+    return count > 0 and store_patch(k, px, py, pz, mesh, warm, candidates, count, radius)
 
 
 @numba.njit(cache=True)
@@ -600,7 +600,7 @@ def query_near(
         once = False
         if size[k] == 0 or (px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2 > reach**2:
             found_count, radius = patch_candidates(k, px, py, pz, mesh, grid, warm, params, candidates)
-            if found_count < 0:
+            if found_count <= 0:  # Python's query (none found: only where rounding left out the face)
                 return j
             # The same answer as a search of the patch (the closest face, exact ties to the lowest id).
             # A sphere this far out is asked again only once it has moved more than the patch's reach
