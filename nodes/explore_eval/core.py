@@ -18,11 +18,11 @@ from palpate.config import NonNegativeFloat, NonNegativeInt, PositiveFloat, Posi
 from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.metrics.exploration import (
     CoverageTracker,
+    RmseScorer,
     SurfaceRmse,
     angle_to_normal_deg,
     confident_faces,
     covering_bound_contacts,
-    surface_rmse,
     triangle_areas,
 )
 from palpate.metrics.shape import ShapeScorer
@@ -296,6 +296,7 @@ class ExplorationEvaluator:
         mesh = (self.vertices_m, self.faces)
         self.tracker = CoverageTracker(mesh, self.config.radius_m, self.config.coverage_samples, self.rng)
         self.sensor = _sensor(self.vertices_m, self.faces)
+        self._rmse_scorer: RmseScorer | None = None
         self.touches: list[TouchRecord] = []
         self.milestones: dict[float, Milestone] = {}
         self.shape_series: list[ShapePoint] = []
@@ -431,8 +432,9 @@ class ExplorationEvaluator:
         if len(faces) == 0:
             nan = math.nan
             return SurfaceRmse(estimate_to_truth_m=nan, truth_to_estimate_m=nan, symmetric_m=nan)
-        truth = (self.vertices_m, self.faces)
-        return surface_rmse((vertices_m, faces), truth, self.config.rmse_samples, np.random.default_rng(0))
+        if self._rmse_scorer is None:  # the true mesh's samples and distance field, once per run
+            self._rmse_scorer = RmseScorer((self.vertices_m, self.faces), self.config.rmse_samples, seed=0)
+        return self._rmse_scorer.score((vertices_m, faces))
 
     def summary(self) -> dict[str, Any]:
         """Everything about the run as plain data (JSON-ready)."""

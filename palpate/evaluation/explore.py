@@ -311,13 +311,15 @@ def apply_params(launch: Any, params: Iterable[tuple[str, Any]]) -> None:
         target[keys[-1]] = value
 
 
-def run_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> dict[str, Any]:
-    """Run one episode in this process; returns the evaluator's summary plus timing and identity."""
+def run_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH, *, profile: bool = False) -> dict[str, Any]:
+    """Run one episode in this process; returns the evaluator's summary plus timing and identity, and
+    with ``profile`` the wall seconds of each part of the graph's ticks (``InProcessGraph(profile=True)``:
+    each node's input handling and on_tick, the clock's step, message transfer) as ``node_s``."""
     from palpate.launch.graph import resolve
     from palpate.runtime.inprocess import InProcessGraph
 
     t0, c0 = time.perf_counter(), time.process_time()
-    graph = InProcessGraph(resolve(episode_launch(episode, launch_path)).in_process_members())
+    graph = InProcessGraph(resolve(episode_launch(episode, launch_path)).in_process_members(), profile=profile)
     plan_s = _time_planning(graph)
     t1 = time.perf_counter()
     ticks = graph.run()
@@ -337,6 +339,8 @@ def run_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> dict[st
         plan_ms=1000.0 * plan_s[0] / max(1, int(result.get("contacts", 0))),
         params=dict(episode.params),
     )
+    if graph.timing is not None:
+        result["node_s"] = dict(sorted(graph.timing.items()))
     return result
 
 
@@ -381,9 +385,10 @@ def _time_planning(graph: Any) -> list[float]:
     return total
 
 
-def episode_task(episode: Episode, prefix: str = "explore") -> RunTask:
+def episode_task(episode: Episode, prefix: str = "explore", profile: bool = False) -> RunTask:
     """The Dask task of one episode: its run key names object, strategy and run and digests the whole
-    episode (the mesh by its SHA-256, not its path); the mesh file travels with it."""
+    episode (the mesh by its SHA-256, not its path); the mesh file travels with it. ``profile`` (each
+    part's wall seconds in the row, see :func:`run_episode`) leaves the key as it is."""
     mesh = episode.case.mesh
     spec = asdict(replace(episode, case=replace(episode.case, mesh=file_digest(Path(mesh)) if mesh else "")))
     if episode.case.scale == 1.0:  # the runs recorded before objects had a scale keep their keys
@@ -391,22 +396,22 @@ def episode_task(episode: Episode, prefix: str = "explore") -> RunTask:
     return RunTask(
         key=run_key(f"{prefix}-{episode.case.name}-{episode.strategy}-{episode.run}", spec),
         function=run_episode_on_worker,
-        args=(episode,),
+        args=(episode, profile),
         files=(Path(mesh),) if mesh else (),
         label=f"{episode.case.name} {episode.strategy} run {episode.run}",
     )
 
 
-def run_episode_on_worker(episode: Episode, *mesh: SharedFile) -> dict[str, Any]:
-    """On a Dask worker: run the episode on the worker's copy of its mesh. A run that raises a
-    PalpateError (a bad mesh, a diverged simulation) is a row with ``error`` set and coverage 0: it
-    would fail the same way on any worker."""
+def run_episode_on_worker(episode: Episode, profile: bool, *mesh: SharedFile) -> dict[str, Any]:
+    """On a Dask worker: run the episode on the worker's copy of its mesh (``profile``: as
+    :func:`run_episode`). A run that raises a PalpateError (a bad mesh, a diverged simulation) is a row
+    with ``error`` set and coverage 0: it would fail the same way on any worker."""
     from palpate.errors import PalpateError
 
     if mesh:
         episode = replace(episode, case=replace(episode.case, mesh=str(local_copy(mesh[0]))))
     try:
-        return run_episode(episode)
+        return run_episode(episode, profile=profile)
     except PalpateError as exc:
         return {
             "object": episode.case.name,
@@ -420,11 +425,12 @@ def run_episode_on_worker(episode: Episode, *mesh: SharedFile) -> dict[str, Any]
 
 
 def run_episodes(
-    items: Sequence[Episode], log: RunLog, cluster: ClusterConfig, prefix: str = "explore"
+    items: Sequence[Episode], log: RunLog, cluster: ClusterConfig, prefix: str = "explore", profile: bool = False
 ) -> tuple[list[dict[str, Any] | None], Outcome]:
     """Run the episodes not yet in ``log`` on Dask (big objects first, for the load balance). The rows
-    come back in the order of ``items``, None for a run that failed for good (not in ``log``)."""
-    tasks = [episode_task(ep, prefix) for ep in items]
+    come back in the order of ``items``, None for a run that failed for good (not in ``log``);
+    ``profile``: as :func:`run_episode`."""
+    tasks = [episode_task(ep, prefix, profile) for ep in items]
     order = sorted(range(len(items)), key=lambda i: -_size_key(items[i]))
     outcome = run_tasks([tasks[i] for i in order], log, cluster)
     return [outcome.rows.get(t.key) for t in tasks], outcome
@@ -496,8 +502,30 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="NODE.KEY=VALUE",
         help="override a node parameter of launch/explore.yaml (YAML value), e.g. controller.controller.v0_m_s=0.1",
     )
+    parser.add_argument(
+        "--profile",
+        action="store_true",
+        help="time each node's part of every tick (node_s in runs.jsonl) and print their sums over the runs",
+    )
     add_cluster_arguments(parser)
     parser.set_defaults(func=main)
+
+
+def profile_summary(results: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+    """Wall seconds of each part summed over the runs that carry ``node_s`` (``--profile``), largest first."""
+    total: dict[str, float] = {}
+    for r in results:
+        for part, seconds in r.get("node_s", {}).items():
+            total[part] = total.get(part, 0.0) + float(seconds)
+    return dict(sorted(total.items(), key=lambda kv: -kv[1]))
+
+
+def profile_table(total: Mapping[str, float]) -> str:
+    """Markdown table of :func:`profile_summary`: each part's seconds and share of their sum."""
+    whole = sum(total.values()) or 1.0
+    rows = [f"| {part} | {seconds:.1f} | {100.0 * seconds / whole:.1f} % |" for part, seconds in total.items()]
+    head = "## Where the runs' time went (--profile: wall seconds per part, summed over the runs)\n\n"
+    return head + "| part | s | share |\n|---|---:|---:|\n" + "\n".join(rows) + "\n"
 
 
 def parse_sets(items: Sequence[str]) -> dict[str, Any]:
@@ -616,7 +644,7 @@ def main(args: argparse.Namespace) -> int:
         items = episodes(chosen, runs, strategies, params=eval_params(args))
         check_episodes(items)
         with RunLog(out / "runs.jsonl", resume=args.resume) as log:
-            rows, outcome = run_episodes(items, log, cluster_config(args))
+            rows, outcome = run_episodes(items, log, cluster_config(args), profile=args.profile)
         results = [r for r in rows if r is not None]
         report_failures(outcome)
     elapsed = time.perf_counter() - start
@@ -651,6 +679,12 @@ def main(args: argparse.Namespace) -> int:
     report_stopped(results)
     plots = "coverage_vs_travel.png, travel_per_object.png, fscore_vs_travel.png"
     print(f"wrote {out}: runs.csv, runs.jsonl, tables.md, {plots}")
+    profiled = profile_summary(results) if args.profile else {}
+    if profiled:
+        print(profile_table(profiled))
     if args.json:
-        print(jsonio.dumps(report.summary_json(results, strategies, baseline, method, extra=shape)))
+        summary = report.summary_json(results, strategies, baseline, method, extra=shape)
+        if args.profile:
+            summary["node_s"] = {part: round(seconds, 3) for part, seconds in profiled.items()}
+        print(jsonio.dumps(summary))
     return 1 if errors or (outcome is not None and outcome.failed) else 0

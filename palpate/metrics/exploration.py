@@ -199,11 +199,37 @@ def surface_rmse(
 
     ``estimate`` is a mesh (sampled by area) or a point set (n, 3) used as is; for a point set the
     truth-to-estimate distance is to the nearest estimate point (a KD-tree), an upper bound on the
-    distance to the surface those points came from.
+    distance to the surface those points came from. rng draws the true samples, then the estimate's.
     """
     rng = rng if rng is not None else np.random.default_rng(0)
-    true_field = DistanceField(true_mesh)
     truth_pts = sample_surface(true_mesh, samples, rng)
+    return _rmse_against(estimate, DistanceField(true_mesh), truth_pts, samples, rng)
+
+
+class RmseScorer:
+    """``surface_rmse`` of many estimates against one true mesh, to the bit, with the true mesh's
+    distance field and samples made once: ``score(e)`` is ``surface_rmse(e, true_mesh, samples,
+    np.random.default_rng(seed))`` (each estimate's draw starts where that generator stands after the
+    true samples)."""
+
+    def __init__(self, true_mesh: Mesh, samples: int = 20000, seed: int = 0) -> None:
+        rng = np.random.default_rng(seed)
+        self.samples = samples
+        self._truth_points = sample_surface(true_mesh, samples, rng)
+        self._after_truth = rng.bit_generator.state
+        self._field = DistanceField(true_mesh)
+
+    def score(self, estimate: Mesh | ArrayLike) -> SurfaceRmse:
+        """``surface_rmse`` of one estimate (a mesh or a point set, as there)."""
+        rng = np.random.Generator(np.random.PCG64())
+        rng.bit_generator.state = self._after_truth
+        return _rmse_against(estimate, self._field, self._truth_points, self.samples, rng)
+
+
+def _rmse_against(
+    estimate: Mesh | ArrayLike, true_field: DistanceField, truth_pts: FloatArray, samples: int, rng: np.random.Generator
+) -> SurfaceRmse:
+    """``surface_rmse`` once the true mesh's field and samples are made (rng then draws the estimate's)."""
     if isinstance(estimate, tuple) or hasattr(estimate, "faces"):
         est_mesh: Mesh = estimate  # type: ignore[assignment]
         est_pts = sample_surface(est_mesh, samples, rng)

@@ -20,6 +20,8 @@ from palpate.evaluation.explore import (
     parse_sets,
     parse_strategies,
     probe_quaternion,
+    profile_summary,
+    profile_table,
     report_stopped,
     run_episode,
     stopped_early,
@@ -250,3 +252,19 @@ def test_a_run_another_node_ends_is_marked_stopped_and_reported_once_per_reason(
     report_stopped([row, {**row, "run": 1}, finished])
     err = capsys.readouterr().err.splitlines()
     assert err == [f"2 run(s) stopped early (first: sphere gpv run 0): {row['stop_reason']}"]
+
+
+def test_a_profiled_run_carries_each_parts_seconds_and_the_summary_adds_them_up() -> None:
+    case = ObjectCase(name="sphere", kind="sphere", size_m=(0.03,))
+    (episode,) = episodes([case], 1, ("gpv",), params={"gpis.vertex_variance": "none"})
+    plain, profiled = run_episode(episode), run_episode(episode, profile=True)
+    assert "node_s" not in plain and profiled["contacts"] == plain["contacts"]
+    parts = profiled["node_s"]
+    assert {"step", "transfer", "gpis.inputs", "planner.inputs", "eval.inputs"} <= set(parts)
+    assert all(seconds >= 0.0 for seconds in parts.values()) and parts["gpis.inputs"] > 0.0
+    total = profile_summary([profiled, {**profiled, "node_s": {"step": 1.0}}, plain])
+    assert total["step"] == pytest.approx(parts["step"] + 1.0) and next(iter(total)) == "step"
+    rows = profile_table(total).splitlines()[-len(total) :]
+    assert rows[0].startswith("| step | ")
+    shares = [float(row.split("|")[3].strip().removesuffix("%")) for row in rows]
+    assert sum(shares) == pytest.approx(100.0, abs=0.1 * len(rows))

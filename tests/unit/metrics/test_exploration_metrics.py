@@ -13,6 +13,7 @@ from palpate.metrics.exploration import (
     COVERING_DENSITY,
     CoverageTracker,
     DistanceField,
+    RmseScorer,
     angle_to_normal_deg,
     covering_bound_contacts,
     mesh_area,
@@ -150,6 +151,19 @@ def test_rmse_of_a_scaled_cube(cube: trimesh.Trimesh) -> None:
     assert err.estimate_to_truth_m > err.truth_to_estimate_m  # corners of the big cube are further
     sym = np.sqrt((err.estimate_to_truth_m**2 + err.truth_to_estimate_m**2) / 2)
     assert err.symmetric_m == pytest.approx(sym, rel=1e-9)
+
+
+def test_the_rmse_scorer_gives_surface_rmses_bits_for_every_estimate(
+    sphere: trimesh.Trimesh, cube: trimesh.Trimesh
+) -> None:
+    """The true mesh's samples and field made once, each estimate's draw from the generator's state
+    after them: the same figures as surface_rmse with a fresh generator, estimate after estimate."""
+    scorer = RmseScorer(sphere, samples=3000, seed=4)
+    grown = trimesh.creation.icosphere(subdivisions=4, radius=0.052)
+    points = np.asarray(sphere.vertices)[::7]
+    for estimate in (grown, cube, points, grown):
+        assert scorer.score(estimate) == surface_rmse(estimate, sphere, samples=3000, rng=np.random.default_rng(4))
+    assert scorer.score(grown) != surface_rmse(grown, sphere, samples=3000, rng=np.random.default_rng(5))
 
 
 def test_rmse_of_a_point_set_estimate(sphere: trimesh.Trimesh) -> None:
