@@ -33,6 +33,7 @@ import mujoco
 import numpy as np
 
 from palpate.config import Fraction, NonNegativeFloat, PositiveFloat, PositiveInt, Range, Validated
+from palpate.errors import ConfigError
 from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.jsonio import dumps as json_dumps
 from palpate.nodes.sim import capsule_kernels
@@ -167,9 +168,11 @@ class ExplorationMotion:
         self.q_rest = np.clip(np.zeros(len(self.joint_names)), self.kin.limits[:, 0], self.kin.limits[:, 1])
         self.touches = self.find_touches(self.config.candidate_samples, rng)
         if len(self.touches.q_touch) == 0:
-            raise ValueError(
-                "the fingertip cannot reach the object from this placement: move the effector base "
-                "(finger_mcp_offset_m or base_position_m) closer to the object"
+            raise ConfigError(
+                f"the {scene.effector}'s fingertip cannot reach the object {self.object.name!r} from this "
+                "placement: move the effector base (finger_mcp_offset_m or base_position_m) closer to the "
+                "object, or turn scripted_motion off",
+                ("scene",),
             )
         self._times: list[float] = [0.0]
         self._points: list[np.ndarray] = [self.q_rest.copy()]

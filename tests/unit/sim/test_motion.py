@@ -7,8 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from palpate.errors import ConfigError
 from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.nodes.sim.motion import ExplorationMotion, MotionConfig, explore
+from palpate.nodes.sim.objects import ObjectSpec
 from palpate.nodes.sim.scene import SceneConfig
 
 FAST = MotionConfig(candidate_samples=400)
@@ -77,3 +79,9 @@ def test_clearance_distances_skip_only_points_surely_clear(count: int) -> None:
     np.testing.assert_array_equal(got[may_be_below], exact[may_be_below])
     assert np.all(got[~may_be_below] >= need[~may_be_below])
     np.testing.assert_array_equal(got >= need, exact >= need)
+
+
+def test_an_object_out_of_the_fingertips_reach_is_a_config_error_naming_it() -> None:
+    far = SceneConfig(effector="finger", object=ObjectSpec(kind="sphere", size_m=(0.01,), position_m=(0.4, 0.4, 0.4)))
+    with pytest.raises(ConfigError, match=r"finger's fingertip cannot reach the object 'sphere'.*scripted_motion off"):
+        ExplorationMotion(far, np.random.default_rng(0), MotionConfig(candidate_samples=50))
