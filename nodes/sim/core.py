@@ -316,10 +316,11 @@ class Simulation:
             return
         t0 = self.time_s
         m, d = self.model, self.data
+        queried = False
         if self.scene.effector == "probe":
             self._probe_advance(n)
         elif self._exact and self.compiled_penalty:
-            self._penalty_advance(n, t0)
+            queried = self._penalty_advance(n, t0)
         elif self._exact:
             for _ in range(n):
                 mujoco.mj_step1(m, d)  # kinematics and velocities of the current state
@@ -331,8 +332,8 @@ class Simulation:
         else:
             mujoco.mj_step(m, d, nstep=n)
             self._steps += n
-        self._fresh = False
-        self._hits_current = False
+        # the compiled steps end with the frames, velocities and sphere queries of the state they reach
+        self._fresh = self._hits_current = queried
         self._check_diverged(t0)
 
     def _check_diverged(self, t0: float, force: bool = False) -> None:
@@ -634,14 +635,16 @@ class Simulation:
         if self.compiled_penalty:  # load the forces' kernel for these argument types now, not at the first touch
             self._sphere_forces(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
 
-    def _penalty_advance(self, n: int, t0: float) -> None:
+    def _penalty_advance(self, n: int, t0: float) -> bool:
         """``n`` steps in ``penalty_kernels.penalty_steps`` (the bits of the Python loop); the queries
-        that need Python are answered here, and the step goes on in compiled code."""
+        that need Python are answered here, and the step goes on in compiled code. True when the last
+        call also refreshed the frames and answered the final state's queries (``END_QUERIED``)."""
         functions = penalty_kernels.mujoco_functions()
         assert functions is not None
         addresses = (*functions, self.model._address, self.data._address)
         k = penalty_kernels
         remaining, resume = n, k.HITS_CURRENT if self._hits_current else -1
+        queried = False
         while remaining > 0:
             taken, status, at = k.penalty_steps(
                 addresses,
@@ -662,7 +665,9 @@ class Simulation:
             self._steps += taken
             remaining -= taken
             resume = -1
-            if status == k.NEEDS_PYTHON:
+            if status == k.DONE:
+                queried = at == k.END_QUERIED
+            elif status == k.NEEDS_PYTHON:
                 resume = self._answer_in_python(at)
             elif status == k.PENETRATED:
                 _, near, _, dist, _, touch, state, _, _ = self._pk_buffers
@@ -670,6 +675,7 @@ class Simulation:
                 raise self._penetration_error(near[rows], dist[rows])
             elif status == k.NOT_FINITE:
                 self._check_diverged(t0, force=True)
+        return queried
 
     def _answer_in_python(self, at: int) -> int:
         """Answer the query at position ``at`` of the compiled near spheres (or all of them: BATCH) into
@@ -759,7 +765,7 @@ class Simulation:
         """``_sphere_hits`` by ``penalty_kernels.sphere_hits``, answering in Python what needs it."""
         k = penalty_kernels
         resume = -1
-        while True:
+        while not self._hits_current:  # else the buffers hold this state's queries already
             status, at = k.sphere_hits(
                 resume,
                 FEW_POINTS,

@@ -17,7 +17,10 @@ A query that needs Python ends the call *within* its step, before ``mj_step2``: 
 compiled build cannot make (a sphere's first, one too far or too large, a full arena), a weak sign
 (Open3D's ray parity), or more than ``FEW_POINTS`` near spheres (the sensor's vectorised query,
 which rounds differently). The caller answers that sphere (or the batch) into the buffers and calls
-again with ``resume`` set to where the queries go on.
+again with ``resume`` set to where the queries go on. A call that completes its steps refreshes the
+frames and velocities (the functions ``mj_forward`` calls first) and asks the queries of the state it
+ends in, which the contacts read and the next step's first ``mj_step1`` would ask again
+(``END_QUERIED``); where one of them needs Python they are left to the contacts.
 ``mujoco_functions()`` returns None where MuJoCo's shared library is not found beside the bindings;
 the simulation then keeps the Python loop.
 """
@@ -47,8 +50,12 @@ P_REACH, P_WEAK_PSEUDO_NORMAL, P_WEAK_SIGN_COS, P_STIFFNESS, P_DAMPING = range(5
 P_MAX_DISTANCE, P_MAX_FACES, P_CELL, P_LARGEST = range(5, 9)
 PARAMS = 9
 #: ``resume`` of :func:`penalty_steps` when the buffers already hold the queries of the current state
-#: (``Simulation.contacts`` made them, and nothing has moved since): its first step asks nothing again.
+#: (``Simulation.contacts`` or the end of the last call made them, and nothing has moved since): its
+#: first step asks nothing again.
 HITS_CURRENT = -2
+#: ``at`` of a :func:`penalty_steps` call that completed its steps and the queries of the state it
+#: ends in (the buffers hold them, as :func:`sphere_hits` leaves them).
+END_QUERIED = 1
 #: Layout of the state vector: how many spheres are near, how many of them touch.
 S_NEAR, S_TOUCHING = 0, 1
 #: Layout of the search vector: the query point (3, shifted frame), then warm_query's face, point (3),
@@ -60,8 +67,9 @@ A = np.ndarray
 
 
 def mujoco_functions() -> tuple[int, ...] | None:
-    """Addresses of ``mj_step1`` and ``mj_step2`` in the MuJoCo library the bindings loaded."""
-    return function_addresses("mj_step1", "mj_step2")
+    """Addresses of ``mj_step1``, ``mj_step2``, ``mj_kinematics``, ``mj_comPos`` and ``mj_comVel`` in the
+    MuJoCo library the bindings loaded."""
+    return function_addresses("mj_step1", "mj_step2", "mj_kinematics", "mj_comPos", "mj_comVel")
 
 
 # --- the penalty wrench --------------------------------------------------------------------------
@@ -699,7 +707,7 @@ def sphere_hits(
 
 @numba.njit(cache=True)
 def penalty_steps(
-    functions: tuple[int, int, int, int],
+    functions: tuple[int, int, int, int, int, int, int],
     steps: int,
     resume: int,
     few_points: int,
@@ -717,12 +725,14 @@ def penalty_steps(
     """Up to ``steps`` steps of ``Simulation.step`` on the exact-mesh path. resume >= 0 goes on with the
     queries of a step that ended a call with NEEDS_PYTHON; HITS_CURRENT takes the first step's queries
     from the buffers (the same bits: each query's answer depends only on its point). Returns (steps completed, DONE |
-    NEEDS_PYTHON | PENETRATED | NOT_FINITE, the position to answer | BATCH).
+    NEEDS_PYTHON | PENETRATED | NOT_FINITE, the position to answer | BATCH). A call that completes
+    its steps then refreshes the frames and velocities and asks the queries of its final state
+    (:func:`end_queries`): DONE with ``at`` END_QUERIED when it answered them all, 0 when one needs Python.
 
-    functions: (mj_step1, mj_step2, model, data) addresses; dynamics: (body_rootid, (cvel, subtree_com,
-    xipos, xfrc_applied)); the rest as in :func:`sphere_hits`.
+    functions: (mj_step1, mj_step2, mj_kinematics, mj_comPos, mj_comVel, model, data) addresses;
+    dynamics: (body_rootid, (cvel, subtree_com, xipos, xfrc_applied)); the rest as in :func:`sphere_hits`.
     """
-    step1, step2, model, data = functions
+    step1, step2, _, _, _, model, data = functions
     body_rootid, body_data = dynamics
     _, _, radius, _, body, _, _ = spheres
     _, near, points, dist, hit_faces, touch, state, _, _ = buffers
@@ -762,4 +772,31 @@ def penalty_steps(
         for i in range(qpos.shape[0]):
             if not math.isfinite(qpos[i]):
                 return taken, NOT_FINITE, 0
-    return taken, DONE, 0
+    return taken, DONE, end_queries(functions, few_points, frames, spheres, mesh, grid, warm, buffers, params)
+
+
+@numba.njit(cache=True)
+def end_queries(
+    functions: tuple[int, int, int, int, int, int, int],
+    few_points: int,
+    frames: Any,
+    spheres: Any,
+    mesh: Any,
+    grid: Any,
+    warm: Any,
+    buffers: Any,
+    params: A,
+) -> int:
+    """The frames and velocities of the current state (``mj_kinematics``, ``mj_comPos``, ``mj_comVel``:
+    what ``Simulation._refresh`` calls, so the same values) and its sphere queries into the buffers,
+    as :func:`sphere_hits` from -1; END_QUERIED, or 0 where one needs Python (a batch, a sphere's
+    first query, a weak sign: the partial answers are dropped, and a pending weak sign too)."""
+    _, _, kinematics, com_pos, com_vel, model, data = functions
+    call_void2(kinematics, model, data)
+    call_void2(com_pos, model, data)
+    call_void2(com_vel, model, data)
+    status, _ = sphere_hits(-1, few_points, frames, spheres, mesh, grid, warm, buffers, params)
+    if status == DONE:
+        return END_QUERIED
+    buffers[8][SEARCH_PENDING] = 0.0
+    return 0

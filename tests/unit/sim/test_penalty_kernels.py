@@ -211,3 +211,37 @@ def test_a_query_from_a_stale_face_gives_the_sensors_answer_and_keeps_a_patch_on
         kept += int(near)
         dropped += int(far)
     assert kept > 20 and dropped > 20 and python < 30, (kept, dropped, python)
+
+
+def test_the_steps_leave_their_final_states_queries_to_the_contacts(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A compiled step call ends with the queries of the state it reaches (END_QUERIED): contacts()
+    reads them without asking again, and asking again gives the same contacts."""
+    scene = SceneConfig(effector="finger", object=TORUS)
+    sim = Simulation(scene)
+    _compiled_or_skip(sim)
+    motion = ExplorationMotion(scene, np.random.default_rng(0), MotionConfig(candidate_samples=400), obj=sim.object)
+    asked = []
+    sphere_hits = penalty_kernels.sphere_hits
+
+    def counted(*args: object) -> tuple[int, int]:
+        asked.append(1)
+        return sphere_hits(*args)
+
+    monkeypatch.setattr(penalty_kernels, "sphere_hits", counted)
+    reused, touching = 0, 0
+    for _ in range(200):
+        sim.set_joint_targets(motion.targets(sim.time_s))
+        sim.step(5)
+        held = sim._hits_current
+        asked.clear()
+        read = sim.contacts()
+        if held:
+            reused += 1
+            assert not asked  # read from the buffers
+            sim._hits_current = False  # ask again at the same state
+            again = sim.contacts()
+            assert asked
+            for name in ("positions_m", "normals", "forces_n"):
+                np.testing.assert_array_equal(getattr(read, name), getattr(again, name))
+        touching += len(read)
+    assert reused > 150 and touching > 10
