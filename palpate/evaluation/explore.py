@@ -511,21 +511,37 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(func=main)
 
 
-def profile_summary(results: Sequence[Mapping[str, Any]]) -> dict[str, float]:
-    """Wall seconds of each part summed over the runs that carry ``node_s`` (``--profile``), largest first."""
+def profile_summary(results: Sequence[Mapping[str, Any]], strategy: str | None = None) -> dict[str, float]:
+    """Wall seconds of each part summed over the runs (of ``strategy``; None: all) that carry ``node_s``
+    (``--profile``), largest first."""
     total: dict[str, float] = {}
     for r in results:
-        for part, seconds in r.get("node_s", {}).items():
-            total[part] = total.get(part, 0.0) + float(seconds)
+        if strategy is None or r.get("strategy") == strategy:
+            for part, seconds in r.get("node_s", {}).items():
+                total[part] = total.get(part, 0.0) + float(seconds)
     return dict(sorted(total.items(), key=lambda kv: -kv[1]))
 
 
-def profile_table(total: Mapping[str, float]) -> str:
-    """Markdown table of :func:`profile_summary`: each part's seconds and share of their sum."""
+def profile_table(results: Sequence[Mapping[str, Any]], strategies: Sequence[str]) -> str:
+    """Markdown table of :func:`profile_summary`: each part's seconds over all runs, its share of their
+    sum, and its seconds per strategy."""
+    total = profile_summary(results)
+    by = {s: profile_summary(results, s) for s in strategies}
     whole = sum(total.values()) or 1.0
-    rows = [f"| {part} | {seconds:.1f} | {100.0 * seconds / whole:.1f} % |" for part, seconds in total.items()]
+    rows = [
+        f"| {part} | {seconds:.1f} | {100.0 * seconds / whole:.1f} % | "
+        + " | ".join(f"{by[s].get(part, 0.0):.1f}" for s in strategies)
+        + " |"
+        for part, seconds in total.items()
+    ]
     head = "## Where the runs' time went (--profile: wall seconds per part, summed over the runs)\n\n"
-    return head + "| part | s | share |\n|---|---:|---:|\n" + "\n".join(rows) + "\n"
+    columns = "| part | s | share | " + " | ".join(f"{s} s" for s in strategies) + " |\n"
+    rule = "|---|---:|---:|" + "---:|" * len(strategies) + "\n"
+    return head + columns + rule + "\n".join(rows) + "\n"
+
+
+def _rounded(seconds: Mapping[str, float]) -> dict[str, float]:
+    return {part: round(value, 3) for part, value in seconds.items()}
 
 
 def parse_sets(items: Sequence[str]) -> dict[str, Any]:
@@ -681,10 +697,11 @@ def main(args: argparse.Namespace) -> int:
     print(f"wrote {out}: runs.csv, runs.jsonl, tables.md, {plots}")
     profiled = profile_summary(results) if args.profile else {}
     if profiled:
-        print(profile_table(profiled))
+        print(profile_table(results, strategies))
     if args.json:
         summary = report.summary_json(results, strategies, baseline, method, extra=shape)
         if args.profile:
-            summary["node_s"] = {part: round(seconds, 3) for part, seconds in profiled.items()}
+            summary["node_s"] = _rounded(profiled)
+            summary["node_s_by_strategy"] = {s: _rounded(profile_summary(results, s)) for s in strategies}
         print(jsonio.dumps(summary))
     return 1 if errors or (outcome is not None and outcome.failed) else 0

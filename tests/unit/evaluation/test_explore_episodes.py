@@ -262,9 +262,11 @@ def test_a_profiled_run_carries_each_parts_seconds_and_the_summary_adds_them_up(
     parts = profiled["node_s"]
     assert {"step", "transfer", "gpis.inputs", "planner.inputs", "eval.inputs"} <= set(parts)
     assert all(seconds >= 0.0 for seconds in parts.values()) and parts["gpis.inputs"] > 0.0
-    total = profile_summary([profiled, {**profiled, "node_s": {"step": 1.0}}, plain])
+    runs = [profiled, {**profiled, "strategy": "igef", "node_s": {"step": 1.0}}, plain]
+    total = profile_summary(runs)
     assert total["step"] == pytest.approx(parts["step"] + 1.0) and next(iter(total)) == "step"
-    rows = profile_table(total).splitlines()[-len(total) :]
-    assert rows[0].startswith("| step | ")
+    assert profile_summary(runs, "igef") == {"step": 1.0} and profile_summary(runs, "gpv") == parts
+    rows = profile_table(runs, ["gpv", "igef"]).splitlines()[-len(total) :]
+    assert rows[0].startswith("| step | ") and rows[0].endswith(f" | {parts['step']:.1f} | 1.0 |")
     shares = [float(row.split("|")[3].strip().removesuffix("%")) for row in rows]
     assert sum(shares) == pytest.approx(100.0, abs=0.1 * len(rows))
