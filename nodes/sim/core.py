@@ -396,7 +396,7 @@ class Simulation:
             if self.compiled_steps:
                 taken, status, projected = self._probe_compiled(remaining, turning, speed_per_step)
                 remaining -= taken
-                if status == probe_kernels.DONE:
+                if status == probe_kernels.DONE:  # it dropped the inward velocity itself
                     break
                 # the last step's mj_step ran; its projection needs Python (the compiled query said so)
                 projected = math.isfinite(sum(d.qpos.tolist())) and self._probe_project(try_compiled=False)
@@ -521,13 +521,13 @@ class Simulation:
         assert self._warm is not None and self._sensor is not None
         k = probe_kernels
         cache = self._probe_cache
+        p = self.data.qpos[0:3].copy()
+        if cache[k.HAS_HIT] == 1.0 and p.tolist() == cache[0:3].tolist():  # held (the compiled steps ask)
+            return self._probe_hit()
         if self.compiled_steps and try_compiled:  # the same answer in compiled code, unless it needs Python
             status = k.probe_closest(self.data.qpos, *self._probe_kernel_arguments())
             if status != k.NEEDS_PYTHON:
                 return None if status == k.NO_HIT else self._probe_hit()
-        p = self.data.qpos[0:3].copy()
-        if cache[k.HAS_HIT] == 1.0 and p.tolist() == cache[0:3].tolist():
-            return self._probe_hit()
         # The signed distance is 1-Lipschitz: skip the query while it cannot be within reach.
         offset = p - cache[0:3]
         bound = float(cache[k.CACHE_D]) - math.sqrt(offset.dot(offset))

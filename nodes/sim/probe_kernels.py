@@ -144,9 +144,13 @@ def probe_steps(
     params: np.ndarray,
     candidates: np.ndarray,
 ) -> tuple[int, int, bool]:
-    """Up to ``steps`` probe steps of ``Simulation._probe_advance`` (without its final drop of the
-    inward velocity). Returns (steps taken, DONE | NEEDS_PYTHON, projected). With NEEDS_PYTHON the last
-    step's ``mj_step`` has run but not its projection. The rest as in :func:`probe_closest`."""
+    """Up to ``steps`` probe steps of ``Simulation._probe_advance``. Returns (steps taken, DONE |
+    NEEDS_PYTHON, projected). With NEEDS_PYTHON the last step's ``mj_step`` has run but not its
+    projection. A call that completes its steps also ends the batch as ``_probe_advance`` does: it
+    drops the inward velocity of a last projection (numpy's lines, the dot product summed left to
+    right) and then asks :func:`probe_closest` at the projected centre, the query the contacts make
+    next (it holds the hit in ``cache``; one that needs Python is left to them), and returns
+    projected False. The rest as in :func:`probe_closest`."""
     taken = 0
     projected = False
     qpos_address = qpos.ctypes.data + 3 * 8  # the quaternion qpos[3:7]
@@ -187,4 +191,10 @@ def probe_steps(
             for i in range(3):
                 qpos[i] = cache[HIT_POINT + i] + radius * cache[HIT_NORMAL + i]
             projected = True
-    return taken, DONE, projected
+    if projected and cache[HAS_HIT] == 1.0:
+        nx, ny, nz = cache[HIT_NORMAL], cache[HIT_NORMAL + 1], cache[HIT_NORMAL + 2]
+        inward = qvel[0] * nx + qvel[1] * ny + qvel[2] * nz
+        if inward < 0.0:
+            qvel[0], qvel[1], qvel[2] = qvel[0] - inward * nx, qvel[1] - inward * ny, qvel[2] - inward * nz
+        probe_closest(qpos, cache, radius, tol, mesh, face_normals, grid, warm, params, candidates)
+    return taken, DONE, False

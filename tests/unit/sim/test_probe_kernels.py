@@ -70,3 +70,34 @@ def test_compiled_probe_steps_give_the_python_loops_bits(obj: ObjectSpec, start:
     assert compiled[:2] == python[:2]
     # the compiled steps build the patches themselves: Python builds only the first one
     assert python[3] > 20 and compiled[3] == 1
+
+
+def test_the_steps_end_with_the_contacts_query_and_the_inward_velocity_dropped(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A compiled call that ends on a projection holds the hit at the projected centre (contacts() asks
+    nothing), the same hit a fresh query gives, with no velocity into the surface left."""
+    sim = Simulation(SceneConfig(effector="probe", object=ObjectSpec(kind="cube", size_m=(0.05,))))
+    sim.data.qpos[0:3] = (0.01, 0.005, 0.035)  # 1 cm above the top face
+    asked = []
+    closest = probe_kernels.probe_closest
+
+    def counted(*args: object) -> int:
+        asked.append(1)
+        return int(closest(*args))
+
+    monkeypatch.setattr(probe_kernels, "probe_closest", counted)
+    held = 0
+    for _ in range(60):
+        sim.set_velocity(np.array([0.02, 0.0, -0.05]), np.zeros(3))  # into the top face while sliding
+        sim.step(5)
+        asked.clear()
+        read = sim.contacts()
+        if len(read) and not asked:
+            held += 1
+            normal = read.normals[0]
+            assert float(sim.data.qvel[0:3] @ normal) > -1e-12  # no velocity into the surface (0.05 m/s before)
+            sim._probe_cache[probe_kernels.HAS_HIT] = 0.0  # ask again at the same centre
+            again = sim.contacts()
+            assert asked
+            for name in ("positions_m", "normals", "forces_n"):
+                np.testing.assert_array_equal(getattr(read, name), getattr(again, name))
+    assert held > 30
