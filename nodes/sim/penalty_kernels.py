@@ -605,14 +605,12 @@ def query_near(
             return j
         px, py, pz = x - centre[0], y - centre[1], z - centre[2]
         x0, y0, z0 = p0[k, 0], p0[k, 1], p0[k, 2]
-        once = False
         if size[k] == 0 or (px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2 > reach**2:
             found_count, radius = patch_candidates(k, px, py, pz, mesh, grid, warm, params, candidates)
             if found_count <= 0:  # Python's query (none found: only where rounding left out the face)
                 return j
-            # The same answer as a search of the patch (the closest face, exact ties to the lowest id).
-            # A sphere this far out is asked again only once it has moved more than the patch's reach
-            # (sphere_bounds), so its patch would never be searched: none is kept.
+            # The candidates' closest face: the answer a search of the patch built from them would give
+            # (the closest face, exact ties to the lowest id).
             found, qx, qy, qz, unsigned, inside, weak = closest_kernels.ring_query(
                 triangles,
                 sign_normals,
@@ -625,12 +623,13 @@ def query_near(
                 params[P_WEAK_PSEUDO_NORMAL],
                 params[P_WEAK_SIGN_COS],
             )
+            # A sphere farther out than its reach plus the patch reach is asked again only once it has
+            # moved more than the patch's reach (sphere_bounds), so its patch would never be searched:
+            # none is kept for it.
             once = not (inside or weak) and unsigned - sphere_reach[k] > reach * (1.0 + 1e-6)
-            if not once:
-                if not store_patch(k, px, py, pz, mesh, warm, candidates, found_count, radius):
-                    return j
-                x0, y0, z0 = px, py, pz
-        if not once:
+            if not once and not store_patch(k, px, py, pz, mesh, warm, candidates, found_count, radius):
+                return j
+        else:
             moved = math.sqrt((px - x0) ** 2 + (py - y0) ** 2 + (pz - z0) ** 2)
             a, e = start[k], start[k] + size[k]
             found, qx, qy, qz, unsigned, inside, weak = closest_kernels.warm_query(
