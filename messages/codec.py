@@ -55,6 +55,7 @@ _SCALAR_TYPES: dict[str, tuple[type, ...]] = {
 }
 _EXACT_TYPE: dict[str, type] = {"int": int, "str": str, "bool": bool}
 _FLOAT64 = np.dtype("<f8")
+_INT64_MIN, _INT64_MAX = -(1 << 63), (1 << 63) - 1  # the wire's int fields (docs/messages.md)
 _SMALL_ARRAY = 32  # float arrays up to this many elements are checked for finiteness in Python
 _HEADER_KEYS = frozenset({"type", "version", "fields"})
 _SMALL_PAYLOAD = 16384  # decode parses payloads up to this size in one msgpack call (copying the blob)
@@ -249,7 +250,7 @@ def decode(payload: bytes | memoryview, expected: type[M] | None = None) -> M:
         raise UnknownMessageTypeError(f"unknown message type {type_name!r}; known: {sorted(REGISTRY)}")
     if expected is not None and cls is not expected:
         raise MalformedMessageError(f"expected a {expected.TYPE} message, got {type_name}")
-    if version != cls.VERSION:
+    if type(version) is not int or version != cls.VERSION:
         raise SchemaVersionError(
             f"{type_name} has schema version {version!r}; this build speaks version {cls.VERSION}: "
             "upgrade the older side"
@@ -437,6 +438,10 @@ def _fast_values(plan: _Plan, fields: dict[str, Any], blob: memoryview) -> dict[
                 if type(item) is not str:
                     return None
             value = raw
+        elif kind == "int":
+            if type(raw) is not int or not _INT64_MIN <= raw <= _INT64_MAX:
+                return None
+            value = raw
         elif type(raw) is _EXACT_TYPE[kind]:
             value = raw
         else:
@@ -475,7 +480,13 @@ def _fast_array(f: _FieldPlan, raw: Any, blob: memoryview) -> np.ndarray | None:
     for axis, want in f.fixed:
         if shape[axis] != want:
             return None
-    if type(offset) is not int or offset < 0 or nbytes != count * f.itemsize or offset + nbytes > len(blob):
+    if (
+        type(offset) is not int
+        or type(nbytes) is not int
+        or offset < 0
+        or nbytes != count * f.itemsize
+        or offset + nbytes > len(blob)
+    ):
         return None
     arr = np.frombuffer(blob, f.dtype, count, offset)
     return arr if f.ndim == 1 else arr.reshape(shape)
@@ -527,6 +538,8 @@ def _field_value(type_name: str, name: str, spec: FieldSpec, raw: Any, blob: mem
         return raw
     if not isinstance(raw, _SCALAR_TYPES[spec.kind]) or (spec.kind != "bool" and isinstance(raw, bool)):
         raise MalformedMessageError(f"{where} must be {spec.kind}, got {type(raw).__name__}")
+    if type(raw) is int and spec.kind == "int" and not _INT64_MIN <= raw <= _INT64_MAX:
+        raise MalformedMessageError(f"{where} must be in the signed 64-bit range, got {raw}")
     if spec.kind == "float":
         raw = float(raw)  # type: ignore[arg-type]
         if spec.finite and not math.isfinite(raw):
@@ -540,7 +553,7 @@ def _array_value(where: str, spec: FieldSpec, raw: Any, blob: memoryview) -> np.
     if raw["dtype"] != spec.dtype:
         raise MalformedMessageError(f"{where} must have dtype {spec.dtype}, got {raw['dtype']!r}")
     shape, offset, nbytes = raw["shape"], raw["offset"], raw["nbytes"]
-    if not isinstance(shape, list) or not all(isinstance(d, int) and d >= 0 for d in shape):
+    if not isinstance(shape, list) or not all(type(d) is int and d >= 0 for d in shape):
         raise MalformedMessageError(f"{where}: shape must be a list of non-negative ints")
     assert spec.dtype is not None and spec.shape is not None
     dtype = np.dtype(spec.dtype)
@@ -549,7 +562,13 @@ def _array_value(where: str, spec: FieldSpec, raw: Any, blob: memoryview) -> np.
     ):
         raise MalformedMessageError(f"{where} must have shape {_shape_text(spec.shape)}, got {tuple(shape)}")
     count = math.prod(shape)
-    if not isinstance(offset, int) or nbytes != count * dtype.itemsize or offset < 0 or offset + nbytes > len(blob):
+    if (
+        type(offset) is not int
+        or type(nbytes) is not int
+        or nbytes != count * dtype.itemsize
+        or offset < 0
+        or offset + nbytes > len(blob)
+    ):
         raise MalformedMessageError(f"{where}: data range offset={offset!r} nbytes={nbytes!r} is not in the blob")
     arr = np.frombuffer(blob, dtype=dtype, count=count, offset=offset).reshape(shape)
     if spec.finite and arr.dtype.kind == "f" and not np.isfinite(arr).all():

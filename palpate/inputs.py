@@ -103,6 +103,20 @@ def unit_vectors(values: ArrayLike, field: str, tolerance: float = UNIT_TOLERANC
     return a
 
 
+def unit_or_zero_rows(values: ArrayLike, field: str, tolerance: float = UNIT_TOLERANCE) -> FloatArray:
+    """Directions (n, 3) as float64 whose every row has norm 1 +- tolerance or is exactly zero ("no
+    direction", as a surface normal where the gradient vanishes), else InputError."""
+    a = np.asarray(values, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise InputError(field, f"shape {a.shape}, not (n, 3)")
+    norms = _norms(a).ravel()
+    bad = np.flatnonzero(~((np.abs(norms - 1.0) <= tolerance) | (norms == 0.0)))
+    if bad.size:
+        row = int(bad[0])
+        raise InputError(field, f"row {row} has norm {norms[row]:.6g}, neither 0 nor 1 (+-{tolerance:g})")
+    return a
+
+
 def unit_or_zero(values: ArrayLike, field: str, tolerance: float = UNIT_TOLERANCE) -> FloatArray:
     """A direction (3,) as float64 whose norm is 1 +- tolerance, or exactly zero ("no direction"), else
     InputError."""

@@ -47,7 +47,14 @@ from palpate.errors import InputError, PlanningError
 from palpate.geometry.bezier import approach_curve, bezier_length, bezier_point
 from palpate.geometry.rotations import quat_to_matrix
 from palpate.geometry.thinning import thin_near
-from palpate.inputs import MAX_COORDINATE_M, UNIT_TOLERANCE, bounded, coordinates, unit_or_zero, vertex_subset
+from palpate.inputs import (
+    MAX_COORDINATE_M,
+    bounded,
+    coordinates,
+    unit_or_zero,
+    unit_or_zero_rows,
+    vertex_subset,
+)
 from palpate.messages.schemas import MAX_MISS_DISTANCE_M
 
 FloatArray = NDArray[np.float64]
@@ -834,7 +841,9 @@ class TouchPlanner:
             return None
         # a surface the planner cannot use is refused before anything changes (InputError)
         V = coordinates(vertices_m, "vertices_m")
-        bounded(vertex_normals, "vertex_normals", 1.0 + UNIT_TOLERANCE)
+        normals = unit_or_zero_rows(vertex_normals, "vertex_normals")
+        if normals.shape != V.shape:
+            raise InputError("vertex_normals", f"has {len(normals)} rows for {len(V)} vertices")
         sites = (
             np.arange(len(V))
             if variance_vertices is None
@@ -850,16 +859,18 @@ class TouchPlanner:
         axis = quat_to_matrix(quaternion_wxyz)[:, 2]
         cfg = self.config
         last = self.contacts[-1]
-        if cfg.uses_variance:
-            if len(V) and not len(sites):
-                raise PlanningError(
-                    f"the {cfg.strategy} strategy needs the GP variance on the surface, and this mesh carries "
-                    "none: set the gpis node's vertex_variance to candidates or all"
-                )
-            candidates = self.planner.sample(V[sites], np.asarray(vertex_normals)[sites], Q, last)
-        else:
-            candidates = self.planner.sample(V, vertex_normals, np.zeros(len(V)), last)
-        surface = _CurveSurface(V, vertex_normals, fingertip_m)
+        if cfg.uses_variance and len(V) and not len(sites):
+            raise PlanningError(
+                f"the {cfg.strategy} strategy needs the GP variance on the surface, and this mesh carries "
+                "none: set the gpis node's vertex_variance to candidates or all"
+            )
+        if not cfg.uses_variance:
+            sites, Q = np.arange(len(V)), np.zeros(len(V))
+        oriented = normals[sites].any(axis=1)  # a vertex where the GP's gradient vanishes is no candidate
+        if not oriented.all():
+            sites, Q = sites[oriented], Q[oriented]
+        candidates = self.planner.sample(V[sites], normals[sites], Q, last)
+        surface = _CurveSurface(V, normals, fingertip_m)
         contacts = np.array(self.contacts)
         admissible = None
         centres = candidates.points_m + cfg.tip_radius_m * candidates.normals  # fingertip centre at each target

@@ -15,7 +15,7 @@ import numpy as np
 
 from palpate.config import PositiveFloat, Validated
 from palpate.errors import ConfigError
-from palpate.inputs import MAX_RATE, bounded
+from palpate.inputs import MAX_COORDINATE_M, MAX_RATE, bounded
 from palpate.messages import codec, topics
 from palpate.messages.schemas import (
     CartesianVelocityCommand,
@@ -99,6 +99,13 @@ class SimNode:
         if tick.first:
             self._publish_object()
         self._publish_state(tick)
+        x, y, z = tick.position_m.tolist()
+        if not max(abs(x), abs(y), abs(z)) <= MAX_COORDINATE_M:  # its poses are useless to every other node
+            self.ctx.request_stop(
+                f"the effector left the world: it is at ({x:.6g}, {y:.6g}, {z:.6g}) m, beyond {MAX_COORDINATE_M:g} m "
+                "of the origin; check the velocity commands",
+                failed=True,
+            )
         return tick.stamp_ns
 
     def on_tick(self, stamp_ns: int) -> None:

@@ -235,6 +235,7 @@ class NodeRunner:
         self.seq = 0
         self.acks: dict[str, int] = {}
         self.clock_ticks: deque[Clock] = deque()
+        self._bad_by_topic: dict[str, int] = {}  # payloads rejected per topic (their log lines are throttled)
         self.last_clock = -1  # the last Clock tick received
         self.backward = set(process.backward_upstream)
         self.stopping = False
@@ -316,19 +317,23 @@ class NodeRunner:
         topic = bytes(frames[0].buffer).decode(errors="replace")
         payload = frames[1].buffer
         if topic == topics.CLOCK:
-            clock = self._decode_internal(topic, payload, Clock)
-            if clock is not None:
+            clock = self._decode(topic, payload, Clock)
+            if clock is not None and self.lockstep and clock.tick <= self.last_clock:
+                self._bad_input(topic, f"Clock tick {clock.tick} repeats or goes back (last {self.last_clock})")
+            elif clock is not None:
                 self.clock_ticks.append(clock)
                 self.last_clock = max(self.last_clock, clock.tick)
                 if self.timer is not None:
                     self.timer.mark(clock.tick, "clock_received")
         elif topic == topics.LOCKSTEP_ACK:
-            ack = self._decode_internal(topic, payload, LockstepAck)
+            ack = self._decode(topic, payload, LockstepAck)
             if ack is not None:
                 self.acks[ack.node] = max(ack.tick, self.acks.get(ack.node, -2))
         elif topic == STOP_TOPIC:
-            control = self._decode_internal(topic, payload, RunControl)
-            if control is not None:
+            control = self._decode(topic, payload, RunControl)
+            if control is not None and control.command != "stop":
+                self._bad_input(topic, f"unknown RunControl command {control.command!r}; known: 'stop'")
+            elif control is not None:
                 self.stopping = True
                 self.stop_reason = self.stop_reason or control.reason
         elif topic in self.input_types:
@@ -347,16 +352,21 @@ class NodeRunner:
         tick = self.last_clock + 1 if publisher == self.process.clock_name else self.acks.get(publisher, -1) + 1
         return tick + 1 if publisher in self.backward else tick
 
-    def _decode_internal(self, topic: str, payload: Any, cls: type[Message]) -> Any:
+    def _decode(self, topic: str, payload: Any, cls: type[Message]) -> Any:
+        """The message in `payload`, or None after counting and logging why it is unusable."""
         try:
             return codec.decode(payload, cls)
         except MessageError as exc:
             self._bad_input(topic, str(exc))
-            return None
+        except Exception as exc:  # a codec fault must not end the node either: count it like bad input
+            self._bad_input(topic, f"undecodable payload ({type(exc).__name__}: {exc})")
+        return None
 
     def _bad_input(self, topic: str, reason: str) -> None:
+        """Count a payload this node could not use in `decode_errors`; per topic the first 10 are logged,
+        then every 100th, each with the topic's running count."""
         self.ctx.counters["decode_errors"] += 1
-        n = self.ctx.counters["decode_errors"]
+        n = self._bad_by_topic[topic] = self._bad_by_topic.get(topic, 0) + 1
         if n <= _LOG_FIRST_ERRORS or n % 100 == 0:
             log.warning("node %s, topic %s: rejected message (%d so far): %s", self.process.name, topic, n, reason)
 
@@ -375,10 +385,8 @@ class NodeRunner:
         if latest_only:
             batch = _latest_state_messages(batch, self.input_types)
         for _, _, _, topic, payload in batch:
-            try:
-                message = codec.decode(payload, self.input_types[topic])
-            except MessageError as exc:
-                self._bad_input(topic, str(exc))
+            message = self._decode(topic, payload, self.input_types[topic])
+            if message is None:
                 continue
             self.ctx.counters["messages_in"] += 1
             deliver(self.ctx, self.node, self.port_of_topic[topic], topic, message)
@@ -510,11 +518,13 @@ class NodeRunner:
         timer = self.timer
         while not self.interrupted:
             if self.lockstep:
-                if not self._ready(tick):
+                due = self._due_tick(tick)
+                if due is None:
                     if self.stopping and not self.clock_ticks:
                         break
                     self._receive(100)
                     continue
+                tick = due
                 if timer is not None:
                     timer.tick = tick
                     timer.mark(tick, "ready")
@@ -544,12 +554,20 @@ class NodeRunner:
                 if self.stopping:
                     break
 
-    def _ready(self, tick: int) -> bool:
-        if not self.clock_ticks or self.clock_ticks[0].tick != tick:
-            return False
-        forward = all(self.acks.get(n, -2) >= tick for n in self.process.forward_upstream)
-        backward = all(self.acks.get(n, -2) >= tick - 1 for n in self.process.backward_upstream)
-        return forward and backward
+    def _due_tick(self, tick: int) -> int | None:
+        """The tick to run now (lockstep): `tick`, or a later one the clock source skipped to (counted in
+        `clock_skips`); None until its Clock and the upstream nodes' acknowledgements are in."""
+        if not self.clock_ticks:
+            return None
+        due = self.clock_ticks[0].tick
+        forward = all(self.acks.get(n, -2) >= due for n in self.process.forward_upstream)
+        backward = all(self.acks.get(n, -2) >= due - 1 for n in self.process.backward_upstream)
+        if not (forward and backward):
+            return None
+        if due > tick:
+            self.ctx.count("clock_skips")
+            log.warning("node %s: the clock skipped from tick %d to %d", self.process.name, tick, due)
+        return due
 
     def _after_tick(self) -> None:
         if self.ctx.stop_requested:

@@ -265,3 +265,31 @@ def test_a_node_process_survives_the_fuzzer_and_counts_what_it_refused(tmp_path:
     out = text(node.log)
     assert f"node {node_type}, topic " in out and ": input rejected, field " in out
     assert "Traceback" not in out
+
+
+def test_crafted_payloads_repeated_clocks_and_unknown_commands_leave_the_node_running(tmp_path: Path) -> None:
+    """Found by an outside fuzzer: an array shape of msgpack `true` (a bool is no int), a Clock of a tick
+    already run, and a RunControl that is not "stop" are counted decode errors, and the node goes on;
+    the log's throttle counts per topic, so a burst on one topic does not hide another's first error."""
+    payload = codec.encode(contacts(3))
+    assert payload.count(b"\xa5shape\x91\x03") == 1  # forces_n's shape [3]
+    with contact_stats_node(tmp_path) as node:
+        node.send(topics.GRAPH_CONTROL, codec.encode(RunControl(stamp_ns=0, command="status?", reason="")))
+        for _ in range(11):
+            node.send(topics.GRAPH_CONTROL, b"\x00garbage")
+        node.send(STATS_INPUT, payload.replace(b"\xa5shape\x91\x03", b"\xa5shape\x91\xc3"))
+        node.tick(0)
+        node.send(topics.CLOCK, codec.encode(Clock(stamp_ns=0, tick=0, period_ns=10_000_000, lockstep=True)))
+        node.send(STATS_INPUT, payload)
+        node.tick(1)
+        node.tick(2)
+        assert node.proc.poll() is None, f"the node stopped:\n{text(node.log)}"
+        assert node.stop() == 0
+    finished = node.statuses[-1]
+    assert finished.state == "finished"
+    assert counters(finished)["decode_errors"] == 1 + 11 + 1 + 1
+    assert counters(finished)["messages_in"] == 1
+    out = text(node.log)
+    assert "topic sensors/contacts: rejected message (1 so far): ContactSet.forces_n: shape must be a list" in out
+    assert "topic clock: rejected message (1 so far): Clock tick 0 repeats or goes back (last 0)" in out
+    assert "unknown RunControl command 'status?'" in out

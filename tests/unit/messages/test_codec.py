@@ -274,6 +274,42 @@ def test_wrong_version_raises_schema_version_error() -> None:
         codec.decode(payload, ContactSet)
 
 
+def test_a_version_or_an_array_size_that_is_not_an_int_is_rejected() -> None:
+    """msgpack's true and 1.0 equal 1 in Python; the wire says int (an outside fuzzer sent them)."""
+    for version in (True, 1.0):
+        payload = repack(codec.encode(contact_set()), lambda h, b, v=version: h.update(version=v))
+        with pytest.raises(SchemaVersionError, match=f"ContactSet has schema version {version!r}"):
+            codec.decode(payload, ContactSet)
+
+    def bool_shape(header: dict[str, Any], blob: bytes) -> None:
+        header["fields"]["forces_n"]["shape"] = [True]
+        header["fields"]["forces_n"]["nbytes"] = 8
+        header["fields"]["positions_m"]["shape"] = [1, 3]  # the named dimension n agrees
+        header["fields"]["local_positions_m"]["shape"] = [1, 3]
+        header["fields"]["normals"]["shape"] = [1, 3]
+        for name in ("positions_m", "local_positions_m", "normals"):
+            header["fields"][name]["nbytes"] = 24
+        header["fields"]["links"] = ["tip"]
+
+    with pytest.raises(MalformedMessageError, match=r"ContactSet.forces_n: shape must be a list of non-negative ints"):
+        codec.decode(repack(codec.encode(contact_set(3)), bool_shape))
+
+    def float_nbytes(header: dict[str, Any], blob: bytes) -> None:
+        header["fields"]["forces_n"]["nbytes"] = float(header["fields"]["forces_n"]["nbytes"])
+
+    with pytest.raises(MalformedMessageError, match=r"ContactSet.forces_n: data range"):
+        codec.decode(repack(codec.encode(contact_set(3)), float_nbytes))
+
+
+def test_an_int_beyond_the_signed_64_bit_range_is_rejected() -> None:
+    for stamp in (1 << 63, (1 << 64) - 1):
+        payload = repack(codec.encode(contact_set()), lambda h, b, v=stamp: h["fields"].update(stamp_ns=v))
+        with pytest.raises(MalformedMessageError, match=r"ContactSet.stamp_ns must be in the signed 64-bit range"):
+            codec.decode(payload)
+    payload = repack(codec.encode(contact_set()), lambda h, b: h["fields"].update(stamp_ns=(1 << 63) - 1))
+    assert codec.decode(payload).stamp_ns == (1 << 63) - 1
+
+
 def test_other_type_than_expected() -> None:
     with pytest.raises(MalformedMessageError, match="expected a Pose message, got ContactSet"):
         codec.decode(codec.encode(contact_set()), Pose)

@@ -216,6 +216,28 @@ def test_variance_vertices_out_of_range_or_unordered_are_refused_by_name() -> No
     assert planner.planned_for == 0  # refused before anything changed
 
 
+@pytest.mark.parametrize("strategy", ["igef", "gpv", "tour"])
+def test_vertices_without_a_normal_are_no_candidates_and_other_normals_must_be_unit(strategy: str) -> None:
+    """The GPIS node sends a zero normal where the GP's gradient vanishes: such a vertex is left out of
+    the candidates (it was a PlanningError that ended the run); a row neither unit nor zero is refused
+    by name before anything changes."""
+    V, N = plane()
+    N = N.copy()
+    N[np.linalg.norm(V, axis=1) < 0.03] = 0.0  # every vertex near the last contact
+    variance = np.ones(len(V))
+    plan = touched_at_origin(PlannerConfig(strategy=strategy)).plan(
+        "local", 1, V, N, variance, over(np.zeros(3)), np.random.default_rng(0)
+    )
+    assert plan is not None
+    assert np.all(np.linalg.norm(plan.candidates.points_m, axis=1) >= 0.03)
+    np.testing.assert_allclose(np.linalg.norm(plan.candidates.normals, axis=1), 1.0)
+    N[5] = [0.0, 0.0, 0.3]
+    planner = touched_at_origin(PlannerConfig(strategy=strategy))
+    with pytest.raises(InputError, match=r"^vertex_normals: row 5 has norm 0.3, neither 0 nor 1"):
+        planner.plan("local", 1, V, N, variance, over(np.zeros(3)), np.random.default_rng(0))
+    assert planner.planned_for == 0
+
+
 def test_gpv_on_a_mesh_without_variance_names_the_gpis_setting() -> None:
     V, N = plane()
     planner = touched_at_origin(PlannerConfig(strategy="gpv"))

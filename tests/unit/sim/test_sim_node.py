@@ -141,6 +141,22 @@ def test_probe_pressed_down_reports_the_top_face_normal() -> None:
     np.testing.assert_allclose(ctx.of("pose")[-1].position_m[2], 0.025 + 0.008, atol=1e-9)  # resting on it
 
 
+def test_an_effector_sent_beyond_the_world_ends_the_run_naming_it() -> None:
+    """An outside fuzzer held a 999 m/s command (within the input range) until the probe was kilometres
+    away; every other node then refused every pose for good. The simulation ends the run instead."""
+    ctx = FakeCtx()
+    node = _probe_node(ctx, duration_s=2.0)
+    node.step()
+    node.on_velocity(
+        CartesianVelocityCommand(stamp_ns=0, linear_m_s=np.array([0.0, 0.0, 999.0]), angular_rad_s=np.zeros(3))
+    )
+    while not ctx.stop_requested and node.step() is not None:
+        pass
+    assert "the effector left the world" in ctx.stop_requested and "beyond 1000 m" in ctx.stop_requested
+    heights = [p.position_m[2] for p in ctx.of("pose")]
+    assert heights[-2] <= 1e3 < heights[-1]  # it stops at the first pose beyond
+
+
 # --- finger ----------------------------------------------------------------------------------------
 
 FINGER = {"effector": "finger", "object": {"kind": "cube"}}
