@@ -120,6 +120,9 @@ class ExploreEvalNode:
         self.evaluator.close_incomplete()
         self.result = self.evaluator.summary()
         self.result["object"] = self.name
+        stopped_by = self.ctx.run_stopped_by
+        if self.result["finished"] == "clock" and stopped_by and not stopped_by.startswith(FINISHED_PREFIX):
+            self.result.update(finished="stopped", stop_reason=stopped_by)  # another node ended the run
         if self.config.results_path:
             write_json(self.config.results_path, self.result, indent=1)
         if self.config.plot_path:

@@ -474,6 +474,15 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
             stacklevel=3,
         )
         mesh.invert()
+    bodies = int(mesh.body_count)
+    if bodies > 1:
+        warnings.warn(
+            f"{path}: the mesh holds {bodies} separate bodies; a fingertip explores the one it reaches, "
+            "while coverage and shape scores count them all (a body never touched caps the coverage). "
+            "Give each body a file of its own to explore it.",
+            MeshWarning,
+            stacklevel=3,
+        )
     if not mesh.is_watertight:
         warnings.warn(
             f"{path}: mesh is not watertight ({_edge_defects(mesh)}): inside/outside tests and signed "

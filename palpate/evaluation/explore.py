@@ -325,8 +325,6 @@ def run_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH, *, profile
     ticks = graph.run()
     t2, c2 = time.perf_counter(), time.process_time()
     result: dict[str, Any] = dict(graph.node("eval").result)
-    if result.get("finished") == "clock" and stopped_early(graph.stop_reason):
-        result["finished"] = "stopped"  # another node ended the run, not the simulated clock
     result.update(
         object=episode.case.name,
         strategy=episode.strategy,
@@ -582,9 +580,9 @@ def select_cases(folder: Path | None, smallest: int | None = None, scale: float 
         raise ConfigError("no --objects folder given and the YCB meshes are not found (set PALPATE_YCB_DIR)")
     cases = objects_in(Path(folder), scale)
     if smallest is not None:
-        import trimesh
+        from palpate.nodes.sim.objects import read_mesh_file
 
-        areas = {c.name: float(trimesh.load_mesh(c.mesh).area) for c in cases}
+        areas = {c.name: float(read_mesh_file(Path(c.mesh), c.scale).area) for c in cases}
         cases = sorted(cases, key=lambda c: areas[c.name])[:smallest]
     return cases
 

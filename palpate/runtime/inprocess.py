@@ -175,6 +175,8 @@ class InProcessGraph:
             if self.stop_reason:
                 break
         for member in self.members:
+            if member.ctx.stop_requested != self.stop_reason:  # another node ended the run
+                member.ctx.run_stopped_by = self.stop_reason
             close = getattr(member.obj, "close", None)
             if close is not None:
                 close()

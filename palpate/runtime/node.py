@@ -95,6 +95,9 @@ class NodeContext:
         self.metrics: dict[str, float] = {}
         self.timings: dict[str, float] = {}
         self.stop_requested = ""
+        #: Why the run ended when another node ended it (its RunControl reason; "" otherwise), for a node's
+        #: close() to report.
+        self.run_stopped_by = ""
         #: The reason of the first stop this node asked for with ``failed=True`` ("" if none).
         self.failure = ""
         self._send = send
@@ -336,6 +339,7 @@ class NodeRunner:
             elif control is not None:
                 self.stopping = True
                 self.stop_reason = self.stop_reason or control.reason
+                self.ctx.run_stopped_by = self.ctx.run_stopped_by or control.reason
         elif topic in self.input_types:
             self.seq += 1
             rank = self.process.topic_order.get(topic, 1 << 30)

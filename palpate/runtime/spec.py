@@ -52,6 +52,8 @@ class Context(Protocol):
     rng: np.random.Generator
     #: Stamp of the tick being handled, nanoseconds (set by the runtime before each tick's inputs).
     stamp_ns: int
+    #: Why the run ended when another node ended it ("" while it runs, or when this node ended it).
+    run_stopped_by: str
     log: logging.Logger
 
     @property

@@ -124,6 +124,19 @@ def test_two_meshes_of_one_name_are_refused(tmp_path: Path) -> None:
         objects_in(tmp_path)
 
 
+def test_choosing_the_smallest_objects_names_a_mesh_it_cannot_read(tmp_path: Path) -> None:
+    """--quick and sweep explore rank the folder's meshes by area: a corrupt one is a MeshError naming
+    the file, as in a full evaluation (it was trimesh's traceback)."""
+    from palpate.evaluation.explore import select_cases
+
+    trimesh.creation.box(extents=(0.05, 0.05, 0.05)).export(tmp_path / "box.stl")
+    (tmp_path / "broken.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99\n")
+    with pytest.raises(MeshError, match=r"broken\.obj: "):
+        select_cases(tmp_path, smallest=1)
+    (tmp_path / "broken.obj").unlink()
+    assert [c.name for c in select_cases(tmp_path, smallest=1)] == ["box"]
+
+
 def test_a_budget_given_on_the_command_line_is_not_scaled_by_the_object() -> None:
     import argparse
 

@@ -81,6 +81,23 @@ def test_results_without_a_milestone_write_null_not_nan(tmp_path: Path, capsys: 
         assert milestone["reached"] is False and milestone["rmse_mm"] is None and milestone["angle_deg"] is None
 
 
+@pytest.mark.parametrize(
+    ("stopped_by", "finished"),
+    [("planner: no candidate", "stopped"), ("", "clock"), ("exploration finished: goal", "clock")],
+)
+def test_a_run_another_node_ended_is_reported_stopped_with_its_reason(stopped_by: str, finished: str) -> None:
+    """The launch path (the runtime sets run_stopped_by from the RunControl it receives): a run the
+    planner or controller ended said "clock" in explore_result."""
+    ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
+    node = ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx)
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    node.on_truth_object(truth(np.asarray(box.vertices), np.asarray(box.faces)))
+    ctx.run_stopped_by = stopped_by
+    node.close()
+    assert node.result["finished"] == finished
+    assert node.result.get("stop_reason") == (stopped_by if finished == "stopped" else None)
+
+
 def test_a_repeated_truth_keeps_the_records_and_another_object_is_refused() -> None:
     ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
     node = ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx)

@@ -316,6 +316,15 @@ def test_non_watertight_mesh_warns_what_it_affects(tmp_path: Path) -> None:
     assert not model.watertight
 
 
+def test_a_mesh_of_separate_bodies_warns_that_coverage_counts_them_all(tmp_path: Path) -> None:
+    path = tmp_path / "two.stl"
+    cube = trimesh.creation.box(extents=[0.05, 0.05, 0.05])
+    ball = trimesh.creation.icosphere(radius=0.025).apply_translation([0.1, 0.0, 0.0])
+    trimesh.util.concatenate([cube, ball]).export(path)
+    with pytest.warns(MeshWarning, match=r"two\.stl: the mesh holds 2 separate bodies; .*caps the coverage"):
+        load_object(_mesh_spec(path))
+
+
 def test_inward_wound_mesh_is_inverted_with_a_warning(tmp_path: Path) -> None:
     path = tmp_path / "inside_out.stl"
     box = trimesh.creation.box(extents=[0.1, 0.1, 0.1])
