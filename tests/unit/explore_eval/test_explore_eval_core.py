@@ -88,6 +88,25 @@ def test_a_run_ends_at_the_scaled_contact_budget() -> None:
     assert ev.finished == "contact budget"
 
 
+def test_a_run_whose_touches_add_no_coverage_ends_as_no_progress() -> None:
+    config = EvalConfig(coverage_samples=1000, max_touches_without_gain=3)
+    ev = ExplorationEvaluator(*_cube(0.05), config)
+    down = np.array([-1.0, 0.0, 0.0])
+    ev.add_touch(np.array([0.025, 0.0, 0.0]), np.full(3, np.nan), 0.0, 0.0, down)
+    for k in range(3):  # the same spot again: nothing new
+        assert ev.finished == ""
+        ev.add_touch(np.array([0.025, 0.0, 0.0]), np.full(3, np.nan), 0.01 * k, 0.0, down)
+    assert ev.finished == "no progress"
+    ev = ExplorationEvaluator(*_cube(0.05), config)
+    for y in np.linspace(-0.02, 0.02, 6):  # every touch somewhere new
+        ev.add_touch(np.array([0.025, y, 0.0]), np.full(3, np.nan), 0.0, 0.0, down)
+    assert ev.finished == ""
+    unlimited = ExplorationEvaluator(*_cube(0.05), EvalConfig(coverage_samples=1000, max_touches_without_gain=0))
+    for _ in range(6):
+        unlimited.add_touch(np.array([0.025, 0.0, 0.0]), np.full(3, np.nan), 0.0, 0.0, down)
+    assert unlimited.finished == ""
+
+
 def test_shape_scores_of_the_estimate_join_the_series_and_the_milestone() -> None:
     V, F = _cube(0.05)
     ev = ExplorationEvaluator(V, F, EvalConfig(coverage_samples=1000, shape_samples=2000))
