@@ -423,6 +423,10 @@ def read_mesh_file(path: Path, scale: float = 1.0) -> trimesh.Trimesh:
         )
     if not np.all(np.isfinite(vertices)):
         raise MeshError(f"{path}: degenerate mesh: some vertices are NaN or infinite; repair or re-export it")
+    used = faces[((faces >= 0) & (faces < len(vertices))).all(axis=1)].ravel()
+    size = float(np.ptp(vertices[used], axis=0).max()) * scale if len(used) else 0.0
+    if size > MAX_EXTENT_M:  # checked before trimesh merges vertices, which overflows near 1e30
+        _check_scale(size, path, scale)
     mesh = trimesh.Trimesh(vertices * scale, faces, process=True)
     mesh.update_faces(mesh.nondegenerate_faces())
     unique = mesh.unique_faces()
@@ -440,6 +444,20 @@ def read_mesh_file(path: Path, scale: float = 1.0) -> trimesh.Trimesh:
     return mesh
 
 
+def _check_scale(size: float, path: Path, scale: float) -> None:
+    """MeshError when a mesh `size` metres across (after `scale`) is absurd: millimetres as metres or the reverse."""
+    if MIN_EXTENT_M <= size <= MAX_EXTENT_M:
+        return
+    limit = "over 2 m" if size > MAX_EXTENT_M else "under 2 mm"
+    fix = np.format_float_positional(scale * (0.001 if size > MAX_EXTENT_M else 1000.0), trim="-")
+    raise MeshError(
+        f"{path}: absurd scale: the mesh is {size:.6g} m across after scale {scale:g} ({limit}); "
+        f"millimetres given as metres or the reverse? Give it a scale of {fix}: object.scale in a "
+        f"scene, scale:={fix} for launch/explore.yaml and launch/probe.yaml, --scale {fix} for "
+        "palpate eval explore and sweep explore (or convert the file to metres)"
+    )
+
+
 def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
     """Degenerate, absurd-scale, inverted and non-watertight checks of a freshly read mesh."""
     if len(mesh.faces) == 0 or mesh.area <= 0.0:
@@ -448,15 +466,7 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
         )
     extents = np.asarray(mesh.extents, dtype=np.float64)
     size = float(extents.max())
-    if size > MAX_EXTENT_M or size < MIN_EXTENT_M:
-        limit = "over 2 m" if size > MAX_EXTENT_M else "under 2 mm"
-        fix = np.format_float_positional(scale * (0.001 if size > MAX_EXTENT_M else 1000.0), trim="-")
-        raise MeshError(
-            f"{path}: absurd scale: the mesh is {size:.6g} m across after scale {scale:g} ({limit}); "
-            f"millimetres given as metres or the reverse? Give it a scale of {fix}: object.scale in a "
-            f"scene, scale:={fix} for launch/explore.yaml and launch/probe.yaml, --scale {fix} for "
-            "palpate eval explore and sweep explore (or convert the file to metres)"
-        )
+    _check_scale(size, path, scale)
     if mesh.is_watertight and not mesh.is_winding_consistent:
         _rewind(mesh, path)
     volume = float(mesh.volume) if mesh.is_watertight else 0.0

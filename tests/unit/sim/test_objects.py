@@ -305,6 +305,16 @@ def test_absurd_scale(tmp_path: Path, extent: float, scale: float, fragment: str
     assert "big.stl: absurd scale" in str(info.value)
 
 
+def test_coordinates_near_1e30_are_an_absurd_scale_not_a_degenerate_mesh(tmp_path: Path) -> None:
+    """trimesh's vertex merge overflowed first, and the mesh was called degenerate (an outside audit)."""
+    path = tmp_path / "huge.obj"
+    box = trimesh.creation.box(extents=[1.0, 1.0, 1.0])
+    lines = [f"v {x:.6e} {y:.6e} {z:.6e}" for x, y, z in box.vertices * 1e30]
+    path.write_text("\n".join(lines + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in box.faces]) + "\n")
+    with pytest.raises(MeshError, match=r"huge\.obj: absurd scale: the mesh is 1e\+30 m across"):
+        load_object(_mesh_spec(path))
+
+
 def test_non_watertight_mesh_warns_what_it_affects(tmp_path: Path) -> None:
     path = tmp_path / "open_box.stl"
     box = trimesh.creation.box(extents=[0.1, 0.1, 0.1])
