@@ -227,7 +227,7 @@ def _sequence(top: dict[str, tuple[yaml.Node, yaml.Node]], key: str, name: str) 
 def _plain(node: yaml.Node, name: str, args: Mapping[str, Any]) -> Any:
     """Construct Python data from a YAML node, substituting `${arg}` in strings."""
     if isinstance(node, yaml.MappingNode):
-        return {str(k.value): _plain(v, name, args) for k, v in node.value}
+        return {key: _plain(v, name, args) for key, (_, v) in _mapping_items(node, name).items()}
     if isinstance(node, yaml.SequenceNode):
         return [_plain(v, name, args) for v in node.value]
     value = _CONSTRUCTOR.construct_object(node)

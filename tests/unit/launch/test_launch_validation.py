@@ -90,6 +90,8 @@ BAD = [
     ("placement_realtime.yaml", [], "placement 'loop' needs mode lockstep (mode is realtime)"),
     ("bad_flag.yaml", [], "respawn must be true or false, got 'yes'"),
     ("unknown_substitution.yaml", [], "unknown argument ${edge}"),
+    ("duplicate_param.yaml", [], "duplicate key 'effector'"),
+    ("duplicate_arg.yaml", [], "duplicate key 'duration_s'"),
     ("with_args.yaml", ["x:=1"], "unknown launch argument 'x'"),
     ("include_missing.yaml", [], "included launch file tests/data/launch/does_not_exist.yaml does not exist"),
     ("include_cycle_a.yaml", [], "include cycle: tests/data/launch/include_cycle_a.yaml -> "),
