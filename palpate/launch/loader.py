@@ -97,10 +97,11 @@ def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any
 
 def load_launch(path: str | Path, overrides: Mapping[str, Any] | None = None) -> LaunchFile:
     """Read a launch file, substitute arguments, and expand includes (depth-first, in order)."""
-    return _load(Path(path), dict(overrides or {}), stack=())
+    return _load(Path(path), dict(overrides or {}), stack=(), sites={})
 
 
-def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> LaunchFile:
+def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites: Mapping[str, Where]) -> LaunchFile:
+    """`sites`: where an include set each of `overrides` (empty for the top file's)."""
     path = path.resolve()
     if path in stack:
         raise LaunchError(f"{path}: include cycle: {' -> '.join(str(p) for p in (*stack, path))}")
@@ -126,7 +127,11 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> Lau
         raise LaunchError(f"{name}:{top['args'][1].start_mark.line + 1}: 'args' must be a mapping name: default")
     args = {**declared, **{k: v for k, v in overrides.items()}}
     unknown_args = [k for k in overrides if k not in declared]
-    if unknown_args and not stack:
+    if unknown_args and unknown_args[0] in sites:
+        raise LaunchError(
+            f"{sites[unknown_args[0]]}: {name} has no argument {unknown_args[0]!r}; it declares: {sorted(declared)}"
+        )
+    if unknown_args:
         args_line = top["args"][0].start_mark.line + 1 if "args" in top else 1
         raise LaunchError(
             f"{name}:{args_line}: unknown launch argument {unknown_args[0]!r}; declared: {sorted(declared)}"
@@ -167,8 +172,8 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> Lau
             raise LaunchError(f"{site}: include cycle: {chain}")
         if not target.is_file():
             raise LaunchError(f"{site}: included launch file {_display(target)} does not exist")
-        include_args = _plain(items["args"][1], name, args) if "args" in items else {}
-        nodes.extend(_load(target, dict(include_args), (*stack, path)).nodes)
+        include_args, include_sites = _include_args(items, name, args)
+        nodes.extend(_load(target, include_args, (*stack, path), include_sites).nodes)
     for entry in _sequence(top, "nodes", name):
         nodes.append(_node_entry(entry, name, args))
     return LaunchFile(
@@ -180,6 +185,19 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> Lau
         description=str(value("description", "")),
         placement=placement,
     )
+
+
+def _include_args(
+    items: dict[str, tuple[yaml.Node, yaml.Node]], name: str, args: Mapping[str, Any]
+) -> tuple[dict[str, Any], dict[str, Where]]:
+    """The `args` of an include and the line of each."""
+    if "args" not in items:
+        return {}, {}
+    node = items["args"][1]
+    if not isinstance(node, yaml.MappingNode):
+        raise LaunchError(f"{name}:{node.start_mark.line + 1}: an include's 'args' must be a mapping name: value")
+    sites = {key: Where(name, knode.start_mark.line + 1) for key, (knode, _) in _mapping_items(node, name).items()}
+    return _plain(node, name, args), sites
 
 
 def _node_entry(node: yaml.Node, name: str, args: dict[str, Any]) -> NodeEntry:

@@ -96,6 +96,12 @@ BAD = [
     ("include_missing.yaml", [], "included launch file tests/data/launch/does_not_exist.yaml does not exist"),
     ("include_cycle_a.yaml", [], "include cycle: tests/data/launch/include_cycle_a.yaml -> "),
     (
+        "include_unknown_arg.yaml",
+        [],
+        "tests/data/launch/include_child.yaml has no argument 'reprot'; it declares: ['ns', 'report']",
+    ),
+    ("include_args_list.yaml", [], "an include's 'args' must be a mapping name: value"),
+    (
         "mount_not_the_sims.yaml",
         [],
         "node 'mapper' and node 'sim' (tests/data/launch/mount_not_the_sims.yaml:7) disagree on hand_mount: "
