@@ -17,6 +17,15 @@ from palpate.config import KeyPath, key_lines, line_at
 from palpate.errors import LaunchError
 from palpate.launch.placement import PLACEMENTS
 
+
+class _Loader(yaml.SafeLoader):
+    """YAML 1.1 as PyYAML reads it, plus the floats of YAML 1.2 without a dot or an exponent sign (`1e3`,
+    `1.0e400`), which 1.1 reads as strings."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*(\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789")
+)
 _CONSTRUCTOR = yaml.constructor.SafeConstructor()
 _ARG = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
 
@@ -91,7 +100,14 @@ def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any
         name, sep, value = item.partition(separator)
         if not sep or not name:
             raise LaunchError(f"launch argument {item!r} must look like name{separator}value")
-        out[name] = yaml.safe_load(value) if value else ""
+        try:
+            out[name] = yaml.load(value, Loader=_Loader) if value else ""
+        except yaml.YAMLError as exc:
+            problem = getattr(exc, "problem", None) or exc
+            raise LaunchError(
+                f"launch argument {item!r} from the command line: its value is not valid YAML ({problem}); "
+                "quote it to pass text"
+            ) from exc
     return out
 
 
@@ -111,9 +127,12 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
     except OSError as exc:
         raise LaunchError(f"{name}: cannot read launch file: {exc.strerror}") from exc
     try:
-        root = yaml.compose(text)
-    except yaml.YAMLError as exc:
-        raise LaunchError(f"{name}: invalid YAML: {exc}") from exc
+        root = yaml.compose(text, Loader=_Loader)
+    except yaml.MarkedYAMLError as exc:
+        mark, context = exc.problem_mark, exc.context_mark
+        around = f" ({exc.context} at line {context.line + 1})" if exc.context and context else ""
+        line, column = (mark.line + 1, mark.column + 1) if mark else (1, 1)
+        raise LaunchError(f"{name}:{line}: invalid YAML: {exc.problem} at column {column}{around}") from exc
     if root is None:
         raise LaunchError(f"{name}:1: empty launch file: it needs at least a 'nodes' list")
     if not isinstance(root, yaml.MappingNode):
@@ -248,7 +267,11 @@ def _plain(node: yaml.Node, name: str, args: Mapping[str, Any]) -> Any:
         return {key: _plain(v, name, args) for key, (_, v) in _mapping_items(node, name).items()}
     if isinstance(node, yaml.SequenceNode):
         return [_plain(v, name, args) for v in node.value]
-    value = _CONSTRUCTOR.construct_object(node)
+    try:
+        value = _CONSTRUCTOR.construct_object(node)
+    except (yaml.YAMLError, ValueError) as exc:  # an unknown tag (`!foo x`), an impossible date
+        problem = getattr(exc, "problem", None) or exc
+        raise LaunchError(f"{name}:{node.start_mark.line + 1}: cannot read {node.value!r}: {problem}") from exc
     if isinstance(value, str) and "${" in value:
         return _substitute(value, Where(name, node.start_mark.line + 1), args)
     return value

@@ -90,6 +90,11 @@ BAD = [
     ("placement_realtime.yaml", [], "placement 'loop' needs mode lockstep (mode is realtime)"),
     ("bad_flag.yaml", [], "respawn must be true or false, got 'yes'"),
     ("unknown_substitution.yaml", [], "unknown argument ${edge}"),
+    (
+        "yaml_syntax.yaml",
+        [],
+        "invalid YAML: expected ',' or '}', but got ':' at column 12 (while parsing a flow mapping at line 5)",
+    ),
     ("duplicate_param.yaml", [], "duplicate key 'effector'"),
     ("duplicate_arg.yaml", [], "duplicate key 'duration_s'"),
     ("with_args.yaml", ["x:=1"], "unknown launch argument 'x'"),
@@ -219,6 +224,16 @@ def test_parse_cli_args() -> None:
     }
     with pytest.raises(LaunchError, match="must look like name:=value"):
         parse_cli_args(["a=1"])
+    # YAML 1.2's floats too, which YAML 1.1 reads as text
+    assert parse_cli_args(["a:=1e3", "b:=-2.5E-3", "c:=1.0e400"]) == {"a": 1000.0, "b": -0.0025, "c": float("inf")}
+
+
+def test_a_bad_value_on_the_command_line_is_an_error_saying_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["launch", "--dry-run", str(DATA / "with_args.yaml"), "edge_m:=[", "--bus", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "launch argument 'edge_m:=[' from the command line: its value is not valid YAML" in err, err
 
 
 def test_arguments_may_follow_options_in_any_order(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
