@@ -8,6 +8,8 @@ mounted where the simulator's finger is not). Each error names the file, the lin
 
 from __future__ import annotations
 
+import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +24,8 @@ from palpate.runtime import bus
 from palpate.runtime.spec import TRAIL_TICKS, NodeProcessSpec, NodeSpec
 
 _SHARED_TOPICS = {topics.NODE_STATUS, topics.GRAPH_CONTROL}
+#: A node name: it names the node's socket file in the bus directory, so no '/', '..' or ''.
+_NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
 
 
 @dataclass
@@ -202,6 +206,11 @@ def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
     for key, kind in (("name", str), ("type", str), ("namespace", str), ("host", str)):
         if key in f and not isinstance(f[key], kind):
             raise LaunchError(f"{entry.at(key)}: {key} must be a string, got {f[key]!r}")
+    if not _NODE_NAME.fullmatch(name):
+        raise LaunchError(
+            f"{entry.at('name')}: node name {name!r} must be letters, digits, '_' and '-', starting with a letter "
+            "or '_' (it names the node's socket file)"
+        )
     try:
         spec = load_node_type(node_type)
     except LaunchError as exc:
@@ -395,8 +404,8 @@ def _number(entry: NodeEntry, key: str, default: Any, kind: type) -> Any:
     value = entry.fields.get(key, default)
     if isinstance(value, bool) or not isinstance(value, int | float) or (kind is int and not isinstance(value, int)):
         raise LaunchError(f"{entry.at(key)}: {key} must be a{'n integer' if kind is int else ' number'}, got {value!r}")
-    if value < 0:
-        raise LaunchError(f"{entry.at(key)}: {key} must not be negative, got {value!r}")
+    if not math.isfinite(value) or value < 0:
+        raise LaunchError(f"{entry.at(key)}: {key} must be finite and not negative, got {value!r}")
     return kind(value)
 
 

@@ -365,7 +365,10 @@ nodes:
 @pytest.mark.parametrize(
     ("line", "expected"),
     [
-        ("max_restarts: -1", "max_restarts must not be negative"),
+        ("max_restarts: -1", "max_restarts must be finite and not negative"),
+        ("sigterm_timeout_s: .nan", "sigterm_timeout_s must be finite and not negative, got nan"),
+        ("sigterm_timeout_s: .inf", "sigterm_timeout_s must be finite and not negative, got inf"),
+        ("sigterm_timeout_s: 1e400", "sigterm_timeout_s must be finite and not negative, got inf"),
         ("max_restarts: 1.5", "max_restarts must be an integer"),
         ("sigterm_timeout_s: soon", "sigterm_timeout_s must be a number"),
         ("host: 7", "host must be a string"),
@@ -377,6 +380,15 @@ def test_bad_node_option_values(line: str, expected: str, tmp_path: Path) -> Non
     path.write_text(f"nodes:\n  - name: cube\n    type: cube_contacts\n    {line}\n")
     with pytest.raises(LaunchError, match=rf"^{path}:4: {expected}"):
         load(path, tmp_path)
+
+
+@pytest.mark.parametrize("name", ["st/ats", "../stats", "", "-x", "a b", "stats.pub"])
+def test_a_node_name_is_a_safe_file_name(name: str, tmp_path: Path) -> None:
+    path = tmp_path / "name.yaml"
+    path.write_text(f"nodes:\n  - type: cube_contacts\n    name: {name!r}\n")
+    with pytest.raises(LaunchError, match=rf"^{path}:3: node name {re.escape(repr(name))} must be letters, digits"):
+        load(path, tmp_path)
+    assert list(tmp_path.iterdir()) == [path]
 
 
 def test_lockstep_graph_needs_a_clock_source(tmp_path: Path) -> None:
