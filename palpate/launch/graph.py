@@ -185,12 +185,20 @@ def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
     """Validate `launch` and resolve its graph, or raise LaunchError naming file, line and key."""
     bus_dir = bus_dir or bus.default_bus_dir()
     names: dict[str, Where] = {}
+    endpoints: dict[str, GraphNode] = {}
     nodes = []
     for index, entry in enumerate(launch.nodes):
         node = _resolve_node(entry, index, bus_dir)
         if node.name in names:
             raise LaunchError(f"{entry.at('name')}: node name {node.name!r} is already used at {names[node.name]}")
+        if node.endpoint in endpoints:
+            other = endpoints[node.endpoint]
+            raise LaunchError(
+                f"{entry.at('port')}: node {node.name!r} binds {node.endpoint}, as node {other.name!r} "
+                f"({other.entry.at('port')}) does; give one of them another port"
+            )
         names[node.name] = entry.at("name")
+        endpoints[node.endpoint] = node
         nodes.append(node)
     graph = Graph(source=launch, nodes=nodes, bus_dir=bus_dir, mode=launch.mode, seed=launch.seed)
     _check_wiring(graph)
@@ -242,8 +250,15 @@ def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
         return f"{namespace}/{topic}"
 
     host = f.get("host")
+    if "port" in f and not host:
+        raise LaunchError(f"{entry.at('port')}: port needs a host; without one the node publishes over ipc")
     port_number = f.get("port", 5600 + index)
-    endpoint = f"tcp://{host}:{port_number}" if host else bus.ipc_endpoint(bus_dir, name)
+    if isinstance(port_number, bool) or not isinstance(port_number, int) or not 0 < port_number < 65536:
+        raise LaunchError(f"{entry.at('port')}: port must be an integer from 1 to 65535, got {port_number!r}")
+    try:
+        endpoint = f"tcp://{host}:{port_number}" if host else bus.ipc_endpoint(bus_dir, name)
+    except BusError as exc:
+        raise LaunchError(f"{entry.at('name')}: node {name!r}: {exc}") from exc
     node = GraphNode(
         name=name,
         type=node_type,

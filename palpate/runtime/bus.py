@@ -104,8 +104,15 @@ def remove_ipc_file(endpoint: str) -> None:
 
 
 def ipc_endpoint(bus_dir: str | Path, name: str) -> str:
-    """The loopback-only ipc address of a publisher called `name`."""
-    return f"ipc://{Path(bus_dir) / name}.pub"
+    """The loopback-only ipc address of a publisher called `name`; BusError if the OS cannot bind it (the
+    path is longer than ``zmq.IPC_PATH_MAX_LEN``, 107 bytes on Linux)."""
+    path = Path(bus_dir) / f"{name}.pub"
+    if len(os.fsencode(path)) > zmq.IPC_PATH_MAX_LEN:
+        raise BusError(
+            f"the socket path {path} is {len(os.fsencode(path))} bytes, longer than the {zmq.IPC_PATH_MAX_LEN} the "
+            f"OS allows; choose a shorter bus directory (--bus DIR or ${BUS_ENV})"
+        )
+    return f"ipc://{path}"
 
 
 @dataclass(frozen=True)

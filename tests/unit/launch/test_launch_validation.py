@@ -372,14 +372,48 @@ nodes:
         ("max_restarts: 1.5", "max_restarts must be an integer"),
         ("sigterm_timeout_s: soon", "sigterm_timeout_s must be a number"),
         ("host: 7", "host must be a string"),
+        ("port: 5601", "port needs a host; without one the node publishes over ipc"),
+        ("host: 127.0.0.1\n    port: abc", "port must be an integer from 1 to 65535, got 'abc'"),
+        ("host: 127.0.0.1\n    port: 70000", "port must be an integer from 1 to 65535, got 70000"),
+        ("host: 127.0.0.1\n    port: 0", "port must be an integer from 1 to 65535, got 0"),
         ("curve_keys: /nonexistent/keys.json", "cannot read CurveZMQ key file"),
     ],
 )
 def test_bad_node_option_values(line: str, expected: str, tmp_path: Path) -> None:
     path = tmp_path / "bad.yaml"
     path.write_text(f"nodes:\n  - name: cube\n    type: cube_contacts\n    {line}\n")
-    with pytest.raises(LaunchError, match=rf"^{path}:4: {expected}"):
+    with pytest.raises(LaunchError, match=rf"^{path}:{3 + line.count(chr(10)) + 1}: {expected}"):
         load(path, tmp_path)
+
+
+def test_two_nodes_cannot_bind_one_port(tmp_path: Path) -> None:
+    path = tmp_path / "ports.yaml"
+    path.write_text(
+        "nodes:\n  - name: cube\n    type: cube_contacts\n    host: 127.0.0.1\n    port: 5999\n"
+        "  - name: stats\n    type: contact_stats\n    host: 127.0.0.1\n    port: 5999\n"
+    )
+    expected = rf"^{path}:9: node 'stats' binds tcp://127.0.0.1:5999, as node 'cube' \({path}:5\) does"
+    with pytest.raises(LaunchError, match=expected):
+        load(path, tmp_path)
+    path.write_text(path.read_text().replace("    port: 5999\n", "", 1).replace("5999", "5600"))  # cube's default
+    with pytest.raises(
+        LaunchError, match=rf"^{path}:8: node 'stats' binds tcp://127.0.0.1:5600, as node 'cube' \({path}:2\)"
+    ):
+        load(path, tmp_path)
+
+
+def test_an_ipc_path_too_long_for_the_os_names_the_bus_option(tmp_path: Path) -> None:
+    import zmq
+
+    bus = tmp_path / ("b" * (zmq.IPC_PATH_MAX_LEN - len(f"{tmp_path}//stats.pub") + 1))
+    with pytest.raises(LaunchError) as info:
+        load(DATA / "with_args.yaml", bus)  # BUS/cube.pub is as long as the OS allows, BUS/stats.pub a byte longer
+    message = str(info.value)
+    where = f"{DATA / 'with_args.yaml'}:15"
+    assert message.startswith(
+        f"{where}: node 'stats': the socket path {bus}/stats.pub is {zmq.IPC_PATH_MAX_LEN + 1} bytes, "
+    ), message
+    assert "choose a shorter bus directory (--bus DIR or $PALPATE_BUS)" in message, message
 
 
 @pytest.mark.parametrize("name", ["st/ats", "../stats", "", "-x", "a b", "stats.pub"])
