@@ -183,7 +183,7 @@ class Graph:
 
 def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
     """Validate `launch` and resolve its graph, or raise LaunchError naming file, line and key."""
-    bus_dir = bus_dir or bus.default_bus_dir()
+    bus_dir = bus.usable_dir(bus_dir) if bus_dir else bus.default_bus_dir()
     names: dict[str, Where] = {}
     endpoints: dict[str, GraphNode] = {}
     nodes = []

@@ -152,6 +152,17 @@ def test_cli_reports_a_bad_file_and_starts_nothing(
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_bus_that_is_a_file_is_refused_before_anything_starts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr("palpate.commands.launch.Supervisor", None)  # starting anything would fail
+    file = tmp_path / "file"
+    file.write_text("")
+    for argv in (["launch", "--dry-run"], ["launch"]):
+        assert main([*argv, str(DATA / "with_args.yaml"), "--bus", str(file)]) == 2
+        assert f"palpate launch: bus directory {file} is not a directory; choose" in capsys.readouterr().err
+
+
 def runtime_doc_examples() -> list[tuple[str, str]]:
     """The `$ palpate ...` examples of docs/runtime.md with the output the page shows."""
     text = (REPO_ROOT / "docs" / "runtime.md").read_text()
