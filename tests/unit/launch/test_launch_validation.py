@@ -245,6 +245,14 @@ def test_a_bad_value_on_the_command_line_is_an_error_saying_so(
     assert main(["launch", "--dry-run", str(DATA / "with_args.yaml"), "edge_m:=[", "--bus", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "launch argument 'edge_m:=[' from the command line: its value is not valid YAML" in err, err
+    # a value that is YAML but wrong for the key: the error at the line of ${edge_m} names the override
+    assert main(["launch", "--dry-run", str(DATA / "with_args.yaml"), "edge_m:=wide", "--bus", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "with_args.yaml:14: node 'cube': params.edge_m: expected a finite number > 0, got 'wide'" in err, err
+    assert err.rstrip().endswith(" (from the command line: edge_m:=wide)"), err
+    assert main(["launch", "--dry-run", str(DATA / "with_args.yaml"), "seed:=1e3", "--bus", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "with_args.yaml:8: seed must be an integer, got 1000.0 (from the command line: seed:=1e3)" in err, err
 
 
 def test_arguments_may_follow_options_in_any_order(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
