@@ -47,12 +47,26 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def load_graph(path: Path, overrides: list[str], bus_dir: Path | None, replay: Path | None = None) -> Graph:
-    launch = load_launch(path, parse_cli_args(overrides))
-    if replay is not None:
-        from palpate.record.launch_support import replace_publishers_with_log
+    try:
+        launch = load_launch(path, parse_cli_args(overrides))
+        if replay is not None:
+            from palpate.record.launch_support import replace_publishers_with_log
 
-        launch = replace_publishers_with_log(launch, replay)
-    return resolve(launch, bus_dir=bus_dir)
+            launch = replace_publishers_with_log(launch, replay)
+        return resolve(launch, bus_dir=bus_dir)
+    except LaunchError as exc:
+        raise _from_the_command_line(exc, path, overrides) from exc
+
+
+def _from_the_command_line(exc: LaunchError, path: Path, overrides: list[str]) -> LaunchError:
+    """`exc`, saying which `name:=value` of the command line the line of `path` it names substitutes, if any."""
+    file, _, line = str(exc).partition(": ")[0].rpartition(":")
+    if not line.isdigit() or not file or Path(file).resolve() != path.resolve():
+        return exc
+    lines = path.read_text().splitlines()
+    text = lines[int(line) - 1] if int(line) <= len(lines) else ""  # (an empty file's error names line 1)
+    used = [item for item in overrides if f"${{{item.partition(':=')[0]}}}" in text]
+    return LaunchError(f"{exc} (from the command line: {', '.join(used)})") if used else exc
 
 
 def run_launch(args: argparse.Namespace) -> int:

@@ -8,6 +8,8 @@ mounted where the simulator's finger is not). Each error names the file, the lin
 
 from __future__ import annotations
 
+import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +24,8 @@ from palpate.runtime import bus
 from palpate.runtime.spec import TRAIL_TICKS, NodeProcessSpec, NodeSpec
 
 _SHARED_TOPICS = {topics.NODE_STATUS, topics.GRAPH_CONTROL}
+#: A node name: it names the node's socket file in the bus directory, so no '/', '..' or ''.
+_NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
 
 
 @dataclass
@@ -179,14 +183,22 @@ class Graph:
 
 def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
     """Validate `launch` and resolve its graph, or raise LaunchError naming file, line and key."""
-    bus_dir = bus_dir or bus.default_bus_dir()
+    bus_dir = bus.usable_dir(bus_dir) if bus_dir else bus.default_bus_dir()
     names: dict[str, Where] = {}
+    endpoints: dict[str, GraphNode] = {}
     nodes = []
     for index, entry in enumerate(launch.nodes):
         node = _resolve_node(entry, index, bus_dir)
         if node.name in names:
             raise LaunchError(f"{entry.at('name')}: node name {node.name!r} is already used at {names[node.name]}")
+        if node.endpoint in endpoints:
+            other = endpoints[node.endpoint]
+            raise LaunchError(
+                f"{entry.at('port')}: node {node.name!r} binds {node.endpoint}, as node {other.name!r} "
+                f"({other.entry.at('port')}) does; give one of them another port"
+            )
         names[node.name] = entry.at("name")
+        endpoints[node.endpoint] = node
         nodes.append(node)
     graph = Graph(source=launch, nodes=nodes, bus_dir=bus_dir, mode=launch.mode, seed=launch.seed)
     _check_wiring(graph)
@@ -202,6 +214,11 @@ def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
     for key, kind in (("name", str), ("type", str), ("namespace", str), ("host", str)):
         if key in f and not isinstance(f[key], kind):
             raise LaunchError(f"{entry.at(key)}: {key} must be a string, got {f[key]!r}")
+    if not _NODE_NAME.fullmatch(name):
+        raise LaunchError(
+            f"{entry.at('name')}: node name {name!r} must be letters, digits, '_' and '-', starting with a letter "
+            "or '_' (it names the node's socket file)"
+        )
     try:
         spec = load_node_type(node_type)
     except LaunchError as exc:
@@ -233,8 +250,15 @@ def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
         return f"{namespace}/{topic}"
 
     host = f.get("host")
+    if "port" in f and not host:
+        raise LaunchError(f"{entry.at('port')}: port needs a host; without one the node publishes over ipc")
     port_number = f.get("port", 5600 + index)
-    endpoint = f"tcp://{host}:{port_number}" if host else bus.ipc_endpoint(bus_dir, name)
+    if isinstance(port_number, bool) or not isinstance(port_number, int) or not 0 < port_number < 65536:
+        raise LaunchError(f"{entry.at('port')}: port must be an integer from 1 to 65535, got {port_number!r}")
+    try:
+        endpoint = f"tcp://{host}:{port_number}" if host else bus.ipc_endpoint(bus_dir, name)
+    except BusError as exc:
+        raise LaunchError(f"{entry.at('name')}: node {name!r}: {exc}") from exc
     node = GraphNode(
         name=name,
         type=node_type,
@@ -395,8 +419,8 @@ def _number(entry: NodeEntry, key: str, default: Any, kind: type) -> Any:
     value = entry.fields.get(key, default)
     if isinstance(value, bool) or not isinstance(value, int | float) or (kind is int and not isinstance(value, int)):
         raise LaunchError(f"{entry.at(key)}: {key} must be a{'n integer' if kind is int else ' number'}, got {value!r}")
-    if value < 0:
-        raise LaunchError(f"{entry.at(key)}: {key} must not be negative, got {value!r}")
+    if not math.isfinite(value) or value < 0:
+        raise LaunchError(f"{entry.at(key)}: {key} must be finite and not negative, got {value!r}")
     return kind(value)
 
 

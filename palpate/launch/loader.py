@@ -17,6 +17,15 @@ from palpate.config import KeyPath, key_lines, line_at
 from palpate.errors import LaunchError
 from palpate.launch.placement import PLACEMENTS
 
+
+class _Loader(yaml.SafeLoader):
+    """YAML 1.1 as PyYAML reads it, plus the floats of YAML 1.2 without a dot or an exponent sign (`1e3`,
+    `1.0e400`), which 1.1 reads as strings."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*(\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789")
+)
 _CONSTRUCTOR = yaml.constructor.SafeConstructor()
 _ARG = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
 
@@ -91,16 +100,24 @@ def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any
         name, sep, value = item.partition(separator)
         if not sep or not name:
             raise LaunchError(f"launch argument {item!r} must look like name{separator}value")
-        out[name] = yaml.safe_load(value) if value else ""
+        try:
+            out[name] = yaml.load(value, Loader=_Loader) if value else ""
+        except yaml.YAMLError as exc:
+            problem = getattr(exc, "problem", None) or exc
+            raise LaunchError(
+                f"launch argument {item!r} from the command line: its value is not valid YAML ({problem}); "
+                "quote it to pass text"
+            ) from exc
     return out
 
 
 def load_launch(path: str | Path, overrides: Mapping[str, Any] | None = None) -> LaunchFile:
     """Read a launch file, substitute arguments, and expand includes (depth-first, in order)."""
-    return _load(Path(path), dict(overrides or {}), stack=())
+    return _load(Path(path), dict(overrides or {}), stack=(), sites={})
 
 
-def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> LaunchFile:
+def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites: Mapping[str, Where]) -> LaunchFile:
+    """`sites`: where an include set each of `overrides` (empty for the top file's)."""
     path = path.resolve()
     if path in stack:
         raise LaunchError(f"{path}: include cycle: {' -> '.join(str(p) for p in (*stack, path))}")
@@ -110,9 +127,12 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> Lau
     except OSError as exc:
         raise LaunchError(f"{name}: cannot read launch file: {exc.strerror}") from exc
     try:
-        root = yaml.compose(text)
-    except yaml.YAMLError as exc:
-        raise LaunchError(f"{name}: invalid YAML: {exc}") from exc
+        root = yaml.compose(text, Loader=_Loader)
+    except yaml.MarkedYAMLError as exc:
+        mark, context = exc.problem_mark, exc.context_mark
+        around = f" ({exc.context} at line {context.line + 1})" if exc.context and context else ""
+        line, column = (mark.line + 1, mark.column + 1) if mark else (1, 1)
+        raise LaunchError(f"{name}:{line}: invalid YAML: {exc.problem} at column {column}{around}") from exc
     if root is None:
         raise LaunchError(f"{name}:1: empty launch file: it needs at least a 'nodes' list")
     if not isinstance(root, yaml.MappingNode):
@@ -126,7 +146,11 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> Lau
         raise LaunchError(f"{name}:{top['args'][1].start_mark.line + 1}: 'args' must be a mapping name: default")
     args = {**declared, **{k: v for k, v in overrides.items()}}
     unknown_args = [k for k in overrides if k not in declared]
-    if unknown_args and not stack:
+    if unknown_args and unknown_args[0] in sites:
+        raise LaunchError(
+            f"{sites[unknown_args[0]]}: {name} has no argument {unknown_args[0]!r}; it declares: {sorted(declared)}"
+        )
+    if unknown_args:
         args_line = top["args"][0].start_mark.line + 1 if "args" in top else 1
         raise LaunchError(
             f"{name}:{args_line}: unknown launch argument {unknown_args[0]!r}; declared: {sorted(declared)}"
@@ -167,8 +191,8 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> Lau
             raise LaunchError(f"{site}: include cycle: {chain}")
         if not target.is_file():
             raise LaunchError(f"{site}: included launch file {_display(target)} does not exist")
-        include_args = _plain(items["args"][1], name, args) if "args" in items else {}
-        nodes.extend(_load(target, dict(include_args), (*stack, path)).nodes)
+        include_args, include_sites = _include_args(items, name, args)
+        nodes.extend(_load(target, include_args, (*stack, path), include_sites).nodes)
     for entry in _sequence(top, "nodes", name):
         nodes.append(_node_entry(entry, name, args))
     return LaunchFile(
@@ -180,6 +204,19 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...]) -> Lau
         description=str(value("description", "")),
         placement=placement,
     )
+
+
+def _include_args(
+    items: dict[str, tuple[yaml.Node, yaml.Node]], name: str, args: Mapping[str, Any]
+) -> tuple[dict[str, Any], dict[str, Where]]:
+    """The `args` of an include and the line of each."""
+    if "args" not in items:
+        return {}, {}
+    node = items["args"][1]
+    if not isinstance(node, yaml.MappingNode):
+        raise LaunchError(f"{name}:{node.start_mark.line + 1}: an include's 'args' must be a mapping name: value")
+    sites = {key: Where(name, knode.start_mark.line + 1) for key, (knode, _) in _mapping_items(node, name).items()}
+    return _plain(node, name, args), sites
 
 
 def _node_entry(node: yaml.Node, name: str, args: dict[str, Any]) -> NodeEntry:
@@ -227,10 +264,14 @@ def _sequence(top: dict[str, tuple[yaml.Node, yaml.Node]], key: str, name: str) 
 def _plain(node: yaml.Node, name: str, args: Mapping[str, Any]) -> Any:
     """Construct Python data from a YAML node, substituting `${arg}` in strings."""
     if isinstance(node, yaml.MappingNode):
-        return {str(k.value): _plain(v, name, args) for k, v in node.value}
+        return {key: _plain(v, name, args) for key, (_, v) in _mapping_items(node, name).items()}
     if isinstance(node, yaml.SequenceNode):
         return [_plain(v, name, args) for v in node.value]
-    value = _CONSTRUCTOR.construct_object(node)
+    try:
+        value = _CONSTRUCTOR.construct_object(node)
+    except (yaml.YAMLError, ValueError) as exc:  # an unknown tag (`!foo x`), an impossible date
+        problem = getattr(exc, "problem", None) or exc
+        raise LaunchError(f"{name}:{node.start_mark.line + 1}: cannot read {node.value!r}: {problem}") from exc
     if isinstance(value, str) and "${" in value:
         return _substitute(value, Where(name, node.start_mark.line + 1), args)
     return value

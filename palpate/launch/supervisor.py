@@ -257,6 +257,12 @@ class Supervisor:
 
     def shutdown(self) -> None:
         """SIGTERM every live child, wait its timeout, SIGKILL what is left, reap all."""
+        try:
+            self._stop_children()
+        finally:
+            shutil.rmtree(self.run_dir, ignore_errors=True)
+
+    def _stop_children(self) -> None:
         for path in self.external_specs:
             path.unlink(missing_ok=True)
         live = [c for c in self.children if c.proc is not None and c.proc.poll() is None]
@@ -276,4 +282,3 @@ class Supervisor:
                 pump.join(timeout=1.0)
             # a node that exits cleanly removes its socket file; one that was killed cannot
             bus.remove_ipc_file(child.node.endpoint)
-        shutil.rmtree(self.run_dir, ignore_errors=True)

@@ -55,7 +55,7 @@ def default_bus_dir() -> Path:
     since anyone who can reach the ipc sockets can talk to the graph."""
     configured = os.environ.get(BUS_ENV)
     if configured:
-        path = Path(configured)
+        path = usable_dir(Path(configured))
         path.mkdir(parents=True, exist_ok=True)
         return path
     runtime = os.environ.get(RUNTIME_DIR_ENV)
@@ -65,6 +65,15 @@ def default_bus_dir() -> Path:
         base = Path(tempfile.gettempdir()) / f"palpate-{os.getuid()}"
     path = private_dir(base) / "default"
     path.mkdir(mode=0o700, exist_ok=True)
+    return path
+
+
+def usable_dir(path: Path) -> Path:
+    """`path`, which is a directory or can be made one; else BusError naming the file in the way."""
+    existing = next(p for p in (path, *path.parents) if p.exists())
+    if not existing.is_dir():
+        what = f"bus directory {path}" + (f": {existing}" if existing != path else "")
+        raise BusError(f"{what} is not a directory; choose a bus directory with --bus DIR or ${BUS_ENV}")
     return path
 
 
@@ -100,12 +109,20 @@ def remove_ipc_file(endpoint: str) -> None:
     I/O thread, and not at all when the process exits first); nothing for TCP endpoints."""
     path = ipc_path(endpoint)
     if path is not None:
-        path.unlink(missing_ok=True)
+        with contextlib.suppress(NotADirectoryError):  # no socket file can be there
+            path.unlink(missing_ok=True)
 
 
 def ipc_endpoint(bus_dir: str | Path, name: str) -> str:
-    """The loopback-only ipc address of a publisher called `name`."""
-    return f"ipc://{Path(bus_dir) / name}.pub"
+    """The loopback-only ipc address of a publisher called `name`; BusError if the OS cannot bind it (the
+    path is longer than ``zmq.IPC_PATH_MAX_LEN``, 107 bytes on Linux)."""
+    path = Path(bus_dir) / f"{name}.pub"
+    if len(os.fsencode(path)) > zmq.IPC_PATH_MAX_LEN:
+        raise BusError(
+            f"the socket path {path} is {len(os.fsencode(path))} bytes, longer than the {zmq.IPC_PATH_MAX_LEN} the "
+            f"OS allows; choose a shorter bus directory (--bus DIR or ${BUS_ENV})"
+        )
+    return f"ipc://{path}"
 
 
 @dataclass(frozen=True)

@@ -90,9 +90,22 @@ BAD = [
     ("placement_realtime.yaml", [], "placement 'loop' needs mode lockstep (mode is realtime)"),
     ("bad_flag.yaml", [], "respawn must be true or false, got 'yes'"),
     ("unknown_substitution.yaml", [], "unknown argument ${edge}"),
+    (
+        "yaml_syntax.yaml",
+        [],
+        "invalid YAML: expected ',' or '}', but got ':' at column 12 (while parsing a flow mapping at line 5)",
+    ),
+    ("duplicate_param.yaml", [], "duplicate key 'effector'"),
+    ("duplicate_arg.yaml", [], "duplicate key 'duration_s'"),
     ("with_args.yaml", ["x:=1"], "unknown launch argument 'x'"),
     ("include_missing.yaml", [], "included launch file tests/data/launch/does_not_exist.yaml does not exist"),
     ("include_cycle_a.yaml", [], "include cycle: tests/data/launch/include_cycle_a.yaml -> "),
+    (
+        "include_unknown_arg.yaml",
+        [],
+        "tests/data/launch/include_child.yaml has no argument 'reprot'; it declares: ['ns', 'report']",
+    ),
+    ("include_args_list.yaml", [], "an include's 'args' must be a mapping name: value"),
     (
         "mount_not_the_sims.yaml",
         [],
@@ -137,6 +150,17 @@ def test_cli_reports_a_bad_file_and_starts_nothing(
     assert f"palpate launch: {marked_line('type_mismatch.yaml')}: type mismatch on 'sensors/contacts'" in err
     assert started == []
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_bus_that_is_a_file_is_refused_before_anything_starts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr("palpate.commands.launch.Supervisor", None)  # starting anything would fail
+    file = tmp_path / "file"
+    file.write_text("")
+    for argv in (["launch", "--dry-run"], ["launch"]):
+        assert main([*argv, str(DATA / "with_args.yaml"), "--bus", str(file)]) == 2
+        assert f"palpate launch: bus directory {file} is not a directory; choose" in capsys.readouterr().err
 
 
 def runtime_doc_examples() -> list[tuple[str, str]]:
@@ -211,6 +235,24 @@ def test_parse_cli_args() -> None:
     }
     with pytest.raises(LaunchError, match="must look like name:=value"):
         parse_cli_args(["a=1"])
+    # YAML 1.2's floats too, which YAML 1.1 reads as text
+    assert parse_cli_args(["a:=1e3", "b:=-2.5E-3", "c:=1.0e400"]) == {"a": 1000.0, "b": -0.0025, "c": float("inf")}
+
+
+def test_a_bad_value_on_the_command_line_is_an_error_saying_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["launch", "--dry-run", str(DATA / "with_args.yaml"), "edge_m:=[", "--bus", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "launch argument 'edge_m:=[' from the command line: its value is not valid YAML" in err, err
+    # a value that is YAML but wrong for the key: the error at the line of ${edge_m} names the override
+    assert main(["launch", "--dry-run", str(DATA / "with_args.yaml"), "edge_m:=wide", "--bus", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "with_args.yaml:14: node 'cube': params.edge_m: expected a finite number > 0, got 'wide'" in err, err
+    assert err.rstrip().endswith(" (from the command line: edge_m:=wide)"), err
+    assert main(["launch", "--dry-run", str(DATA / "with_args.yaml"), "seed:=1e3", "--bus", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "with_args.yaml:8: seed must be an integer, got 1000.0 (from the command line: seed:=1e3)" in err, err
 
 
 def test_arguments_may_follow_options_in_any_order(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -342,18 +384,64 @@ nodes:
 @pytest.mark.parametrize(
     ("line", "expected"),
     [
-        ("max_restarts: -1", "max_restarts must not be negative"),
+        ("max_restarts: -1", "max_restarts must be finite and not negative"),
+        ("sigterm_timeout_s: .nan", "sigterm_timeout_s must be finite and not negative, got nan"),
+        ("sigterm_timeout_s: .inf", "sigterm_timeout_s must be finite and not negative, got inf"),
+        ("sigterm_timeout_s: 1e400", "sigterm_timeout_s must be finite and not negative, got inf"),
         ("max_restarts: 1.5", "max_restarts must be an integer"),
         ("sigterm_timeout_s: soon", "sigterm_timeout_s must be a number"),
         ("host: 7", "host must be a string"),
+        ("port: 5601", "port needs a host; without one the node publishes over ipc"),
+        ("host: 127.0.0.1\n    port: abc", "port must be an integer from 1 to 65535, got 'abc'"),
+        ("host: 127.0.0.1\n    port: 70000", "port must be an integer from 1 to 65535, got 70000"),
+        ("host: 127.0.0.1\n    port: 0", "port must be an integer from 1 to 65535, got 0"),
         ("curve_keys: /nonexistent/keys.json", "cannot read CurveZMQ key file"),
     ],
 )
 def test_bad_node_option_values(line: str, expected: str, tmp_path: Path) -> None:
     path = tmp_path / "bad.yaml"
     path.write_text(f"nodes:\n  - name: cube\n    type: cube_contacts\n    {line}\n")
-    with pytest.raises(LaunchError, match=rf"^{path}:4: {expected}"):
+    with pytest.raises(LaunchError, match=rf"^{path}:{3 + line.count(chr(10)) + 1}: {expected}"):
         load(path, tmp_path)
+
+
+def test_two_nodes_cannot_bind_one_port(tmp_path: Path) -> None:
+    path = tmp_path / "ports.yaml"
+    path.write_text(
+        "nodes:\n  - name: cube\n    type: cube_contacts\n    host: 127.0.0.1\n    port: 5999\n"
+        "  - name: stats\n    type: contact_stats\n    host: 127.0.0.1\n    port: 5999\n"
+    )
+    expected = rf"^{path}:9: node 'stats' binds tcp://127.0.0.1:5999, as node 'cube' \({path}:5\) does"
+    with pytest.raises(LaunchError, match=expected):
+        load(path, tmp_path)
+    path.write_text(path.read_text().replace("    port: 5999\n", "", 1).replace("5999", "5600"))  # cube's default
+    with pytest.raises(
+        LaunchError, match=rf"^{path}:8: node 'stats' binds tcp://127.0.0.1:5600, as node 'cube' \({path}:2\)"
+    ):
+        load(path, tmp_path)
+
+
+def test_an_ipc_path_too_long_for_the_os_names_the_bus_option(tmp_path: Path) -> None:
+    import zmq
+
+    bus = tmp_path / ("b" * (zmq.IPC_PATH_MAX_LEN - len(f"{tmp_path}//stats.pub") + 1))
+    with pytest.raises(LaunchError) as info:
+        load(DATA / "with_args.yaml", bus)  # BUS/cube.pub is as long as the OS allows, BUS/stats.pub a byte longer
+    message = str(info.value)
+    where = f"{DATA / 'with_args.yaml'}:15"
+    assert message.startswith(
+        f"{where}: node 'stats': the socket path {bus}/stats.pub is {zmq.IPC_PATH_MAX_LEN + 1} bytes, "
+    ), message
+    assert "choose a shorter bus directory (--bus DIR or $PALPATE_BUS)" in message, message
+
+
+@pytest.mark.parametrize("name", ["st/ats", "../stats", "", "-x", "a b", "stats.pub"])
+def test_a_node_name_is_a_safe_file_name(name: str, tmp_path: Path) -> None:
+    path = tmp_path / "name.yaml"
+    path.write_text(f"nodes:\n  - type: cube_contacts\n    name: {name!r}\n")
+    with pytest.raises(LaunchError, match=rf"^{path}:3: node name {re.escape(repr(name))} must be letters, digits"):
+        load(path, tmp_path)
+    assert list(tmp_path.iterdir()) == [path]
 
 
 def test_lockstep_graph_needs_a_clock_source(tmp_path: Path) -> None:

@@ -104,6 +104,20 @@ def test_default_bus_dir_follows_the_environment(tmp_path: Path, monkeypatch: py
     assert bus.ipc_endpoint(tmp_path, "cube") == f"ipc://{tmp_path}/cube.pub"
 
 
+def test_a_file_where_the_bus_directory_should_be_is_refused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    file = tmp_path / "file"
+    file.write_text("")
+    assert bus.usable_dir(tmp_path / "new" / "bus") == tmp_path / "new" / "bus"
+    with pytest.raises(BusError, match=rf"^bus directory {file} is not a directory; choose a bus directory with --bus"):
+        bus.usable_dir(file)
+    with pytest.raises(BusError, match=rf"^bus directory {file}/bus: {file} is not a directory"):
+        bus.usable_dir(file / "bus")
+    monkeypatch.setenv(bus.BUS_ENV, str(file))
+    with pytest.raises(BusError, match=rf"^bus directory {file} is not a directory"):
+        bus.default_bus_dir()
+    bus.remove_ipc_file(bus.ipc_endpoint(file, "cube"))  # nothing to remove: no error either
+
+
 def test_default_bus_dir_is_private_in_the_runtime_dir_or_the_temp_dir(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
