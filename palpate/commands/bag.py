@@ -39,6 +39,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     rec = bsub.add_parser("recover", help="rewrite a truncated log (recorder killed) into a valid one")
     rec.add_argument("file", type=Path)
     rec.add_argument("-o", "--output", type=Path, help="output log (default FILE.recovered.mcap)")
+    rec.add_argument("--force", action="store_true", help="overwrite an existing output log")
     rec.set_defaults(func=run_recover)
     flt = bsub.add_parser("filter", help="copy a log keeping or dropping topics")
     flt.add_argument("file", type=Path)
@@ -85,12 +86,10 @@ def run_info(args: argparse.Namespace) -> int:
 
 def run_recover(args: argparse.Namespace) -> int:
     output = args.output or args.file.with_name(args.file.stem + ".recovered.mcap")
-    report = mcap_io.recover(args.file, output)
+    report = mcap_io.recover(args.file, output, overwrite=args.force)
     state = f"input truncated ({report.reason})" if report.truncated else "input was complete"
     last = f", last stamp {report.last_log_time * 1e-9:.3f} s" if report.last_log_time is not None else ""
     print(f"recovered {report.messages} messages from {report.chunks} chunks into {output}{last}; {state}")
-    if report.messages == 0:
-        raise RecordError(f"{args.file}: no complete chunk to recover")
     return 0
 
 

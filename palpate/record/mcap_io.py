@@ -15,9 +15,11 @@ Layout of a palpate log:
 from __future__ import annotations
 
 import json
+import os
 import struct
 import zlib
 from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -171,7 +173,10 @@ class LogWriter:
         if compression not in COMPRESSIONS:
             raise RecordError(f"unknown compression {compression!r}; choose one of {sorted(COMPRESSIONS)}")
         self.path = Path(path)
-        self._file: IO[bytes] = self.path.open("wb")
+        try:
+            self._file: IO[bytes] = self.path.open("wb")
+        except OSError as exc:
+            raise RecordError(f"cannot write log {str(path)!r}: {exc.strerror}") from exc
         self._writer = Writer(
             self._file,
             chunk_size=chunk_size,
@@ -434,15 +439,19 @@ def copy_records(
     return count
 
 
-def recover(src: str | Path, dst: str | Path, *, compression: str = "zstd") -> RecoverReport:
-    """Write every readable message of a (possibly truncated) log `src` into a valid log `dst`."""
-    if Path(src).resolve() == Path(dst).resolve():
-        raise RecordError(f"recover would overwrite its input {src}; choose another output with -o")
+def recover(src: str | Path, dst: str | Path, *, compression: str = "zstd", overwrite: bool = True) -> RecoverReport:
+    """Write every readable message of a (possibly truncated) log `src` into a valid log `dst`.
+
+    Raises RecordError, leaving `dst` as it was, when `src` holds no complete chunk (or is not MCAP),
+    or when `dst` exists and not `overwrite`."""
     report = RecoverReport()
-    with LogWriter(dst, compression=compression) as out:
+    with _output(src, dst, "recover", overwrite) as partial, LogWriter(partial, compression=compression) as out:
         copy_records(iter_records_tolerant(src, report), out, report=report)
-    if report.truncated and report.chunks == 0 and report.messages == 0 and "InvalidMagic" in report.reason:
-        raise RecordError(f"{src} is not an MCAP file ({report.reason})")
+        if report.truncated and report.chunks == 0 and report.messages == 0 and "InvalidMagic" in report.reason:
+            raise RecordError(f"{src} is not an MCAP file ({report.reason})")
+        if report.messages == 0:
+            reason = f" ({report.reason})" if report.reason else ""
+            raise RecordError(f"{src}: no complete chunk to recover{reason}; wrote nothing")
     return report
 
 
@@ -462,11 +471,33 @@ def copy_log(
         return (included is None or topic in included) and topic not in excluded
 
     report = RecoverReport()
-    with LogWriter(dst, compression=compression) as out:
+    with _output(src, dst, "filter") as partial, LogWriter(partial, compression=compression) as out:
         count = copy_records(iter_records_tolerant(src, report), out, keep=keep)
-    if report.truncated:
-        raise RecordError(f"{src} is truncated ({report.reason}); run `palpate bag recover` first")
+        if report.truncated:
+            raise RecordError(f"{src} is truncated ({report.reason}); run `palpate bag recover {src}` first")
     return count
+
+
+@contextmanager
+def _output(src: str | Path, dst: str | Path, command: str, overwrite: bool = True) -> Iterator[Path]:
+    """Where `command` writes the log it makes of `src`: a file beside `dst` that becomes `dst` only when
+    the block succeeds, so a failure leaves no partial log (and an existing `dst` as it was).
+
+    Refuses a `dst` that is `src` (under any name) and a `src` it cannot open, before creating anything."""
+    src, dst = Path(src), Path(dst)
+    if src.resolve() == dst.resolve() or (src.exists() and dst.exists() and os.path.samefile(src, dst)):
+        raise RecordError(f"{command} would overwrite its input {src}; choose another output with -o")
+    if dst.is_dir():
+        raise RecordError(f"{dst} is a directory; give -o a file name")
+    if dst.exists() and not overwrite:
+        raise RecordError(f"{dst} exists; pass --force to replace it, or choose another output with -o")
+    _open(src).close()
+    partial = dst.with_name(f".{dst.name}.partial")
+    try:
+        yield partial
+        partial.replace(dst)
+    finally:
+        partial.unlink(missing_ok=True)
 
 
 # --- ticks ---------------------------------------------------------------------------------------
