@@ -32,6 +32,7 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Footer, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.summary import Summary
 from mcap.writer import CompressionType, IndexType, Writer
 
 import palpate
@@ -320,13 +321,7 @@ class LogSummary:
 
 def summarize(path: str | Path) -> LogSummary:
     """Counts per topic, types and time span, from the log's summary section (no message is read)."""
-    with _open(path) as stream:
-        try:
-            summary = make_reader(stream).get_summary()
-        except _READ_ERRORS as exc:
-            raise RecordError(
-                f"{path}: not a complete MCAP log ({exc}); if the recorder was killed, run `palpate bag recover {path}`"
-            ) from exc
+    summary = _summary(path)
     if summary is None or summary.statistics is None:
         return _summarize_by_scan(path)
     out = LogSummary()
@@ -357,6 +352,33 @@ def _summarize_by_scan(path: str | Path) -> LogSummary:
 def topic_types(path: str | Path) -> dict[str, str]:
     """Topic -> message type of every channel of a finished log."""
     return summarize(path).types
+
+
+def topic_versions(path: str | Path) -> dict[str, int]:
+    """Topic -> the message version its channel's schema records (``x-palpate-version``), where one does."""
+    summary = _summary(path)
+    if summary is None:
+        return {}
+    versions = {}
+    for channel in summary.channels.values():
+        schema = summary.schemas.get(channel.schema_id)
+        try:
+            recorded = json.loads(schema.data).get("x-palpate-version") if schema is not None else None
+        except (ValueError, AttributeError):  # not palpate's JSON Schema
+            recorded = None
+        if isinstance(recorded, int):
+            versions[channel.topic] = recorded
+    return versions
+
+
+def _summary(path: str | Path) -> Summary | None:
+    with _open(path) as stream:
+        try:
+            return make_reader(stream).get_summary()
+        except _READ_ERRORS as exc:
+            raise RecordError(
+                f"{path}: not a complete MCAP log ({exc}); if the recorder was killed, run `palpate bag recover {path}`"
+            ) from exc
 
 
 # --- recovery and copying ------------------------------------------------------------------------
