@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from palpate import jsonio
+from palpate.argtypes import non_negative_float, non_negative_int
 from palpate.errors import RecordError
 from palpate.record import mcap_io, recorder
 from palpate.record.bag import Player, PlayOptions, describe
@@ -19,15 +20,27 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
     p = sub.add_parser("replay", help="publish a recorded log on the bus")
     p.add_argument("file", type=Path, help="MCAP log")
-    p.add_argument("--rate", type=float, default=1.0, help="speed factor of the recorded sim-time pacing (0: --fast)")
+    p.add_argument(
+        "--rate", type=non_negative_float, default=1.0, help="speed factor of the recorded sim-time pacing (0: --fast)"
+    )
     p.add_argument("--fast", action="store_true", help="as fast as the subscribers take the messages")
     p.add_argument("--loop", action="store_true", help="start again at the end, until Ctrl-C")
     p.add_argument("--topics", nargs="+", default=[], metavar="TOPIC", help="replay only these topics")
-    p.add_argument("--start", type=float, default=0.0, metavar="S", help="skip the first S seconds of sim time")
+    p.add_argument(
+        "--start", type=non_negative_float, default=0.0, metavar="S", help="skip the first S seconds of sim time"
+    )
     p.add_argument("--bus", type=Path, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
     p.add_argument("--name", default="replay", help="publisher name on the bus (manifest and ipc socket)")
-    p.add_argument("--subscribers", type=int, default=1, metavar="N", help="wait for N subscribers first (0: no)")
-    p.add_argument("--wait-timeout", type=float, default=30.0, metavar="S", help="give up waiting after S s (0: never)")
+    p.add_argument(
+        "--subscribers", type=non_negative_int, default=1, metavar="N", help="wait for N subscribers first (0: no)"
+    )
+    p.add_argument(
+        "--wait-timeout",
+        type=non_negative_float,
+        default=30.0,
+        metavar="S",
+        help="give up waiting after S s (0: never)",
+    )
     p.set_defaults(func=run_replay)
 
     b = sub.add_parser("bag", help="inspect, repair and filter MCAP logs")
