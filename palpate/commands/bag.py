@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from palpate import jsonio
+from palpate.argtypes import non_negative_float, non_negative_int
 from palpate.errors import RecordError
 from palpate.record import mcap_io, recorder
 from palpate.record.bag import Player, PlayOptions, describe
@@ -19,15 +20,27 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
     p = sub.add_parser("replay", help="publish a recorded log on the bus")
     p.add_argument("file", type=Path, help="MCAP log")
-    p.add_argument("--rate", type=float, default=1.0, help="speed factor of the recorded sim-time pacing (0: --fast)")
+    p.add_argument(
+        "--rate", type=non_negative_float, default=1.0, help="speed factor of the recorded sim-time pacing (0: --fast)"
+    )
     p.add_argument("--fast", action="store_true", help="as fast as the subscribers take the messages")
     p.add_argument("--loop", action="store_true", help="start again at the end, until Ctrl-C")
     p.add_argument("--topics", nargs="+", default=[], metavar="TOPIC", help="replay only these topics")
-    p.add_argument("--start", type=float, default=0.0, metavar="S", help="skip the first S seconds of sim time")
+    p.add_argument(
+        "--start", type=non_negative_float, default=0.0, metavar="S", help="skip the first S seconds of sim time"
+    )
     p.add_argument("--bus", type=Path, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
     p.add_argument("--name", default="replay", help="publisher name on the bus (manifest and ipc socket)")
-    p.add_argument("--subscribers", type=int, default=1, metavar="N", help="wait for N subscribers first (0: no)")
-    p.add_argument("--wait-timeout", type=float, default=30.0, metavar="S", help="give up waiting after S s (0: never)")
+    p.add_argument(
+        "--subscribers", type=non_negative_int, default=1, metavar="N", help="wait for N subscribers first (0: no)"
+    )
+    p.add_argument(
+        "--wait-timeout",
+        type=non_negative_float,
+        default=30.0,
+        metavar="S",
+        help="give up waiting after S s (0: never)",
+    )
     p.set_defaults(func=run_replay)
 
     b = sub.add_parser("bag", help="inspect, repair and filter MCAP logs")
@@ -39,6 +52,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     rec = bsub.add_parser("recover", help="rewrite a truncated log (recorder killed) into a valid one")
     rec.add_argument("file", type=Path)
     rec.add_argument("-o", "--output", type=Path, help="output log (default FILE.recovered.mcap)")
+    rec.add_argument("--force", action="store_true", help="overwrite an existing output log")
     rec.set_defaults(func=run_recover)
     flt = bsub.add_parser("filter", help="copy a log keeping or dropping topics")
     flt.add_argument("file", type=Path)
@@ -85,12 +99,10 @@ def run_info(args: argparse.Namespace) -> int:
 
 def run_recover(args: argparse.Namespace) -> int:
     output = args.output or args.file.with_name(args.file.stem + ".recovered.mcap")
-    report = mcap_io.recover(args.file, output)
+    report = mcap_io.recover(args.file, output, overwrite=args.force)
     state = f"input truncated ({report.reason})" if report.truncated else "input was complete"
     last = f", last stamp {report.last_log_time * 1e-9:.3f} s" if report.last_log_time is not None else ""
     print(f"recovered {report.messages} messages from {report.chunks} chunks into {output}{last}; {state}")
-    if report.messages == 0:
-        raise RecordError(f"{args.file}: no complete chunk to recover")
     return 0
 
 

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from palpate import jsonio
+from palpate.argtypes import non_negative_float, non_negative_int, positive_int
 from palpate.errors import MessageError
 from palpate.messages import codec
 from palpate.messages.base import Message
@@ -44,16 +45,16 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     tl.set_defaults(func=run_topic_list)
     te = tsub.add_parser("echo", help="print the messages of a topic, arrays summarised")
     te.add_argument("topic")
-    te.add_argument("-n", "--count", type=int, default=0, metavar="N", help="exit after N messages")
+    te.add_argument("-n", "--count", type=non_negative_int, default=0, metavar="N", help="exit after N messages")
     te.add_argument("--bus", type=Path, help=bus_help)
     te.add_argument("--full", action="store_true", help="print arrays in full")
-    te.add_argument("--timeout", type=float, default=0.0, metavar="S", help="give up after S s (0: never)")
+    te.add_argument("--timeout", type=non_negative_float, default=0.0, metavar="S", help="give up after S s (0: never)")
     te.add_argument("--curve-keys", type=Path, metavar="FILE", help=CURVE_KEYS_HELP)
     te.set_defaults(func=run_topic_echo)
     th = tsub.add_parser("hz", help="message rate of a topic, in wall-clock and sim time")
     th.add_argument("topic")
-    th.add_argument("--window", type=int, default=100, metavar="N", help="messages the rate is measured over")
-    th.add_argument("--duration", type=float, default=0.0, metavar="S", help="exit after S s (0: never)")
+    th.add_argument("--window", type=positive_int, default=100, metavar="N", help="messages the rate is measured over")
+    th.add_argument("--duration", type=non_negative_float, default=0.0, metavar="S", help="exit after S s (0: never)")
     th.add_argument("--bus", type=Path, help=bus_help)
     th.add_argument("--curve-keys", type=Path, metavar="FILE", help=CURVE_KEYS_HELP)
     th.set_defaults(func=run_topic_hz)
@@ -237,6 +238,9 @@ def run_topic_echo(args: argparse.Namespace) -> int:
         return not (args.count and seen >= args.count)
 
     code = tap.run(handle, args.timeout)
+    if code == 0 and seen == 0:
+        print(f"topic echo: nothing arrived on {args.topic!r} in {args.timeout:g} s", file=sys.stderr)
+        return 1
     if args.count and seen < args.count:
         print(f"topic echo: got {seen} of {args.count} messages on {args.topic!r}", file=sys.stderr)
         return 1 if code == 0 else code

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -24,6 +25,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("args", nargs="*", metavar="NAME:=VALUE", help="override launch arguments")
     p.add_argument("--dry-run", action="store_true", help="validate and print the resolved graph; start nothing")
     p.add_argument("--record", type=Path, metavar="OUT.mcap", help="record every topic of the run")
+    p.add_argument("--force", action="store_true", help="let --record replace an existing log")
     p.add_argument(
         "--replay",
         type=Path,
@@ -90,7 +92,7 @@ def run_launch(args: argparse.Namespace) -> int:
         except BrokenPipeError:  # `palpate launch --dry-run FILE | head`
             sys.stderr.close()
         return 0
-    return run_graph(graph, record=args.record)
+    return run_graph(graph, record=args.record, overwrite=args.force)
 
 
 def recorder_curve_keys(graph: Graph) -> dict[str, str]:
@@ -101,8 +103,27 @@ def recorder_curve_keys(graph: Graph) -> dict[str, str]:
     return bus.derived_curve_keys("palpate recorder", [n.curve["secret"] for n in graph.nodes if n.curve.get("secret")])
 
 
-def run_graph(graph: Graph, record: Path | None = None) -> int:
-    """Start the graph's processes (and a recorder), supervise them, return the exit code."""
+def check_record_path(path: Path, *, overwrite: bool) -> None:
+    """Refuse a `--record` path the recorder could not write, or an existing log without `overwrite`;
+    creates its folder, as the recorder would."""
+    if path.is_dir():
+        raise LaunchError(f"--record {path} is a directory; give a file name, such as {path / 'run.mcap'}")
+    if path.exists() and not overwrite:
+        raise LaunchError(f"--record {path} exists; pass --force to replace it, or choose another file")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise LaunchError(f"--record {path}: cannot create its folder: {exc}") from exc
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        raise LaunchError(f"--record {path}: the folder {path.parent} is not writable")
+
+
+def run_graph(graph: Graph, record: Path | None = None, *, overwrite: bool = False) -> int:
+    """Start the graph's processes (and a recorder), supervise them, return the exit code.
+
+    `overwrite`: the recorder may replace an existing `record` file."""
+    if record is not None:
+        check_record_path(record, overwrite=overwrite)
     recorder_keys = recorder_curve_keys(graph) if record is not None else {}
     specs = graph.process_specs(
         extra_subscribers=1 if record else 0,
@@ -142,6 +163,7 @@ def run_graph(graph: Graph, record: Path | None = None) -> int:
                 *endpoints,
             ]
         )
+        supervisor.watch("recorder", recorder)
     try:
         code = supervisor.run()
     finally:
@@ -152,7 +174,11 @@ def run_graph(graph: Graph, record: Path | None = None) -> int:
                 recorder.terminate()
                 recorder.wait()
     if recorder is not None and recorder.returncode != 0:
-        print(f"[launch] recorder exited with code {recorder.returncode}", file=sys.stderr)
+        print(
+            f"[launch] the recorder exited with code {recorder.returncode}: {record} may lack the end of the run; "
+            f"`palpate bag recover {record}` rewrites what it holds into a complete log",
+            file=sys.stderr,
+        )
         code = code or 1
     return code
 
@@ -172,7 +198,8 @@ def run_demo(args: argparse.Namespace) -> int:
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="palpate-demo-") as bus_dir:  # a private bus: no clash with other graphs
-        code = run_graph(load_graph(LAUNCH_DIR / "demo.yaml", overrides, Path(bus_dir)), record=record)
+        graph = load_graph(LAUNCH_DIR / "demo.yaml", overrides, Path(bus_dir))
+        code = run_graph(graph, record=record, overwrite=True)  # the demo's folder is its own, as are its results
     if not results.is_file():
         print(f"[demo] the evaluator wrote no results ({results}); exit code {code}", file=sys.stderr)
         return code or 1

@@ -12,6 +12,7 @@ import os
 import sys
 from pathlib import Path
 
+from palpate.argtypes import non_negative_float
 from palpate.commands.introspect import CURVE_KEYS_HELP
 from palpate.errors import ViewerError
 from palpate.runtime import bus
@@ -37,7 +38,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--curve-keys", type=Path, metavar="FILE", help=CURVE_KEYS_HELP)
     p.add_argument(
         "--duration",
-        type=float,
+        type=non_negative_float,
         default=0.0,
         metavar="S",
         help="live: stop after S s (0: at the graph's stop or Ctrl-C)",

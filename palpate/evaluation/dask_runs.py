@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from palpate import jsonio
+from palpate.argtypes import non_negative_int
 from palpate.errors import ClusterError, ConfigError
 
 #: Environment variable naming the scheduler of an existing Dask cluster (tcp://HOST:PORT).
@@ -240,7 +241,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"Dask scheduler of an existing cluster (default ${SCHEDULER_ENV}; none: a local cluster)",
     )
     parser.add_argument(
-        "--workers", type=int, default=0, help="worker processes of the local cluster (default: one per core)"
+        "--workers",
+        type=non_negative_int,
+        default=0,
+        help="worker processes of the local cluster (default: one per core)",
     )
     parser.add_argument("--resume", action="store_true", help="keep the runs already in OUT/runs.jsonl, run the rest")
 

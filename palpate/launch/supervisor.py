@@ -3,7 +3,8 @@
 Children are started with a parent-death signal, so none outlives the launcher even if it is killed.
 Ctrl-C or SIGTERM sends SIGTERM to every child, waits up to its `sigterm_timeout_s`, then SIGKILLs.
 A child that dies is reported with its exit code and last log lines; the launch then stops and
-exits non-zero unless the node is set to respawn (up to `max_restarts`). A node that ends the run as
+exits non-zero unless the node is set to respawn (up to `max_restarts`); so does a helper process the
+run needs (the recorder, `watch`) that dies before the run ends. A node that ends the run as
 a failure (``ctx.request_stop(reason, failed=True)``, exit code EXIT_RUN_FAILED) lets the others stop
 in order; the launch then exits 1.
 """
@@ -87,6 +88,11 @@ class Child:
     pumps: list[threading.Thread] = field(default_factory=list)
 
 
+def _how(code: int) -> str:
+    """How a process ended, from its return code: "signal SIGKILL" or "exit code 2"."""
+    return f"signal {signal.Signals(-code).name}" if code < 0 else f"exit code {code}"
+
+
 class Supervisor:
     """Runs the graph's node processes and reports how they ended."""
 
@@ -110,6 +116,8 @@ class Supervisor:
         #: Nodes that ended the run as a failure (exit code EXIT_RUN_FAILED): the launch exits 1.
         self.run_failures: list[str] = []
         self.external_specs: list[Path] = []
+        #: Processes the run needs besides its nodes (the recorder), by name; started and stopped by the caller.
+        self.helpers: dict[str, subprocess.Popen[bytes]] = {}
         for spec in process_specs:
             node = graph.by_name[spec.name]
             if node.external:  # not started here: its driver reads what the launcher would have passed it
@@ -118,6 +126,10 @@ class Supervisor:
             path = self.run_dir / f"{spec.name}.json"
             path.write_text(spec.to_json())
             self.children.append(Child(node=node, spec_path=path))
+
+    def watch(self, name: str, proc: subprocess.Popen[bytes]) -> None:
+        """Stop the launch should `proc` fail (exit non-zero) while the nodes run."""
+        self.helpers[name] = proc
 
     def write_secret(self, name: str, values: dict[str, str]) -> Path:
         """Write `values` as JSON readable by this user only, in the run directory; returns the path."""
@@ -190,6 +202,10 @@ class Supervisor:
             if self.stop_signal:
                 self._say(f"received {signal.Signals(self.stop_signal).name}: stopping every node")
                 return 128 + self.stop_signal
+            for name, proc in self.helpers.items():
+                if (code := proc.poll()) not in (None, 0):
+                    self._say(f"the {name} died with {_how(code)}; stopping the launch")
+                    return 1
             running = 0
             for child in self.children:
                 assert child.proc is not None
@@ -247,9 +263,10 @@ class Supervisor:
     def _report(self, child: Child, code: int, action: str) -> None:
         for pump in child.pumps:
             pump.join(timeout=1.0)
-        reason = f"signal {signal.Signals(-code).name}" if code < 0 else f"exit code {code}"
         lines = "\n".join(f"    {line}" for line in child.tail) or "    (no output)"
-        self._say(f"node {child.node.name!r} ({child.node.type}) died with {reason}; {action}. Last lines:\n{lines}")
+        self._say(
+            f"node {child.node.name!r} ({child.node.type}) died with {_how(code)}; {action}. Last lines:\n{lines}"
+        )
 
     def _say(self, text: str) -> None:
         with self.lock:

@@ -72,6 +72,9 @@ class Player:
         if not self.types:
             raise RecordError(f"{path} holds no messages to replay")
         self.start_ns = summary.start_ns + round(options.start_s * 1e9)
+        if self.start_ns > summary.end_ns:
+            span_s = (summary.end_ns - summary.start_ns) * 1e-9
+            raise RecordError(f"--start {options.start_s:g} s is past the end of {path}, which spans {span_s:.3f} s")
         self.interrupted = False
         self.sent = 0
 

@@ -15,9 +15,11 @@ Layout of a palpate log:
 from __future__ import annotations
 
 import json
+import os
 import struct
 import zlib
 from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -30,6 +32,7 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Footer, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.summary import Summary
 from mcap.writer import CompressionType, IndexType, Writer
 
 import palpate
@@ -171,7 +174,10 @@ class LogWriter:
         if compression not in COMPRESSIONS:
             raise RecordError(f"unknown compression {compression!r}; choose one of {sorted(COMPRESSIONS)}")
         self.path = Path(path)
-        self._file: IO[bytes] = self.path.open("wb")
+        try:
+            self._file: IO[bytes] = self.path.open("wb")
+        except OSError as exc:
+            raise RecordError(f"cannot write log {str(path)!r}: {exc.strerror}") from exc
         self._writer = Writer(
             self._file,
             chunk_size=chunk_size,
@@ -315,13 +321,7 @@ class LogSummary:
 
 def summarize(path: str | Path) -> LogSummary:
     """Counts per topic, types and time span, from the log's summary section (no message is read)."""
-    with _open(path) as stream:
-        try:
-            summary = make_reader(stream).get_summary()
-        except _READ_ERRORS as exc:
-            raise RecordError(
-                f"{path}: not a complete MCAP log ({exc}); if the recorder was killed, run `palpate bag recover {path}`"
-            ) from exc
+    summary = _summary(path)
     if summary is None or summary.statistics is None:
         return _summarize_by_scan(path)
     out = LogSummary()
@@ -352,6 +352,33 @@ def _summarize_by_scan(path: str | Path) -> LogSummary:
 def topic_types(path: str | Path) -> dict[str, str]:
     """Topic -> message type of every channel of a finished log."""
     return summarize(path).types
+
+
+def topic_versions(path: str | Path) -> dict[str, int]:
+    """Topic -> the message version its channel's schema records (``x-palpate-version``), where one does."""
+    summary = _summary(path)
+    if summary is None:
+        return {}
+    versions = {}
+    for channel in summary.channels.values():
+        schema = summary.schemas.get(channel.schema_id)
+        try:
+            recorded = json.loads(schema.data).get("x-palpate-version") if schema is not None else None
+        except (ValueError, AttributeError):  # not palpate's JSON Schema
+            recorded = None
+        if isinstance(recorded, int):
+            versions[channel.topic] = recorded
+    return versions
+
+
+def _summary(path: str | Path) -> Summary | None:
+    with _open(path) as stream:
+        try:
+            return make_reader(stream).get_summary()
+        except _READ_ERRORS as exc:
+            raise RecordError(
+                f"{path}: not a complete MCAP log ({exc}); if the recorder was killed, run `palpate bag recover {path}`"
+            ) from exc
 
 
 # --- recovery and copying ------------------------------------------------------------------------
@@ -434,15 +461,19 @@ def copy_records(
     return count
 
 
-def recover(src: str | Path, dst: str | Path, *, compression: str = "zstd") -> RecoverReport:
-    """Write every readable message of a (possibly truncated) log `src` into a valid log `dst`."""
-    if Path(src).resolve() == Path(dst).resolve():
-        raise RecordError(f"recover would overwrite its input {src}; choose another output with -o")
+def recover(src: str | Path, dst: str | Path, *, compression: str = "zstd", overwrite: bool = True) -> RecoverReport:
+    """Write every readable message of a (possibly truncated) log `src` into a valid log `dst`.
+
+    Raises RecordError, leaving `dst` as it was, when `src` holds no complete chunk (or is not MCAP),
+    or when `dst` exists and not `overwrite`."""
     report = RecoverReport()
-    with LogWriter(dst, compression=compression) as out:
+    with _output(src, dst, "recover", overwrite) as partial, LogWriter(partial, compression=compression) as out:
         copy_records(iter_records_tolerant(src, report), out, report=report)
-    if report.truncated and report.chunks == 0 and report.messages == 0 and "InvalidMagic" in report.reason:
-        raise RecordError(f"{src} is not an MCAP file ({report.reason})")
+        if report.truncated and report.chunks == 0 and report.messages == 0 and "InvalidMagic" in report.reason:
+            raise RecordError(f"{src} is not an MCAP file ({report.reason})")
+        if report.messages == 0:
+            reason = f" ({report.reason})" if report.reason else ""
+            raise RecordError(f"{src}: no complete chunk to recover{reason}; wrote nothing")
     return report
 
 
@@ -462,11 +493,33 @@ def copy_log(
         return (included is None or topic in included) and topic not in excluded
 
     report = RecoverReport()
-    with LogWriter(dst, compression=compression) as out:
+    with _output(src, dst, "filter") as partial, LogWriter(partial, compression=compression) as out:
         count = copy_records(iter_records_tolerant(src, report), out, keep=keep)
-    if report.truncated:
-        raise RecordError(f"{src} is truncated ({report.reason}); run `palpate bag recover` first")
+        if report.truncated:
+            raise RecordError(f"{src} is truncated ({report.reason}); run `palpate bag recover {src}` first")
     return count
+
+
+@contextmanager
+def _output(src: str | Path, dst: str | Path, command: str, overwrite: bool = True) -> Iterator[Path]:
+    """Where `command` writes the log it makes of `src`: a file beside `dst` that becomes `dst` only when
+    the block succeeds, so a failure leaves no partial log (and an existing `dst` as it was).
+
+    Refuses a `dst` that is `src` (under any name) and a `src` it cannot open, before creating anything."""
+    src, dst = Path(src), Path(dst)
+    if src.resolve() == dst.resolve() or (src.exists() and dst.exists() and os.path.samefile(src, dst)):
+        raise RecordError(f"{command} would overwrite its input {src}; choose another output with -o")
+    if dst.is_dir():
+        raise RecordError(f"{dst} is a directory; give -o a file name")
+    if dst.exists() and not overwrite:
+        raise RecordError(f"{dst} exists; pass --force to replace it, or choose another output with -o")
+    _open(src).close()
+    partial = dst.with_name(f".{dst.name}.partial")
+    try:
+        yield partial
+        partial.replace(dst)
+    finally:
+        partial.unlink(missing_ok=True)
 
 
 # --- ticks ---------------------------------------------------------------------------------------

@@ -37,6 +37,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any, NamedTuple
 
+from palpate.argtypes import positive_int
 from palpate.errors import MalformedMessageError, MessageError, PalpateError
 from palpate.messages import codec, topics
 from palpate.messages.schemas import Clock, LockstepAck, RunControl
@@ -508,10 +509,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", nargs="+", default=[], metavar="EP", help="publisher endpoints (default: manifests)")
     p.add_argument("--until-stop", action="store_true", help="exit after the graph's stop and its last messages")
     p.add_argument("--compression", choices=sorted(COMPRESSIONS), default="zstd", help="chunk compression")
-    p.add_argument("--chunk-size", type=int, default=1 << 20, metavar="BYTES", help="largest chunk (default 1 MiB)")
+    p.add_argument(
+        "--chunk-size", type=positive_int, default=1 << 20, metavar="BYTES", help="largest chunk (default 1 MiB)"
+    )
     p.add_argument(
         "--chunk-ticks",
-        type=int,
+        type=positive_int,
         default=1,
         metavar="N",
         help="lockstep: close a chunk every N ticks (a SIGKILL loses at most N ticks; default 1)",

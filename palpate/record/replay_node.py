@@ -10,7 +10,8 @@ produce the same outputs.
 Ports: one output per replayed topic, named after the topic (``ports_from_config``); params
 ``path`` (the log) and ``topics`` (default: every data topic of the log). ``order`` gives each
 topic the rank its publisher had in the recorded graph: a tick's messages go out sorted by it, as
-the recorded subscribers dispatched them.
+the recorded subscribers dispatched them. A log of a message version this build does not speak is
+refused before the run; a recorded message that does not decode ends the run as a failure.
 """
 
 from __future__ import annotations
@@ -56,10 +57,17 @@ def ports_from_config(config: ReplayConfig) -> tuple[Mapping[str, Port], Mapping
     if not path:
         raise LaunchError("node type 'replay' needs a 'path' parameter naming an MCAP log")
     outputs = {}
-    for topic, type_name in log_topics(path, list(config.topics)).items():
+    replayed = log_topics(path, list(config.topics))
+    versions = mcap_io.topic_versions(path)
+    for topic, type_name in replayed.items():
         cls = REGISTRY.get(type_name)
         if cls is None:
             raise LaunchError(f"replay log {path}: topic {topic!r} carries {type_name!r}, unknown to this build")
+        if versions.get(topic, cls.VERSION) != cls.VERSION:
+            raise LaunchError(
+                f"replay log {path}: topic {topic!r} carries {type_name} version {versions[topic]}; "
+                f"this build speaks {type_name} version {cls.VERSION} only"
+            )
         outputs[topic] = Port(cls, topic=topic, doc=f"recorded {topic}")
     return {}, outputs
 
@@ -96,10 +104,14 @@ class ReplayNode:
         for message in sorted(tick.messages, key=lambda m: order.get(m.topic, 0)):  # stable: keeps publish order
             try:
                 decoded: Message = codec.decode(message.data)
-            except MessageError as exc:
+            except MessageError as exc:  # a replay that leaves recorded messages out is not the recorded run
                 self.ctx.count("replay_decode_errors")
-                self.ctx.log.warning("replay: recorded %s message not replayed: %s", message.topic, exc)
-                continue
+                self.ctx.request_stop(
+                    f"replay: the recorded {message.topic} message at {message.log_time * 1e-9:.3f} s cannot be "
+                    f"replayed: {exc}",
+                    failed=True,
+                )
+                return None
             self.ctx.publish(message.topic, decoded)
         self._next = self._next_tick()
         self.ticks += 1

@@ -242,7 +242,7 @@ class NodeRunner:
         self.last_clock = -1  # the last Clock tick received
         self.backward = set(process.backward_upstream)
         self.stopping = False
-        self.stop_reason = ""  # the first reason another node gave for stopping the run
+        self.stop_reason = ""  # the first reason another node (or a signal) gave for stopping the run
         self.interrupted = False
         _install_signal_handlers(self)  # before the manifest: a signal from now on ends the run cleanly
         manifest = bus.Manifest(
@@ -608,6 +608,7 @@ def _pid() -> int:
 def _install_signal_handlers(runner: NodeRunner) -> None:
     def handle(signum: int, frame: FrameType | None) -> None:
         runner.interrupted = True
+        runner.stop_reason = runner.stop_reason or f"interrupted by {signal.Signals(signum).name}"
 
     signal.signal(signal.SIGTERM, handle)
     signal.signal(signal.SIGINT, handle)

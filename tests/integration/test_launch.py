@@ -163,6 +163,10 @@ def test_signal_ends_every_child_without_orphans(tmp_path: Path, mode: str, sign
     out = text(log)
     assert code == 128 + signum, out
     assert f"received {signal.Signals(signum).name}: stopping every node" in out
+    # the clock source says (and its stop carries) why the run ended: not "clock source finished"
+    assert re.search(
+        rf"\[cube\] INFO run stopped at t = [\d.]+ s: interrupted by {signal.Signals(signum).name}\n", out
+    ), out
     assert took < 5.0 + 8.0, f"shutdown took {took:.1f} s (sigterm_timeout_s is 5 s)"
     assert [p for p in pids if alive(p)] == [], "orphan node processes"
     assert not list(bus_dir.glob("*.json")), "a node did not remove its manifest (it did not exit cleanly)"
@@ -226,6 +230,7 @@ def test_dying_node_is_reported_and_fails_the_launch(tmp_path: Path) -> None:
     tail = [line.strip() for line in rest[: next(i for i, x in enumerate(rest) if not x.startswith("    "))]]
     # the node's last log lines, in order
     assert tail[-2:] == ["crasher: tick 5 at 40000000 ns", "crasher: giving up with exit code 3"], report
+    assert re.search(r"\[cube\] INFO run stopped at t = [\d.]+ s: interrupted by SIGTERM\n", out), out
     assert [p for p in pids if alive(p)] == []
 
 

@@ -5,7 +5,8 @@
   mapper's status would carry wall-clock timings if the runtime let it);
 - `palpate replay --fast` recorded by `palpate record`: the same messages, byte for byte, in order;
 - `palpate launch --replay` on the sensor topics of the log: the estimator's meshes come out again;
-- a recorder SIGKILLed in a real-time run: `bag recover` keeps everything up to the last second.
+- a recorder SIGKILLed in a real-time run: `bag recover` keeps everything up to the last second;
+- a recorder SIGKILLed under `launch --record`: the launch stops at once and points at `bag recover`.
 """
 
 from __future__ import annotations
@@ -209,3 +210,34 @@ def test_recover_a_log_whose_recorder_was_killed(tmp_path: Path) -> None:
     assert mark is not None and summary.end_ns >= mark, (summary.end_ns, mark, latest)
     for message in read_messages(fixed):
         codec.decode(message.data)
+
+
+def _child(parent: int, module: str, timeout_s: float = 30) -> int:
+    """The pid of the child of `parent` that runs `python -m module`, once it is there."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            with suppress(OSError):
+                pid, ppid = int(stat.parent.name), int(stat.read_text().rsplit(")", 1)[1].split()[1])
+                if ppid == parent and module in (stat.parent / "cmdline").read_text():
+                    return pid
+        time.sleep(0.1)
+    raise AssertionError(f"no child {module} of {parent}")
+
+
+def test_a_recorder_killed_under_launch_stops_the_run_and_points_at_recover(tmp_path: Path) -> None:
+    bus_dir, log = tmp_path / "bus", tmp_path / "run.mcap"
+    args = ("launch", str(DEMO), "mode:=realtime", "duration_s:=60", "--record", str(log), "--bus", str(bus_dir))
+    with started(bus_dir, tmp_path / "launch.log", *args) as launch:
+        recorder = _child(launch.pid, "palpate.record.recorder")
+        deadline = time.monotonic() + 60
+        while not log.exists() or log.stat().st_size < 2000:  # recording: a chunk flushed
+            assert time.monotonic() < deadline and launch.poll() is None, (tmp_path / "launch.log").read_text()
+            time.sleep(0.1)
+        os.kill(recorder, signal.SIGKILL)
+        killed = time.monotonic()
+        assert launch.wait(timeout=30) == 1
+        assert time.monotonic() - killed < 15  # not the rest of the 60 s run
+    out = (tmp_path / "launch.log").read_text()
+    assert "the recorder died with signal SIGKILL; stopping the launch" in out, out
+    assert f"palpate bag recover {log}" in out, out

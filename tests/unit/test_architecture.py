@@ -33,6 +33,7 @@ LIBRARY = (
     "palpate.metrics",
     "palpate.inputs",  # the checks of values that arrive in messages
     "palpate.jsonio",  # strict JSON output
+    "palpate.argtypes",  # command-line argument types
     "palpate.launch_files",  # data: the shipped YAML launch files
 )
 #: What each layer may import from palpate (besides itself); a prefix matches its sub-modules.

@@ -512,3 +512,14 @@ def test_a_remote_nodes_spec_admits_the_recorder_the_launch_will_start(
     key.unlink()
     write_keys(key, make_curve_keys())  # other graph keys, another recorder key
     assert recorder_curve_keys(load(path, tmp_path))["public"] != recorder["public"]
+
+
+def test_launch_record_refuses_a_folder_or_an_existing_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    demo = str(REPO_ROOT / "launch" / "demo_minimal.yaml")
+    assert main(["launch", demo, "--bus", str(tmp_path), "--record", str(tmp_path)]) == 2
+    assert f"--record {tmp_path} is a directory; give a file name" in capsys.readouterr().err
+    existing = tmp_path / "run.mcap"
+    existing.write_bytes(b"precious")
+    assert main(["launch", demo, "--bus", str(tmp_path), "--record", str(existing)]) == 2
+    assert f"--record {existing} exists; pass --force" in capsys.readouterr().err
+    assert existing.read_bytes() == b"precious"

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from palpate.cli import main
 from palpate.errors import MalformedMessageError, RecordError
 from palpate.messages import codec, topics
 from palpate.messages.schemas import ContactSet
@@ -88,6 +89,54 @@ def test_recover_refuses_a_file_that_is_not_mcap(tmp_path: Path) -> None:
     bad.write_bytes(b"not an mcap file at all")
     with pytest.raises(RecordError, match="not an MCAP"):
         mcap_io.recover(bad, tmp_path / "out.mcap")
+
+
+def test_filter_and_recover_refuse_to_write_over_their_input(tmp_path: Path) -> None:
+    src = tmp_path / "run.mcap"
+    write_log(src, canonical_log(3))
+    data = src.read_bytes()
+    (tmp_path / "link.mcap").hardlink_to(src)
+    (tmp_path / "alias.mcap").symlink_to(src)
+    for dst in (src, tmp_path / "." / "run.mcap", tmp_path / "link.mcap", tmp_path / "alias.mcap"):
+        with pytest.raises(RecordError, match="overwrite its input"):
+            mcap_io.copy_log(src, dst, include=[topics.CLOCK])
+        with pytest.raises(RecordError, match="overwrite its input"):
+            mcap_io.recover(src, dst)
+    assert src.read_bytes() == data
+
+
+def test_a_failed_filter_or_recovery_leaves_no_output(tmp_path: Path) -> None:
+    out = tmp_path / "out.mcap"
+    with pytest.raises(RecordError, match="cannot open log"):
+        mcap_io.copy_log(tmp_path / "missing.mcap", out)
+    for name, data in (("garbage.mcap", b"not an mcap file at all"), ("empty.mcap", b"")):
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(RecordError):
+            mcap_io.recover(tmp_path / name, out)
+    truncated = tmp_path / "truncated.mcap"
+    write_log(truncated, canonical_log(3))
+    truncated.write_bytes(truncated.read_bytes()[:-40])
+    with pytest.raises(RecordError, match="bag recover"):
+        mcap_io.copy_log(truncated, out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.mcap", "garbage.mcap", "truncated.mcap"]
+    out.write_bytes(b"keep")  # an existing output stays as it was after a failure, and without overwrite
+    with pytest.raises(RecordError):
+        mcap_io.recover(tmp_path / "garbage.mcap", out)
+    with pytest.raises(RecordError, match="exists; pass --force"):
+        mcap_io.recover(truncated, out, overwrite=False)
+    assert out.read_bytes() == b"keep"
+
+
+def test_bag_recover_replaces_an_existing_output_only_with_force(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    src, out = tmp_path / "run.mcap", tmp_path / "run.recovered.mcap"
+    write_log(src, canonical_log(3))
+    out.write_bytes(b"precious")
+    assert main(["bag", "recover", str(src)]) == 2
+    assert f"{out} exists; pass --force" in capsys.readouterr().err and out.read_bytes() == b"precious"
+    assert main(["bag", "recover", str(src), "--force"]) == 0
+    assert mcap_io.summarize(out).messages == len(canonical_log(3))
 
 
 def test_copy_log_keeps_or_drops_topics(tmp_path: Path) -> None:

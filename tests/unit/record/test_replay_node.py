@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+import msgpack
 import pytest
 
 from palpate.errors import LaunchError
@@ -15,7 +16,9 @@ from palpate.messages import codec, topics
 from palpate.messages.base import Message
 from palpate.messages.schemas import ContactSet
 from palpate.paths import REPO_ROOT
+from palpate.record import mcap_io
 from palpate.record.launch_support import replace_publishers_with_log
+from palpate.record.mcap_io import LogWriter
 from palpate.record.replay_node import ReplayConfig, ReplayNode, ports_from_config
 from tests.unit.record.synthetic import PERIOD_NS, canonical_log, lockstep_streams, write_log
 
@@ -30,6 +33,7 @@ class FakeContext:
         self.sent: list[tuple[str, bytes]] = []
         self.counters: dict[str, int] = {}
         self.log = logging.getLogger("test.replay")
+        self.stop: tuple[str, bool] | None = None
 
     def publish(self, port: str, message: Message) -> None:
         codec.validate(message)
@@ -37,6 +41,9 @@ class FakeContext:
 
     def count(self, name: str, n: int = 1) -> None:
         self.counters[name] = self.counters.get(name, 0) + n
+
+    def request_stop(self, reason: str, *, failed: bool = False) -> None:
+        self.stop = (reason, failed)
 
 
 @pytest.fixture
@@ -96,3 +103,33 @@ def test_launch_replay_needs_the_clock_sources_topics(tmp_path: Path) -> None:
     write_log(empty, [(t, m) for t, m in canonical_log(2) if t == topics.CLOCK])
     with pytest.raises(LaunchError, match="holds no node's complete outputs"):
         replace_publishers_with_log(load_launch(DEMO), empty)
+
+
+def _write_versioned(path: Path, *, schema: int, payload: int) -> None:
+    """canonical_log(3) with ContactSet recorded as schema version `schema` and payload version `payload`."""
+    with LogWriter(path) as writer:
+        for seq, (topic, message) in enumerate(canonical_log(3)):
+            data, info = codec.encode(message), mcap_io.peek(codec.encode(message))
+            if info.type == ContactSet.TYPE:
+                header, blob = msgpack.unpackb(data, raw=False)
+                data = msgpack.packb([{**header, "version": payload}, blob], use_bin_type=True)
+                info = info._replace(version=schema)
+            writer.write(topic, data, info, seq)
+
+
+def test_a_log_of_another_message_version_is_refused_before_the_run(tmp_path: Path) -> None:
+    path = tmp_path / "v99.mcap"
+    _write_versioned(path, schema=99, payload=99)
+    with pytest.raises(LaunchError, match=f"'{topics.CONTACTS}' carries ContactSet version 99; this build speaks "):
+        ports_from_config(ReplayConfig(path=str(path)))
+
+
+def test_a_recorded_message_that_does_not_decode_fails_the_run(tmp_path: Path) -> None:
+    path = tmp_path / "forged.mcap"  # the schema says this build's version, the payloads another
+    _write_versioned(path, schema=ContactSet.VERSION, payload=99)
+    ctx = FakeContext({topics.CONTACTS: topics.CONTACTS})
+    node = ReplayNode(ReplayConfig(path=str(path), topics=(topics.CONTACTS,)), ctx)
+    assert node.step() is None and ctx.sent == []
+    assert ctx.stop is not None and ctx.stop[1], ctx.stop
+    assert f"recorded {topics.CONTACTS} message at 0.000 s cannot be replayed" in ctx.stop[0]
+    assert "version 99" in ctx.stop[0]
