@@ -45,7 +45,7 @@ class RunControl(Message):
     VERSION: ClassVar[int] = 1
     TOPIC: ClassVar[str] = topics.GRAPH_CONTROL
 
-    command: str = scalar("str", "'stop' ends the run after the current tick")
+    command: str = scalar("str", "'stop' ends the run after the current tick; 'fail' ends it as a failure")
     reason: str = scalar("str", "human-readable reason")
 
 

@@ -70,6 +70,10 @@ class LaunchError(PalpateError):
     """A launch file is invalid or a launched graph failed."""
 
 
+class PeerLostError(PalpateError):
+    """A lockstep node the run depends on disconnected without a stop: its process died or closed its sockets."""
+
+
 # --- simulation and geometry ----------------------------------------------------------------------
 class MeshError(PalpateError):
     """A mesh file is missing, unreadable, degenerate or at an absurd scale."""

@@ -212,14 +212,20 @@ def _graph_topics() -> list[str]:
         f"- `{topics.CLOCK}` (Clock): published by the clock source after all its data of a tick.",
         f"- `{topics.LOCKSTEP_ACK}` (LockstepAck): in lockstep mode, each node acknowledges every tick it has handled"
         " (tick -1 once at start-up).",
-        f'- `{topics.GRAPH_CONTROL}` (RunControl): `command: "stop"` ends the run; any node may publish it.',
+        f'- `{topics.GRAPH_CONTROL}` (RunControl): `command: "stop"` ends the run, `"fail"` ends it as a failure'
+        " (`palpate launch` exits 1); any node may publish it.",
         f"- `{topics.NODE_STATUS}` (NodeStatus): counters and metrics of each node, every 100 ticks and at exit.",
         "",
-        "A hardware driver in a real-time graph (`mode: realtime`, the driver declared `external: true` with",
-        "`host` and `port`) binds a PUB socket at its endpoint and publishes its topics, stamped. If it reads",
-        "topics, it connects a SUB socket to their publishers and subscribes to them and to",
-        f"`{topics.GRAPH_CONTROL}`: each node waits at start-up until every subscriber the launch file declares",
-        "has subscribed, and the driver stops when it receives `stop`. See runtime.md for lockstep drivers.",
+        "Each node also subscribes to `hello/<its name>` on every publisher it connects to. Nothing is published",
+        "there: the subscription tells each publisher that this very node is connected (start-up waits for it),",
+        "and its end that the node has left (a lockstep run then ends naming it).",
+        "",
+        "A hardware driver (a node declared `external: true`, in either mode) binds an XPUB socket at the",
+        "`endpoint` of the process spec the launcher writes for it (ipc by default, TCP with `host:`), counts",
+        "the subscriptions it reports, and subscribes its SUB socket to its input topics, to",
+        f"`{topics.CLOCK}`, `{topics.LOCKSTEP_ACK}` and `{topics.GRAPH_CONTROL}`, and to `hello/<its name>`.",
+        "[runtime.md](runtime.md#external-nodes-hardware-drivers) gives the whole protocol, in lockstep and",
+        "in real time.",
         "",
     ]
 

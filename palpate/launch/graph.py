@@ -151,9 +151,10 @@ class Graph:
             del expected[wiring_topic]
         for peer in connectors:
             expected[f"hello/{peer.name}"] = 1
-        upstream = self.upstream(node)
         clock = self.clock_source
         trailing = self.trailing_nodes() if node is clock else []
+        waits = self._ack_upstream(node)
+        others = [n for n in self.nodes if n is not node] if node is clock else []
         return NodeProcessSpec(
             name=node.name,
             type=node.type,
@@ -168,9 +169,10 @@ class Graph:
             seed=self.seed + _stable_hash(node.name) if "seed" not in node.params else int(node.params["seed"]),
             clock_source=node is clock,
             expected_subscribers=expected,
-            forward_upstream=[n.name for n in upstream if n.rank < node.rank and n is not clock],
-            backward_upstream=[n.name for n in upstream if n.rank > node.rank and n is not clock],
-            lockstep_nodes=[n.name for n in self.nodes if n is not node] if node is clock else [],
+            forward_upstream=waits["forward"],
+            backward_upstream=waits["backward"],
+            lockstep_nodes=[n.name for n in others],
+            lockstep_upstream={n.name: self._ack_upstream(n) for n in others},
             topic_order={t: p.rank for p in self.nodes for t in p.publishes.values()},
             topic_publishers={t: p.name for p in self.nodes for t in p.publishes.values()},
             clock_name=clock.name if clock is not None else "",
@@ -178,7 +180,21 @@ class Graph:
             trail_ticks=TRAIL_TICKS if trailing else 0,
             curve=node.curve,
             curve_clients=sorted(clients) if node.curve else [],
+            topic_types={
+                **{t: node.spec.inputs[p].message.TYPE for p, t in node.subscribes.items()},
+                **{t: node.spec.outputs[p].message.TYPE for p, t in node.publishes.items()},
+            },
         )
+
+    def _ack_upstream(self, node: GraphNode) -> dict[str, list[str]]:
+        """The nodes whose acknowledgement `node` waits for (lockstep): of tick t before it handles tick t
+        ("forward": ranked before it) and of tick t - 1 ("backward": a feedback edge). Never the clock
+        source, whose Clock(t) follows its own data."""
+        upstream = [n for n in self.upstream(node) if n is not self.clock_source]
+        return {
+            "forward": [n.name for n in upstream if n.rank < node.rank],
+            "backward": [n.name for n in upstream if n.rank > node.rank],
+        }
 
 
 def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:

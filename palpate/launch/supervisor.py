@@ -254,11 +254,13 @@ class Supervisor:
         return 1
 
     def _note_run_failure(self, child: Child) -> None:
-        """Say once that `child` ended the run as a failure (its own log line gives the reason)."""
+        """Say once that the run failed, naming the first node to end it as a failure (its own log line gives
+        the reason; the nodes that received a RunControl 'fail' end so too, and say why in theirs)."""
         if child.node.name in self.run_failures:
             return
         self.run_failures.append(child.node.name)
-        self._say(f"node {child.node.name!r} ({child.node.type}) ended the run as a failure; the launch exits 1")
+        if len(self.run_failures) == 1:
+            self._say(f"node {child.node.name!r} ({child.node.type}) ended the run as a failure; the launch exits 1")
 
     def _report(self, child: Child, code: int, action: str) -> None:
         for pump in child.pumps:

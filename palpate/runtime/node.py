@@ -40,7 +40,7 @@ import numpy as np
 import zmq
 
 from palpate.config import load
-from palpate.errors import MessageError, OutputError, PalpateError
+from palpate.errors import MessageError, OutputError, PalpateError, PeerLostError
 from palpate.messages import codec, topics
 from palpate.messages.base import Message
 from palpate.messages.schemas import Clock, LockstepAck, NodeStatus, RunControl
@@ -48,6 +48,13 @@ from palpate.runtime import bus, memory, timing
 from palpate.runtime.spec import EXIT_RUN_FAILED, ClockSource, NodeLike, NodeProcessSpec, NodeSpec
 
 STOP_TOPIC = topics.GRAPH_CONTROL
+#: RunControl commands: "stop" ends the run; "fail" ends it as a failure (each node that receives it exits
+#: with EXIT_RUN_FAILED): how a node that is not palpate's (an external driver) makes a run fail.
+STOP, FAIL = "stop", "fail"
+#: In lockstep, a node whose hello/<node> subscription has been gone this long has left the run (its
+#: process died or closed its sockets): no lockstep node can rejoin, so the run ends naming it. The grace
+#: lets a clean stop arrive first (the stop and the unsubscription come over different connections).
+PEER_GRACE_S = 2.0
 _INTERNAL = (topics.CLOCK, topics.LOCKSTEP_ACK, STOP_TOPIC)
 _LOG_FIRST_ERRORS = 10
 
@@ -244,6 +251,7 @@ class NodeRunner:
         self.stopping = False
         self.stop_reason = ""  # the first reason another node (or a signal) gave for stopping the run
         self.interrupted = False
+        self._absent_since: dict[str, float] = {}  # peer -> when its hello/<peer> subscription was first seen gone
         _install_signal_handlers(self)  # before the manifest: a signal from now on ends the run cleanly
         manifest = bus.Manifest(
             node=process.name,
@@ -334,9 +342,11 @@ class NodeRunner:
                 self.acks[ack.node] = max(ack.tick, self.acks.get(ack.node, -2))
         elif topic == STOP_TOPIC:
             control = self._decode(topic, payload, RunControl)
-            if control is not None and control.command != "stop":
-                self._bad_input(topic, f"unknown RunControl command {control.command!r}; known: 'stop'")
+            if control is not None and control.command not in (STOP, FAIL):
+                self._bad_input(topic, f"unknown RunControl command {control.command!r}; known: 'stop', 'fail'")
             elif control is not None:
+                if control.command == FAIL and not self.ctx.failure:  # this node's exit code says so too
+                    self.ctx.failure = f"{control.reason or 'no reason given'} (asked by a RunControl 'fail')"
                 self.stopping = True
                 self.stop_reason = self.stop_reason or control.reason
                 self.ctx.run_stopped_by = self.ctx.run_stopped_by or control.reason
@@ -413,7 +423,7 @@ class NodeRunner:
                 return EXIT_RUN_FAILED
             self.publish_status("finished", self.ctx.stop_requested)
             return 0
-        except TimeoutError as exc:
+        except (TimeoutError, PeerLostError) as exc:
             log.error("node %s: %s", self.process.name, exc)
             self.publish_status("error", str(exc))
             return 3
@@ -458,9 +468,22 @@ class NodeRunner:
         deadline = time.monotonic() + self.ack_timeout_s
         while not self.interrupted and any(self.acks.get(n, -2) < tick for n in nodes):
             if time.monotonic() > deadline:
-                late = [n for n in nodes if self.acks.get(n, -2) < tick]
+                late = holding_up(self.acks, tick, self.process)
                 raise TimeoutError(f"no acknowledgement of tick {tick} from {late} in {self.ack_timeout_s:.0f} s")
-            self._receive(100)
+            if not self._receive(100) and (gone := self._gone(self.process.lockstep_nodes)):
+                raise PeerLostError(f"no acknowledgement of tick {tick}: {_left(gone)}")
+
+    def _gone(self, peers: list[str]) -> list[str]:
+        """Those of `peers` (each subscribed hello/<peer> here at start-up) whose subscription has been gone
+        for PEER_GRACE_S."""
+        now = time.monotonic()
+        gone = []
+        for peer in peers:
+            if self.counter.counts.get(hello_topic(peer), 0) > 0:
+                self._absent_since.pop(peer, None)
+            elif now - self._absent_since.setdefault(peer, now) >= PEER_GRACE_S:
+                gone.append(peer)
+        return gone
 
     def _run_clock_source(self) -> None:
         step = cast(ClockSource, self.node).step  # spec.clock_source says so
@@ -526,7 +549,12 @@ class NodeRunner:
                 if due is None:
                     if self.stopping and not self.clock_ticks:
                         break
-                    self._receive(100)
+                    if not self._receive(100) and not self.stopping and self._gone([self.process.clock_name]):
+                        # nothing more will come: close in order, as a failed run (the launch exits 1)
+                        self.ctx.failure = self.ctx.run_stopped_by = (
+                            f"the clock source {_left([self.process.clock_name])}"
+                        )
+                        break
                     continue
                 tick = due
                 if timer is not None:
@@ -583,6 +611,31 @@ class NodeRunner:
         status_every = 100
         if self.ctx.tick % status_every == 0:
             self.publish_status("running")
+
+
+def holding_up(acks: dict[str, int], tick: int, process: NodeProcessSpec) -> list[str]:
+    """The nodes that hold tick `tick` up (clock source, lockstep): of those that have not acknowledged it,
+    the ones that have every acknowledgement their own next tick needs (`process.lockstep_upstream`); the
+    others wait for them. All that have not, if none has (a graph the spec does not describe)."""
+    late = [n for n in process.lockstep_nodes if acks.get(n, -2) < tick]
+
+    def ready(node: str) -> bool:
+        next_tick = acks.get(node, -2) + 1
+        waits = process.lockstep_upstream.get(node, {})
+        return next_tick < 0 or (
+            all(acks.get(n, -2) >= next_tick for n in waits.get("forward", []))
+            and all(acks.get(n, -2) >= next_tick - 1 for n in waits.get("backward", []))
+        )
+
+    return [n for n in late if ready(n)] or late
+
+
+def _left(peers: list[str]) -> str:
+    """What a lost lockstep peer's error says."""
+    return (
+        f"{', '.join(map(repr, peers))} disconnected without a stop (subscription hello/<node> gone for "
+        f"{PEER_GRACE_S:.0f} s: the process died or closed its sockets; a lockstep node cannot rejoin a run)"
+    )
 
 
 def _canonical(item: tuple[int, int, int, str, bytes]) -> tuple[int, int]:

@@ -174,6 +174,9 @@ class NodeProcessSpec:
     forward_upstream: list[str] = field(default_factory=list)
     backward_upstream: list[str] = field(default_factory=list)
     lockstep_nodes: list[str] = field(default_factory=list)  # clock source: every node that acknowledges
+    #: Clock source: each of `lockstep_nodes` -> {"forward": its forward_upstream, "backward": its
+    #: backward_upstream}, to name the node that holds a tick up (the others wait for it).
+    lockstep_upstream: dict[str, dict[str, list[str]]] = field(default_factory=dict)
     topic_order: dict[str, int] = field(default_factory=dict)  # topic -> publisher rank, for dispatch order
     #: topic -> the node publishing it, and the clock source's name: each input is filed under the tick its
     #: publisher was in when it sent it (a trailing node receives ticks its publishers are ahead by).
@@ -185,6 +188,8 @@ class NodeProcessSpec:
     curve: dict[str, str] = field(default_factory=dict)  # CurveZMQ keys (z85): public, secret, server_public
     #: With `curve`: the client public keys (z85) the publisher admits (ZAP): its subscribers' and a recorder's.
     curve_clients: list[str] = field(default_factory=list)
+    #: topic -> message type (`TYPE`) of every topic in `publishes` and `subscribes`, for the manifest.
+    topic_types: dict[str, str] = field(default_factory=dict)
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)

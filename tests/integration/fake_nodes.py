@@ -11,7 +11,7 @@ import signal
 import time
 from dataclasses import dataclass
 
-from palpate.messages.schemas import ContactSet, JointState
+from palpate.messages.schemas import ContactSet, JointState, RunControl
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
@@ -168,6 +168,26 @@ class FailingClock:
         """A clock source works in step()."""
 
 
+@dataclass(frozen=True, kw_only=True)
+class RunFailerConfig:
+    after_ticks: int = 5
+
+
+class RunFailer:
+    """Does what a driver does to make the run fail: publishes ``RunControl(command="fail")`` on
+    ``graph/control`` after `after_ticks` ticks (not ``ctx.request_stop``, which a driver does not have)."""
+
+    def __init__(self, config: RunFailerConfig, ctx: Context):
+        self.config, self.ctx = config, ctx
+        self.ticks = 0
+
+    def on_tick(self, stamp_ns: int) -> None:
+        self.ticks += 1
+        if self.ticks == self.config.after_ticks:
+            reason = f"run_failer: sensor lost after {self.ticks} ticks"
+            self.ctx.publish("control", RunControl(stamp_ns=stamp_ns, command="fail", reason=reason))
+
+
 CRASHER = NodeSpec(name="crasher", config=CrasherConfig, factory=Crasher, doc="dies after a few ticks")
 FAILING_CLOCK = NodeSpec(
     name="failing_clock",
@@ -201,4 +221,11 @@ TICK_CHECK = NodeSpec(
     inputs={"contacts": Port(ContactSet), "echo": Port(ContactSet, topic="trailing/echo")},
     may_trail=True,
     doc="counts inputs handled in another tick than their stamp's",
+)
+RUN_FAILER = NodeSpec(
+    name="run_failer",
+    config=RunFailerConfig,
+    factory=RunFailer,
+    outputs={"control": Port(RunControl)},
+    doc="publishes RunControl 'fail' after a few ticks, as a driver would",
 )

@@ -358,3 +358,26 @@ def test_in_process_messages_nobody_reads_are_validated_not_transferred(
     heard: list[str] = []
     inprocess.InProcessGraph(members, listener=lambda tick, node, topic, message: heard.append(topic)).run(max_ticks=5)
     assert "SurfaceMesh" in transferred and "surface/mesh" in heard
+
+
+def test_a_stuck_tick_names_the_node_that_holds_it_up_not_those_waiting_for_it(tmp_path: Path) -> None:
+    """The exploration graph with its noise node silent at tick 50: the controller, GPIS, planner and
+    evaluator wait for it (directly or not), so only the noise node is named (an outside driver's audit
+    saw all five). The clock source's spec gives every node's upstream, and each spec its topics' types."""
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch, parse_cli_args
+    from palpate.paths import LAUNCH_DIR
+    from palpate.runtime.node import holding_up
+
+    graph = resolve(load_launch(LAUNCH_DIR / "explore.yaml", parse_cli_args([])), bus_dir=tmp_path)
+    specs = {p.name: p for p in graph.process_specs()}
+    clock = specs["sim"]
+    assert clock.lockstep_upstream["controller"] == {"forward": ["noise"], "backward": ["planner"]}
+    assert clock.lockstep_upstream["noise"] == {"forward": [], "backward": []}  # the sim is never listed
+    assert specs["noise"].topic_types == {"sensors/contacts": "ContactSet", "sensors/contacts_noisy": "ContactSet"}
+    everyone = dict.fromkeys(clock.lockstep_nodes, 49)
+    assert holding_up(everyone, 50, clock) == ["noise"]
+    assert holding_up({**everyone, "noise": 50}, 50, clock) == ["controller"]
+    assert holding_up({**everyone, "noise": 50, "controller": 50}, 50, clock) == ["gpis"]
+    assert holding_up({**everyone, "eval": 50}, 50, clock) == ["noise"]
+    assert holding_up({"noise": -1}, -1, clock) == [n for n in clock.lockstep_nodes if n != "noise"]  # start-up

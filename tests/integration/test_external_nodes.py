@@ -1,0 +1,91 @@
+"""External nodes that die or fail the run: the launch ends, names them and exits 1. Each "driver" here is
+palpate's own node process started from the spec the launcher writes for an external node (the wire is
+the same as a driver's; tests/integration/test_drivers.py runs drivers that import no palpate)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from palpate.launch.supervisor import external_spec_path
+from tests.integration.launch_helpers import child_env, kill_session, launched, node_pids, text, wait_for
+
+RUN_FAILER = "tests.integration.fake_nodes:RUN_FAILER"
+
+
+def graph(tmp_path: Path, external: str, extra: str = "") -> Path:
+    """A lockstep cube that would run for 1000 s (100k ticks) and a consumer, `external` marked so."""
+    path = tmp_path / "graph.yaml"
+    path.write_text(f"""
+mode: lockstep
+nodes:
+  - name: cube
+    type: cube_contacts
+    params: {{duration_s: 1000.0}}
+    external: {str(external == "cube").lower()}
+  - name: stats
+    type: contact_stats
+    external: {str(external == "stats").lower()}
+{extra}""")
+    return path
+
+
+def kill_external_mid_run(tmp_path: Path, name: str) -> tuple[int, str]:
+    """Launch the graph with `name` external, start it from its spec, SIGKILL it once the run is under way:
+    the launch's exit code (within 30 s) and output."""
+    bus_dir, log = tmp_path / "bus", tmp_path / "launch.log"
+    with launched(graph(tmp_path, name), bus_dir, log) as proc:
+        spec = external_spec_path(bus_dir, name)
+        wait_for(spec.exists, 60, f"the spec of {name}", log)
+        with (tmp_path / f"{name}.log").open("wb") as out:
+            driver = subprocess.Popen(
+                [sys.executable, "-m", "palpate.runtime.node", str(spec)],
+                env=child_env(bus_dir),
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
+        try:
+            wait_for(lambda: {"cube", "stats"} <= set(node_pids(bus_dir)), 60, "both nodes", log)
+            time.sleep(1.0)  # the run is under way (ticks of 10 ms)
+            os.kill(driver.pid, signal.SIGKILL)
+            code = proc.wait(timeout=30)  # before the fix: a dead clock source left the run hanging for good
+        finally:
+            kill_session(driver)
+    return code, text(log)
+
+
+def test_a_dead_external_clock_source_ends_the_run_naming_it(tmp_path: Path) -> None:
+    code, out = kill_external_mid_run(tmp_path, "cube")
+    assert code == 1, out
+    # the follower closes in order (its summary), as a failed run
+    assert "ERROR node stats ended the run as a failure: the clock source 'cube' disconnected without a stop" in out
+    assert "[stats] summary:" in out, out
+    assert "[launch] node 'stats' (contact_stats) ended the run as a failure; the launch exits 1" in out, out
+
+
+def test_a_dead_external_follower_is_named_at_once(tmp_path: Path) -> None:
+    code, out = kill_external_mid_run(tmp_path, "stats")
+    assert code == 1, out
+    assert "'stats' disconnected without a stop" in out, out  # in seconds, not after the 120 s timeout
+    assert "[launch] node 'cube' (cube_contacts) died with exit code 3" in out, out
+
+
+def test_an_external_node_makes_the_run_fail_with_runcontrol_fail(tmp_path: Path) -> None:
+    """What a driver publishes to fail the run (here from a palpate node, as a driver would send it):
+    the clock source stops the run as a failure, and the launch exits 1."""
+    extra = f"""  - name: failer
+    type: {RUN_FAILER}
+    params: {{after_ticks: 5}}"""
+    log = tmp_path / "launch.log"
+    with launched(graph(tmp_path, "", extra), tmp_path / "bus", log) as proc:
+        assert proc.wait(timeout=60) == 1, text(log)
+    out = text(log)
+    assert "run stopped at t = 0.040 s: run_failer: sensor lost after 5 ticks" in out, out
+    reason = "run_failer: sensor lost after 5 ticks (asked by a RunControl 'fail')"
+    assert f"ERROR node cube ended the run as a failure: {reason}" in out, out
+    assert "[launch] node 'cube' (cube_contacts) ended the run as a failure; the launch exits 1" in out, out
