@@ -42,9 +42,10 @@ class EvalConfig(Validated):
     coverage_samples: PositiveInt = 20000
     #: Budgets: a run that has not reached the coverage goal after this many contacts or this much
     #: travel ends as incomplete. Chosen for time (issue 5: the 180-run YCB evaluation within 2 hours on 2
-    #: cores): a run then costs at most ~60 s CPU. About twice the covering bound of the largest YCB
-    #: objects (block of wood 360 contacts); IGEF needs 1.5-2.5 times the bound (its hops overlap), and
-    #: GP-V covered only 48-77 % of the large YCB cups within 15 m.
+    #: cores): a run then costs at most ~60 s CPU. About twice the covering bound of most large YCB
+    #: objects (block of wood 360 contacts; the master chef can's 531 gets more from contacts_per_bound);
+    #: IGEF needs 1.5-2.5 times the bound (its hops overlap), and GP-V covered only 48-77 % of the large
+    #: YCB cups within 15 m.
     max_contacts: PositiveInt = 800
     max_travel_m: PositiveFloat = 20.0
     #: Budgets that fit the object: at least this many contacts, and this much travel, per contact of
