@@ -26,7 +26,10 @@ to eight near voxel faces, edges and corners; the weights sum to 1 and have cont
 voxel on each axis, so each point it weighs has data on every side up to at least local_margin_m.
 An expert that grows past local_max_contacts halves its own margin (to 0 once below b / 4) and is
 rebuilt from the contacts in its smaller box: where contacts are dense the data a few millimetres
-around a point pin the surface, and the cap bounds both the cost per touch and the memory.
+around a point pin the surface. An expert still over the cap at margin 0 (a voxel touched again and
+again) keeps one contact per cube of edge s, the first to arrive, from s = h / 8 doubling until it
+holds at most local_max_contacts; later contacts in an occupied cube leave it as it is. So the cap
+bounds both the cost per touch and the memory, whatever the history.
 
 Blending. With a set E(x) of experts that exist (hold at least one contact) and the weight left over
 w_far = 1 - sum_{i in E} w_i taken by a far-field expert (an exact GPIS over one contact per voxel of
@@ -107,6 +110,8 @@ class LocalGPIS:
             self._centre = _points(prior_centre_m, "prior_centre_m")[0].copy()
         self._experts: dict[int, GPIS] = {}
         self._margins: dict[int, float] = {}  # experts whose margin shrank (default: margin_m)
+        #: experts thinned at margin 0: key -> (cube edge s, the cubes it holds a contact of)
+        self._thinned: dict[int, tuple[float, set[tuple[int, int, int]]]] = {}
         self._pack = ExpertPack()  # every expert's contacts and weights, for the compiled loops
         self._far: GPIS | None = None
         self._far_cells: set[int] = set()
@@ -208,6 +213,7 @@ class LocalGPIS:
             self._pack.set(None, far)
         self._far_cells.update(int(k) for k in _pack(self._far_index(P[far_new])))
         self._centre = centre
+        self._note_held(P, groups)
         self._append(P, N)
         for key in groups:
             if self._experts[key].n_contacts > self.config.local_max_contacts:
@@ -221,7 +227,8 @@ class LocalGPIS:
         return lo - reach, lo + self.cell_m + reach
 
     def _filter_by_margin(self, P: FloatArray, groups: dict[int, IntArray]) -> dict[int, IntArray]:
-        """Drop the rows outside an expert's own (possibly shrunk) data box."""
+        """Drop the rows outside an expert's own (possibly shrunk) data box, and for a thinned expert
+        the rows whose cube it holds a contact of already."""
         out = {}
         for key, rows in groups.items():
             margin = self._margins.get(key, self.margin_m)
@@ -229,29 +236,50 @@ class LocalGPIS:
                 lo, hi = self._box(key, margin)
                 inside = np.all((P[rows] >= lo) & (P[rows] <= hi), axis=1)
                 rows = rows[inside]
+            if key in self._thinned and rows.size:
+                edge, held = self._thinned[key]
+                rows = _first_per_cube(P, rows, edge, set(held))
             if rows.size:
                 out[key] = rows
         return out
 
     def _shrink(self, key: int) -> None:
-        """Halve an expert's margin (0 once below blend_m / 4) and rebuild it from the contacts
-        in its smaller box, until it holds at most local_max_contacts or its margin is 0.
+        """Halve an expert's margin (0 once below blend_m / 4), then thin it to one contact per cube of
+        edge s (h / 8, doubling), rebuilding it from the contacts left in its box, until it holds at
+        most local_max_contacts.
 
         Dense regions thus keep small experts (cost per touch and memory bounded by the cap) while
-        sparse ones keep the full margin. O(n) scan of the contacts and one O(m^3) factorisation.
+        sparse ones keep the full margin. O(n) scan of the contacts and one O(m^3) factorisation per round.
         """
         expert = self._experts[key]
         margin = self._margins.get(key, self.margin_m)
         positions, normals = self._P[: self._count], self._N[: self._count]
-        while expert.n_contacts > self.config.local_max_contacts and margin > 0.0:
-            margin = 0.0 if margin < 0.25 * self.blend_m else 0.5 * margin
+        edge = self._thinned[key][0] if key in self._thinned else 0.0
+        cap = self.config.local_max_contacts
+        widest = self.cell_m + 2.0 * (self.blend_m + self.margin_m)  # cubes this wide: <= 8 in any box
+        while expert.n_contacts > cap and edge < widest:
+            if margin > 0.0:
+                margin = 0.0 if margin < 0.25 * self.blend_m else 0.5 * margin
+            else:  # still over the cap with no margin left: one contact per cube, coarser each round
+                edge = 2.0 * edge if edge else self.cell_m / 8.0
             lo, hi = self._box(key, margin)
             rows = np.flatnonzero(np.all((positions >= lo) & (positions <= hi), axis=1))
+            if edge:
+                held: set[tuple[int, int, int]] = set()
+                rows = _first_per_cube(positions, rows, edge, held)
+                self._thinned[key] = (edge, held)
             expert = GPIS(self.config, prior_centre_m=self._centre)
             expert.add_contacts(positions[rows], normals[rows])
         self._experts[key] = expert
         self._margins[key] = margin
         self._pack.set(key, expert)
+
+    def _note_held(self, P: FloatArray, groups: dict[int, IntArray]) -> None:
+        """Record the cubes of the contacts a thinned expert has just taken."""
+        for key, rows in groups.items():
+            if key in self._thinned:
+                edge, held = self._thinned[key]
+                held.update(_cube(p, edge) for p in P[rows])
 
     def _append(self, P: FloatArray, N: FloatArray) -> None:
         need = self._count + len(P)
@@ -511,3 +539,21 @@ def make_estimator(
     if cfg.estimator == "local":
         return LocalGPIS(cfg, prior_centre_m=prior_centre_m)
     return AutoGPIS(cfg, prior_centre_m=prior_centre_m)
+
+
+def _cube(p: FloatArray, edge: float) -> tuple[int, int, int]:
+    """The cube of edge `edge` (m) that holds point p (3,), as integer indices."""
+    i, j, k = np.floor(p / edge).astype(np.int64).tolist()
+    return i, j, k
+
+
+def _first_per_cube(P: FloatArray, rows: IntArray, edge: float, held: set[tuple[int, int, int]]) -> IntArray:
+    """The rows of P (in order) whose cube of edge `edge` is not in `held` and not taken by an earlier row;
+    `held` gains the cubes of the rows returned."""
+    keep = []
+    for r in rows.tolist():
+        cube = _cube(P[r], edge)
+        if cube not in held:
+            held.add(cube)
+            keep.append(r)
+    return np.asarray(keep, dtype=np.int64)
