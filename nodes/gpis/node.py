@@ -8,14 +8,21 @@ from typing import Annotated, Literal
 import numpy as np
 
 from palpate.config import NonNegativeFloat, PositiveFloat, Range, Validated
-from palpate.errors import EstimationError, InputError
+from palpate.errors import ConfigError, EstimationError, InputError
 from palpate.inputs import coordinates
 from palpate.messages.schemas import ContactSet, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.gpis.core import GPISConfig, SurfaceEstimator
 from palpate.nodes.gpis.free_space import SweptSpace, enforce, within_box
 from palpate.nodes.gpis.local import make_estimator
 from palpate.nodes.gpis.reach import holding, touch_reach
-from palpate.nodes.gpis.surface import SurfaceMeshArrays, add_touch, whole_box, whole_surface
+from palpate.nodes.gpis.surface import (
+    MAX_GRID_NODES,
+    SurfaceMeshArrays,
+    add_touch,
+    axis_nodes,
+    whole_box,
+    whole_surface,
+)
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
@@ -66,6 +73,16 @@ class GPISNodeConfig(Validated):
     free_space_rounds: Annotated[int, Range(ge=1)] = 6
     #: A centre counts as breaking f >= r only below r - this.
     free_space_tolerance_m: NonNegativeFloat = 0.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        half, step = self.local_half_extent_m, self.local_resolution_m
+        if 2.0 * half / step > MAX_GRID_NODES or axis_nodes(2.0 * half, step) ** 3 > MAX_GRID_NODES:
+            raise ConfigError(
+                f"local_resolution_m = {step!r} over a local_half_extent_m = {half!r} box makes a "
+                f"local grid of more than {MAX_GRID_NODES} nodes, which no touch could mesh; coarsen it "
+                f"(the default is 0.005 m)"
+            )
 
 
 class GPISNode:

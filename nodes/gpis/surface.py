@@ -14,6 +14,7 @@ crossing gives an empty mesh, not an exception.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -80,6 +81,12 @@ class SurfaceMeshArrays:
         return self.vertices[self.faces].mean(axis=1)
 
 
+def axis_nodes(extent_m: float, resolution_m: float) -> int:
+    """Nodes of a grid axis spanning extent_m at step resolution_m (``grid_axes``): an odd number >= 3."""
+    count = max(math.ceil(extent_m / resolution_m - 1e-9) + 1, 3)
+    return count + 1 - count % 2
+
+
 def grid_axes(bounds_min: ArrayLike, bounds_max: ArrayLike, resolution_m: float) -> list[FloatArray]:
     """Per-axis node coordinates covering [bounds_min, bounds_max] with step resolution_m, centred.
 
@@ -95,8 +102,7 @@ def grid_axes(bounds_min: ArrayLike, bounds_max: ArrayLike, resolution_m: float)
         raise EstimationError(f"grid bounds_max {hi} is below bounds_min {lo}")
     if not (np.isfinite(resolution_m) and resolution_m > 0):
         raise EstimationError(f"grid resolution_m must be positive, got {resolution_m!r}")
-    counts = np.maximum(np.ceil((hi - lo) / resolution_m - 1e-9).astype(int) + 1, 3)
-    counts += 1 - counts % 2
+    counts = np.array([axis_nodes(float(e), resolution_m) for e in hi - lo])
     if int(np.prod(counts)) > MAX_GRID_NODES:
         raise EstimationError(
             f"grid of {counts.tolist()} nodes at resolution {resolution_m} m exceeds {MAX_GRID_NODES} nodes; "

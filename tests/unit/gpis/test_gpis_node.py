@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from palpate.errors import InputError
+from palpate.config import load
+from palpate.errors import ConfigError, InputError
 from palpate.messages.base import Message
 from palpate.messages.schemas import SurfaceMesh, SurfaceRequest
 from palpate.nodes.gpis.core import GPIS, GPISConfig
@@ -105,3 +106,12 @@ def test_a_refused_touch_leaves_the_kernel_as_it_was_and_growth_stops_at_its_cap
     assert node.gp.config.R_m == 0.5 and node.gp.n_contacts == 1
     node.on_touches(touch([2.0, 0.0, 0.03], [1.0, 0.0, 0.0]))  # needs 4 m: grown
     assert node.gp.config.R_m == 4.0 and node.gp.n_contacts == 2
+
+
+def test_a_local_resolution_no_touch_could_mesh_is_a_config_error() -> None:
+    """An outside audit: local_resolution_m 1e-6 passed the launch, then every touch was refused as an
+    input error and the run idled to its end with exit 0."""
+    for step in (1e-6, 1e-300):
+        with pytest.raises(ConfigError, match="local_resolution_m = .* makes a local grid of more than"):
+            load(GPISNodeConfig, {"local_resolution_m": step})
+    assert load(GPISNodeConfig, {"local_resolution_m": 0.0004}).local_resolution_m == 0.0004  # 301^3 nodes
