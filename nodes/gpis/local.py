@@ -178,6 +178,13 @@ class LocalGPIS:
         """
         P = _points(positions_m, "contact positions")
         N = _unit_normals(normals, len(P))
+        reach = self.cell_m * (_KEY_OFFSET - 16)  # voxel keys hold indices below 2^20 (and queries near)
+        if len(P) and float(np.abs(P).max()) > reach:
+            raise EstimationError(
+                f"a contact lies {float(np.abs(P).max()):.6g} m from the origin, beyond the local estimator's "
+                f"reach of {reach:.6g} m with local_cell_m = {self.cell_m:g}; use a larger local_cell_m or the exact "
+                "estimator"
+            )
         if len(P) > BATCH:
             for s in range(0, len(P), BATCH):
                 self.add_contacts(P[s : s + BATCH], N[s : s + BATCH])

@@ -112,6 +112,6 @@ def test_a_local_resolution_no_touch_could_mesh_is_a_config_error() -> None:
     """An outside audit: local_resolution_m 1e-6 passed the launch, then every touch was refused as an
     input error and the run idled to its end with exit 0."""
     for step in (1e-6, 1e-300):
-        with pytest.raises(ConfigError, match="local_resolution_m = .* makes a local grid of more than"):
+        with pytest.raises(ConfigError, match=r"local_resolution_m = .* makes a local grid of more than"):
             load(GPISNodeConfig, {"local_resolution_m": step})
     assert load(GPISNodeConfig, {"local_resolution_m": 0.0004}).local_resolution_m == 0.0004  # 301^3 nodes

@@ -242,6 +242,18 @@ def test_the_cap_holds_where_the_same_spot_or_a_small_object_is_touched_again_an
     assert np.percentile(shift_m, 95) < 5e-5, np.percentile(shift_m, 95)
 
 
+def test_a_contact_beyond_the_voxel_keys_reach_is_refused_not_misfiled() -> None:
+    """Voxel keys hold 21 bits per axis: with 0.4 mm cells (a 1 cm object's scaled config) a contact
+    600 m out overflowed them silently and experts merged (an outside audit)."""
+    config = GPISConfig.for_object_size(0.01, estimator="local")
+    local = LocalGPIS(config)
+    with pytest.raises(EstimationError, match="beyond the local estimator's reach"):
+        local.add_contact([0.0, -600.0, 600.0], [0.0, 0.0, 1.0])
+    assert local.n_contacts == 0
+    local.add_contact([0.0, -300.0, 300.0], [0.0, 0.0, 1.0])  # within 2^20 cells
+    assert local.n_contacts == 1
+
+
 def test_the_pack_holds_every_experts_current_rows_after_many_updates_and_compactions() -> None:
     """ExpertPack: after one-by-one updates (appends, garbage, compactions) each slot's rows are its
     expert's current contacts and weights, and the far field sits in slot 0."""
