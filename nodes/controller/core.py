@@ -346,6 +346,8 @@ class TrajectoryController:
         self._last_contact = touched
         self._target_p, self._target_n = t_p, t_n
         self._exploring = True
+        if not v.any() and float(np.linalg.norm(t_p - c)) < cfg.min_chord_m:
+            v = -t_n  # no direction and nowhere to go: the loop leaves along the normal (a stalled curve otherwise)
         # Eq. 15: T_p = bezier(c_p, c_p - beta v_n, t_p + beta t_n, t_p), beta = |c_p - t_p| / 3
         self._set_curve(approach_curve(c, v, t_p, t_n, min_chord_m=cfg.min_chord_m), R, t_n)
         self._direction = v

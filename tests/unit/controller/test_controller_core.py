@@ -262,3 +262,16 @@ def test_a_straight_move_has_its_own_delta_m_and_none_left_from_an_earlier_targe
         assert np.linalg.norm(run.r - target) == pytest.approx(expected, abs=1e-4)
     with pytest.raises(PlanningError, match="miss_distance_m"):
         TrajectoryController().go_straight(np.zeros(3), np.ones(3), float("inf"))
+
+
+def test_a_target_at_the_start_without_a_direction_ends_instead_of_stalling() -> None:
+    """An outside audit: v_n = 0 ("no retraction") with the target at the start gave a curve whose
+    first control points coincide, and the controller stayed at tau 0 for ever, 'travelling' between
+    the start and 0.5 mm. The loop now leaves along the target's normal: in free space it ends as
+    the other short curves do (the recovery, then FAILED)."""
+    R0 = np.diag([1.0, -1.0, -1.0])
+    for chord in (0.0, 1e-4):
+        ctrl = TrajectoryController()
+        ctrl.start(np.zeros(3), np.zeros(3), R0, [chord, 0.0, 0.0], [0.0, 0.0, 1.0])
+        run = drive(ctrl, np.zeros(3), R0, nothing, max_steps=60_000)
+        assert run.states[-1] is ControllerState.FAILED, (chord, ctrl.tau, ctrl.travelled_m)
