@@ -165,8 +165,11 @@ class Outcome:
         return 3600.0 * ran / self.wall_s / max(1, self.workers) if self.wall_s > 0 else 0.0
 
     def summary(self) -> str:
+        errors = sum(1 for row in self.rows.values() if "error" in row)
         return (
-            f"{len(self.rows)} runs done ({self.resumed} from runs.jsonl), {len(self.failed)} failed, "
+            f"{len(self.rows)} runs done ({self.resumed} from runs.jsonl"
+            + (f"; {errors} ended with an error, which --resume runs again" if errors else "")
+            + f"), {len(self.failed)} failed, "
             f"{self.retried} retried, {self.workers} Dask worker(s), "
             f"{self.runs_per_hour_per_worker():.0f} runs/hour/worker"
         )
@@ -176,8 +179,9 @@ class Outcome:
 class RunLog:
     """``runs.jsonl``: one finished run a line, appended as it finishes, each key at most once.
 
-    ``resume=False`` starts the file afresh; ``resume=True`` keeps its runs (:attr:`rows`) and drops a
-    last line cut off by a kill.
+    ``resume=False`` starts the file afresh when the first run finishes, keeping an earlier file as
+    ``runs.jsonl.previous`` (so an evaluation that never gets going, a wrong --scheduler, loses nothing);
+    ``resume=True`` keeps its runs (:attr:`rows`) and drops a last line cut off by a kill.
     """
 
     def __init__(self, path: Path, *, resume: bool) -> None:
@@ -185,25 +189,17 @@ class RunLog:
         self.rows: dict[str, Row] = {}
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if resume and self.path.exists():
-            text = self.path.read_text()
-            complete, _, partial = text.rpartition("\n") if not text.endswith("\n") else (text, "", "")
-            if partial:  # the last write was cut off: keep the complete lines only
-                self.path.write_text(complete + "\n" if complete else "")
-            for number, line in enumerate(complete.splitlines(), 1):
-                if not line.strip():
-                    continue
-                try:
-                    row = json.loads(line)
-                except json.JSONDecodeError as exc:
-                    raise ConfigError(
-                        f"{self.path}:{number} is not JSON ({exc}); remove the line or run without --resume"
-                    ) from exc
+            lines = self.path.read_text().splitlines()
+            kept = []
+            for number, row in read_rows(self.path, hint="remove the line or run without --resume"):
                 if KEY_FIELD not in row:
                     raise ConfigError(f"{self.path}:{number} has no {KEY_FIELD!r}; run without --resume")
-                self.rows[str(row.pop(KEY_FIELD))] = row
-        elif self.path.exists():
-            self.path.unlink()
-        self._file: IO[str] = self.path.open("a")
+                if "error" not in row:  # a run that ended with an error runs again
+                    kept.append(lines[number - 1])
+                    self.rows[str(row.pop(KEY_FIELD))] = row
+            if len(kept) < sum(1 for text in lines if text.strip()):
+                self.path.write_text("".join(f"{text}\n" for text in kept))  # no cut line, no error rows
+        self._file: IO[str] | None = self.path.open("a") if resume else None
 
     def append(self, key: str, row: Mapping[str, Any]) -> Row | None:
         """Write one finished run (flush + fsync) and return it as --resume will read it back (strict
@@ -211,6 +207,10 @@ class RunLog:
         written, if the key is there already."""
         if key in self.rows:
             return None
+        if self._file is None:  # the first run of a fresh start
+            if self.path.exists():
+                self.path.replace(self.path.with_name(self.path.name + ".previous"))
+            self._file = self.path.open("a")
         text = jsonio.dumps({KEY_FIELD: key, **{k: v for k, v in row.items() if not k.startswith("_")}})
         self._file.write(text + "\n")
         self._file.flush()
@@ -222,13 +222,44 @@ class RunLog:
         return stored
 
     def close(self) -> None:
-        self._file.close()
+        if self._file is not None:
+            self._file.close()
 
     def __enter__(self) -> RunLog:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def output_folder(path: Path) -> Path:
+    """``--out``, made if missing; ConfigError when it is a file (it was a FileExistsError traceback)."""
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"--out {str(path)!r} is a file; give a folder for the runs, tables and plots")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def read_rows(path: Path, *, hint: str) -> list[tuple[int, Row]]:
+    """The runs of a ``runs.jsonl`` file with their line numbers; a last line cut off by a kill is left
+    out (with a warning), any other line that is not a JSON object is a ConfigError naming it (and
+    ``hint``)."""
+    lines = Path(path).read_text().splitlines(keepends=True)
+    rows = []
+    for number, text in enumerate(lines, 1):
+        if not text.strip():
+            continue
+        try:
+            row = json.loads(text)
+        except json.JSONDecodeError as exc:
+            if number == len(lines) and not text.endswith("\n"):
+                print(f"{path}:{number} is cut off (the last write was interrupted); left out", file=sys.stderr)
+                continue
+            raise ConfigError(f"{path}:{number} is not JSON ({exc}); {hint}") from exc
+        if not isinstance(row, dict):
+            raise ConfigError(f"{path}:{number} is not a run (a JSON object); {hint}")
+        rows.append((number, row))
+    return rows
 
 
 # --- the cluster -----------------------------------------------------------------------------------------
@@ -254,7 +285,26 @@ def config_from_args(args: argparse.Namespace, **changes: Any) -> ClusterConfig:
     scheduler = args.scheduler if args.scheduler is not None else os.environ.get(SCHEDULER_ENV, "")
     if scheduler and args.workers:
         raise ConfigError(f"--workers {args.workers} sizes a local cluster; leave it out with --scheduler {scheduler}")
+    if scheduler:
+        _check_address(scheduler)
     return ClusterConfig(scheduler=scheduler, local_workers=args.workers, **changes)
+
+
+def _check_address(address: str) -> None:
+    """ConfigError unless `address` is a Dask scheduler address (tcp://host:port, tls://host:port or
+    host:port); a malformed one made the client raise a ValueError and hang 40 s at exit."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        protocol, location = parse_address(address)
+        if protocol not in ("tcp", "tls", "ucx"):
+            raise ValueError(f"protocol {protocol!r}")
+        parse_host_port(location)
+    except ValueError as exc:
+        raise ConfigError(
+            f"--scheduler {address!r} is not a Dask scheduler address ({exc}); give tcp://HOST:PORT "
+            "(`dask scheduler` prints it)"
+        ) from exc
 
 
 def describe(config: ClusterConfig) -> str:

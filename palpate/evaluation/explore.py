@@ -20,7 +20,6 @@ process graph; ``tests/integration/test_explore_graph.py`` checks both give the 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import tempfile
@@ -45,6 +44,8 @@ from palpate.evaluation.dask_runs import (
     SharedFile,
     file_digest,
     local_copy,
+    output_folder,
+    read_rows,
     report_failures,
     run_key,
     run_tasks,
@@ -570,6 +571,29 @@ def eval_params(args: argparse.Namespace) -> dict[str, Any]:
     return params
 
 
+def runs_from(path: Path) -> list[dict[str, Any]]:
+    """The runs of a runs.jsonl file (``--from-runs``): ConfigError for a line that is not a run or that
+    repeats the object, strategy and run of an earlier line (runs made with other settings, left in a file
+    that --resume went on with); a last line cut off by a kill is left out with a warning."""
+    if not path.is_file():
+        raise ConfigError(f"--from-runs {str(path)!r} is not a file; give a runs.jsonl")
+    seen: dict[tuple[Any, Any, Any], int] = {}
+    results = []
+    for number, row in read_rows(path, hint="remove the line"):
+        row.pop(KEY_FIELD, None)
+        if not {"object", "strategy", "run"} <= row.keys():
+            raise ConfigError(f"{path}:{number} has no object, strategy and run; not a run of palpate eval explore")
+        which = (row["object"], row["strategy"], row["run"])
+        if which in seen:
+            raise ConfigError(
+                f"{path}:{number} repeats {which[0]} {which[1]} run {which[2]} of line {seen[which]} (runs of "
+                "other settings?); keep one of them"
+            )
+        seen[which] = number
+        results.append(row)
+    return results
+
+
 def select_cases(folder: Path | None, smallest: int | None = None, scale: float = 1.0) -> list[ObjectCase]:
     """The objects of an evaluation: every mesh of ``folder`` (default: the YCB folder, in metres after
     ``scale``), or only the ``smallest`` ones by surface area."""
@@ -642,13 +666,11 @@ def main(args: argparse.Namespace) -> int:
     if runs < 1:
         raise ConfigError(f"--runs must be >= 1, got {runs}")
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    output_folder(out)
     start = time.perf_counter()
     outcome = None
     if args.from_runs is not None:
-        results = [json.loads(line) for line in args.from_runs.read_text().splitlines() if line.strip()]
-        for r in results:
-            r.pop(KEY_FIELD, None)
+        results = runs_from(args.from_runs)
         cases = sorted({r["object"] for r in results})
         runs = 1 + max((int(r["run"]) for r in results), default=0)
         strategies = [s for s in strategies if any(r["strategy"] == s for r in results)]
@@ -658,7 +680,15 @@ def main(args: argparse.Namespace) -> int:
         items = episodes(chosen, runs, strategies, params=eval_params(args))
         check_episodes(items)
         with RunLog(out / "runs.jsonl", resume=args.resume) as log:
-            rows, outcome = run_episodes(items, log, cluster_config(args), profile=args.profile)
+            try:
+                rows, outcome = run_episodes(items, log, cluster_config(args), profile=args.profile)
+            except KeyboardInterrupt:
+                print(
+                    f"\ninterrupted: {len(log.rows)} finished run(s) are in {out / 'runs.jsonl'}; the same command "
+                    "with --resume goes on from them",
+                    file=sys.stderr,
+                )
+                raise
         results = [r for r in rows if r is not None]
         report_failures(outcome)
     elapsed = time.perf_counter() - start

@@ -46,6 +46,7 @@ from palpate.evaluation.dask_runs import (
     ClusterConfig,
     Outcome,
     RunLog,
+    output_folder,
     read_non_finite,
     report_failures,
     spell_non_finite,
@@ -552,7 +553,7 @@ def main(args: argparse.Namespace) -> int:
         + "".join(f", {k}={v}" for k, v in config.launch_args.items()),
         file=sys.stderr,
     )
-    args.out.mkdir(parents=True, exist_ok=True)
+    output_folder(args.out)
     with RunLog(args.out / "runs.jsonl", resume=args.resume) as log:
         results, outcome = run_seeds(config, log, cluster, plot_seed=config.seeds[0])
     report_failures(outcome)

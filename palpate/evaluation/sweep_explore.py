@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -24,7 +25,7 @@ import numpy as np
 
 from palpate import jsonio
 from palpate.errors import ConfigError
-from palpate.evaluation.dask_runs import RunLog, report_failures
+from palpate.evaluation.dask_runs import RunLog, output_folder, report_failures
 from palpate.evaluation.dask_runs import add_arguments as add_cluster_arguments
 from palpate.evaluation.dask_runs import config_from_args as cluster_config
 from palpate.evaluation.explore import (
@@ -198,12 +199,15 @@ def main(args: argparse.Namespace) -> int:
     for setting in settings:  # each setting's overrides, before any worker starts
         check_episodes([ep for s, ep in pairs if s is setting])
     out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    output_folder(out)
     start = time.perf_counter()
     with RunLog(out / "runs.jsonl", resume=args.resume) as log:
         results, outcome = run_episodes([ep for _, ep in pairs], log, cluster_config(args), prefix="sweep-explore")
     report_failures(outcome)
     report_stopped([row for row in results if row is not None])
+    errors = [row for row in results if row is not None and "error" in row]
+    for r in errors:  # counted as not completed in the table; said here, and the exit status says so
+        print(f"run failed: {r['object']} {r['strategy']} run {r['run']}: {r['error']}", file=sys.stderr)
     elapsed = time.perf_counter() - start
     by_setting: dict[str, list[dict[str, Any]]] = {}
     for (setting, _), row in zip(pairs, results, strict=True):
@@ -220,4 +224,4 @@ def main(args: argparse.Namespace) -> int:
     print(f"wrote {out}/sweep.md, sweep.png, runs.jsonl")
     if args.json:
         print(jsonio.dumps(rows))
-    return 1 if outcome.failed else 0
+    return 1 if outcome.failed or errors else 0

@@ -36,6 +36,7 @@ from palpate.evaluation.dask_runs import (
     RunTask,
     add_arguments,
     config_from_args,
+    output_folder,
     read_non_finite,
     report_failures,
     run_key,
@@ -402,7 +403,7 @@ def main(args: argparse.Namespace) -> int:
         )
         for r in resolutions
     ]
-    args.out.mkdir(parents=True, exist_ok=True)
+    output_folder(args.out)
     with RunLog(args.out / "runs.jsonl", resume=args.resume) as log:
         outcome = run_tasks(tasks, log, config_from_args(args))
     report_failures(outcome)

@@ -36,9 +36,25 @@ def test_resume_keeps_the_finished_runs_and_drops_a_cut_off_last_line(tmp_path: 
         assert log.rows == {"a": {"x": 1}, "b": {"x": 2}}
         log.append("c", {"x": 3})
     assert [r["run_key"] for r in lines(path)] == ["a", "b", "c"]
-    with RunLog(path, resume=False) as log:
+    previous = path.read_text()
+    with RunLog(path, resume=False) as log:  # a fresh start that never finishes a run changes nothing
         assert log.rows == {}
-    assert path.read_text() == ""
+    assert path.read_text() == previous
+    with RunLog(path, resume=False) as log:
+        log.append("d", {"x": 4})
+    assert [r["run_key"] for r in lines(path)] == ["d"]
+    assert (tmp_path / "runs.jsonl.previous").read_text() == previous  # kept beside it
+
+
+def test_resume_runs_again_what_ended_with_an_error(tmp_path: Path) -> None:
+    """A run that raised a PalpateError is a row with "error"; --resume kept it, never ran it again and
+    the evaluation exited 1 for ever (an outside audit)."""
+    path = tmp_path / "runs.jsonl"
+    path.write_text('{"run_key": "a", "x": 1}\n{"run_key": "b", "error": "MeshError: bad"}\n')
+    with RunLog(path, resume=True) as log:
+        assert log.rows == {"a": {"x": 1}}
+        log.append("b", {"x": 2})
+    assert [r["run_key"] for r in lines(path)] == ["a", "b"] and "error" not in lines(path)[1]
 
 
 def test_resume_refuses_a_broken_line_in_the_middle(tmp_path: Path) -> None:
@@ -117,3 +133,18 @@ def test_run_tasks_skips_finished_runs_retries_and_reports_failures(tmp_path: Pa
 def test_two_runs_with_one_key_are_refused(tmp_path: Path) -> None:
     with RunLog(tmp_path / "runs.jsonl", resume=False) as log, pytest.raises(ConfigError, match="run key"):
         dask_runs.run_tasks([RunTask(key="a", function=dict), RunTask(key="a", function=dict)], log, ClusterConfig())
+
+
+def test_a_malformed_scheduler_address_or_an_out_that_is_a_file_is_refused_by_name(tmp_path: Path) -> None:
+    """An outside audit: `--scheduler notanaddress` was a ValueError traceback and a 40 s hang; `--out` naming
+    a file a FileExistsError traceback."""
+    from palpate.evaluation.dask_runs import config_from_args, output_folder
+
+    for address in ("notanaddress", "http://127.0.0.1:8786", "tcp://host"):
+        with pytest.raises(ConfigError, match="is not a Dask scheduler address"):
+            config_from_args(argparse.Namespace(scheduler=address, workers=0))
+    assert config_from_args(argparse.Namespace(scheduler="tcp://127.0.0.1:8786", workers=0)).scheduler
+    (tmp_path / "file").write_text("")
+    with pytest.raises(ConfigError, match="is a file; give a folder"):
+        output_folder(tmp_path / "file")
+    assert output_folder(tmp_path / "a" / "b").is_dir()

@@ -137,6 +137,27 @@ def test_choosing_the_smallest_objects_names_a_mesh_it_cannot_read(tmp_path: Pat
     assert [c.name for c in select_cases(tmp_path, smallest=1)] == ["box"]
 
 
+def test_runs_from_a_file_leave_out_a_cut_last_line_and_refuse_a_repeated_run(tmp_path: Path) -> None:
+    """--from-runs: a file cut by a kill was a JSONDecodeError traceback; a run repeated by a --resume
+    with other settings was counted twice (an outside audit)."""
+    from palpate.evaluation.explore import runs_from
+
+    path = tmp_path / "runs.jsonl"
+    a = '{"run_key": "k1", "object": "ball", "strategy": "igef", "run": 0, "x": 1}'
+    b = '{"run_key": "k2", "object": "ball", "strategy": "gpv", "run": 0, "x": 2}'
+    path.write_text(f"{a}\n{b}\n" + b[:20])
+    assert runs_from(path) == [
+        {"object": "ball", "strategy": "igef", "run": 0, "x": 1},
+        {"object": "ball", "strategy": "gpv", "run": 0, "x": 2},
+    ]
+    path.write_text(f"{a}\n{b}\n{a.replace('k1', 'k3')}\n")
+    with pytest.raises(ConfigError, match=r"runs.jsonl:3 repeats ball igef run 0 of line 1"):
+        runs_from(path)
+    path.write_text(f"{a}\nnot json\n{b}\n")
+    with pytest.raises(ConfigError, match=r"runs.jsonl:2 is not JSON"):
+        runs_from(path)
+
+
 def test_a_budget_given_on_the_command_line_is_not_scaled_by_the_object() -> None:
     import argparse
 
