@@ -14,6 +14,7 @@ produces the known-pose map bit for bit.
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass
 from typing import Annotated, Literal
@@ -72,7 +73,7 @@ class MapperConfig(Validated):
     l_free: Annotated[float, Range(lt=0.0)] = L_FREE
     l_min: float = -10.0
     l_max: float = 10.0
-    likelihood_floor: Annotated[float, Fraction] = 0.01
+    likelihood_floor: Annotated[float, Range(gt=0.0, lt=0.5)] = 0.01
     free_weight: NonNegativeFloat = 1.0
     free_reward: bool = True
     free_spacing_m: Annotated[float | None, Positive] = None
@@ -88,6 +89,45 @@ class MapperConfig(Validated):
             raise ConfigError(f"l_min must be < 0 (a clamp below the prior), got {self.l_min!r}", ("l_min",))
         if not self.l_max > 0.0:
             raise ConfigError(f"l_max must be > 0 (a clamp above the prior), got {self.l_max!r}", ("l_max",))
+
+
+#: Bytes a particle's update takes per free-volume point (its cell keys and scores, a few arrays of it).
+BYTES_PER_POINT_AND_PARTICLE = 12
+
+
+def lattice_points(chain: KinematicChain, spacing_m: float, margin_m: float) -> int:
+    """At least as many points as ``capsule_lattice`` lays in the chain's capsules (those of the box around
+    each capsule), counted without building them."""
+    total = 0
+    for cap in chain.capsule_list:
+        length = float(np.linalg.norm(cap.b_local_m - cap.a_local_m))
+        r = cap.radius_m - margin_m
+        if r > 0:
+            nr, nz = math.floor(r / spacing_m), math.floor((length / 2 + r) / spacing_m)
+            total += (2 * nr + 1) ** 2 * (2 * nz + 1)
+    return total
+
+
+def check_memory(config: MapperConfig, spec: GridSpec, n_maps: int, points: int) -> None:
+    """ConfigError naming the settings when the maps' index table or one update's arrays would not fit in
+    this machine's memory (numpy's allocation error came from deep in the mapper, at start or mid-run)."""
+    chunks = math.prod(-(-n // config.chunk_edge) for n in spec.shape) + 1
+    need = {
+        "the particles' chunk table": 4 * n_maps * chunks,
+        "one update's free-volume arrays": BYTES_PER_POINT_AND_PARTICLE * n_maps * points,
+    }
+    try:
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return
+    for what, size in need.items():
+        if size > have:
+            raise ConfigError(
+                f"n_particles = {config.n_particles} at resolution_m = {config.resolution_m!r} needs "
+                f"{size / 2**30:.3g} GiB for {what} ({points} free-volume points a particle), more than this "
+                f"machine's {have / 2**30:.3g} GiB; use fewer particles or a coarser resolution",
+                ("n_particles",),
+            )
 
 
 @dataclass
@@ -124,12 +164,13 @@ class Mapper:
         self.chain = chain
         self.spec = GridSpec.from_bounds(config.region_min_m, config.region_max_m, config.resolution_m)
         n_maps = 1 if config.mode == "known" else config.n_particles
-        self.grids = LogOddsGrids(
-            self.spec, n_maps, chunk_edge=config.chunk_edge, l_min=config.l_min, l_max=config.l_max
-        )
         res = config.resolution_m
         spacing = config.free_spacing_m if config.free_spacing_m is not None else res
         margin = config.free_margin_m if config.free_margin_m is not None else res
+        check_memory(config, self.spec, n_maps, lattice_points(chain, spacing, margin))
+        self.grids = LogOddsGrids(
+            self.spec, n_maps, chunk_edge=config.chunk_edge, l_min=config.l_min, l_max=config.l_max
+        )
         self.free_volume = capsule_lattice(chain, spacing, margin)
         self._free_h = self.free_volume.homogeneous()
         self.counters = MapperCounters()

@@ -38,6 +38,10 @@ class MapperNodeConfig(Validated):
     label: str = ""
 
 
+#: Contacts that all lie outside the mapped region before the mapper says so (a region that misses the object).
+WARN_OUTSIDE_AFTER = 10
+
+
 class MapperNode:
     """Thin wrapper around MapperSession (and its Mapper)."""
 
@@ -46,6 +50,7 @@ class MapperNode:
         self.chain = KinematicChain.from_description(load_hand(), config.mount)
         self.core = Mapper(config.mapper, self.chain, ctx.rng)
         self.session = MapperSession(self.core, config.publish_period_s, config.label)
+        self._warned = False  # that every contact lies outside the region
 
     def on_joint_states(self, message: JointState) -> None:
         self.session.joint_reading(message.names, message.positions_rad, message.stamp_ns)
@@ -59,6 +64,17 @@ class MapperNode:
             return
         c = self.core.counters
         self.ctx.metrics.update(updates=c.updates, n_eff=self.core.n_eff)
+        self.ctx.counters.update(contacts_outside=c.contacts_outside, free_points_outside=c.free_points_outside)
+        maps = self.core.grids.n_maps  # each particle places every contact
+        if not self._warned and c.contacts >= WARN_OUTSIDE_AFTER and c.contacts_outside == maps * c.contacts:
+            self._warned = True
+            self.ctx.log.warning(
+                "mapper: the first %d contacts all lie outside the mapped region (region_min_m %s, region_max_m %s); "
+                "the maps stay empty: widen the region to hold the object",
+                c.contacts,
+                self.config.mapper.region_min_m,
+                self.config.mapper.region_max_m,
+            )
         self.ctx.timings["ms_per_update"] = c.mean_update_ms
         if self.core.filter is not None:
             self._publish_particles(stamp_ns, step.resampled)

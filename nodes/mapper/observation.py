@@ -46,7 +46,8 @@ def capsule_lattice(chain: KinematicChain, spacing_m: float, margin_m: float) ->
     """A cubic lattice of spacing ``spacing_m`` inside every capsule of the chain shrunk by margin_m.
 
     The lattice is laid in each capsule's own frame (axis along z), so it moves rigidly with its
-    link. A capsule thinner than the margin contributes the points of its axis only.
+    link. A capsule thinner than the margin contributes no point: with cells as large as the finger's
+    radius, points on its axis lie in the cells it touches and would clear the contacts' cells.
     """
     per_link: list[list[NDArray[np.float64]]] = [[] for _ in range(chain.n_links)]
     for cap in chain.capsule_list:
@@ -57,22 +58,18 @@ def capsule_lattice(chain: KinematicChain, spacing_m: float, margin_m: float) ->
         x /= np.linalg.norm(x)
         y = np.cross(z, x)
         r = cap.radius_m - margin_m
-        if r <= 0:  # too thin to hold a whole cell: sample its axis only
-            n = max(1, int(np.floor(length / spacing_m)) + 1)
-            t = np.linspace(0.0, length, n)
-            pts = a + t[:, None] * z
-        else:
-            nr = int(np.floor(r / spacing_m))
-            nz = int(np.floor((length / 2 + r) / spacing_m))
-            u = np.arange(-nr, nr + 1) * spacing_m
-            w = np.arange(-nz, nz + 1) * spacing_m + length / 2
-            gu, gv, gw = np.meshgrid(u, u, w, indexing="ij")
-            local = np.stack([gu.ravel(), gv.ravel(), gw.ravel()], axis=1)  # capsule frame
-            along = np.clip(local[:, 2], 0.0, length)
-            dist = np.hypot(np.hypot(local[:, 0], local[:, 1]), local[:, 2] - along)
-            local = local[dist <= r]
-            pts = a + local[:, :1] * x + local[:, 1:2] * y + local[:, 2:3] * z
-        per_link[cap.link].append(pts)
+        if r <= 0:  # too thin to hold a whole cell: no free volume one margin deep
+            continue
+        nr = int(np.floor(r / spacing_m))
+        nz = int(np.floor((length / 2 + r) / spacing_m))
+        u = np.arange(-nr, nr + 1) * spacing_m
+        w = np.arange(-nz, nz + 1) * spacing_m + length / 2
+        gu, gv, gw = np.meshgrid(u, u, w, indexing="ij")
+        local = np.stack([gu.ravel(), gv.ravel(), gw.ravel()], axis=1)  # capsule frame
+        along = np.clip(local[:, 2], 0.0, length)
+        dist = np.hypot(np.hypot(local[:, 0], local[:, 1]), local[:, 2] - along)
+        local = local[dist <= r]
+        per_link[cap.link].append(a + local[:, :1] * x + local[:, 1:2] * y + local[:, 2:3] * z)
     return FreeVolume(local_m=tuple(np.concatenate(p) if p else np.zeros((0, 3)) for p in per_link))
 
 

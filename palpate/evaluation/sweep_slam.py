@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import math
 import sys
 import time
 import tracemalloc
@@ -386,8 +387,10 @@ def main(args: argparse.Namespace) -> int:
         resolutions = [float(r) for r in str(args.resolutions_mm).split(",") if r]
     except ValueError as exc:
         raise ConfigError(f"--particles and --resolutions-mm take comma-separated numbers: {exc}") from None
-    if duration <= 0 or not Ks or not resolutions:
+    if not (duration > 0 and math.isfinite(duration)) or not Ks or not resolutions:
         raise ConfigError("need a positive --duration-s, at least one K and one resolution")
+    if min(Ks) < 1 or not all(r > 0 and math.isfinite(r) for r in resolutions):
+        raise ConfigError(f"--particles must be >= 1 and --resolutions-mm finite and > 0, got {Ks} and {resolutions}")
     t0 = time.perf_counter()
     print(f"palpate sweep slam: recording {duration:g} s of exploration (seed {args.seed})", file=sys.stderr)
     stream = record_stream(args.seed, duration, 1.5)

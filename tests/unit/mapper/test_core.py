@@ -42,6 +42,8 @@ def _contact_step(rec: TappingRecord) -> int:
         ({"l_min": 0.5}, "l_min must be < 0"),
         ({"l_max": -1.0}, "l_max must be > 0"),
         ({"l_max": math.inf}, "l_max"),
+        ({"likelihood_floor": 0.7}, "likelihood_floor"),  # FastSlam needs (0, 0.5): it passed the dry run
+        ({"likelihood_floor": 0.0}, "likelihood_floor"),
     ],
 )
 def test_bad_config_values_are_quoted(changes: dict[str, object], message: str) -> None:
@@ -131,6 +133,42 @@ def test_free_spacing_and_margin_change_the_free_volume(scene: tuple[KinematicCh
     sparse = Mapper(replace(base, free_spacing_m=0.004), chain, np.random.default_rng(0)).free_volume.n_points
     thin = Mapper(replace(base, free_margin_m=0.006), chain, np.random.default_rng(0)).free_volume.n_points
     assert sparse < dense / 4 and thin < dense
+
+
+def test_settings_that_would_not_fit_in_memory_are_refused_before_allocating(
+    scene: tuple[KinematicChain, TappingRecord],
+) -> None:
+    """An outside audit: n_particles 1e11 (78.9 TiB of chunk table) and a 0.1 mm grid with 100 particles
+    (26 GB of free-volume arrays at the first contact) ended in numpy's allocation errors."""
+    chain, _ = scene
+    from palpate.nodes.mapper.core import lattice_points
+
+    base = MapperConfig(**REGION)  # type: ignore[arg-type]
+    for spacing, margin in ((0.002, 0.002), (0.004, 0.001), (0.001, 0.006)):
+        lattice = Mapper(
+            replace(base, mode="known", free_spacing_m=spacing, free_margin_m=margin), chain, np.random.default_rng(0)
+        )
+        n = lattice.free_volume.n_points
+        assert n <= lattice_points(chain, spacing, margin) <= 2 * n  # the boxes around the capsules
+    with pytest.raises(ConfigError, match=r"n_particles = 100000000000 .* GiB for the particles' chunk table"):
+        Mapper(replace(base, n_particles=100_000_000_000), chain, np.random.default_rng(0))
+    with pytest.raises(ConfigError, match=r"resolution_m = 5e-05 needs .* GiB for one update's free-volume arrays"):
+        small = replace(base, region_min_m=(0.0, 0.0, 0.0), region_max_m=(0.01, 0.01, 0.01))  # a small table
+        Mapper(replace(small, resolution_m=5e-05), chain, np.random.default_rng(0))
+
+
+@pytest.mark.parametrize("mode", ["known", "fastslam"])
+def test_cells_as_large_as_the_finger_keep_its_contacts(scene: tuple[KinematicChain, TappingRecord], mode: str) -> None:
+    """An outside audit: with 8 mm cells and more the finger's free volume fell back to points on its
+    axes, in the cells it touches, and cleared the contacts' cells (at 10 cm none stayed). A capsule
+    thinner than the free margin now gives no free volume."""
+    chain, rec = scene
+    config = MapperConfig(**REGION, mode=mode, resolution_m=0.01, n_particles=5)  # type: ignore[arg-type]
+    m = Mapper(config, chain, np.random.default_rng(4))
+    assert m.free_volume.n_points == 0
+    for t in range(len(rec.q_true)):
+        m.update(rec.q_true[t], rec.contact_links[t], rec.contact_local_m[t])
+    assert np.count_nonzero(m.best_map().log_odds > 0) > 0
 
 
 def test_cores_import_no_sockets() -> None:

@@ -76,3 +76,23 @@ def test_readings_without_the_joints_are_refused_and_change_nothing(file: str) -
     assert len(clean_out) == len(fed_out) > 0
     for (topic_a, a), (topic_b, b) in zip(clean_out, fed_out, strict=True):
         assert topic_a == topic_b and a == b
+
+
+@pytest.mark.parametrize("file", ["map_known.yaml", "fastslam.yaml"])
+def test_a_region_that_misses_every_contact_is_said_once(file: str, caplog: pytest.LogCaptureFixture) -> None:
+    """An outside audit: a region beside the object mapped nothing, exit 0, no line in the log; the counts
+    were kept in the core only."""
+    process = next(p for p in resolve(load_launch(LAUNCH_DIR / file)).process_specs() if p.type == "mapper")
+    params = {**process.params, "mapper": {**process.params["mapper"]}}
+    params["mapper"].update(region_min_m=[1.0, 1.0, 1.0], region_max_m=[1.1, 1.1, 1.1])
+    ctx = NodeContext("mapper", 1, lambda topic, message: None, dict(process.publishes))
+    node = MapperNode(load(MapperNodeConfig, params), ctx)
+    joints, tip = list(node.chain.joint_names), node.chain.link_names[-1]
+    for tick in range(30):
+        stamp = tick * 10_000_000
+        node.on_joint_states(reading(joints, np.radians([0.0, 20.0, 30.0, 10.0]), stamp))
+        node.on_contacts(contacts([tip], np.array([[0.0, 0.0, -0.008]]), stamp))
+        node.on_tick(stamp)
+    assert ctx.counters["contacts_outside"] == node.core.grids.n_maps * 30
+    said = [r.getMessage() for r in caplog.records if "outside the mapped region" in r.getMessage()]
+    assert len(said) == 1 and "the first 10 contacts" in said[0]
