@@ -286,7 +286,7 @@ class LocalGPIS:
         for key, rows in groups.items():
             if key in self._thinned:
                 edge, held = self._thinned[key]
-                held.update(_cube(p, edge) for p in P[rows])
+                held.update(_cubes(P[rows], edge))
 
     def _append(self, P: FloatArray, N: FloatArray) -> None:
         need = self._count + len(P)
@@ -548,18 +548,16 @@ def make_estimator(
     return AutoGPIS(cfg, prior_centre_m=prior_centre_m)
 
 
-def _cube(p: FloatArray, edge: float) -> tuple[int, int, int]:
-    """The cube of edge `edge` (m) that holds point p (3,), as integer indices."""
-    i, j, k = np.floor(p / edge).astype(np.int64).tolist()
-    return i, j, k
+def _cubes(points_m: FloatArray, edge: float) -> list[tuple[int, int, int]]:
+    """The cubes of edge `edge` (m) that hold the points (n, 3), as integer index triples."""
+    return [(i, j, k) for i, j, k in np.floor(points_m / edge).astype(np.int64).tolist()]
 
 
 def _first_per_cube(P: FloatArray, rows: IntArray, edge: float, held: set[tuple[int, int, int]]) -> IntArray:
     """The rows of P (in order) whose cube of edge `edge` is not in `held` and not taken by an earlier row;
     `held` gains the cubes of the rows returned."""
     keep = []
-    for r in rows.tolist():
-        cube = _cube(P[r], edge)
+    for r, cube in zip(rows.tolist(), _cubes(P[rows], edge), strict=True):
         if cube not in held:
             held.add(cube)
             keep.append(r)

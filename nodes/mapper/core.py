@@ -36,7 +36,7 @@ from palpate.errors import ConfigError, EstimationError
 from palpate.nodes.mapper.fastslam import FastSlam
 from palpate.nodes.mapper.grid import L_FREE, L_OCC, GridSpec, LogOddsGrids, SparseMap
 from palpate.nodes.mapper.kinematics import KinematicChain
-from palpate.nodes.mapper.observation import capsule_lattice, observation_keys
+from palpate.nodes.mapper.observation import capsule_grid, capsule_lattice, observation_keys
 
 FloatArray = NDArray[np.float64]
 
@@ -100,10 +100,9 @@ def lattice_points(chain: KinematicChain, spacing_m: float, margin_m: float) -> 
     each capsule), counted without building them."""
     total = 0
     for cap in chain.capsule_list:
-        length = float(np.linalg.norm(cap.b_local_m - cap.a_local_m))
-        r = cap.radius_m - margin_m
-        if r > 0:
-            nr, nz = math.floor(r / spacing_m), math.floor((length / 2 + r) / spacing_m)
+        grid = capsule_grid(cap.radius_m, float(np.linalg.norm(cap.b_local_m - cap.a_local_m)), spacing_m, margin_m)
+        if grid is not None:
+            _, nr, nz = grid
             total += (2 * nr + 1) ** 2 * (2 * nz + 1)
     return total
 

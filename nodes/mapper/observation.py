@@ -16,6 +16,7 @@ and the position in that link's frame. For a pose (one particle, or the known po
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -42,6 +43,15 @@ class FreeVolume:
         return tuple(np.vstack([p.T, np.ones((1, len(p)))]).astype(np.float32) for p in self.local_m)
 
 
+def capsule_grid(radius_m: float, length_m: float, spacing_m: float, margin_m: float) -> tuple[float, int, int] | None:
+    """The lattice box of a capsule shrunk by margin_m: its radius r and the nodes either side of its
+    centre across (nr) and along (nz) the axis, or None when the capsule is no thicker than the margin."""
+    r = radius_m - margin_m
+    if r <= 0:
+        return None
+    return r, math.floor(r / spacing_m), math.floor((length_m / 2 + r) / spacing_m)
+
+
 def capsule_lattice(chain: KinematicChain, spacing_m: float, margin_m: float) -> FreeVolume:
     """A cubic lattice of spacing ``spacing_m`` inside every capsule of the chain shrunk by margin_m.
 
@@ -57,11 +67,10 @@ def capsule_lattice(chain: KinematicChain, spacing_m: float, margin_m: float) ->
         x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
         x /= np.linalg.norm(x)
         y = np.cross(z, x)
-        r = cap.radius_m - margin_m
-        if r <= 0:  # too thin to hold a whole cell: no free volume one margin deep
+        grid = capsule_grid(cap.radius_m, length, spacing_m, margin_m)
+        if grid is None:  # too thin to hold a whole cell: no free volume one margin deep
             continue
-        nr = int(np.floor(r / spacing_m))
-        nz = int(np.floor((length / 2 + r) / spacing_m))
+        r, nr, nz = grid
         u = np.arange(-nr, nr + 1) * spacing_m
         w = np.arange(-nz, nz + 1) * spacing_m + length / 2
         gu, gv, gw = np.meshgrid(u, u, w, indexing="ij")

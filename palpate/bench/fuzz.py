@@ -461,7 +461,10 @@ class _Harness:
         self.report = report
         process = target.process
         self.ctx = NodeContext(process.name, process.seed, self._send, dict(process.publishes))
-        self.ctx.log.setLevel(logging.ERROR)  # one warning per rejected input is the point, not the output
+        # one warning per rejected input is the point, not the output: a logger of the fuzzer's own, so the
+        # node's (palpate.<name>) keeps its level for whatever runs next in this process
+        self.ctx.log = logging.getLogger(f"palpate.fuzz.{process.name}")
+        self.ctx.log.setLevel(logging.ERROR)
         validate = self.ctx.publish
 
         def publish(port: str, message: Message) -> None:

@@ -197,9 +197,16 @@ class RunLog:
                 if "error" not in row:  # a run that ended with an error runs again
                     kept.append(lines[number - 1])
                     self.rows[str(row.pop(KEY_FIELD))] = row
-            if len(kept) < sum(1 for text in lines if text.strip()):
-                self.path.write_text("".join(f"{text}\n" for text in kept))  # no cut line, no error rows
+            if len(kept) < sum(1 for text in lines if text.strip()):  # no cut line, no error rows
+                partial = self.path.with_name(self.path.name + ".partial")
+                partial.write_text("".join(f"{text}\n" for text in kept))
+                partial.replace(self.path)  # a kill meanwhile leaves the file as it was
         self._file: IO[str] | None = self.path.open("a") if resume else None
+
+    @property
+    def started(self) -> bool:
+        """Whether the file holds this evaluation's runs (resumed, or a run finished since a fresh start)."""
+        return self._file is not None
 
     def append(self, key: str, row: Mapping[str, Any]) -> Row | None:
         """Write one finished run (flush + fsync) and return it as --resume will read it back (strict

@@ -683,11 +683,13 @@ def main(args: argparse.Namespace) -> int:
             try:
                 rows, outcome = run_episodes(items, log, cluster_config(args), profile=args.profile)
             except KeyboardInterrupt:
-                print(
-                    f"\ninterrupted: {len(log.rows)} finished run(s) are in {out / 'runs.jsonl'}; the same command "
-                    "with --resume goes on from them",
-                    file=sys.stderr,
+                kept = (
+                    f"{len(log.rows)} finished run(s) are in {out / 'runs.jsonl'}; the same command with --resume "
+                    "goes on from them"
+                    if log.started
+                    else f"no run finished; {out / 'runs.jsonl'} is as it was"
                 )
+                print(f"\ninterrupted: {kept}", file=sys.stderr)
                 raise
         results = [r for r in rows if r is not None]
         report_failures(outcome)

@@ -133,6 +133,10 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
         around = f" ({exc.context} at line {context.line + 1})" if exc.context and context else ""
         line, column = (mark.line + 1, mark.column + 1) if mark else (1, 1)
         raise LaunchError(f"{name}:{line}: invalid YAML: {exc.problem} at column {column}{around}") from exc
+    except yaml.reader.ReaderError as exc:  # a character YAML does not allow (a control character)
+        line = text.count("\n", 0, exc.position) + 1
+        char = chr(exc.character) if isinstance(exc.character, int) else exc.character
+        raise LaunchError(f"{name}:{line}: invalid YAML: the character {char!r} is not allowed") from exc
     if root is None:
         raise LaunchError(f"{name}:1: empty launch file: it needs at least a 'nodes' list")
     if not isinstance(root, yaml.MappingNode):

@@ -511,6 +511,8 @@ def _output(src: str | Path, dst: str | Path, command: str, overwrite: bool = Tr
         raise RecordError(f"{command} would overwrite its input {src}; choose another output with -o")
     if dst.is_dir():
         raise RecordError(f"{dst} is a directory; give -o a file name")
+    if not dst.parent.is_dir():
+        raise RecordError(f"{dst}: the folder {dst.parent} does not exist; create it or give -o another path")
     if dst.exists() and not overwrite:
         raise RecordError(f"{dst} exists; pass --force to replace it, or choose another output with -o")
     _open(src).close()

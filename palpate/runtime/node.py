@@ -31,13 +31,14 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
 from typing import Any, cast
 
 import numpy as np
 import zmq
+from msgpack.exceptions import UnpackException
 
 from palpate.config import load
 from palpate.errors import MessageError, OutputError, PalpateError, PeerLostError
@@ -55,7 +56,12 @@ STOP, FAIL = "stop", "fail"
 #: process died or closed its sockets): no lockstep node can rejoin, so the run ends naming it. The grace
 #: lets a clean stop arrive first (the stop and the unsubscription come over different connections).
 PEER_GRACE_S = 2.0
+#: The stop's reason when the clock source's step() ended the run (its simulated duration ran out).
+CLOCK_FINISHED = "clock source finished"
 _INTERNAL = (topics.CLOCK, topics.LOCKSTEP_ACK, STOP_TOPIC)
+#: What odd bytes can raise from decoding besides the codec's named MessageError (a bool where numpy wants
+#: an int raised a TypeError that ended the node): counted as decode errors, logged with their type.
+_UNDECODABLE = (ValueError, TypeError, KeyError, IndexError, OverflowError, RecursionError, UnpackException)
 _LOG_FIRST_ERRORS = 10
 
 log = logging.getLogger("palpate.node")
@@ -349,7 +355,8 @@ class NodeRunner:
                     self.ctx.failure = f"{control.reason or 'no reason given'} (asked by a RunControl 'fail')"
                 self.stopping = True
                 self.stop_reason = self.stop_reason or control.reason
-                self.ctx.run_stopped_by = self.ctx.run_stopped_by or control.reason
+                if control.reason != CLOCK_FINISHED:  # the clock running out is no node ending the run
+                    self.ctx.run_stopped_by = self.ctx.run_stopped_by or control.reason
         elif topic in self.input_types:
             self.seq += 1
             rank = self.process.topic_order.get(topic, 1 << 30)
@@ -372,7 +379,7 @@ class NodeRunner:
             return codec.decode(payload, cls)
         except MessageError as exc:
             self._bad_input(topic, str(exc))
-        except Exception as exc:  # a codec fault must not end the node either: count it like bad input
+        except _UNDECODABLE as exc:  # a fault the codec does not name must not end the node either
             self._bad_input(topic, f"undecodable payload ({type(exc).__name__}: {exc})")
         return None
 
@@ -468,7 +475,7 @@ class NodeRunner:
         deadline = time.monotonic() + self.ack_timeout_s
         while not self.interrupted and any(self.acks.get(n, -2) < tick for n in nodes):
             if time.monotonic() > deadline:
-                late = holding_up(self.acks, tick, self.process)
+                late = holding_up(self.acks, tick, self.process, nodes)
                 raise TimeoutError(f"no acknowledgement of tick {tick} from {late} in {self.ack_timeout_s:.0f} s")
             if not self._receive(100) and (gone := self._gone(self.process.lockstep_nodes)):
                 raise PeerLostError(f"no acknowledgement of tick {tick}: {_left(gone)}")
@@ -536,7 +543,7 @@ class NodeRunner:
                 next_report = now + progress_s
                 wall_s, sim_s = now - start, self.ctx.stamp_ns * 1e-9
                 log.info("t = %.1f s after %.0f s of wall time (%.2fx real time)", sim_s, wall_s, sim_s / wall_s)
-        reason = self.ctx.stop_requested or self.stop_reason or "clock source finished"
+        reason = self.ctx.stop_requested or self.stop_reason or CLOCK_FINISHED
         log.info("run stopped at t = %.3f s: %s", self.ctx.stamp_ns * 1e-9, reason)
         self._send_internal(STOP_TOPIC, RunControl(stamp_ns=self.ctx.stamp_ns, command="stop", reason=reason))
 
@@ -613,11 +620,15 @@ class NodeRunner:
             self.publish_status("running")
 
 
-def holding_up(acks: dict[str, int], tick: int, process: NodeProcessSpec) -> list[str]:
-    """The nodes that hold tick `tick` up (clock source, lockstep): of those that have not acknowledged it,
-    the ones that have every acknowledgement their own next tick needs (`process.lockstep_upstream`); the
-    others wait for them. All that have not, if none has (a graph the spec does not describe)."""
-    late = [n for n in process.lockstep_nodes if acks.get(n, -2) < tick]
+def holding_up(
+    acks: dict[str, int], tick: int, process: NodeProcessSpec, waited: Sequence[str] | None = None
+) -> list[str]:
+    """The nodes that hold tick `tick` up (clock source, lockstep): of those waited for (default every
+    lockstep node; not the trailing ones when the clock waits for tick t - trail_ticks of those) that have not
+    acknowledged it, the ones that have every acknowledgement their own next tick needs
+    (`process.lockstep_upstream`); the others wait for them. All that have not, if none has (a graph the
+    spec does not describe)."""
+    late = [n for n in (process.lockstep_nodes if waited is None else waited) if acks.get(n, -2) < tick]
 
     def ready(node: str) -> bool:
         next_tick = acks.get(node, -2) + 1

@@ -50,3 +50,6 @@ def test_process_graph_and_in_process_graph_touch_the_same_points(tmp_path: Path
     # exact equality: same seed, same lockstep order, same arithmetic
     assert _touches(in_process) == _touches(from_processes)
     assert in_process["coverage"] == from_processes["coverage"]
+    # the simulated clock ended both runs: no node stopped them (the clock's stop is no node's)
+    assert from_processes["finished"] == in_process["finished"] == "clock"
+    assert "stop_reason" not in from_processes

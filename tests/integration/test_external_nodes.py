@@ -75,7 +75,7 @@ def test_a_dead_external_follower_is_named_at_once(tmp_path: Path) -> None:
     assert "[launch] node 'cube' (cube_contacts) died with exit code 3" in out, out
 
 
-def test_an_external_node_makes_the_run_fail_with_runcontrol_fail(tmp_path: Path) -> None:
+def test_a_node_that_publishes_runcontrol_fail_makes_the_run_fail(tmp_path: Path) -> None:
     """What a driver publishes to fail the run (here from a palpate node, as a driver would send it):
     the clock source stops the run as a failure, and the launch exits 1."""
     extra = f"""  - name: failer

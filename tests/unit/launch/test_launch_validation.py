@@ -523,3 +523,12 @@ def test_launch_record_refuses_a_folder_or_an_existing_log(tmp_path: Path, capsy
     assert main(["launch", demo, "--bus", str(tmp_path), "--record", str(existing)]) == 2
     assert f"--record {existing} exists; pass --force" in capsys.readouterr().err
     assert existing.read_bytes() == b"precious"
+
+
+def test_a_character_yaml_does_not_allow_is_named_with_file_and_line(tmp_path: Path) -> None:
+    """A control character is a reader error, not a marked one: it escaped as a traceback naming
+    '<unicode string>' (a review of the YAML-error commit)."""
+    path = tmp_path / "ctrl.yaml"
+    path.write_text("args:\n  a: 1\nnodes:\n  - name: x\x01\n")
+    with pytest.raises(LaunchError, match=r"ctrl\.yaml:4: invalid YAML: the character '\\x01' is not allowed"):
+        load_launch(path)

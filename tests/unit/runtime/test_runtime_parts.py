@@ -381,3 +381,8 @@ def test_a_stuck_tick_names_the_node_that_holds_it_up_not_those_waiting_for_it(t
     assert holding_up({**everyone, "noise": 50, "controller": 50}, 50, clock) == ["gpis"]
     assert holding_up({**everyone, "eval": 50}, 50, clock) == ["noise"]
     assert holding_up({"noise": -1}, -1, clock) == [n for n in clock.lockstep_nodes if n != "noise"]  # start-up
+    # probe.yaml: the clock waits for the driver at tick 50 while the trailing noise node may lag 3 ticks
+    probe = {p.name: p for p in resolve(load_launch(LAUNCH_DIR / "probe.yaml"), bus_dir=tmp_path).process_specs()}
+    sim = probe["sim"]
+    assert sim.trailing_nodes == ["noise"] and sim.lockstep_nodes == ["driver", "noise"]
+    assert holding_up({"driver": 49, "noise": 47}, 50, sim, ["driver"]) == ["driver"]
