@@ -83,7 +83,8 @@ class ControllerNode:
         return (
             "controller: the initial approach from the start position towards the initial target "
             f"{list(self.config.initial_target_m)} found no surface; the target must lie inside the object "
-            "(launch arguments start:= and target:= of launch/explore.yaml)"
+            "(launch arguments start:= and target:= of launch/explore.yaml; its default target is in the torus's "
+            "tube: for the other primitives, centred at the origin, target:=[0,0,0])"
         )
 
     def on_tick(self, stamp_ns: int) -> None:

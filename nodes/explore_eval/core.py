@@ -55,7 +55,8 @@ class EvalConfig(Validated):
     contacts_per_bound: NonNegativeFloat = 2.5
     travel_per_bound_m: NonNegativeFloat = 0.05
     #: Simulated time without a touch after which the run ends as stalled (the fingertip stuck against
-    #: the object without a touch event, or a planner error), seconds.
+    #: the object without a touch event, or a planner error), seconds; counted from the first touch (a
+    #: start 1.7 m away took 34 s to reach the object and ended as stalled with no contact).
     max_idle_s: PositiveFloat = 30.0
     #: Touches in a row that add no coverage after which the run ends as "no progress" (a planner that
     #: keeps aiming at what it cannot reach: an outside audit saw 720 such touches on a 1 mm needle and
@@ -193,7 +194,9 @@ class RunControl:
     finishing touch's request, ends the run; a surface that answers no request is ignored. So a
     surface that comes late (a slow estimator, off lockstep) is neither scored as a later one nor
     ends the run early; off lockstep it may also hold touches made after its request. A run with no
-    touch for EvalConfig.max_idle_s of simulated time finishes as "stalled" (its last surface is
+    touch for EvalConfig.max_idle_s of simulated time after its last one finishes as "stalled" (the
+    first approach has no limit: a start far away takes long, and the controller ends a run whose
+    first approach finds no surface; its last surface is
     scored the same way). A run whose last surface does not come within EvalConfig.surface_wait_s is
     ``overdue``: it ends without it.
     """
@@ -272,7 +275,9 @@ class RunControl:
     def tick(self, stamp_ns: int) -> bool:
         """Watchdog: True (once) when the run has made no touch for max_idle_s and has just finished as
         stalled; the whole-object surface must then be requested (the end's estimate is scored too)."""
-        if self.final_requested or stamp_ns - self.last_touch_ns <= self.evaluator.config.max_idle_s * 1e9:
+        if self.final_requested or not self.evaluator.touches:  # the first approach may be long: no limit
+            return False
+        if stamp_ns - self.last_touch_ns <= self.evaluator.config.max_idle_s * 1e9:
             return False
         self.evaluator.finished = "stalled"
         self._ask(stamp_ns, (), final=True)

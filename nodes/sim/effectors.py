@@ -32,6 +32,7 @@ from palpate.config import NonNegativeFloat, OneOf, PositiveFloat, Validated
 from palpate.description import Digit, load_hand
 from palpate.errors import ConfigError
 from palpate.geometry.rotations import ypr_deg_to_quat
+from palpate.inputs import MAX_COORDINATE_M
 
 #: The hand every effector is built from.
 HAND = load_hand()
@@ -175,6 +176,22 @@ class ProbeConfig(Validated):
     #: gain times the commanded speed into the surface (what a velocity-controlled arm would push).
     force_gain_n_s_per_m: NonNegativeFloat = 50.0
     density_kg_m3: PositiveFloat = 1100.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        start = self.start_position_m
+        if start is not None and not max(abs(v) for v in start) <= MAX_COORDINATE_M:
+            raise ConfigError(
+                f"start_position_m = {list(start)!r} lies beyond {MAX_COORDINATE_M:g} m of the origin; "
+                "start the probe near the object",
+                ("start_position_m",),
+            )
+        if not math.hypot(*self.start_quaternion_wxyz) > 1e-6:
+            raise ConfigError(
+                f"start_quaternion_wxyz = {list(self.start_quaternion_wxyz)!r} has no direction (norm 0); give a "
+                "unit quaternion (w, x, y, z), e.g. [0, 1, 0, 0] to face -z",
+                ("start_quaternion_wxyz",),
+            )
 
 
 # --- helpers ---------------------------------------------------------------------------------------

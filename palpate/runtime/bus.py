@@ -322,7 +322,17 @@ def make_publisher(
     apply_curve(sock, curve or {}, server=True)
     if endpoint.startswith("ipc://"):
         Path(endpoint[len("ipc://") :]).parent.mkdir(parents=True, exist_ok=True)
-    sock.bind(endpoint)
+    try:
+        sock.bind(endpoint)
+    except zmq.ZMQError as exc:
+        sock.close(linger=0)
+        hint = (
+            "the host must be an address of this machine and the port free (a node's host: and port: in the "
+            "launch file, or the launch file's host arguments)"
+            if endpoint.startswith("tcp://")
+            else "check the bus directory (--bus)"
+        )
+        raise BusError(f"cannot bind {endpoint}: {exc.strerror}; {hint}") from exc
     return sock
 
 

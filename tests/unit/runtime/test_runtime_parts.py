@@ -386,3 +386,18 @@ def test_a_stuck_tick_names_the_node_that_holds_it_up_not_those_waiting_for_it(t
     sim = probe["sim"]
     assert sim.trailing_nodes == ["noise"] and sim.lockstep_nodes == ["driver", "noise"]
     assert holding_up({"driver": 49, "noise": 47}, 50, sim, ["driver"]) == ["driver"]
+
+
+def test_a_publisher_that_cannot_bind_names_the_endpoint_and_what_to_change() -> None:
+    """An outside audit: docker.yaml on a machine without its container addresses ended each node with a
+    ZMQError traceback ('Cannot assign requested address')."""
+    import zmq
+
+    from palpate.errors import BusError
+
+    ctx = zmq.Context()
+    try:
+        with pytest.raises(BusError, match=r"cannot bind tcp://192\.0\.2\.1:5999: .*an address of this machine"):
+            bus.make_publisher(ctx, "tcp://192.0.2.1:5999", lockstep=True)  # TEST-NET-1: never local
+    finally:
+        ctx.term()

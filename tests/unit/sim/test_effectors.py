@@ -8,6 +8,8 @@ import mujoco
 import numpy as np
 import pytest
 
+from palpate.config import load
+from palpate.errors import ConfigError
 from palpate.nodes.sim.effectors import (
     FingerConfig,
     HandConfig,
@@ -153,3 +155,18 @@ def test_fingertip_site_z_points_out_of_the_tip() -> None:
     axis = data.site("index_tip").xpos - data.body("index_distal").xpos
     cosine = float(z @ axis / np.linalg.norm(axis))
     assert math.degrees(math.acos(min(1.0, cosine))) < 1e-4
+
+
+@pytest.mark.parametrize(
+    ("probe", "message"),
+    [
+        ({"start_position_m": [1e4, 0.0, 0.0]}, r"start_position_m = \[10000.0, 0.0, 0.0\] lies beyond 1000 m"),
+        ({"start_quaternion_wxyz": [0.0, 0.0, 0.0, 0.0]}, r"start_quaternion_wxyz = .* has no direction"),
+    ],
+)
+def test_a_probe_start_no_run_could_use_is_a_config_error(probe: dict[str, object], message: str) -> None:
+    """An outside audit: a start 10 km out passed the launch and was blamed on the velocity commands at
+    t = 0; a zero quaternion failed inside MuJoCo's XML parser without naming the key."""
+    with pytest.raises(ConfigError, match=message):
+        load(ProbeConfig, probe)
+    assert load(ProbeConfig, {"start_quaternion_wxyz": [0.0, 2.0, 0.0, 0.0]})  # MuJoCo normalises the others
