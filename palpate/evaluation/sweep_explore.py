@@ -2,12 +2,14 @@
 
 Each setting changes one knob of launch/explore.yaml from its default (the first row, "default") and
 runs the same episodes (objects, start positions, strategies) as the default, each a task on Dask
-(palpate.evaluation.dask_runs; resumable from runs.jsonl). Reported per setting, over its runs:
-surface RMSE (the headline, confident estimate -> truth, and the whole estimate's symmetric RMSE;
-see docs/exploration.md), the whole estimate's F-score@2 mm and travel at 80 % coverage
-(completed runs), contacts, milliseconds of CPU per planning step (GPIS update + local surface +
-planner, per contact), CPU seconds per run, and how many runs completed. The contact noise knobs
-(the noise node's position and normal noise) show what noisy sensing costs in contacts and travel.
+(palpate.evaluation.dask_runs; resumable from runs.jsonl). Reported per setting and strategy, over
+its runs: surface RMSE (the headline, confident estimate -> truth, and the whole estimate's symmetric
+RMSE; see docs/exploration.md), the whole estimate's F-score@2 mm and travel at 80 % coverage
+(completed runs), and over every run, completed or not, the coverage, F-score@2 mm and travel at its
+end, contacts, milliseconds of CPU per planning step (GPIS update + local surface + planner, per
+contact), CPU seconds per run, and how many runs completed. The contact noise knobs (the noise
+node's position and normal noise) show what noisy sensing costs in contacts and travel: a setting
+that keeps runs from 80 % shows it in the end figures.
 """
 
 from __future__ import annotations
@@ -108,8 +110,9 @@ def sweep_episodes(
     return out
 
 
-def summarise(setting: Setting, rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """One table row: the setting's means over its runs (RMSE and travel over completed runs)."""
+def summarise(setting: Setting, strategy: str, rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """One table row: the means over the setting's runs of one strategy (the 80 % figures over completed
+    runs, the end figures over all)."""
     ok = [r for r in rows if "error" not in r]
     done = [r for r in ok if r["milestones"]["80"]["reached"]]
 
@@ -120,6 +123,7 @@ def summarise(setting: Setting, rows: Sequence[Mapping[str, Any]]) -> dict[str, 
     return {
         "setting": setting.name,
         "knob": setting.knob,
+        "strategy": strategy,
         "params": dict(setting.params),
         "runs": len(rows),
         "completed": len(done),
@@ -129,6 +133,8 @@ def summarise(setting: Setting, rows: Sequence[Mapping[str, Any]]) -> dict[str, 
         "travel_cm": mean([r["milestones"]["80"]["travel_cm"] for r in done]),
         "contacts": mean([float(r["contacts"]) for r in ok]),
         "coverage": mean([float(r["coverage"]) for r in ok]),
+        "fscore_2mm_end": mean([r["shape"][-1]["fscore_2mm"] for r in ok if r.get("shape")]),
+        "travel_cm_end": mean([r["touches"][-1]["travel_cm"] for r in ok if r.get("touches")]),
         "miss_mm": mean([r["milestones"]["80"]["prediction_miss_mm"] for r in done]),
         "plan_ms": mean([float(r["plan_ms"]) for r in ok]),
         "cpu_s": mean([float(r["cpu_s"]) for r in ok]),
@@ -142,16 +148,17 @@ def table(rows: Sequence[Mapping[str, Any]]) -> str:
         return "-" if not math.isfinite(v) else f"{v:.{digits}f}"
 
     lines = [
-        "| Setting | Knob | Completed | RMSE 80 % (mm) | Whole, symmetric (mm) | F-score@2 mm 80 % | Travel 80 % (cm) "
-        "| Contacts | Miss (mm) | Plan step (ms CPU) | Run (s CPU) |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| Setting | Knob | Strategy | Completed | RMSE 80 % (mm) | Whole, symmetric (mm) | F-score@2 mm 80 % "
+        "| Travel 80 % (cm) | Coverage at end (%) | F-score@2 mm at end | Travel at end (cm) | Contacts | Miss (mm) "
+        "| Plan step (ms CPU) | Run (s CPU) |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         lines.append(
-            f"| {r['setting']} | {r['knob']} | {r['completed']}/{r['runs']} | {f(r['rmse_mm'], 2)} | "
-            f"{f(r.get('rmse_symmetric_mm', math.nan), 2)} | {f(r.get('fscore_2mm', math.nan), 3)} | "
-            f"{f(r['travel_cm'])} | {f(r['contacts'], 0)} | "
-            f"{f(r['miss_mm'])} | {f(r['plan_ms'])} | {f(r['cpu_s'])} |"
+            f"| {r['setting']} | {r['knob']} | {r['strategy']} | {r['completed']}/{r['runs']} | {f(r['rmse_mm'], 2)} | "
+            f"{f(r['rmse_symmetric_mm'], 2)} | {f(r['fscore_2mm'], 3)} | {f(r['travel_cm'])} | "
+            f"{f(100.0 * r['coverage'])} | {f(r['fscore_2mm_end'], 3)} | {f(r['travel_cm_end'])} | "
+            f"{f(r['contacts'], 0)} | {f(r['miss_mm'])} | {f(r['plan_ms'])} | {f(r['cpu_s'])} |"
         )
     return "\n".join(lines)
 
@@ -163,6 +170,7 @@ def plot(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    several = len({r["strategy"] for r in rows}) > 1
     fig, axes = plt.subplots(1, 2, figsize=(12, 5))
     for ax, key, label in (
         (axes[0], "cpu_s", "CPU seconds per run"),
@@ -173,7 +181,8 @@ def plot(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
                 continue
             colour = "tab:red" if r["setting"] == "default" else "tab:blue"
             ax.scatter(r[key], r["rmse_mm"], color=colour)
-            ax.annotate(r["setting"], (r[key], r["rmse_mm"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+            name = f"{r['setting']} ({r['strategy']})" if several else r["setting"]
+            ax.annotate(name, (r[key], r["rmse_mm"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
         ax.set_xlabel(label)
         ax.set_ylabel("surface RMSE at 80 % coverage (mm)")
         ax.grid(alpha=0.3)
@@ -184,17 +193,30 @@ def plot(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
     plt.close(fig)
 
 
+def chosen_settings(only: str) -> list[Setting]:
+    """The default and the settings --only names (by setting name or knob; all when empty); ConfigError
+    naming a word that matches none."""
+    wanted = {w.strip() for w in only.split(",") if w.strip()}
+    unknown = sorted(w for w in wanted if not any(w in (s.name, s.knob) for s in SETTINGS))
+    if unknown:
+        knobs = sorted({s.knob for s in SETTINGS} - {"-"})
+        raise ConfigError(
+            f"--only {', '.join(map(repr, unknown))} matches no setting; settings: {[s.name for s in SETTINGS]}; "
+            f"knobs: {knobs}"
+        )
+    return [s for s in SETTINGS if not wanted or s.name in wanted or s.knob in wanted or s.name == "default"]
+
+
 def main(args: argparse.Namespace) -> int:
     """Run the sweep; write sweep.md, sweep.png and runs.jsonl into --out."""
     strategies = parse_strategies(args.strategies)
-    wanted = {w.strip() for w in args.only.split(",") if w.strip()}
-    settings = [s for s in SETTINGS if not wanted or s.name in wanted or s.knob in wanted or s.name == "default"]
-    if not settings:
-        raise ConfigError(f"--only {args.only!r} matches no setting; settings: {[s.name for s in SETTINGS]}")
-    cases = select_cases(args.objects, QUICK_OBJECTS if args.quick else FULL_OBJECTS, args.scale)
+    settings = chosen_settings(args.only)
     runs = 1 if args.quick else args.runs
+    if runs < 1:
+        raise ConfigError(f"--runs must be >= 1, got {runs}")
+    cases = select_cases(args.objects, QUICK_OBJECTS if args.quick else FULL_OBJECTS, args.scale)
     common = {"eval.report": False, **parse_sets(args.set)}
-    base = episodes(cases, runs, strategies)
+    base = episodes(cases, runs, strategies, params=common)  # budgets and clocks after --set
     pairs = sweep_episodes(base, settings, common)
     for setting in settings:  # each setting's overrides, before any worker starts
         check_episodes([ep for s, ep in pairs if s is setting])
@@ -209,14 +231,15 @@ def main(args: argparse.Namespace) -> int:
     for r in errors:  # counted as not completed in the table; said here, and the exit status says so
         print(f"run failed: {r['object']} {r['strategy']} run {r['run']}: {r['error']}", file=sys.stderr)
     elapsed = time.perf_counter() - start
-    by_setting: dict[str, list[dict[str, Any]]] = {}
-    for (setting, _), row in zip(pairs, results, strict=True):
+    by_row: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for (setting, episode), row in zip(pairs, results, strict=True):
         if row is not None:
-            by_setting.setdefault(setting.name, []).append(row)
-    rows = [summarise(s, by_setting.get(s.name, [])) for s in settings]
+            by_row.setdefault((setting.name, episode.strategy), []).append(row)
+    rows = [summarise(s, strategy, by_row.get((s.name, strategy), [])) for s in settings for strategy in strategies]
+    given = f"; for every setting {', '.join(args.set)}" if args.set else ""
     text = (
         f"# Exploration sweep\n\nObjects: {', '.join(c.name for c in cases)}; strategies {', '.join(strategies)}; "
-        f"{runs} run(s) each; {elapsed / 60:.1f} min wall; {outcome.summary()}.\n\n" + table(rows) + "\n"
+        f"{runs} run(s) each{given}; {elapsed / 60:.1f} min wall; {outcome.summary()}.\n\n" + table(rows) + "\n"
     )
     (out / "sweep.md").write_text(text)
     plot(out / "sweep.png", rows)

@@ -1,0 +1,46 @@
+"""palpate sweep explore's rows: one per setting and strategy, end figures over every run, --only checked."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+
+from palpate.errors import ConfigError
+from palpate.evaluation.sweep_explore import SETTINGS, chosen_settings, summarise, table
+
+
+def run(strategy: str, reached: bool, fscore_end: float, travel_end: float) -> dict[str, Any]:
+    at80 = {"reached": reached, "rmse_mm": 0.5, "rmse_symmetric_mm": 0.7, "fscore_2mm": 0.95, "travel_cm": 100.0}
+    return {
+        "strategy": strategy,
+        "milestones": {"80": {**at80, "prediction_miss_mm": 2.0}},
+        "contacts": 50,
+        "coverage": 0.8 if reached else 0.3,
+        "plan_ms": 10.0,
+        "cpu_s": 5.0,
+        "shape": [{"fscore_2mm": 0.1}, {"fscore_2mm": fscore_end}],
+        "touches": [{"travel_cm": 1.0}, {"travel_cm": travel_end}],
+    }
+
+
+def test_a_run_kept_from_80_percent_still_shows_its_end_figures() -> None:
+    """An outside audit: 5 cm of contact noise kept the run from 80 % and the row showed only dashes."""
+    noisy = summarise(SETTINGS[0], "igef", [run("igef", False, 0.01, 1089.0)])
+    assert noisy["completed"] == 0 and math.isnan(noisy["fscore_2mm"]) and math.isnan(noisy["travel_cm"])
+    assert noisy["fscore_2mm_end"] == 0.01 and noisy["travel_cm_end"] == 1089.0 and noisy["coverage"] == 0.3
+    assert noisy["strategy"] == "igef"
+    both = summarise(SETTINGS[0], "gpv", [run("gpv", True, 0.9, 120.0), run("gpv", False, 0.5, 300.0)])
+    assert both["completed"] == 1 and both["fscore_2mm"] == 0.95 and both["fscore_2mm_end"] == pytest.approx(0.7)
+    text = table([noisy, both])
+    assert "| default | - | igef | 0/1 |" in text and "| default | - | gpv | 1/2 |" in text
+    assert "| 30.0 | 0.010 | 1089.0 |" in text  # coverage, F-score and travel at the end
+
+
+def test_only_names_settings_or_knobs_and_refuses_a_word_that_matches_none() -> None:
+    assert chosen_settings("contact noise")[0].name == "default"
+    assert len(chosen_settings("contact noise")) == 1 + sum(s.knob == "contact noise" for s in SETTINGS)
+    assert chosen_settings("") == list(SETTINGS)
+    with pytest.raises(ConfigError, match=r"--only 'bogus' matches no setting; .*knobs: \["):
+        chosen_settings("kernel,bogus")
