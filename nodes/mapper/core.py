@@ -90,6 +90,14 @@ class MapperConfig(Validated):
         if not self.l_max > 0.0:
             raise ConfigError(f"l_max must be > 0 (a clamp above the prior), got {self.l_max!r}", ("l_max",))
 
+    def free_lattice(self) -> tuple[float, float]:
+        """Spacing and margin of the finger's free-volume lattice, metres (each the resolution when None)."""
+        res = self.resolution_m
+        return (
+            self.free_spacing_m if self.free_spacing_m is not None else res,
+            self.free_margin_m if self.free_margin_m is not None else res,
+        )
+
 
 #: Bytes a particle's update takes per free-volume point (its cell keys and scores, a few arrays of it).
 BYTES_PER_POINT_AND_PARTICLE = 12
@@ -105,6 +113,14 @@ def lattice_points(chain: KinematicChain, spacing_m: float, margin_m: float) -> 
             _, nr, nz = grid
             total += (2 * nr + 1) ** 2 * (2 * nz + 1)
     return total
+
+
+def check_fits(config: MapperConfig, chain: KinematicChain) -> None:
+    """``check_memory`` for a mapper of this config and chain, without building it (a sweep checks every
+    setting before it records anything)."""
+    spec = GridSpec.from_bounds(config.region_min_m, config.region_max_m, config.resolution_m)
+    n_maps = 1 if config.mode == "known" else config.n_particles
+    check_memory(config, spec, n_maps, lattice_points(chain, *config.free_lattice()))
 
 
 def check_memory(config: MapperConfig, spec: GridSpec, n_maps: int, points: int) -> None:
@@ -163,9 +179,7 @@ class Mapper:
         self.chain = chain
         self.spec = GridSpec.from_bounds(config.region_min_m, config.region_max_m, config.resolution_m)
         n_maps = 1 if config.mode == "known" else config.n_particles
-        res = config.resolution_m
-        spacing = config.free_spacing_m if config.free_spacing_m is not None else res
-        margin = config.free_margin_m if config.free_margin_m is not None else res
+        spacing, margin = config.free_lattice()
         check_memory(config, self.spec, n_maps, lattice_points(chain, spacing, margin))
         self.grids = LogOddsGrids(
             self.spec, n_maps, chunk_edge=config.chunk_edge, l_min=config.l_min, l_max=config.l_max

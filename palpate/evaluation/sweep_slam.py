@@ -345,6 +345,19 @@ def plot(path: Path, rows: Sequence[Mapping[str, Any]], title: str) -> None:
     plt.close(fig)
 
 
+def check_settings(Ks: Sequence[int], resolutions_mm: Sequence[float]) -> None:
+    """ConfigError, before anything is recorded, for a K and resolution whose maps would not fit in this
+    machine's memory (``mapper.core.check_fits``) or a value given twice."""
+    from palpate.nodes.mapper.core import check_fits
+
+    for name, values in (("--particles", Ks), ("--resolutions-mm", resolutions_mm)):
+        if len(set(values)) < len(values):
+            raise ConfigError(f"{name} repeats a value: {list(values)}")
+    params, chain = fastslam_params(), fastslam_chain()
+    for r in resolutions_mm:
+        check_fits(mapper_config(params, r / 1000.0, n_particles=max(Ks)), chain)
+
+
 def sweep_resolution_on_worker(
     stream: SensorStream,
     Ks: Sequence[int],
@@ -392,6 +405,7 @@ def main(args: argparse.Namespace) -> int:
     if min(Ks) < 1 or not all(r > 0 and math.isfinite(r) for r in resolutions):
         raise ConfigError(f"--particles must be >= 1 and --resolutions-mm finite and > 0, got {Ks} and {resolutions}")
     t0 = time.perf_counter()
+    check_settings(Ks, resolutions)
     print(f"palpate sweep slam: recording {duration:g} s of exploration (seed {args.seed})", file=sys.stderr)
     stream = record_stream(args.seed, duration, 1.5)
     skip = QUICK_SKIP if args.quick else frozenset()

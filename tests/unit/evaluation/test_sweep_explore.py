@@ -44,3 +44,15 @@ def test_only_names_settings_or_knobs_and_refuses_a_word_that_matches_none() -> 
     assert chosen_settings("") == list(SETTINGS)
     with pytest.raises(ConfigError, match=r"--only 'bogus' matches no setting; .*knobs: \["):
         chosen_settings("kernel,bogus")
+
+
+def test_sweep_slam_checks_its_settings_before_recording_anything() -> None:
+    """An outside audit: a K whose maps could not fit failed on the worker, after the recording, and was
+    retried; a repeated value failed with a message about run keys."""
+    from palpate.evaluation.sweep_slam import check_settings
+
+    with pytest.raises(ConfigError, match=r"n_particles = 100000000000 .* GiB"):
+        check_settings([10, 100_000_000_000], [2.0])
+    with pytest.raises(ConfigError, match=r"--resolutions-mm repeats a value: \[4.0, 4.0\]"):
+        check_settings([10], [4.0, 4.0])
+    check_settings([1, 10, 100], [1.0, 2.0, 4.0])  # the sweep's defaults fit
