@@ -83,6 +83,11 @@ class TouchConfig(Validated):
     slide_press_m_s: NonNegativeFloat = 0.01
     slide_arrive_m: PositiveFloat = 0.001
     slide_slack_m: NonNegativeFloat = 0.01
+    #: The normal a slide steers by: the new contact's with this weight, the slide's earlier ones with the
+    #: rest (n <- normalise((1 - w) n + w n_new)). 1 (default): the latest normal. With noisy normals a
+    #: tilt of theta moves the placed contact point by tip_radius_m theta (0.7 mm at 5 deg) and ends
+    #: slides as "passed"; 0.3 averages the noise down (docs/exploration.md, "Under contact noise").
+    slide_normal_weight: Annotated[float, Range(gt=0.0, le=1.0)] = 1.0
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -639,6 +644,7 @@ class Slide:
     closest_m: float = math.inf
     end_travel_m: float = math.inf
     deadline_ns: int | None = None
+    smoothed_normal: FloatArray | None = None
 
 
 class TouchLoop:
@@ -767,6 +773,10 @@ class TouchLoop:
             return self._leave_slide(slide, r, R)
         strongest = int(np.argmax(forces_n))
         normal = normals[strongest]
+        if cfg.slide_normal_weight < 1.0 and slide.smoothed_normal is not None:
+            mixed = (1.0 - cfg.slide_normal_weight) * slide.smoothed_normal + cfg.slide_normal_weight * normal
+            normal = mixed / float(np.linalg.norm(mixed))
+        slide.smoothed_normal = normal
         slide.touched_m = np.array(positions_m[strongest])
         slide.fingertip_m = np.array(r)
         slide.touched_normal = np.array(normal)

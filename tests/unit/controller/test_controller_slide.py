@@ -134,3 +134,40 @@ def test_a_slide_asked_for_out_of_contact_is_an_ordinary_curve() -> None:
     loop.step(2000 * TICK_NS, r + 0.003 * UP, R_DOWN, *NONE)  # the fingertip has left the surface
     loop.aim(r + 0.003 * UP, R_DOWN, np.array([0.02, 0.0, 0.0]), UP, np.zeros(3), slide=True)
     assert loop.slide is None and loop.controller.state is ControllerState.APPROACH
+
+
+def test_a_slide_under_noisy_normals_arrives_when_it_weighs_them_down() -> None:
+    """Normals tilted 5 deg at random (a real sensor): the contact point the fingertip's pose and normal
+    place moves by tip_radius x tilt, and slides ended as 'passed' far from their targets; weighing each
+    new normal 0.3 against the slide's earlier ones brings every one to its target."""
+    rng = np.random.default_rng(0)
+
+    def slide(weight: float) -> float:
+        loop = TouchLoop(
+            TouchConfig(tip_radius_m=0.008, slide_normal_weight=weight),
+            ControllerConfig(),
+            initial_target_m=(0.0, 0.0, -0.01),
+        )
+        r = np.array([0.0, 0.0, 0.02])
+        target = np.array([0.03, 0.0, 0.0])
+        aimed = False
+        for tick in range(600):
+            touching = r[2] <= 0.008
+            if touching:
+                r = np.array([r[0], r[1], 0.008])
+                tilt = UP + np.radians(5.0) * rng.normal(size=3) * np.array([1.0, 1.0, 0.0])
+                contacts = (np.array([[r[0], r[1], 0.0]]), (tilt / np.linalg.norm(tilt))[None, :], np.ones(1))
+            step = loop.step(tick * TICK_NS, r, R_DOWN, *(contacts if touching else NONE))
+            if step.touch is not None and aimed:
+                return float(np.linalg.norm(r[:2] - target[:2]))
+            if step.touch is not None:
+                loop.aim(r, R_DOWN, target, UP, target + 0.008 * UP, slide=True)
+                aimed = True
+                continue
+            r = r + DT_S * step.linear_m_s
+        raise AssertionError("no touch")
+
+    latest = [slide(1.0) for _ in range(5)]
+    weighed = [slide(0.3) for _ in range(5)]
+    assert max(latest) > 0.01  # some slides ended centimetres short
+    assert max(weighed) < 0.002
