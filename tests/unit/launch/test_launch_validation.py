@@ -532,3 +532,19 @@ def test_a_character_yaml_does_not_allow_is_named_with_file_and_line(tmp_path: P
     path.write_text("args:\n  a: 1\nnodes:\n  - name: x\x01\n")
     with pytest.raises(LaunchError, match=r"ctrl\.yaml:4: invalid YAML: the character '\\x01' is not allowed"):
         load_launch(path)
+
+
+def test_output_piped_into_a_reader_that_stops_early_ends_quietly(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`palpate launch --dry-run F | head -1` and `palpate bag info LOG --json | head -c 10` ended with a
+    BrokenPipeError traceback (an outside audit): palpate.cli ends them quietly, exit 0."""
+
+    class ClosedPipe:
+        def write(self, text: str) -> int:
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def flush(self) -> None:
+            raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.chdir(REPO_ROOT)
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    assert main(["launch", "--dry-run", "launch/explore.yaml"]) == 0
