@@ -207,6 +207,18 @@ def chosen_settings(only: str) -> list[Setting]:
     return [s for s in SETTINGS if not wanted or s.name in wanted or s.knob in wanted or s.name == "default"]
 
 
+def check_sets(settings: Sequence[Setting], common: Mapping[str, Any]) -> None:
+    """ConfigError when --set gives a knob one of the settings turns: that setting's value would replace it
+    in those runs (and a setting equal to the default would repeat the default's runs)."""
+    for setting in settings:
+        clash = sorted(set(dict(setting.params)) & set(common))
+        if clash:
+            raise ConfigError(
+                f"--set {clash[0]} sets the knob that setting {setting.name!r} turns, whose value would replace "
+                "it in those runs; leave it out of --set, or --only other settings"
+            )
+
+
 def main(args: argparse.Namespace) -> int:
     """Run the sweep; write sweep.md, sweep.png and runs.jsonl into --out."""
     strategies = parse_strategies(args.strategies)
@@ -216,6 +228,7 @@ def main(args: argparse.Namespace) -> int:
         raise ConfigError(f"--runs must be >= 1, got {runs}")
     cases = select_cases(args.objects, QUICK_OBJECTS if args.quick else FULL_OBJECTS, args.scale)
     common = {"eval.report": False, **parse_sets(args.set)}
+    check_sets(settings, common)
     base = episodes(cases, runs, strategies, params=common)  # budgets and clocks after --set
     pairs = sweep_episodes(base, settings, common)
     for setting in settings:  # each setting's overrides, before any worker starts

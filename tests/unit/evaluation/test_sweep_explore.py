@@ -8,7 +8,7 @@ from typing import Any
 import pytest
 
 from palpate.errors import ConfigError
-from palpate.evaluation.sweep_explore import SETTINGS, chosen_settings, summarise, table
+from palpate.evaluation.sweep_explore import SETTINGS, check_sets, chosen_settings, summarise, table
 
 
 def run(strategy: str, reached: bool, fscore_end: float, travel_end: float) -> dict[str, Any]:
@@ -56,3 +56,11 @@ def test_sweep_slam_checks_its_settings_before_recording_anything() -> None:
     with pytest.raises(ConfigError, match=r"--resolutions-mm repeats a value: \[4.0, 4.0\]"):
         check_settings([10], [4.0, 4.0])
     check_settings([1, 10, 100], [1.0, 2.0, 4.0])  # the sweep's defaults fit
+
+
+def test_a_set_of_a_knob_the_sweep_turns_is_refused_by_name() -> None:
+    """An outside audit: --set noise.position_sigma_m with the noise settings failed on a repeated run key."""
+    noise = chosen_settings("contact noise")
+    with pytest.raises(ConfigError, match=r"--set noise.position_sigma_m sets the knob that setting 'contact position"):
+        check_sets(noise, {"noise.position_sigma_m": 0.0005})
+    check_sets(noise, {"gpis.gp.kernel": "gaussian"})  # another knob: for every row
