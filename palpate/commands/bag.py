@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from palpate import jsonio
@@ -16,7 +17,8 @@ from palpate.runtime import bus
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     r = sub.add_parser("record", help="record bus topics into an MCAP log")
     recorder.add_arguments(r)
-    r.set_defaults(func=recorder.run)
+    r.add_argument("--force", action="store_true", help="overwrite an existing log")
+    r.set_defaults(func=run_record)
 
     p = sub.add_parser("replay", help="publish a recorded log on the bus")
     p.add_argument("file", type=Path, help="MCAP log")
@@ -59,6 +61,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     flt.add_argument("-o", "--output", type=Path, required=True)
     flt.add_argument("--topics", nargs="+", metavar="TOPIC", help="keep only these topics")
     flt.add_argument("--exclude", nargs="+", default=[], metavar="TOPIC", help="drop these topics")
+    flt.add_argument("--force", action="store_true", help="overwrite an existing output log")
     flt.set_defaults(func=run_filter)
     exp = bsub.add_parser(
         "export", help="rewrite a log for another tool: --foxglove, Foxglove's schemas (scene, transforms, plots)"
@@ -72,6 +75,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="Foxglove's own schemas (protobuf, needs pip install 'palpate[foxglove]'); docs/viewer.md",
     )
     exp.add_argument("--topics", nargs="+", metavar="TOPIC", help="export only these topics")
+    exp.add_argument("--force", action="store_true", help="overwrite an existing output file")
     exp.set_defaults(func=run_export)
 
 
@@ -86,6 +90,13 @@ def run_replay(args: argparse.Namespace) -> int:
         wait_timeout_s=args.wait_timeout,
     )
     return Player(args.file, args.bus, options).run()
+
+
+def run_record(args: argparse.Namespace) -> int:
+    """`palpate record`: as the recorder, refusing to replace an existing log without --force."""
+    if args.output.is_file() and not args.force:
+        raise RecordError(f"{args.output} exists; pass --force to replace it, or choose another output with -o")
+    return recorder.run(args)
 
 
 def run_info(args: argparse.Namespace) -> int:
@@ -107,14 +118,27 @@ def run_recover(args: argparse.Namespace) -> int:
 
 
 def run_filter(args: argparse.Namespace) -> int:
-    count = mcap_io.copy_log(args.file, args.output, include=args.topics, exclude=args.exclude)
+    _not_in_log(args.file, [*(args.topics or []), *args.exclude])
+    count = mcap_io.copy_log(args.file, args.output, include=args.topics, exclude=args.exclude, overwrite=args.force)
     print(f"wrote {count} messages to {args.output}")
     return 0
+
+
+def _not_in_log(path: Path, topics: list[str]) -> None:
+    """Say on stderr which of `topics` the log does not hold (a typo keeps or drops nothing)."""
+    if not path.is_file():
+        return  # the copy names it
+    missing = sorted(set(topics) - set(mcap_io.topic_types(path)))
+    if missing:
+        print(f"palpate bag: {path} has no topic {', '.join(missing)} (see palpate bag info)", file=sys.stderr)
 
 
 def run_export(args: argparse.Namespace) -> int:
     from palpate.viewer.foxglove_export import export_foxglove  # needs the foxglove extra
 
+    if args.output.exists() and not args.force and args.output.resolve() != args.file.resolve():
+        raise RecordError(f"{args.output} exists; pass --force to replace it, or choose another output with -o")
+    _not_in_log(args.file, args.topics or [])
     report = export_foxglove(args.file, args.output, args.topics)
     total = sum(report.written.values())
     print(

@@ -484,8 +484,10 @@ def copy_log(
     include: Iterable[str] | None = None,
     exclude: Iterable[str] = (),
     compression: str = "zstd",
+    overwrite: bool = True,
 ) -> int:
-    """Copy a log, keeping the topics in `include` (all when None) minus those in `exclude`."""
+    """Copy a log, keeping the topics in `include` (all when None) minus those in `exclude`; RecordError
+    when `dst` exists and not `overwrite`."""
     included = None if include is None else set(include)
     excluded = set(exclude)
 
@@ -493,7 +495,7 @@ def copy_log(
         return (included is None or topic in included) and topic not in excluded
 
     report = RecoverReport()
-    with _output(src, dst, "filter") as partial, LogWriter(partial, compression=compression) as out:
+    with _output(src, dst, "filter", overwrite) as partial, LogWriter(partial, compression=compression) as out:
         count = copy_records(iter_records_tolerant(src, report), out, keep=keep)
         if report.truncated:
             raise RecordError(f"{src} is truncated ({report.reason}); run `palpate bag recover {src}` first")

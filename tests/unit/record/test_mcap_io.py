@@ -139,6 +139,23 @@ def test_bag_recover_replaces_an_existing_output_only_with_force(
     assert mcap_io.summarize(out).messages == len(canonical_log(3))
 
 
+def test_bag_filter_and_record_replace_an_existing_log_only_with_force_and_name_topics_not_in_the_log(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """As launch --record and bag recover: filter and record wrote over an existing log without a word,
+    and a --topics typo kept nothing silently (an outside audit)."""
+    src, out = tmp_path / "run.mcap", tmp_path / "clock.mcap"
+    write_log(src, canonical_log(3))
+    out.write_bytes(b"precious")
+    assert main(["bag", "filter", str(src), "-o", str(out), "--topics", topics.CLOCK]) == 2
+    assert f"{out} exists; pass --force" in capsys.readouterr().err and out.read_bytes() == b"precious"
+    assert main(["bag", "filter", str(src), "-o", str(out), "--topics", topics.CLOCK, "clokc", "--force"]) == 0
+    assert f"{src} has no topic clokc" in capsys.readouterr().err
+    assert mcap_io.summarize(out).topics == {topics.CLOCK: 3}
+    assert main(["record", "-o", str(out), "--until-stop"]) == 2
+    assert f"{out} exists; pass --force" in capsys.readouterr().err
+
+
 def test_copy_log_keeps_or_drops_topics(tmp_path: Path) -> None:
     src = tmp_path / "src.mcap"
     write_log(src, canonical_log(3))
