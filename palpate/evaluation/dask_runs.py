@@ -338,6 +338,12 @@ def connect(config: ClusterConfig) -> Iterator[Any]:
                 f"${SCHEDULER_ENV} to run on a local cluster"
             ) from exc
         try:
+            if not client.scheduler_info().get("workers"):
+                print(
+                    f"waiting for a Dask worker to join {config.scheduler} (up to {config.worker_timeout_s:g} s; "
+                    f"start one with `dask worker {config.scheduler}`)",
+                    file=sys.stderr,
+                )
             try:
                 client.wait_for_workers(1, timeout=config.worker_timeout_s)
             except TimeoutError as exc:

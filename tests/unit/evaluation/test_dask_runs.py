@@ -148,3 +148,14 @@ def test_a_malformed_scheduler_address_or_an_out_that_is_a_file_is_refused_by_na
     with pytest.raises(ConfigError, match="is a file; give a folder"):
         output_folder(tmp_path / "file")
     assert output_folder(tmp_path / "a" / "b").is_dir()
+
+
+def test_a_scheduler_without_workers_is_said_at_once_and_then_given_up(capsys: pytest.CaptureFixture[str]) -> None:
+    """An outside audit: the bar sat silently at 0/N for up to 300 s before saying anything."""
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=0, processes=False, dashboard_address=None) as cluster:
+        config = ClusterConfig(scheduler=cluster.scheduler_address, worker_timeout_s=1.0)
+        with pytest.raises(ClusterError, match="no Dask worker joined"), dask_runs.connect(config):
+            pass
+    assert f"waiting for a Dask worker to join {cluster.scheduler_address}" in capsys.readouterr().err
