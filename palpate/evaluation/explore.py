@@ -63,6 +63,8 @@ FloatArray = NDArray[np.float64]
 EXPLORE_LAUNCH = LAUNCH_DIR / "explore.yaml"
 #: Mesh file suffixes taken from an --objects folder.
 MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb")
+#: Other 3-D formats: an --objects folder's files of these are named as skipped (others, a README, quietly).
+OTHER_3D_SUFFIXES = (".3ds", ".3mf", ".blend", ".dae", ".dxf", ".fbx", ".gltf", ".igs", ".step", ".stp", ".xyz")
 #: Strategies compared by default (the paper's Table 2).
 DEFAULT_STRATEGIES = ("igef", "gpv")
 #: Strategies of --quick: the paper's two and ours.
@@ -99,6 +101,13 @@ def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
     if not folder.is_dir():
         raise ConfigError(f"--objects {str(folder)!r} is not a folder; give a folder of mesh files (STL, see --scale)")
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
+    skipped = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in OTHER_3D_SUFFIXES)
+    if skipped:
+        print(
+            f"--objects {str(folder)!r}: skipped {len(skipped)} file(s) of formats palpate does not read: "
+            f"{', '.join(skipped)}; convert them to one of {', '.join(MESH_SUFFIXES)}",
+            file=sys.stderr,
+        )
     if not files:
         raise ConfigError(f"no mesh files ({', '.join(MESH_SUFFIXES)}) in {str(folder)!r}")
     by_name: dict[str, Path] = {}

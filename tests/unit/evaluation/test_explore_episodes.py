@@ -158,6 +158,18 @@ def test_runs_from_a_file_leave_out_a_cut_last_line_and_refuse_a_repeated_run(tm
         runs_from(path)
 
 
+def test_files_of_other_3d_formats_in_the_folder_are_named_as_skipped(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An outside audit: a .3ds or .xyz file beside the meshes was skipped without a word."""
+    trimesh.creation.box(extents=(0.05, 0.05, 0.05)).export(tmp_path / "box.stl")
+    (tmp_path / "scan.xyz").write_text("0 0 0\n")
+    (tmp_path / "README.md").write_text("meshes\n")
+    assert [c.name for c in objects_in(tmp_path)] == ["box"]
+    err = capsys.readouterr().err
+    assert "skipped 1 file(s) of formats palpate does not read: scan.xyz" in err and "README" not in err
+
+
 def test_a_budget_given_on_the_command_line_is_not_scaled_by_the_object() -> None:
     import argparse
 
