@@ -775,8 +775,9 @@ class TouchLoop:
         normal = normals[strongest]
         if cfg.slide_normal_weight < 1.0 and slide.smoothed_normal is not None:
             mixed = (1.0 - cfg.slide_normal_weight) * slide.smoothed_normal + cfg.slide_normal_weight * normal
-            normal = mixed / float(np.linalg.norm(mixed))
-        slide.smoothed_normal = normal
+            length = float(np.linalg.norm(mixed))
+            normal = mixed / length if length > 1e-6 else normal  # opposed normals: take the new one
+        slide.smoothed_normal = np.array(normal)
         slide.touched_m = np.array(positions_m[strongest])
         slide.fingertip_m = np.array(r)
         slide.touched_normal = np.array(normal)

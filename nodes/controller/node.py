@@ -22,8 +22,8 @@ from palpate.runtime.spec import Context, NodeSpec, Port
 @dataclass(frozen=True, kw_only=True)
 class ControllerNodeConfig(TouchConfig):
     """The touch rules (TouchConfig: tip_radius_m, rearm_distance_m, rearm_push_s, retract_min_cos and the
-    slide's slide_press_m_s, slide_arrive_m, slide_slack_m), the controller's parameters and the initial
-    touch target (Alg. 1 line 2)."""
+    slide's slide_press_m_s, slide_arrive_m, slide_slack_m, slide_normal_weight), the controller's
+    parameters and the initial touch target (Alg. 1 line 2)."""
 
     #: A point inside the object the first approach aims at (the object's position is enough).
     initial_target_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
