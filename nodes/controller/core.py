@@ -777,10 +777,9 @@ class TouchLoop:
             mixed = (1.0 - cfg.slide_normal_weight) * slide.smoothed_normal + cfg.slide_normal_weight * normal
             length = float(np.linalg.norm(mixed))
             normal = mixed / length if length > 1e-6 else normal  # opposed normals: take the new one
-        slide.smoothed_normal = np.array(normal)
         slide.touched_m = np.array(positions_m[strongest])
         slide.fingertip_m = np.array(r)
-        slide.touched_normal = np.array(normal)
+        slide.touched_normal = slide.smoothed_normal = np.array(normal)
         # the contact point as the fingertip's pose and the contact normal place it (the reported point
         # is as good without noise, and with noise would end a slide at its first ticks)
         to_target = slide.target_m - (r - cfg.tip_radius_m * normal)

@@ -177,10 +177,10 @@ class Mapper:
     def __init__(self, config: MapperConfig, chain: KinematicChain, rng: np.random.Generator) -> None:
         self.config = config
         self.chain = chain
+        check_fits(config, chain)  # before anything is allocated
         self.spec = GridSpec.from_bounds(config.region_min_m, config.region_max_m, config.resolution_m)
         n_maps = 1 if config.mode == "known" else config.n_particles
         spacing, margin = config.free_lattice()
-        check_memory(config, self.spec, n_maps, lattice_points(chain, spacing, margin))
         self.grids = LogOddsGrids(
             self.spec, n_maps, chunk_edge=config.chunk_edge, l_min=config.l_min, l_max=config.l_max
         )

@@ -359,6 +359,12 @@ def stopped_early(stop_reason: str) -> bool:
     return bool(stop_reason) and not stop_reason.startswith(FINISHED_PREFIX)
 
 
+def report_errors(rows: Sequence[Mapping[str, Any]]) -> None:
+    """Print on stderr each run that ended with palpate's own error (its row's ``error``)."""
+    for r in rows:
+        print(f"run failed: {r['object']} {r['strategy']} run {r['run']}: {r['error']}", file=sys.stderr)
+
+
 def report_stopped(results: Sequence[Mapping[str, Any]]) -> None:
     """Print on stderr, once per reason, the runs a node ended before the evaluator did."""
     by_reason: dict[str, list[Mapping[str, Any]]] = {}
@@ -729,8 +735,7 @@ def main(args: argparse.Namespace) -> int:
         )
     errors = [r for r in results if "error" in r]
     print(text)
-    for r in errors:
-        print(f"run failed: {r['object']} {r['strategy']} run {r['run']}: {r['error']}", file=sys.stderr)
+    report_errors(errors)
     report_stopped(results)
     plots = "coverage_vs_travel.png, travel_per_object.png, fscore_vs_travel.png"
     print(f"wrote {out}: runs.csv, runs.jsonl, tables.md, {plots}")

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -37,6 +36,7 @@ from palpate.evaluation.explore import (
     episodes,
     parse_sets,
     parse_strategies,
+    report_errors,
     report_stopped,
     run_episodes,
     select_cases,
@@ -241,8 +241,7 @@ def main(args: argparse.Namespace) -> int:
     report_failures(outcome)
     report_stopped([row for row in results if row is not None])
     errors = [row for row in results if row is not None and "error" in row]
-    for r in errors:  # counted as not completed in the table; said here, and the exit status says so
-        print(f"run failed: {r['object']} {r['strategy']} run {r['run']}: {r['error']}", file=sys.stderr)
+    report_errors(errors)  # counted as not completed in the table; said here, and the exit status says so
     elapsed = time.perf_counter() - start
     by_row: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for (setting, episode), row in zip(pairs, results, strict=True):

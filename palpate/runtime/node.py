@@ -158,7 +158,7 @@ class NodeContext:
         field = getattr(error, "field", "")
         where = f"field {message.TYPE}.{field}" if field else message.TYPE
         n = self._rejections[topic, where] = self._rejections.get((topic, where), 0) + 1
-        if n <= _LOG_FIRST_ERRORS or n % 100 == 0:
+        if _worth_logging(n):
             reason = getattr(error, "reason", str(error))
             self.log.warning(
                 "node %s, topic %s: input rejected, %s: %s (%d so far)", self.name, topic, where, reason, n
@@ -388,7 +388,7 @@ class NodeRunner:
         then every 100th, each with the topic's running count."""
         self.ctx.counters["decode_errors"] += 1
         n = self._bad_by_topic[topic] = self._bad_by_topic.get(topic, 0) + 1
-        if n <= _LOG_FIRST_ERRORS or n % 100 == 0:
+        if _worth_logging(n):
             log.warning("node %s, topic %s: rejected message (%d so far): %s", self.process.name, topic, n, reason)
 
     def dispatch(self, latest_only: bool = False, tick: int | None = None) -> None:
@@ -647,6 +647,11 @@ def _left(peers: list[str]) -> str:
         f"{', '.join(map(repr, peers))} disconnected without a stop (subscription hello/<node> gone for "
         f"{PEER_GRACE_S:.0f} s: the process died or closed its sockets; a lockstep node cannot rejoin a run)"
     )
+
+
+def _worth_logging(n: int) -> bool:
+    """Whether the n-th rejection of one kind is logged: the first 10, then every 100th."""
+    return n <= _LOG_FIRST_ERRORS or n % 100 == 0
 
 
 def _canonical(item: tuple[int, int, int, str, bytes]) -> tuple[int, int]:
