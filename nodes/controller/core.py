@@ -609,6 +609,10 @@ class ControlStep:
 #: Closest the fingertip may start to the initial target and still have an approach direction, metres.
 MIN_APPROACH_M = 1e-9
 
+#: Without an initial target the first approach runs along the fingertip's poking axis (its local z)
+#: for this far before it counts as finding no surface, metres.
+AXIS_APPROACH_M = 0.5
+
 
 #: A slide that loses the surface finishes along the Eq. 15 curve to its target when the fingertip is
 #: at least this far from its place there, metres (the planner's min_hop_m); nearer, the curve is too
@@ -648,15 +652,19 @@ class Slide:
 
 
 class TouchLoop:
-    """Algorithm 1's controller side: approach the initial target, follow the curve to each target (or
-    slide to it along the surface, when the target says so), stop on a new touch and announce it. Feed
-    it the fingertip pose and contacts once per tick."""
+    """Algorithm 1's controller side: approach the initial target (without one: move along the
+    fingertip's poking axis, ``AXIS_APPROACH_M`` at most), follow the curve to each target (or slide to
+    it along the surface, when the target says so), stop on a new touch and announce it. Feed it the
+    fingertip pose and contacts once per tick."""
 
-    def __init__(self, config: TouchConfig, controller: ControllerConfig, initial_target_m: ArrayLike) -> None:
+    def __init__(
+        self, config: TouchConfig, controller: ControllerConfig, initial_target_m: ArrayLike | None = None
+    ) -> None:
         self.config = config
         self.controller = TrajectoryController(controller)
         self.arming = TouchArming(config)
-        self.initial_target_m = np.array(initial_target_m)  # Alg. 1 line 2: a point inside the object
+        # Alg. 1 line 2: a point inside the object; None: along the fingertip's poking axis from its start
+        self.initial_target_m = None if initial_target_m is None else np.array(initial_target_m, dtype=np.float64)
         self.started = False
         self.missed_before = 0  # recoveries counted at the last touch
         self.retract_from = np.zeros(3)  # v_n of the next curve (Eq. 15), set at each touch
@@ -733,11 +741,12 @@ class TouchLoop:
         """One tick: fingertip position r (3,) m and orientation R (3, 3); this tick's contacts: positions
         (n, 3) m, measured normals (n, 3) and normal forces (n,) N (n = 0: no contact)."""
         if not self.started:
-            if float(np.linalg.norm(self.initial_target_m - r)) < MIN_APPROACH_M:
+            target = r + AXIS_APPROACH_M * R[:, 2] if self.initial_target_m is None else self.initial_target_m
+            if float(np.linalg.norm(target - r)) < MIN_APPROACH_M:
                 # a fingertip reported at the initial target itself (an uninitialised driver's zero pose
                 # with the default target) gives no direction to approach along: wait for the next pose
                 return ControlStep(np.zeros(3), np.zeros(3), None, failed=False)
-            self.controller.initial_approach(r, self.initial_target_m)
+            self.controller.initial_approach(r, target)
             self.started = True
         armed = self.arming.update(stamp_ns, r, positions_m, forces_n)
         self.in_contact = len(forces_n) > 0

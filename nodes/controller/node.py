@@ -15,7 +15,7 @@ from palpate.geometry.bezier import bezier_length
 from palpate.geometry.rotations import matrix_to_quat
 from palpate.inputs import contact_arrays, fingertip_pose
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, Pose, TouchEvent, TouchTarget, Trajectory
-from palpate.nodes.controller.core import ControllerConfig, Touch, TouchConfig, TouchLoop
+from palpate.nodes.controller.core import AXIS_APPROACH_M, ControllerConfig, Touch, TouchConfig, TouchLoop
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
@@ -25,8 +25,9 @@ class ControllerNodeConfig(TouchConfig):
     slide's slide_press_m_s, slide_arrive_m, slide_slack_m, slide_normal_weight), the controller's
     parameters and the initial touch target (Alg. 1 line 2)."""
 
-    #: A point inside the object the first approach aims at (the object's position is enough).
-    initial_target_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: A point inside the object the first approach aims at (the object's position is enough); None:
+    #: the first approach runs along the fingertip's poking axis from where it starts.
+    initial_target_m: tuple[float, float, float] | None = None
     controller: ControllerConfig = field(default_factory=ControllerConfig)
 
 
@@ -80,11 +81,17 @@ class ControllerNode:
         return f"controller: the fingertip found no surface ({missed} missed)"
 
     def _no_first_touch(self) -> str:
+        target = self.config.initial_target_m
+        if target is None:
+            return (
+                f"controller: the initial approach along the fingertip's poking axis found no surface within "
+                f"{AXIS_APPROACH_M:g} m of the start; start the fingertip facing the object (launch arguments "
+                "start:= and start_quaternion:= of launch/explore.yaml) or give a point inside it (target:=)"
+            )
         return (
-            "controller: the initial approach from the start position towards the initial target "
-            f"{list(self.config.initial_target_m)} found no surface; the target must lie inside the object "
-            "(launch arguments start:= and target:= of launch/explore.yaml; its default target is in the torus's "
-            "tube: for the other primitives, centred at the origin, target:=[0,0,0])"
+            f"controller: the initial approach from the start position towards the initial target {list(target)} "
+            "found no surface; the target must lie inside the object (launch argument target:= of "
+            "launch/explore.yaml, or target:=null to approach along the fingertip's poking axis)"
         )
 
     def on_tick(self, stamp_ns: int) -> None:

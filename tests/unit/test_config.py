@@ -390,7 +390,9 @@ def _strategy(hint: Any) -> st.SearchStrategy[Any]:
     base, meta = _split(hint)
     origin, args = typing.get_origin(base), typing.get_args(base)
     if origin in (typing.Union, types.UnionType):
-        return st.one_of(*(st.none() if a is type(None) else _strategy(Annotated[a, *meta]) for a in args))  # type: ignore[valid-type]
+        return st.one_of(
+            *(st.none() if a is type(None) else _strategy(Annotated[a, *meta] if meta else a) for a in args)
+        )  # type: ignore[valid-type]
     if origin is Literal:
         return st.sampled_from(args)
     if base is bool:

@@ -54,6 +54,22 @@ def test_initial_approach_that_finds_no_surface_stops_with_the_target_and_the_la
     assert 0.059 < -position[2] + 0.05 < 0.062  # it went 1 cm past the target before giving up
 
 
+def test_an_approach_along_the_poking_axis_that_finds_nothing_names_the_start_arguments() -> None:
+    ctx = FakeCtx()
+    node = ControllerNode(ControllerNodeConfig(), ctx)  # no initial target
+    position, dt = np.zeros(3), 0.01
+    node.on_contacts(no_contacts())
+    for tick in range(2000):  # 0.5 m + 1 cm at 5 cm/s: fails after about 10.2 s
+        node.on_pose(pose(position, FACING_DOWN, "probe"))
+        node.on_tick(tick * 10_000_000)
+        if ctx.stop_reason:
+            break
+        _, velocity = ctx.published[-1]
+        position = position + dt * np.asarray(velocity.linear_m_s)
+    assert "poking axis" in ctx.stop_reason and "start_quaternion:=" in ctx.stop_reason and ctx.stop_failed
+    assert position[:2] == pytest.approx([0.0, 0.0]) and -position[2] == pytest.approx(0.51, abs=0.002)
+
+
 def _target(
     position: list[float], normal: list[float], slide: bool = False, miss_distance_m: float = 0.0
 ) -> TouchTarget:

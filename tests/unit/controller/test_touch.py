@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
 import pytest
 
 from palpate.nodes.controller.core import (
+    AXIS_APPROACH_M,
     HELD_M,
     ControllerConfig,
     ControllerState,
@@ -260,6 +262,38 @@ def test_an_initial_approach_into_nothing_fails() -> None:
     step = loop.step(0, r, R_DOWN, *NONE)
     assert step.failed and not step.linear_m_s.any()
     assert r[2] == pytest.approx(-0.02, abs=0.05 * DT_S)  # 1 cm past the initial target
+
+
+R_FACING_X = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # poking axis R[:, 2] = +x
+
+
+def drive_facing_x(loop: TouchLoop, wall_x: float, ticks: int) -> tuple[np.ndarray, ControlStep]:
+    """From the origin with the poking axis +x until a touch, a failure or ``ticks``: a point fingertip
+    touches the wall x >= wall_x. Returns the last position and step."""
+    r = np.zeros(3)
+    for tick in range(ticks):
+        contacts = contact(r, normal=np.array([-1.0, 0.0, 0.0])) if r[0] >= wall_x else NONE
+        step = loop.step(tick * TICK_NS, r, R_FACING_X, *contacts)
+        if step.touch is not None or step.failed:
+            return r, step
+        r = r + DT_S * step.linear_m_s
+    return r, step
+
+
+def test_without_an_initial_target_the_first_approach_runs_along_the_poking_axis() -> None:
+    loop = TouchLoop(TouchConfig(tip_radius_m=0.0), ControllerConfig())
+    r, step = drive_facing_x(loop, wall_x=0.03, ticks=200)
+    assert step.touch is not None and step.touch.index == 0
+    np.testing.assert_allclose(step.touch.approach_direction, [1.0, 0.0, 0.0], atol=1e-12)
+    assert r[0] == pytest.approx(0.03, abs=0.05 * DT_S + 1e-12) and not r[1:].any()
+
+
+def test_without_an_initial_target_and_no_surface_the_first_approach_fails_past_its_reach() -> None:
+    loop = TouchLoop(TouchConfig(tip_radius_m=0.0), ControllerConfig())
+    r, step = drive_facing_x(loop, wall_x=math.inf, ticks=2000)
+    assert step.failed and step.touch is None
+    # AXIS_APPROACH_M along the axis, then the controller's 1 cm miss distance
+    assert r[0] == pytest.approx(AXIS_APPROACH_M + 0.01, abs=0.05 * DT_S + 1e-9)
 
 
 def test_a_pose_at_the_initial_target_waits_instead_of_failing() -> None:
