@@ -279,6 +279,24 @@ class ClientAllowList:
         self._auth.stop()
 
 
+#: ZMTP heartbeats on every bus socket: a PING each interval, and a connection whose peer has not
+#: answered for the timeout is closed. A peer whose host vanished (power, cable, a VM gone: no TCP FIN)
+#: is then dropped like one that closed its sockets; the publisher sees its subscriptions go, so a
+#: lockstep graph notices that the node left (runtime.node.PEER_GRACE_S). ZeroMQ's I/O threads answer
+#: the PINGs, so a node busy in Python for longer is not dropped.
+HEARTBEAT_INTERVAL_MS = 1000
+HEARTBEAT_TIMEOUT_MS = 5000
+
+
+def keep_alive(
+    sock: zmq.Socket[Any], interval_ms: int = HEARTBEAT_INTERVAL_MS, timeout_ms: int = HEARTBEAT_TIMEOUT_MS
+) -> None:
+    """Turn on ZMTP heartbeats (see HEARTBEAT_TIMEOUT_MS) before `sock` binds or connects."""
+    sock.setsockopt(zmq.HEARTBEAT_IVL, interval_ms)
+    sock.setsockopt(zmq.HEARTBEAT_TIMEOUT, timeout_ms)
+    sock.setsockopt(zmq.HEARTBEAT_TTL, timeout_ms)
+
+
 def make_publisher(
     ctx: zmq.Context[Any],
     endpoint: str,
@@ -304,6 +322,7 @@ def make_publisher(
     `linger_ms`: how long closing waits for queued messages to leave.
     """
     sock = ctx.socket(zmq.XPUB)
+    keep_alive(sock)
     sock.setsockopt(zmq.XPUB_VERBOSE, 1)
     sock.setsockopt(zmq.LINGER, linger_ms)
     if lockstep:
@@ -346,6 +365,7 @@ def make_subscriber(
 ) -> zmq.Socket[Any]:
     """A SUB socket connected to `endpoints` and subscribed to `topics` (all when the list is empty)."""
     sock = ctx.socket(zmq.SUB)
+    keep_alive(sock)
     sock.setsockopt(zmq.LINGER, 0)
     if lockstep:
         sock.setsockopt(zmq.RCVHWM, 0)
@@ -410,6 +430,7 @@ class PublisherTap:
                 endpoint,
             )
         apply_curve(sock, client_curve(server_public, self.client_keys), server=False)
+        keep_alive(sock)
         sock.setsockopt(zmq.LINGER, 0)
         if self.never_drop:
             sock.setsockopt(zmq.RCVHWM, 0)
