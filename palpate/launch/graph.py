@@ -197,6 +197,27 @@ class Graph:
         }
 
 
+#: Hosts whose bind takes the port on every interface of the machine.
+_EVERY_INTERFACE = {"*", "0.0.0.0", "::", "[::]"}
+
+
+def _bound_address(endpoint: str) -> tuple[str, str]:
+    """What binding `endpoint` occupies: (host, port) of a tcp endpoint, localhost as 127.0.0.1 and
+    every interface as "*"; (endpoint, "") otherwise."""
+    if not endpoint.startswith("tcp://"):
+        return endpoint, ""
+    host, _, port = endpoint[len("tcp://") :].rpartition(":")
+    host = host.lower()
+    host = "127.0.0.1" if host == "localhost" else "*" if host in _EVERY_INTERFACE else host
+    return host, port
+
+
+def _clashes(a: str, b: str) -> bool:
+    """Whether binding endpoints `a` and `b` on one machine collide (the same port of one interface)."""
+    (host_a, port_a), (host_b, port_b) = _bound_address(a), _bound_address(b)
+    return port_a == port_b and (host_a == host_b or (port_a != "" and "*" in (host_a, host_b)))
+
+
 def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
     """Validate `launch` and resolve its graph, or raise LaunchError naming file, line and key."""
     bus_dir = bus.usable_dir(bus_dir) if bus_dir else bus.default_bus_dir()
@@ -207,11 +228,11 @@ def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
         node = _resolve_node(entry, index, bus_dir)
         if node.name in names:
             raise LaunchError(f"{entry.at('name')}: node name {node.name!r} is already used at {names[node.name]}")
-        if node.endpoint in endpoints:
-            other = endpoints[node.endpoint]
+        other = next((n for e, n in endpoints.items() if _clashes(e, node.endpoint)), None)
+        if other is not None:
             raise LaunchError(
-                f"{entry.at('port')}: node {node.name!r} binds {node.endpoint}, as node {other.name!r} "
-                f"({other.entry.at('port')}) does; give one of them another port"
+                f"{entry.at('port')}: node {node.name!r} binds {node.endpoint}, the port node {other.name!r} "
+                f"({other.entry.at('port')}) binds at {other.endpoint}; give one of them another port"
             )
         names[node.name] = entry.at("name")
         endpoints[node.endpoint] = node

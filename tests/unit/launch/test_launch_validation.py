@@ -411,13 +411,38 @@ def test_two_nodes_cannot_bind_one_port(tmp_path: Path) -> None:
         "nodes:\n  - name: cube\n    type: cube_contacts\n    host: 127.0.0.1\n    port: 5999\n"
         "  - name: stats\n    type: contact_stats\n    host: 127.0.0.1\n    port: 5999\n"
     )
-    expected = rf"^{path}:9: node 'stats' binds tcp://127.0.0.1:5999, as node 'cube' \({path}:5\) does"
+    expected = rf"^{path}:9: node 'stats' binds tcp://127.0.0.1:5999, the port node 'cube' \({path}:5\) binds at"
     with pytest.raises(LaunchError, match=expected):
         load(path, tmp_path)
     path.write_text(path.read_text().replace("    port: 5999\n", "", 1).replace("5999", "5600"))  # cube's default
     with pytest.raises(
-        LaunchError, match=rf"^{path}:8: node 'stats' binds tcp://127.0.0.1:5600, as node 'cube' \({path}:2\)"
+        LaunchError, match=rf"^{path}:8: node 'stats' binds tcp://127.0.0.1:5600, the port node 'cube' \({path}:2\)"
     ):
+        load(path, tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("host_a", "host_b", "clash"),
+    [
+        ("localhost", "127.0.0.1", True),
+        ("LOCALHOST", "localhost", True),
+        ("0.0.0.0", "127.0.0.1", True),
+        ("127.0.0.1", "*", True),
+        ("127.0.0.1", "127.0.0.2", False),
+    ],
+)
+def test_one_port_bound_under_two_names_of_one_interface_clashes(
+    host_a: str, host_b: str, clash: bool, tmp_path: Path
+) -> None:
+    path = tmp_path / "ports.yaml"
+    path.write_text(
+        f"nodes:\n  - name: cube\n    type: cube_contacts\n    host: '{host_a}'\n    port: 5999\n"
+        f"  - name: stats\n    type: contact_stats\n    host: '{host_b}'\n    port: 5999\n"
+    )
+    if clash:
+        with pytest.raises(LaunchError, match=rf"^{path}:9: node 'stats' binds tcp://.*:5999, the port node 'cube'"):
+            load(path, tmp_path)
+    else:
         load(path, tmp_path)
 
 
