@@ -252,6 +252,11 @@ def _mapping_items(node: yaml.Node, name: str) -> dict[str, tuple[yaml.Node, yam
         key = str(knode.value)
         if key in items:
             raise LaunchError(f"{name}:{knode.start_mark.line + 1}: duplicate key {key!r}")
+        if key == "<<" and knode.tag == "tag:yaml.org,2002:merge":
+            raise LaunchError(
+                f"{name}:{knode.start_mark.line + 1}: a YAML merge key ('<<: *anchor') is not read in launch files "
+                "(YAML 1.2 has none); write the keys out, or share a value through args and ${arg}"
+            )
         items[key] = (knode, vnode)
     return items
 

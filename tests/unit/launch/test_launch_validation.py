@@ -573,3 +573,16 @@ def test_output_piped_into_a_reader_that_stops_early_ends_quietly(monkeypatch: p
     monkeypatch.chdir(REPO_ROOT)
     monkeypatch.setattr(sys, "stdout", ClosedPipe())
     assert main(["launch", "--dry-run", "launch/explore.yaml"]) == 0
+
+
+def test_a_yaml_merge_key_is_named_at_its_line(tmp_path: Path) -> None:
+    path = tmp_path / "merge.yaml"
+    path.write_text(
+        "nodes:\n  - name: a\n    type: noise\n    params: &p\n      contacts: true\n"
+        "  - name: b\n    type: noise\n    params:\n      <<: *p\n      joints: false\n"
+    )
+    with pytest.raises(LaunchError, match=rf"^{path}:9: a YAML merge key \('<<: \*anchor'\) is not read"):
+        load(path, tmp_path)
+    path.write_text(path.read_text().replace("<<: *p", "'<<': 1"))  # a quoted key is a plain (unknown) key
+    with pytest.raises(LaunchError, match=r"params.<<: unknown key '<<'"):
+        load(path, tmp_path)
