@@ -27,6 +27,27 @@ def non_negative_float(text: str) -> float:
     return value
 
 
+def add_scale_argument(parser: argparse.ArgumentParser) -> None:
+    """``--scale``: metres per unit of the --objects files."""
+    parser.add_argument(
+        "--scale",
+        type=positive_scale,
+        default=1.0,
+        help="metres per unit of the --objects mesh files (default 1; 0.001 for files in millimetres)",
+    )
+
+
+def positive_scale(text: str) -> float:
+    """``--scale``: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0 (0.001: millimetres), got {text!r}")
+    return value
+
+
 def _int(text: str, lowest: int, what: str) -> int:
     try:
         value = int(text)

@@ -454,7 +454,7 @@ def _check_scale(size: float, path: Path, scale: float) -> None:
         f"{path}: absurd scale: the mesh is {size:.6g} m across after scale {scale:g} ({limit}); "
         f"millimetres given as metres or the reverse? Give it a scale of {fix}: object.scale in a "
         f"scene, scale:={fix} for launch/explore.yaml and launch/probe.yaml, --scale {fix} for "
-        "palpate eval explore and sweep explore (or convert the file to metres)"
+        "palpate eval explore, sweep explore and bench contacts (or convert the file to metres)"
     )
 
 

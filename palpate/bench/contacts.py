@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from palpate import jsonio
+from palpate.argtypes import add_scale_argument
 from palpate.errors import BenchmarkError
 from palpate.paths import YCB_DIR_ENV, ycb_dir
 from palpate.text_table import Column, fixed_width_table
@@ -328,8 +329,10 @@ def run_contact_bench(
     touches_per_object: int,
     rng: np.random.Generator,
     config: ContactBenchConfig | None = None,
+    scale: float = 1.0,
 ) -> list[dict[str, Any]]:
-    """One row per mesh file (see ``object_paths``), with a progress bar over the files on stderr."""
+    """One row per mesh file (see ``object_paths``; metres after ``scale``), with a progress bar over the
+    files on stderr."""
     from tqdm import tqdm
 
     from palpate.nodes.sim.objects import read_mesh_file
@@ -338,7 +341,7 @@ def run_contact_bench(
     for path in tqdm(paths, unit="object", leave=False, disable=len(paths) < 2):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a non-watertight mesh is benchmarked all the same
-            mesh = read_mesh_file(path)
+            mesh = read_mesh_file(path, scale)
         rows.append(bench_mesh(path.stem, mesh, touches_per_object, rng, config))
     return rows
 
@@ -409,6 +412,7 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `palpate bench contacts` beyond the shared --quick and --json."""
     parser.add_argument("--objects", type=Path, metavar="DIR", help="benchmark every mesh file in DIR")
+    add_scale_argument(parser)
     parser.add_argument(
         "--touches", type=int, help=f"probe touches per object (default {TOUCHES}, --quick {QUICK_TOUCHES})"
     )
@@ -421,7 +425,7 @@ def object_paths(objects: Path | None, ycb: Path | None = None) -> list[Path]:
     when there are none."""
     if objects is not None:
         if not objects.is_dir():
-            raise BenchmarkError(f"--objects {objects}: not a directory; give a folder of mesh files in metres")
+            raise BenchmarkError(f"--objects {objects}: not a directory; give a folder of mesh files (see --scale)")
         paths = mesh_paths(objects)
         if not paths:
             raise BenchmarkError(f"--objects {objects}: no mesh files ({', '.join(MESH_SUFFIXES)}) in this folder")
@@ -446,6 +450,7 @@ def main(args: argparse.Namespace) -> int:
     paths = object_paths(getattr(args, "objects", None))
     touches = getattr(args, "touches", None) or (QUICK_TOUCHES if args.quick else TOUCHES)
     seed = int(getattr(args, "seed", 0) or 0)
+    scale = float(getattr(args, "scale", 1.0))
     print(
         f"palpate bench contacts: {len(paths)} objects from {paths[0].parent}, {touches} touches each, seed {seed}",
         flush=True,
@@ -454,7 +459,7 @@ def main(args: argparse.Namespace) -> int:
     rows: list[dict[str, Any]] = []
     start = time.perf_counter()
     for path in paths:
-        rows.extend(run_contact_bench([path], touches, rng))
+        rows.extend(run_contact_bench([path], touches, rng, scale=scale))
         row = rows[-1]
         print(
             f"  {row['object']}: p95 {row['position_p95_mm']:.2e} mm, {row['normal_p95_deg']:.2e} deg, "

@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from palpate import jsonio
+from palpate.argtypes import add_scale_argument
 from palpate.config import load
 from palpate.errors import ConfigError, MeshError
 from palpate.evaluation.dask_runs import (
@@ -462,27 +463,6 @@ QUICK_OBJECTS = 3
 DEFAULT_OUT = Path("out/eval_explore")
 #: Object of the coverage-against-travel plot when present (the paper's Fig. 7 uses the banana).
 PLOT_OBJECT = "011_banana"
-
-
-def add_scale_argument(parser: argparse.ArgumentParser) -> None:
-    """``--scale``: metres per unit of the --objects files."""
-    parser.add_argument(
-        "--scale",
-        type=positive_scale,
-        default=1.0,
-        help="metres per unit of the --objects mesh files (default 1; 0.001 for files in millimetres)",
-    )
-
-
-def positive_scale(text: str) -> float:
-    """``--scale``: a finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0.0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0 (0.001: millimetres), got {text!r}")
-    return value
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

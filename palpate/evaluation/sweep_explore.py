@@ -25,13 +25,13 @@ from typing import Any
 import numpy as np
 
 from palpate import jsonio
+from palpate.argtypes import add_scale_argument
 from palpate.errors import ConfigError
 from palpate.evaluation.dask_runs import RunLog, output_folder, report_failures
 from palpate.evaluation.dask_runs import add_arguments as add_cluster_arguments
 from palpate.evaluation.dask_runs import config_from_args as cluster_config
 from palpate.evaluation.explore import (
     Episode,
-    add_scale_argument,
     check_episodes,
     episodes,
     parse_sets,

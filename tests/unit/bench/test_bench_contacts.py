@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from palpate.bench import contacts as bench_contacts
-from palpate.errors import BenchmarkError
+from palpate.errors import BenchmarkError, MeshError
 from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.nodes.sim.objects import ObjectSpec, load_object
 
@@ -95,3 +95,16 @@ def test_contacts_json_last_line_has_the_goal_keys(tmp_path: Path, capsys: Any) 
     assert {"position_p95_mm_max", "normal_p95_deg_max", "phantom_contacts"} <= set(last)
     assert last["pass"] and last["phantom_contacts"] == 0 and last["objects"] == 1
     assert last["rows"][0]["object"] == "torus" and last["touches_per_object"] == 60
+
+
+def test_contacts_reads_a_folder_in_millimetres_with_scale(tmp_path: Path, capsys: Any) -> None:
+    import trimesh
+
+    trimesh.creation.torus(40.0, 12.0, major_sections=48, minor_sections=24).export(tmp_path / "torus_mm.stl")
+    args = argparse.Namespace(objects=tmp_path, touches=40, seed=1, quick=True, json=True, scale=1.0)
+    with pytest.raises(MeshError, match=r"--scale 0\.001 for palpate eval explore, sweep explore and bench contacts"):
+        bench_contacts.main(args)
+    capsys.readouterr()
+    assert bench_contacts.main(argparse.Namespace(**{**vars(args), "scale": 0.001})) == 0
+    last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert last["pass"] and last["rows"][0]["object"] == "torus_mm"

@@ -275,7 +275,7 @@ def test_a_large_objects_clock_lets_its_runs_use_their_travel_budget() -> None:
 def test_a_scale_that_is_not_a_finite_positive_number_is_refused(text: str) -> None:
     import argparse
 
-    from palpate.evaluation.explore import positive_scale
+    from palpate.argtypes import positive_scale
 
     with pytest.raises(argparse.ArgumentTypeError, match=f"expected a finite number > 0.*got '{text}'"):
         positive_scale(text)
