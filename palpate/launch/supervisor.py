@@ -108,6 +108,8 @@ class Supervisor:
         self.graph = graph
         self.placement = placement or {}
         self.out = out or sys.stdout
+        # another graph on this bus directory with a node of the same name would take its ipc socket
+        self.names = bus.NameClaim(graph.bus_dir, [spec.name for spec in process_specs])
         # the node specs (and any key file) live in a 0700 directory, removed at shutdown: they hold secret keys
         self.run_dir = Path(tempfile.mkdtemp(prefix="palpate-run-"))
         self.children: list[Child] = []
@@ -280,6 +282,7 @@ class Supervisor:
             self._stop_children()
         finally:
             shutil.rmtree(self.run_dir, ignore_errors=True)
+            self.names.release()
 
     def _stop_children(self) -> None:
         for path in self.external_specs:

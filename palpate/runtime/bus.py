@@ -21,6 +21,7 @@ CurveZMQ publisher admits only the client keys the launcher lists (`ClientAllowL
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import hashlib
 import json
 import logging
@@ -158,6 +159,46 @@ def read_manifests(bus_dir: str | Path) -> list[Manifest]:
         if _alive(manifest.pid):
             manifests.append(manifest)
     return manifests
+
+
+class NameClaim:
+    """This process's exclusive claim on node names in a bus directory: a lock file per name
+    (``<name>.lock``, holding the claimant's pid) locked with flock, so that two graphs launched on one
+    bus directory cannot bind each other's ipc sockets. The system drops the locks when the process
+    ends, however it ends; ``release`` drops them earlier."""
+
+    def __init__(self, bus_dir: str | Path, names: Iterable[str]) -> None:
+        self.files: list[Any] = []
+        folder = Path(bus_dir)
+        folder.mkdir(parents=True, exist_ok=True)
+        try:
+            for name in sorted(set(names)):
+                handle = open(folder / f"{name}.lock", "a+")  # noqa: SIM115 (held until release)
+                try:
+                    fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    handle.seek(0)
+                    holder = handle.read().strip() or "?"
+                    handle.close()
+                    raise BusError(
+                        f"node name {name!r} is in use on the bus directory {folder} by another running graph "
+                        f"(process {holder}); stop that graph, or give this one its own bus directory with "
+                        "--bus DIR (palpate topic, record and the viewer then take --bus DIR too)"
+                    ) from None
+                handle.seek(0)
+                handle.truncate()
+                handle.write(str(os.getpid()))
+                handle.flush()
+                self.files.append(handle)
+        except BaseException:
+            self.release()
+            raise
+
+    def release(self) -> None:
+        """Drop every claim (idempotent)."""
+        for handle in self.files:
+            handle.close()  # closing drops the flock; the file stays for the next claimant
+        self.files = []
 
 
 def _alive(pid: int) -> bool:

@@ -401,3 +401,16 @@ def test_a_publisher_that_cannot_bind_names_the_endpoint_and_what_to_change() ->
             bus.make_publisher(ctx, "tcp://192.0.2.1:5999", lockstep=True)  # TEST-NET-1: never local
     finally:
         ctx.term()
+
+
+def test_a_node_name_is_claimed_on_a_bus_directory_until_released(tmp_path: Path) -> None:
+    first = bus.NameClaim(tmp_path, ["sim", "gpis"])
+    with pytest.raises(
+        BusError, match=rf"node name 'gpis' is in use on the bus directory {tmp_path} .*process {os.getpid()}"
+    ):
+        bus.NameClaim(tmp_path, ["gpis", "planner"])
+    other = bus.NameClaim(tmp_path, ["planner"])  # the failed claim kept nothing
+    first.release()
+    second = bus.NameClaim(tmp_path, ["sim", "gpis"])
+    second.release()
+    other.release()
