@@ -30,7 +30,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--replay",
         type=Path,
         metavar="LOG.mcap",
-        help="replace the publishers of the log's topics by the log",
+        help="replay the log's sensor data (the clock source's topics); every other node re-runs",
+    )
+    p.add_argument(
+        "--replay-nodes",
+        type=_names,
+        metavar="A,B",
+        help="with --replay: the nodes the log stands in for (default: the clock source)",
     )
     p.add_argument("--bus", type=Path, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
     p.add_argument(
@@ -48,13 +54,27 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     d.set_defaults(func=run_demo)
 
 
-def load_graph(path: Path, overrides: list[str], bus_dir: Path | None, replay: Path | None = None) -> Graph:
+def _names(text: str) -> list[str]:
+    """Comma-separated node names, at least one."""
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"{text!r} names no node; give A,B")
+    return names
+
+
+def load_graph(
+    path: Path,
+    overrides: list[str],
+    bus_dir: Path | None,
+    replay: Path | None = None,
+    replay_nodes: list[str] | None = None,
+) -> Graph:
     try:
         launch = load_launch(path, parse_cli_args(overrides))
         if replay is not None:
             from palpate.record.launch_support import replace_publishers_with_log
 
-            launch = replace_publishers_with_log(launch, replay)
+            launch = replace_publishers_with_log(launch, replay, replay_nodes)
         return resolve(launch, bus_dir=bus_dir)
     except LaunchError as exc:
         raise _from_the_command_line(exc, path, overrides) from exc
@@ -72,7 +92,9 @@ def _from_the_command_line(exc: LaunchError, path: Path, overrides: list[str]) -
 
 
 def run_launch(args: argparse.Namespace) -> int:
-    graph = load_graph(args.file, args.args, args.bus, args.replay)
+    if args.replay_nodes and args.replay is None:
+        raise LaunchError("--replay-nodes needs --replay LOG.mcap")
+    graph = load_graph(args.file, args.args, args.bus, args.replay, args.replay_nodes)
     if args.spec is not None:
         recorder_keys = recorder_curve_keys(graph) if args.record else {}
         specs = {

@@ -1,14 +1,16 @@
-"""`palpate launch FILE --replay LOG.mcap`: replace the nodes the log can stand in for by a replay node.
+"""`palpate launch FILE --replay LOG.mcap`: replace nodes of the graph by a replay node of the log.
 
-A node is replaced when it publishes something and the log holds every topic it publishes; the
-replay node (a clock source) publishes those topics tick by tick, and everything else runs live.
-So a log of sensor topics re-runs the estimators downstream of them on recorded data. The clock
-source must be among the replaced nodes (the replay node takes over the clock).
+By default the replay node stands in for the clock source (the simulator or a hardware driver: the
+sensor data) and every other node runs live, so a full recording re-runs the estimators, planners
+and controllers on recorded sensor data. ``--replay-nodes A,B`` names the nodes to replace instead
+(the clock source among them: the replay node takes over the clock); the log must hold every topic
+each of them publishes. The replay node publishes those topics tick by tick.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
 
 from palpate.errors import LaunchError
@@ -19,25 +21,38 @@ from palpate.record.replay_node import log_topics
 REPLAY_NODE_NAME = "replay"
 
 
-def replace_publishers_with_log(launch: LaunchFile, log_path: str | Path) -> LaunchFile:
-    """`launch` with the nodes whose outputs `log_path` holds replaced by one `replay` node."""
+def replace_publishers_with_log(
+    launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] | None = None
+) -> LaunchFile:
+    """`launch` with the clock source (or the named `nodes`) replaced by one `replay` node of `log_path`."""
     log_path = Path(log_path).resolve()
     recorded = log_topics(log_path)
     # Resolving validates the original graph and gives the topics after remaps and namespaces, and
     # the ranks the recorded subscribers dispatched by. The bus directory only names endpoints here.
     graph = resolve(launch, bus_dir=Path("/nonexistent-bus-dir"))
-    replaced = [node for node in graph.nodes if node.publishes and all(t in recorded for t in node.publishes.values())]
-    if not replaced:
-        raise LaunchError(
-            f"--replay {log_path}: the log holds no node's complete outputs; it has {sorted(recorded)}, "
-            f"the graph publishes {sorted(graph.topic_types())}"
-        )
     clock = graph.clock_source
+    if nodes is None:
+        if clock is None:
+            raise LaunchError(
+                f"--replay {log_path}: the graph has no clock source to replace; name nodes with --replay-nodes"
+            )
+        nodes = [clock.name]
+    unknown = sorted(set(nodes) - set(graph.by_name))
+    if unknown:
+        raise LaunchError(f"--replay-nodes: no node {unknown} in the graph; its nodes: {sorted(graph.by_name)}")
+    replaced = [graph.by_name[name] for name in dict.fromkeys(nodes)]
+    for node in replaced:
+        missing = sorted(t for t in node.publishes.values() if t not in recorded)
+        if missing or not node.publishes:
+            what = f"lacks {missing} of" if missing else "has nothing to publish for"
+            raise LaunchError(
+                f"--replay {log_path}: the log {what} node {node.name!r}, so it cannot stand in for it "
+                f"(the log holds {sorted(recorded)})"
+            )
     if clock is not None and clock not in replaced:
-        missing = sorted(t for t in clock.publishes.values() if t not in recorded)
         raise LaunchError(
-            f"--replay {log_path}: the log lacks {missing} of the clock source {clock.name!r}; the replay node "
-            "replaces the clock, so the log must hold every topic of the clock source"
+            f"--replay-nodes {','.join(nodes)}: the clock source {clock.name!r} must be among them; the replay "
+            "node takes over the clock"
         )
     replayed = sorted({t for node in replaced for t in node.publishes.values()})
     for topic in replayed:

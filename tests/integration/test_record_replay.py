@@ -4,7 +4,8 @@
 - the same launch and seed recorded twice: byte-identical MCAP files (the demo, and FastSLAM, whose
   mapper's status would carry wall-clock timings if the runtime let it);
 - `palpate replay --fast` recorded by `palpate record`: the same messages, byte for byte, in order;
-- `palpate launch --replay` on the sensor topics of the log: the estimator's meshes come out again;
+- `palpate launch --replay` on the sensor topics of the log, or on the whole log: the estimator's meshes
+  come out again;
 - a recorder SIGKILLed in a real-time run: `bag recover` keeps everything up to the last second;
 - a recorder SIGKILLed under `launch --record`: the launch stops at once and points at `bag recover`.
 """
@@ -165,6 +166,11 @@ def test_launch_replay_reruns_the_estimator_byte_for_byte(recorded: Path, tmp_pa
     assert len(meshes) == TICKS
     assert meshes == messages(recorded, [topics.SURFACE_MESH])
     assert messages(rerun, [topics.CONTACTS, topics.CLOCK]) == messages(recorded, [topics.CONTACTS, topics.CLOCK])
+    # the whole recording replays the sensors alone (the clock source): the estimator re-runs all the same
+    again = launch_recorded(tmp_path, "again", "--replay", str(recorded))
+    assert messages(again, [topics.SURFACE_MESH]) == messages(recorded, [topics.SURFACE_MESH])
+    reporting = {codec.decode(data).node for _, data in messages(again, [topics.NODE_STATUS])}
+    assert "estimator" in reporting and "cube" not in reporting  # it ran; the replay stood in for the sensor
 
 
 @pytest.mark.slow

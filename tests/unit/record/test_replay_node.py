@@ -79,7 +79,7 @@ def test_each_step_publishes_one_recorded_tick_and_returns_its_stamp(log_path: P
     assert stamps == [t * PERIOD_NS for t in range(4)] and len(ctx.sent) == 4
 
 
-def test_launch_replay_replaces_the_nodes_whose_outputs_the_log_holds(tmp_path: Path, log_path: Path) -> None:
+def test_launch_replay_replaces_the_clock_source_and_reruns_the_rest(tmp_path: Path, log_path: Path) -> None:
     sensors = tmp_path / "sensors.mcap"
     write_log(sensors, [(t, m) for t, m in canonical_log(3) if t != topics.SURFACE_MESH])
     launch = replace_publishers_with_log(load_launch(DEMO), sensors)
@@ -89,20 +89,25 @@ def test_launch_replay_replaces_the_nodes_whose_outputs_the_log_holds(tmp_path: 
     replay = graph.by_name["replay"]
     assert replay.spec.clock_source and replay.publishes == {topics.CONTACTS: topics.CONTACTS}
     assert replay.params["order"] == {topics.CONTACTS: 0}
-    # a log with the estimator's mesh too replaces the estimator as well
-    everything = replace_publishers_with_log(load_launch(DEMO), log_path)
-    assert [e.fields["name"] for e in everything.nodes] == ["replay", "stats"]
+    # a full recording re-runs the estimator too (it replaced every node before: nothing re-ran) ...
+    full = replace_publishers_with_log(load_launch(DEMO), log_path)
+    assert [e.fields["name"] for e in full.nodes] == ["replay", "stats", "estimator"]
+    # ... unless the estimator is named: then the log's meshes stand in for it
+    both = replace_publishers_with_log(load_launch(DEMO), log_path, ["cube", "estimator"])
+    assert [e.fields["name"] for e in both.nodes] == ["replay", "stats"]
 
 
-def test_launch_replay_needs_the_clock_sources_topics(tmp_path: Path) -> None:
+def test_launch_replay_needs_the_topics_of_the_nodes_it_replaces(tmp_path: Path, log_path: Path) -> None:
     meshes = tmp_path / "meshes.mcap"
     write_log(meshes, [(t, m) for t, m in canonical_log(2) if t == topics.SURFACE_MESH])
-    with pytest.raises(LaunchError, match="clock source 'cube'"):
+    with pytest.raises(LaunchError, match=r"the log lacks \['sensors/contacts'\] of node 'cube'"):
         replace_publishers_with_log(load_launch(DEMO), meshes)
-    empty = tmp_path / "clock_only.mcap"
-    write_log(empty, [(t, m) for t, m in canonical_log(2) if t == topics.CLOCK])
-    with pytest.raises(LaunchError, match="holds no node's complete outputs"):
-        replace_publishers_with_log(load_launch(DEMO), empty)
+    with pytest.raises(LaunchError, match="the clock source 'cube' must be among them"):
+        replace_publishers_with_log(load_launch(DEMO), log_path, ["estimator"])
+    with pytest.raises(LaunchError, match=r"no node \['nope'\] in the graph"):
+        replace_publishers_with_log(load_launch(DEMO), log_path, ["cube", "nope"])
+    with pytest.raises(LaunchError, match="has nothing to publish for node 'stats'"):
+        replace_publishers_with_log(load_launch(DEMO), log_path, ["cube", "stats"])
 
 
 def _write_versioned(path: Path, *, schema: int, payload: int) -> None:
