@@ -112,6 +112,13 @@ def run_recover(args: argparse.Namespace) -> int:
     output = args.output or args.file.with_name(args.file.stem + ".recovered.mcap")
     report = mcap_io.recover(args.file, output, overwrite=args.force)
     state = f"input truncated ({report.reason})" if report.truncated else "input was complete"
+    if report.damaged_chunks:
+        state += (
+            f"; skipped {report.damaged_chunks} damaged chunk(s), whose messages are lost ({report.damage}): "
+            "a lockstep log then lacks those ticks"
+        )
+    if report.orphaned:
+        state += f"; {report.orphaned} message(s) on channels defined only in damaged chunks were dropped"
     last = f", last stamp {report.last_log_time * 1e-9:.3f} s" if report.last_log_time is not None else ""
     print(f"recovered {report.messages} messages from {report.chunks} chunks into {output}{last}; {state}")
     return 0
@@ -136,10 +143,8 @@ def _not_in_log(path: Path, topics: list[str]) -> None:
 def run_export(args: argparse.Namespace) -> int:
     from palpate.viewer.foxglove_export import export_foxglove  # needs the foxglove extra
 
-    if args.output.exists() and not args.force and args.output.resolve() != args.file.resolve():
-        raise RecordError(f"{args.output} exists; pass --force to replace it, or choose another output with -o")
     _not_in_log(args.file, args.topics or [])
-    report = export_foxglove(args.file, args.output, args.topics)
+    report = export_foxglove(args.file, args.output, args.topics, overwrite=args.force)
     total = sum(report.written.values())
     print(
         f"exported {report.converted} of {report.read} messages as {total} Foxglove messages to {args.output}"
@@ -148,6 +153,4 @@ def run_export(args: argparse.Namespace) -> int:
     width = max([len(t) for t, _ in report.written] + [5])
     for (topic, schema), count in sorted(report.written.items()):
         print(f"  {topic:<{width}}  {schema:<24}  {count:>8}")
-    if total == 0:
-        raise RecordError(f"{args.file}: nothing to export (no message of a type the export knows)")
     return 0

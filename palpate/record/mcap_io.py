@@ -55,7 +55,19 @@ except PackageNotFoundError:  # pragma: no cover - the venv always has it
 LIBRARY = f"palpate-{palpate.__version__} mcap-python-{_MCAP_VERSION}"
 
 # What a truncated or damaged file can raise while being read record by record.
-_READ_ERRORS = (McapError, struct.error, ValueError, RuntimeError, EOFError, zstandard.ZstdError, zlib.error)
+READ_ERRORS = (
+    McapError,
+    struct.error,
+    ValueError,
+    RuntimeError,
+    EOFError,
+    OverflowError,  # a damaged length field
+    MemoryError,
+    zstandard.ZstdError,
+    zlib.error,
+)
+#: The bytes every MCAP file starts and ends with.
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 _WHOLE_UNPACK_BYTES = 16_384
@@ -278,12 +290,38 @@ def _open(path: str | Path) -> IO[bytes]:
         raise RecordError(f"cannot open log {str(path)!r}: {exc.strerror}") from exc
 
 
+def _check_complete(stream: IO[bytes], path: str | Path) -> None:
+    """RecordError naming what is wrong unless `stream` starts and ends with MCAP's magic bytes."""
+    head = stream.read(len(MCAP_MAGIC))
+    size = stream.seek(0, os.SEEK_END)
+    if size == 0:
+        raise RecordError(f"{path} is empty (0 bytes): not an MCAP log")
+    if head != MCAP_MAGIC:
+        raise RecordError(f"{path} is not an MCAP log (it does not start with MCAP's magic bytes)")
+    stream.seek(max(0, size - len(MCAP_MAGIC)))
+    if size < 2 * len(MCAP_MAGIC) or stream.read() != MCAP_MAGIC:
+        raise RecordError(
+            f"{path} ends before the log's footer: its recorder was killed or is still writing it; "
+            f"`palpate bag recover {path}` writes what it holds into a complete log"
+        )
+    stream.seek(0)
+
+
+def _unreadable(path: str | Path, exc: BaseException) -> RecordError:
+    return RecordError(
+        f"{path}: cannot read the MCAP log ({type(exc).__name__}: {exc}); the file is damaged: "
+        f"`palpate bag recover {path}` keeps every intact chunk"
+    )
+
+
 def read_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[LoggedMessage]:
-    """Messages of a finished log in file order (the recorder's canonical order), optionally of `topics`."""
+    """Messages of a finished log in file order (the recorder's canonical order), optionally of `topics`.
+    Every chunk's CRC is checked: a damaged log is a RecordError, never altered data."""
     wanted = None if topics is None else list(topics)
     with _open(path) as stream:
+        _check_complete(stream, path)
         try:
-            reader = make_reader(stream)
+            reader = make_reader(stream, validate_crcs=True)
             for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=False):
                 yield LoggedMessage(
                     channel.topic,
@@ -293,10 +331,8 @@ def read_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iter
                     message.publish_time,
                     message.sequence,
                 )
-        except _READ_ERRORS as exc:
-            raise RecordError(
-                f"{path}: not a complete MCAP log ({exc}); if the recorder was killed, run `palpate bag recover {path}`"
-            ) from exc
+        except READ_ERRORS as exc:
+            raise _unreadable(path, exc) from exc
 
 
 @dataclass
@@ -373,12 +409,11 @@ def topic_versions(path: str | Path) -> dict[str, int]:
 
 def _summary(path: str | Path) -> Summary | None:
     with _open(path) as stream:
+        _check_complete(stream, path)
         try:
             return make_reader(stream).get_summary()
-        except _READ_ERRORS as exc:
-            raise RecordError(
-                f"{path}: not a complete MCAP log ({exc}); if the recorder was killed, run `palpate bag recover {path}`"
-            ) from exc
+        except READ_ERRORS as exc:
+            raise _unreadable(path, exc) from exc
 
 
 # --- recovery and copying ------------------------------------------------------------------------
@@ -393,33 +428,64 @@ class RecoverReport:
     truncated: bool = False
     reason: str = ""
     last_log_time: int | None = None
+    #: Chunks whose records were framed intact but whose data was damaged (CRC or decompression): skipped.
+    damaged_chunks: int = 0
+    damage: str = ""
+    #: The log's footer was read: it ended as its writer closed it.
+    complete: bool = False
+    #: Messages skipped because the channel they were recorded on was defined in a damaged chunk only.
+    orphaned: int = 0
+
+
+def _why(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
 
 
 def iter_records_tolerant(path: str | Path, report: RecoverReport) -> Iterator[Schema | Channel | McapMessage]:
-    """Schema, channel and message records of a possibly truncated log, read front to back.
+    """Schema, channel and message records of a possibly truncated or damaged log, read front to back.
 
     Uses the library's streaming (non-seeking) reader; a chunk is used only when it is complete and
-    its CRC matches. Reading stops at the first damaged or missing byte, and `report` says why.
+    its CRC matches. A chunk whose data is damaged but whose record is framed intact is skipped
+    (`report.damaged_chunks`); reading stops at the first damaged frame or missing byte, and `report`
+    says why.
     """
     with _open(path) as stream:
         records = StreamReader(stream, emit_chunks=True, validate_crcs=True).records
         while True:
             try:
                 record = next(records)
-                inner = breakup_chunk(record, validate_crc=True) if isinstance(record, Chunk) else [record]
             except StopIteration:
                 return
-            except _READ_ERRORS as exc:
+            except READ_ERRORS as exc:
                 report.truncated = True
-                report.reason = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+                report.reason = _why(exc)
                 return
             if isinstance(record, Chunk):
+                try:
+                    inner = breakup_chunk(record, validate_crc=True)
+                except READ_ERRORS as exc:
+                    report.damaged_chunks += 1
+                    report.damage = report.damage or _why(exc)
+                    continue
                 report.chunks += 1
+            else:
+                inner = [record]
             for item in inner:
                 if isinstance(item, Schema | Channel | McapMessage):
                     yield item
             if isinstance(record, Footer):
+                report.complete = True
                 return
+
+
+def _summary_records(path: str | Path) -> tuple[dict[int, Schema], dict[int, Channel]]:
+    """The schemas and channels of a log's summary section; none where it has none or it is damaged."""
+    try:
+        with _open(path) as stream:
+            summary = make_reader(stream).get_summary()
+    except (RecordError, *READ_ERRORS):
+        return {}, {}
+    return (dict(summary.schemas), dict(summary.channels)) if summary is not None else ({}, {})
 
 
 def copy_records(
@@ -428,10 +494,13 @@ def copy_records(
     *,
     keep: Any = None,
     report: RecoverReport | None = None,
+    known: tuple[dict[int, Schema], dict[int, Channel]] = ({}, {}),
 ) -> int:
-    """Copy messages (with their schemas and channels) into `out`; `keep(topic)` filters topics."""
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
+    """Copy messages (with their schemas and channels) into `out`; `keep(topic)` filters topics.
+    `known`: schemas and channels to start from (a log's summary, for channels whose records were in a
+    damaged chunk). A message on a channel never defined is a RecordError, or with a `report` is
+    counted there (`orphaned`) and skipped."""
+    schemas, channels = dict(known[0]), dict(known[1])
     count = 0
     for record in records:
         if isinstance(record, Schema):
@@ -440,6 +509,9 @@ def copy_records(
             channels[record.id] = record
         else:
             channel = channels.get(record.channel_id)
+            if channel is None and report is not None:
+                report.orphaned += 1
+                continue
             if channel is None:
                 raise RecordError(f"message on unknown channel {record.channel_id}: the log is damaged")
             if keep is not None and not keep(channel.topic):
@@ -467,12 +539,12 @@ def recover(src: str | Path, dst: str | Path, *, compression: str = "zstd", over
     Raises RecordError, leaving `dst` as it was, when `src` holds no complete chunk (or is not MCAP),
     or when `dst` exists and not `overwrite`."""
     report = RecoverReport()
-    with _output(src, dst, "recover", overwrite) as partial, LogWriter(partial, compression=compression) as out:
-        copy_records(iter_records_tolerant(src, report), out, report=report)
+    with output_file(src, dst, "recover", overwrite) as partial, LogWriter(partial, compression=compression) as out:
+        copy_records(iter_records_tolerant(src, report), out, report=report, known=_summary_records(src))
         if report.truncated and report.chunks == 0 and report.messages == 0 and "InvalidMagic" in report.reason:
             raise RecordError(f"{src} is not an MCAP file ({report.reason})")
-        if report.messages == 0:
-            reason = f" ({report.reason})" if report.reason else ""
+        if report.messages == 0 and not (report.complete and report.damaged_chunks == 0):
+            reason = f" ({report.reason or report.damage})" if report.reason or report.damage else ""
             raise RecordError(f"{src}: no complete chunk to recover{reason}; wrote nothing")
     return report
 
@@ -495,15 +567,20 @@ def copy_log(
         return (included is None or topic in included) and topic not in excluded
 
     report = RecoverReport()
-    with _output(src, dst, "filter", overwrite) as partial, LogWriter(partial, compression=compression) as out:
+    with output_file(src, dst, "filter", overwrite) as partial, LogWriter(partial, compression=compression) as out:
         count = copy_records(iter_records_tolerant(src, report), out, keep=keep)
         if report.truncated:
             raise RecordError(f"{src} is truncated ({report.reason}); run `palpate bag recover {src}` first")
+        if report.damaged_chunks:
+            raise RecordError(
+                f"{src} holds {report.damaged_chunks} damaged chunk(s) ({report.damage}); run "
+                f"`palpate bag recover {src}` first"
+            )
     return count
 
 
 @contextmanager
-def _output(src: str | Path, dst: str | Path, command: str, overwrite: bool = True) -> Iterator[Path]:
+def output_file(src: str | Path, dst: str | Path, command: str, overwrite: bool = True) -> Iterator[Path]:
     """Where `command` writes the log it makes of `src`: a file beside `dst` that becomes `dst` only when
     the block succeeds, so a failure leaves no partial log (and an existing `dst` as it was).
 

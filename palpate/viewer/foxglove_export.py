@@ -57,7 +57,7 @@ from palpate.messages.schemas import (
     TouchTarget,
     Trajectory,
 )
-from palpate.record.mcap_io import LogWriter, read_messages
+from palpate.record.mcap_io import LogWriter, output_file, read_messages
 from palpate.viewer.rerun_log import (
     CONTACT_RGBA,
     CURVE_RGBA,
@@ -410,16 +410,15 @@ def _decoded(path: Path, topics: list[str] | None, report: ExportReport) -> Iter
         yield logged.topic, logged.sequence, message
 
 
-def export_foxglove(src: Path, dst: Path, topics: list[str] | None = None) -> ExportReport:
-    """Write the exported messages of the palpate log `src` (optionally only `topics`) to `dst`.
+def export_foxglove(src: Path, dst: Path, topics: list[str] | None = None, *, overwrite: bool = True) -> ExportReport:
+    """Write the exported messages of the palpate log `src` (optionally only `topics`) to `dst`; a
+    failure leaves no output (and an existing `dst` as it was), which only `overwrite` lets it replace.
 
     Nothing in the output depends on wall time: the same log exports to the same bytes.
     """
     scene = FoxgloveScene()
     report = ExportReport()
-    if Path(dst).resolve() == Path(src).resolve():
-        raise RecordError(f"{dst}: the export would overwrite its input; choose another -o")
-    with LogWriter(dst, profile="") as writer:
+    with output_file(src, dst, "export", overwrite) as partial, LogWriter(partial, profile="") as writer:
         for topic, sequence, message in _decoded(Path(src), topics, report):
             for out in scene.convert(topic, message):
                 s = out.schema
@@ -428,4 +427,8 @@ def export_foxglove(src: Path, dst: Path, topics: list[str] | None = None) -> Ex
                 )
                 writer.add(channel, int(message.stamp_ns), out.data, sequence)
                 report.written[(out.topic, s.name)] += 1
+        if not report.written:
+            raise RecordError(
+                f"{src}: nothing to export (of {report.read} messages, none of a type the export knows); wrote nothing"
+            )
     return report

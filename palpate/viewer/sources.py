@@ -15,20 +15,19 @@ for a node the graph waits for. It stops at the graph's RunControl "stop".
 from __future__ import annotations
 
 import signal
-import struct
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
 
-from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
 from palpate.errors import MessageError, ViewerError
 from palpate.messages import codec
 from palpate.messages.base import Message
 from palpate.messages.schemas import RunControl
+from palpate.record.mcap_io import READ_ERRORS
 from palpate.runtime import bus
 from palpate.viewer.rerun_log import SHOWN_TYPE_NAMES
 
@@ -63,7 +62,7 @@ class LogSource:
     def __iter__(self) -> Iterator[tuple[str, Message]]:
         with self.path.open("rb") as stream:
             try:
-                reader = make_reader(stream)
+                reader = make_reader(stream, validate_crcs=True)
                 records = reader.iter_messages(
                     topics=sorted(self.wanted) if self.wanted else None, log_time_order=False
                 )
@@ -81,10 +80,10 @@ class LogSource:
                         continue
                     self.stats.shown += 1
                     yield channel.topic, message
-            except (McapError, struct.error, EOFError, ValueError, RuntimeError) as exc:
+            except READ_ERRORS as exc:
                 raise ViewerError(
-                    f"{self.path}: not a complete MCAP log ({type(exc).__name__}: {exc}); "
-                    f"if the recorder was killed, run `palpate bag recover {self.path}` and view the result"
+                    f"{self.path}: cannot read the MCAP log ({type(exc).__name__}: {exc}); if its recorder was "
+                    f"killed or the file is damaged, run `palpate bag recover {self.path}` and view the result"
                 ) from exc
 
 

@@ -195,3 +195,54 @@ def test_a_log_without_markers_is_grouped_by_stamp(tmp_path: Path) -> None:
 def test_reading_a_missing_log_names_it(tmp_path: Path) -> None:
     with pytest.raises(RecordError, match=r"cannot open log .*nothing\.mcap"):
         mcap_io.summarize(tmp_path / "nothing.mcap")
+
+
+#: Bytes from a chunk record's start to its (compressed) data: opcode, record length, start and end
+#: times, uncompressed size, CRC, the compression's name ("zstd") and the data's length.
+CHUNK_DATA_OFFSET = 1 + 8 + 8 + 8 + 8 + 4 + 4 + 4 + 8
+
+
+def test_a_damaged_chunk_is_refused_when_read_and_skipped_by_recover(tmp_path: Path) -> None:
+    items = canonical_log(6)
+    full = tmp_path / "full.mcap"
+    sizes = write_log(full, items, flush_each=True)  # one chunk per message, ending at sizes[i]
+    data = bytearray(full.read_bytes())
+    data[sizes[3] + CHUNK_DATA_OFFSET + 2] ^= 0x10  # inside the data of message 4's chunk
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(bytes(data))
+    with pytest.raises(RecordError, match="the file is damaged: `palpate bag recover"):
+        list(mcap_io.read_messages(damaged))  # never altered data
+    report = mcap_io.recover(damaged, tmp_path / "fixed.mcap")
+    assert report.complete and not report.truncated and report.damaged_chunks == 1
+    expected = [codec.encode(msg) for _, msg in items]
+    assert [m.data for m in mcap_io.read_messages(tmp_path / "fixed.mcap")] == expected[:4] + expected[5:]
+    # The first chunk defines the first topic's channel. A complete log's summary defines it again, so
+    # nothing else is lost; a truncated log has no summary, so that topic's later messages are dropped.
+    first = bytearray(full.read_bytes())
+    first_chunk = 8 + 9 + int.from_bytes(first[9:17], "little")  # magic, then the header record
+    assert first[first_chunk] == 0x06  # a chunk's opcode
+    first[first_chunk + CHUNK_DATA_OFFSET + 2] ^= 0x10
+    for cut, lost in ((0, 0), (40, sum(1 for t, _ in items[1:] if t == items[0][0]))):
+        damaged.write_bytes(bytes(first[: len(first) - cut]))
+        report = mcap_io.recover(damaged, tmp_path / "fixed.mcap")
+        assert report.damaged_chunks == 1 and report.orphaned == lost and report.messages == len(items) - 1 - lost
+
+
+def test_what_is_not_a_complete_log_is_named(tmp_path: Path) -> None:
+    full = tmp_path / "full.mcap"
+    write_log(full, canonical_log(3))
+    cases = {"empty.mcap": (b"", "is empty"), "text.mcap": (b"hello\n", "does not start with MCAP's magic")}
+    cases["cut.mcap"] = (full.read_bytes()[:-40], "ends before the log's footer: its recorder was killed")
+    for name, (content, message) in cases.items():
+        (tmp_path / name).write_bytes(content)
+        with pytest.raises(RecordError, match=message):
+            mcap_io.summarize(tmp_path / name)
+        with pytest.raises(RecordError, match=message):
+            list(mcap_io.read_messages(tmp_path / name))
+
+
+def test_recover_copies_a_complete_log_without_messages(tmp_path: Path) -> None:
+    empty = tmp_path / "empty.mcap"
+    write_log(empty, [])
+    report = mcap_io.recover(empty, tmp_path / "out.mcap")
+    assert report.complete and report.messages == 0 and mcap_io.summarize(tmp_path / "out.mcap").messages == 0

@@ -14,7 +14,7 @@ from mcap.reader import make_reader
 
 from palpate import cli
 from palpate.geometry.rotations import quat_to_matrix
-from palpate.messages.schemas import NodeStatus
+from palpate.messages.schemas import Clock, NodeStatus
 from tests.unit.viewer.viewer_messages import TETRA_F, TETRA_V, contacts, grid, session, write_mcap
 
 pytest.importorskip("foxglove")
@@ -196,3 +196,18 @@ def test_export_needs_a_format_and_the_extra(
     monkeypatch.setitem(sys.modules, "foxglove.messages", None)
     assert cli.main(["bag", "export", str(log), "-o", str(tmp_path / "out.mcap"), "--foxglove"]) == 2
     assert "pip install 'palpate[foxglove]'" in capsys.readouterr().err
+
+
+def test_a_failed_export_leaves_no_output(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out.mcap"
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    assert cli.main(["bag", "export", str(folder), "-o", str(out), "--foxglove"]) == 2
+    statuses = tmp_path / "statuses.mcap"  # nothing the export converts
+    write_mcap(statuses, [("clock", Clock(stamp_ns=0, tick=0, period_ns=10_000_000, lockstep=True))])
+    assert cli.main(["bag", "export", str(statuses), "-o", str(out), "--foxglove"]) == 2
+    assert "nothing to export" in capsys.readouterr().err
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["folder", "statuses.mcap"]
+    out.write_bytes(b"earlier export")  # an existing output stays as it was, even with --force
+    assert cli.main(["bag", "export", str(statuses), "-o", str(out), "--foxglove", "--force"]) == 2
+    assert out.read_bytes() == b"earlier export"
