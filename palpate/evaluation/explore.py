@@ -280,15 +280,15 @@ MANY_TOUCHES = 2000.0
 
 def _note_size(name: str, area: float, bound: float, config: EvalConfig) -> None:
     """Say on stderr when an object (area m^2, covering bound in contacts) is so small that a touch or
-    two reach the evaluator's coverage goal: its run then completes at once, and only its shape scores
+    two may reach the evaluator's coverage goal: its run then ends early, and only its shape scores
     (F-score, Chamfer) tell how well it was learnt; or so large that its run takes hours, with the
     budgets it gets and how to cap them."""
     goal, radius_m = config.coverage_goal, config.radius_m
     if bound < FEW_TOUCHES:
         print(
             f"note: {name} has {area * 1e4:.3g} cm^2 of surface: {bound:.2g} touches of {radius_m * 1e3:g} mm "
-            f"cover {goal:.0%} of it, so its run completes at once; its F-score and Chamfer distance tell "
-            "how well it was learnt",
+            f"cover {goal:.0%} of it at best, so its run may end within a few touches (more on a thin or long "
+            "object, where a touch covers less); its F-score and Chamfer distance tell how well it was learnt",
             file=sys.stderr,
         )
     elif bound > MANY_TOUCHES:
@@ -421,18 +421,25 @@ def run_episode_on_worker(episode: Episode, profile: bool, *mesh: SharedFile) ->
     """On a Dask worker: run the episode on the worker's copy of its mesh (``profile``: as
     :func:`run_episode`). A run that raises a PalpateError (a bad mesh, a diverged simulation) is a row
     with ``error`` set and coverage 0: it would fail the same way on any worker."""
-    from palpate.errors import PalpateError
+    import warnings
 
+    from palpate.errors import MeshWarning, PalpateError
+
+    original = episode.case.mesh
     if mesh:
         episode = replace(episode, case=replace(episode.case, mesh=str(local_copy(mesh[0]))))
     try:
-        return run_episode(episode, profile=profile)
+        with warnings.catch_warnings():
+            # the main process read this file to draw the starts (episodes) and said what is odd about it
+            warnings.simplefilter("ignore", MeshWarning)
+            return run_episode(episode, profile=profile)
     except PalpateError as exc:
+        message = str(exc).replace(episode.case.mesh, original) if mesh else str(exc)  # the user's file
         return {
             "object": episode.case.name,
             "strategy": episode.strategy,
             "run": episode.run,
-            "error": f"{type(exc).__name__}: {exc}",
+            "error": f"{type(exc).__name__}: {message}",
             "complete": False,
             "coverage": 0.0,
             "contacts": 0,

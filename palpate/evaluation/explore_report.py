@@ -288,6 +288,8 @@ def summary_json(
             contacts_over_bound=_json_number(m[BOUND_METRIC[0]]),
         )
         for k, v in (extra or {}).get(s, {}).items():
+            if k in out[s]:
+                raise ValueError(f"summary_json: the extra figure {k!r} would replace the summary's own")
             out[s][k] = _json_number(v) if isinstance(v, float) else v
     if baseline != method and baseline in means and method in means:
         out["ratios"] = {

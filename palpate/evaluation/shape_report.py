@@ -54,8 +54,9 @@ def _per_object_mean(values: Mapping[str, list[float]]) -> float:
 
 def shape_summary(results: Sequence[Row], strategies: Sequence[str]) -> dict[str, dict[str, float | int]]:
     """Per strategy the figures of the module docstring; keys: ``travel_to_f2_cm``,
-    ``contacts_to_f2``, ``runs_reaching_f2``, ``paired_runs_f2``, ``fscore_2mm_at_<n>_contacts``,
-    ``chamfer_mm_at_<n>_contacts``, ``fscore_2mm_at_<x>m``, ``chamfer_mm_at_<x>m``."""
+    ``contacts_to_f2``, ``runs_reaching_f2``, ``runs_with_shape`` (runs scored at least once),
+    ``paired_runs_f2``, ``fscore_2mm_at_<n>_contacts``, ``chamfer_mm_at_<n>_contacts``,
+    ``fscore_2mm_at_<x>m``, ``chamfer_mm_at_<x>m``."""
     ok = [r for r in results if "error" not in r and r.get("shape")]
     by_start: dict[tuple[str, int], dict[str, Row]] = {}
     for r in ok:
@@ -75,7 +76,7 @@ def shape_summary(results: Sequence[Row], strategies: Sequence[str]) -> dict[str
             contacts.setdefault(runs[s]["object"], []).append(float(point["contacts"]))
         stats: dict[str, float | int] = {
             "runs_reaching_f2": sum(1 for r in mine if first_reaching(r["shape"])),
-            "runs": len(mine),
+            "runs_with_shape": len(mine),
             "paired_runs_f2": len(paired),
             "travel_to_f2_cm": _per_object_mean(travel),
             "contacts_to_f2": _per_object_mean(contacts),

@@ -316,3 +316,30 @@ def test_a_profiled_run_carries_each_parts_seconds_and_the_summary_adds_them_up(
     assert rows[0].startswith("| step | ") and rows[0].endswith(f" | {parts['step']:.1f} | 1.0 |")
     shares = [float(row.split("|")[3].strip().removesuffix("%")) for row in rows]
     assert sum(shares) == pytest.approx(100.0, abs=0.1 * len(rows))
+
+
+def test_a_worker_names_the_users_mesh_file_and_leaves_its_warnings_to_the_main_process(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import warnings
+
+    from palpate.errors import MeshWarning
+    from palpate.evaluation import explore
+
+    user_file = tmp_path / "part.stl"
+    cached = tmp_path / "cache" / "3f9a.stl"
+    case = ObjectCase(name="part", kind="mesh", mesh=str(user_file))
+    start = {"start_m": (0.0, 0.0, 0.1), "target_m": (0.0, 0.0, 0.0), "quaternion_wxyz": (0.0, 1.0, 0.0, 0.0)}
+    episode = explore.Episode(case=case, strategy="igef", run=0, **start)
+
+    def fails(episode: explore.Episode, profile: bool = False) -> dict[str, object]:
+        warnings.warn(f"{episode.case.mesh}: 3 duplicate faces dropped", MeshWarning, stacklevel=1)
+        raise MeshError(f"{episode.case.mesh}: the mesh has no volume")
+
+    monkeypatch.setattr(explore, "local_copy", lambda shared: cached)
+    monkeypatch.setattr(explore, "run_episode", fails)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        row = explore.run_episode_on_worker(episode, False, object())  # type: ignore[arg-type]
+    assert row["error"] == f"MeshError: {user_file}: the mesh has no volume"
+    assert not [w for w in caught if issubclass(w.category, MeshWarning)]

@@ -106,6 +106,14 @@ def test_summary_json_has_the_issue_keys_and_ratios() -> None:
     assert summary["ratios"]["travel_improvement_pct"] == pytest.approx(100 * 70 / 150, abs=1e-3)
 
 
+def test_the_shape_figures_join_the_summary_without_replacing_its_own() -> None:
+    shape = {"igef": {"runs_with_shape": 1, "travel_to_f2_cm": 12.5}}  # one run scored: runs stays 4
+    summary = report.summary_json(RESULTS, ("igef", "gpv"), extra=shape)
+    assert summary["igef"]["runs"] == 4 and summary["igef"]["runs_with_shape"] == 1
+    with pytest.raises(ValueError, match="'runs' would replace"):
+        report.summary_json(RESULTS, ("igef", "gpv"), extra={"igef": {"runs": 1}})
+
+
 def test_tables_state_counts_and_mark_incomplete_objects() -> None:
     t2 = report.table2(RESULTS)
     assert "| 80 % | Avg. traveled distance | 150.0 cm | 80.0 cm | 47 % |" in t2

@@ -46,7 +46,7 @@ def test_effort_is_paired_and_averaged_per_object_first() -> None:
     assert summary["igef"]["paired_runs_f2"] == 3
     assert summary["igef"]["travel_to_f2_cm"] == pytest.approx(((100 + 300) / 2 + 40) / 2)
     assert summary["area"]["travel_to_f2_cm"] == pytest.approx(((50 + 150) / 2 + 20) / 2)
-    assert summary["area"]["runs_reaching_f2"] == 3 and summary["area"]["runs"] == 4
+    assert summary["area"]["runs_reaching_f2"] == 3 and summary["area"]["runs_with_shape"] == 4
     # budgets: every run with an estimate by then, object means first
     assert summary["area"]["chamfer_mm_at_50_contacts"] == pytest.approx((1.0 + (4.0 + 1.0) / 2) / 2)
     assert summary["area"]["fscore_2mm_at_1m"] == pytest.approx((0.95 + (0.91 + 0.5) / 2) / 2)  # a/1 not yet
