@@ -127,6 +127,21 @@ def target_mcp_position(scene: SceneConfig, obj: ObjectModel) -> np.ndarray:
     return anchor + np.asarray(scene.finger_mcp_offset_m, dtype=np.float64)
 
 
+def starts_inside(obj: ObjectModel, point_m: np.ndarray) -> bool:
+    """Whether `point_m` (3,) lies inside a watertight object (ray parity); False for an open mesh,
+    whose inside is not defined."""
+    if not obj.mesh.is_watertight:
+        return False
+    from palpate.geometry.mesh_query import MeshScene
+
+    lo, hi = np.asarray(obj.mesh.bounds, dtype=np.float64)
+    if np.any(point_m < lo) or np.any(point_m > hi):
+        return False
+    centre = 0.5 * (lo + hi)
+    scene = MeshScene(obj.mesh.vertices, obj.mesh.faces, origin_m=centre)
+    return bool(scene.occupied((point_m - centre)[None, :])[0])
+
+
 def descent_xy(obj: ObjectModel, radius_m: float, grid: int = 64) -> tuple[float, float]:
     """Where a probe of ``radius_m`` moving straight down lands on the object: the centre (x, y) of its
     bounding box when the object lies under it, else (under the hole of a torus, between two parts)
@@ -169,7 +184,14 @@ def effector_base_position(scene: SceneConfig, obj: ObjectModel) -> np.ndarray:
     if scene.effector == "probe":
         cfg = scene.probe_config()
         if cfg.start_position_m is not None:
-            return np.asarray(cfg.start_position_m, dtype=np.float64)
+            start = np.asarray(cfg.start_position_m, dtype=np.float64)
+            if starts_inside(obj, start):
+                raise ConfigError(
+                    f"start_position_m = {start.tolist()} lies inside the object; start the probe outside it "
+                    "(launch argument start:=, or start:=null to start 3 cm above it)",
+                    ("start_position_m",),
+                )
+            return start
         x, y = descent_xy(obj, cfg.radius_m)
         return np.array([x, y, obj.mesh.bounds[1][2] + cfg.radius_m + cfg.start_clearance_m])
     if scene.effector == "finger":

@@ -170,6 +170,30 @@ def test_probe_starts_above_the_object_facing_down() -> None:
     np.testing.assert_allclose(data.body("probe").xmat.reshape(3, 3)[:, 2], (0, 0, -1), atol=1e-12)
 
 
+def test_a_probe_start_inside_the_object_is_refused_by_name(tmp_path: Path) -> None:
+    sphere = ObjectSpec(**PRIMITIVES["sphere"])
+    obj = load_object(sphere)
+
+    def scene(start: tuple[float, float, float]) -> SceneConfig:
+        return SceneConfig(effector="probe", object=sphere, probe=ProbeConfig(start_position_m=start))
+
+    with pytest.raises(ConfigError, match=r"start_position_m = \[0.0, 0.0, 0.01\] lies inside the object") as info:
+        effector_base_position(scene((0.0, 0.0, 0.01)), obj)
+    assert info.value.path == ("start_position_m",)
+    np.testing.assert_allclose(effector_base_position(scene((0.0, 0.0, 0.05)), obj), (0.0, 0.0, 0.05))
+    np.testing.assert_allclose(effector_base_position(scene((0.029, 0.029, 0.0)), obj), (0.029, 0.029, 0.0))  # corner
+    # an open mesh has no inside: its start is not judged
+    import trimesh
+
+    box = trimesh.creation.box((0.04, 0.04, 0.04))
+    box.update_faces(np.arange(len(box.faces)) > 1)  # one face of the box removed
+    box.export(tmp_path / "open.stl")
+    open_box = ObjectSpec(kind="mesh", path=str(tmp_path / "open.stl"))
+    config = SceneConfig(effector="probe", object=open_box, probe=ProbeConfig(start_position_m=(0.0, 0.0, 0.0)))
+    with pytest.warns(UserWarning):
+        np.testing.assert_allclose(effector_base_position(config, load_object(open_box)), 0.0)
+
+
 def test_probe_starts_over_the_object_where_its_centre_is_a_hole() -> None:
     torus = load_object(ObjectSpec(kind="torus"))  # the default ring: major radius 40 mm, tube 15 mm
     x, y = descent_xy(torus, radius_m=0.008)
