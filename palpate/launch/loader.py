@@ -176,8 +176,11 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
         line = top["placement"][1].start_mark.line + 1
         raise LaunchError(f"{name}:{line}: placement 'loop' needs mode lockstep (mode is {mode})")
     seed = value("seed", 0)
-    if not isinstance(seed, int) or isinstance(seed, bool):
-        raise LaunchError(f"{name}:{top['seed'][1].start_mark.line + 1}: seed must be an integer, got {seed!r}")
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise LaunchError(
+            f"{name}:{top['seed'][1].start_mark.line + 1}: seed must be an integer >= 0 (NumPy's generators take "
+            f"no negative seed), got {seed!r}"
+        )
     nodes: list[NodeEntry] = []
     for include in _sequence(top, "include", name):
         items = _mapping_items(include, name)

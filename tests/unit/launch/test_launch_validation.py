@@ -252,7 +252,12 @@ def test_a_bad_value_on_the_command_line_is_an_error_saying_so(
     assert err.rstrip().endswith(" (from the command line: edge_m:=wide)"), err
     assert main(["launch", "--dry-run", str(DATA / "with_args.yaml"), "seed:=1e3", "--bus", str(tmp_path)]) == 2
     err = capsys.readouterr().err
-    assert "with_args.yaml:8: seed must be an integer, got 1000.0 (from the command line: seed:=1e3)" in err, err
+    assert (
+        "with_args.yaml:8: seed must be an integer >= 0 (NumPy's generators take no negative seed), got 1000.0" in err
+    )
+    assert err.rstrip().endswith("(from the command line: seed:=1e3)"), err
+    assert main(["launch", "--dry-run", str(DATA / "with_args.yaml"), "seed:=-300000", "--bus", str(tmp_path)]) == 2
+    assert "with_args.yaml:8: seed must be an integer >= 0" in capsys.readouterr().err
 
 
 def test_arguments_may_follow_options_in_any_order(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
