@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -137,6 +139,10 @@ def check_record_path(path: Path, *, overwrite: bool) -> None:
         raise LaunchError(f"--record {path}: the folder {path.parent} is not writable")
 
 
+#: After a failed run the recorder gets this long (seconds) to finish on its own before it is told to.
+RECORDER_GRACE_S = 3.0
+
+
 def run_graph(graph: Graph, record: Path | None = None, *, overwrite: bool = False) -> int:
     """Start the graph's processes (and a recorder), supervise them, return the exit code.
 
@@ -183,10 +189,18 @@ def run_graph(graph: Graph, record: Path | None = None, *, overwrite: bool = Fal
             ]
         )
         supervisor.watch("recorder", recorder)
+    code = 1
     try:
         code = supervisor.run()
     finally:
         if recorder is not None:
+            if code != 0:
+                # a failed run may never send the stop the recorder waits for (no tick was made): after a
+                # grace to take what is on its way, it closes its log on SIGINT with everything so far
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    recorder.wait(timeout=RECORDER_GRACE_S)
+                if recorder.poll() is None:
+                    recorder.send_signal(signal.SIGINT)
             try:
                 recorder.wait(timeout=30)
             except subprocess.TimeoutExpired:

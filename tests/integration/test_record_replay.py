@@ -247,3 +247,17 @@ def test_a_recorder_killed_under_launch_stops_the_run_and_points_at_recover(tmp_
     out = (tmp_path / "launch.log").read_text()
     assert "the recorder died with signal SIGKILL; stopping the launch" in out, out
     assert f"palpate bag recover {log}" in out, out
+
+
+def test_a_recorded_run_that_fails_before_its_first_tick_ends_at_once(tmp_path: Path) -> None:
+    """The recorder waits for a stop that a run failing at start never sends: the launcher tells it to close."""
+    log = tmp_path / "failed.mcap"
+    bus_dir = tmp_path / "bus"
+    explore = str(REPO_ROOT / "launch" / "explore.yaml")
+    began = time.monotonic()
+    done = palpate(
+        bus_dir, "launch", explore, "object:=sphere", "start:=[0,0,0]", "--record", str(log), "--bus", str(bus_dir)
+    )
+    assert done.returncode == 1 and "lies inside the object" in done.stdout + done.stderr
+    assert time.monotonic() - began < 25  # it waited 30 s for the recorder before
+    assert summarize(log).messages >= 0  # a complete, readable log
