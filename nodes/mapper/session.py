@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -18,10 +19,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from palpate.description.names import match_names
+from palpate.errors import InputError
 from palpate.inputs import coordinates, select_named
 from palpate.nodes.mapper.core import Mapper
 
 FloatArray = NDArray[np.float64]
+
+#: A joint reading beyond a full turn is no hinge angle (most likely degrees sent as radians): refused.
+MAX_JOINT_RAD = 2.0 * math.pi
 
 
 @dataclass(frozen=True)
@@ -74,6 +79,14 @@ class MapperSession:
         it in the chain's joint order. Raises InputError, keeping the previous reading, when a
         joint of the chain is missing."""
         q_rad = select_named(names, positions_rad, self.chain.joint_names, "names")
+        beyond = np.flatnonzero(np.abs(q_rad) > MAX_JOINT_RAD)
+        if len(beyond):
+            i = int(beyond[0])
+            raise InputError(
+                "positions_rad",
+                f"joint {self.chain.joint_names[i]!r} reads {q_rad[i]:.6g} rad, more than a full turn: degrees "
+                "sent as radians?",
+            )
         reading = JointReading(stamp_ns=stamp_ns, q_rad=q_rad)
         self._reading = reading
         return reading

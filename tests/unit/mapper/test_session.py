@@ -69,6 +69,15 @@ def test_reading_without_a_chain_joint_is_refused_and_the_previous_one_kept(chai
     np.testing.assert_array_equal(mapper.calls[0][0], np.arange(4.0))
 
 
+def test_a_reading_beyond_a_full_turn_is_refused_as_degrees_sent_as_radians(chain: KinematicChain) -> None:
+    session, mapper = _session(chain)
+    session.joint_reading(chain.joint_names, np.full(4, -6.28), 0)  # a full turn less a little: a hinge angle
+    with pytest.raises(InputError, match=r"positions_rad: joint 'index_mcp_flex' reads 45 rad, more than a full turn"):
+        session.joint_reading(chain.joint_names, np.array([0.1, 45.0, 30.0, 10.0]), 10 * MS)
+    session.tick(10 * MS)
+    np.testing.assert_array_equal(mapper.calls[0][0], np.full(4, -6.28))  # the previous reading
+
+
 def test_only_contacts_on_the_chain_are_kept_as_link_indices(chain: KinematicChain) -> None:
     session, _ = _session(chain)
     local = np.arange(15.0).reshape(5, 3)
