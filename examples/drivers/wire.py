@@ -77,6 +77,13 @@ def read_spec(bus_dir: str, name: str, timeout_s: float = 60.0) -> dict[str, Any
     return json.loads(path.read_text())
 
 
+def heartbeat(sock: zmq.Socket) -> None:
+    """ZMTP heartbeats, as palpate's sockets send them: a peer whose host vanished is dropped after 5 s."""
+    sock.setsockopt(zmq.HEARTBEAT_IVL, 1000)
+    sock.setsockopt(zmq.HEARTBEAT_TIMEOUT, 5000)
+    sock.setsockopt(zmq.HEARTBEAT_TTL, 5000)
+
+
 class Node:
     """One node's sockets: an XPUB bound at spec['endpoint'] and a SUB connected to spec['connect']."""
 
@@ -92,6 +99,7 @@ class Node:
         lockstep = spec["mode"] == "lockstep"
         self.context = context = zmq.Context()
         self.pub = context.socket(zmq.XPUB)
+        heartbeat(self.pub)
         self.pub.setsockopt(zmq.XPUB_VERBOSE, 1)  # report every subscription, to count subscribers
         self.pub.setsockopt(zmq.LINGER, 2000)
         if lockstep:
@@ -101,6 +109,7 @@ class Node:
             Path(endpoint[len("ipc://") :]).parent.mkdir(parents=True, exist_ok=True)
         self.pub.bind(endpoint)
         self.sub = context.socket(zmq.SUB)
+        heartbeat(self.sub)
         self.sub.setsockopt(zmq.LINGER, 0)
         if lockstep:
             self.sub.setsockopt(zmq.RCVHWM, 0)
@@ -123,7 +132,7 @@ class Node:
                     "endpoint": endpoint,
                     "pid": os.getpid(),
                     "publishes": types,
-                    "subscribes": {},
+                    "subscribes": {t: spec["topic_types"].get(t, "") for t in spec["subscribes"].values()},
                     "curve_public": "",
                 }
             )
