@@ -330,7 +330,7 @@ def _check_facts(graph: Graph) -> None:
     stating = [n for n in graph.nodes if n.spec.facts is not None]
     if len(stating) < 2:
         return
-    first: dict[str, tuple[GraphNode, Any, Where]] = {}
+    first: dict[str, tuple[GraphNode, Any, Where, str]] = {}
     for node in stating:
         assert node.spec.facts is not None
         try:
@@ -338,15 +338,15 @@ def _check_facts(graph: Graph) -> None:
         except PalpateError as exc:
             raise LaunchError(f"{node.entry.at('params')}: node {node.name!r}: {exc}") from exc
         for name, (value, path) in facts.items():
-            where = node.entry.param_at(path)
+            where, key = node.entry.param_at(path), ".".join(["params", *map(str, path)])
             if name not in first:
-                first[name] = (node, value, where)
+                first[name] = (node, value, where, key)
                 continue
-            other, other_value, other_where = first[name]
+            other, other_value, other_where, other_key = first[name]
             if value != other_value:
                 raise LaunchError(
-                    f"{where}: node {node.name!r} and node {other.name!r} ({other_where}) disagree on {name}: "
-                    f"{_difference(value, other_value)}; make them the same"
+                    f"{where}: node {node.name!r} ({key}) and node {other.name!r} ({other_key}, {other_where}) "
+                    f"disagree on {name}: {_difference(value, other_value)}; make them the same"
                 )
 
 

@@ -109,7 +109,8 @@ BAD = [
     (
         "mount_not_the_sims.yaml",
         [],
-        "node 'mapper' and node 'sim' (tests/data/launch/mount_not_the_sims.yaml:7) disagree on hand_mount: "
+        "node 'mapper' (params.mount) and node 'sim' (params.scene, tests/data/launch/mount_not_the_sims.yaml:7) "
+        "disagree on hand_mount: "
         "base_position_m [-0.09662, 0.035, 0.0785] here, [-0.09312, 0.035, 0.075] there",
     ),
     ("mount_other_finger.yaml", [], "disagree on hand_mount: finger 'index' here, 'ring' there; make them the same"),
