@@ -104,7 +104,7 @@ class GPISNode:
     def on_touches(self, message: TouchEvent) -> None:
         cfg = self.config
         gp = self._holding(message)
-        mesh = add_touch(
+        touched = add_touch(
             gp,
             message.position_m,
             message.normal,
@@ -113,11 +113,13 @@ class GPISNode:
             with_variance=cfg.vertex_variance != "none",
             variance_near=(cfg.variance_step_m, cfg.variance_radius_m) if cfg.vertex_variance == "candidates" else None,
         )
+        if touched.resolution_m < cfg.local_resolution_m:  # the surface at the touch is thinner than the grid
+            self.ctx.count("local_mesh_refined")
         if gp is not self.gp:  # grown, and the touch was usable: keep it
             self.gp = gp
             self.ctx.count("kernel_grown")
             self.ctx.metrics["kernel_R_m"] = gp.config.R_m
-        self._publish(mesh, "local")
+        self._publish(touched.mesh, "local")
 
     def on_request(self, message: SurfaceRequest) -> None:
         if message.region != "global":

@@ -261,6 +261,29 @@ def grid_reach(points_m: FloatArray, centre_m: FloatArray, half_extents_m: Float
     return float(np.sqrt(np.max(np.sum((np.abs(points_m - centre_m) + half_extents_m) ** 2, axis=1))))
 
 
+#: ``add_touch`` halves its grid at most this many times where the surface at the touch is thinner
+#: than the grid (5 mm -> 0.625 mm by default).
+FINER_LOCAL_GRIDS = 3
+
+
+@dataclass(frozen=True)
+class TouchMesh:
+    """The local mesh ``add_touch`` made and the grid step it took (finer than asked where the surface
+    at the touch was thinner than the grid)."""
+
+    mesh: SurfaceMeshArrays
+    resolution_m: float
+
+
+def meshes_point(mesh: SurfaceMeshArrays, point_m: FloatArray, resolution_m: float) -> bool:
+    """Whether some vertex of `mesh` lies within a grid cell's diagonal of `point_m` (3,): marching cubes
+    puts one there wherever the surface through the point crosses the grid."""
+    if mesh.is_empty:
+        return False
+    nearest = float(np.min(np.linalg.norm(mesh.vertices - point_m, axis=1)))
+    return nearest <= math.sqrt(3.0) * resolution_m
+
+
 def add_touch(
     gp: SurfaceEstimator,
     position_m: ArrayLike,
@@ -270,11 +293,17 @@ def add_touch(
     *,
     with_variance: bool = True,
     variance_near: tuple[float, float] | None = None,
-) -> SurfaceMeshArrays:
+    finer_grids: int = FINER_LOCAL_GRIDS,
+) -> TouchMesh:
     """Add a touch (position (3,) m, outward unit normal (3,)) to the GP and mesh the surface around it.
 
     variance_near = (step_m, radius_m): the variance only at the vertices a planner samples around this
     touch (``thinning.thin_near``, one per step_m voxel within radius_m); None: at every vertex.
+
+    Where the surface through the touch is thinner than the grid (a needle, a wire, a rim: no grid edge
+    crosses it, so the mesh has no vertex near the touch), the mesh is made again with half the step,
+    up to ``finer_grids`` times: first over the same box, then over half the box each time (the same
+    number of nodes as the first refinement).
 
     Atomic: InputError (naming the TouchEvent field) leaves the GP as it was, for a position beyond
     palpate.inputs' bounds, a normal that is not unit, or a touch the kernel cannot hold together with
@@ -295,4 +324,12 @@ def add_touch(
             raise InputError("position_m", reason) from exc
     gp.add_contact(p, n)
     sites = None if variance_near is None else (lambda v: thin_near(v, p, *variance_near))
-    return mesh_from_grid(gp, axes, with_variance=with_variance, variance_sites=sites)
+    step, half = resolution_m, half_extent_m
+    mesh = mesh_from_grid(gp, axes, with_variance=with_variance, variance_sites=sites)
+    for level in range(finer_grids):
+        if meshes_point(mesh, p, step):
+            break
+        step, half = 0.5 * step, (half_extent_m if level == 0 else 0.5 * half)
+        finer = grid_axes(p - half, p + half, step)
+        mesh = mesh_from_grid(gp, finer, with_variance=with_variance, variance_sites=sites)
+    return TouchMesh(mesh, step)

@@ -233,11 +233,32 @@ def test_add_touch_gives_the_variance_at_the_planners_candidates_only_when_asked
     gp, same = GPIS(), GPIS()
     gp.add_contacts(P[:-1], N[:-1])
     same.add_contacts(P[:-1], N[:-1])
-    everywhere = add_touch(gp, P[-1], N[-1], 0.05, 0.005)
+    everywhere = add_touch(gp, P[-1], N[-1], 0.05, 0.005).mesh
     np.testing.assert_array_equal(everywhere.variance_vertices, np.arange(len(everywhere.vertices)))
-    near = add_touch(same, P[-1], N[-1], 0.05, 0.005, variance_near=(0.005, 0.04))
+    near = add_touch(same, P[-1], N[-1], 0.05, 0.005, variance_near=(0.005, 0.04)).mesh
     np.testing.assert_array_equal(near.vertices, everywhere.vertices)
     sites = thin_near(near.vertices, P[-1], 0.005, 0.04)
     assert 0 < len(sites) < len(near.vertices) / 2
     np.testing.assert_array_equal(near.variance_vertices, sites)
     np.testing.assert_allclose(near.vertex_variance, everywhere.vertex_variance[sites], rtol=1e-12, atol=0)
+
+
+def test_a_touch_on_a_surface_thinner_than_the_grid_is_meshed_on_a_finer_one() -> None:
+    # two touches on opposite sides of a 1 mm needle (an evaluation run's first two): the GP's surface
+    # through them is a sheet thinner than the 5 mm grid, which crosses no grid edge near the touch
+    P = np.array([[0.000354, -0.000354, 0.030298], [-0.000462, 0.000191, 0.028963]])
+    N = np.array([[0.688312, -0.725415, 0.0], [-0.856953, 0.515394, 0.0]])
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    gp, coarse = GPIS(), GPIS()
+    for g in (gp, coarse):
+        g.add_contacts(P[:1], N[:1])
+    unrefined = add_touch(coarse, P[1], N[1], 0.05, 0.005, finer_grids=0).mesh
+    assert unrefined.is_empty or np.linalg.norm(unrefined.vertices - P[1], axis=1).min() > np.sqrt(3) * 0.005
+    touched = add_touch(gp, P[1], N[1], 0.05, 0.005)
+    assert touched.resolution_m == 0.0025
+    assert np.linalg.norm(touched.mesh.vertices - P[1], axis=1).min() <= np.sqrt(3) * touched.resolution_m
+    # on a surface the grid resolves, the grid stays as asked
+    sphere = GPIS()
+    Ps, Ns = sphere_contacts(30, np.random.default_rng(3), 0.04)
+    sphere.add_contacts(Ps[:-1], Ns[:-1])
+    assert add_touch(sphere, Ps[-1], Ns[-1], 0.05, 0.005).resolution_m == 0.005
