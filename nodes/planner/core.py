@@ -721,8 +721,13 @@ class Planner:
             excluded = 0 if admissible is None else int((~np.asarray(admissible)).sum())
             raise PlanningError(
                 f"no candidate target within {cfg.radius_m} m of the last contact {C[-1].tolist()} "
-                f"({S.shape[0]} candidates given, {excluded} not admissible); mesh the estimated surface "
-                "around the last contact"
+                f"({S.shape[0]} candidates given, {excluded} not admissible): "
+                + (
+                    "every candidate's curve runs through the estimated surface"
+                    if excluded
+                    else "the estimated surface's mesh has no vertex there (a part thinner than the GPIS node's "
+                    "local_resolution_m even when refined, or a mesh made around another point)"
+                )
             )
         if cfg.uses_variance and not np.all(np.isfinite(Q[valid])):
             raise PlanningError("variance holds NaN or infinity; the GP variance must be finite")

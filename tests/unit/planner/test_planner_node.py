@@ -93,6 +93,7 @@ def test_a_contact_that_cannot_be_planned_for_ends_the_run_with_the_reason() -> 
     node.on_surface(plane(1e-6))
     assert not sent and ctx.counters["planning_failed"] == 1
     assert ctx.stop_requested.startswith("planner: no candidate target within")
+    assert "the estimated surface's mesh has no vertex there" in ctx.stop_requested  # what is wrong
     assert ctx.failure == ctx.stop_requested  # a failure: palpate launch exits 1
 
 
