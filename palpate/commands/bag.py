@@ -101,10 +101,16 @@ def run_record(args: argparse.Namespace) -> int:
 
 def run_info(args: argparse.Namespace) -> int:
     summary = mcap_io.summarize(args.file)
+    launch = mcap_io.launch_info(args.file)
     if args.json:
-        print(jsonio.dumps(summary.as_json()))
+        print(jsonio.dumps({**summary.as_json(), "launch": launch}))
     else:
         print(describe(summary, args.file))
+        if launch:
+            print(
+                f"  recorded by palpate launch {launch.get('launch_file', '?')}, seed {launch.get('seed', '?')}, "
+                f"arguments {launch.get('args', '{}')}"
+            )
     return 0
 
 

@@ -12,12 +12,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from palpate import jsonio
 from palpate.errors import LaunchError
 from palpate.launch import placement
 from palpate.launch.graph import Graph, resolve
 from palpate.launch.loader import load_launch, parse_cli_args
 from palpate.launch.supervisor import Supervisor
-from palpate.paths import LAUNCH_DIR
+from palpate.paths import LAUNCH_DIR, REPO_ROOT
 from palpate.runtime import bus
 
 
@@ -74,8 +75,11 @@ def load_graph(
     try:
         launch = load_launch(path, parse_cli_args(overrides))
         if replay is not None:
-            from palpate.record.launch_support import replace_publishers_with_log
+            from palpate.record.launch_support import replace_publishers_with_log, replay_note
 
+            note = replay_note(launch, replay)
+            if note:
+                print(note, file=sys.stderr)
             launch = replace_publishers_with_log(launch, replay, replay_nodes)
         return resolve(launch, bus_dir=bus_dir)
     except LaunchError as exc:
@@ -139,6 +143,18 @@ def check_record_path(path: Path, *, overwrite: bool) -> None:
         raise LaunchError(f"--record {path}: the folder {path.parent} is not writable")
 
 
+def launch_about(graph: Graph) -> dict[str, str]:
+    """What a log records about the launch that made it: its file, resolved arguments and seed."""
+    source = graph.source
+    path = source.path.resolve()
+    shown = path.relative_to(REPO_ROOT) if path.is_relative_to(REPO_ROOT) else path  # the same in every clone
+    return {
+        "launch_file": str(shown),
+        "args": jsonio.dumps(source.args, sort_keys=True, default=str),
+        "seed": str(source.seed),
+    }
+
+
 #: After a failed run the recorder gets this long (seconds) to finish on its own before it is told to.
 RECORDER_GRACE_S = 3.0
 
@@ -183,6 +199,8 @@ def run_graph(graph: Graph, record: Path | None = None, *, overwrite: bool = Fal
                 str(graph.bus_dir),
                 "--curve-servers",
                 json.dumps(server_keys),
+                "--about",
+                jsonio.dumps(launch_about(graph)),
                 *key_args,
                 "--connect",
                 *endpoints,

@@ -10,12 +10,14 @@ each of them publishes. The replay node publishes those topics tick by tick.
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Sequence
 from pathlib import Path
 
 from palpate.errors import LaunchError
 from palpate.launch.graph import resolve
 from palpate.launch.loader import LaunchFile, NodeEntry, Where
+from palpate.record.mcap_io import launch_info
 from palpate.record.replay_node import log_topics
 
 REPLAY_NODE_NAME = "replay"
@@ -80,3 +82,26 @@ def replace_publishers_with_log(
     gone = {n.name for n in replaced}
     kept = [e for e in launch.nodes if e.fields["name"] not in gone]
     return dataclasses.replace(launch, nodes=[entry, *kept])
+
+
+def replay_note(launch: LaunchFile, log_path: str | Path) -> str | None:
+    """A note when the log was recorded from another launch file or with other arguments than `launch`
+    (what the log holds, the sensor data and the truth, then differs from what this launch says)."""
+    info = launch_info(log_path)
+    if not info:
+        return None
+    recorded = Path(info.get("launch_file", "")).name
+    if recorded and recorded != launch.path.name:
+        return (
+            f"note: {log_path} was recorded from {info['launch_file']}, not {launch.path.name}: the replayed "
+            "sensor data, object and clock are that run's"
+        )
+    try:
+        args = json.loads(info.get("args", "{}"))
+    except ValueError:
+        return None
+    differ = sorted(k for k in launch.args if k in args and args[k] != launch.args[k])
+    if differ:
+        shown = ", ".join(f"{k}:={args[k]!r}" for k in differ)
+        return f"note: {log_path} was recorded with {shown}; the replayed sensor data is that run's"
+    return None

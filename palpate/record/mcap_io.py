@@ -18,7 +18,7 @@ import json
 import os
 import struct
 import zlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
@@ -251,6 +251,10 @@ class LogWriter:
         self._writer.add_message(channel_id, message.log_time, message.data, message.publish_time, message.sequence)
         self.messages += 1
 
+    def metadata(self, name: str, values: Mapping[str, str]) -> None:
+        """Write a metadata record `name` holding the string pairs `values` (what made the log)."""
+        self._writer.add_metadata(name, dict(values))
+
     def flush(self) -> None:
         """Close the chunk in progress (if it has messages) and push everything to the OS."""
         self._writer.flush()
@@ -383,6 +387,24 @@ def _summarize_by_scan(path: str | Path) -> LogSummary:
         out.end_ns = max(out.end_ns, message.log_time)
         out.messages += 1
     return out
+
+
+#: The metadata record in which `palpate launch --record` says what it ran: launch file, arguments, seed.
+LAUNCH_METADATA = "palpate.launch"
+
+
+def launch_info(path: str | Path) -> dict[str, str]:
+    """The launch file, arguments and seed a log was recorded from (``LAUNCH_METADATA``); {} when the log
+    does not say (recorded by ``palpate record``, or by another tool)."""
+    with _open(path) as stream:
+        _check_complete(stream, path)
+        try:
+            for record in make_reader(stream).iter_metadata():
+                if record.name == LAUNCH_METADATA:
+                    return dict(record.metadata)
+        except READ_ERRORS as exc:
+            raise _unreadable(path, exc) from exc
+    return {}
 
 
 def topic_types(path: str | Path) -> dict[str, str]:

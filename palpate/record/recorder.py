@@ -41,7 +41,7 @@ from palpate.argtypes import positive_int
 from palpate.errors import MalformedMessageError, MessageError, PalpateError
 from palpate.messages import codec, topics
 from palpate.messages.schemas import Clock, LockstepAck, RunControl
-from palpate.record.mcap_io import COMPRESSIONS, INTERNAL_TOPICS, LogWriter, PayloadInfo, peek
+from palpate.record.mcap_io import COMPRESSIONS, INTERNAL_TOPICS, LAUNCH_METADATA, LogWriter, PayloadInfo, peek
 from palpate.runtime import bus
 
 log = logging.getLogger("palpate.record")
@@ -283,7 +283,9 @@ class Recorder:
         grace_s: float = 2.0,
         server_keys: Mapping[str, str] | None = None,
         client_keys: Mapping[str, str] | None = None,
+        about: Mapping[str, str] | None = None,
     ):
+        """`about`: what made the run (launch file, arguments, seed), kept as the log's metadata."""
         self.output = output
         #: endpoint -> CurveZMQ server key of a keyed publisher (from the launcher or the manifests)
         self.server_keys = dict(server_keys or {})
@@ -299,6 +301,8 @@ class Recorder:
         self.connections: dict[str, _Connection] = {}
         self.sorter = TickSorter()
         self.writer = LogWriter(output, compression=compression, chunk_size=chunk_size)
+        if about:
+            self.writer.metadata(LAUNCH_METADATA, about)
         self.interrupted = False
         self.rejected = 0
         self.received = 0
@@ -532,6 +536,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="CurveZMQ key file the recorder connects to keyed publishers with (one their launch admits)",
     )
+    p.add_argument(
+        "--about",
+        type=json.loads,
+        default={},
+        metavar="JSON",
+        help='what made the run, kept in the log: {"launch_file": ..., "args": ..., "seed": ...} (palpate launch)',
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -550,6 +561,7 @@ def run(args: argparse.Namespace) -> int:
         chunk_ticks=args.chunk_ticks,
         server_keys=args.curve_servers,
         client_keys=bus.read_key_file(args.curve_keys) if args.curve_keys else None,
+        about={str(k): str(v) for k, v in args.about.items()},
     )
     return recorder.run()
 

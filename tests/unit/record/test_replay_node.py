@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 
@@ -138,3 +139,26 @@ def test_a_recorded_message_that_does_not_decode_fails_the_run(tmp_path: Path) -
     assert ctx.stop is not None and ctx.stop[1], ctx.stop
     assert f"recorded {topics.CONTACTS} message at 0.000 s cannot be replayed" in ctx.stop[0]
     assert "version 99" in ctx.stop[0]
+
+
+def test_a_replay_notes_a_log_of_another_launch_file_or_other_arguments(tmp_path: Path) -> None:
+    from palpate.record.launch_support import replay_note
+    from palpate.record.mcap_io import LAUNCH_METADATA, LogWriter, launch_info
+
+    def log_of(name: str, about: dict[str, str]) -> Path:
+        path = tmp_path / name
+        with LogWriter(path) as writer:
+            if about:
+                writer.metadata(LAUNCH_METADATA, about)
+        return path
+
+    launch = load_launch(DEMO)
+    same = {"launch_file": f"launch/{DEMO.name}", "args": json.dumps(launch.args), "seed": "0"}
+    assert launch_info(log_of("same.mcap", same)) == same
+    assert replay_note(launch, log_of("same.mcap", same)) is None
+    assert replay_note(launch, log_of("bare.mcap", {})) is None  # palpate record says nothing of a launch
+    other = log_of("other.mcap", {**same, "launch_file": "launch/map_known.yaml"})
+    assert f"was recorded from launch/map_known.yaml, not {DEMO.name}" in (replay_note(launch, other) or "")
+    name, value = next(iter(launch.args.items()))
+    changed = log_of("changed.mcap", {**same, "args": json.dumps({**launch.args, name: f"{value}x"})})
+    assert f"was recorded with {name}:=" in (replay_note(launch, changed) or "")
