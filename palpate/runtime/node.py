@@ -677,7 +677,10 @@ def _pid() -> int:
 def _install_signal_handlers(runner: NodeRunner) -> None:
     def handle(signum: int, frame: FrameType | None) -> None:
         runner.interrupted = True
-        runner.stop_reason = runner.stop_reason or f"interrupted by {signal.Signals(signum).name}"
+        reason = f"interrupted by {signal.Signals(signum).name}"
+        runner.stop_reason = runner.stop_reason or reason
+        # for close(): the run was ended, not finished (an evaluator reports `stopped`, not `clock`)
+        runner.ctx.run_stopped_by = runner.ctx.run_stopped_by or reason
 
     signal.signal(signal.SIGTERM, handle)
     signal.signal(signal.SIGINT, handle)

@@ -414,3 +414,25 @@ def test_a_node_name_is_claimed_on_a_bus_directory_until_released(tmp_path: Path
     second = bus.NameClaim(tmp_path, ["sim", "gpis"])
     second.release()
     other.release()
+
+
+def test_a_signal_tells_the_nodes_close_that_the_run_was_ended() -> None:
+    """A node stopped by its own SIGTERM (Ctrl-C on the launch) reports the run as stopped, not finished:
+    an evaluator's close() reads run_stopped_by (it said `finished: clock`)."""
+    import signal
+    from types import SimpleNamespace
+
+    from palpate.runtime.node import _install_signal_handlers
+
+    runner = SimpleNamespace(interrupted=False, stop_reason="", ctx=SimpleNamespace(run_stopped_by=""))
+    previous = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        _install_signal_handlers(runner)  # type: ignore[arg-type]
+        handler = signal.getsignal(signal.SIGTERM)
+        assert callable(handler)
+        handler(signal.SIGTERM, None)
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+    assert runner.interrupted and runner.stop_reason == "interrupted by SIGTERM"
+    assert runner.ctx.run_stopped_by == "interrupted by SIGTERM"
