@@ -4,7 +4,8 @@ It asks the GPIS node for the whole-object surface when coverage first reaches e
 and 80 %) to measure the surface RMSE there (with the GP variance, for the confident part), every
 ``EvalConfig.shape_interval`` contacts for the shape scores (without it), and ends the run at the coverage
 goal or a budget.
-At the end it prints one line `explore_result: {json}` and optionally writes JSON and a PNG.
+At the end it prints one line `explore_result: {json}` (without the per-touch rows and the shape scores
+every 10 contacts) and optionally writes all of it as JSON, and a PNG.
 """
 
 from __future__ import annotations
@@ -138,7 +139,7 @@ class ExploreEvalNode:
                 title,
             )
         if self.config.report:
-            brief = {k: v for k, v in self.result.items() if k != "touches"}
+            brief = {k: v for k, v in self.result.items() if k not in ("touches", "shape")}  # results_path has all
             print("explore_result: " + json_dumps(brief), flush=True)
 
 

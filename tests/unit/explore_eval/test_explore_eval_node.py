@@ -79,6 +79,8 @@ def test_results_without_a_milestone_write_null_not_nan(tmp_path: Path, capsys: 
     for result in (written, printed):
         milestone = result["milestones"]["80"]
         assert milestone["reached"] is False and milestone["rmse_mm"] is None and milestone["angle_deg"] is None
+    # the printed line is a summary: the per-touch rows and the shape series are in the file only
+    assert {"touches", "shape"} <= set(written) and not {"touches", "shape"} & set(printed)
 
 
 @pytest.mark.parametrize(
