@@ -303,7 +303,7 @@ def add_touch(
     Where the surface through the touch is thinner than the grid (a needle, a wire, a rim: no grid edge
     crosses it, so the mesh has no vertex near the touch), the mesh is made again with half the step,
     up to ``finer_grids`` times: first over the same box, then over half the box each time (the same
-    number of nodes as the first refinement).
+    number of nodes as the first refinement). When none meshes the touch, the first mesh is returned.
 
     Atomic: InputError (naming the TouchEvent field) leaves the GP as it was, for a position beyond
     palpate.inputs' bounds, a normal that is not unit, or a touch the kernel cannot hold together with
@@ -324,12 +324,17 @@ def add_touch(
             raise InputError("position_m", reason) from exc
     gp.add_contact(p, n)
     sites = None if variance_near is None else (lambda v: thin_near(v, p, *variance_near))
-    step, half = resolution_m, half_extent_m
-    mesh = mesh_from_grid(gp, axes, with_variance=with_variance, variance_sites=sites)
+    coarse = mesh_from_grid(gp, axes, with_variance=with_variance, variance_sites=sites)
+    mesh, step, half = coarse, resolution_m, half_extent_m
     for level in range(finer_grids):
         if meshes_point(mesh, p, step):
-            break
+            return TouchMesh(mesh, step)
         step, half = 0.5 * step, (half_extent_m if level == 0 else 0.5 * half)
-        finer = grid_axes(p - half, p + half, step)
+        try:
+            finer = grid_axes(p - half, p + half, step)
+        except EstimationError:  # more nodes than a grid may have: the touch is added, so keep what there is
+            break
         mesh = mesh_from_grid(gp, finer, with_variance=with_variance, variance_sites=sites)
-    return TouchMesh(mesh, step)
+    if meshes_point(mesh, p, step):
+        return TouchMesh(mesh, step)
+    return TouchMesh(coarse, resolution_m)  # no grid meshed the touch: the full view, as it was

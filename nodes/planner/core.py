@@ -710,7 +710,8 @@ class Planner:
         z = z / z_norm
 
         rel = S - C[-1]
-        keep = np.einsum("ij,ij->i", rel, rel) <= cfg.radius_m**2
+        near = np.einsum("ij,ij->i", rel, rel) <= cfg.radius_m**2
+        keep = near.copy()
         if admissible is not None:
             mask = np.asarray(admissible)
             if mask.shape != (S.shape[0],) or mask.dtype != np.bool_:
@@ -718,13 +719,12 @@ class Planner:
             keep &= mask
         valid = np.flatnonzero(keep)
         if valid.size == 0:
-            excluded = 0 if admissible is None else int((~np.asarray(admissible)).sum())
             raise PlanningError(
                 f"no candidate target within {cfg.radius_m} m of the last contact {C[-1].tolist()} "
-                f"({S.shape[0]} candidates given, {excluded} not admissible): "
+                f"({S.shape[0]} candidates given, {int(near.sum())} within it): "
                 + (
-                    "every candidate's curve runs through the estimated surface"
-                    if excluded
+                    "the curve to every one of these runs through the estimated surface"
+                    if near.any()
                     else "the estimated surface's mesh has no vertex there (a part thinner than the GPIS node's "
                     "local_resolution_m even when refined, or a mesh made around another point)"
                 )

@@ -21,7 +21,6 @@ CurveZMQ publisher admits only the client keys the launcher lists (`ClientAllowL
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import hashlib
 import json
 import logging
@@ -168,6 +167,8 @@ class NameClaim:
     ends, however it ends; ``release`` drops them earlier."""
 
     def __init__(self, bus_dir: str | Path, names: Iterable[str]) -> None:
+        import fcntl  # POSIX only; the viewer, which imports this module, also runs elsewhere
+
         self.files: list[Any] = []
         folder = Path(bus_dir)
         folder.mkdir(parents=True, exist_ok=True)

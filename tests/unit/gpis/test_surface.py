@@ -10,6 +10,7 @@ from palpate.errors import EstimationError
 from palpate.geometry.thinning import thin_near
 from palpate.nodes.gpis.core import GPIS, GPISConfig
 from palpate.nodes.gpis.surface import (
+    FINER_LOCAL_GRIDS,
     SurfaceMeshArrays,
     add_touch,
     global_surface,
@@ -257,6 +258,15 @@ def test_a_touch_on_a_surface_thinner_than_the_grid_is_meshed_on_a_finer_one() -
     touched = add_touch(gp, P[1], N[1], 0.05, 0.005)
     assert touched.resolution_m == 0.0025
     assert np.linalg.norm(touched.mesh.vertices - P[1], axis=1).min() <= np.sqrt(3) * touched.resolution_m
+    # a sheet thinner than the finest grid: the first mesh, over the full view, not the last small one
+    thin = P * [0.05, 0.05, 1.0]
+    meshes = []
+    for finer_grids in (0, FINER_LOCAL_GRIDS):
+        g = GPIS()
+        g.add_contacts(thin[:1], N[:1])
+        meshes.append(add_touch(g, thin[1], N[1], 0.05, 0.005, finer_grids=finer_grids))
+    assert meshes[1].resolution_m == 0.005
+    np.testing.assert_array_equal(meshes[1].mesh.vertices, meshes[0].mesh.vertices)
     # on a surface the grid resolves, the grid stays as asked
     sphere = GPIS()
     Ps, Ns = sphere_contacts(30, np.random.default_rng(3), 0.04)

@@ -221,8 +221,14 @@ def test_admissible_mask_excludes_candidates() -> None:
     mask[best] = False
     second = planner.select(*args, np.random.default_rng(0), admissible=mask)
     assert second.index != best and second.scores[best] == 0.0
-    with pytest.raises(PlanningError, match=f"{len(S)} not admissible"):
+    within = int((np.linalg.norm(S, axis=1) <= planner.config.radius_m).sum())
+    with pytest.raises(PlanningError, match=f"{within} within it\\): the curve to every one of these runs through"):
         planner.select(*args, np.random.default_rng(0), admissible=np.zeros(len(S), dtype=bool))
+    # candidates only beyond the radius (a few not admissible): no vertex near the contact is the reason
+    far = (S + np.array([1.0, 0.0, 0.0]), N, *args[2:])
+    some_out = np.arange(len(S)) < 3
+    with pytest.raises(PlanningError, match="0 within it\\): the estimated surface's mesh has no vertex there"):
+        planner.select(*far, np.random.default_rng(0), admissible=~some_out)
     with pytest.raises(PlanningError, match="boolean mask"):
         planner.select(*args, np.random.default_rng(0), admissible=np.ones(3, dtype=bool))
 
