@@ -57,7 +57,7 @@ def test_initial_approach_that_finds_no_surface_stops_with_the_target_and_the_la
 def test_an_approach_along_the_poking_axis_that_finds_nothing_names_the_start_arguments() -> None:
     ctx = FakeCtx()
     node = ControllerNode(ControllerNodeConfig(), ctx)  # no initial target
-    position, dt = np.zeros(3), 0.01
+    position, dt = np.array([0.01, 0.0, 0.0]), 0.01
     node.on_contacts(no_contacts())
     for tick in range(2000):  # 0.5 m + 1 cm at 5 cm/s: fails after about 10.2 s
         node.on_pose(pose(position, FACING_DOWN, "probe"))
@@ -67,7 +67,7 @@ def test_an_approach_along_the_poking_axis_that_finds_nothing_names_the_start_ar
         _, velocity = ctx.published[-1]
         position = position + dt * np.asarray(velocity.linear_m_s)
     assert "poking axis" in ctx.stop_reason and "start_quaternion:=" in ctx.stop_reason and ctx.stop_failed
-    assert position[:2] == pytest.approx([0.0, 0.0]) and -position[2] == pytest.approx(0.51, abs=0.002)
+    assert position[:2] == pytest.approx([0.01, 0.0]) and -position[2] == pytest.approx(0.51, abs=0.002)
 
 
 def _target(

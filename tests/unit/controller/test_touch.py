@@ -268,9 +268,9 @@ R_FACING_X = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # p
 
 
 def drive_facing_x(loop: TouchLoop, wall_x: float, ticks: int) -> tuple[np.ndarray, ControlStep]:
-    """From the origin with the poking axis +x until a touch, a failure or ``ticks``: a point fingertip
+    """From (0, 0.1, 0.2) with the poking axis +x until a touch, a failure or ``ticks``: a point fingertip
     touches the wall x >= wall_x. Returns the last position and step."""
-    r = np.zeros(3)
+    r = np.array([0.0, 0.1, 0.2])
     for tick in range(ticks):
         contacts = contact(r, normal=np.array([-1.0, 0.0, 0.0])) if r[0] >= wall_x else NONE
         step = loop.step(tick * TICK_NS, r, R_FACING_X, *contacts)
@@ -285,7 +285,7 @@ def test_without_an_initial_target_the_first_approach_runs_along_the_poking_axis
     r, step = drive_facing_x(loop, wall_x=0.03, ticks=200)
     assert step.touch is not None and step.touch.index == 0
     np.testing.assert_allclose(step.touch.approach_direction, [1.0, 0.0, 0.0], atol=1e-12)
-    assert r[0] == pytest.approx(0.03, abs=0.05 * DT_S + 1e-12) and not r[1:].any()
+    assert r[0] == pytest.approx(0.03, abs=0.05 * DT_S + 1e-12) and r[1:].tolist() == [0.1, 0.2]
 
 
 def test_without_an_initial_target_and_no_surface_the_first_approach_fails_past_its_reach() -> None:
@@ -296,10 +296,14 @@ def test_without_an_initial_target_and_no_surface_the_first_approach_fails_past_
     assert r[0] == pytest.approx(AXIS_APPROACH_M + 0.01, abs=0.05 * DT_S + 1e-9)
 
 
-def test_a_pose_at_the_initial_target_waits_instead_of_failing() -> None:
-    """An uninitialised driver reports the fingertip at (0, 0, 0), the default initial target: no
-    approach direction exists, so the loop waits (zero command) and starts on the next real pose."""
-    loop = TouchLoop(TouchConfig(tip_radius_m=0.0), ControllerConfig(), initial_target_m=(0.0, 0.0, 0.0))
+@pytest.mark.parametrize("initial_target_m", [(0.0, 0.0, 0.0), None])
+def test_a_pose_at_the_initial_target_or_the_origin_waits_instead_of_starting(
+    initial_target_m: tuple[float, float, float] | None,
+) -> None:
+    """An uninitialised driver reports the fingertip at (0, 0, 0): at an initial target there, no approach
+    direction exists; without a target, an approach from a pose that is not yet one would run 0.5 m
+    along its axis. The loop waits (zero command) and starts on the next real pose."""
+    loop = TouchLoop(TouchConfig(tip_radius_m=0.0), ControllerConfig(), initial_target_m=initial_target_m)
     step = loop.step(0, np.zeros(3), R_DOWN, *NONE)
     assert not loop.started and not step.linear_m_s.any() and not step.failed and step.touch is None
     step = loop.step(TICK_NS, np.array([0.0, 0.0, 0.02]), R_DOWN, *NONE)
