@@ -85,8 +85,8 @@ def replace_publishers_with_log(
 
 
 def replay_note(launch: LaunchFile, log_path: str | Path) -> str | None:
-    """A note when the log was recorded from another launch file or with other arguments than `launch`
-    (what the log holds, the sensor data and the truth, then differs from what this launch says)."""
+    """A note when the log was recorded from another launch file, or with other arguments or another
+    seed than `launch` (the replayed sensor data and truth are then that run's, whatever this launch says)."""
     info = launch_info(log_path)
     if not info:
         return None
@@ -99,9 +99,14 @@ def replay_note(launch: LaunchFile, log_path: str | Path) -> str | None:
     try:
         args = json.loads(info.get("args", "{}"))
     except ValueError:
+        args = {}
+    differ = [
+        f"{k}:={args[k]!r} (here {launch.args[k]!r})"
+        for k in sorted(launch.args)
+        if k in args and args[k] != launch.args[k]
+    ]
+    if info.get("seed") not in (None, str(launch.seed)):
+        differ.append(f"seed {info['seed']} (here {launch.seed})")
+    if not differ:
         return None
-    differ = sorted(k for k in launch.args if k in args and args[k] != launch.args[k])
-    if differ:
-        shown = ", ".join(f"{k}:={args[k]!r}" for k in differ)
-        return f"note: {log_path} was recorded with {shown}; the replayed sensor data is that run's"
-    return None
+    return f"note: {log_path} was recorded with {', '.join(differ)}; the replayed sensor data is that run's"

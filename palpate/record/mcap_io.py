@@ -29,7 +29,7 @@ import msgpack
 import zstandard
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.records import Channel, Chunk, Footer, Schema
+from mcap.records import Channel, Chunk, Footer, Metadata, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.summary import Summary
@@ -463,8 +463,10 @@ def _why(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
 
 
-def iter_records_tolerant(path: str | Path, report: RecoverReport) -> Iterator[Schema | Channel | McapMessage]:
-    """Schema, channel and message records of a possibly truncated or damaged log, read front to back.
+def iter_records_tolerant(
+    path: str | Path, report: RecoverReport
+) -> Iterator[Schema | Channel | McapMessage | Metadata]:
+    """Schema, channel, message and metadata records of a possibly truncated or damaged log, front to back.
 
     Uses the library's streaming (non-seeking) reader; a chunk is used only when it is complete and
     its CRC matches. A chunk whose data is damaged but whose record is framed intact is skipped
@@ -493,7 +495,7 @@ def iter_records_tolerant(path: str | Path, report: RecoverReport) -> Iterator[S
             else:
                 inner = [record]
             for item in inner:
-                if isinstance(item, Schema | Channel | McapMessage):
+                if isinstance(item, Schema | Channel | McapMessage | Metadata):
                     yield item
             if isinstance(record, Footer):
                 report.complete = True
@@ -511,14 +513,14 @@ def _summary_records(path: str | Path) -> tuple[dict[int, Schema], dict[int, Cha
 
 
 def copy_records(
-    records: Iterable[Schema | Channel | McapMessage],
+    records: Iterable[Schema | Channel | McapMessage | Metadata],
     out: LogWriter,
     *,
     keep: Any = None,
     report: RecoverReport | None = None,
     known: tuple[dict[int, Schema], dict[int, Channel]] = ({}, {}),
 ) -> int:
-    """Copy messages (with their schemas and channels) into `out`; `keep(topic)` filters topics.
+    """Copy messages (with their schemas and channels) and metadata into `out`; `keep(topic)` filters topics.
     `known`: schemas and channels to start from (a log's summary, for channels whose records were in a
     damaged chunk). A message on a channel never defined is a RecordError, or with a `report` is
     counted there (`orphaned`) and skipped."""
@@ -529,6 +531,8 @@ def copy_records(
             schemas[record.id] = record
         elif isinstance(record, Channel):
             channels[record.id] = record
+        elif isinstance(record, Metadata):
+            out.metadata(record.name, record.metadata)  # what made the log stays with it
         else:
             channel = channels.get(record.channel_id)
             if channel is None and report is not None:

@@ -246,3 +246,20 @@ def test_recover_copies_a_complete_log_without_messages(tmp_path: Path) -> None:
     write_log(empty, [])
     report = mcap_io.recover(empty, tmp_path / "out.mcap")
     assert report.complete and report.messages == 0 and mcap_io.summarize(tmp_path / "out.mcap").messages == 0
+
+
+def test_recover_and_filter_keep_what_made_the_log(tmp_path: Path) -> None:
+    about = {"launch_file": "launch/explore.yaml", "args": "{}", "seed": "3"}
+    src = tmp_path / "run.mcap"
+    with mcap_io.LogWriter(src) as writer:
+        writer.metadata(mcap_io.LAUNCH_METADATA, about)
+        for seq, (topic, message) in enumerate(canonical_log(3)):
+            payload = codec.encode(message)
+            writer.write(topic, payload, mcap_io.peek(payload), seq)
+            writer.flush()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(src.read_bytes()[:-60])  # a killed recorder's log
+    mcap_io.recover(cut, tmp_path / "recovered.mcap")
+    mcap_io.copy_log(src, tmp_path / "clocks.mcap", include=[topics.CLOCK])
+    for made in ("recovered.mcap", "clocks.mcap"):
+        assert mcap_io.launch_info(tmp_path / made) == about

@@ -161,4 +161,7 @@ def test_a_replay_notes_a_log_of_another_launch_file_or_other_arguments(tmp_path
     assert f"was recorded from launch/map_known.yaml, not {DEMO.name}" in (replay_note(launch, other) or "")
     name, value = next(iter(launch.args.items()))
     changed = log_of("changed.mcap", {**same, "args": json.dumps({**launch.args, name: f"{value}x"})})
-    assert f"was recorded with {name}:=" in (replay_note(launch, changed) or "")
+    assert f"was recorded with {name}:='{value}x'" in (replay_note(launch, changed) or "")
+    assert f"(here {value!r})" in (replay_note(launch, changed) or "")
+    reseeded = log_of("reseeded.mcap", {**same, "seed": "7"})
+    assert "was recorded with seed 7 (here 0)" in (replay_note(launch, reseeded) or "")
