@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from palpate.errors import LaunchError
-from palpate.launch.graph import resolve
+from palpate.launch.graph import Graph, GraphNode, resolve
 from palpate.launch.loader import LaunchFile, NodeEntry, Where
 from palpate.record.mcap_io import launch_info
 from palpate.record.replay_node import log_topics
@@ -56,6 +56,7 @@ def replace_publishers_with_log(
             f"--replay-nodes {','.join(nodes)}: the clock source {clock.name!r} must be among them; the replay "
             "node takes over the clock"
         )
+    _check_open_loop(graph, replaced)
     replayed = sorted({t for node in replaced for t in node.publishes.values()})
     for topic in replayed:
         if recorded[topic] != graph.topic_types()[topic]:
@@ -82,6 +83,23 @@ def replace_publishers_with_log(
     gone = {n.name for n in replaced}
     kept = [e for e in launch.nodes if e.fields["name"] not in gone]
     return dataclasses.replace(launch, nodes=[entry, *kept])
+
+
+def _check_open_loop(graph: Graph, replaced: Sequence[GraphNode]) -> None:
+    """LaunchError when a replaced node other than the clock source reads a topic of a node that re-runs:
+    the replay node publishes its recorded outputs with the clock, before that node's messages of the same
+    tick, so a node downstream of both gets them in another order (a planner got the GPIS node's meshes
+    before the controller's touch they answer, and never planned)."""
+    live = {t: n.name for n in graph.nodes if n not in replaced for t in n.publishes.values()}
+    for node in replaced:
+        if node is graph.clock_source:
+            continue  # it opens every tick: its data came first in the recorded run too
+        fed = sorted(f"{topic} of {live[topic]!r}" for topic in node.subscribes.values() if topic in live)
+        if fed:
+            raise LaunchError(
+                f"--replay-nodes: node {node.name!r} reads {', '.join(fed)}; those nodes re-run, so its recorded "
+                f"outputs would not come in step with theirs: replace them too, or leave {node.name!r} live"
+            )
 
 
 def replay_note(launch: LaunchFile, log_path: str | Path) -> str | None:

@@ -165,3 +165,20 @@ def test_a_replay_notes_a_log_of_another_launch_file_or_other_arguments(tmp_path
     assert f"(here {value!r})" in (replay_note(launch, changed) or "")
     reseeded = log_of("reseeded.mcap", {**same, "seed": "7"})
     assert "was recorded with seed 7 (here 0)" in (replay_note(launch, reseeded) or "")
+
+
+def test_a_replayed_node_that_reads_a_node_which_re_runs_is_refused(tmp_path: Path) -> None:
+    """The replay node publishes with the clock: a recorded GPIS mesh would reach the planner before the
+    re-run controller's touch it answers (the planner then never planned)."""
+    from palpate.record.mcap_io import LogWriter, schema_bytes
+
+    explore = load_launch(REPO_ROOT / "launch" / "explore.yaml")
+    graph = resolve(explore, bus_dir=tmp_path)
+    log = tmp_path / "explore.mcap"
+    with LogWriter(log) as writer:  # channels only: what replacing reads
+        for topic, type_name in graph.topic_types().items():
+            writer.channel(topic, type_name, schema_bytes(type_name, 1))
+    with pytest.raises(LaunchError, match=r"node 'gpis' reads controller/events of 'controller'.*those nodes re-run"):
+        replace_publishers_with_log(explore, log, ["sim", "gpis"])
+    sim_noise = replace_publishers_with_log(explore, log, ["sim", "noise"])  # noise reads only the sim: fine
+    assert "noise" not in [e.fields["name"] for e in sim_noise.nodes]
