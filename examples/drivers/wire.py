@@ -78,7 +78,7 @@ def read_spec(bus_dir: str, name: str, timeout_s: float = 60.0) -> dict[str, Any
 
 
 def heartbeat(sock: zmq.Socket) -> None:
-    """ZMTP heartbeats, as palpate's sockets send them: a peer whose host vanished is dropped after 5 s."""
+    """ZMTP heartbeats, as palpate's TCP sockets send them: a peer whose host vanished is dropped after 5 s."""
     sock.setsockopt(zmq.HEARTBEAT_IVL, 1000)
     sock.setsockopt(zmq.HEARTBEAT_TIMEOUT, 5000)
     sock.setsockopt(zmq.HEARTBEAT_TTL, 5000)
@@ -99,7 +99,8 @@ class Node:
         lockstep = spec["mode"] == "lockstep"
         self.context = context = zmq.Context()
         self.pub = context.socket(zmq.XPUB)
-        heartbeat(self.pub)
+        if spec["endpoint"].startswith("tcp://"):
+            heartbeat(self.pub)
         self.pub.setsockopt(zmq.XPUB_VERBOSE, 1)  # report every subscription, to count subscribers
         self.pub.setsockopt(zmq.LINGER, 2000)
         if lockstep:
@@ -109,7 +110,8 @@ class Node:
             Path(endpoint[len("ipc://") :]).parent.mkdir(parents=True, exist_ok=True)
         self.pub.bind(endpoint)
         self.sub = context.socket(zmq.SUB)
-        heartbeat(self.sub)
+        if any(peer.startswith("tcp://") for peer in spec["connect"]):
+            heartbeat(self.sub)
         self.sub.setsockopt(zmq.LINGER, 0)
         if lockstep:
             self.sub.setsockopt(zmq.RCVHWM, 0)

@@ -321,11 +321,14 @@ class ClientAllowList:
         self._auth.stop()
 
 
-#: ZMTP heartbeats on every bus socket: a PING each interval, and a connection whose peer has not
+#: ZMTP heartbeats on the bus's TCP sockets: a PING each interval, and a connection whose peer has not
 #: answered for the timeout is closed. A peer whose host vanished (power, cable, a VM gone: no TCP FIN)
 #: is then dropped like one that closed its sockets; the publisher sees its subscriptions go, so a
 #: lockstep graph notices that the node left (runtime.node.PEER_GRACE_S). ZeroMQ's I/O threads answer
-#: the PINGs, so a node busy in Python for longer is not dropped.
+#: the PINGs, so a node busy in Python for longer is not dropped, unless its receive queue is full
+#: (a real-time subscriber 1000 messages behind stops reading its socket: it is dropped and reconnects,
+#: losing what was queued, as real time drops messages anyway; lockstep queues are unbounded). Over
+#: ipc the kernel closes a dead process's sockets itself: no heartbeats there.
 HEARTBEAT_INTERVAL_MS = 1000
 HEARTBEAT_TIMEOUT_MS = 5000
 
@@ -333,7 +336,7 @@ HEARTBEAT_TIMEOUT_MS = 5000
 def keep_alive(
     sock: zmq.Socket[Any], interval_ms: int = HEARTBEAT_INTERVAL_MS, timeout_ms: int = HEARTBEAT_TIMEOUT_MS
 ) -> None:
-    """Turn on ZMTP heartbeats (see HEARTBEAT_TIMEOUT_MS) before `sock` binds or connects."""
+    """Turn on ZMTP heartbeats (see HEARTBEAT_TIMEOUT_MS) before `sock` binds or connects over TCP."""
     sock.setsockopt(zmq.HEARTBEAT_IVL, interval_ms)
     sock.setsockopt(zmq.HEARTBEAT_TIMEOUT, timeout_ms)
     sock.setsockopt(zmq.HEARTBEAT_TTL, timeout_ms)
@@ -364,7 +367,8 @@ def make_publisher(
     `linger_ms`: how long closing waits for queued messages to leave.
     """
     sock = ctx.socket(zmq.XPUB)
-    keep_alive(sock)
+    if endpoint.startswith("tcp://"):
+        keep_alive(sock)
     sock.setsockopt(zmq.XPUB_VERBOSE, 1)
     sock.setsockopt(zmq.LINGER, linger_ms)
     if lockstep:
@@ -407,7 +411,8 @@ def make_subscriber(
 ) -> zmq.Socket[Any]:
     """A SUB socket connected to `endpoints` and subscribed to `topics` (all when the list is empty)."""
     sock = ctx.socket(zmq.SUB)
-    keep_alive(sock)
+    if any(e.startswith("tcp://") for e in endpoints):
+        keep_alive(sock)
     sock.setsockopt(zmq.LINGER, 0)
     if lockstep:
         sock.setsockopt(zmq.RCVHWM, 0)
@@ -472,7 +477,8 @@ class PublisherTap:
                 endpoint,
             )
         apply_curve(sock, client_curve(server_public, self.client_keys), server=False)
-        keep_alive(sock)
+        if endpoint.startswith("tcp://"):
+            keep_alive(sock)
         sock.setsockopt(zmq.LINGER, 0)
         if self.never_drop:
             sock.setsockopt(zmq.RCVHWM, 0)

@@ -30,9 +30,10 @@ class FreezingRelay:
         up = socket.create_connection(self.upstream)
         peer = {down: up, up: down}
         while not self.stopped.is_set():
-            readable, _, _ = select.select([down, up], [], [], 0.05)
             if self.frozen.is_set():
+                self.stopped.wait(0.05)  # hold the connections open, forward nothing
                 continue
+            readable, _, _ = select.select([down, up], [], [], 0.05)
             for s in readable:
                 data = s.recv(65536)
                 if data:
@@ -79,15 +80,21 @@ def test_a_subscriber_behind_a_frozen_link_is_dropped_and_its_subscription_goes(
         ctx.term()
 
 
-def test_the_bus_sockets_use_heartbeats(tmp_path: Any) -> None:
+def test_the_bus_sockets_use_heartbeats_over_tcp(tmp_path: Any) -> None:
     ctx: zmq.Context[Any] = zmq.Context()
-    pub = make_publisher(ctx, f"ipc://{tmp_path}/pub", lockstep=True)
-    sub = make_subscriber(ctx, [f"ipc://{tmp_path}/pub"], ["a"], lockstep=True)
+    with socket.socket() as probe:  # a free port
+        probe.bind(("127.0.0.1", 0))
+        tcp = f"tcp://127.0.0.1:{probe.getsockname()[1]}"
+    ipc = f"ipc://{tmp_path}/pub"
+    sockets = [make_publisher(ctx, tcp, lockstep=True), make_subscriber(ctx, [tcp], ["a"], lockstep=True)]
+    sockets += [make_publisher(ctx, ipc, lockstep=True), make_subscriber(ctx, [ipc], ["a"], lockstep=True)]
     try:
-        for sock in (pub, sub):
+        for sock in sockets[:2]:
             assert sock.getsockopt(zmq.HEARTBEAT_IVL) == HEARTBEAT_INTERVAL_MS
             assert sock.getsockopt(zmq.HEARTBEAT_TIMEOUT) == HEARTBEAT_TIMEOUT_MS
+        for sock in sockets[2:]:  # the kernel closes a dead process's ipc sockets: none needed
+            assert sock.getsockopt(zmq.HEARTBEAT_IVL) == 0
     finally:
-        pub.close(linger=0)
-        sub.close()
+        for sock in sockets:
+            sock.close(linger=0)
         ctx.term()
