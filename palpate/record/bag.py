@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
 
-from palpate.errors import RecordError
+from palpate.errors import BusError, RecordError
 from palpate.record import mcap_io
 from palpate.runtime import bus
 
@@ -78,17 +78,29 @@ class Player:
         self.interrupted = False
         self.sent = 0
 
-    def _check_name(self) -> None:
+    def _claim_name(self) -> bus.NameClaim:
+        """This player's name on the bus, as a launch claims its nodes' (a graph started later cannot
+        take its socket); RecordError when a running publisher has it."""
         for manifest in bus.read_manifests(self.bus_dir):
             if manifest.node == self.options.name:
                 raise RecordError(
                     f"a publisher named {self.options.name!r} already runs (pid {manifest.pid}) on bus "
                     f"{self.bus_dir}; choose another --name"
                 )
+        try:
+            return bus.NameClaim(self.bus_dir, [self.options.name])
+        except BusError as exc:
+            raise RecordError(f"{exc}; or choose another --name") from exc
 
     def run(self) -> int:
         """Play until the end of the log (or forever with `loop`); returns an exit code."""
-        self._check_name()
+        claim = self._claim_name()
+        try:
+            return self._run()
+        finally:
+            claim.release()
+
+    def _run(self) -> int:
         endpoint = bus.ipc_endpoint(self.bus_dir, self.options.name)
         pub = bus.BlockingPublisher(endpoint, send_hwm=self.options.send_hwm)
         manifest = bus.Manifest(

@@ -263,3 +263,21 @@ def test_recover_and_filter_keep_what_made_the_log(tmp_path: Path) -> None:
     mcap_io.copy_log(src, tmp_path / "clocks.mcap", include=[topics.CLOCK])
     for made in ("recovered.mcap", "clocks.mcap"):
         assert mcap_io.launch_info(tmp_path / made) == about
+
+
+def test_a_player_holds_its_name_on_the_bus_as_a_launch_does(tmp_path: Path) -> None:
+    from palpate.errors import BusError
+    from palpate.record.bag import Player, PlayOptions
+    from palpate.runtime import bus
+
+    log = tmp_path / "run.mcap"
+    write_log(log, canonical_log(2))
+    player = Player(log, tmp_path / "bus", PlayOptions(name="sim"))
+    launched = bus.NameClaim(tmp_path / "bus", ["sim"])  # a graph whose clock source is called sim
+    with pytest.raises(RecordError, match=r"node name 'sim' is in use .*; or choose another --name"):
+        player._claim_name()
+    launched.release()
+    held = player._claim_name()
+    with pytest.raises(BusError, match="node name 'sim' is in use"):  # a launch started now stops at once
+        bus.NameClaim(tmp_path / "bus", ["sim"])
+    held.release()
