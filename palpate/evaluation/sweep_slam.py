@@ -345,6 +345,12 @@ def plot(path: Path, rows: Sequence[Mapping[str, Any]], title: str) -> None:
     plt.close(fig)
 
 
+#: A map needs at least this many cells across its region to have a surface to score.
+MIN_CELLS_ACROSS = 4
+#: Resolutions with more cells than this per map (0.2 mm over the 90 mm region) get a note on stderr.
+MANY_CELLS = 50_000_000
+
+
 def check_settings(Ks: Sequence[int], resolutions_mm: Sequence[float]) -> None:
     """ConfigError, before anything is recorded, for a K and resolution whose maps would not fit in this
     machine's memory (``mapper.core.check_fits``) or a value given twice."""
@@ -355,7 +361,23 @@ def check_settings(Ks: Sequence[int], resolutions_mm: Sequence[float]) -> None:
             raise ConfigError(f"{name} repeats a value: {list(values)}")
     params, chain = fastslam_params(), fastslam_chain()
     for r in resolutions_mm:
-        check_fits(mapper_config(params, r / 1000.0, n_particles=max(Ks)), chain)
+        config = mapper_config(params, r / 1000.0, n_particles=max(Ks))
+        extent_mm = 1000.0 * min(hi - lo for lo, hi in zip(config.region_min_m, config.region_max_m, strict=True))
+        if extent_mm / r < MIN_CELLS_ACROSS:
+            raise ConfigError(
+                f"--resolutions-mm {r:g}: cells of {r:g} mm leave fewer than {MIN_CELLS_ACROSS} across the "
+                f"{extent_mm:g} mm region the maps cover; their maps cannot be scored (give at most "
+                f"{extent_mm / MIN_CELLS_ACROSS:g} mm)"
+            )
+        check_fits(config, chain)
+        cells = (extent_mm / r) ** 3
+        if cells > MANY_CELLS:
+            print(
+                f"note: --resolutions-mm {r:g} gives about {cells:,.0f} cells per map ({(1.0 / r) ** 3:,.0f} times "
+                "those of 1 mm): its rows may take long, and the progress bar moves only when a resolution is "
+                "done",
+                file=sys.stderr,
+            )
 
 
 def sweep_resolution_on_worker(

@@ -58,6 +58,21 @@ def test_sweep_slam_checks_its_settings_before_recording_anything() -> None:
     check_settings([1, 10, 100], [1.0, 2.0, 4.0])  # the sweep's defaults fit
 
 
+def test_sweep_slam_refuses_cells_the_region_cannot_hold_and_notes_fine_grids(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A cell larger than a quarter of the mapped region gave NaN scores with exit 0; a 0.1 mm grid ran
+    for hours with a progress bar that did not move."""
+    from palpate.evaluation.sweep_slam import check_settings
+
+    with pytest.raises(ConfigError, match=r"cells of 30 mm leave fewer than 4 across the 90 mm region.*22.5 mm"):
+        check_settings([1], [30.0])
+    check_settings([1], [22.5, 1.0])
+    assert capsys.readouterr().err == ""
+    check_settings([1], [0.1])
+    assert "note: --resolutions-mm 0.1 gives about 729,000,000 cells per map" in capsys.readouterr().err
+
+
 def test_a_set_of_a_knob_the_sweep_turns_is_refused_by_name() -> None:
     """An outside audit: --set noise.position_sigma_m with the noise settings failed on a repeated run key."""
     noise = chosen_settings("contact noise")
