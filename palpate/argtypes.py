@@ -16,6 +16,17 @@ def non_negative_int(text: str) -> int:
     return _int(text, 0, "an integer >= 0")
 
 
+def positive_float(text: str) -> float:
+    """A finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number > 0")
+    return value
+
+
 def non_negative_float(text: str) -> float:
     """A finite number >= 0."""
     try:

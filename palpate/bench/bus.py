@@ -39,6 +39,7 @@ import numpy as np
 import zmq
 
 from palpate import jsonio
+from palpate.argtypes import positive_int
 from palpate.errors import BenchmarkError
 from palpate.messages import codec
 from palpate.messages.schemas import ParticleSetSummary
@@ -449,10 +450,12 @@ def table(results: list[SizeResult]) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `palpate bench bus` beyond the shared --quick and --json."""
-    parser.add_argument("--rounds", type=int, help="alternating rounds per size and transport")
-    parser.add_argument("--pings", type=int, help="ping-pongs per round (sizes above 64 KB: an eighth)")
+    parser.add_argument("--rounds", type=positive_int, help="alternating rounds per size and transport")
+    parser.add_argument("--pings", type=positive_int, help="ping-pongs per round (sizes above 64 KB: an eighth)")
     parser.add_argument("--validate", action="store_true", help="palpate sends also run codec.validate")
-    parser.add_argument("--stream", type=int, help="messages streamed per throughput round (above 64 KB: a tenth)")
+    parser.add_argument(
+        "--stream", type=positive_int, help="messages streamed per throughput round (above 64 KB: a tenth)"
+    )
 
 
 def config_from_args(args: argparse.Namespace) -> BusBenchConfig:

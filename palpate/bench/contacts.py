@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from palpate import jsonio
-from palpate.argtypes import add_scale_argument
+from palpate.argtypes import add_scale_argument, non_negative_int, positive_int
 from palpate.errors import BenchmarkError
 from palpate.paths import YCB_DIR_ENV, ycb_dir
 from palpate.text_table import Column, fixed_width_table
@@ -414,9 +414,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--objects", type=Path, metavar="DIR", help="benchmark every mesh file in DIR")
     add_scale_argument(parser)
     parser.add_argument(
-        "--touches", type=int, help=f"probe touches per object (default {TOUCHES}, --quick {QUICK_TOUCHES})"
+        "--touches", type=positive_int, help=f"probe touches per object (default {TOUCHES}, --quick {QUICK_TOUCHES})"
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the sampled touches and free probes")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="seed of the sampled touches and free probes")
 
 
 def object_paths(objects: Path | None, ycb: Path | None = None) -> list[Path]:

@@ -49,6 +49,7 @@ import msgpack
 import numpy as np
 
 from palpate import jsonio
+from palpate.argtypes import non_negative_int, positive_int
 from palpate.config import load
 from palpate.errors import MessageError, OutputError
 from palpate.messages import codec
@@ -649,8 +650,10 @@ def summary(reports: Sequence[TargetReport], frames: int, seed: int, seconds: fl
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--frames", type=int, help=f"frames per input topic (default {FRAMES}, --quick {QUICK_FRAMES})")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the frame generators")
+    parser.add_argument(
+        "--frames", type=positive_int, help=f"frames per input topic (default {FRAMES}, --quick {QUICK_FRAMES})"
+    )
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="seed of the frame generators")
     parser.add_argument("--node", action="append", default=[], help="only nodes whose label contains this text")
 
 

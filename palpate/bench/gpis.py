@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from palpate import jsonio
+from palpate.argtypes import non_negative_int, positive_float, positive_int
 from palpate.errors import BenchmarkError
 from palpate.text_table import Column, fixed_width_table
 
@@ -157,7 +158,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `palpate bench gpis` beyond the shared --quick and --json."""
     parser.add_argument(
         "--contacts",
-        type=int,
+        type=positive_int,
         nargs="+",
         metavar="N",
         help="numbers of contacts (default 200 2000 10000, --quick 200 2000; with --resolutions "
@@ -165,16 +166,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--resolutions",
-        type=float,
+        type=positive_float,
         nargs="+",
         metavar="MM",
         help="run the grid-step sweep at these marching-cubes steps in mm "
         f"(e.g. {' '.join(f'{r:g}' for r in RESOLUTIONS_MM)})",
     )
     parser.add_argument(
-        "--repeats", type=int, help=f"timed steps per number of contacts (default {REPEATS}, --quick {QUICK_REPEATS})"
+        "--repeats",
+        type=positive_int,
+        help=f"timed steps per number of contacts (default {REPEATS}, --quick {QUICK_REPEATS})",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the contacts on the ellipsoid")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="seed of the contacts on the ellipsoid")
     parser.add_argument(
         "--shapes",
         nargs="+",

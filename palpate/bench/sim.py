@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from palpate import jsonio
+from palpate.argtypes import positive_float, positive_int
 from palpate.config import NonNegativeFloat, Validated, load
 from palpate.errors import BenchmarkError, InputError
 from palpate.inputs import unit_vectors
@@ -528,8 +529,8 @@ def breakdown_text(row: Mapping[str, Any]) -> str:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `palpate bench sim` beyond the shared --quick and --json."""
     parser.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES), help="scenes to run")
-    parser.add_argument("--duration", type=float, help="simulated seconds per scene and tier")
-    parser.add_argument("--rounds", type=int, help="alternating in-process/graph rounds; the best counts")
+    parser.add_argument("--duration", type=positive_float, help="simulated seconds per scene and tier")
+    parser.add_argument("--rounds", type=positive_int, help="alternating in-process/graph rounds; the best counts")
     parser.add_argument(
         "--placement",
         choices=PLACEMENTS,

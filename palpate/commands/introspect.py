@@ -45,7 +45,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     tl.set_defaults(func=run_topic_list)
     te = tsub.add_parser("echo", help="print the messages of a topic, arrays summarised")
     te.add_argument("topic")
-    te.add_argument("-n", "--count", type=non_negative_int, default=0, metavar="N", help="exit after N messages")
+    te.add_argument(
+        "-n",
+        "--count",
+        type=non_negative_int,
+        default=0,
+        metavar="N",
+        help="exit after N messages (default 0: no limit)",
+    )
     te.add_argument("--bus", type=Path, help=bus_help)
     te.add_argument("--full", action="store_true", help="print arrays in full")
     te.add_argument("--timeout", type=non_negative_float, default=0.0, metavar="S", help="give up after S s (0: never)")

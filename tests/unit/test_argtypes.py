@@ -28,6 +28,13 @@ from tests.unit.record.synthetic import canonical_log, write_log
         ["topic", "echo", "clock", "-n", "-3"],
         ["eval", "explore", "--workers", "-1"],
         ["view", "--duration", "-1"],
+        ["bench", "fuzz", "--frames", "-5"],  # ran 0 frames and passed
+        ["bench", "fuzz", "--frames", "0"],  # ran the default 1000
+        ["bench", "bus", "--rounds", "0"],
+        ["bench", "gpis", "--repeats", "0"],
+        ["bench", "gpis", "--seed", "-1"],
+        ["bench", "sim", "--duration", "-1"],
+        ["bench", "contacts", "--touches", "0"],
     ],
 )
 def test_nonsense_values_are_argparse_errors(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
