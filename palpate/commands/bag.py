@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
 import sys
 from pathlib import Path
+from typing import Any
 
 from palpate import jsonio
 from palpate.argtypes import non_negative_float, non_negative_int
@@ -49,7 +52,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     bsub = b.add_subparsers(dest="bag_command", required=True, metavar="BAG_COMMAND")
     info = bsub.add_parser("info", help="per-topic counts, types and the time span of a log")
     info.add_argument("file", type=Path)
-    info.add_argument("--json", action="store_true", help="one JSON line: topics, types, start_ns, end_ns, messages")
+    info.add_argument(
+        "--json", action="store_true", help="one JSON line: topics, types, start_ns, end_ns, messages, launch"
+    )
+    info.add_argument(
+        "--check", action="store_true", help="also read every message, checking each chunk (the summary alone is not)"
+    )
     info.set_defaults(func=run_info)
     rec = bsub.add_parser("recover", help="rewrite a truncated log (recorder killed) into a valid one")
     rec.add_argument("file", type=Path)
@@ -102,8 +110,15 @@ def run_record(args: argparse.Namespace) -> int:
 def run_info(args: argparse.Namespace) -> int:
     summary = mcap_io.summarize(args.file)
     launch = mcap_io.launch_info(args.file)
+    if args.check:
+        read = sum(1 for _ in mcap_io.read_messages(args.file))  # RecordError at a damaged chunk
+        if read != summary.messages:
+            raise RecordError(
+                f"{args.file}: its summary counts {summary.messages} messages, its chunks hold {read}; "
+                f"`palpate bag recover {args.file}` rewrites what it holds"
+            )
     if args.json:
-        print(jsonio.dumps({**summary.as_json(), "launch": launch}))
+        print(jsonio.dumps({**summary.as_json(), "launch": _launch_json(launch)}))
     else:
         print(describe(summary, args.file))
         if launch:
@@ -112,6 +127,17 @@ def run_info(args: argparse.Namespace) -> int:
                 f"arguments {launch.get('args', '{}')}"
             )
     return 0
+
+
+def _launch_json(launch: dict[str, str]) -> dict[str, Any]:
+    """The log's launch metadata with its arguments and seed as JSON values, not the strings stored."""
+    out: dict[str, Any] = dict(launch)
+    if "args" in out:
+        with contextlib.suppress(ValueError):
+            out["args"] = json.loads(out["args"])
+    if str(out.get("seed", "")).isdigit():
+        out["seed"] = int(out["seed"])
+    return out
 
 
 def run_recover(args: argparse.Namespace) -> int:

@@ -23,8 +23,14 @@ SWEEPS: dict[str, str] = {
 }
 
 HELP = {
-    "explore": "active tactile exploration (paper 002): IGEF against GP-V on a folder of meshes",
-    "slam": "Haptic SLAM (paper 000): known pose, dead reckoning and FastSLAM maps of the Rubik's cube",
+    "eval": {
+        "explore": "active tactile exploration (paper 002): the strategies (IGEF, GP-V, ...) on a folder of meshes",
+        "slam": "Haptic SLAM (paper 000): known pose, dead reckoning and FastSLAM maps of the Rubik's cube",
+    },
+    "sweep": {
+        "explore": "exploration's speed-accuracy knobs (GP, mesh step, candidate step, time step, speed, noise)",
+        "slam": "FastSLAM's particles K x grid resolution: map error against time per update",
+    },
 }
 
 
@@ -40,7 +46,7 @@ def _add_group(
     parser = sub.add_parser(command, help=help_text)
     group = parser.add_subparsers(dest=f"{command}_name", required=True, metavar="NAME")
     for name, target in table.items():
-        _configurer(target)(group.add_parser(name, help=HELP.get(name, "")))
+        _configurer(target)(group.add_parser(name, help=HELP[command].get(name, "")))
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

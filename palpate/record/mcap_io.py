@@ -602,6 +602,8 @@ def copy_log(
                 f"{src} holds {report.damaged_chunks} damaged chunk(s) ({report.damage}); run "
                 f"`palpate bag recover {src}` first"
             )
+        if count == 0:
+            raise RecordError(f"{src}: no message of the topics kept; wrote nothing (see palpate bag info {src})")
     return count
 
 

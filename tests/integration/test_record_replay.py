@@ -108,7 +108,8 @@ def test_bag_info_reports_the_counts_of_a_recorded_run(recorded: Path, tmp_path:
     assert (info["start_ns"], info["end_ns"]) == (0, (TICKS - 1) * 10_000_000)
     assert info["messages"] == sum(info["topics"].values())
     # the log says what made it (the same in every clone: the launch file relative to the repository)
-    assert info["launch"]["launch_file"] == "launch/demo_minimal.yaml" and info["launch"]["seed"] == "0"
+    assert info["launch"]["launch_file"] == "launch/demo_minimal.yaml" and info["launch"]["seed"] == 0
+    assert info["launch"]["args"]["duration_s"] == 1.0  # JSON values, not the strings stored
     text = palpate(tmp_path, "bag", "info", str(recorded))
     assert text.returncode == 0 and f"{topics.SURFACE_MESH}" in text.stdout
     assert "recorded by palpate launch launch/demo_minimal.yaml, seed 0" in text.stdout

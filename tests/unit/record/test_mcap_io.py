@@ -281,3 +281,22 @@ def test_a_player_holds_its_name_on_the_bus_as_a_launch_does(tmp_path: Path) -> 
     with pytest.raises(BusError, match="node name 'sim' is in use"):  # a launch started now stops at once
         bus.NameClaim(tmp_path / "bus", ["sim"])
     held.release()
+
+
+def test_bag_info_check_reads_every_chunk_and_filter_refuses_to_keep_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    items = canonical_log(6)
+    full = tmp_path / "full.mcap"
+    sizes = write_log(full, items, flush_each=True)
+    data = bytearray(full.read_bytes())
+    data[sizes[3] + CHUNK_DATA_OFFSET + 2] ^= 0x10
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(bytes(data))
+    assert main(["bag", "info", str(damaged)]) == 0  # the summary alone looks whole
+    assert main(["bag", "info", str(damaged), "--check"]) == 2
+    assert "the file is damaged" in capsys.readouterr().err
+    assert main(["bag", "info", str(full), "--check"]) == 0
+    out = tmp_path / "none.mcap"
+    assert main(["bag", "filter", str(full), "-o", str(out), "--topics", "controller/nothing"]) == 2
+    assert "no message of the topics kept; wrote nothing" in capsys.readouterr().err and not out.exists()
