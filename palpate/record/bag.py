@@ -132,6 +132,12 @@ class Player:
         wanted = self.options.subscribers
         if wanted <= 0:
             return
+        log.info(
+            "waiting for %d subscriber(s) on bus %s before playing (at most %g s; --subscribers 0 plays at once)",
+            wanted,
+            self.bus_dir,
+            self.options.wait_timeout_s,
+        )
         deadline = time.monotonic() + self.options.wait_timeout_s
         while not self.interrupted and self._covered(pub) < wanted:
             if self.options.wait_timeout_s > 0 and time.monotonic() > deadline:

@@ -464,14 +464,24 @@ class Recorder:
             self.tap.close()
             for s, handler in previous.items():
                 signal.signal(s, handler)
-        active = time.monotonic() - (self.first_message or started)
+        skipped = f"; {self.rejected} malformed frames skipped" if self.rejected else ""
+        if self.first_message is None:
+            log.info(
+                "recorded no message to %s in %.1f s: no publisher sent any (is a graph running on bus %s?)%s",
+                self.output,
+                time.monotonic() - started,
+                self.bus_dir,
+                skipped,
+            )
+            return 0
+        active = time.monotonic() - self.first_message
         log.info(
             "recorded %d messages to %s, %.0f msg/s over %.1f s from the first message%s",
             self.writer.messages,
             self.output,
             self.writer.messages / max(active, 1e-9),
             active,
-            f"; {self.rejected} malformed frames skipped" if self.rejected else "",
+            skipped,
         )
         return 0
 
