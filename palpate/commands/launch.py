@@ -77,7 +77,7 @@ def load_graph(
         if replay is not None:
             from palpate.record.launch_support import replace_publishers_with_log, replay_note
 
-            note = replay_note(launch, replay)
+            note = replay_note(launch, replay, replay_nodes)
             if note:
                 print(note, file=sys.stderr)
             launch = replace_publishers_with_log(launch, replay, replay_nodes)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from palpate.errors import LaunchError
 from palpate.launch.graph import Graph, GraphNode, resolve
-from palpate.launch.loader import LaunchFile, NodeEntry, Where
+from palpate.launch.loader import LaunchFile, NodeEntry, Where, load_launch
 from palpate.record.mcap_io import launch_info
 from palpate.record.replay_node import log_topics
 
@@ -102,9 +102,10 @@ def _check_open_loop(graph: Graph, replaced: Sequence[GraphNode]) -> None:
             )
 
 
-def replay_note(launch: LaunchFile, log_path: str | Path) -> str | None:
-    """A note when the log was recorded from another launch file, or with other arguments or another
-    seed than `launch` (the replayed sensor data and truth are then that run's, whatever this launch says)."""
+def replay_note(launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] | None = None) -> str | None:
+    """A note when the log was recorded from another launch file, or with arguments that set the replaced
+    nodes' parameters otherwise (default: the clock source's), or another seed: the replayed sensor
+    data and truth are then that run's, whatever this launch says."""
     info = launch_info(log_path)
     if not info:
         return None
@@ -115,16 +116,32 @@ def replay_note(launch: LaunchFile, log_path: str | Path) -> str | None:
             "sensor data, object and clock are that run's"
         )
     try:
-        args = json.loads(info.get("args", "{}"))
-    except ValueError:
-        args = {}
+        then = dict(json.loads(info.get("args", "{}")))
+    except (ValueError, TypeError):
+        then = {}
+    if nodes is None:
+        clock = resolve(launch, bus_dir=Path("/nonexistent-bus-dir")).clock_source
+        nodes = [clock.name] if clock is not None else []
     differ = [
-        f"{k}:={args[k]!r} (here {launch.args[k]!r})"
+        f"{k}:={then[k]!r} (here {launch.args[k]!r})"
         for k in sorted(launch.args)
-        if k in args and args[k] != launch.args[k]
+        if k in then and then[k] != launch.args[k] and _sets_params(launch.path, then, k, launch.args[k], nodes)
     ]
     if info.get("seed") not in (None, str(launch.seed)):
         differ.append(f"seed {info['seed']} (here {launch.seed})")
     if not differ:
         return None
     return f"note: {log_path} was recorded with {', '.join(differ)}; the replayed sensor data is that run's"
+
+
+def _sets_params(path: Path, args: dict[str, object], name: str, value: object, nodes: Sequence[str]) -> bool:
+    """Whether argument `name` at `value` instead of its value in `args` changes the params of `nodes`."""
+
+    def params(overrides: dict[str, object]) -> list[object]:
+        launch = load_launch(path, overrides)
+        return [e.fields.get("params") for e in launch.nodes if e.fields.get("name") in nodes]
+
+    try:
+        return params(args) != params({**args, name: value})
+    except LaunchError:  # the recorded arguments no longer load: say so rather than guess
+        return True

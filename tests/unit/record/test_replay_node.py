@@ -182,3 +182,20 @@ def test_a_replayed_node_that_reads_a_node_which_re_runs_is_refused(tmp_path: Pa
         replace_publishers_with_log(explore, log, ["sim", "gpis"])
     sim_noise = replace_publishers_with_log(explore, log, ["sim", "noise"])  # noise reads only the sim: fine
     assert "noise" not in [e.fields["name"] for e in sim_noise.nodes]
+
+
+def test_a_replay_note_leaves_out_arguments_that_do_not_set_the_replaced_nodes(tmp_path: Path) -> None:
+    from palpate.record.launch_support import replay_note
+    from palpate.record.mcap_io import LAUNCH_METADATA, LogWriter
+
+    explore = load_launch(REPO_ROOT / "launch" / "explore.yaml")
+
+    def note(**changed: object) -> str | None:
+        path = tmp_path / "explore.mcap"
+        about = {"launch_file": "launch/explore.yaml", "args": json.dumps({**explore.args, **changed}), "seed": "0"}
+        with LogWriter(path) as writer:
+            writer.metadata(LAUNCH_METADATA, about)
+        return replay_note(explore, path)
+
+    assert note(results="out/run.json", plot="out/run.png") is None  # the evaluator's outputs only
+    assert "object:='sphere' (here 'torus')" in (note(object="sphere") or "")  # the simulator's object
