@@ -741,11 +741,14 @@ class TouchLoop:
         """One tick: fingertip position r (3,) m and orientation R (3, 3); this tick's contacts: positions
         (n, 3) m, measured normals (n, 3) and normal forces (n,) N (n = 0: no contact)."""
         if not self.started:
-            along_axis = self.initial_target_m is None
-            target = r + AXIS_APPROACH_M * R[:, 2] if self.initial_target_m is None else self.initial_target_m
-            if float(np.linalg.norm(target - r)) < MIN_APPROACH_M or (along_axis and not r.any()):
-                # a fingertip reported at the initial target, or, without one, at the origin itself (an
-                # uninitialised driver's zero pose) gives no approach to trust: wait for the next pose
+            # a fingertip reported at the initial target, or, without one, at the origin itself (an
+            # uninitialised driver's zero pose) gives no approach to trust: wait for the next pose
+            if self.initial_target_m is None:
+                target, waiting = r + AXIS_APPROACH_M * R[:, 2], not r.any()
+            else:
+                target = self.initial_target_m
+                waiting = float(np.linalg.norm(target - r)) < MIN_APPROACH_M
+            if waiting:
                 return ControlStep(np.zeros(3), np.zeros(3), None, failed=False)
             self.controller.initial_approach(r, target)
             self.started = True
