@@ -91,7 +91,7 @@ def _from_the_command_line(exc: LaunchError, path: Path, overrides: list[str]) -
     file, _, line = str(exc).partition(": ")[0].rpartition(":")
     if not line.isdigit() or not file or Path(file).resolve() != path.resolve():
         return exc
-    lines = path.read_text().splitlines()
+    lines = path.read_text(errors="replace").splitlines()
     text = lines[int(line) - 1] if int(line) <= len(lines) else ""  # (an empty file's error names line 1)
     used = [item for item in overrides if f"${{{item.partition(':=')[0]}}}" in text]
     return LaunchError(f"{exc} (from the command line: {', '.join(used)})") if used else exc

@@ -452,12 +452,18 @@ def _flag(entry: NodeEntry, key: str) -> bool:
     return value
 
 
+#: Largest restart count or timeout a node entry may give (an int beyond a float's range cannot be one).
+MAX_NUMBER = 1e9
+
+
 def _number(entry: NodeEntry, key: str, default: Any, kind: type) -> Any:
     value = entry.fields.get(key, default)
     if isinstance(value, bool) or not isinstance(value, int | float) or (kind is int and not isinstance(value, int)):
         raise LaunchError(f"{entry.at(key)}: {key} must be a{'n integer' if kind is int else ' number'}, got {value!r}")
-    if not math.isfinite(value) or value < 0:
-        raise LaunchError(f"{entry.at(key)}: {key} must be finite and not negative, got {value!r}")
+    if value < 0 or not (isinstance(value, int) or math.isfinite(value)) or value > MAX_NUMBER:
+        raise LaunchError(
+            f"{entry.at(key)}: {key} must be finite, not negative and at most {MAX_NUMBER:,.0f}, got {value!r}"
+        )
     return kind(value)
 
 

@@ -27,6 +27,10 @@ _Loader.add_implicit_resolver(
     "tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*(\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789")
 )
 _CONSTRUCTOR = yaml.constructor.SafeConstructor()
+#: What PyYAML's constructors raise for a tagged value they cannot build (`!!bool maybe`, `!!timestamp x`).
+_CONSTRUCT_ERRORS = (ValueError, KeyError, AttributeError, TypeError, OverflowError)
+#: Most values a launch file may expand to, aliases included (a "billion laughs" file is refused).
+MAX_VALUES = 1_000_000
 _ARG = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
 
 TOP_KEYS = {"args", "mode", "seed", "include", "nodes", "description", "placement"}
@@ -102,8 +106,8 @@ def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any
             raise LaunchError(f"launch argument {item!r} must look like name{separator}value")
         try:
             out[name] = yaml.load(value, Loader=_Loader) if value else ""
-        except yaml.YAMLError as exc:
-            problem = getattr(exc, "problem", None) or exc
+        except (yaml.YAMLError, *_CONSTRUCT_ERRORS) as exc:
+            problem = getattr(exc, "problem", None) or _construct_problem(exc, "")
             raise LaunchError(
                 f"launch argument {item!r} from the command line: its value is not valid YAML ({problem}); "
                 "quote it to pass text"
@@ -113,7 +117,12 @@ def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any
 
 def load_launch(path: str | Path, overrides: Mapping[str, Any] | None = None) -> LaunchFile:
     """Read a launch file, substitute arguments, and expand includes (depth-first, in order)."""
-    return _load(Path(path), dict(overrides or {}), stack=(), sites={})
+    try:
+        return _load(Path(path), dict(overrides or {}), stack=(), sites={})
+    except RecursionError:
+        raise LaunchError(
+            f"{_display(Path(path))}: nested too deeply to read (lists or mappings inside each other)"
+        ) from None
 
 
 def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites: Mapping[str, Where]) -> LaunchFile:
@@ -123,9 +132,16 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
         raise LaunchError(f"{path}: include cycle: {' -> '.join(str(p) for p in (*stack, path))}")
     name = _display(path)
     try:
-        text = path.read_text()
+        data = path.read_bytes()
     except OSError as exc:
         raise LaunchError(f"{name}: cannot read launch file: {exc.strerror}") from exc
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise LaunchError(
+            f"{name}:{line}: not UTF-8 text (byte {data[exc.start]:#04x}); save the file as UTF-8"
+        ) from None
     try:
         root = yaml.compose(text, Loader=_Loader)
     except yaml.MarkedYAMLError as exc:
@@ -192,11 +208,16 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
         if "file" not in items:
             raise LaunchError(f"{name}:{include.start_mark.line + 1}: include needs a 'file'")
         site = f"{name}:{items['file'][1].start_mark.line + 1}"
-        target = (path.parent / str(_plain(items["file"][1], name, args))).resolve()
+        given = str(_plain(items["file"][1], name, args))
+        try:
+            target = (path.parent / given).resolve()
+            is_file = target.is_file()
+        except (OSError, ValueError) as exc:  # a NUL byte, a name longer than the system allows
+            raise LaunchError(f"{site}: include file {given[:80]!r} is no usable path: {exc}") from None
         if target in (*stack, path):
             chain = " -> ".join(_display(p) for p in (*stack, path, target))
             raise LaunchError(f"{site}: include cycle: {chain}")
-        if not target.is_file():
+        if not is_file:
             raise LaunchError(f"{site}: included launch file {_display(target)} does not exist")
         include_args, include_sites = _include_args(items, name, args)
         nodes.extend(_load(target, include_args, (*stack, path), include_sites).nodes)
@@ -273,20 +294,50 @@ def _sequence(top: dict[str, tuple[yaml.Node, yaml.Node]], key: str, name: str) 
     return list(node.value)
 
 
-def _plain(node: yaml.Node, name: str, args: Mapping[str, Any]) -> Any:
+@dataclass
+class _Expansion:
+    """What `_plain` has expanded so far: the collections it is inside (an alias may not repeat one of
+    them) and how many values in all (aliases of aliases multiply them)."""
+
+    inside: set[int] = field(default_factory=set)
+    values: int = 0
+
+
+def _plain(node: yaml.Node, name: str, args: Mapping[str, Any], seen: _Expansion | None = None) -> Any:
     """Construct Python data from a YAML node, substituting `${arg}` in strings."""
-    if isinstance(node, yaml.MappingNode):
-        return {key: _plain(v, name, args) for key, (_, v) in _mapping_items(node, name).items()}
-    if isinstance(node, yaml.SequenceNode):
-        return [_plain(v, name, args) for v in node.value]
+    seen = seen or _Expansion()
+    seen.values += 1
+    line = node.start_mark.line + 1
+    if seen.values > MAX_VALUES:
+        raise LaunchError(
+            f"{name}:{line}: more than {MAX_VALUES:,} values once aliases are expanded (aliases of aliases?)"
+        )
+    if isinstance(node, yaml.MappingNode | yaml.SequenceNode):
+        if id(node) in seen.inside:
+            raise LaunchError(f"{name}:{line}: an alias inside the collection it names (a recursive anchor)")
+        seen.inside.add(id(node))
+        try:
+            if isinstance(node, yaml.MappingNode):
+                return {key: _plain(v, name, args, seen) for key, (_, v) in _mapping_items(node, name).items()}
+            return [_plain(v, name, args, seen) for v in node.value]
+        finally:
+            seen.inside.discard(id(node))
     try:
         value = _CONSTRUCTOR.construct_object(node)
-    except (yaml.YAMLError, ValueError) as exc:  # an unknown tag (`!foo x`), an impossible date
-        problem = getattr(exc, "problem", None) or exc
+    except (yaml.YAMLError, *_CONSTRUCT_ERRORS) as exc:  # an unknown tag (`!foo x`), an impossible date
+        problem = getattr(exc, "problem", None) or _construct_problem(exc, node.tag)
         raise LaunchError(f"{name}:{node.start_mark.line + 1}: cannot read {node.value!r}: {problem}") from exc
     if isinstance(value, str) and "${" in value:
         return _substitute(value, Where(name, node.start_mark.line + 1), args)
     return value
+
+
+def _construct_problem(exc: BaseException, tag: str) -> str:
+    """What a PyYAML constructor's error means: its own message for a ValueError (an impossible date),
+    else that the value is not of the type its tag names (`!!bool maybe` raises a KeyError)."""
+    if isinstance(exc, ValueError):
+        return str(exc)
+    return f"not a valid {tag.rsplit(':', 1)[-1]}" if tag else "not a value its tag allows"
 
 
 def _substitute(text: str, where: Where, args: Mapping[str, Any]) -> Any:

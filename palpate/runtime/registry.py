@@ -17,7 +17,7 @@ def load_node_spec(reference: str, *, label: str = "") -> NodeSpec[Any]:
         raise LaunchError(f"node type {label!r}: expected a reference 'package.module:ATTRIBUTE', got {reference!r}")
     try:
         module = importlib.import_module(module_name)
-    except ImportError as exc:
+    except (ImportError, TypeError, ValueError) as exc:  # TypeError, ValueError: a relative name such as "..x"
         raise LaunchError(f"node type {label!r}: cannot import {module_name}: {exc}") from exc
     spec = getattr(module, attribute, None)
     if not isinstance(spec, NodeSpec):

@@ -390,10 +390,19 @@ nodes:
 @pytest.mark.parametrize(
     ("line", "expected"),
     [
-        ("max_restarts: -1", "max_restarts must be finite and not negative"),
-        ("sigterm_timeout_s: .nan", "sigterm_timeout_s must be finite and not negative, got nan"),
-        ("sigterm_timeout_s: .inf", "sigterm_timeout_s must be finite and not negative, got inf"),
-        ("sigterm_timeout_s: 1e400", "sigterm_timeout_s must be finite and not negative, got inf"),
+        ("max_restarts: -1", "max_restarts must be finite, not negative and at most"),
+        (
+            "sigterm_timeout_s: .nan",
+            "sigterm_timeout_s must be finite, not negative and at most 1,000,000,000, got nan",
+        ),
+        (
+            "sigterm_timeout_s: .inf",
+            "sigterm_timeout_s must be finite, not negative and at most 1,000,000,000, got inf",
+        ),
+        (
+            "sigterm_timeout_s: 1e400",
+            "sigterm_timeout_s must be finite, not negative and at most 1,000,000,000, got inf",
+        ),
         ("max_restarts: 1.5", "max_restarts must be an integer"),
         ("sigterm_timeout_s: soon", "sigterm_timeout_s must be a number"),
         ("host: 7", "host must be a string"),
@@ -592,3 +601,49 @@ def test_a_yaml_merge_key_is_named_at_its_line(tmp_path: Path) -> None:
     path.write_text(path.read_text().replace("<<: *p", "'<<': 1"))  # a quoted key is a plain (unknown) key
     with pytest.raises(LaunchError, match=r"params.<<: unknown key '<<'"):
         load(path, tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        (b"description: ok\nnodes: []\n\xff\xfe junk\n", r":3: not UTF-8 text \(byte 0xff\)"),
+        (b"description: !!bool maybe\nnodes: []\n", r":1: cannot read 'maybe': not a valid bool"),
+        (b"description: !!timestamp nope\nnodes: []\n", r":1: cannot read 'nope': not a valid timestamp"),
+        (b"nodes: " + b"[" * 1000 + b"]" * 1000 + b"\n", r": nested too deeply to read"),
+        (b"args:\n  a: &a [*a]\nnodes: []\n", r":2: an alias inside the collection it names"),
+        (
+            b"args:\n"
+            + b"".join(f"  l{i}: &l{i} [{', '.join([f'*l{i - 1}' if i else 'lol'] * 10)}]\n".encode() for i in range(8))
+            + b"nodes: []\n",
+            r"more than 1,000,000 values once aliases are expanded",
+        ),
+        (b'include:\n  - file: "a\\0b"\nnodes: []\n', r":2: include file 'a\\x00b' is no usable path"),
+        (b"include:\n  - file: " + b"x" * 5000 + b"\nnodes: []\n", r":2: include file 'x+' is no usable path"),
+        (b"nodes:\n  - name: a\n    type: sim\n    max_restarts: " + b"9" * 400 + b"\n", r":4: max_restarts must be"),
+        (b"nodes:\n  - name: a\n    type: '..:x'\n", r":3: node type '..:x': cannot import \.\."),
+    ],
+    ids=[
+        "binary",
+        "bool-tag",
+        "timestamp-tag",
+        "deep",
+        "recursive-alias",
+        "alias-bomb",
+        "nul-include",
+        "long-include",
+        "huge-int",
+        "relative-type",
+    ],
+)
+def test_a_fuzzed_launch_file_is_a_launch_error_never_a_traceback(text: bytes, expected: str, tmp_path: Path) -> None:
+    """A fuzzer's finds: each raised a Python exception (or, the alias bomb, ran for minutes)."""
+    path = tmp_path / "fuzzed.yaml"
+    path.write_bytes(text)
+    with pytest.raises(LaunchError, match=expected):
+        load(path, tmp_path)
+
+
+@pytest.mark.parametrize("value", ["2001-13-45", "!!bool maybe", "!!timestamp nope", "!!float x"])
+def test_a_fuzzed_command_line_value_is_a_launch_error(value: str) -> None:
+    with pytest.raises(LaunchError, match=r"from the command line: its value is not valid YAML"):
+        parse_cli_args([f"seed:={value}"])
