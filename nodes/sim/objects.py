@@ -398,7 +398,15 @@ def read_mesh_file(path: Path, scale: float = 1.0) -> trimesh.Trimesh:
         )
     try:
         loaded = trimesh.load(str(path), process=False)
-    except (ValueError, KeyError, IndexError, TypeError, NotImplementedError, UnicodeDecodeError) as error:
+    except (  # what trimesh's readers raise on a damaged file (AssertionError: a GLB buffer out of range)
+        ValueError,
+        KeyError,
+        IndexError,
+        TypeError,
+        AssertionError,
+        NotImplementedError,
+        UnicodeDecodeError,
+    ) as error:
         raise MeshError(
             f"{path}: not a readable {ext.upper()} mesh ({type(error).__name__}: {error}); "
             "re-export it as a triangle mesh (binary STL in metres works best)"
@@ -415,6 +423,11 @@ def read_mesh_file(path: Path, scale: float = 1.0) -> trimesh.Trimesh:
         raise MeshError(f"{path}: not a mesh (loaded as {type(loaded).__name__}); re-export it as triangles")
     vertices = np.asarray(loaded.vertices, dtype=np.float64)
     faces = np.asarray(loaded.faces, dtype=np.int64)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or (len(faces) and (faces.ndim != 2 or faces.shape[1] != 3)):
+        raise MeshError(
+            f"{path}: not a 3-D triangle mesh (vertices of shape {vertices.shape}, faces {faces.shape}); "
+            "export 3-D vertices (x, y, z) and triangles"
+        )
     if len(faces) == 0:
         what = f"{len(vertices)} vertices but no triangles" if len(vertices) else "no vertices and no triangles"
         raise MeshError(
@@ -423,7 +436,13 @@ def read_mesh_file(path: Path, scale: float = 1.0) -> trimesh.Trimesh:
         )
     if not np.all(np.isfinite(vertices)):
         raise MeshError(f"{path}: degenerate mesh: some vertices are NaN or infinite; repair or re-export it")
-    used = faces[((faces >= 0) & (faces < len(vertices))).all(axis=1)].ravel()
+    outside = (faces < 0) | (faces >= len(vertices))
+    if outside.any():  # PLY's reader keeps them: -1 would silently be the last vertex
+        raise MeshError(
+            f"{path}: corrupt mesh: {int(outside.any(axis=1).sum())} triangles name a vertex index outside "
+            f"0..{len(vertices) - 1} (e.g. {int(faces[outside][0])}); repair or re-export it"
+        )
+    used = faces.ravel()
     size = float(np.ptp(vertices[used], axis=0).max()) * scale if len(used) else 0.0
     if size > MAX_EXTENT_M:  # checked before trimesh merges vertices, which overflows near 1e30
         _check_scale(size, path, scale)
@@ -442,6 +461,14 @@ def read_mesh_file(path: Path, scale: float = 1.0) -> trimesh.Trimesh:
     mesh.remove_unreferenced_vertices()
     _check_geometry(mesh, path, scale)
     return mesh
+
+
+def _thickness(vertices: np.ndarray) -> float:
+    """The vertices' extent along their thinnest principal axis, metres (0 for a plane at any tilt)."""
+    centred = vertices - vertices.mean(axis=0)
+    axis = np.linalg.svd(centred, full_matrices=False)[2][-1]
+    along = centred @ axis
+    return float(along.max() - along.min())
 
 
 def _check_scale(size: float, path: Path, scale: float) -> None:
@@ -470,7 +497,8 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
     if mesh.is_watertight and not mesh.is_winding_consistent:
         _rewind(mesh, path)
     volume = float(mesh.volume) if mesh.is_watertight else 0.0
-    flat = float(extents.min()) <= 1e-9 * size
+    # across its principal axes (a tilted plane too), with room for a float32 file's rounding
+    flat = _thickness(mesh.vertices) <= 1e-6 * size
     if flat or (mesh.is_watertight and abs(volume) <= 1e-6 * float(np.prod(extents))):
         raise MeshError(
             f"{path}: degenerate mesh: zero volume (bounding box {_mm(extents)} mm, volume {volume:.3g} m^3); "

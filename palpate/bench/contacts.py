@@ -320,8 +320,15 @@ def _warm_check(
 
 
 def mesh_paths(objects_dir: Path) -> list[Path]:
-    """Every mesh file in ``objects_dir`` (not recursive), sorted by name."""
-    return sorted(p for p in objects_dir.iterdir() if p.is_file() and p.suffix.lower() in MESH_SUFFIXES)
+    """Every mesh file in ``objects_dir`` (not recursive), sorted by name; BenchmarkError naming an entry
+    with a mesh suffix that is no file (a folder, a dangling link, a fifo: it would be left out unsaid)."""
+    named = sorted(p for p in objects_dir.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
+    odd = [p.name for p in named if not p.is_file()]
+    if odd:
+        raise BenchmarkError(
+            f"--objects {objects_dir}: {', '.join(odd)} named like meshes but not regular files; move or remove them"
+        )
+    return named
 
 
 def run_contact_bench(

@@ -119,7 +119,15 @@ def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
                 "rename one: an object's file name without its extension names it in the runs and tables"
             )
         by_name[p.stem] = p
-    return [ObjectCase(name=p.stem, kind="mesh", mesh=str(p.resolve()), scale=scale) for p in files]
+    return [ObjectCase(name=p.stem, kind="mesh", mesh=_resolved(p), scale=scale) for p in files]
+
+
+def _resolved(path: Path) -> str:
+    """The absolute path of a mesh file; MeshError for a link that leads nowhere (a loop)."""
+    try:
+        return str(path.resolve(strict=True))
+    except (OSError, RuntimeError) as exc:  # a symlink loop, a dangling link
+        raise MeshError(f"{path}: cannot follow it to a mesh file ({exc}); point it at a file or remove it") from None
 
 
 @dataclass(frozen=True)

@@ -108,3 +108,12 @@ def test_contacts_reads_a_folder_in_millimetres_with_scale(tmp_path: Path, capsy
     assert bench_contacts.main(argparse.Namespace(**{**vars(args), "scale": 0.001})) == 0
     last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert last["pass"] and last["rows"][0]["object"] == "torus_mm"
+
+
+def test_an_entry_named_like_a_mesh_that_is_no_file_is_named(tmp_path: Path) -> None:
+    """It was left out without a word, and the benchmark passed on the other objects."""
+    trimesh.creation.box((0.05, 0.05, 0.05)).export(tmp_path / "good.stl")
+    (tmp_path / "sub.stl").mkdir()
+    (tmp_path / "gone.obj").symlink_to(tmp_path / "nowhere.obj")
+    with pytest.raises(BenchmarkError, match=r"gone\.obj, sub\.stl named like meshes but not regular files"):
+        bench_contacts.object_paths(tmp_path)

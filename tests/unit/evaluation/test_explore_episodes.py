@@ -343,3 +343,11 @@ def test_a_worker_names_the_users_mesh_file_and_leaves_its_warnings_to_the_main_
         row = explore.run_episode_on_worker(episode, False, object())  # type: ignore[arg-type]
     assert row["error"] == f"MeshError: {user_file}: the mesh has no volume"
     assert not [w for w in caught if issubclass(w.category, MeshWarning)]
+
+
+def test_a_symlink_loop_in_the_objects_folder_is_named(tmp_path: Path) -> None:
+    trimesh.creation.box((0.05, 0.05, 0.05)).export(tmp_path / "box.stl")
+    (tmp_path / "loop1.stl").symlink_to("loop2.stl")
+    (tmp_path / "loop2.stl").symlink_to("loop1.stl")
+    with pytest.raises(MeshError, match=r"loop1\.stl: cannot follow it to a mesh file"):
+        objects_in(tmp_path)

@@ -283,6 +283,41 @@ def test_degenerate_flat_mesh(tmp_path: Path) -> None:
         load_object(_mesh_spec(path))
 
 
+def test_a_flat_mesh_at_a_tilt_is_degenerate_too(tmp_path: Path) -> None:
+    """A mesh fuzzer's find: flatness was judged on the axis-aligned box, so a tilted flat disc passed."""
+    sphere = trimesh.creation.icosphere(2, radius=0.05)
+    vertices = sphere.vertices.copy()
+    vertices[:, 2] = 0.0
+    disc = trimesh.Trimesh(vertices, sphere.faces, process=False)
+    disc.apply_transform(trimesh.transformations.rotation_matrix(0.7, [1, 1, 0]))
+    disc.export(tmp_path / "tilted.stl")  # float32 coordinates: the plane holds to about 1e-9 m
+    with pytest.warns(MeshWarning), pytest.raises(MeshError, match=r"tilted\.stl: degenerate mesh: zero volume"):
+        load_object(_mesh_spec(tmp_path / "tilted.stl"))
+
+
+@pytest.mark.parametrize(
+    ("name", "text", "fragment"),
+    [
+        ("out.ply", "3 1 2 77", r"1 triangles name a vertex index outside 0\.\.3 \(e\.g\. 77\)"),
+        ("negative.ply", "3 -1 2 3", r"1 triangles name a vertex index outside 0\.\.3 \(e\.g\. -1\)"),
+    ],
+)
+def test_a_ply_face_beyond_its_vertices_is_refused(tmp_path: Path, name: str, text: str, fragment: str) -> None:
+    """The PLY reader keeps such indices: 77 raised an IndexError, -1 silently meant the last vertex."""
+    header = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+    body = "element face 2\nproperty list uchar int vertex_indices\nend_header\n"
+    points = "0 0 0\n0.1 0 0\n0 0.1 0\n0 0 0.1\n"
+    (tmp_path / name).write_text(header + body + points + f"3 0 1 2\n{text}\n")
+    with pytest.raises(MeshError, match=rf"{name}: corrupt mesh: {fragment}"):
+        load_object(_mesh_spec(tmp_path / name))
+
+
+def test_an_obj_of_two_dimensional_vertices_is_refused(tmp_path: Path) -> None:
+    (tmp_path / "flat2d.obj").write_text("v 1 2\nv 0 0\nv 1 1\nf 1 2 3\n")
+    with pytest.raises(MeshError, match=r"flat2d\.obj: not a 3-D triangle mesh \(vertices of shape \(3, 2\)"):
+        load_object(_mesh_spec(tmp_path / "flat2d.obj"))
+
+
 def test_degenerate_zero_area_mesh(tmp_path: Path) -> None:
     path = tmp_path / "needles.obj"
     path.write_text("v 0 0 0\nv 0.1 0 0\nv 0.2 0 0\nf 1 2 3\n")
