@@ -34,6 +34,7 @@ import trimesh
 
 from palpate.config import BlankIsDefault, OneOf, PositiveFloat, ScalarIsTuple, Validated
 from palpate.errors import ConfigError, MeshError, MeshWarning
+from palpate.geometry.mesh_query import MAX_RING_ENTRIES
 from palpate.geometry.rotations import quat_to_matrix
 from palpate.paths import YCB_DIR_ENV, cache_dir, ycb_dir
 
@@ -460,7 +461,22 @@ def read_mesh_file(path: Path, scale: float = 1.0) -> trimesh.Trimesh:
         mesh.update_faces(unique)
     mesh.remove_unreferenced_vertices()
     _check_geometry(mesh, path, scale)
+    _check_rings(mesh, path)
     return mesh
+
+
+def _check_rings(mesh: trimesh.Trimesh, path: Path) -> None:
+    """MeshError, naming the file, for a mesh whose contact sensor's face rings would not fit
+    (``mesh_query.face_rings``: faces x 3 x the most faces at one vertex): said before a run starts."""
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    most = int(np.bincount(faces.ravel()).max(initial=0))
+    entries = len(faces) * 3 * most
+    if entries > MAX_RING_ENTRIES:
+        raise MeshError(
+            f"{path}: {len(faces)} faces with a vertex shared by {most} of them (a fan, as CAD tools export "
+            f"round caps): the contact sensor's face rings would hold {entries:,} entries, at most "
+            f"{MAX_RING_ENTRIES:,}; remesh it (split the fan, or fewer faces)"
+        )
 
 
 def _thickness(vertices: np.ndarray) -> float:

@@ -312,6 +312,16 @@ def test_a_ply_face_beyond_its_vertices_is_refused(tmp_path: Path, name: str, te
         load_object(_mesh_spec(tmp_path / name))
 
 
+def test_a_fan_the_contact_sensor_cannot_hold_is_refused_naming_the_file(tmp_path: Path) -> None:
+    """A mesh fuzzer's find: the face rings' limit came up only when a run built its sensor, without the
+    file's name (bench contacts), or once per run (an evaluation)."""
+    trimesh.creation.cylinder(radius=0.03, height=0.1, sections=1500).export(tmp_path / "fan.stl")
+    with pytest.raises(MeshError, match=r"fan\.stl: 6000 faces with a vertex shared by 1500 of them"):
+        load_object(_mesh_spec(tmp_path / "fan.stl"))
+    trimesh.creation.cylinder(radius=0.03, height=0.1, sections=200).export(tmp_path / "cylinder.stl")
+    assert len(load_object(_mesh_spec(tmp_path / "cylinder.stl")).mesh.faces) == 800
+
+
 def test_an_obj_of_two_dimensional_vertices_is_refused(tmp_path: Path) -> None:
     (tmp_path / "flat2d.obj").write_text("v 1 2\nv 0 0\nv 1 1\nf 1 2 3\n")
     with pytest.raises(MeshError, match=r"flat2d\.obj: not a 3-D triangle mesh \(vertices of shape \(3, 2\)"):
