@@ -399,7 +399,11 @@ def _check_wiring(graph: Graph) -> None:
     if len(sources) > 1:
         raise LaunchError(f"{sources[1].where}: two clock sources ({sources[0].name}, {sources[1].name}); keep one")
     if graph.mode == "lockstep" and not sources:
-        raise LaunchError(f"{graph.source.path}: a lockstep graph needs a clock source (a sim, replay or driver node)")
+        at = graph.source.mode_at or graph.source.path
+        raise LaunchError(
+            f"{at}: a lockstep graph (mode lockstep, the default) needs a clock source (a sim, replay or "
+            "driver node); add one, or set mode: realtime"
+        )
 
 
 def _check_curve(graph: Graph) -> None:

@@ -94,6 +94,8 @@ class LaunchFile:
     description: str = ""
     #: Where the node processes run (palpate.launch.placement): "os" or "loop".
     placement: str = "os"
+    #: Where the file sets its mode (its `mode` key, else its `nodes` key, else line 1), for errors about it.
+    mode_at: Where | None = None
 
 
 def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any]:
@@ -231,6 +233,7 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
         nodes=nodes,
         description=str(value("description", "")),
         placement=placement,
+        mode_at=Where(name, next((top[k][0].start_mark.line + 1 for k in ("mode", "nodes") if k in top), 1)),
     )
 
 

@@ -486,10 +486,13 @@ def test_a_node_name_is_a_safe_file_name(name: str, tmp_path: Path) -> None:
 
 def test_lockstep_graph_needs_a_clock_source(tmp_path: Path) -> None:
     path = tmp_path / "noclock.yaml"
-    path.write_text("nodes:\n  - name: sink\n    type: tests.integration.fake_nodes:CRASHER\n")
-    with pytest.raises(LaunchError, match="needs a clock source"):
-        load(path, tmp_path)
-    path.write_text("mode: realtime\n" + path.read_text())
+    path.write_text("# no clock\nnodes:\n  - name: sink\n    type: tests.integration.fake_nodes:CRASHER\n")
+    with pytest.raises(LaunchError, match=rf"^{path}:2: a lockstep graph .* needs a clock source"):
+        load(path, tmp_path)  # at the nodes key: the file has no mode key
+    path.write_text("seed: 1\nmode: lockstep\n" + path.read_text())
+    with pytest.raises(LaunchError, match=rf"^{path}:2: a lockstep graph"):
+        load(path, tmp_path)  # at the mode key
+    path.write_text(path.read_text().replace("mode: lockstep", "mode: realtime"))
     assert load(path, tmp_path).clock_source is None
 
 
