@@ -45,6 +45,9 @@ def parse(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.N
     takes_assignments = isinstance(getattr(args, "args", None), list)
     late = [a for a in extra if takes_assignments and ":=" in a and not a.startswith("-")]
     unknown = [a for a in extra if a not in late]
+    almost = [a for a in unknown if takes_assignments and "=" in a and not a.startswith("-")]
+    if almost:  # name=value: the launch file's arguments take name:=value
+        parser.error(f"launch argument {almost[0]!r} must look like name:=value")
     if unknown:
         parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     if late:

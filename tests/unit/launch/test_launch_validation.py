@@ -280,6 +280,9 @@ def test_arguments_may_follow_options_in_any_order(tmp_path: Path, capsys: pytes
     with pytest.raises(SystemExit):  # a command without NAME:=VALUE arguments takes none after its options
         main(["topic", "list", "--bus", str(tmp_path), "edge_m:=0.07"])
     assert "unrecognized arguments: edge_m:=0.07" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # name=value after the options: it was "unrecognized arguments"
+        main(["launch", str(DATA / "with_args.yaml"), "--bus", str(tmp_path), "edge_m=0.07"])
+    assert "launch argument 'edge_m=0.07' must look like name:=value" in capsys.readouterr().err
 
 
 def test_includes_bring_their_nodes_with_their_arguments(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
