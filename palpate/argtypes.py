@@ -18,24 +18,12 @@ def non_negative_int(text: str) -> int:
 
 def positive_float(text: str) -> float:
     """A finite number > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number > 0")
-    return value
+    return _float(text, positive=True, refusal=f"{text!r} is not a finite number > 0")
 
 
 def non_negative_float(text: str) -> float:
     """A finite number >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number >= 0")
-    return value
+    return _float(text, positive=False, refusal=f"{text!r} is not a finite number >= 0")
 
 
 def add_scale_argument(parser: argparse.ArgumentParser) -> None:
@@ -50,12 +38,17 @@ def add_scale_argument(parser: argparse.ArgumentParser) -> None:
 
 def positive_scale(text: str) -> float:
     """``--scale``: a finite number > 0."""
+    return _float(text, positive=True, refusal=f"expected a finite number > 0 (0.001: millimetres), got {text!r}")
+
+
+def _float(text: str, *, positive: bool, refusal: str) -> float:
+    """`text` as a finite float, > 0 if `positive` else >= 0; ArgumentTypeError(refusal) otherwise."""
     try:
         value = float(text)
     except ValueError:
         value = math.nan
-    if not (math.isfinite(value) and value > 0.0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0 (0.001: millimetres), got {text!r}")
+    if not (math.isfinite(value) and (value > 0 if positive else value >= 0)):
+        raise argparse.ArgumentTypeError(refusal)
     return value
 
 
