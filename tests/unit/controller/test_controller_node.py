@@ -37,35 +37,35 @@ class FakeCtx:
         self.stop_failed = self.stop_failed or failed
 
 
-def test_initial_approach_that_finds_no_surface_stops_with_the_target_and_the_launch_arguments() -> None:
+def approach_into_nothing(config: ControllerNodeConfig, start: list[float], ticks: int) -> tuple[FakeCtx, np.ndarray]:
+    """Drive the node's first approach from `start`, facing down, without a contact, until it stops the
+    run or `ticks` pass (the fingertip moves by each velocity command); returns the context and the
+    fingertip's last position."""
     ctx = FakeCtx()
-    node = ControllerNode(ControllerNodeConfig(initial_target_m=(0.0, 0.0, 0.0)), ctx)
-    position, dt = np.array([0.0, 0.0, 0.05]), 0.01
+    node = ControllerNode(config, ctx)
+    position, dt = np.array(start), 0.01
     node.on_contacts(no_contacts())
-    for tick in range(200):  # 5 cm + 1 cm miss distance at 5 cm/s: fails after about 1.2 s
+    for tick in range(ticks):
         node.on_pose(pose(position, FACING_DOWN, "probe"))
         node.on_tick(tick * 10_000_000)
         if ctx.stop_reason:
             break
         _, velocity = ctx.published[-1]
         position = position + dt * np.asarray(velocity.linear_m_s)
+    return ctx, position
+
+
+def test_initial_approach_that_finds_no_surface_stops_with_the_target_and_the_launch_arguments() -> None:
+    # 5 cm + 1 cm miss distance at 5 cm/s: fails after about 1.2 s
+    ctx, position = approach_into_nothing(ControllerNodeConfig(initial_target_m=(0.0, 0.0, 0.0)), [0.0, 0.0, 0.05], 200)
     assert "initial approach" in ctx.stop_reason and ctx.stop_failed
     assert "[0.0, 0.0, 0.0]" in ctx.stop_reason and "target:=" in ctx.stop_reason
     assert 0.059 < -position[2] + 0.05 < 0.062  # it went 1 cm past the target before giving up
 
 
 def test_an_approach_along_the_poking_axis_that_finds_nothing_names_the_start_arguments() -> None:
-    ctx = FakeCtx()
-    node = ControllerNode(ControllerNodeConfig(), ctx)  # no initial target
-    position, dt = np.array([0.01, 0.0, 0.0]), 0.01
-    node.on_contacts(no_contacts())
-    for tick in range(2000):  # 0.5 m + 1 cm at 5 cm/s: fails after about 10.2 s
-        node.on_pose(pose(position, FACING_DOWN, "probe"))
-        node.on_tick(tick * 10_000_000)
-        if ctx.stop_reason:
-            break
-        _, velocity = ctx.published[-1]
-        position = position + dt * np.asarray(velocity.linear_m_s)
+    # no initial target: 0.5 m along the axis + 1 cm at 5 cm/s, fails after about 10.2 s
+    ctx, position = approach_into_nothing(ControllerNodeConfig(), [0.01, 0.0, 0.0], 2000)
     assert "poking axis" in ctx.stop_reason and "start_quaternion:=" in ctx.stop_reason and ctx.stop_failed
     assert position[:2] == pytest.approx([0.01, 0.0]) and -position[2] == pytest.approx(0.51, abs=0.002)
 
