@@ -28,7 +28,7 @@ from typing import IO, Any, NamedTuple
 import msgpack
 import zstandard
 from mcap.exceptions import McapError
-from mcap.reader import make_reader
+from mcap.reader import McapReader, make_reader
 from mcap.records import Channel, Chunk, Footer, Metadata, Schema
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader, breakup_chunk
@@ -318,25 +318,32 @@ def _unreadable(path: str | Path, exc: BaseException) -> RecordError:
     )
 
 
+@contextmanager
+def _reader(path: str | Path, *, validate_crcs: bool = False) -> Iterator[McapReader]:
+    """A reader of the finished log at `path`: RecordError naming what is wrong for a file that is not
+    one (``_check_complete``) or that turns out damaged while it is read (``_unreadable``)."""
+    with _open(path) as stream:
+        _check_complete(stream, path)
+        try:
+            yield make_reader(stream, validate_crcs=validate_crcs)
+        except READ_ERRORS as exc:
+            raise _unreadable(path, exc) from exc
+
+
 def read_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[LoggedMessage]:
     """Messages of a finished log in file order (the recorder's canonical order), optionally of `topics`.
     Every chunk's CRC is checked: a damaged log is a RecordError, never altered data."""
     wanted = None if topics is None else list(topics)
-    with _open(path) as stream:
-        _check_complete(stream, path)
-        try:
-            reader = make_reader(stream, validate_crcs=True)
-            for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=False):
-                yield LoggedMessage(
-                    channel.topic,
-                    schema.name if schema is not None else "",
-                    message.data,
-                    message.log_time,
-                    message.publish_time,
-                    message.sequence,
-                )
-        except READ_ERRORS as exc:
-            raise _unreadable(path, exc) from exc
+    with _reader(path, validate_crcs=True) as reader:
+        for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=False):
+            yield LoggedMessage(
+                channel.topic,
+                schema.name if schema is not None else "",
+                message.data,
+                message.log_time,
+                message.publish_time,
+                message.sequence,
+            )
 
 
 @dataclass
@@ -396,14 +403,10 @@ LAUNCH_METADATA = "palpate.launch"
 def launch_info(path: str | Path) -> dict[str, str]:
     """The launch file, arguments and seed a log was recorded from (``LAUNCH_METADATA``); {} when the log
     does not say (recorded by ``palpate record``, or by another tool)."""
-    with _open(path) as stream:
-        _check_complete(stream, path)
-        try:
-            for record in make_reader(stream).iter_metadata():
-                if record.name == LAUNCH_METADATA:
-                    return dict(record.metadata)
-        except READ_ERRORS as exc:
-            raise _unreadable(path, exc) from exc
+    with _reader(path) as reader:
+        for record in reader.iter_metadata():
+            if record.name == LAUNCH_METADATA:
+                return dict(record.metadata)
     return {}
 
 
@@ -430,12 +433,8 @@ def topic_versions(path: str | Path) -> dict[str, int]:
 
 
 def _summary(path: str | Path) -> Summary | None:
-    with _open(path) as stream:
-        _check_complete(stream, path)
-        try:
-            return make_reader(stream).get_summary()
-        except READ_ERRORS as exc:
-            raise _unreadable(path, exc) from exc
+    with _reader(path) as reader:
+        return reader.get_summary()
 
 
 # --- recovery and copying ------------------------------------------------------------------------
@@ -505,9 +504,8 @@ def iter_records_tolerant(
 def _summary_records(path: str | Path) -> tuple[dict[int, Schema], dict[int, Channel]]:
     """The schemas and channels of a log's summary section; none where it has none or it is damaged."""
     try:
-        with _open(path) as stream:
-            summary = make_reader(stream).get_summary()
-    except (RecordError, *READ_ERRORS):
+        summary = _summary(path)
+    except RecordError:
         return {}, {}
     return (dict(summary.schemas), dict(summary.channels)) if summary is not None else ({}, {})
 
