@@ -355,6 +355,7 @@ def check_settings(Ks: Sequence[int], resolutions_mm: Sequence[float]) -> None:
     """ConfigError, before anything is recorded, for a K and resolution whose maps would not fit in this
     machine's memory (``mapper.core.check_fits``) or a value given twice."""
     from palpate.nodes.mapper.core import check_fits
+    from palpate.nodes.mapper.grid import GridSpec
 
     for name, values in (("--particles", Ks), ("--resolutions-mm", resolutions_mm)):
         if len(set(values)) < len(values):
@@ -370,7 +371,7 @@ def check_settings(Ks: Sequence[int], resolutions_mm: Sequence[float]) -> None:
                 f"{extent_mm / MIN_CELLS_ACROSS:g} mm)"
             )
         check_fits(config, chain)
-        cells = (extent_mm / r) ** 3
+        cells = GridSpec.from_bounds(config.region_min_m, config.region_max_m, config.resolution_m).n_cells
         if cells > MANY_CELLS:
             print(
                 f"note: --resolutions-mm {r:g} gives about {cells:,.0f} cells per map ({(1.0 / r) ** 3:,.0f} times "
