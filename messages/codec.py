@@ -250,7 +250,12 @@ def decode(payload: bytes | memoryview, expected: type[M] | None = None) -> M:
         raise UnknownMessageTypeError(f"unknown message type {type_name!r}; known: {sorted(REGISTRY)}")
     if expected is not None and cls is not expected:
         raise MalformedMessageError(f"expected a {expected.TYPE} message, got {type_name}")
-    if type(version) is not int or version != cls.VERSION:
+    if type(version) is not int:
+        raise MalformedMessageError(
+            f"{type_name}: 'version' must be a msgpack int, got {type(version).__name__} {version!r} "
+            "(an encoder that sends every number as a float, or JavaScript's numbers beyond 2^53?)"
+        )
+    if version != cls.VERSION:
         raise SchemaVersionError(
             f"{type_name} has schema version {version!r}; this build speaks version {cls.VERSION}: "
             "upgrade the older side"

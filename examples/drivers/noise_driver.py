@@ -7,7 +7,8 @@ It reads its process spec from <bus dir>/external/<name>.json (the launcher writ
 publisher where the spec says, subscribes to its input and to the graph topics, waits for its
 subscribers, acknowledges tick -1, and then, for every tick, republishes the tick's contact sets with
 Gaussian noise on the positions and normals (the spec's params `position_sigma_m`, `normal_sigma_deg`;
-0 passes them through unchanged) before acknowledging the tick. It stops on RunControl "stop".
+0 passes them through unchanged) before acknowledging the tick. It stops on RunControl "stop", and ends
+as a failed run (exit code 4) on "fail" or when the clock source leaves without a stop.
 Imports pyzmq, msgpack and numpy, never palpate (docs/runtime.md, "External nodes").
 """
 
@@ -47,11 +48,12 @@ def main(bus_dir: str, name: str) -> int:
     try:
         node.wait_for_subscribers()
         node.acknowledge(-1, 0)  # start-up done: the clock source starts tick 0 when every node has said so
+        print(f"[{name}] started: acknowledged tick -1", flush=True)
         forward, backward = spec["forward_upstream"], spec["backward_upstream"]
         clocks: deque[dict] = deque()
         acks: dict[str, int] = {}
         inputs: list[bytes] = []
-        tick, stopping = 0, False
+        tick, stopping, failure = 0, False, ""
         while True:
             for topic, payload in node.receive(100):
                 if topic == source:
@@ -61,8 +63,14 @@ def main(bus_dir: str, name: str) -> int:
                 elif topic == ACK:
                     ack = decode(payload, "LockstepAck")
                     acks[ack["node"]] = max(ack["tick"], acks.get(ack["node"], -2))
-                elif topic == CONTROL and decode(payload, "RunControl")["command"] == "stop":
-                    stopping = True
+                elif topic == CONTROL:
+                    control = decode(payload, "RunControl")
+                    if control["command"] in ("stop", "fail"):
+                        stopping = True
+                        failure = control["reason"] if control["command"] == "fail" else failure
+            if not stopping and node.gone(spec["clock_name"]):
+                print(f"[{name}] the clock source {spec['clock_name']!r} left without a stop", file=sys.stderr)
+                return 4
             # tick t is ready with Clock(t), acks of t from upstream nodes ranked before this one and of
             # t - 1 from those ranked after it (feedback edges); the clock source's data precede its Clock
             while (
@@ -83,8 +91,9 @@ def main(bus_dir: str, name: str) -> int:
                 node.acknowledge(tick, clock["stamp_ns"])
                 tick += 1
             if stopping and not clocks:
-                print(f"[{name}] stopped after {tick} ticks", flush=True)
-                return 0
+                failed = f": the run failed ({failure})" if failure else ""
+                print(f"[{name}] stopped after {tick} ticks{failed}", flush=True)
+                return 4 if failure else 0
     finally:
         node.close()
 

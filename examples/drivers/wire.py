@@ -121,6 +121,7 @@ class Node:
         for peer in spec["connect"]:
             self.sub.connect(peer)
         self.subscribers: dict[str, int] = {}
+        self.left_at: dict[str, float] = {}  # peer -> when its hello/<peer> subscription went (it left)
         self.backlog: list[tuple[str, bytes]] = []
         self.poller = zmq.Poller()
         self.poller.register(self.pub, zmq.POLLIN)
@@ -161,11 +162,19 @@ class Node:
                 frame = self.pub.recv()  # b"\x01topic" subscribe, b"\x00topic" unsubscribe
                 topic = frame[1:].decode()
                 self.subscribers[topic] = self.subscribers.get(topic, 0) + (1 if frame[:1] == b"\x01" else -1)
+                if frame[:1] == b"\x00" and topic.startswith("hello/"):
+                    self.left_at[topic.removeprefix("hello/")] = time.monotonic()
         if self.sub in events:
             while self.sub.poll(0):
                 topic, payload = self.sub.recv_multipart()
                 frames.append((topic.decode(), payload))  # subscriptions match prefixes: compare exactly
         return frames
+
+    def gone(self, peer: str, grace_s: float = 2.0) -> bool:
+        """Whether `peer` left more than grace_s ago (its subscriptions ended with its connection). A
+        clock source that left without a stop failed: a follower waits grace_s for the stop first."""
+        left = self.left_at.get(peer)
+        return left is not None and time.monotonic() - left > grace_s
 
     def send(self, topic: str, type_name: str, fields: dict[str, Any]) -> None:
         self.pub.send_multipart([topic.encode(), encode(type_name, fields)])

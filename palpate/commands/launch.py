@@ -16,7 +16,7 @@ from palpate import jsonio
 from palpate.errors import LaunchError
 from palpate.launch import placement
 from palpate.launch.graph import Graph, resolve
-from palpate.launch.loader import load_launch, parse_cli_args
+from palpate.launch.loader import load_launch, parse_cli_args, with_external
 from palpate.launch.supervisor import Supervisor
 from palpate.paths import LAUNCH_DIR, REPO_ROOT
 from palpate.runtime import bus
@@ -40,6 +40,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         type=_names,
         metavar="A,B",
         help="with --replay: the nodes the log stands in for (default: the clock source)",
+    )
+    p.add_argument(
+        "--external",
+        type=_names,
+        metavar="A,B",
+        help="start these nodes not here but from a driver (as `external: true` in the launch file would)",
     )
     p.add_argument("--bus", type=Path, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
     p.add_argument(
@@ -71,16 +77,23 @@ def load_graph(
     bus_dir: Path | None,
     replay: Path | None = None,
     replay_nodes: list[str] | None = None,
+    external: list[str] | None = None,
 ) -> Graph:
     try:
         launch = load_launch(path, parse_cli_args(overrides))
+        if external:
+            launch = with_external(launch, external)
         if replay is not None:
             from palpate.record.launch_support import replace_publishers_with_log, replay_note
 
             note = replay_note(launch, replay, replay_nodes)
             if note:
                 print(note, file=sys.stderr)
-            launch = replace_publishers_with_log(launch, replay, replay_nodes)
+            replayed = replace_publishers_with_log(launch, replay, replay_nodes)
+            kept = {entry.fields["name"] for entry in replayed.nodes}
+            if gone := sorted(set(external or ()) - kept):
+                raise LaunchError(f"--external {','.join(gone)}: --replay stands in for {gone}; name other nodes")
+            launch = replayed
         return resolve(launch, bus_dir=bus_dir)
     except LaunchError as exc:
         raise _from_the_command_line(exc, path, overrides) from exc
@@ -100,7 +113,7 @@ def _from_the_command_line(exc: LaunchError, path: Path, overrides: list[str]) -
 def run_launch(args: argparse.Namespace) -> int:
     if args.replay_nodes and args.replay is None:
         raise LaunchError("--replay-nodes needs --replay LOG.mcap")
-    graph = load_graph(args.file, args.args, args.bus, args.replay, args.replay_nodes)
+    graph = load_graph(args.file, args.args, args.bus, args.replay, args.replay_nodes, args.external)
     if args.spec is not None:
         recorder_keys = recorder_curve_keys(graph) if args.record else {}
         specs = {

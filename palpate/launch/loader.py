@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -115,6 +115,20 @@ def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any
                 "quote it to pass text"
             ) from exc
     return out
+
+
+def with_external(launch: LaunchFile, names: Sequence[str]) -> LaunchFile:
+    """`launch` with the nodes `names` marked ``external: true`` (``palpate launch --external``): wired and
+    waited for, but started by a driver, not the launcher."""
+    known = [entry.fields["name"] for entry in launch.nodes]
+    unknown = sorted(set(names) - set(known))
+    if unknown:
+        raise LaunchError(f"--external: no node {unknown} in {_display(launch.path)}; its nodes: {sorted(known)}")
+    nodes = [
+        replace(entry, fields={**entry.fields, "external": True}) if entry.fields["name"] in names else entry
+        for entry in launch.nodes
+    ]
+    return replace(launch, nodes=nodes)
 
 
 def load_launch(path: str | Path, overrides: Mapping[str, Any] | None = None) -> LaunchFile:

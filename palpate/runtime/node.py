@@ -52,6 +52,8 @@ STOP_TOPIC = topics.GRAPH_CONTROL
 #: RunControl commands: "stop" ends the run; "fail" ends it as a failure (each node that receives it exits
 #: with EXIT_RUN_FAILED): how a node that is not palpate's (an external driver) makes a run fail.
 STOP, FAIL = "stop", "fail"
+#: Every node publishes its NodeStatus at ticks 0, 100, 200, ... and at exit.
+STATUS_EVERY_TICKS = 100
 #: In lockstep, a node whose hello/<node> subscription has been gone this long has left the run (its
 #: process died or closed its sockets): no lockstep node can rejoin, so the run ends naming it. The grace
 #: lets a clean stop arrive first (the stop and the unsubscription come over different connections).
@@ -256,6 +258,7 @@ class NodeRunner:
         self.backward = set(process.backward_upstream)
         self.stopping = False
         self.stop_reason = ""  # the first reason another node (or a signal) gave for stopping the run
+        self.fail_asked = False  # a RunControl "fail" came: a clock source ends the run with "fail" too
         self.interrupted = False
         self._absent_since: dict[str, float] = {}  # peer -> when its hello/<peer> subscription was first seen gone
         _install_signal_handlers(self)  # before the manifest: a signal from now on ends the run cleanly
@@ -353,6 +356,7 @@ class NodeRunner:
             elif control is not None:
                 if control.command == FAIL and not self.ctx.failure:  # this node's exit code says so too
                     self.ctx.failure = f"{control.reason or 'no reason given'} (asked by a RunControl 'fail')"
+                self.fail_asked = self.fail_asked or control.command == FAIL
                 self.stopping = True
                 self.stop_reason = self.stop_reason or control.reason
                 if control.reason != CLOCK_FINISHED:  # the clock running out is no node ending the run
@@ -536,6 +540,8 @@ class NodeRunner:
                     self._receive(int(left * 1000) + 1)
                 self._receive(0)
                 self.dispatch(latest_only=True)
+            if tick % STATUS_EVERY_TICKS == 0:
+                self.publish_status("running")
             if self.stopping or self.ctx.stop_requested:
                 break
             tick += 1
@@ -545,7 +551,8 @@ class NodeRunner:
                 log.info("t = %.1f s after %.0f s of wall time (%.2fx real time)", sim_s, wall_s, sim_s / wall_s)
         reason = self.ctx.stop_requested or self.stop_reason or CLOCK_FINISHED
         log.info("run stopped at t = %.3f s: %s", self.ctx.stamp_ns * 1e-9, reason)
-        self._send_internal(STOP_TOPIC, RunControl(stamp_ns=self.ctx.stamp_ns, command="stop", reason=reason))
+        command = FAIL if self.fail_asked else STOP  # a "fail" reaches the nodes that hear only the clock
+        self._send_internal(STOP_TOPIC, RunControl(stamp_ns=self.ctx.stamp_ns, command=command, reason=reason))
 
     def _run_follower(self) -> None:
         tick = 0
@@ -615,8 +622,7 @@ class NodeRunner:
                 RunControl(stamp_ns=self.ctx.stamp_ns, command="stop", reason=self.ctx.stop_requested),
             )
             self.ctx.stop_requested = ""
-        status_every = 100
-        if self.ctx.tick % status_every == 0:
+        if self.ctx.tick % STATUS_EVERY_TICKS == 0:
             self.publish_status("running")
 
 

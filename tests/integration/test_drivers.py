@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import ast
 import json
+import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -20,7 +22,7 @@ from palpate.launch.graph import resolve
 from palpate.launch.loader import load_launch, parse_cli_args
 from palpate.paths import LAUNCH_DIR, REPO_ROOT
 from palpate.runtime.inprocess import InProcessGraph
-from tests.integration.launch_helpers import kill_session, launched, text
+from tests.integration.launch_helpers import kill_session, launched, node_pids, text, wait_for
 
 DRIVERS = REPO_ROOT / "examples" / "drivers"
 ALLOWED_IMPORTS = {"zmq", "msgpack", "numpy", "wire"}
@@ -66,10 +68,9 @@ def test_drivers_import_only_pyzmq_msgpack_numpy_and_the_standard_library() -> N
 
 
 def test_lockstep_driver_replaces_the_noise_node_of_the_exploration_graph(tmp_path: Path) -> None:
-    launch = external_copy(LAUNCH_DIR / "explore.yaml", tmp_path / "explore.yaml", "noise")
     bus_dir, results = tmp_path / "bus", tmp_path / "results.json"
-    args = ["duration_s:=3", f"results:={results}"]
-    with launched(launch, bus_dir, tmp_path / "launch.log", *args) as proc:
+    args = ["duration_s:=3", f"results:={results}", "--external", "noise"]  # the shipped file, unchanged
+    with launched(LAUNCH_DIR / "explore.yaml", bus_dir, tmp_path / "launch.log", *args) as proc:
         driver = start_driver("noise_driver.py", bus_dir, "noise", tmp_path / "driver.log")
         try:
             assert proc.wait(timeout=240) == 0, text(tmp_path / "launch.log")
@@ -86,6 +87,25 @@ def test_lockstep_driver_replaces_the_noise_node_of_the_exploration_graph(tmp_pa
     theirs = json.loads(results.read_text())
     assert theirs["contacts"] == own["contacts"] >= 3
     assert theirs["touches"] == jsonio.strict(own["touches"])  # every touch, to the last bit
+
+
+def test_lockstep_driver_leaves_when_the_clock_source_dies(tmp_path: Path) -> None:
+    """A follower whose clock source vanished without a stop ends as a failed run (docs/runtime.md,
+    External nodes, 9. Errors) instead of waiting for ticks that never come."""
+    bus_dir = tmp_path / "bus"
+    args = ["duration_s:=60", "--external", "noise"]
+    with launched(LAUNCH_DIR / "explore.yaml", bus_dir, tmp_path / "launch.log", *args) as proc:
+        driver = start_driver("noise_driver.py", bus_dir, "noise", tmp_path / "driver.log")
+        try:
+            driver_log = tmp_path / "driver.log"
+            wait_for(lambda: "acknowledged tick -1" in text(driver_log), 120, "the driver", driver_log)
+            wait_for(lambda: "sim" in node_pids(bus_dir), 60, "the simulator's manifest", tmp_path / "launch.log")
+            os.kill(node_pids(bus_dir)["sim"], signal.SIGKILL)
+            assert driver.wait(timeout=30) == 4, text(tmp_path / "driver.log")
+            assert proc.wait(timeout=60) != 0
+        finally:
+            kill_session(driver)
+    assert "the clock source 'sim' left without a stop" in text(tmp_path / "driver.log")
 
 
 def test_realtime_driver_is_the_clock_source_of_the_minimal_graph(tmp_path: Path) -> None:

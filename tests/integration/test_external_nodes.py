@@ -89,3 +89,5 @@ def test_a_node_that_publishes_runcontrol_fail_makes_the_run_fail(tmp_path: Path
     reason = "run_failer: sensor lost after 5 ticks (asked by a RunControl 'fail')"
     assert f"ERROR node cube ended the run as a failure: {reason}" in out, out
     assert "[launch] node 'cube' (cube_contacts) ended the run as a failure; the launch exits 1" in out, out
+    # the clock source ends the run with "fail" too: a node that hears only the clock learns it failed
+    assert "ERROR node stats ended the run as a failure: run_failer: sensor lost after 5 ticks" in out, out

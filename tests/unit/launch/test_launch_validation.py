@@ -653,3 +653,18 @@ def test_a_fuzzed_launch_file_is_a_launch_error_never_a_traceback(text: bytes, e
 def test_a_fuzzed_command_line_value_is_a_launch_error(value: str) -> None:
     with pytest.raises(LaunchError, match=r"from the command line: its value is not valid YAML"):
         parse_cli_args([f"seed:={value}"])
+
+
+def test_external_on_the_command_line_marks_nodes_as_the_file_key_does(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    explore = REPO_ROOT / "launch" / "explore.yaml"
+    assert main(["launch", "--dry-run", str(explore), "--external", "noise", "--bus", str(tmp_path)]) == 0
+    marked = [line for line in capsys.readouterr().out.splitlines() if "[external]" in line]
+    assert len(marked) == 1 and " noise (noise) " in marked[0], marked
+    assert main(["launch", str(explore), "--external", "noise,planr", "--bus", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "--external: no node ['planr'] in launch/explore.yaml; its nodes: ['controller', 'eval'," in err, err
+    # the spec a driver reads is the one the launch writes: the clock source waits for the external node
+    assert main(["launch", str(explore), "--external", "noise", "--spec", "sim", "--bus", str(tmp_path)]) == 0
+    assert "noise" in json.loads(capsys.readouterr().out)["lockstep_nodes"]
