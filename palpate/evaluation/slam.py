@@ -567,7 +567,9 @@ def main(args: argparse.Namespace) -> int:
     _write_csv(args.out / "slam_rows.csv", rows)
     png = args.out / "slam_maps.png"
     plotted = results[0]
+    written = [args.out / "slam_rows.csv", args.out / "slam_summary.json"]
     if "_maps" in plotted:
+        written.append(png)
         plot_maps(
             png,
             plotted["_maps"],
@@ -588,7 +590,7 @@ def main(args: argparse.Namespace) -> int:
             f"{t['ms_per_update_fastslam']:.2f} ({t['resamples_fastslam']} resamples), {t['contacts']} contacts"
         )
     print(outcome.summary())
-    print(f"wrote {args.out / 'slam_rows.csv'}, {args.out / 'slam_summary.json'}, {png} ({out['total_wall_s']:.0f} s)")
+    print(f"wrote {', '.join(map(str, written))} ({out['total_wall_s']:.0f} s)")
     if args.json:
         print(jsonio.dumps(out))
     return 1 if outcome.failed else 0

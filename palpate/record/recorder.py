@@ -16,9 +16,11 @@ the nodes by name), each in its publish order, so equal stamps keep their publis
 publisher's block ends with its marker, and a replay recorded again comes out the same. In
 real-time mode (no acknowledgements) there is no such order: messages are written as they arrive.
 
-Durability: in lockstep each written tick closes an MCAP chunk and pushes it to the OS (so
-``--chunk-ticks`` ticks at most are lost to SIGKILL, and chunk boundaries depend on the data only,
-keeping the file reproducible); in real-time mode the chunk closes at least every second.
+Durability: in lockstep every ``--chunk-ticks`` written ticks (10 by default) close an MCAP chunk
+and push it to the OS (so that many ticks at most are lost to SIGKILL, and chunk boundaries depend on
+the data only, keeping the file reproducible; a chunk per tick held 424 bytes of chunk index in
+memory per tick until the file closed, 150 MB per simulated hour, and compressed each tick alone);
+in real-time mode the chunk closes at least every second.
 SIGINT and SIGTERM write what is queued and finish the file.
 """
 
@@ -279,7 +281,7 @@ class Recorder:
         until_stop: bool = False,
         compression: str = "zstd",
         chunk_size: int = 1 << 20,
-        chunk_ticks: int = 1,
+        chunk_ticks: int = 10,
         grace_s: float = 2.0,
         server_keys: Mapping[str, str] | None = None,
         client_keys: Mapping[str, str] | None = None,
@@ -529,9 +531,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--chunk-ticks",
         type=positive_int,
-        default=1,
+        default=10,
         metavar="N",
-        help="lockstep: close a chunk every N ticks (a SIGKILL loses at most N ticks; default 1)",
+        help="lockstep: close a chunk every N ticks (a SIGKILL loses at most N ticks; default 10)",
     )
     p.add_argument(
         "--curve-servers",

@@ -67,8 +67,9 @@ def recorder(node: str) -> TickRecorder | None:
     return TickRecorder(node, Path(folder) / f"{node}.json") if folder else None
 
 
-def breakdown(folder: Path, first_tick: int = 0) -> dict[str, Any]:
-    """Mean milliseconds per tick over the ticks from ``first_tick`` on, from one run's timing files.
+def breakdown(folder: str | Path, first_tick: int = 0) -> dict[str, Any]:
+    """Mean milliseconds per tick over the ticks from ``first_tick`` on, from one run's timing files
+    (the ``PALPATE_TICK_TIMING`` folder ``folder``).
 
     Keys: ``tick_ms`` (clock source step start to the next one), ``step_ms`` (the clock source's
     step without its encoding: simulation and building messages), ``encode_ms`` (every node's
@@ -80,7 +81,7 @@ def breakdown(folder: Path, first_tick: int = 0) -> dict[str, Any]:
     (the nodes the clock source runs ahead of: their handling is off the round trip and out of
     ``ack_hop_ms``; their ``clock_hop_ms`` and ``wait_ms`` include the ticks they are behind).
     """
-    files = [json.loads(p.read_text()) for p in sorted(folder.glob("*.json"))]
+    files = [json.loads(p.read_text()) for p in sorted(Path(folder).glob("*.json"))]
     sources = [f for f in files if f["clock_source"]]
     if len(sources) != 1:
         raise ValueError(f"{folder}: expected one clock source's timing file, found {len(sources)}")

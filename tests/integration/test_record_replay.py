@@ -115,6 +115,16 @@ def test_bag_info_reports_the_counts_of_a_recorded_run(recorded: Path, tmp_path:
     assert "recorded by palpate launch launch/demo_minimal.yaml, seed 0" in text.stdout
 
 
+def test_a_lockstep_recording_closes_a_chunk_every_ten_ticks(recorded: Path) -> None:
+    """Not one per tick: each chunk's index stays in the writer's memory until the log closes."""
+    from mcap.reader import make_reader
+
+    with recorded.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    assert TICKS // 10 <= len(summary.chunk_indexes) <= TICKS // 10 + 2  # the start-up's and the stop's
+
+
 def test_same_launch_and_seed_give_the_same_bytes(recorded: Path, tmp_path: Path) -> None:
     again = launch_recorded(tmp_path, "again")
     assert again.read_bytes() == recorded.read_bytes()

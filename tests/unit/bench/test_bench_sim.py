@@ -208,7 +208,7 @@ def test_breakdown_of_a_timed_graph(tmp_path: Path) -> None:
     (tmp_path / "noise.json").write_text(json.dumps({"node": "noise", "clock_source": False, "ticks": late}))
     sim = {"node": "sim", "clock_source": True, "trailing": ["noise"], "ticks": source}
     (tmp_path / "sim.json").write_text(json.dumps(sim))
-    out = breakdown(tmp_path, first_tick=1)
+    out = breakdown(str(tmp_path), first_tick=1)  # the folder as the docs write it: a str will do
     assert out["trailing"] == ["noise"] and out["ack_hop_ms"] == pytest.approx(90)
     assert out["handle_ms"]["noise"] == pytest.approx(580)
     (tmp_path / "other.json").write_text(json.dumps({"node": "x", "clock_source": True, "ticks": {}}))
