@@ -63,6 +63,21 @@ def coordinates(
     return a
 
 
+def within_reach(points_m: FloatArray, centre_m: FloatArray, reach_m: float, field: str, what: str) -> FloatArray:
+    """`points_m` (n, 3) when each lies within reach_m of `centre_m` (3,), else InputError: a point no part of
+    `what` can touch (millimetres sent as metres lie a thousand times too far)."""
+    if len(points_m):
+        distances = np.linalg.norm(points_m - centre_m, axis=1)
+        if not float(distances.max()) <= reach_m:
+            at = int(np.argmax(distances))
+            raise InputError(
+                field,
+                f"entry {at} lies {distances[at]:.6g} m from the {what} at {np.round(centre_m, 6).tolist()}, beyond "
+                f"the {reach_m:g} m any contact of it can lie (a unit other than metres?)",
+            )
+    return points_m
+
+
 def bounded(values: ArrayLike, field: str, limit: float, unit: str = "", *, lower: float | None = None) -> FloatArray:
     """`values` (any shape) as float64 when every element lies in [-limit, limit] (or [lower, limit]),
     else InputError."""

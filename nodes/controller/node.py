@@ -13,7 +13,7 @@ import numpy as np
 
 from palpate.geometry.bezier import bezier_length
 from palpate.geometry.rotations import matrix_to_quat
-from palpate.inputs import contact_arrays, fingertip_pose
+from palpate.inputs import contact_arrays, fingertip_pose, within_reach
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, Pose, TouchEvent, TouchTarget, Trajectory
 from palpate.nodes.controller.core import AXIS_APPROACH_M, ControllerConfig, Touch, TouchConfig, TouchLoop
 from palpate.runtime.spec import Context, NodeSpec, Port
@@ -32,6 +32,9 @@ class ControllerNodeConfig(TouchConfig):
 
 
 _NO_CONTACT = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+#: Farthest a contact may lie from the fingertip centre (m): beyond the probe's shaft (5 tip radii) and a
+#: tick's travel, with room for noise; a contact farther off is not the fingertip's.
+CONTACT_REACH_M = 0.1
 
 
 class ControllerNode:
@@ -47,7 +50,10 @@ class ControllerNode:
         self.pose = fingertip_pose(message.position_m, message.quaternion_wxyz)
 
     def on_contacts(self, message: ContactSet) -> None:
-        self.contacts = contact_arrays(message.positions_m, message.normals, message.forces_n)
+        positions, normals, forces = contact_arrays(message.positions_m, message.normals, message.forces_n)
+        if self.pose is not None:
+            within_reach(positions, self.pose[0], CONTACT_REACH_M, "positions_m", "fingertip")
+        self.contacts = positions, normals, forces
 
     def on_target(self, message: TouchTarget) -> None:
         if self.pose is None:

@@ -148,3 +148,29 @@ def test_bad_poses_and_targets_are_refused_and_change_nothing() -> None:
     assert len(clean.ctx.published) == len(fed.ctx.published) > 30
     for (port_a, a), (port_b, b) in zip(clean.ctx.published, fed.ctx.published, strict=True):
         assert port_a == port_b and a == b
+
+
+def _contact_at(position_m: list[float]) -> ContactSet:
+    p = np.array([position_m])
+    return ContactSet(
+        stamp_ns=0,
+        positions_m=p,
+        local_positions_m=p,
+        normals=np.array([[0.0, 0.0, 1.0]]),
+        forces_n=np.ones(1),
+        links=["probe"],
+    )
+
+
+def test_a_contact_no_part_of_the_fingertip_can_make_is_refused() -> None:
+    """A driver's contact in millimetres (25 m away) had sent the fingertip climbing for the rest of the run."""
+    ctx = FakeCtx()
+    node = ControllerNode(ControllerNodeConfig(initial_target_m=(0.0, 0.0, 0.0)), ctx)
+    node.on_pose(pose(np.array([0.0, 0.0, 0.025]), FACING_DOWN, "probe"))
+    node.on_contacts(_contact_at([0.0, 0.0, 0.017]))  # on the fingertip's surface, 8 mm below its centre
+    node.on_contacts(_contact_at([0.0, 0.0, 0.09]))  # on the shaft's far end, with room to spare
+    with pytest.raises(
+        InputError, match=r"^positions_m: entry 0 lies 24.975 m from the fingertip at \[0.0, 0.0, 0.025\]"
+    ):
+        node.on_contacts(_contact_at([0.0, 0.0, 25.0]))
+    np.testing.assert_array_equal(node.contacts[0], [[0.0, 0.0, 0.09]])  # the state before the refused set
