@@ -254,6 +254,8 @@ class NodeRunner:
         self.acks: dict[str, int] = {}
         self.clock_ticks: deque[Clock] = deque()
         self._bad_by_topic: dict[str, int] = {}  # payloads rejected per topic (their log lines are throttled)
+        self._refused_by_topic: dict[str, int] = {}  # messages the node's handler refused, per topic
+        self._used_topics: set[str] = set()  # topics of which the node took at least one message
         self.last_clock = -1  # the last Clock tick received
         self.backward = set(process.backward_upstream)
         self.stopping = False
@@ -377,6 +379,21 @@ class NodeRunner:
         tick = self.last_clock + 1 if publisher == self.process.clock_name else self.acks.get(publisher, -1) + 1
         return tick + 1 if publisher in self.backward else tick
 
+    def _note_unused_inputs(self) -> None:
+        """At the end of the run, a warning for each input topic of which every message was refused:
+        the node ran without it (its first refusals are logged above with their reasons)."""
+        for topic in sorted(self.input_types):
+            undecoded, refused = self._bad_by_topic.get(topic, 0), self._refused_by_topic.get(topic, 0)
+            if topic not in self._used_topics and undecoded + refused:
+                log.warning(
+                    "node %s used no message on %s: all %d were refused (%d did not decode, %d were unusable)",
+                    self.process.name,
+                    topic,
+                    undecoded + refused,
+                    undecoded,
+                    refused,
+                )
+
     def _decode(self, topic: str, payload: Any, cls: type[Message]) -> Any:
         """The message in `payload`, or None after counting and logging why it is unusable."""
         try:
@@ -414,7 +431,10 @@ class NodeRunner:
             if message is None:
                 continue
             self.ctx.counters["messages_in"] += 1
-            deliver(self.ctx, self.node, self.port_of_topic[topic], topic, message)
+            if deliver(self.ctx, self.node, self.port_of_topic[topic], topic, message):
+                self._used_topics.add(topic)
+            else:
+                self._refused_by_topic[topic] = self._refused_by_topic.get(topic, 0) + 1
 
     # --- main loops ----------------------------------------------------------------------------------
     def run(self) -> int:
@@ -428,6 +448,7 @@ class NodeRunner:
             if self.lockstep and self.ctx.timings:
                 timings = ", ".join(f"{k} {v:.4g}" for k, v in sorted(self.ctx.timings.items()))
                 log.info("node %s wall-clock timings: %s", self.process.name, timings)
+            self._note_unused_inputs()
             if self.ctx.failure:
                 log.error("node %s ended the run as a failure: %s", self.process.name, self.ctx.failure)
                 self.publish_status("error", self.ctx.failure)

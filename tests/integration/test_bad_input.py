@@ -205,6 +205,7 @@ def test_nan_in_a_finite_field_is_rejected_with_the_field_name(tmp_path: Path) -
         "node stats, topic sensors/contacts: rejected message (1 so far): ContactSet.positions_m must be finite" in out
     )
     assert "summary: 1 contact sets, 4 contacts" in out
+    assert "used no message" not in out  # it used one: no end-of-run warning
 
 
 @pytest.mark.parametrize(
@@ -225,6 +226,8 @@ def test_wrong_type_or_version_on_a_topic_is_rejected(tmp_path: Path, payload: b
         assert node.stop() == 0
     assert counters(node.statuses[-1])["decode_errors"] == 1
     assert reason in text(node.log)
+    # nothing on its input was usable: the end of the run says so, once
+    assert "node stats used no message on sensors/contacts: all 1 were refused (1 did not decode" in text(node.log)
 
 
 @pytest.mark.parametrize("node_type", ["controller", "mapper"])
