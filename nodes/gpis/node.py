@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 
@@ -190,10 +190,22 @@ def _ports(config: GPISNodeConfig) -> tuple[dict[str, Port], dict[str, Port]]:
     return inputs, {"surface": Port(SurfaceMesh)}
 
 
+def _facts(config: GPISNodeConfig) -> dict[str, tuple[Any, tuple[str, ...]]]:
+    """Whether the local mesh carries the GP variance, and at which spacing of candidates: a planner that
+    rates by it states that it needs it (palpate.launch checks that both say the same)."""
+    facts: dict[str, tuple[Any, tuple[str, ...]]] = {
+        "candidate_variance": ("given" if config.vertex_variance != "none" else "not given", ("vertex_variance",))
+    }
+    if config.vertex_variance == "candidates":
+        facts["candidate_step_m"] = (config.variance_step_m, ("variance_step_m",))
+    return facts
+
+
 SPEC = NodeSpec(
     name="gpis",
     config=GPISNodeConfig,
     factory=GPISNode,
     ports_from_config=_ports,
+    facts=_facts,
     doc="Gaussian process implicit surface of paper 002: local mesh per touch, whole mesh on request.",
 )

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from palpate.errors import PlanningError
@@ -70,11 +72,23 @@ class PlannerNode:
             self.ctx.count(name, n)
 
 
+def _facts(config: PlannerConfig) -> dict[str, tuple[Any, tuple[str, ...]]]:
+    """A strategy that rates by the variance needs it from the GPIS node of the same graph (its
+    ``vertex_variance``), at its candidates' spacing (the GPIS node's ``variance_step_m``)."""
+    if not config.uses_variance:
+        return {}
+    return {
+        "candidate_variance": ("given", ("strategy",)),
+        "candidate_step_m": (config.candidate_step_m, ("candidate_step_m",)),
+    }
+
+
 SPEC = NodeSpec(
     name="planner",
     config=PlannerConfig,
     factory=PlannerNode,
     inputs={"touches": Port(TouchEvent), "surface": Port(SurfaceMesh), "pose": Port(Pose)},
     outputs={"target": Port(TouchTarget)},
+    facts=_facts,
     doc="Next best touch of paper 002: IGEF, GP variance (gpv), random, or ours: area, tour.",
 )

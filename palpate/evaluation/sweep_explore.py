@@ -65,8 +65,9 @@ SETTINGS: tuple[Setting, ...] = (
     _s("gradient noise 0.03", "GP noise", gpis__gp__gradient_noise=0.03),
     _s("local mesh 3.5 mm", "marching-cubes resolution", gpis__local_resolution_m=0.0035),
     _s("local mesh 7.5 mm", "marching-cubes resolution", gpis__local_resolution_m=0.0075),
-    _s("candidate step 2.5 mm", "candidate step", planner__candidate_step_m=0.0025),
-    _s("candidate step 10 mm", "candidate step", planner__candidate_step_m=0.01),
+    # the GPIS node gives GP-V's variance at the same spacing (palpate.launch checks that they agree)
+    _s("candidate step 2.5 mm", "candidate step", planner__candidate_step_m=0.0025, gpis__variance_step_m=0.0025),
+    _s("candidate step 10 mm", "candidate step", planner__candidate_step_m=0.01, gpis__variance_step_m=0.01),
     _s("v0 2.5 cm/s", "speed v0", controller__controller__v0_m_s=0.025),
     _s("v0 10 cm/s", "speed v0", controller__controller__v0_m_s=0.1),
     _s("sim step 1 ms", "simulation time step", sim__scene__timestep_s=0.001),

@@ -285,24 +285,24 @@ def test_a_scale_that_is_not_a_finite_positive_number_is_refused(text: str) -> N
 def test_a_run_another_node_ends_is_marked_stopped_and_reported_once_per_reason(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    """GP-V without the GP variance on the surface: the planner cannot plan the first touch and ends the
-    run. The row says "stopped" (not the evaluator's "clock") with the planner's reason, and the
+    """An initial target outside the object: the controller's first approach finds no surface and ends the
+    run. The row says "stopped" (not the evaluator's "clock") with the controller's reason, and the
     evaluation prints that reason on stderr once for all such runs."""
     case = ObjectCase(name="sphere", kind="sphere", size_m=(0.03,))
-    (episode,) = episodes([case], 1, ("gpv",), params={"gpis.vertex_variance": "none"})
+    (episode,) = episodes([case], 1, ("igef",), params={"controller.initial_target_m": [0.5, 0.5, 0.5]})
     row = run_episode(episode)
-    assert row["finished"] == "stopped" and row["contacts"] == 1
-    assert row["stop_reason"].startswith("planner: the gpv strategy needs the GP variance")
+    assert row["finished"] == "stopped" and row["contacts"] == 0
+    assert row["stop_reason"].startswith("controller: the initial approach from the start position towards")
     assert not stopped_early("") and not stopped_early("exploration finished: goal")  # the clock, the evaluator
     finished = {**row, "finished": "goal", "stop_reason": "exploration finished: goal"}
     report_stopped([row, {**row, "run": 1}, finished])
     err = capsys.readouterr().err.splitlines()
-    assert err == [f"2 run(s) stopped early (first: sphere gpv run 0): {row['stop_reason']}"]
+    assert err == [f"2 run(s) stopped early (first: sphere igef run 0): {row['stop_reason']}"]
 
 
 def test_a_profiled_run_carries_each_parts_seconds_and_the_summary_adds_them_up() -> None:
     case = ObjectCase(name="sphere", kind="sphere", size_m=(0.03,))
-    (episode,) = episodes([case], 1, ("gpv",), params={"gpis.vertex_variance": "none"})
+    (episode,) = episodes([case], 1, ("gpv",), params={"eval.eval.coverage_goal": 0.05})  # a few touches
     plain, profiled = run_episode(episode), run_episode(episode, profile=True)
     assert "node_s" not in plain and profiled["contacts"] == plain["contacts"]
     parts = profiled["node_s"]

@@ -668,3 +668,17 @@ def test_external_on_the_command_line_marks_nodes_as_the_file_key_does(
     # the spec a driver reads is the one the launch writes: the clock source waits for the external node
     assert main(["launch", str(explore), "--external", "noise", "--spec", "sim", "--bus", str(tmp_path)]) == 0
     assert "noise" in json.loads(capsys.readouterr().out)["lockstep_nodes"]
+
+
+def test_a_planner_rating_by_the_variance_needs_a_gpis_node_that_gives_it(tmp_path: Path) -> None:
+    explore = REPO_ROOT / "launch" / "explore.yaml"
+    both = r"node 'planner' \(params.strategy\) and node 'gpis' \(params.vertex_variance"
+    with pytest.raises(LaunchError, match=both):
+        load(explore, tmp_path, ["strategy:=gpv", "variance:=none"])
+    load(explore, tmp_path, ["strategy:=igef", "variance:=none"])  # IGEF needs none, and may have it
+    load(explore, tmp_path, ["strategy:=igef"])
+    launch = load_launch(explore, parse_cli_args(["strategy:=gpv"]))
+    planner = next(entry for entry in launch.nodes if entry.fields["name"] == "planner")
+    planner.fields["params"]["candidate_step_m"] = 0.004  # GP-V's candidates 4 mm apart, the variance's 5 mm
+    with pytest.raises(LaunchError, match=r"disagree on candidate_step_m: 0.004 here, 0.005 there"):
+        resolve(launch, bus_dir=tmp_path)
