@@ -253,7 +253,7 @@ def decode(payload: bytes | memoryview, expected: type[M] | None = None) -> M:
     if type(version) is not int:
         raise MalformedMessageError(
             f"{type_name}: 'version' must be a msgpack int, got {type(version).__name__} {version!r} "
-            "(an encoder that sends every number as a float, or JavaScript's numbers beyond 2^53?)"
+            "(an encoder that sends every number as a float?)"
         )
     if version != cls.VERSION:
         raise SchemaVersionError(

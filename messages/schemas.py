@@ -44,6 +44,8 @@ class RunControl(Message):
     TYPE: ClassVar[str] = "RunControl"
     VERSION: ClassVar[int] = 1
     TOPIC: ClassVar[str] = topics.GRAPH_CONTROL
+    #: The commands that end the run ("stop", and "fail": as a failure); no other is known.
+    ENDS_RUN: ClassVar[tuple[str, str]] = ("stop", "fail")
 
     command: str = scalar("str", "'stop' ends the run after the current tick; 'fail' ends it as a failure")
     reason: str = scalar("str", "human-readable reason")

@@ -1,14 +1,15 @@
 """An external real-time clock source: a stand-in for tactile hardware, in plain Python.
 
-    palpate launch my_graph.yaml --bus /tmp/bus          # mode: realtime, the sensor node `external: true`
+    palpate launch launch/demo_minimal.yaml mode:=realtime --external cube --bus /tmp/bus
     python examples/drivers/contacts_driver.py /tmp/bus cube
 
 It reads its process spec from <bus dir>/external/<name>.json, binds its publisher, connects to every
 node of the graph (a clock source reads their stop requests), waits for its subscribers, and then,
 every `period_s` of wall time for `duration_s` (its params), publishes a ContactSet of points touched
 on the faces of a cube of edge `edge_m` and a Clock. At the end it publishes RunControl "stop" on
-graph/control, which ends the run. Real-time mode waits for no acknowledgement. Imports pyzmq,
-msgpack and numpy, never palpate (docs/runtime.md, "External nodes").
+graph/control, which ends the run ("fail" when a node asked for that: the run failed). Real-time mode
+waits for no acknowledgement. Imports pyzmq, msgpack and numpy, never palpate (docs/runtime.md,
+"External nodes").
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ def main(bus_dir: str, name: str) -> int:
     node = Node(spec, {topic: "ContactSet", CLOCK: "Clock", CONTROL: "RunControl"})
     try:
         node.wait_for_subscribers()
-        start, tick, reason = time.monotonic(), 0, "driver finished"
+        start, tick, reason, command = time.monotonic(), 0, "driver finished", "stop"
         while tick < ticks:
             stamp_ns = round(tick * period_s * 1e9)
             points, normals = touches(edge_m, 4, rng)
@@ -69,10 +70,12 @@ def main(bus_dir: str, name: str) -> int:
             # pace by wall time; meanwhile read the graph topics (another node may ask to stop)
             while (left := start + tick * period_s - time.monotonic()) > 0:
                 for got, payload in node.receive(int(1000 * left) + 1):
-                    if got == CONTROL and decode(payload, "RunControl")["command"] == "stop":
-                        reason, ticks = decode(payload, "RunControl")["reason"], tick
+                    control = decode(payload, "RunControl") if got == CONTROL else {}
+                    if control.get("command") in ("stop", "fail"):
+                        reason, ticks = control["reason"], tick
+                        command = "fail" if "fail" in (command, control["command"]) else "stop"
         node.send(
-            CONTROL, "RunControl", {"stamp_ns": round(tick * period_s * 1e9), "command": "stop", "reason": reason}
+            CONTROL, "RunControl", {"stamp_ns": round(tick * period_s * 1e9), "command": command, "reason": reason}
         )
         print(f"[{name}] published {tick} ticks; {reason}", flush=True)
         return 0

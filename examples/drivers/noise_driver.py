@@ -1,6 +1,6 @@
 """An external lockstep node: the contact noise of palpate's `noise` node, in plain Python.
 
-    palpate launch my_explore.yaml --bus /tmp/bus        # noise marked `external: true`
+    palpate launch launch/explore.yaml --external noise --bus /tmp/bus
     python examples/drivers/noise_driver.py /tmp/bus noise
 
 It reads its process spec from <bus dir>/external/<name>.json (the launcher writes it), binds its
@@ -53,7 +53,7 @@ def main(bus_dir: str, name: str) -> int:
         clocks: deque[dict] = deque()
         acks: dict[str, int] = {}
         inputs: list[bytes] = []
-        tick, stopping, failure = 0, False, ""
+        tick, stopping, failed, reason = 0, False, False, ""
         while True:
             for topic, payload in node.receive(100):
                 if topic == source:
@@ -66,8 +66,8 @@ def main(bus_dir: str, name: str) -> int:
                 elif topic == CONTROL:
                     control = decode(payload, "RunControl")
                     if control["command"] in ("stop", "fail"):
-                        stopping = True
-                        failure = control["reason"] if control["command"] == "fail" else failure
+                        stopping, reason = True, reason or control["reason"]
+                        failed = failed or control["command"] == "fail"
             if not stopping and node.gone(spec["clock_name"]):
                 print(f"[{name}] the clock source {spec['clock_name']!r} left without a stop", file=sys.stderr)
                 return 4
@@ -91,9 +91,9 @@ def main(bus_dir: str, name: str) -> int:
                 node.acknowledge(tick, clock["stamp_ns"])
                 tick += 1
             if stopping and not clocks:
-                failed = f": the run failed ({failure})" if failure else ""
-                print(f"[{name}] stopped after {tick} ticks{failed}", flush=True)
-                return 4 if failure else 0
+                how = f": the run failed ({reason or 'no reason given'})" if failed else ""
+                print(f"[{name}] stopped after {tick} ticks{how}", flush=True)
+                return 4 if failed else 0
     finally:
         node.close()
 

@@ -32,8 +32,8 @@ class ControllerNodeConfig(TouchConfig):
 
 
 _NO_CONTACT = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
-#: Farthest a contact may lie from the fingertip centre (m): beyond the probe's shaft (5 tip radii) and a
-#: tick's travel, with room for noise; a contact farther off is not the fingertip's.
+#: How far beyond the fingertip's surface a contact may lie (m): far more than contact noise and a tick's
+#: travel; a contact farther off is not the fingertip's (a contact in millimetres lies 1000x too far).
 CONTACT_REACH_M = 0.1
 
 
@@ -51,8 +51,10 @@ class ControllerNode:
 
     def on_contacts(self, message: ContactSet) -> None:
         positions, normals, forces = contact_arrays(message.positions_m, message.normals, message.forces_n)
-        if self.pose is not None:
-            within_reach(positions, self.pose[0], CONTACT_REACH_M, "positions_m", "fingertip")
+        if self.pose is None:  # nothing to check them against, nor to do with them (on_tick waits for a pose)
+            return
+        reach_m = self.config.tip_radius_m + CONTACT_REACH_M
+        within_reach(positions, self.pose[0], reach_m, "positions_m", "fingertip")
         self.contacts = positions, normals, forces
 
     def on_target(self, message: TouchTarget) -> None:

@@ -194,10 +194,13 @@ def _facts(config: GPISNodeConfig) -> dict[str, tuple[Any, tuple[str, ...]]]:
     """Whether the local mesh carries the GP variance, and at which spacing of candidates: a planner that
     rates by it states that it needs it (palpate.launch checks that both say the same)."""
     facts: dict[str, tuple[Any, tuple[str, ...]]] = {
-        "candidate_variance": ("given" if config.vertex_variance != "none" else "not given", ("vertex_variance",))
+        "surface:candidate_variance": (
+            "given" if config.vertex_variance != "none" else "not given",
+            ("vertex_variance",),
+        )
     }
     if config.vertex_variance == "candidates":
-        facts["candidate_step_m"] = (config.variance_step_m, ("variance_step_m",))
+        facts["surface:candidate_step_m"] = (config.variance_step_m, ("variance_step_m",))
     return facts
 
 

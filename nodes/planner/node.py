@@ -77,9 +77,10 @@ def _facts(config: PlannerConfig) -> dict[str, tuple[Any, tuple[str, ...]]]:
     ``vertex_variance``), at its candidates' spacing (the GPIS node's ``variance_step_m``)."""
     if not config.uses_variance:
         return {}
+    weight = {"area": "area_variance_weight", "tour": "tour_variance_weight"}.get(config.strategy, "strategy")
     return {
-        "candidate_variance": ("given", ("strategy",)),
-        "candidate_step_m": (config.candidate_step_m, ("candidate_step_m",)),
+        "surface:candidate_variance": ("given", (weight,)),
+        "surface:candidate_step_m": (config.candidate_step_m, ("candidate_step_m",)),
     }
 
 

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from palpate import jsonio
 from palpate.argtypes import add_scale_argument
 from palpate.config import load
-from palpate.errors import ConfigError, MeshError
+from palpate.errors import ConfigError, LaunchError, MeshError
 from palpate.evaluation.dask_runs import (
     KEY_FIELD,
     ClusterConfig,
@@ -654,7 +654,11 @@ def check_episodes(items: Sequence[Episode], launch_path: Path = EXPLORE_LAUNCH)
         first.setdefault(episode.strategy, episode)
     with tempfile.TemporaryDirectory() as bus_dir:
         for episode in first.values():
-            resolve(episode_launch(episode, launch_path), bus_dir=Path(bus_dir))
+            try:
+                resolve(episode_launch(episode, launch_path), bus_dir=Path(bus_dir))
+            except LaunchError as exc:
+                sets = ", ".join(f"{key}={value}" for key, value in episode.params)
+                raise LaunchError(f"{exc} (strategy {episode.strategy}; parameters {sets or 'none'})") from exc
 
 
 def episode_launch(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> Any:

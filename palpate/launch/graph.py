@@ -337,7 +337,8 @@ def _check_facts(graph: Graph) -> None:
             facts = node.spec.facts(node.config)
         except PalpateError as exc:
             raise LaunchError(f"{node.entry.at('params')}: node {node.name!r}: {exc}") from exc
-        for name, (value, path) in facts.items():
+        for fact, (value, path) in facts.items():
+            name = _fact_name(node, fact)
             where, key = node.entry.param_at(path), ".".join(["params", *map(str, path)])
             if name not in first:
                 first[name] = (node, value, where, key)
@@ -348,6 +349,19 @@ def _check_facts(graph: Graph) -> None:
                     f"{where}: node {node.name!r} ({key}) and node {other.name!r} ({other_key}, {other_where}) "
                     f"disagree on {name}: {_difference(value, other_value)}; make them the same"
                 )
+
+
+def _fact_name(node: GraphNode, fact: str) -> str:
+    """The name a fact is compared under: a fact of a port (``"PORT:name"``) under its topic, ``"topic:name"``."""
+    port, sep, name = fact.partition(":")
+    if not sep:
+        return fact
+    topic = node.publishes.get(port) or node.subscribes.get(port)
+    if topic is None:
+        raise LaunchError(
+            f"{node.entry.at('type')}: node {node.name!r} states fact {fact!r} of a port it does not have"
+        )
+    return f"{topic}:{name}"
 
 
 def _difference(here: Any, there: Any) -> str:

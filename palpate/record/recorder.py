@@ -127,7 +127,7 @@ class TickSorter:
                 self._close(src, ack.tick)
         elif topic == topics.GRAPH_CONTROL and info.type == RunControl.TYPE:
             control = _decode(payload, RunControl)
-            if control is not None and control.command == "stop":
+            if control is not None and control.command in RunControl.ENDS_RUN:
                 self.stopped = True
 
     def expect(self, source: str) -> None:

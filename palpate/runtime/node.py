@@ -51,7 +51,7 @@ from palpate.runtime.spec import EXIT_RUN_FAILED, ClockSource, NodeLike, NodePro
 STOP_TOPIC = topics.GRAPH_CONTROL
 #: RunControl commands: "stop" ends the run; "fail" ends it as a failure (each node that receives it exits
 #: with EXIT_RUN_FAILED): how a node that is not palpate's (an external driver) makes a run fail.
-STOP, FAIL = "stop", "fail"
+STOP, FAIL = RunControl.ENDS_RUN
 #: Every node publishes its NodeStatus at ticks 0, 100, 200, ... and at exit.
 STATUS_EVERY_TICKS = 100
 #: In lockstep, a node whose hello/<node> subscription has been gone this long has left the run (its
@@ -356,13 +356,14 @@ class NodeRunner:
             if control is not None and control.command not in (STOP, FAIL):
                 self._bad_input(topic, f"unknown RunControl command {control.command!r}; known: 'stop', 'fail'")
             elif control is not None:
+                reason = control.reason or ("no reason given" if control.command == FAIL else "")
                 if control.command == FAIL and not self.ctx.failure:  # this node's exit code says so too
-                    self.ctx.failure = f"{control.reason or 'no reason given'} (asked by a RunControl 'fail')"
+                    self.ctx.failure = f"{reason} (asked by a RunControl 'fail')"
                 self.fail_asked = self.fail_asked or control.command == FAIL
                 self.stopping = True
-                self.stop_reason = self.stop_reason or control.reason
-                if control.reason != CLOCK_FINISHED:  # the clock running out is no node ending the run
-                    self.ctx.run_stopped_by = self.ctx.run_stopped_by or control.reason
+                self.stop_reason = self.stop_reason or reason
+                if reason != CLOCK_FINISHED:  # the clock running out is no node ending the run
+                    self.ctx.run_stopped_by = self.ctx.run_stopped_by or reason
         elif topic in self.input_types:
             self.seq += 1
             rank = self.process.topic_order.get(topic, 1 << 30)

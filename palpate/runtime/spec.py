@@ -132,7 +132,9 @@ class NodeSpec(Generic[C]):
     ports_from_config: Callable[[C], tuple[Mapping[str, Port], Mapping[str, Port]]] | None = None
     #: Facts about the world that the node's config states: config -> {fact: (value, key path of the
     #: params that state it)}, e.g. where the hand is mounted. The launcher checks that every node of a
-    #: graph that states a fact states the same value (a simulator and the mappers of its finger).
+    #: graph that states a fact states the same value (a simulator and the mappers of its finger). A
+    #: fact named ``"PORT:name"`` is about what travels through the node's port PORT: only nodes at the
+    #: two ends of that port's topic must agree (a planner and the GPIS node whose surface it reads).
     facts: Callable[[C], Mapping[str, tuple[Any, KeyPath]]] | None = None
     #: The node never asks to end a run (``ctx.request_stop`` raises). In lockstep, when nothing it
     #: publishes reaches the clock source (a sink, a noise stage feeding a mapper), the clock source then

@@ -145,7 +145,7 @@ class BusSource:
             control = codec.decode(payload, RunControl)
         except MessageError:
             return
-        if control.command == "stop":
+        if control.command in RunControl.ENDS_RUN:
             self.stopped = True
 
     def messages(self, duration_s: float = 0.0) -> Iterator[tuple[str, Message]]:

@@ -13,9 +13,6 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
-
-import yaml
 
 from palpate import jsonio
 from palpate.launch.graph import resolve
@@ -26,17 +23,6 @@ from tests.integration.launch_helpers import kill_session, launched, node_pids, 
 
 DRIVERS = REPO_ROOT / "examples" / "drivers"
 ALLOWED_IMPORTS = {"zmq", "msgpack", "numpy", "wire"}
-
-
-def external_copy(source: Path, target: Path, node: str, **top: Any) -> Path:
-    """A copy of a launch file with `node` marked `external: true` (and top-level keys replaced)."""
-    data = yaml.safe_load(source.read_text())
-    data.update(top)
-    for entry in data["nodes"]:
-        if entry["name"] == node:
-            entry["external"] = True
-    target.write_text(yaml.safe_dump(data, sort_keys=False))
-    return target
 
 
 def start_driver(script: str, bus_dir: Path, node: str, log: Path) -> subprocess.Popen[bytes]:
@@ -109,9 +95,8 @@ def test_lockstep_driver_leaves_when_the_clock_source_dies(tmp_path: Path) -> No
 
 
 def test_realtime_driver_is_the_clock_source_of_the_minimal_graph(tmp_path: Path) -> None:
-    launch = external_copy(LAUNCH_DIR / "demo_minimal.yaml", tmp_path / "minimal.yaml", "cube", mode="realtime")
-    bus_dir = tmp_path / "bus"
-    with launched(launch, bus_dir, tmp_path / "launch.log", "duration_s:=1") as proc:
+    bus_dir, args = tmp_path / "bus", ["duration_s:=1", "mode:=realtime", "--external", "cube"]
+    with launched(LAUNCH_DIR / "demo_minimal.yaml", bus_dir, tmp_path / "launch.log", *args) as proc:
         driver = start_driver("contacts_driver.py", bus_dir, "cube", tmp_path / "driver.log")
         try:
             logs = lambda: text(tmp_path / "driver.log") + "\n---\n" + text(tmp_path / "launch.log")  # noqa: E731

@@ -166,11 +166,13 @@ def test_a_contact_no_part_of_the_fingertip_can_make_is_refused() -> None:
     """A driver's contact in millimetres (25 m away) had sent the fingertip climbing for the rest of the run."""
     ctx = FakeCtx()
     node = ControllerNode(ControllerNodeConfig(initial_target_m=(0.0, 0.0, 0.0)), ctx)
+    node.on_contacts(_contact_at([0.0, 0.0, 25.0]))  # before any pose: nothing to check it against, dropped
+    assert len(node.contacts[0]) == 0
     node.on_pose(pose(np.array([0.0, 0.0, 0.025]), FACING_DOWN, "probe"))
     node.on_contacts(_contact_at([0.0, 0.0, 0.017]))  # on the fingertip's surface, 8 mm below its centre
-    node.on_contacts(_contact_at([0.0, 0.0, 0.09]))  # on the shaft's far end, with room to spare
+    node.on_contacts(_contact_at([0.0, 0.0, 0.13]))  # 9.7 cm beyond it: far more than noise, still taken
     with pytest.raises(
         InputError, match=r"^positions_m: entry 0 lies 24.975 m from the fingertip at \[0.0, 0.0, 0.025\]"
     ):
         node.on_contacts(_contact_at([0.0, 0.0, 25.0]))
-    np.testing.assert_array_equal(node.contacts[0], [[0.0, 0.0, 0.09]])  # the state before the refused set
+    np.testing.assert_array_equal(node.contacts[0], [[0.0, 0.0, 0.13]])  # the state before the refused set

@@ -665,9 +665,11 @@ def test_external_on_the_command_line_marks_nodes_as_the_file_key_does(
     assert main(["launch", str(explore), "--external", "noise,planr", "--bus", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "--external: no node ['planr'] in launch/explore.yaml; its nodes: ['controller', 'eval'," in err, err
-    # the spec a driver reads is the one the launch writes: the clock source waits for the external node
-    assert main(["launch", str(explore), "--external", "noise", "--spec", "sim", "--bus", str(tmp_path)]) == 0
-    assert "noise" in json.loads(capsys.readouterr().out)["lockstep_nodes"]
+    # the specs follow: probe.yaml's clock source lets its noise node trail, but never an external one
+    probe = REPO_ROOT / "launch" / "probe.yaml"
+    for external, trailing in (([], ["noise"]), (["--external", "noise"], [])):
+        assert main(["launch", str(probe), *external, "--spec", "sim", "--bus", str(tmp_path)]) == 0
+        assert json.loads(capsys.readouterr().out)["trailing_nodes"] == trailing
 
 
 def test_a_planner_rating_by_the_variance_needs_a_gpis_node_that_gives_it(tmp_path: Path) -> None:
@@ -680,5 +682,12 @@ def test_a_planner_rating_by_the_variance_needs_a_gpis_node_that_gives_it(tmp_pa
     launch = load_launch(explore, parse_cli_args(["strategy:=gpv"]))
     planner = next(entry for entry in launch.nodes if entry.fields["name"] == "planner")
     planner.fields["params"]["candidate_step_m"] = 0.004  # GP-V's candidates 4 mm apart, the variance's 5 mm
-    with pytest.raises(LaunchError, match=r"disagree on candidate_step_m: 0.004 here, 0.005 there"):
+    with pytest.raises(LaunchError, match=r"disagree on surface/mesh:candidate_step_m: 0.004 here, 0.005 there"):
         resolve(launch, bus_dir=tmp_path)
+    # a second GPIS node without the variance, on a topic no planner reads, is no disagreement
+    two = tmp_path / "two_gpis.yaml"
+    two.write_text(
+        f"include:\n  - file: {explore}\n    args: {{strategy: gpv}}\nnodes:\n  - name: gpis_fast\n    type: gpis\n"
+        "    params: {vertex_variance: none}\n    remaps: {surface: surface/mesh_fast}\n"
+    )
+    assert "gpis_fast" in [node.name for node in load(two, tmp_path).nodes]

@@ -6,7 +6,7 @@ import numpy as np
 
 from palpate.messages import codec, topics
 from palpate.messages.base import Message
-from palpate.messages.schemas import Clock, LockstepAck
+from palpate.messages.schemas import Clock, LockstepAck, RunControl
 from palpate.record.mcap_io import peek
 from palpate.record.recorder import Entry, TickSorter
 from tests.unit.record.synthetic import PERIOD_NS, contacts, lockstep_streams
@@ -114,3 +114,14 @@ def test_without_markers_nothing_is_written_until_told_there_is_no_clock() -> No
     assert sorter.ready() == [] and sorter.pending == 1
     sorter.assume_stream()
     assert [e.info.stamp_ns for b in sorter.ready() for e in b] == [5]
+
+
+def test_a_stop_or_a_fail_ends_the_recording_and_no_other_command_does() -> None:
+    """`record --until-stop` and `palpate launch --record` end with the run, a failed one too (the clock
+    source closes it with "fail")."""
+    for command, ends in (("stop", True), ("fail", True), ("pause", False)):
+        sorter = TickSorter()
+        message = RunControl(stamp_ns=0, command=command, reason="x")
+        payload = codec.encode(message)
+        sorter.add("sim", topics.GRAPH_CONTROL, payload, peek(payload))
+        assert sorter.stopped is ends, command

@@ -116,3 +116,18 @@ def test_topics_filter(capsys: pytest.CaptureFixture[str], log_file: Path, tmp_p
     assert "1 of 1 messages shown" in capsys.readouterr().out
     entities = {c.entity_path for c in RrdReader(out).stream()} - {"/__properties", "/world"}
     assert entities == {"/world/surface/mesh/local"}
+
+
+def test_the_live_viewer_ends_with_a_stopped_or_a_failed_run(tmp_path: Path) -> None:
+    """The clock source closes a failed run with RunControl "fail": the viewer ended only on "stop"."""
+    from palpate.messages import codec
+    from palpate.messages.schemas import RunControl
+    from palpate.viewer.sources import BusSource
+
+    for command, ends in (("stop", True), ("fail", True), ("pause", False)):
+        source = BusSource(tmp_path)
+        try:
+            source._control(codec.encode(RunControl(stamp_ns=0, command=command, reason="x")))
+            assert source.stopped is ends, command
+        finally:
+            source.close()
