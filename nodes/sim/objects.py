@@ -494,7 +494,8 @@ def _check_scale(size: float, path: Path, scale: float) -> None:
     limit = "over 2 m" if size > MAX_EXTENT_M else "under 2 mm"
     fix = np.format_float_positional(scale * (0.001 if size > MAX_EXTENT_M else 1000.0), trim="-")
     raise MeshError(
-        f"{path}: absurd scale: the mesh is {size:.6g} m across after scale {scale:g} ({limit}); "
+        f"{path}: absurd scale: the mesh is {size:.6g} m across after scale {scale:g} ({limit}: the scenes "
+        f"hold objects {MIN_EXTENT_M * 1000:g} mm to {MAX_EXTENT_M:g} m across); "
         f"millimetres given as metres or the reverse? Give it a scale of {fix}: object.scale in a "
         f"scene, scale:={fix} for launch/explore.yaml and launch/probe.yaml, --scale {fix} for "
         "palpate eval explore, sweep explore and bench contacts (or convert the file to metres)"

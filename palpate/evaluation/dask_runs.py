@@ -176,11 +176,20 @@ class Outcome:
 
 
 # --- runs.jsonl ------------------------------------------------------------------------------------------
+def _unused(path: Path) -> Path:
+    """`path`, or `path`.2, `path`.3, ... whichever does not exist yet."""
+    number = 1
+    while path.with_name(path.name + (f".{number}" if number > 1 else "")).exists():
+        number += 1
+    return path.with_name(path.name + (f".{number}" if number > 1 else ""))
+
+
 class RunLog:
     """``runs.jsonl``: one finished run a line, appended as it finishes, each key at most once.
 
     ``resume=False`` starts the file afresh when the first run finishes, keeping an earlier file as
-    ``runs.jsonl.previous`` (so an evaluation that never gets going, a wrong --scheduler, loses nothing);
+    ``runs.jsonl.previous`` (``.previous.2``, ... when that is taken: an evaluation that never gets going,
+    a wrong --scheduler, or a second one into the same folder loses nothing), and says so on stderr;
     ``resume=True`` keeps its runs (:attr:`rows`) and drops a last line cut off by a kill.
     """
 
@@ -202,6 +211,13 @@ class RunLog:
                 partial.write_text("".join(f"{text}\n" for text in kept))
                 partial.replace(self.path)  # a kill meanwhile leaves the file as it was
         self._file: IO[str] | None = self.path.open("a") if resume else None
+        self.kept_as = _unused(self.path.with_name(self.path.name + ".previous"))
+        if not resume and self.path.exists() and self.path.stat().st_size:
+            print(
+                f"note: {self.path} holds runs of an earlier evaluation; they move to {self.kept_as.name} when "
+                "this one's first run finishes (--resume goes on from them instead)",
+                file=sys.stderr,
+            )
 
     @property
     def started(self) -> bool:
@@ -216,7 +232,7 @@ class RunLog:
             return None
         if self._file is None:  # the first run of a fresh start
             if self.path.exists():
-                self.path.replace(self.path.with_name(self.path.name + ".previous"))
+                self.path.replace(self.kept_as)
             self._file = self.path.open("a")
         text = jsonio.dumps({KEY_FIELD: key, **{k: v for k, v in row.items() if not k.startswith("_")}})
         self._file.write(text + "\n")

@@ -187,6 +187,11 @@ class Supervisor:
         try:
             for child in self.children:
                 self._start(child)
+            for path in self.external_specs:
+                self._say(
+                    f"waiting for external node {path.stem!r}: start its driver, which reads {path} "
+                    "(docs/runtime.md, External nodes); the nodes give up after 60 s without it"
+                )
             if on_started is not None:
                 on_started()
             return self._supervise()

@@ -492,7 +492,9 @@ class NodeRunner:
                 return
             if time.monotonic() > deadline:
                 missing = self.counter.missing(expected)
-                raise TimeoutError(f"subscribers never connected within {self.start_timeout_s:.0f} s: {missing}")
+                absent = ", ".join(sorted(t.removeprefix("hello/") for t in missing if t.startswith("hello/")))
+                hint = f"; not connected: {absent} (an external node's driver not started?)" if absent else ""
+                raise TimeoutError(f"subscribers never connected within {self.start_timeout_s:.0f} s: {missing}{hint}")
             self._receive(50)
         if self.lockstep:
             self._send_internal(topics.LOCKSTEP_ACK, LockstepAck(stamp_ns=0, node=self.process.name, tick=-1))

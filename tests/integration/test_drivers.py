@@ -64,6 +64,9 @@ def test_lockstep_driver_replaces_the_noise_node_of_the_exploration_graph(tmp_pa
         finally:
             kill_session(driver)
     assert "[noise] stopped after 301 ticks" in text(tmp_path / "driver.log")
+    assert f"[launch] waiting for external node 'noise': start its driver, which reads {bus_dir}" in text(
+        tmp_path / "launch.log"
+    )
     assert not (bus_dir / "external" / "noise.json").exists()  # the launcher removes what it wrote
     # the same graph with palpate's own noise node (sigma 0 passes contacts through, as the driver does)
     graph = resolve(load_launch(LAUNCH_DIR / "explore.yaml", parse_cli_args(["duration_s:=3", "results:="])))

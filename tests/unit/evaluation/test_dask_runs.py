@@ -29,7 +29,9 @@ def test_a_run_is_written_once_as_strict_json_without_its_private_fields(tmp_pat
     assert lines(tmp_path / "runs.jsonl") == [{"run_key": "a", "x": [1, 2], "y": None}]
 
 
-def test_resume_keeps_the_finished_runs_and_drops_a_cut_off_last_line(tmp_path: Path) -> None:
+def test_resume_keeps_the_finished_runs_and_drops_a_cut_off_last_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     path = tmp_path / "runs.jsonl"
     path.write_text('{"run_key": "a", "x": 1}\n{"run_key": "b", "x": 2}\n{"run_key": "c", "x"')
     with RunLog(path, resume=True) as log:
@@ -44,6 +46,14 @@ def test_resume_keeps_the_finished_runs_and_drops_a_cut_off_last_line(tmp_path: 
         log.append("d", {"x": 4})
     assert [r["run_key"] for r in lines(path)] == ["d"]
     assert (tmp_path / "runs.jsonl.previous").read_text() == previous  # kept beside it
+    capsys.readouterr()
+    with RunLog(path, resume=False) as log:  # a second fresh start keeps both earlier files, and says so
+        log.append("e", {"x": 5})
+    assert (
+        "runs.jsonl holds runs of an earlier evaluation; they move to runs.jsonl.previous.2" in capsys.readouterr().err
+    )
+    assert [r["run_key"] for r in lines(tmp_path / "runs.jsonl.previous.2")] == ["d"]
+    assert (tmp_path / "runs.jsonl.previous").read_text() == previous
 
 
 def test_resume_runs_again_what_ended_with_an_error(tmp_path: Path) -> None:

@@ -436,3 +436,33 @@ def test_a_signal_tells_the_nodes_close_that_the_run_was_ended() -> None:
             signal.signal(s, h)
     assert runner.interrupted and runner.stop_reason == "interrupted by SIGTERM"
     assert runner.ctx.run_stopped_by == "interrupted by SIGTERM"
+
+
+class Idle:
+    """A node that does nothing."""
+
+
+def test_a_start_up_without_a_peer_names_it_as_perhaps_an_external_node(tmp_path: Path) -> None:
+    from palpate.runtime.node import NodeRunner
+
+    process = NodeProcessSpec(
+        name="waiter",
+        type="waiter",
+        node_spec="tests:unused",
+        params={},
+        bus_dir=str(tmp_path),
+        endpoint=f"ipc://{tmp_path}/waiter.pub",
+        publishes={},
+        subscribes={},
+        connect=[],
+        mode="realtime",
+        expected_subscribers={"hello/noise": 1, "graph/control": 1},
+    )
+    runner = NodeRunner(
+        NodeSpec(name="waiter", config=NoParams, factory=lambda c, ctx: Idle()), process, start_timeout_s=0.2
+    )
+    try:
+        with pytest.raises(TimeoutError, match=r"not connected: noise \(an external node's driver not started\?\)"):
+            runner._start_up()
+    finally:
+        runner._close_sockets(linger_ms=0)
