@@ -241,22 +241,27 @@ def refuse_to_start(config: NoParams, ctx: Any) -> Any:
     raise EstimationError("this node cannot start")
 
 
-def test_a_node_that_fails_to_start_leaves_no_socket_file(tmp_path: Path) -> None:
-    from palpate.runtime.node import NodeRunner
-
-    endpoint = f"ipc://{tmp_path}/refuser.pub"
-    process = NodeProcessSpec(
-        name="refuser",
-        type="refuser",
+def bare_process(bus_dir: Path, name: str, **fields: Any) -> NodeProcessSpec:
+    """The process spec of a real-time node `name` that publishes and reads nothing, on `bus_dir`."""
+    return NodeProcessSpec(
+        name=name,
+        type=name,
         node_spec="tests:unused",
         params={},
-        bus_dir=str(tmp_path),
-        endpoint=endpoint,
+        bus_dir=str(bus_dir),
+        endpoint=f"ipc://{bus_dir}/{name}.pub",
         publishes={},
         subscribes={},
         connect=[],
         mode="realtime",
+        **fields,
     )
+
+
+def test_a_node_that_fails_to_start_leaves_no_socket_file(tmp_path: Path) -> None:
+    from palpate.runtime.node import NodeRunner
+
+    process = bare_process(tmp_path, "refuser")
     spec = NodeSpec(name="refuser", config=NoParams, factory=refuse_to_start)
     with pytest.raises(EstimationError, match="cannot start"):
         NodeRunner(spec, process)
@@ -445,19 +450,7 @@ class Idle:
 def test_a_start_up_without_a_peer_names_it_as_perhaps_an_external_node(tmp_path: Path) -> None:
     from palpate.runtime.node import NodeRunner
 
-    process = NodeProcessSpec(
-        name="waiter",
-        type="waiter",
-        node_spec="tests:unused",
-        params={},
-        bus_dir=str(tmp_path),
-        endpoint=f"ipc://{tmp_path}/waiter.pub",
-        publishes={},
-        subscribes={},
-        connect=[],
-        mode="realtime",
-        expected_subscribers={"hello/noise": 1, "graph/control": 1},
-    )
+    process = bare_process(tmp_path, "waiter", expected_subscribers={"hello/noise": 1, "graph/control": 1})
     runner = NodeRunner(
         NodeSpec(name="waiter", config=NoParams, factory=lambda c, ctx: Idle()), process, start_timeout_s=0.2
     )
