@@ -119,19 +119,50 @@ def replay_note(launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] |
         then = dict(json.loads(info.get("args", "{}")))
     except (ValueError, TypeError):
         then = {}
+    graph = resolve(launch, bus_dir=Path("/nonexistent-bus-dir"))
     if nodes is None:
-        clock = resolve(launch, bus_dir=Path("/nonexistent-bus-dir")).clock_source
-        nodes = [clock.name] if clock is not None else []
-    differ = [
-        f"{k}:={then[k]!r} (here {launch.args[k]!r})"
-        for k in sorted(launch.args)
-        if k in then and then[k] != launch.args[k] and _sets_params(launch.path, then, k, launch.args[k], nodes)
-    ]
+        nodes = [graph.clock_source.name] if graph.clock_source is not None else []
+    changed = [k for k in sorted(launch.args) if k in then and then[k] != launch.args[k]]
+
+    def listed(names: Sequence[str]) -> str:
+        return ", ".join(f"{k}:={then[k]!r} (here {launch.args[k]!r})" for k in names)
+
+    replayed = [k for k in changed if _sets_params(launch.path, then, k, launch.args[k], nodes)]
+    differ = [listed(replayed)] if replayed else []
     if info.get("seed") not in (None, str(launch.seed)):
         differ.append(f"seed {info['seed']} (here {launch.seed})")
-    if not differ:
-        return None
-    return f"note: {log_path} was recorded with {', '.join(differ)}; the replayed sensor data is that run's"
+    notes = (
+        [f"{log_path} was recorded with {', '.join(differ)}; the replayed sensor data is that run's"] if differ else []
+    )
+    steering = [name for name in _feeding(graph, nodes) if not graph.by_name[name].evaluator]  # evaluators observe
+    steered = [k for k in changed if k not in replayed and _sets_params(launch.path, then, k, launch.args[k], steering)]
+    if steered:
+        notes.append(
+            f"{listed(steered)} change nodes whose outputs steered the recorded motion ({', '.join(steering)}); "
+            "the replay does not follow them, so what they decide now need not match the motion in the log"
+        )
+    return "note: " + "; ".join(notes) if notes else None
+
+
+def _feeding(graph: Graph, nodes: Sequence[str]) -> list[str]:
+    """The nodes, other than `nodes`, whose outputs reach one of `nodes` through topics, directly or not."""
+    readers = {
+        t: {n.name for n in graph.nodes if t in n.subscribes.values()}
+        for n in graph.nodes
+        for t in n.publishes.values()
+    }
+    found: set[str] = set()
+    targets = set(nodes)
+    while True:
+        more = {
+            n.name
+            for n in graph.nodes
+            if n.name not in targets | found
+            and any(readers.get(t, set()) & (targets | found) for t in n.publishes.values())
+        }
+        if not more:
+            return sorted(found)
+        found |= more
 
 
 def _sets_params(path: Path, args: dict[str, object], name: str, value: object, nodes: Sequence[str]) -> bool:

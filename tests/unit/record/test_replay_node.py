@@ -199,3 +199,7 @@ def test_a_replay_note_leaves_out_arguments_that_do_not_set_the_replaced_nodes(t
 
     assert note(results="out/run.json", plot="out/run.png") is None  # the evaluator's outputs only
     assert "object:='sphere' (here 'torus')" in (note(object="sphere") or "")  # the simulator's object
+    # the planner and the controller steered the recorded motion: another strategy is noted as such
+    steered = note(strategy="tour") or ""
+    assert steered.startswith("note: strategy:='tour' (here 'igef') change nodes whose outputs steered the recorded")
+    assert "(controller, gpis, noise, planner)" in steered  # every node whose outputs reach the simulator
