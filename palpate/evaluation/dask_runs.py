@@ -30,6 +30,7 @@ import json
 import logging
 import math
 import os
+import signal
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -414,6 +415,21 @@ def _scheduler_state(keys: Sequence[str], retries: int, dask_scheduler: Any = No
     return {"running": min(running, threads), "attempts": attempts}
 
 
+@contextlib.contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM (a batch scheduler's, ``timeout``'s, ``kill``'s) ends the evaluation as Ctrl-C does: the
+    finished runs stay in runs.jsonl and the command says how to go on (it ended with no word before)."""
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def run_tasks(
     tasks: Sequence[RunTask],
     log: RunLog,
@@ -439,7 +455,7 @@ def run_tasks(
         return outcome
     bar = tqdm(total=len(tasks), initial=outcome.resumed, unit="run", smoothing=0.0, disable=not config.progress)
     try:
-        with connect(config) as client:
+        with terminate_as_interrupt(), connect(config) as client:
             outcome.workers = len(client.scheduler_info().get("workers", {}))
             link = dashboard(client)
             where = describe(config) + (f"; dashboard {link}" if link else "")

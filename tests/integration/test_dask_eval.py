@@ -282,3 +282,20 @@ def test_a_killed_evaluation_resumes_to_the_tables_of_an_uninterrupted_run(
     assert summary == expected_summary
     tables = (out / "tables.md").read_text().split("## Averages", 1)[1]
     assert tables == (expected_out / "tables.md").read_text().split("## Averages", 1)[1]
+
+
+def test_a_terminated_evaluation_says_how_to_go_on_as_ctrl_c_does(objects: Path, tmp_path: Path) -> None:
+    """SIGTERM (a batch scheduler's, `timeout`'s) ended the command without a word; the runs were kept."""
+    out = tmp_path / "out"
+    proc = spawn(eval_command(objects, out, "--workers", "1"), tmp_path / "terminated.log", tmp_path / "cache")
+    try:
+        wait_for_lines(out / "runs.jsonl", 1, proc)
+        proc.send_signal(signal.SIGTERM)  # the command only, as a scheduler would
+        code = proc.wait(timeout=60)
+    finally:
+        kill_session(proc)
+    log = (tmp_path / "terminated.log").read_text()
+    if "interrupted" not in log and code == 0:
+        pytest.skip("every run ended before the signal landed")
+    assert code == 130, log
+    assert f"finished run(s) are in {out / 'runs.jsonl'}; the same command with --resume goes on" in log, log
