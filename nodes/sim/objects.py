@@ -532,9 +532,10 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
     bodies = int(mesh.body_count)
     if bodies > 1:
         warnings.warn(
-            f"{path}: the mesh holds {bodies} separate bodies; a fingertip explores the one it reaches, "
-            "while coverage and shape scores count them all (a body never touched caps the coverage). "
-            "Give each body a file of its own to explore it.",
+            f"{path}: the mesh holds {bodies} separate bodies (unconnected surfaces); a fingertip explores "
+            "what it reaches of them, while coverage and shape scores count all their faces, those hidden "
+            "inside another body too (a body never touched, or buried faces, cap the coverage). Join "
+            "overlapping bodies into one surface, or give each body a file of its own.",
             MeshWarning,
             stacklevel=3,
         )

@@ -30,6 +30,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -727,6 +728,7 @@ def main(argv: list[str] | None = None) -> int:
     process = NodeProcessSpec.from_json(Path(args[0]).read_text())
     memory.keep_freed_buffers()  # reuse big payload buffers instead of faulting fresh pages in per message
     logging.basicConfig(level=logging.INFO, format=f"[{process.name}] %(levelname)s %(message)s", stream=sys.stderr)
+    warnings.showwarning = _log_warning
     try:
         runner = NodeRunner(load_node_spec(process.node_spec, label=process.type), process)
     except PalpateError as exc:
@@ -740,6 +742,12 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if not flush_before_exit(runner.zmq, timeout_s=1.0):
             log.warning("node %s: messages still queued after 1 s at exit were dropped", process.name)
+
+
+def _log_warning(message: Warning | str, category: type[Warning], *_: Any, **__: Any) -> None:
+    """A warning in a node process as one log line, ``[node] WARNING MeshWarning: ...`` (Python's own
+    format adds the source line that raised it, which says nothing to a user)."""
+    log.warning("%s: %s", category.__name__, message)
 
 
 def flush_before_exit(context: zmq.Context[Any], timeout_s: float) -> bool:

@@ -459,3 +459,18 @@ def test_a_start_up_without_a_peer_names_it_as_perhaps_an_external_node(tmp_path
             runner._start_up()
     finally:
         runner._close_sockets(linger_ms=0)
+
+
+def test_a_warning_in_a_node_process_is_one_log_line(caplog: pytest.LogCaptureFixture) -> None:
+    """Python's own format adds the source line that warned (`local = read_mesh_file(...)`)."""
+    import warnings
+
+    from palpate.errors import MeshWarning
+    from palpate.runtime import node
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        warnings.showwarning = node._log_warning  # as the node process's main sets it
+        with caplog.at_level("WARNING"):
+            warnings.warn("two.stl: the mesh holds 2 separate bodies", MeshWarning, stacklevel=1)
+    assert caplog.messages == ["MeshWarning: two.stl: the mesh holds 2 separate bodies"]
