@@ -98,9 +98,14 @@ class ObjectCase:
 
 
 def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
-    """Every mesh file in ``folder`` (sorted by name) as an ObjectCase, in metres after ``scale``."""
+    """Every mesh file in ``folder`` (sorted by name) as an ObjectCase, in metres after ``scale``; a mesh
+    file itself is one."""
+    if folder.is_file() and folder.suffix.lower() in MESH_SUFFIXES:
+        return [ObjectCase(name=folder.stem, kind="mesh", mesh=_resolved(folder), scale=scale)]
     if not folder.is_dir():
-        raise ConfigError(f"--objects {str(folder)!r} is not a folder; give a folder of mesh files (STL, see --scale)")
+        raise ConfigError(
+            f"--objects {str(folder)!r} is neither a folder nor a mesh file ({', '.join(MESH_SUFFIXES)}; see --scale)"
+        )
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
     skipped = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in OTHER_3D_SUFFIXES)
     if skipped:
@@ -482,9 +487,15 @@ PLOT_OBJECT = "011_banana"
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate eval explore` (registered by palpate.commands.evaluate)."""
-    parser.add_argument("--objects", type=Path, help="folder of mesh files, metres or see --scale (default: YCB)")
+    parser.add_argument(
+        "--objects",
+        type=Path,
+        nargs="+",
+        metavar="PATH",
+        help="folders of mesh files, or mesh files; metres or see --scale (default: the YCB folder)",
+    )
     add_scale_argument(parser)
-    parser.add_argument("--runs", type=int, default=3, help="start positions per object (seed = run index)")
+    parser.add_argument("--runs", type=int, default=3, help="start positions per object (seed = run index; default 3)")
     parser.add_argument(
         "--strategies",
         help="comma-separated: igef, gpv, random, area, tour (default: igef,gpv; with --quick igef,gpv,tour)",
@@ -604,15 +615,22 @@ def runs_from(path: Path) -> list[dict[str, Any]]:
     return results
 
 
-def select_cases(folder: Path | None, smallest: int | None = None, scale: float = 1.0) -> list[ObjectCase]:
-    """The objects of an evaluation: every mesh of ``folder`` (default: the YCB folder, in metres after
-    ``scale``), or only the ``smallest`` ones by surface area."""
+def select_cases(paths: Sequence[Path] | None, smallest: int | None = None, scale: float = 1.0) -> list[ObjectCase]:
+    """The objects of an evaluation: every mesh of the folders and every mesh file in ``paths`` (default:
+    the YCB folder), in metres after ``scale``, or only the ``smallest`` ones by surface area."""
     from palpate.paths import ycb_dir
 
-    folder = folder or ycb_dir()
-    if folder is None:
-        raise ConfigError("no --objects folder given and the YCB meshes are not found (set PALPATE_YCB_DIR)")
-    cases = objects_in(Path(folder), scale)
+    if not paths:
+        ycb = ycb_dir()
+        if ycb is None:
+            raise ConfigError("no --objects given and the YCB meshes are not found (set PALPATE_YCB_DIR)")
+        paths = [ycb]
+    cases: list[ObjectCase] = []
+    for path in paths:
+        for case in objects_in(Path(path), scale):
+            if any(case.name == other.name for other in cases):  # runs and tables know an object by its name
+                raise ConfigError(f"--objects names two meshes {case.name!r} ({case.mesh}); rename one")
+            cases.append(case)
     if smallest is not None:
         from palpate.nodes.sim.objects import read_mesh_file
 

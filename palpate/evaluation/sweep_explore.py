@@ -86,7 +86,13 @@ FULL_OBJECTS = 5
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate sweep explore`."""
-    parser.add_argument("--objects", type=Path, help="folder of mesh files, metres or see --scale (default: YCB)")
+    parser.add_argument(
+        "--objects",
+        type=Path,
+        nargs="+",
+        metavar="PATH",
+        help="folders of mesh files, or mesh files; metres or see --scale (default: the YCB folder)",
+    )
     add_scale_argument(parser)
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, IGEF, 1 run")
     parser.add_argument("--runs", type=int, default=1, help="start positions per object")

@@ -134,9 +134,26 @@ def test_choosing_the_smallest_objects_names_a_mesh_it_cannot_read(tmp_path: Pat
     trimesh.creation.box(extents=(0.05, 0.05, 0.05)).export(tmp_path / "box.stl")
     (tmp_path / "broken.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99\n")
     with pytest.raises(MeshError, match=r"broken\.obj: "):
-        select_cases(tmp_path, smallest=1)
+        select_cases([tmp_path], smallest=1)
     (tmp_path / "broken.obj").unlink()
-    assert [c.name for c in select_cases(tmp_path, smallest=1)] == ["box"]
+    assert [c.name for c in select_cases([tmp_path], smallest=1)] == ["box"]
+
+
+def test_objects_may_be_mesh_files_as_well_as_folders(tmp_path: Path) -> None:
+    """A user picking three objects of the YCB folder had to link them into a folder of their own."""
+    from palpate.evaluation.explore import select_cases
+
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        trimesh.creation.box(extents=(0.05, 0.05, 0.05)).export(tmp_path / name / f"{name}box.stl")
+    trimesh.creation.icosphere(radius=0.02).export(tmp_path / "ball.stl")
+    chosen = select_cases([tmp_path / "a", tmp_path / "ball.stl"])
+    assert [c.name for c in chosen] == ["abox", "ball"] and chosen[1].mesh == str(tmp_path / "ball.stl")
+    (tmp_path / "b" / "ball.stl").write_bytes((tmp_path / "ball.stl").read_bytes())
+    with pytest.raises(ConfigError, match=r"--objects names two meshes 'ball'"):
+        select_cases([tmp_path / "ball.stl", tmp_path / "b"])
+    with pytest.raises(ConfigError, match=r"is neither a folder nor a mesh file"):
+        select_cases([tmp_path / "notes.txt"])
 
 
 def test_runs_from_a_file_leave_out_a_cut_last_line_and_refuse_a_repeated_run(tmp_path: Path) -> None:
