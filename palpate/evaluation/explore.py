@@ -487,14 +487,7 @@ PLOT_OBJECT = "011_banana"
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate eval explore` (registered by palpate.commands.evaluate)."""
-    parser.add_argument(
-        "--objects",
-        type=Path,
-        nargs="+",
-        metavar="PATH",
-        help="folders of mesh files, or mesh files; metres or see --scale (default: the YCB folder)",
-    )
-    add_scale_argument(parser)
+    add_objects_arguments(parser)
     parser.add_argument("--runs", type=int, default=3, help="start positions per object (seed = run index; default 3)")
     parser.add_argument(
         "--strategies",
@@ -613,6 +606,18 @@ def runs_from(path: Path) -> list[dict[str, Any]]:
         seen[which] = number
         results.append(row)
     return results
+
+
+def add_objects_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--objects`` (what ``select_cases`` takes) and ``--scale``."""
+    parser.add_argument(
+        "--objects",
+        type=Path,
+        nargs="+",
+        metavar="PATH",
+        help="folders of mesh files, or mesh files; metres or see --scale (default: the YCB folder)",
+    )
+    add_scale_argument(parser)
 
 
 def select_cases(paths: Sequence[Path] | None, smallest: int | None = None, scale: float = 1.0) -> list[ObjectCase]:

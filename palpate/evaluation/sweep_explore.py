@@ -25,13 +25,13 @@ from typing import Any
 import numpy as np
 
 from palpate import jsonio
-from palpate.argtypes import add_scale_argument
 from palpate.errors import ConfigError
 from palpate.evaluation.dask_runs import RunLog, output_folder, report_failures
 from palpate.evaluation.dask_runs import add_arguments as add_cluster_arguments
 from palpate.evaluation.dask_runs import config_from_args as cluster_config
 from palpate.evaluation.explore import (
     Episode,
+    add_objects_arguments,
     check_episodes,
     episodes,
     parse_sets,
@@ -86,14 +86,7 @@ FULL_OBJECTS = 5
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate sweep explore`."""
-    parser.add_argument(
-        "--objects",
-        type=Path,
-        nargs="+",
-        metavar="PATH",
-        help="folders of mesh files, or mesh files; metres or see --scale (default: the YCB folder)",
-    )
-    add_scale_argument(parser)
+    add_objects_arguments(parser)
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, IGEF, 1 run")
     parser.add_argument("--runs", type=int, default=1, help="start positions per object")
     parser.add_argument("--strategies", default="igef", help="comma-separated strategies (default igef)")
