@@ -125,6 +125,7 @@ def run_info(args: argparse.Namespace) -> int:
             print(
                 f"  recorded by palpate launch {launch.get('launch_file', '?')}, seed {launch.get('seed', '?')}, "
                 f"arguments {launch.get('args', '{}')}"
+                + (f", parameters set {launch['params']}" if "params" in launch else "")
             )
     return 0
 
@@ -132,9 +133,10 @@ def run_info(args: argparse.Namespace) -> int:
 def _launch_json(launch: dict[str, str]) -> dict[str, Any]:
     """The log's launch metadata with its arguments and seed as JSON values, not the strings stored."""
     out: dict[str, Any] = dict(launch)
-    if "args" in out:
-        with contextlib.suppress(ValueError):
-            out["args"] = json.loads(out["args"])
+    for key in ("args", "params"):
+        if key in out:
+            with contextlib.suppress(ValueError):
+                out[key] = json.loads(out[key])
     if str(out.get("seed", "")).isdigit():
         out["seed"] = int(out["seed"])
     return out

@@ -16,7 +16,7 @@ from palpate import jsonio
 from palpate.errors import LaunchError
 from palpate.launch import placement
 from palpate.launch.graph import Graph, resolve
-from palpate.launch.loader import load_launch, parse_cli_args, with_external
+from palpate.launch.loader import apply_params, load_launch, parse_cli_args, parse_node_params, with_external
 from palpate.launch.supervisor import Supervisor
 from palpate.paths import LAUNCH_DIR, REPO_ROOT
 from palpate.runtime import bus
@@ -40,6 +40,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         type=_names,
         metavar="A,B",
         help="with --replay: the nodes the log stands in for (default: the clock source)",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NODE.KEY=VALUE",
+        help="override a node parameter the launch file sets or not (e.g. gpis.gp.kernel=gaussian); repeatable",
     )
     p.add_argument(
         "--external",
@@ -78,9 +85,12 @@ def load_graph(
     replay: Path | None = None,
     replay_nodes: list[str] | None = None,
     external: list[str] | None = None,
+    sets: list[str] | None = None,
 ) -> Graph:
     try:
         launch = load_launch(path, parse_cli_args(overrides))
+        if sets:
+            apply_params(launch, parse_node_params(sets).items())
         if external:
             launch = with_external(launch, external)
         if replay is not None:
@@ -96,7 +106,8 @@ def load_graph(
             launch = replayed
         return resolve(launch, bus_dir=bus_dir)
     except LaunchError as exc:
-        raise _from_the_command_line(exc, path, overrides) from exc
+        named = _from_the_command_line(exc, path, overrides)
+        raise LaunchError(f"{named} (with --set {' --set '.join(sets)})") if sets else named from exc
 
 
 def _from_the_command_line(exc: LaunchError, path: Path, overrides: list[str]) -> LaunchError:
@@ -113,7 +124,7 @@ def _from_the_command_line(exc: LaunchError, path: Path, overrides: list[str]) -
 def run_launch(args: argparse.Namespace) -> int:
     if args.replay_nodes and args.replay is None:
         raise LaunchError("--replay-nodes needs --replay LOG.mcap")
-    graph = load_graph(args.file, args.args, args.bus, args.replay, args.replay_nodes, args.external)
+    graph = load_graph(args.file, args.args, args.bus, args.replay, args.replay_nodes, args.external, args.set)
     if args.spec is not None:
         recorder_keys = recorder_curve_keys(graph) if args.record else {}
         specs = {
@@ -161,11 +172,14 @@ def launch_about(graph: Graph) -> dict[str, str]:
     source = graph.source
     path = source.path.resolve()
     shown = path.relative_to(REPO_ROOT) if path.is_relative_to(REPO_ROOT) else path  # the same in every clone
-    return {
+    about = {
         "launch_file": str(shown),
         "args": jsonio.dumps(source.args, sort_keys=True, default=str),
         "seed": str(source.seed),
     }
+    if source.overrides:  # --set
+        about["params"] = jsonio.dumps(source.overrides, sort_keys=True, default=str)
+    return about
 
 
 #: After a failed run the recorder gets this long (seconds) to finish on its own before it is told to.

@@ -319,22 +319,6 @@ def _triple(v: FloatArray) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
-def apply_params(launch: Any, params: Iterable[tuple[str, Any]]) -> None:
-    """Set dotted node parameters ``"node.key.subkey" = value`` in a loaded launch file, in place."""
-    nodes = {entry.fields["name"]: entry for entry in launch.nodes}
-    for dotted, value in params:
-        name, _, path = dotted.partition(".")
-        if name not in nodes or not path:
-            raise ConfigError(f"parameter override {dotted!r}: expected node.key with node one of {sorted(nodes)}")
-        target = nodes[name].fields.setdefault("params", {})
-        keys = path.split(".")
-        for key in keys[:-1]:
-            target = target.setdefault(key, {})
-            if not isinstance(target, dict):
-                raise ConfigError(f"parameter override {dotted!r}: {key!r} is not a mapping")
-        target[keys[-1]] = value
-
-
 def run_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH, *, profile: bool = False) -> dict[str, Any]:
     """Run one episode in this process; returns the evaluator's summary plus timing and identity, and
     with ``profile`` the wall seconds of each part of the graph's ticks (``InProcessGraph(profile=True)``:
@@ -559,12 +543,10 @@ def _rounded(seconds: Mapping[str, float]) -> dict[str, float]:
 
 def parse_sets(items: Sequence[str]) -> dict[str, Any]:
     """``["node.key=value", ...]`` -> {"node.key": value}, values parsed as YAML scalars."""
-    from palpate.launch.loader import parse_cli_args
+    from palpate.launch.loader import parse_node_params
 
-    out = parse_cli_args(items, separator="=")
+    out = parse_node_params(items)
     for key in out:
-        if "." not in key:
-            raise ConfigError(f"--set {key!r}: expected NODE.KEY=VALUE, e.g. planner.candidate_step_m=0.005")
         if key == "planner.strategy":
             raise ConfigError(
                 "--set planner.strategy: choose the strategies with --strategies (each run's is a launch argument)"
@@ -686,7 +668,7 @@ def check_episodes(items: Sequence[Episode], launch_path: Path = EXPLORE_LAUNCH)
 
 def episode_launch(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> Any:
     """The episode's launch file, loaded with its arguments and parameter overrides (not yet resolved)."""
-    from palpate.launch.loader import load_launch
+    from palpate.launch.loader import apply_params, load_launch
 
     launch = load_launch(launch_path, episode.launch_args())
     apply_params(launch, episode.params)

@@ -6,7 +6,7 @@ Every value keeps the file and line it came from, so that validation errors can 
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -14,7 +14,7 @@ from typing import Any
 import yaml
 
 from palpate.config import KeyPath, key_lines, line_at
-from palpate.errors import LaunchError
+from palpate.errors import ConfigError, LaunchError
 from palpate.launch.placement import PLACEMENTS
 
 
@@ -96,6 +96,8 @@ class LaunchFile:
     placement: str = "os"
     #: Where the file sets its mode (its `mode` key, else its `nodes` key, else line 1), for errors about it.
     mode_at: Where | None = None
+    #: Node parameters set from outside the file (``--set node.key=value``: ``apply_params``), by dotted key.
+    overrides: dict[str, Any] = field(default_factory=dict)
 
 
 def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any]:
@@ -115,6 +117,32 @@ def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any
                 "quote it to pass text"
             ) from exc
     return out
+
+
+def parse_node_params(items: Sequence[str]) -> dict[str, Any]:
+    """``--set`` items ``["node.key=value", ...]`` -> {"node.key": value}, values parsed as YAML scalars."""
+    out = parse_cli_args(items, separator="=")
+    for key in out:
+        if "." not in key:
+            raise ConfigError(f"--set {key!r}: expected NODE.KEY=VALUE, e.g. planner.candidate_step_m=0.005")
+    return out
+
+
+def apply_params(launch: LaunchFile, params: Iterable[tuple[str, Any]]) -> None:
+    """Set dotted node parameters ``"node.key.subkey" = value`` in a loaded launch file, in place."""
+    nodes = {entry.fields["name"]: entry for entry in launch.nodes}
+    for dotted, value in params:
+        name, _, path = dotted.partition(".")
+        if name not in nodes or not path:
+            raise ConfigError(f"parameter override {dotted!r}: expected node.key with node one of {sorted(nodes)}")
+        target = nodes[name].fields.setdefault("params", {})
+        keys = path.split(".")
+        for key in keys[:-1]:
+            target = target.setdefault(key, {})
+            if not isinstance(target, dict):
+                raise ConfigError(f"parameter override {dotted!r}: {key!r} is not a mapping")
+        target[keys[-1]] = value
+        launch.overrides[dotted] = value
 
 
 def with_external(launch: LaunchFile, names: Sequence[str]) -> LaunchFile:

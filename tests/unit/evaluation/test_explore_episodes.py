@@ -12,7 +12,6 @@ from palpate.errors import ConfigError, LaunchError, MeshError
 from palpate.evaluation.explore import (
     EXPLORE_LAUNCH,
     ObjectCase,
-    apply_params,
     approach,
     check_episodes,
     episodes,
@@ -28,7 +27,7 @@ from palpate.evaluation.explore import (
 )
 from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.geometry.rotations import quat_to_matrix
-from palpate.launch.loader import load_launch
+from palpate.launch.loader import apply_params, load_launch
 from palpate.metrics.exploration import DistanceField
 from palpate.nodes.sim.objects import primitive_mesh
 

@@ -691,3 +691,21 @@ def test_a_planner_rating_by_the_variance_needs_a_gpis_node_that_gives_it(tmp_pa
         "    params: {vertex_variance: none}\n    remaps: {surface: surface/mesh_fast}\n"
     )
     assert "gpis_fast" in [node.name for node in load(two, tmp_path).nodes]
+
+
+def test_set_overrides_a_node_parameter_and_the_log_keeps_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`palpate launch --set node.key=value`, as the evaluations take it: a GPIS knob that is no launch
+    argument needed a copy of the launch file."""
+    from palpate.commands.launch import launch_about, load_graph
+
+    explore = REPO_ROOT / "launch" / "explore.yaml"
+    graph = load_graph(explore, [], tmp_path, sets=["gpis.gp.kernel=gaussian", "noise.position_sigma_m=0.001"])
+    assert graph.by_name["gpis"].config.gp.kernel == "gaussian"
+    assert graph.by_name["noise"].config.position_sigma_m == 0.001
+    about = launch_about(graph)
+    assert json.loads(about["params"]) == {"gpis.gp.kernel": "gaussian", "noise.position_sigma_m": 0.001}
+    assert "params" not in launch_about(load_graph(explore, [], tmp_path))  # nothing set, nothing said
+    assert main(["launch", str(explore), "--set", "gpis.gp.kernl=gaussian", "--dry-run", "--bus", str(tmp_path)]) == 2
+    assert "unknown key 'kernl'" in (err := capsys.readouterr().err) and "(with --set gpis.gp.kernl=gaussian)" in err
