@@ -103,11 +103,14 @@ def load_graph(
             kept = {entry.fields["name"] for entry in replayed.nodes}
             if gone := sorted(set(external or ()) - kept):
                 raise LaunchError(f"--external {','.join(gone)}: --replay stands in for {gone}; name other nodes")
+            if lost := sorted(key for key in launch.overrides if key.partition(".")[0] not in kept):
+                raise LaunchError(f"--set {', '.join(lost)}: --replay stands in for that node; its data is the log's")
             launch = replayed
         return resolve(launch, bus_dir=bus_dir)
     except LaunchError as exc:
         named = _from_the_command_line(exc, path, overrides)
-        raise LaunchError(f"{named} (with --set {' --set '.join(sets)})") if sets else named from exc
+        relevant = [item for item in sets or () if f"node '{item.partition('.')[0]}'" in str(named)]
+        raise LaunchError(f"{named} (with --set {' --set '.join(relevant)})") if relevant else named from exc
 
 
 def _from_the_command_line(exc: LaunchError, path: Path, overrides: list[str]) -> LaunchError:

@@ -212,11 +212,10 @@ class RunLog:
                 partial.write_text("".join(f"{text}\n" for text in kept))
                 partial.replace(self.path)  # a kill meanwhile leaves the file as it was
         self._file: IO[str] | None = self.path.open("a") if resume else None
-        self.kept_as = _unused(self.path.with_name(self.path.name + ".previous"))
         if not resume and self.path.exists() and self.path.stat().st_size:
             print(
-                f"note: {self.path} holds runs of an earlier evaluation; they move to {self.kept_as.name} when "
-                "this one's first run finishes (--resume goes on from them instead)",
+                f"note: {self.path} holds runs of an earlier evaluation; they move to {self.path.name}.previous "
+                "(or .previous.2, ...) when this one's first run finishes (--resume goes on from them instead)",
                 file=sys.stderr,
             )
 
@@ -233,7 +232,7 @@ class RunLog:
             return None
         if self._file is None:  # the first run of a fresh start
             if self.path.exists():
-                self.path.replace(self.kept_as)
+                self.path.replace(_unused(self.path.with_name(self.path.name + ".previous")))
             self._file = self.path.open("a")
         text = jsonio.dumps({KEY_FIELD: key, **{k: v for k, v in row.items() if not k.startswith("_")}})
         self._file.write(text + "\n")
@@ -502,6 +501,15 @@ def run_tasks(
                     bar.refresh()  # the elapsed time moves while long runs are in flight
                 if not batch:
                     time.sleep(config.poll_s)
+    except KeyboardInterrupt:
+        bar.close()
+        kept = (
+            f"{len(log.rows)} finished run(s) are in {log.path}; the same command with --resume goes on from them"
+            if log.started
+            else f"no run finished; {log.path} is as it was"
+        )
+        print(f"\ninterrupted: {kept}", file=sys.stderr)
+        raise
     finally:
         bar.close()
     outcome.wall_s = time.perf_counter() - start

@@ -102,6 +102,8 @@ def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
     file itself is one."""
     if folder.is_file() and folder.suffix.lower() in MESH_SUFFIXES:
         return [ObjectCase(name=folder.stem, kind="mesh", mesh=_resolved(folder), scale=scale)]
+    if not folder.exists():
+        raise ConfigError(f"--objects {str(folder)!r} does not exist")
     if not folder.is_dir():
         raise ConfigError(
             f"--objects {str(folder)!r} is neither a folder nor a mesh file ({', '.join(MESH_SUFFIXES)}; see --scale)"
@@ -615,6 +617,8 @@ def select_cases(paths: Sequence[Path] | None, smallest: int | None = None, scal
     cases: list[ObjectCase] = []
     for path in paths:
         for case in objects_in(Path(path), scale):
+            if any(case.mesh == other.mesh for other in cases):  # a file given twice, or in a folder given
+                continue
             if any(case.name == other.name for other in cases):  # runs and tables know an object by its name
                 raise ConfigError(f"--objects names two meshes {case.name!r} ({case.mesh}); rename one")
             cases.append(case)
@@ -699,17 +703,7 @@ def main(args: argparse.Namespace) -> int:
         items = episodes(chosen, runs, strategies, params=eval_params(args))
         check_episodes(items)
         with RunLog(out / "runs.jsonl", resume=args.resume) as log:
-            try:
-                rows, outcome = run_episodes(items, log, cluster_config(args), profile=args.profile)
-            except KeyboardInterrupt:
-                kept = (
-                    f"{len(log.rows)} finished run(s) are in {out / 'runs.jsonl'}; the same command with --resume "
-                    "goes on from them"
-                    if log.started
-                    else f"no run finished; {out / 'runs.jsonl'} is as it was"
-                )
-                print(f"\ninterrupted: {kept}", file=sys.stderr)
-                raise
+            rows, outcome = run_episodes(items, log, cluster_config(args), profile=args.profile)
         results = [r for r in rows if r is not None]
         report_failures(outcome)
     elapsed = time.perf_counter() - start

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -227,6 +228,8 @@ def main(args: argparse.Namespace) -> int:
     if runs < 1:
         raise ConfigError(f"--runs must be >= 1, got {runs}")
     cases = select_cases(args.objects, QUICK_OBJECTS if args.quick else FULL_OBJECTS, args.scale)
+    if args.objects and len(cases) < len(select_cases(args.objects, None, args.scale)):
+        print(f"sweep explore takes the {len(cases)} smallest of the objects given (by area)", file=sys.stderr)
     common = {"eval.report": False, **parse_sets(args.set)}
     check_sets(settings, common)
     base = episodes(cases, runs, strategies, params=common)  # budgets and clocks after --set

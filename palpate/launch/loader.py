@@ -141,8 +141,17 @@ def apply_params(launch: LaunchFile, params: Iterable[tuple[str, Any]]) -> None:
             target = target.setdefault(key, {})
             if not isinstance(target, dict):
                 raise ConfigError(f"parameter override {dotted!r}: {key!r} is not a mapping")
-        target[keys[-1]] = value
+        old = target.get(keys[-1])
+        target[keys[-1]] = _merged(old, value) if isinstance(old, dict) and isinstance(value, dict) else value
         launch.overrides[dotted] = value
+
+
+def _merged(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
+    """`base` with the keys of `changes` set, mappings merged key by key (a --set mapping keeps the rest)."""
+    out = dict(base)
+    for key, value in changes.items():
+        out[key] = _merged(out[key], value) if isinstance(out.get(key), dict) and isinstance(value, dict) else value
+    return out
 
 
 def with_external(launch: LaunchFile, names: Sequence[str]) -> LaunchFile:

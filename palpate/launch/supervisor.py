@@ -32,7 +32,7 @@ from palpate import jsonio
 from palpate.launch.graph import Graph, GraphNode
 from palpate.launch.placement import CpuPlacement
 from palpate.runtime import bus
-from palpate.runtime.spec import EXIT_RUN_FAILED, NodeProcessSpec
+from palpate.runtime.spec import EXIT_RUN_FAILED, START_TIMEOUT_S, NodeProcessSpec
 
 _PR_SET_PDEATHSIG = 1
 _TAIL_LINES = 20
@@ -190,7 +190,7 @@ class Supervisor:
             for path in self.external_specs:
                 self._say(
                     f"waiting for external node {path.stem!r}: start its driver, which reads {path} "
-                    "(docs/runtime.md, External nodes); the nodes give up after 60 s without it"
+                    f"(docs/runtime.md, External nodes); the nodes give up after {START_TIMEOUT_S:g} s without it"
                 )
             if on_started is not None:
                 on_started()

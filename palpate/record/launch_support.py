@@ -131,6 +131,12 @@ def replay_note(launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] |
     differ = [listed(replayed)] if replayed else []
     if info.get("seed") not in (None, str(launch.seed)):
         differ.append(f"seed {info['seed']} (here {launch.seed})")
+    try:
+        params_then = dict(json.loads(info.get("params", "{}")))
+    except (ValueError, TypeError):
+        params_then = {}
+    if params_then != launch.overrides:  # --set: another node's parameters than the recorded run's
+        differ.append(f"--set {params_then or 'nothing'} (here {launch.overrides or 'nothing'})")
     notes = (
         [f"{log_path} was recorded with {', '.join(differ)}; the replayed sensor data is that run's"] if differ else []
     )

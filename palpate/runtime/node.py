@@ -47,7 +47,7 @@ from palpate.messages import codec, topics
 from palpate.messages.base import Message
 from palpate.messages.schemas import Clock, LockstepAck, NodeStatus, RunControl
 from palpate.runtime import bus, memory, timing
-from palpate.runtime.spec import EXIT_RUN_FAILED, ClockSource, NodeLike, NodeProcessSpec, NodeSpec
+from palpate.runtime.spec import EXIT_RUN_FAILED, START_TIMEOUT_S, ClockSource, NodeLike, NodeProcessSpec, NodeSpec
 
 STOP_TOPIC = topics.GRAPH_CONTROL
 #: RunControl commands: "stop" ends the run; "fail" ends it as a failure (each node that receives it exits
@@ -210,7 +210,7 @@ def deliver_to(ctx: NodeContext, handler: Callable[[Message], object], topic: st
 class NodeRunner:
     """Runs one node object on the bus, in lockstep or real-time mode."""
 
-    def __init__(self, spec: NodeSpec[Any], process: NodeProcessSpec, *, start_timeout_s: float = 60.0):
+    def __init__(self, spec: NodeSpec[Any], process: NodeProcessSpec, *, start_timeout_s: float = START_TIMEOUT_S):
         """`spec` as registered; its ports are resolved here for the config of `process.params`."""
         config: Any = load(spec.config, process.params, f"node {process.name!r} params")  # before any socket
         self.spec = spec.with_config(config)

@@ -24,6 +24,8 @@ TRAIL_TICKS = 3
 #: Exit code of a node process that ended the run with ``ctx.request_stop(reason, failed=True)``, after
 #: the orderly stop (the other nodes still finish the tick and close); ``palpate launch`` then exits 1.
 EXIT_RUN_FAILED = 4
+#: How long a node waits at start-up for its subscribers (seconds) before it gives up, naming them.
+START_TIMEOUT_S = 60.0
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,8 @@ def test_resume_keeps_the_finished_runs_and_drops_a_cut_off_last_line(
     with RunLog(path, resume=False) as log:  # a second fresh start keeps both earlier files, and says so
         log.append("e", {"x": 5})
     assert (
-        "runs.jsonl holds runs of an earlier evaluation; they move to runs.jsonl.previous.2" in capsys.readouterr().err
+        "runs.jsonl holds runs of an earlier evaluation; they move to runs.jsonl.previous (or"
+        in capsys.readouterr().err
     )
     assert [r["run_key"] for r in lines(tmp_path / "runs.jsonl.previous.2")] == ["d"]
     assert (tmp_path / "runs.jsonl.previous").read_text() == previous

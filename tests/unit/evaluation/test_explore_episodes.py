@@ -151,8 +151,16 @@ def test_objects_may_be_mesh_files_as_well_as_folders(tmp_path: Path) -> None:
     (tmp_path / "b" / "ball.stl").write_bytes((tmp_path / "ball.stl").read_bytes())
     with pytest.raises(ConfigError, match=r"--objects names two meshes 'ball'"):
         select_cases([tmp_path / "ball.stl", tmp_path / "b"])
+    with pytest.raises(ConfigError, match=r"011_banan\.stl' does not exist"):
+        select_cases([tmp_path / "011_banan.stl"])
+    (tmp_path / "notes.txt").write_text("not a mesh")
     with pytest.raises(ConfigError, match=r"is neither a folder nor a mesh file"):
         select_cases([tmp_path / "notes.txt"])
+    # a file given twice, or beside its folder, is one object
+    assert [c.name for c in select_cases([tmp_path / "a", tmp_path / "a" / "abox.stl", tmp_path / "ball.stl"])] == [
+        "abox",
+        "ball",
+    ]
 
 
 def test_runs_from_a_file_leave_out_a_cut_last_line_and_refuse_a_repeated_run(tmp_path: Path) -> None:

@@ -709,3 +709,19 @@ def test_set_overrides_a_node_parameter_and_the_log_keeps_it(
     assert "params" not in launch_about(load_graph(explore, [], tmp_path))  # nothing set, nothing said
     assert main(["launch", str(explore), "--set", "gpis.gp.kernl=gaussian", "--dry-run", "--bus", str(tmp_path)]) == 2
     assert "unknown key 'kernl'" in (err := capsys.readouterr().err) and "(with --set gpis.gp.kernl=gaussian)" in err
+    # a mapping merges into the file's (mode and the region stay); an error names only the --set of its node
+    fastslam = REPO_ROOT / "launch" / "fastslam.yaml"
+    mapper = load_graph(fastslam, [], tmp_path, sets=["mapper.mapper={n_particles: 10}"]).by_name["mapper"]
+    assert mapper.config.mapper.n_particles == 10 and mapper.config.mapper.mode == "fastslam"
+    with pytest.raises(LaunchError) as info:
+        load_graph(explore, ["object:=bogus"], tmp_path, sets=["gpis.gp.kernel=gaussian"])
+    assert "--set" not in str(info.value)
+    # the node a replay stands in for takes no --set: its data is the log's
+    from palpate.record.mcap_io import LogWriter, schema_bytes
+
+    log = tmp_path / "explore.mcap"
+    with LogWriter(log) as writer:  # channels only: what replacing reads
+        for topic, type_name in load_graph(explore, [], tmp_path).topic_types().items():
+            writer.channel(topic, type_name, schema_bytes(type_name, 1))
+    with pytest.raises(LaunchError, match=r"--set sim.tick_period_s: --replay stands in for that node"):
+        load_graph(explore, [], tmp_path, replay=log, sets=["sim.tick_period_s=0.02"])

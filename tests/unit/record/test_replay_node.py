@@ -190,9 +190,11 @@ def test_a_replay_note_leaves_out_arguments_that_do_not_set_the_replaced_nodes(t
 
     explore = load_launch(REPO_ROOT / "launch" / "explore.yaml")
 
-    def note(**changed: object) -> str | None:
+    def note(params: dict[str, object] | None = None, **changed: object) -> str | None:
         path = tmp_path / "explore.mcap"
         about = {"launch_file": "launch/explore.yaml", "args": json.dumps({**explore.args, **changed}), "seed": "0"}
+        if params:
+            about["params"] = json.dumps(params)
         with LogWriter(path) as writer:
             writer.metadata(LAUNCH_METADATA, about)
         return replay_note(explore, path)
@@ -203,3 +205,5 @@ def test_a_replay_note_leaves_out_arguments_that_do_not_set_the_replaced_nodes(t
     steered = note(strategy="tour") or ""
     assert steered.startswith("note: strategy:='tour' (here 'igef') change nodes whose outputs steered the recorded")
     assert "(controller, gpis, noise, planner)" in steered  # every node whose outputs reach the simulator
+    # parameters set with --set are compared too
+    assert "was recorded with --set {'planner.tour_sites': 6} (here nothing)" in (note({"planner.tour_sites": 6}) or "")
