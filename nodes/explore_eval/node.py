@@ -4,8 +4,9 @@ It asks the GPIS node for the whole-object surface when coverage first reaches e
 and 80 %) to measure the surface RMSE there (with the GP variance, for the confident part), every
 ``EvalConfig.shape_interval`` contacts for the shape scores (without it), and ends the run at the coverage
 goal or a budget.
-At the end it prints one line `explore_result: {json}` (without the per-touch rows and the shape scores
-every 10 contacts) and optionally writes all of it as JSON, and a PNG.
+At the end it prints a line for a reader (contacts, coverage, travel, how it ended), then one line
+`explore_result: {json}` (without the per-touch rows and the shape scores every 10 contacts), and
+optionally writes all of it as JSON, and a PNG.
 """
 
 from __future__ import annotations
@@ -139,8 +140,20 @@ class ExploreEvalNode:
                 title,
             )
         if self.config.report:
+            print(_headline(self.result), flush=True)
             brief = {k: v for k, v in self.result.items() if k not in ("touches", "shape")}  # results_path has all
             print("explore_result: " + json_dumps(brief), flush=True)
+
+
+def _headline(result: dict[str, Any]) -> str:
+    """The run in one line for a reader: contacts, coverage, travel and how it ended (the JSON line follows)."""
+    touches = result.get("touches") or [{}]
+    travel_cm = float(touches[-1].get("travel_cm", 0.0))
+    why = f" ({result['stop_reason']})" if result.get("stop_reason") else ""
+    return (
+        f"{result.get('object')}: {result['contacts']} contacts, coverage {100 * result['coverage']:.1f} %, "
+        f"travel {travel_cm:.1f} cm, finished: {result['finished']}{why}"
+    )
 
 
 SPEC = NodeSpec(

@@ -127,3 +127,20 @@ def test_a_repeated_truth_keeps_the_records_and_another_object_is_refused() -> N
     with pytest.raises(InputError, match=r"^name: a second object 'ball' during the run on 'box'"):
         node.on_truth_object(truth(V * 0.5, F, name="ball"))
     assert node.evaluator is first
+
+
+def test_a_launched_run_ends_with_a_line_for_a_reader_before_its_json() -> None:
+    from palpate.nodes.explore_eval.node import _headline
+
+    result = {
+        "object": "torus",
+        "contacts": 149,
+        "coverage": 0.8031,
+        "finished": "goal",
+        "touches": [{"travel_cm": 237.6}],
+    }
+    assert _headline(result) == "torus: 149 contacts, coverage 80.3 %, travel 237.6 cm, finished: goal"
+    stopped = {**result, "contacts": 0, "touches": [], "finished": "stopped", "stop_reason": "controller: no surface"}
+    assert _headline(stopped).endswith(
+        "0 contacts, coverage 80.3 %, travel 0.0 cm, finished: stopped (controller: no surface)"
+    )
