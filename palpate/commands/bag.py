@@ -3,11 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
-import json
 import sys
 from pathlib import Path
-from typing import Any
 
 from palpate import jsonio
 from palpate.argtypes import non_negative_float, non_negative_int
@@ -118,7 +115,7 @@ def run_info(args: argparse.Namespace) -> int:
                 f"`palpate bag recover {args.file}` rewrites what it holds"
             )
     if args.json:
-        print(jsonio.dumps({**summary.as_json(), "launch": _launch_json(launch)}))
+        print(jsonio.dumps({**summary.as_json(), "launch": mcap_io.launch_values(launch)}))
     else:
         print(describe(summary, args.file))
         if launch:
@@ -128,18 +125,6 @@ def run_info(args: argparse.Namespace) -> int:
                 + (f", parameters set {launch['params']}" if "params" in launch else "")
             )
     return 0
-
-
-def _launch_json(launch: dict[str, str]) -> dict[str, Any]:
-    """The log's launch metadata with its arguments and seed as JSON values, not the strings stored."""
-    out: dict[str, Any] = dict(launch)
-    for key in ("args", "params"):
-        if key in out:
-            with contextlib.suppress(ValueError):
-                out[key] = json.loads(out[key])
-    if str(out.get("seed", "")).isdigit():
-        out["seed"] = int(out["seed"])
-    return out
 
 
 def run_recover(args: argparse.Namespace) -> int:

@@ -10,14 +10,14 @@ each of them publishes. The replay node publishes those topics tick by tick.
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from palpate.errors import LaunchError
 from palpate.launch.graph import Graph, GraphNode, resolve
 from palpate.launch.loader import LaunchFile, NodeEntry, Where, load_launch
-from palpate.record.mcap_io import launch_info
+from palpate.record.mcap_io import launch_info, launch_values
 from palpate.record.replay_node import log_topics
 
 REPLAY_NODE_NAME = "replay"
@@ -115,33 +115,30 @@ def replay_note(launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] |
             f"note: {log_path} was recorded from {info['launch_file']}, not {launch.path.name}: the replayed "
             "sensor data, object and clock are that run's"
         )
-    try:
-        then = dict(json.loads(info.get("args", "{}")))
-    except (ValueError, TypeError):
-        then = {}
+    values = launch_values(info)
+    then: dict[str, Any] = values["args"] if isinstance(values.get("args"), dict) else {}
+    params_then: dict[str, Any] = values["params"] if isinstance(values.get("params"), dict) else {}
     graph = resolve(launch, bus_dir=Path("/nonexistent-bus-dir"))
     if nodes is None:
         nodes = [graph.clock_source.name] if graph.clock_source is not None else []
-    changed = [k for k in sorted(launch.args) if k in then and then[k] != launch.args[k]]
+    changes = _params_changed(launch.path, then, {k: v for k, v in launch.args.items() if k in then and then[k] != v})
 
     def listed(names: Sequence[str]) -> str:
         return ", ".join(f"{k}:={then[k]!r} (here {launch.args[k]!r})" for k in names)
 
-    replayed = [k for k in changed if _sets_params(launch.path, then, k, launch.args[k], nodes)]
+    replayed = [k for k, changed in changes.items() if changed is None or changed & set(nodes)]
     differ = [listed(replayed)] if replayed else []
     if info.get("seed") not in (None, str(launch.seed)):
         differ.append(f"seed {info['seed']} (here {launch.seed})")
-    try:
-        params_then = dict(json.loads(info.get("params", "{}")))
-    except (ValueError, TypeError):
-        params_then = {}
     if params_then != launch.overrides:  # --set: another node's parameters than the recorded run's
         differ.append(f"--set {params_then or 'nothing'} (here {launch.overrides or 'nothing'})")
     notes = (
         [f"{log_path} was recorded with {', '.join(differ)}; the replayed sensor data is that run's"] if differ else []
     )
     steering = [name for name in _feeding(graph, nodes) if not graph.by_name[name].evaluator]  # evaluators observe
-    steered = [k for k in changed if k not in replayed and _sets_params(launch.path, then, k, launch.args[k], steering)]
+    steered = [
+        k for k, changed in changes.items() if k not in replayed and (changed is None or changed & set(steering))
+    ]
     if steered:
         notes.append(
             f"{listed(steered)} change nodes whose outputs steered the recorded motion ({', '.join(steering)}); "
@@ -171,14 +168,24 @@ def _feeding(graph: Graph, nodes: Sequence[str]) -> list[str]:
         found |= more
 
 
-def _sets_params(path: Path, args: dict[str, object], name: str, value: object, nodes: Sequence[str]) -> bool:
-    """Whether argument `name` at `value` instead of its value in `args` changes the params of `nodes`."""
+def _params_changed(path: Path, args: dict[str, Any], changes: dict[str, Any]) -> dict[str, set[str] | None]:
+    """Per argument of `changes` (sorted by name), the nodes whose params it changes when set to its value
+    there instead of its value in `args`; None when the recorded arguments no longer load (say so rather
+    than guess). The launch file is loaded once for `args` and once per argument."""
 
-    def params(overrides: dict[str, object]) -> list[object]:
-        launch = load_launch(path, overrides)
-        return [e.fields.get("params") for e in launch.nodes if e.fields.get("name") in nodes]
+    def params(overrides: dict[str, Any]) -> dict[str, Any]:
+        return {str(e.fields.get("name")): e.fields.get("params") for e in load_launch(path, overrides).nodes}
 
     try:
-        return params(args) != params({**args, name: value})
-    except LaunchError:  # the recorded arguments no longer load: say so rather than guess
-        return True
+        then = params(args)
+    except LaunchError:
+        return dict.fromkeys(sorted(changes))
+    out: dict[str, set[str] | None] = {}
+    for name in sorted(changes):
+        try:
+            now = params({**args, name: changes[name]})
+        except LaunchError:
+            out[name] = None
+            continue
+        out[name] = {node for node in then.keys() | now.keys() if then.get(node) != now.get(node)}
+    return out

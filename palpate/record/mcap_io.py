@@ -19,7 +19,7 @@ import os
 import struct
 import zlib
 from collections.abc import Iterable, Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -408,6 +408,19 @@ def launch_info(path: str | Path) -> dict[str, str]:
             if record.name == LAUNCH_METADATA:
                 return dict(record.metadata)
     return {}
+
+
+def launch_values(info: Mapping[str, str]) -> dict[str, Any]:
+    """``launch_info``'s strings with the arguments and the parameters set (``--set``) as JSON values and
+    the seed as an int, where they parse; other values stay the strings stored."""
+    out: dict[str, Any] = dict(info)
+    for key in ("args", "params"):
+        if key in out:
+            with suppress(ValueError):
+                out[key] = json.loads(out[key])
+    if str(out.get("seed", "")).isdigit():
+        out["seed"] = int(out["seed"])
+    return out
 
 
 def topic_types(path: str | Path) -> dict[str, str]:
