@@ -179,10 +179,11 @@ class Outcome:
 # --- runs.jsonl ------------------------------------------------------------------------------------------
 def _unused(path: Path) -> Path:
     """`path`, or `path`.2, `path`.3, ... whichever does not exist yet."""
-    number = 1
-    while path.with_name(path.name + (f".{number}" if number > 1 else "")).exists():
+    candidate, number = path, 1
+    while candidate.exists():
         number += 1
-    return path.with_name(path.name + (f".{number}" if number > 1 else ""))
+        candidate = path.with_name(f"{path.name}.{number}")
+    return candidate
 
 
 class RunLog:

@@ -380,9 +380,9 @@ def _plain(node: yaml.Node, name: str, args: Mapping[str, Any], seen: _Expansion
         value = _CONSTRUCTOR.construct_object(node)
     except (yaml.YAMLError, *_CONSTRUCT_ERRORS) as exc:  # an unknown tag (`!foo x`), an impossible date
         problem = getattr(exc, "problem", None) or _construct_problem(exc, node.tag)
-        raise LaunchError(f"{name}:{node.start_mark.line + 1}: cannot read {node.value!r}: {problem}") from exc
+        raise LaunchError(f"{name}:{line}: cannot read {node.value!r}: {problem}") from exc
     if isinstance(value, str) and "${" in value:
-        return _substitute(value, Where(name, node.start_mark.line + 1), args)
+        return _substitute(value, Where(name, line), args)
     return value
 
 

@@ -47,6 +47,8 @@ from palpate.record.mcap_io import COMPRESSIONS, INTERNAL_TOPICS, LAUNCH_METADAT
 from palpate.runtime import bus
 
 log = logging.getLogger("palpate.record")
+#: Lockstep ticks per MCAP chunk (see Durability above).
+CHUNK_TICKS = 10
 
 DISCOVERY_PERIOD_S = 0.5
 #: The main loop runs at most this often, so that messages are handled in batches: a wake-up per
@@ -281,7 +283,7 @@ class Recorder:
         until_stop: bool = False,
         compression: str = "zstd",
         chunk_size: int = 1 << 20,
-        chunk_ticks: int = 10,
+        chunk_ticks: int = CHUNK_TICKS,
         grace_s: float = 2.0,
         server_keys: Mapping[str, str] | None = None,
         client_keys: Mapping[str, str] | None = None,
@@ -531,9 +533,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--chunk-ticks",
         type=positive_int,
-        default=10,
+        default=CHUNK_TICKS,
         metavar="N",
-        help="lockstep: close a chunk every N ticks (a SIGKILL loses at most N ticks; default 10)",
+        help=f"lockstep: close a chunk every N ticks (a SIGKILL loses at most N ticks; default {CHUNK_TICKS})",
     )
     p.add_argument(
         "--curve-servers",
