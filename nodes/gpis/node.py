@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Literal
 
 import numpy as np
 
-from palpate.config import NonNegativeFloat, PositiveFloat, Range, Validated
+from palpate.config import KeyPath, NonNegativeFloat, PositiveFloat, Range, Validated
 from palpate.errors import ConfigError, EstimationError, InputError
 from palpate.inputs import coordinates
 from palpate.messages.schemas import ContactSet, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
@@ -44,8 +45,10 @@ class GPISNodeConfig(Validated):
     #: Where the local mesh carries the GP variance (Eq. 6): "candidates", only at the vertices GP-V
     #: rates (one per variance_step_m voxel within variance_radius_m of the touch, the planner's
     #: candidate_step_m and gpv_radius_m); "all" vertices; "none" (IGEF and the others need none and
-    #: run ~2-4x faster). The whole-object mesh carries it at every vertex when its request asks for it.
-    vertex_variance: Literal["candidates", "all", "none"] = "candidates"
+    #: run ~2-4x faster); "auto": the launcher makes it "candidates" when a planner reading the surface
+    #: rates by the variance, else "none" (a node started without a launcher takes "candidates"). The
+    #: whole-object mesh carries it at every vertex when its request asks for it.
+    vertex_variance: Literal["auto", "candidates", "all", "none"] = "candidates"
     variance_step_m: PositiveFloat = 0.005
     variance_radius_m: PositiveFloat = 0.06
     #: An object larger than the thin-plate kernel's R_m allows (gp.R_m, 0.5 m: about 0.4 m across):
@@ -111,7 +114,7 @@ class GPISNode:
             cfg.local_half_extent_m,
             cfg.local_resolution_m,
             with_variance=cfg.vertex_variance != "none",
-            variance_near=(cfg.variance_step_m, cfg.variance_radius_m) if cfg.vertex_variance == "candidates" else None,
+            variance_near=None if cfg.vertex_variance == "all" else (cfg.variance_step_m, cfg.variance_radius_m),
         )
         if touched.resolution_m < cfg.local_resolution_m:  # the surface at the touch is thinner than the grid
             self.ctx.count("local_mesh_refined")
@@ -199,9 +202,18 @@ def _facts(config: GPISNodeConfig) -> dict[str, tuple[Any, tuple[str, ...]]]:
             ("vertex_variance",),
         )
     }
-    if config.vertex_variance == "candidates":
+    if config.vertex_variance in ("candidates", "auto"):
         facts["surface:candidate_step_m"] = (config.variance_step_m, ("variance_step_m",))
     return facts
+
+
+def _settle(config: GPISNodeConfig, stated: Callable[[str], list[Any]]) -> dict[KeyPath, Any]:
+    """``vertex_variance: auto``: "candidates" when a planner reading the surface rates by the variance
+    (it states that it needs it, see the planner's facts), else "none"."""
+    if config.vertex_variance != "auto":
+        return {}
+    needed = "given" in stated("surface:candidate_variance")
+    return {("vertex_variance",): "candidates" if needed else "none"}
 
 
 SPEC = NodeSpec(
@@ -210,5 +222,6 @@ SPEC = NodeSpec(
     factory=GPISNode,
     ports_from_config=_ports,
     facts=_facts,
+    settle=_settle,
     doc="Gaussian process implicit surface of paper 002: local mesh per touch, whole mesh on request.",
 )

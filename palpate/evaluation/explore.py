@@ -215,18 +215,10 @@ class Episode:
             "start_quaternion": list(self.quaternion_wxyz),
             "target": list(self.target_m),
             "duration_s": self.duration_s,
-            "variance": "candidates" if self._rates_variance() else "none",
+            "variance": "auto",  # the GP variance at the candidates only for a planner that rates by it
             "results": self.results_path,
             "plot": self.plot_path,
         }
-
-    def _rates_variance(self) -> bool:
-        """Whether the planner rates by the GP variance (GP-V; area or tour with a variance weight), so the
-        GPIS node must give it at the candidates."""
-        from palpate.nodes.planner.core import PlannerConfig
-
-        settings = {**overrides_under(self.params, "planner."), "strategy": self.strategy}
-        return load(PlannerConfig, settings, "planner params").uses_variance
 
 
 def overrides_under(params: Iterable[tuple[str, Any]], prefix: str) -> dict[str, Any]:

@@ -8,14 +8,15 @@ mounted where the simulator's finger is not). Each error names the file, the lin
 
 from __future__ import annotations
 
+import copy
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from palpate.config import load
+from palpate.config import KeyPath, load
 from palpate.errors import BusError, ConfigError, LaunchError, PalpateError
 from palpate.launch.loader import LaunchFile, NodeEntry, Where
 from palpate.launch.node_types import load_node_type, node_spec_reference
@@ -239,6 +240,7 @@ def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
         nodes.append(node)
     graph = Graph(source=launch, nodes=nodes, bus_dir=bus_dir, mode=launch.mode, seed=launch.seed)
     _check_wiring(graph)
+    _settle(graph)
     _check_facts(graph)
     _check_curve(graph)
     _rank(graph)
@@ -325,6 +327,45 @@ def _check_params(entry: NodeEntry, spec: NodeSpec[Any], params: dict[str, Any])
         raise LaunchError(f"{entry.param_at(exc.path)}: node {entry.fields['name']!r}: {exc}") from exc
 
 
+def _facts_of(node: GraphNode) -> Mapping[str, tuple[Any, KeyPath]]:
+    """The facts `node` states (NodeSpec.facts), by the name they are given in the spec."""
+    if node.spec.facts is None:
+        return {}
+    try:
+        return node.spec.facts(node.config)
+    except PalpateError as exc:
+        raise LaunchError(f"{node.entry.at('params')}: node {node.name!r}: {exc}") from exc
+
+
+def _settle(graph: Graph) -> None:
+    """Parameters a node leaves to the graph (NodeSpec.settle) take the values the other nodes' facts call
+    for; the node's params and config then hold them, as if the launch file had written them."""
+    settling = [n for n in graph.nodes if n.spec.settle is not None]
+    if not settling:
+        return
+    stated = [
+        (node, _fact_name(node, fact), value) for node in graph.nodes for fact, (value, _) in _facts_of(node).items()
+    ]
+    for node in settling:
+        assert node.spec.settle is not None
+
+        def others(fact: str, node: GraphNode = node) -> list[Any]:
+            name = _fact_name(node, fact)
+            return [value for n, fact_name, value in stated if n is not node and fact_name == name]
+
+        values = node.spec.settle(node.config, others)
+        if not values:
+            continue
+        params = copy.deepcopy(node.params)
+        for path, value in values.items():
+            *parents, key = path
+            inner: Any = params
+            for part in parents:
+                inner = inner[part]
+            inner[key] = value
+        node.params, node.config = params, _check_params(node.entry, node.spec, params)
+
+
 def _check_facts(graph: Graph) -> None:
     """Nodes that state the same fact about the world (NodeSpec.facts) state the same value."""
     stating = [n for n in graph.nodes if n.spec.facts is not None]
@@ -332,12 +373,7 @@ def _check_facts(graph: Graph) -> None:
         return
     first: dict[str, tuple[GraphNode, Any, Where, str]] = {}
     for node in stating:
-        assert node.spec.facts is not None
-        try:
-            facts = node.spec.facts(node.config)
-        except PalpateError as exc:
-            raise LaunchError(f"{node.entry.at('params')}: node {node.name!r}: {exc}") from exc
-        for fact, (value, path) in facts.items():
+        for fact, (value, path) in _facts_of(node).items():
             name = _fact_name(node, fact)
             where, key = node.entry.param_at(path), ".".join(["params", *map(str, path)])
             if name not in first:

@@ -138,6 +138,12 @@ class NodeSpec(Generic[C]):
     #: fact named ``"PORT:name"`` is about what travels through the node's port PORT: only nodes at the
     #: two ends of that port's topic must agree (a planner and the GPIS node whose surface it reads).
     facts: Callable[[C], Mapping[str, tuple[Any, KeyPath]]] | None = None
+    #: Parameters the node leaves to its graph ("auto"): (config, stated) -> {key path of the params: value},
+    #: where ``stated(fact)`` lists the values the graph's other nodes state for a fact (named as in
+    #: `facts`). The launcher writes the values into the node's params before it checks the facts, e.g.
+    #: the GPIS node gives the GP variance only when a planner reading its surface rates by it. They may
+    #: not change the node's ports.
+    settle: Callable[[C, Callable[[str], list[Any]]], Mapping[KeyPath, Any]] | None = None
     #: The node never asks to end a run (``ctx.request_stop`` raises). In lockstep, when nothing it
     #: publishes reaches the clock source (a sink, a noise stage feeding a mapper), the clock source then
     #: runs up to TRAIL_TICKS ticks ahead of it instead of waiting for it every tick (docs/runtime.md).

@@ -14,6 +14,7 @@ from palpate.evaluation.explore import (
     ObjectCase,
     approach,
     check_episodes,
+    episode_launch,
     episodes,
     objects_in,
     parse_sets,
@@ -27,6 +28,7 @@ from palpate.evaluation.explore import (
 )
 from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.geometry.rotations import quat_to_matrix
+from palpate.launch.graph import resolve
 from palpate.launch.loader import apply_params, load_launch
 from palpate.metrics.exploration import DistanceField
 from palpate.nodes.sim.objects import primitive_mesh
@@ -79,7 +81,7 @@ def test_episodes_pair_strategies_on_the_same_start_and_load_as_launch_arguments
     apply_params(launch, items[1].params)
     nodes = {n.fields["name"]: n.fields for n in launch.nodes}
     assert nodes["planner"]["params"]["strategy"] == "gpv"
-    assert nodes["gpis"]["params"]["vertex_variance"] == "candidates"
+    assert nodes["gpis"]["params"]["vertex_variance"] == "auto"  # the launcher settles it (test below)
     assert nodes["eval"]["params"]["report"] is False
     assert launch.seed == 0
 
@@ -253,19 +255,23 @@ def test_a_folder_of_millimetre_meshes_is_explored_in_metres_with_a_scale(tmp_pa
     assert len(keys) == 2  # the scale is part of the run
 
 
-def test_the_gpis_node_gives_the_variance_only_to_strategies_that_rate_it() -> None:
+def test_the_gpis_node_gives_the_variance_only_to_strategies_that_rate_it(tmp_path: Path) -> None:
     case = ObjectCase(name="sphere", kind="sphere", size_m=(0.03,))
 
     def variance(strategy: str, params: dict[str, float]) -> str:
         item = episodes([case], 1, (strategy,), params=params)[0]
-        return str(item.launch_args()["variance"])
+        gpis = resolve(episode_launch(item), bus_dir=tmp_path).by_name["gpis"]
+        assert gpis.params["vertex_variance"] == gpis.config.vertex_variance  # what the node process gets
+        return str(gpis.config.vertex_variance)
 
-    assert variance("tour", {}) == "none" and variance("area", {}) == "none"
+    assert variance("gpv", {}) == "candidates"
+    assert variance("tour", {}) == "none" and variance("area", {}) == "none" and variance("igef", {}) == "none"
     assert variance("tour", {"planner.tour_variance_weight": 1.0}) == "candidates"
     assert variance("area", {"planner.area_variance_weight": 2.0}) == "candidates"
     assert variance("igef", {"planner.area_variance_weight": 2.0}) == "none"  # another strategy's weight
     assert variance("tour", {"planner.tour_variance_weight": 1.0, "planner.tour_sites": 2}) == "candidates"
-    with pytest.raises(ConfigError, match=r"planner params.*no_such_weight"):  # a misspelt key is named
+    assert variance("igef", {"gpis.vertex_variance": "all"}) == "all"  # set, not left to the graph
+    with pytest.raises(LaunchError, match=r"no_such_weight"):  # a misspelt key is named
         variance("tour", {"planner.no_such_weight": 1.0})
 
 

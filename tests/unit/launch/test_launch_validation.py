@@ -693,6 +693,29 @@ def test_a_planner_rating_by_the_variance_needs_a_gpis_node_that_gives_it(tmp_pa
     assert "gpis_fast" in [node.name for node in load(two, tmp_path).nodes]
 
 
+def test_a_gpis_node_left_to_the_graph_gives_the_variance_only_to_a_planner_that_rates_by_it(tmp_path: Path) -> None:
+    explore = REPO_ROOT / "launch" / "explore.yaml"
+
+    def variance(graph: Graph, name: str = "gpis") -> str:
+        node = graph.by_name[name]
+        spec = next(s for s in graph.process_specs() if s.name == name)
+        assert spec.params["vertex_variance"] == node.config.vertex_variance  # what the node process gets
+        return str(node.config.vertex_variance)
+
+    assert variance(load(explore, tmp_path)) == "none"  # IGEF, the launch file's default strategy
+    assert variance(load(explore, tmp_path, ["strategy:=gpv"])) == "candidates"
+    assert variance(load(explore, tmp_path, ["strategy:=tour"])) == "none"
+    assert variance(load(explore, tmp_path, ["strategy:=igef", "variance:=all"])) == "all"  # set, not left
+    # a second GPIS node left to the graph, on a topic no planner reads, gives none
+    two = tmp_path / "two_gpis.yaml"
+    two.write_text(
+        f"include:\n  - file: {explore}\n    args: {{strategy: gpv}}\nnodes:\n  - name: gpis_fast\n    type: gpis\n"
+        "    params: {vertex_variance: auto}\n    remaps: {surface: surface/mesh_fast}\n"
+    )
+    graph = load(two, tmp_path)
+    assert variance(graph) == "candidates" and variance(graph, "gpis_fast") == "none"
+
+
 def test_set_overrides_a_node_parameter_and_the_log_keeps_it(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
