@@ -59,7 +59,10 @@ def coordinates(
             return a
     check = a[~np.isnan(a)] if allow_nan else a
     if check.size and not float(np.max(np.abs(check))) <= limit_m:
-        raise InputError(field, f"coordinate {_largest(check):.6g} m lies beyond {limit_m:g} m of the origin")
+        largest = _largest(check)
+        if not math.isfinite(largest):
+            raise InputError(field, f"coordinate {largest} is not finite")
+        raise InputError(field, f"coordinate {largest:.6g} m lies beyond {limit_m:g} m of the origin")
     return a
 
 

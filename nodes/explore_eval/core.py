@@ -398,7 +398,7 @@ class ExplorationEvaluator:
             travel_cm=last.travel_cm if last else 0.0,
             rotation_deg=last.rotation_deg if last else 0.0,
             prediction_miss_mm=float(np.mean(misses)) if misses else math.nan,
-            angle_deg=float(np.mean([t.angle_deg for t in touches])) if touches else math.nan,
+            angle_deg=_mean_defined([t.angle_deg for t in touches]),
             coverage=self.tracker.coverage,
             vertex_coverage=self.tracker.vertex_coverage,
         )
@@ -475,3 +475,9 @@ def _sensor(vertices_m: np.ndarray, faces: np.ndarray) -> ExactContactSensor:
     import trimesh
 
     return ExactContactSensor(trimesh.Trimesh(vertices_m, faces, process=False))
+
+
+def _mean_defined(values: list[float]) -> float:
+    """The mean of the values that are not NaN (an angle at a zero-length normal), NaN without any."""
+    defined = [v for v in values if not math.isnan(v)]
+    return float(np.mean(defined)) if defined else math.nan

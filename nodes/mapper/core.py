@@ -214,11 +214,17 @@ class Mapper:
         """
         t0 = time.perf_counter()
         q = np.asarray(q_rad, dtype=np.float64)
-        links = np.asarray(contact_links).reshape(-1)
-        local = np.asarray(contact_local_m, dtype=np.float64).reshape(-1, 3)
+        links = np.asarray(contact_links)
+        local = np.asarray(contact_local_m, dtype=np.float64)
+        if local.size == 0:
+            local = local.reshape(0, 3)
         J = self.chain.n_joints
         if q.shape != (J,):
             raise EstimationError(f"joint reading has shape {q.shape}, the chain has {J} joints")
+        if links.ndim != 1 or local.ndim != 2 or local.shape[1] != 3:
+            raise EstimationError(
+                f"contacts need links (n,) and positions (n, 3); got shapes {links.shape} and {local.shape}"
+            )
         if not np.all(np.isfinite(q)):
             raise EstimationError(f"joint reading is not finite: {q.tolist()}; update rejected")
         if len(links) != len(local):

@@ -37,11 +37,16 @@ def normalise_log_weights(log_w: FloatArray) -> tuple[FloatArray, float]:
     """(log w - logsumexp(log w), N_eff) for log-weights (K,).
 
     Works when every exp(log w) underflows (log w = -1e6): only differences matter. Entries of -inf
-    get weight 0; if every entry is -inf (or NaN) the weights are reset to uniform, 1/K each.
-    N_eff = 1 / sum_k w_k^2, in [1, K].
+    get weight 0; entries of +inf share all the weight; if every entry is -inf (or NaN) the weights
+    are reset to uniform, 1/K each. N_eff = 1 / sum_k w_k^2, in [1, K].
     """
     lw = np.asarray(log_w, dtype=np.float64)
     K = lw.size
+    if K == 0:
+        raise ValueError("normalise_log_weights needs at least one particle's log-weight")
+    infinite = lw == np.inf
+    if infinite.any():  # infinitely more likely than the others: they share the weight
+        return np.where(infinite, -math.log(int(infinite.sum())), -np.inf), float(infinite.sum())
     finite = np.isfinite(lw)
     if not finite.any():
         return np.full(K, -math.log(K)), float(K)
@@ -62,6 +67,8 @@ def systematic_resample(weights: FloatArray, rng: np.random.Generator) -> NDArra
     """
     w = np.asarray(weights, dtype=np.float64)
     K = w.size
+    if not (K and np.isfinite(w).all() and (w >= 0.0).all() and w.sum() > 0.0):
+        raise ValueError(f"weights must be finite, non-negative and not all zero, got {w.tolist()}")
     c = np.cumsum(w)
     c /= c[-1]
     pointers = (rng.random() + np.arange(K)) / K

@@ -40,6 +40,8 @@ IntArray = NDArray[np.integer]
 #: Paper values: log(0.9 / 0.1) for a contact cell, log(0.1 / 0.9) for a free cell.
 L_OCC = math.log(0.9 / 0.1)
 L_FREE = math.log(0.1 / 0.9)
+#: ``weighted`` takes particle weights that sum to 1 within this (normalised weights are within 1e-15).
+WEIGHT_SUM_TOLERANCE = 1e-6
 
 
 def belief(log_odds: FloatArray) -> NDArray[np.float64]:
@@ -273,7 +275,8 @@ class LogOddsGrids:
 
     def keys_of_flat(self, map_index: int, flat: IntArray) -> CellKeys:
         """Keys (1, n) of flat cells (n,) in one map."""
-        chunk, offset = self.chunk_offset_of_flat(np.asarray(flat, dtype=np.int64).reshape(-1))
+        self._check_map(map_index)
+        chunk, offset = self.chunk_offset_of_flat(self._flat_cells(flat))
         key = (chunk + map_index * self._row).astype(self._key_dtype)[None, :]
         return CellKeys(key=key, offset=offset.astype(np.int32)[None, :], valid=None, n_outside=0)
 
@@ -363,7 +366,8 @@ class LogOddsGrids:
     # --- reading and writing ---------------------------------------------------------------------
     def read_flat(self, map_index: int, flat: IntArray) -> NDArray[np.float32]:
         """Log-odds (n,) of flat cells (n,) in one map; 0 (the prior) for cells never written."""
-        chunk, offset = self.chunk_offset_of_flat(np.asarray(flat).reshape(-1))
+        self._check_map(map_index)
+        chunk, offset = self.chunk_offset_of_flat(self._flat_cells(flat))
         slots = self._table[map_index, chunk]
         out = np.zeros(len(slots), dtype=np.float32)
         ok = slots >= 0
@@ -433,6 +437,8 @@ class LogOddsGrids:
         anc = np.asarray(ancestors, dtype=np.intp)
         if anc.shape != (self.n_maps,):
             raise ConfigError(f"ancestors must have shape ({self.n_maps},), got {anc.shape}")
+        if len(anc) and not (anc.min() >= 0 and anc.max() < self.n_maps):
+            raise ValueError(f"ancestors must be map indices 0..{self.n_maps - 1}, got {anc.tolist()}")
         self._table = self._table[anc]
         live = self._table[self._table >= 0]
         self._refcount = np.bincount(live, minlength=len(self._pool)).astype(np.int32)
@@ -446,6 +452,7 @@ class LogOddsGrids:
     # --- export ----------------------------------------------------------------------------------
     def to_sparse(self, map_index: int) -> SparseMap:
         """Map ``map_index`` as its cells with log-odds != 0, flat indices ascending."""
+        self._check_map(map_index)
         row = self._table[map_index, : self.n_chunks]
         chunks = np.flatnonzero(row >= 0)
         data = self._pool[row[chunks]]
@@ -470,6 +477,10 @@ class LogOddsGrids:
         summed weight of its holders (a slot always sits at the same chunk id in every table).
         """
         w = np.asarray(weights, dtype=np.float64)
+        if w.shape != (self.n_maps,) or not (np.isfinite(w).all() and (w >= 0.0).all()):
+            raise ValueError(f"weights must be {self.n_maps} finite non-negative numbers, got {w.tolist()}")
+        if abs(w.sum() - 1.0) > WEIGHT_SUM_TOLERANCE:
+            raise ValueError(f"weights must sum to 1, got {float(w.sum())!r}")
         table = self._table[:, : self.n_chunks]
         k_idx, c_idx = np.nonzero(table >= 0)
         slots = table[k_idx, c_idx].astype(np.intp)
@@ -485,6 +496,20 @@ class LogOddsGrids:
         np.logical_or.at(touched, row, data != 0)
         ci, oi = np.nonzero(touched)
         return self._sparse(chunks[ci], oi, log_odds_of(bel[ci, oi]))
+
+    # --- checks of the plain interface -----------------------------------------------------------
+    def _check_map(self, map_index: int) -> None:
+        if not (isinstance(map_index, int | np.integer) and 0 <= map_index < self.n_maps):
+            raise ValueError(f"map_index must be 0..{self.n_maps - 1}, got {map_index!r}")
+
+    def _flat_cells(self, flat: IntArray) -> NDArray[np.int64]:
+        cells = np.asarray(flat).reshape(-1)
+        if cells.size and not np.issubdtype(cells.dtype, np.integer):
+            raise ValueError(f"flat cell indices must be integers, got {cells.dtype}")
+        cells64: NDArray[np.int64] = cells.astype(np.int64, copy=False)
+        if cells64.size and not (cells64.min() >= 0 and cells64.max() < self.spec.n_cells):
+            raise ValueError(f"flat cell indices must be 0..{self.spec.n_cells - 1}, got {cells.min()}..{cells.max()}")
+        return cells64
 
     # --- accounting ------------------------------------------------------------------------------
     @property

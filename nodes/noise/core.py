@@ -176,8 +176,13 @@ def perturb_directions(normals: np.ndarray, sigma_rad: float, rng: np.random.Gen
     """Rotate unit vectors (n, 3) by a tangent Gaussian step t (sigma per tangent axis, radians).
 
     Exponential map on the sphere: n' = cos|t| n + sin|t| t/|t|, so angle(n, n') = |t| exactly and the
-    result is unit length.
+    result is unit length. ValueError for rows that are not finite and nonzero (they have no direction).
     """
+    normals = np.asarray(normals, dtype=np.float64)
+    if normals.ndim != 2 or normals.shape[1] != 3:
+        raise ValueError(f"normals must have shape (n, 3), got {normals.shape}")
+    if not (np.isfinite(normals).all() and (np.abs(normals).max(axis=1, initial=0.0) > 0.0).all()):
+        raise ValueError("normals must be finite and nonzero (a zero row has no direction)")
     return _perturb(normals, sigma_rad * rng.standard_normal(np.shape(normals)))
 
 

@@ -142,12 +142,15 @@ def face_rings(mesh: trimesh.Trimesh) -> np.ndarray:
     """Per face: itself, then every face sharing a vertex with it (F, K), padded by repeating itself."""
     faces = np.asarray(mesh.faces, dtype=np.int64)
     own = np.arange(len(faces))
-    vertex_faces = np.asarray(mesh.vertex_faces, dtype=np.int64)  # (V, max degree), -1 padded
-    if len(faces) * 3 * vertex_faces.shape[1] > MAX_RING_ENTRIES:
+    # the largest vertex degree first: trimesh's vertex_faces table is (V, max degree) and would itself
+    # be the allocation the limit is there to prevent (a fan of 20,000 faces: 15 s and 7 GB)
+    degree = int(np.bincount(faces.ravel(), minlength=1).max(initial=0)) if len(faces) else 0
+    if len(faces) * 3 * degree > MAX_RING_ENTRIES:
         raise MeshError(
-            f"{len(faces)} faces with a vertex shared by {vertex_faces.shape[1]} of them: the face rings would "
-            f"hold {len(faces) * 3 * vertex_faces.shape[1]} entries (at most {MAX_RING_ENTRIES}); remesh it"
+            f"{len(faces)} faces with a vertex shared by {degree} of them: the face rings would "
+            f"hold {len(faces) * 3 * degree} entries (at most {MAX_RING_ENTRIES}); remesh it"
         )
+    vertex_faces = np.asarray(mesh.vertex_faces, dtype=np.int64)  # (V, max degree), -1 padded
     ring = vertex_faces[faces].reshape(len(faces), -1)
     ring = np.where(ring < 0, own[:, None], ring)
     # drop duplicates within a row: sort, mark repeats as the face itself, keep it first

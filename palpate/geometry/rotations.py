@@ -87,8 +87,11 @@ def align_axis(a: ArrayLike, b: ArrayLike, hint: ArrayLike | None = None) -> Flo
     """
     a_ = np.asarray(a, dtype=np.float64)
     b_ = np.asarray(b, dtype=np.float64)
-    a_ = a_ / np.linalg.norm(a_)
-    b_ = b_ / np.linalg.norm(b_)
+    norm_a, norm_b = float(np.linalg.norm(a_)), float(np.linalg.norm(b_))
+    if not (0.0 < norm_a < math.inf and 0.0 < norm_b < math.inf):
+        raise ValueError(f"align_axis needs two finite nonzero vectors (a direction each), got {a_} and {b_}")
+    a_ = a_ / norm_a
+    b_ = b_ / norm_b
     axis = np.cross(a_, b_)
     s = float(np.linalg.norm(axis))
     c = float(np.clip(a_ @ b_, -1.0, 1.0))
@@ -112,7 +115,10 @@ def get_rotation(R0: ArrayLike, n: ArrayLike) -> FloatArray:
     (z already along +n) is made about the fingertip's own x axis, so it does not depend on rounding.
     """
     R0_ = np.asarray(R0, dtype=np.float64)
-    return align_axis(R0_[:, 2], -np.asarray(n, dtype=np.float64), hint=R0_[:, 0]) @ R0_
+    n_ = np.asarray(n, dtype=np.float64)
+    if not 0.0 < float(np.linalg.norm(n_)) < math.inf:
+        raise ValueError(f"get_rotation needs a finite nonzero surface normal n, got {n_}")
+    return align_axis(R0_[:, 2], -n_, hint=R0_[:, 0]) @ R0_
 
 
 def slerp(R0: ArrayLike, R1: ArrayLike, tau: float) -> FloatArray:
@@ -123,9 +129,18 @@ def slerp(R0: ArrayLike, R1: ArrayLike, tau: float) -> FloatArray:
 
 
 def quat_to_matrix(q_wxyz: ArrayLike) -> FloatArray:
-    """Rotation matrix (3, 3) of a unit quaternion (w, x, y, z); normalised here. Scalar fast path."""
+    """Rotation matrix (3, 3) of a unit quaternion (w, x, y, z); normalised here. Scalar fast path.
+
+    ValueError for a zero or non-finite quaternion (it names no rotation)."""
     w, x, y, z = np.asarray(q_wxyz, dtype=np.float64).reshape(4).tolist()
-    s = 2.0 / (w * w + x * x + y * y + z * z)
+    norm2 = w * w + x * x + y * y + z * z
+    if not 1e-100 < norm2 < 1e100:  # also NaN: scale first, so that 1e-200 does not underflow to zero
+        largest = max(abs(w), abs(x), abs(y), abs(z))
+        if not (all(map(math.isfinite, (w, x, y, z))) and largest > 0.0):
+            raise ValueError(f"a quaternion must be finite and nonzero to name a rotation, got {[w, x, y, z]}")
+        w, x, y, z = w / largest, x / largest, y / largest, z / largest
+        norm2 = w * w + x * x + y * y + z * z
+    s = 2.0 / norm2
     return np.array(
         [
             [1.0 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y)],
@@ -150,7 +165,10 @@ def axis_angle_to_matrices(axis: ArrayLike, angle: ArrayLike) -> FloatArray:
     The batched twin of ``exp_so3`` for a fixed axis (a hinge joint over many particles).
     """
     u = np.asarray(axis, dtype=np.float64)
-    u = u / np.linalg.norm(u)
+    norm = float(np.linalg.norm(u))
+    if not 0.0 < norm < math.inf:
+        raise ValueError(f"a rotation axis must be finite and nonzero, got {u}")
+    u = u / norm
     c = np.cos(angle)[:, None, None]
     s = np.sin(angle)[:, None, None]
     # R = cos a I + sin a [u]x + (1 - cos a) u u^T

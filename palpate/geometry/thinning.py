@@ -27,7 +27,7 @@ def thin_near(points: FloatArray, centre: FloatArray, step_m: float, radius_m: f
     key3 = np.floor(grid + 0.5).astype(np.int64)  # voxel of each point; the centre sits at a voxel centre
     off = grid - key3
     dist2 = np.einsum("ij,ij->i", off, off)
-    K = int(np.ceil(radius_m / step_m)) + 1
+    K = int(np.abs(key3).max(initial=0)) + 1  # voxels span -K..K (radius_m may be inf: no limit)
     side = 2 * K + 1
     key = ((key3[:, 0] + K) * side + (key3[:, 1] + K)) * side + (key3[:, 2] + K)
     order = np.lexsort((dist2, key))  # by voxel, nearest-to-centre first (stable: lower index on ties)

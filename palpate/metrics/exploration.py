@@ -38,6 +38,18 @@ class MeshLike(Protocol):
 Mesh = MeshLike | tuple[ArrayLike, ArrayLike]
 
 
+def point_rows(points: ArrayLike, name: str) -> FloatArray:
+    """``points`` as finite float64 rows (n, 3) (a single point (3,) as one row), else ValueError naming it."""
+    P = np.asarray(points, dtype=np.float64)
+    if P.shape == (3,) or P.size == 0:
+        P = P.reshape(-1, 3)
+    if P.ndim != 2 or P.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (n, 3), got {P.shape}")
+    if not np.isfinite(P).all():
+        raise ValueError(f"{name} must be finite (got NaN or infinity)")
+    return P
+
+
 def mesh_arrays(mesh: Mesh) -> tuple[FloatArray, IntArray]:
     """(vertices (V, 3) float64, faces (F, 3) int64) of a mesh, validated."""
     if isinstance(mesh, tuple):
@@ -92,8 +104,8 @@ class DistanceField:
         self._scene = MeshScene(V, F, origin_m=V.mean(axis=0))
 
     def distance(self, points: ArrayLike) -> FloatArray:
-        """Distance of each point to the surface, (n,) metres. points: (n, 3)."""
-        P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        """Distance of each point to the surface, (n,) metres. points: (n, 3), finite."""
+        P = point_rows(points, "points")
         if P.shape[0] == 0:
             return np.zeros(0)
         return self._scene.distance(P - self._scene.origin_m)
@@ -129,11 +141,11 @@ class CoverageTracker:
 
     def add_contact(self, p: ArrayLike) -> float:
         """Mark the surface within radius_m of contact p (3,) as explored; returns the new coverage."""
-        return self.add_contacts(np.asarray(p, dtype=np.float64).reshape(1, 3))
+        return self.add_contacts(point_rows(p, "contact").reshape(1, 3))
 
     def add_contacts(self, points: ArrayLike) -> float:
         """Mark several contacts (n, 3) at once; returns the new coverage."""
-        P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        P = point_rows(points, "contacts")
         for tree, explored in ((self._tree, self._explored), (self._vertex_tree, self._vertex_explored)):
             hits = tree.query_ball_point(P, self.radius_m, return_sorted=False)  # one list per contact
             for h in hits:
@@ -238,6 +250,8 @@ def _rmse_against(
         est_pts = np.asarray(estimate, dtype=np.float64)
         if est_pts.ndim != 2 or est_pts.shape[1] != 3 or est_pts.shape[0] == 0:
             raise MeshError(f"the estimate must be a mesh or points (n>0, 3), got {est_pts.shape}")
+        if not np.isfinite(est_pts).all():
+            raise MeshError("the estimate's points must be finite (got NaN or infinity)")
         d_truth_to_est, _ = cKDTree(est_pts).query(truth_pts)
     d_est_to_truth = true_field.distance(est_pts)
     e2t = float(np.sqrt(np.mean(d_est_to_truth**2)))
@@ -252,7 +266,10 @@ def confident_faces(faces: ArrayLike, vertex_variance: ArrayLike, max_sigma_m: f
 
     faces: (f, 3) vertex indices; vertex_variance: (v,) GP variance of f at the vertices, m^2.
     """
-    F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    F = np.asarray(faces, dtype=np.int64)
+    F = F.reshape(0, 3) if F.size == 0 else F
+    if F.ndim != 2 or F.shape[1] != 3:
+        raise ValueError(f"faces must have shape (f, 3), got {F.shape}")
     var = np.asarray(vertex_variance, dtype=np.float64)
     ok = var <= max_sigma_m**2  # False for NaN
     return F[ok[F].all(axis=1)] if len(F) else F
@@ -262,13 +279,16 @@ def angle_to_normal_deg(fingertip_axis: ArrayLike, true_normals: ArrayLike) -> F
     """Angle between the fingertip's poking axis and the inward true normal at contact, degrees (n,).
 
     0 means the fingertip pokes straight into the surface (axis = -normal), the quantity of the
-    paper's Fig. 9. Inputs (n, 3) or (3,); need not be unit length.
+    paper's Fig. 9. Inputs (n, 3) or (3,); need not be unit length. NaN where either vector is zero
+    (it has no direction; arctan2 alone would call that a perfect 0).
     """
     a = np.atleast_2d(np.asarray(fingertip_axis, dtype=np.float64))
     n = -np.atleast_2d(np.asarray(true_normals, dtype=np.float64))
     cross = np.linalg.norm(np.cross(a, n), axis=1)
     dot = np.einsum("ij,ij->i", a, n)
-    return np.asarray(np.degrees(np.arctan2(cross, dot)), dtype=np.float64)
+    angle = np.degrees(np.arctan2(cross, dot))
+    undefined = (np.abs(a).max(axis=1) == 0.0) | (np.abs(n).max(axis=1) == 0.0)
+    return np.asarray(np.where(undefined, np.nan, angle), dtype=np.float64)
 
 
 def prediction_miss_m(predicted: ArrayLike, actual: ArrayLike) -> FloatArray:

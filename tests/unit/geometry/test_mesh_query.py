@@ -18,6 +18,7 @@ from palpate.geometry.mesh_query import (
     ExactContactSensor,
     MeshScene,
     closest_points_on_triangles,
+    face_rings,
 )
 from palpate.nodes.sim.objects import read_mesh_file
 
@@ -232,3 +233,16 @@ def test_scene_inside_test_and_rays_on_a_box() -> None:
 def test_scene_refuses_a_mesh_without_faces() -> None:
     with pytest.raises(MeshError, match="faces"):
         MeshScene(np.zeros((3, 3)), np.zeros((0, 3), dtype=np.int64))
+
+
+def test_a_vertex_shared_by_thousands_of_faces_is_refused_before_its_table_is_built() -> None:
+    """A fan of 20,000 faces around one vertex: trimesh's (vertices x largest degree) table alone took
+    15 s and 7 GB before the limit on the face rings refused the mesh."""
+    n = 20000
+    theta = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+    rim = 0.05 * np.c_[np.cos(theta), np.sin(theta), np.zeros(n)]
+    faces = np.c_[np.zeros(n, dtype=np.int64), 1 + np.arange(n), 1 + (np.arange(n) + 1) % n]
+    fan = trimesh.Trimesh(np.vstack([[0.0, 0.0, 0.0], rim]), faces, process=False)
+    with pytest.raises(MeshError, match=r"20000 faces with a vertex shared by 20000 of them: .* remesh it"):
+        face_rings(fan)
+    assert "vertex_faces" not in fan._cache.cache  # refused before trimesh built the table

@@ -137,3 +137,29 @@ def test_dot3_gives_numpys_bits() -> None:
         a = rng.normal(size=3) * 10.0 ** rng.integers(-4, 4)
         b = rng.normal(size=3)
         assert rotations.dot3(a.tolist(), b.tolist()) == float(a @ b)
+
+
+def test_a_tiny_quaternion_is_normalised_without_underflow() -> None:
+    np.testing.assert_array_equal(rotations.quat_to_matrix([1e-200, 0.0, 0.0, 0.0]), np.eye(3))
+    q = np.array([0.3, -0.5, 0.1, 0.8])
+    np.testing.assert_allclose(rotations.quat_to_matrix(q * 1e-160), rotations.quat_to_matrix(q), atol=1e-15)
+    np.testing.assert_allclose(rotations.quat_to_matrix(q * 1e160), rotations.quat_to_matrix(q), atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    "q", [[0.0, 0.0, 0.0, 0.0], [np.nan, 0.0, 0.0, 0.0], [1.0, np.nan, 0.0, 0.0], [np.inf, 0, 0, 0]]
+)
+def test_a_quaternion_that_names_no_rotation_is_refused(q: list[float]) -> None:
+    with pytest.raises(ValueError, match="must be finite and nonzero to name a rotation"):
+        rotations.quat_to_matrix(q)
+
+
+def test_a_vector_without_direction_is_refused() -> None:
+    with pytest.raises(ValueError, match="two finite nonzero vectors"):
+        rotations.align_axis([0.0, 0.0, 0.0], [0.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match="two finite nonzero vectors"):
+        rotations.align_axis([0.0, 0.0, 1.0], [np.nan, 0.0, 1.0])
+    with pytest.raises(ValueError, match="nonzero surface normal n"):
+        rotations.get_rotation(np.eye(3), [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="rotation axis must be finite and nonzero"):
+        rotations.axis_angle_to_matrices([0.0, 0.0, 0.0], np.array([0.1]))

@@ -33,3 +33,12 @@ def test_thinning_the_kept_points_again_keeps_them_all() -> None:
 
 def test_no_point_within_the_radius_keeps_none() -> None:
     assert thin_near(np.array([[1.0, 0.0, 0.0]]), np.zeros(3), 0.005, 0.06).shape == (0,)
+
+
+def test_an_infinite_radius_keeps_one_point_per_voxel_everywhere() -> None:
+    rng = np.random.default_rng(4)
+    points = rng.uniform(-0.2, 0.2, (3000, 3))
+    centre = np.array([0.01, -0.02, 0.0])
+    everywhere = thin_near(points, centre, 0.005, np.inf)  # raised OverflowError
+    np.testing.assert_array_equal(everywhere, thin_near(points, centre, 0.005, 1.0))
+    assert 0 < len(everywhere) < len(points)

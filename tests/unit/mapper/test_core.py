@@ -72,6 +72,9 @@ def test_bad_input_is_rejected_and_changes_nothing(scene: tuple[KinematicChain, 
         (rec.q_true[t], np.array([7]), np.zeros((1, 3)), "outside"),
         (rec.q_true[t], np.array([0, 1]), np.zeros((1, 3)), "contact links"),
         (rec.q_true[t], np.array([0]), np.full((1, 3), np.inf), "not finite"),
+        (rec.q_true[t], np.array([1, 1]), np.zeros((1, 6)), r"positions \(n, 3\); got shapes \(2,\) and \(1, 6\)"),
+        (rec.q_true[t], np.array([1, 1]), np.zeros((3, 2)), r"got shapes \(2,\) and \(3, 2\)"),
+        (rec.q_true[t], np.array([[1]]), np.zeros((1, 3)), r"got shapes \(1, 1\) and \(1, 3\)"),
     ]
     for q, links, local, message in cases:
         with pytest.raises(EstimationError, match=message):

@@ -200,3 +200,15 @@ def test_same_seed_same_result(scene: tuple[KinematicChain, TappingRecord]) -> N
     assert a.filter is not None and b.filter is not None
     np.testing.assert_array_equal(a.filter.log_weights, b.filter.log_weights)
     np.testing.assert_array_equal(a.weighted_map().log_odds, b.weighted_map().log_odds)
+
+
+def test_weights_at_their_extremes() -> None:
+    lw, n_eff = normalise_log_weights(np.array([np.inf, 0.0, 1.0, np.inf]))  # +inf: the likeliest
+    np.testing.assert_array_equal(np.exp(lw), [0.5, 0.0, 0.0, 0.5])
+    assert n_eff == 2.0
+    with pytest.raises(ValueError, match="at least one particle"):
+        normalise_log_weights(np.array([]))
+    rng = np.random.default_rng(0)
+    for bad in ([np.nan, 1.0, 1.0, 1.0], [-1.0, 1.0, 1.0, 1.0], [0.0, 0.0], []):
+        with pytest.raises(ValueError, match="finite, non-negative and not all zero"):
+            systematic_resample(np.array(bad), rng)

@@ -235,3 +235,27 @@ def test_weighted_map_with_shared_chunks_matches_a_per_map_reference() -> None:
     m = g.weighted(w)
     np.testing.assert_array_equal(m.flat, touched)
     np.testing.assert_allclose(m.belief(), ref[touched], rtol=1e-5)
+
+
+def test_the_per_cell_interface_names_indices_outside_the_grid() -> None:
+    """Out-of-range cells and maps were bare numpy errors, and a negative map index wrote into the last map."""
+    g = LogOddsGrids(GridSpec.from_bounds((0.0, 0.0, 0.0), (0.01, 0.01, 0.01), 0.001), 3)
+    for call, message in (
+        (lambda: g.update_flat(0, [1000], []), r"flat cell indices must be 0\.\.999, got 1000\.\.1000"),
+        (lambda: g.read_flat(0, [-1]), r"flat cell indices must be 0\.\.999"),
+        (lambda: g.read_flat(0, [0.5]), "must be integers"),
+        (lambda: g.update_flat(7, [0], []), r"map_index must be 0\.\.2, got 7"),
+        (lambda: g.update_flat(-1, [], [7]), r"map_index must be 0\.\.2, got -1"),
+        (lambda: g.resample([0, -1, 0]), r"ancestors must be map indices 0\.\.2"),
+        (lambda: g.resample([0, 1, 5]), r"ancestors must be map indices 0\.\.2"),
+        (lambda: g.to_sparse(9), r"map_index must be 0\.\.2, got 9"),
+        (lambda: g.weighted(np.array([1.0])), "weights must be 3 finite non-negative numbers"),
+        (lambda: g.weighted(np.array([np.nan, 0.5, 0.5])), "finite non-negative"),
+        (lambda: g.weighted(np.array([1.0, 1.0, 0.0])), "must sum to 1, got 2.0"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            call()
+    assert g.to_sparse(2).flat.size == 0  # nothing was written into any map
+    g.update_flat(2, [], [7])
+    np.testing.assert_array_equal(g.read_flat(2, [7, 8]), np.float32([L_OCC, 0.0]))
+    assert g.weighted(np.array([0.0, 0.0, 1.0])).flat.tolist() == [7]

@@ -15,6 +15,7 @@ from palpate.metrics.exploration import (
     DistanceField,
     RmseScorer,
     angle_to_normal_deg,
+    confident_faces,
     covering_bound_contacts,
     mesh_area,
     packing_bound_contacts,
@@ -203,3 +204,32 @@ def test_ycb_surface_points_are_at_zero_distance(ycb: Path) -> None:
     tracker.add_contacts(pts[::25])
     assert 0.0 < tracker.coverage <= 1.0 and 0.0 < tracker.vertex_coverage <= 1.0
     assert 150 < covering_bound_contacts(tracker.area_m2) < 220  # the issue's "about 185" for the banana
+
+
+def test_point_arrays_of_the_wrong_shape_or_not_finite_are_named() -> None:
+    """(3, 2) and (1, 6) arrays were read as 2 points; NaN was a distance of NaN or scipy's error."""
+    cube = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
+    field, tracker = DistanceField(cube), CoverageTracker(cube, samples=500)
+    for bad in (np.zeros((3, 2)), np.zeros((1, 6)), np.zeros(6)):
+        with pytest.raises(ValueError, match=r"points must have shape \(n, 3\)"):
+            field.distance(bad)
+        with pytest.raises(ValueError, match=r"contacts must have shape \(n, 3\)"):
+            tracker.add_contacts(bad)
+    with pytest.raises(ValueError, match="points must be finite"):
+        field.distance([[np.nan, 0.0, 0.0]])
+    with pytest.raises(ValueError, match="contact must be finite"):
+        tracker.add_contact([np.nan, 0.0, 0.0])
+    with pytest.raises(MeshError, match="points must be finite"):
+        surface_rmse(np.array([[np.nan, 0.0, 0.0]]), cube, samples=100)
+    assert tracker.contacts == 0 and field.distance(np.zeros((0, 3))).shape == (0,)
+    np.testing.assert_allclose(field.distance([0.0, 0.0, 0.0]), [0.025])  # one point (3,)
+    with pytest.raises(ValueError, match=r"faces must have shape \(f, 3\), got \(2, 2\)"):
+        confident_faces(np.zeros((2, 2), dtype=int), np.zeros(3), 0.001)
+
+
+def test_the_angle_to_a_zero_vector_is_undefined() -> None:
+    """arctan2(0, 0) had called a zero normal or axis a perfect 0 degrees."""
+    angles = angle_to_normal_deg(
+        [[0.0, 0.0, -1.0], [0.0, 0.0, 0.0], [0.0, 0.0, -1.0]], [[0, 0, 1], [0, 0, 1], [0, 0, 0]]
+    )
+    assert angles[0] == 0.0 and np.isnan(angles[1:]).all()

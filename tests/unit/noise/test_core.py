@@ -240,3 +240,15 @@ def test_contact_noise_zero_passes_received_arrays_and_copies_others() -> None:
     p.flags.writeable = n.flags.writeable = False  # as received
     out_p, out_n = ContactNoise(ContactNoiseConfig(), np.random.default_rng(1)).apply(p, n)
     assert out_p is p and out_n is n
+
+
+@pytest.mark.parametrize("rows", [1, 5])
+def test_perturb_directions_refuses_rows_without_direction(rows: int) -> None:
+    """One zero row among one or five: the same named error (it was a ZeroDivisionError for one row and
+    NaN rows for five)."""
+    normals = np.tile([0.0, 0.0, 1.0], (rows, 1))
+    normals[-1] = 0.0
+    with pytest.raises(ValueError, match="finite and nonzero"):
+        perturb_directions(normals, 0.1, np.random.default_rng(0))
+    with pytest.raises(ValueError, match=r"shape \(n, 3\), got \(3,\)"):
+        perturb_directions(np.array([0.0, 0.0, 1.0]), 0.1, np.random.default_rng(0))
