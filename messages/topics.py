@@ -23,6 +23,7 @@ TRUTH_JOINT_STATES = "truth/joint_states"
 TRUTH_OBJECT = "truth/object"
 
 OCCUPANCY_GRID = "map/occupancy"
+WEIGHTED_OCCUPANCY_GRID = "map/occupancy_weighted"
 PARTICLES = "map/particles"
 POSE_ESTIMATE = "map/pose_estimate"
 

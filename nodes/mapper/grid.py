@@ -115,10 +115,6 @@ class GridSpec:
         ijk = np.stack(np.unravel_index(np.asarray(flat, dtype=np.int64), self.shape), axis=-1)
         return np.asarray(np.asarray(self.origin_m) + (ijk + 0.5) * self.resolution_m, dtype=np.float64)
 
-    def all_centers(self) -> NDArray[np.float64]:
-        """Centres (n_cells, 3) of every cell, in flat-index order (small grids only)."""
-        return self.centers(np.arange(self.n_cells, dtype=np.int64))
-
     def flat_of_points(self, points_m: FloatArray) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
         """(inside (n,), flat (m,)) for points (n, 3): the flat index of each point inside the grid."""
         f = (np.asarray(points_m, dtype=np.float64) - np.asarray(self.origin_m)) / self.resolution_m

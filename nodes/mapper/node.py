@@ -16,6 +16,7 @@ import numpy as np
 
 from palpate.config import PositiveFloat, Validated
 from palpate.description import load_hand
+from palpate.messages import topics
 from palpate.messages.schemas import ContactSet, JointState, OccupancyGrid, ParticleSetSummary
 from palpate.nodes.mapper.core import Mapper, MapperConfig
 from palpate.nodes.mapper.grid import SparseMap
@@ -125,7 +126,7 @@ class MapperNode:
 def _ports(config: MapperNodeConfig) -> tuple[dict[str, Port], dict[str, Port]]:
     outputs = {"map": Port(OccupancyGrid)}
     if config.mapper.mode == "fastslam":
-        outputs["weighted_map"] = Port(OccupancyGrid, topic="map/occupancy_weighted")
+        outputs["weighted_map"] = Port(OccupancyGrid, topic=topics.WEIGHTED_OCCUPANCY_GRID)
         outputs["particles"] = Port(ParticleSetSummary)
     return {"joint_states": Port(JointState), "contacts": Port(ContactSet)}, outputs
 

@@ -234,7 +234,7 @@ def goal_check(rows: Sequence[Mapping[str, float]], resolution_m: float) -> dict
 
 def grid_main(args: argparse.Namespace) -> int:
     """Print the table and the goal check (and with --json a last line of JSON); 1 when the goal is missed."""
-    from palpate.nodes.gpis.node import GPISNodeConfig
+    from palpate.nodes.gpis.session import GPISNodeConfig
 
     node = GPISNodeConfig()
     contacts = list(getattr(args, "contacts", None) or (QUICK_CONTACTS if args.quick else CONTACTS))

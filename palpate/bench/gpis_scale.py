@@ -133,7 +133,7 @@ def measure_row(shape: str, n: int, estimator: str, repeats: int, seed: int) -> 
     from palpate.geometry.thinning import thin_near
     from palpate.nodes.gpis.core import GPISConfig
     from palpate.nodes.gpis.local import make_estimator
-    from palpate.nodes.gpis.node import GPISNodeConfig
+    from palpate.nodes.gpis.session import GPISNodeConfig
     from palpate.nodes.gpis.surface import local_surface
 
     node = GPISNodeConfig()
@@ -243,7 +243,7 @@ def default_field_at(
 ) -> list[float]:
     """The estimator's mean at the given points after all n contacts (the same build as measure_row)."""
     from palpate.nodes.gpis.local import make_estimator
-    from palpate.nodes.gpis.node import GPISNodeConfig
+    from palpate.nodes.gpis.session import GPISNodeConfig
 
     P, N = _Shape(shape).contacts(n, seed)
     gp = make_estimator(dataclasses.replace(GPISNodeConfig().gp, estimator=estimator))

@@ -11,7 +11,8 @@ from palpate.messages.schemas import SurfaceMesh, SurfaceRequest
 from palpate.nodes.gpis.core import GPIS, GPISConfig
 from palpate.nodes.gpis.free_space import SweptSpace, enforce, most_broken_per_voxel, within_box
 from palpate.nodes.gpis.local import AutoGPIS, LocalGPIS
-from palpate.nodes.gpis.node import SPEC, GPISNode, GPISNodeConfig
+from palpate.nodes.gpis.node import SPEC, GPISNode
+from palpate.nodes.gpis.session import GPISNodeConfig
 from palpate.runtime.node import NodeContext
 from tests.unit.node_messages import no_contacts, pose, touch
 
@@ -128,13 +129,13 @@ def test_only_the_whole_object_mesh_keeps_the_swept_free_space() -> None:
         for centre in below_the_plate():
             node.on_pose(pose(centre))
             node.on_contacts(no_contacts())
-        assert len(node.swept) == len(below_the_plate())
+        assert len(node.session.swept) == len(below_the_plate())
         for x in (-0.02, 0.0, 0.02):
             for y in (-0.02, 0.0, 0.02):
                 node.on_touches(touch([x, y, 0.0], UP))
         node.on_request(SurfaceRequest(stamp_ns=0, region="global", variance=False))
         meshes[free] = [m for m in sent if isinstance(m, SurfaceMesh)]
-        exact = node.gp.estimator if isinstance(node.gp, AutoGPIS) else node.gp
+        exact = node.session.gp.estimator if isinstance(node.session.gp, AutoGPIS) else node.session.gp
         assert isinstance(exact, GPIS) and exact.n_free_space == 0 and exact.n_contacts == 9
         if free:
             assert ctx.counters["free_space_points"] > 0

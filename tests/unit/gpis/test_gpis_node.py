@@ -13,7 +13,8 @@ from palpate.messages.base import Message
 from palpate.messages.schemas import SurfaceMesh, SurfaceRequest
 from palpate.nodes.gpis.core import GPIS, GPISConfig
 from palpate.nodes.gpis.local import AutoGPIS
-from palpate.nodes.gpis.node import GPISNode, GPISNodeConfig
+from palpate.nodes.gpis.node import GPISNode
+from palpate.nodes.gpis.session import GPISNodeConfig
 from palpate.runtime.node import NodeContext
 from tests.unit.node_messages import touch
 
@@ -23,7 +24,7 @@ def test_unusable_touches_leave_the_gp_unchanged() -> None:
     ctx = NodeContext("gpis", 0, lambda topic, message: sent.append(message), {"surface": "surface/mesh"})
     node = GPISNode(GPISNodeConfig(grow_kernel=False), ctx)
     node.on_touches(touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]))
-    exact = node.gp.estimator if isinstance(node.gp, AutoGPIS) else None
+    exact = node.session.gp.estimator if isinstance(node.session.gp, AutoGPIS) else None
     assert isinstance(exact, GPIS)  # "auto": the exact GP while the contacts are few
     factor = exact.cholesky_factor()
     cases = [
@@ -36,10 +37,10 @@ def test_unusable_touches_leave_the_gp_unchanged() -> None:
     for message, reason in cases:
         with pytest.raises(InputError, match=reason):
             node.on_touches(message)
-        assert node.gp.n_contacts == 1
+        assert node.session.gp.n_contacts == 1
         np.testing.assert_array_equal(exact.cholesky_factor(), factor)
     node.on_touches(touch([0.3, 0.0, 0.03], [1.0, 0.0, 0.0]))  # 0.3 m away still fits
-    assert node.gp.n_contacts == 2 and len(sent) == 2
+    assert node.session.gp.n_contacts == 2 and len(sent) == 2
     with pytest.raises(InputError, match=r"^region: 'local' is no region a request can name; use 'global'"):
         node.on_request(SurfaceRequest(stamp_ns=0, region="local", variance=True))
     node.on_request(SurfaceRequest(stamp_ns=0, region="global", variance=True))
@@ -63,17 +64,17 @@ def test_an_object_larger_than_the_kernels_reach_grows_it_and_keeps_every_contac
     first, far = touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]), touch([0.45, 0.0, 0.03], [1.0, 0.0, 0.0])
     node.on_touches(first)
     node.on_touches(far)
-    assert node.gp.config.R_m == 1.0 and node.gp.n_contacts == 2 and len(sent) == 2
+    assert node.session.gp.config.R_m == 1.0 and node.session.gp.n_contacts == 2 and len(sent) == 2
     assert ctx.counters["kernel_grown"] == 1 and ctx.metrics["kernel_R_m"] == 1.0
-    direct = GPIS(GPISConfig(R_m=1.0), prior_centre_m=node.gp.prior_centre_m)
+    direct = GPIS(GPISConfig(R_m=1.0), prior_centre_m=node.session.gp.prior_centre_m)
     direct.add_contact(first.position_m, first.normal)
     direct.add_contact(far.position_m, far.normal)
     x = np.random.default_rng(0).uniform(-0.05, 0.5, (50, 3))
-    np.testing.assert_allclose(node.gp.mean(x), direct.mean(x), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(node.session.gp.mean(x), direct.mean(x), rtol=1e-9, atol=1e-12)
     node.on_touches(touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]))  # near the first: no growth
     assert ctx.counters["kernel_grown"] == 1
     node.on_touches(touch([1.0, 0.0, 0.03], [1.0, 0.0, 0.0]))  # 1.07 m: doubled again
-    assert node.gp.config.R_m == 2.0 and node.gp.n_contacts == 4 and ctx.counters["kernel_grown"] == 2
+    assert node.session.gp.config.R_m == 2.0 and node.session.gp.n_contacts == 4 and ctx.counters["kernel_grown"] == 2
 
 
 def test_the_whole_object_mesh_after_a_touch_is_held_at_the_touch_not_at_the_request() -> None:
@@ -84,11 +85,11 @@ def test_the_whole_object_mesh_after_a_touch_is_held_at_the_touch_not_at_the_req
     ctx = NodeContext("gpis", 0, lambda topic, message: sent.append(message), {"surface": "surface/mesh"})
     node = GPISNode(GPISNodeConfig(global_margin_m=0.3, global_resolution_m=0.01), ctx)
     node.on_touches(touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]))
-    assert node.gp.config.R_m == 0.5
+    assert node.session.gp.config.R_m == 0.5
     node.on_touches(touch([0.3, 0.0, 0.03], [1.0, 0.0, 0.0]))
-    assert node.gp.config.R_m == 2.0 and ctx.counters["kernel_grown"] == 1 and node.gp.n_contacts == 2
+    assert node.session.gp.config.R_m == 2.0 and ctx.counters["kernel_grown"] == 1 and node.session.gp.n_contacts == 2
     node.on_request(SurfaceRequest(stamp_ns=0, region="global", variance=False))
-    assert node.gp.config.R_m == 2.0 and ctx.counters["kernel_grown"] == 1
+    assert node.session.gp.config.R_m == 2.0 and ctx.counters["kernel_grown"] == 1
     assert isinstance(sent[-1], SurfaceMesh) and sent[-1].region == "global" and len(sent[-1].vertices_m) > 0
 
 
@@ -100,12 +101,12 @@ def test_a_refused_touch_leaves_the_kernel_as_it_was_and_growth_stops_at_its_cap
     node.on_touches(touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]))
     with pytest.raises(InputError, match=r"^normal: norm 2, not 1"):
         node.on_touches(touch([0.45, 0.0, 0.03], [2.0, 0.0, 0.0]))
-    assert node.gp.config.R_m == 0.5 and node.gp.n_contacts == 1 and "kernel_grown" not in ctx.counters
+    assert node.session.gp.config.R_m == 0.5 and node.session.gp.n_contacts == 1 and "kernel_grown" not in ctx.counters
     with pytest.raises(InputError, match=r"^position_m: the GPIS cannot add this touch to its 1 contacts"):
         node.on_touches(touch([5.0, 0.0, 0.03], [1.0, 0.0, 0.0]))  # needs R_m = 8 m > 4 m
-    assert node.gp.config.R_m == 0.5 and node.gp.n_contacts == 1
+    assert node.session.gp.config.R_m == 0.5 and node.session.gp.n_contacts == 1
     node.on_touches(touch([2.0, 0.0, 0.03], [1.0, 0.0, 0.0]))  # needs 4 m: grown
-    assert node.gp.config.R_m == 4.0 and node.gp.n_contacts == 2
+    assert node.session.gp.config.R_m == 4.0 and node.session.gp.n_contacts == 2
 
 
 def test_a_local_resolution_no_touch_could_mesh_is_a_config_error() -> None:
