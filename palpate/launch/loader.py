@@ -6,7 +6,7 @@ Every value keeps the file and line it came from, so that validation errors can 
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -184,6 +184,29 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
     if path in stack:
         raise LaunchError(f"{path}: include cycle: {' -> '.join(str(p) for p in (*stack, path))}")
     name = _display(path)
+    top = _top_items(_compose(path, name), name)
+    args = _arguments(top, name, overrides, sites)
+
+    def value(key: str, default: Any) -> Any:
+        return _plain(top[key][1], name, args) if key in top else default
+
+    mode, placement, seed = _settings(top, name, value)
+    nodes = _included_nodes(top, name, args, path, stack)
+    nodes.extend(_node_entry(entry, name, args) for entry in _sequence(top, "nodes", name))
+    return LaunchFile(
+        path=path,
+        mode=mode,
+        seed=seed,
+        args=args,
+        nodes=nodes,
+        description=str(value("description", "")),
+        placement=placement,
+        mode_at=Where(name, next((top[k][0].start_mark.line + 1 for k in ("mode", "nodes") if k in top), 1)),
+    )
+
+
+def _compose(path: Path, name: str) -> yaml.Node | None:
+    """The YAML node tree of the file (None when it is empty); every error names the file and line."""
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -196,7 +219,7 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
             f"{name}:{line}: not UTF-8 text (byte {data[exc.start]:#04x}); save the file as UTF-8"
         ) from None
     try:
-        root = yaml.compose(text, Loader=_Loader)
+        return yaml.compose(text, Loader=_Loader)
     except yaml.MarkedYAMLError as exc:
         mark, context = exc.problem_mark, exc.context_mark
         around = f" ({exc.context} at line {context.line + 1})" if exc.context and context else ""
@@ -206,6 +229,10 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
         line = text.count("\n", 0, exc.position) + 1
         char = chr(exc.character) if isinstance(exc.character, int) else exc.character
         raise LaunchError(f"{name}:{line}: invalid YAML: the character {char!r} is not allowed") from exc
+
+
+def _top_items(root: yaml.Node | None, name: str) -> dict[str, tuple[yaml.Node, yaml.Node]]:
+    """The file's top-level keys (only TOP_KEYS) -> (key node, value node)."""
     if root is None:
         raise LaunchError(f"{name}:1: empty launch file: it needs at least a 'nodes' list")
     if not isinstance(root, yaml.MappingNode):
@@ -214,10 +241,17 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
     for key, (knode, _) in top.items():
         if key not in TOP_KEYS:
             raise LaunchError(f"{name}:{knode.start_mark.line + 1}: unknown key {key!r}; allowed: {sorted(TOP_KEYS)}")
+    return top
+
+
+def _arguments(
+    top: dict[str, tuple[yaml.Node, yaml.Node]], name: str, overrides: dict[str, Any], sites: Mapping[str, Where]
+) -> dict[str, Any]:
+    """The declared arguments with `overrides` applied; an override the file does not declare is an
+    error at the include that set it (`sites`) or at the file's `args`."""
     declared = _plain(top["args"][1], name, {}) if "args" in top else {}
     if not isinstance(declared, dict):
         raise LaunchError(f"{name}:{top['args'][1].start_mark.line + 1}: 'args' must be a mapping name: default")
-    args = {**declared, **{k: v for k, v in overrides.items()}}
     unknown_args = [k for k in overrides if k not in declared]
     if unknown_args and unknown_args[0] in sites:
         raise LaunchError(
@@ -228,10 +262,13 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
         raise LaunchError(
             f"{name}:{args_line}: unknown launch argument {unknown_args[0]!r}; declared: {sorted(declared)}"
         )
+    return {**declared, **overrides}
 
-    def value(key: str, default: Any) -> Any:
-        return _plain(top[key][1], name, args) if key in top else default
 
+def _settings(
+    top: dict[str, tuple[yaml.Node, yaml.Node]], name: str, value: Callable[[str, Any], Any]
+) -> tuple[str, str, int]:
+    """(mode, placement, seed) of the file, checked."""
     mode = value("mode", "lockstep")
     if mode not in ("lockstep", "realtime"):
         raise LaunchError(
@@ -250,6 +287,13 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
             f"{name}:{top['seed'][1].start_mark.line + 1}: seed must be an integer >= 0 (NumPy's generators take "
             f"no negative seed), got {seed!r}"
         )
+    return mode, placement, seed
+
+
+def _included_nodes(
+    top: dict[str, tuple[yaml.Node, yaml.Node]], name: str, args: Mapping[str, Any], path: Path, stack: tuple[Path, ...]
+) -> list[NodeEntry]:
+    """The nodes of the file's includes, in order, each include loaded with its own arguments."""
     nodes: list[NodeEntry] = []
     for include in _sequence(top, "include", name):
         items = _mapping_items(include, name)
@@ -274,18 +318,7 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
             raise LaunchError(f"{site}: included launch file {_display(target)} does not exist")
         include_args, include_sites = _include_args(items, name, args)
         nodes.extend(_load(target, include_args, (*stack, path), include_sites).nodes)
-    for entry in _sequence(top, "nodes", name):
-        nodes.append(_node_entry(entry, name, args))
-    return LaunchFile(
-        path=path,
-        mode=mode,
-        seed=seed,
-        args=args,
-        nodes=nodes,
-        description=str(value("description", "")),
-        placement=placement,
-        mode_at=Where(name, next((top[k][0].start_mark.line + 1 for k in ("mode", "nodes") if k in top), 1)),
-    )
+    return nodes
 
 
 def _include_args(
