@@ -630,7 +630,7 @@ def strategies_of(args: argparse.Namespace) -> list[str]:
 def parse_strategies(text: str) -> list[str]:
     """The comma-separated strategies of ``--strategies``; ConfigError for none, an unknown one or a
     repeat, before any run starts."""
-    from palpate.nodes.planner.core import Strategy
+    from palpate.nodes.planner.config import Strategy
 
     known = get_args(Strategy)
     strategies = [s.strip() for s in text.split(",") if s.strip()]
