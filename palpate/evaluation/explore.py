@@ -240,7 +240,7 @@ def episodes(
     evaluator's, after ``params``) at the controller's speed v0, CLOCK_PER_TRAVEL_BUDGET times over:
     the budgets, not the launch file's clock, end a run on a large object."""
     from palpate.metrics.exploration import triangle_areas
-    from palpate.nodes.controller.core import ControllerConfig
+    from palpate.nodes.controller.trajectory import ControllerConfig
     from palpate.nodes.explore_eval.core import EvalConfig
 
     params = params or {}

@@ -37,8 +37,8 @@ from palpate.errors import ConfigError, LaunchError
 from palpate.launch.graph import resolve
 from palpate.launch.loader import load_launch
 from palpate.launch.node_types import NODE_TYPES, load_node_type
-from palpate.nodes.controller.core import ControllerConfig
 from palpate.nodes.controller.node import ControllerNodeConfig
+from palpate.nodes.controller.trajectory import ControllerConfig
 from palpate.nodes.explore_eval.core import EvalConfig
 from palpate.nodes.planner.config import PlannerConfig
 
