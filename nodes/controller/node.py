@@ -15,7 +15,8 @@ from palpate.geometry.bezier import bezier_length
 from palpate.geometry.rotations import matrix_to_quat
 from palpate.inputs import contact_arrays, fingertip_pose, within_reach
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, Pose, TouchEvent, TouchTarget, Trajectory
-from palpate.nodes.controller.core import AXIS_APPROACH_M, ControllerConfig, Touch, TouchConfig, TouchLoop
+from palpate.nodes.controller.core import AXIS_APPROACH_M, Touch, TouchConfig, TouchLoop
+from palpate.nodes.controller.trajectory import ControllerConfig
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 

@@ -9,7 +9,8 @@ import numpy as np
 from palpate.errors import PlanningError
 from palpate.inputs import coordinates, unit_quaternion
 from palpate.messages.schemas import Pose, SurfaceMesh, TouchEvent, TouchTarget
-from palpate.nodes.planner.core import PlannerConfig, TouchPlanner
+from palpate.nodes.planner.config import PlannerConfig
+from palpate.nodes.planner.core import TouchPlanner
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 

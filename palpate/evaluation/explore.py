@@ -240,7 +240,7 @@ def episodes(
     evaluator's, after ``params``) at the controller's speed v0, CLOCK_PER_TRAVEL_BUDGET times over:
     the budgets, not the launch file's clock, end a run on a large object."""
     from palpate.metrics.exploration import triangle_areas
-    from palpate.nodes.controller.core import ControllerConfig
+    from palpate.nodes.controller.trajectory import ControllerConfig
     from palpate.nodes.explore_eval.core import EvalConfig
 
     params = params or {}
@@ -630,7 +630,7 @@ def strategies_of(args: argparse.Namespace) -> list[str]:
 def parse_strategies(text: str) -> list[str]:
     """The comma-separated strategies of ``--strategies``; ConfigError for none, an unknown one or a
     repeat, before any run starts."""
-    from palpate.nodes.planner.core import Strategy
+    from palpate.nodes.planner.config import Strategy
 
     known = get_args(Strategy)
     strategies = [s.strip() for s in text.split(",") if s.strip()]

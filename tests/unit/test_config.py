@@ -37,10 +37,10 @@ from palpate.errors import ConfigError, LaunchError
 from palpate.launch.graph import resolve
 from palpate.launch.loader import load_launch
 from palpate.launch.node_types import NODE_TYPES, load_node_type
-from palpate.nodes.controller.core import ControllerConfig
 from palpate.nodes.controller.node import ControllerNodeConfig
+from palpate.nodes.controller.trajectory import ControllerConfig
 from palpate.nodes.explore_eval.core import EvalConfig
-from palpate.nodes.planner.core import PlannerConfig
+from palpate.nodes.planner.config import PlannerConfig
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -461,7 +461,7 @@ def test_valid_values_round_trip_through_yaml(cls: type, data: st.DataObject) ->
 
 
 def test_an_integer_too_large_for_a_float_is_a_config_error() -> None:
-    from palpate.nodes.planner.core import PlannerConfig
+    from palpate.nodes.planner.config import PlannerConfig
 
     with pytest.raises(ConfigError, match=r"sigma1_m: expected a finite number > 0, got 1000"):
         load(PlannerConfig, {"sigma1_m": 10**400}, "planner")

@@ -11,7 +11,7 @@ import pytest
 from palpate.errors import ConfigError, PlanningError
 from palpate.geometry import rotations
 from palpate.geometry.bezier import bezier_length, bezier_point
-from palpate.nodes.controller.core import ControllerConfig, ControllerState, TrajectoryController
+from palpate.nodes.controller.trajectory import ControllerConfig, ControllerState, TrajectoryController
 
 Inside = Callable[[np.ndarray], bool]
 DT_S = 1e-3

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from palpate.nodes.controller.core import ControllerConfig, ControllerState, TrajectoryController
+from palpate.nodes.controller.trajectory import ControllerConfig, ControllerState, TrajectoryController
 
 R_DOWN = np.diag([1.0, -1.0, -1.0])  # fingertip pokes along -z
 # An Eq. 15 curve the planner produced on the YCB golf ball: up 7 mm, then a sharp turn down.

@@ -7,7 +7,8 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from palpate.nodes.controller.core import ControllerConfig, ControllerState, Touch, TouchConfig, TouchLoop
+from palpate.nodes.controller.core import Touch, TouchConfig, TouchLoop
+from palpate.nodes.controller.trajectory import ControllerConfig, ControllerState
 
 DT_S = 0.01
 TICK_NS = 10_000_000

@@ -11,14 +11,13 @@ import pytest
 from palpate.nodes.controller.core import (
     AXIS_APPROACH_M,
     HELD_M,
-    ControllerConfig,
-    ControllerState,
     ControlStep,
     Touch,
     TouchArming,
     TouchConfig,
     TouchLoop,
 )
+from palpate.nodes.controller.trajectory import ControllerConfig, ControllerState
 
 DT_S = 0.01
 TICK_NS = 10_000_000

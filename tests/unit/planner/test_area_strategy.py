@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from palpate.geometry.bezier import approach_curve, bezier_length
-from palpate.nodes.planner.core import Planner, PlannerConfig, area_scores
+from palpate.nodes.planner.config import PlannerConfig
+from palpate.nodes.planner.core import Planner
+from palpate.nodes.planner.scores import area_scores
 from tests.unit.planner.planes import DOWN, plane_grid
 
 

@@ -7,7 +7,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from palpate.errors import PlanningError
-from palpate.nodes.planner.core import Planner, PlannerConfig, sample_candidates
+from palpate.nodes.planner.config import PlannerConfig
+from palpate.nodes.planner.core import Planner, sample_candidates
 
 
 def dense_plane(spacing: float = 0.001, half: float = 0.08) -> np.ndarray:

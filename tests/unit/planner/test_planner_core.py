@@ -9,7 +9,9 @@ import pytest
 
 from palpate.errors import ConfigError, PlanningError
 from palpate.geometry.bezier import approach_curve, bezier_length, bezier_point
-from palpate.nodes.planner.core import Planner, PlannerConfig, igef_terms, sample_candidates
+from palpate.nodes.planner.config import PlannerConfig
+from palpate.nodes.planner.core import Planner, sample_candidates
+from palpate.nodes.planner.scores import igef_terms
 
 RNG_SEED = 5
 
@@ -229,12 +231,14 @@ def test_admissible_mask_excludes_candidates() -> None:
     some_out = np.arange(len(S)) < 3
     with pytest.raises(PlanningError, match="0 within it\\): the estimated surface's mesh has no vertex there"):
         planner.select(*far, np.random.default_rng(0), admissible=~some_out)
-    with pytest.raises(PlanningError, match="boolean mask"):
+    with pytest.raises(PlanningError, match=f"boolean mask of shape \\({len(S)},\\), got \\(3,\\)"):
         planner.select(*args, np.random.default_rng(0), admissible=np.ones(3, dtype=bool))
+    with pytest.raises(PlanningError, match="boolean mask, got dtype int64"):
+        planner.select(*args, np.random.default_rng(0), admissible=np.ones(len(S), dtype=np.int64))
 
 
 def test_away_from_drops_points_within_the_radius_of_any_avoided_point() -> None:
-    from palpate.nodes.planner.core import away_from
+    from palpate.nodes.planner.curves import away_from
 
     points = np.array([[0.0, 0.0, 0.0], [0.005, 0.0, 0.0], [0.0, 0.007, 0.0], [0.02, 0.0, 0.0]])
     avoid = np.array([[0.0, 0.0, 0.001], [0.02, 0.0, 0.0]])

@@ -1,4 +1,4 @@
-"""Admissibility of candidate curves against the estimated surface (planner.core.curves_clear)."""
+"""Admissibility of candidate curves against the estimated surface (planner.curves.curves_clear)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from palpate.nodes.planner.core import curves_clear
+from palpate.nodes.planner.curves import curves_clear
 
 
 def _plane(size: float = 0.1, step: float = 0.005) -> tuple[np.ndarray, np.ndarray]:

@@ -9,7 +9,7 @@ import pytest
 from palpate.errors import InputError
 from palpate.messages.base import Message
 from palpate.messages.schemas import Pose, SurfaceMesh, TouchEvent, TouchTarget
-from palpate.nodes.planner.core import PlannerConfig
+from palpate.nodes.planner.config import PlannerConfig
 from palpate.nodes.planner.node import PlannerNode
 from palpate.runtime.node import NodeContext
 

@@ -8,7 +8,9 @@ import trimesh
 
 from palpate.errors import InputError, PlanningError
 from palpate.geometry.thinning import thin_near
-from palpate.nodes.planner.core import Planner, PlannerConfig, TouchPlanner, curves_clear
+from palpate.nodes.planner.config import PlannerConfig
+from palpate.nodes.planner.core import Planner, TouchPlanner
+from palpate.nodes.planner.curves import curves_clear
 
 DOWN_WXYZ = np.array([0.0, 1.0, 0.0, 0.0])  # half turn about x: poking axis R[:, 2] = -z
 TIP_M = 0.008

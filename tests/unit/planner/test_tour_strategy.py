@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from palpate.nodes.planner.core import Planner, PlannerConfig, best_order, patch_weights, tour_plan
+from palpate.nodes.planner.config import PlannerConfig
+from palpate.nodes.planner.core import Planner
+from palpate.nodes.planner.tour import best_order, patch_weights, tour_plan
 from tests.unit.planner.planes import DOWN, UP, plane_grid
 
 
