@@ -13,7 +13,7 @@ from types import ModuleType
 
 from palpate.errors import ViewerError
 
-EXTRA_HINT = "palpate view needs the viewer extra: pip install 'palpate[viewer]'"
+EXTRA_HINT = "the viewer extra is not installed: pip install 'palpate[viewer]'"
 
 
 def require_rerun() -> ModuleType:

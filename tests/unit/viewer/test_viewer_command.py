@@ -42,8 +42,8 @@ def test_view_without_rerun_names_the_extra(
     monkeypatch.setitem(sys.modules, "rerun", None)
     out = tmp_path / "out.rrd"
     assert cli.main(["view", "--log", str(log_file), "--save", str(out)]) == 2
-    assert EXTRA_HINT in capsys.readouterr().err
-    assert EXTRA_HINT == "palpate view needs the viewer extra: pip install 'palpate[viewer]'"
+    assert capsys.readouterr().err == f"palpate view: {EXTRA_HINT}\n"  # one prefix, not two
+    assert EXTRA_HINT == "the viewer extra is not installed: pip install 'palpate[viewer]'"
     assert not out.exists()
 
 
