@@ -36,7 +36,7 @@ def place(k: int, xpos: A, xmat: A, geoms: A, offsets: A, centres: A) -> None:
 
 @numba.njit(cache=True)
 def place_all(xpos: A, xmat: A, geoms: A, offsets: A, centres: A) -> None:
-    """World centres (K, 3) of all spheres (``core.sphere_centres``' bits, where :func:`matches_numpy`)."""
+    """World centres (K, 3) of all spheres (``capsules.sphere_centres``' bits, where :func:`matches_numpy`)."""
     for k in range(geoms.shape[0]):
         place(k, xpos, xmat, geoms, offsets, centres)
 

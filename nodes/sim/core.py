@@ -31,9 +31,6 @@ Contacts follow the TRUE surface, not MuJoCo's convex hull of a mesh:
 from __future__ import annotations
 
 import math
-import time
-from dataclasses import dataclass
-from functools import cache
 from typing import Any
 
 import mujoco
@@ -49,6 +46,8 @@ from palpate.geometry.mesh_query import (
 from palpate.inputs import all_finite
 from palpate.messages import codec
 from palpate.nodes.sim import capsule_kernels, penalty_kernels, probe_kernels
+from palpate.nodes.sim.capsules import capsule_spheres
+from palpate.nodes.sim.contacts import FEW_CONTACTS, NO_ROWS, NO_VALUES, Contacts, frames_match_numpy, make_contacts
 from palpate.nodes.sim.effectors import FingerConfig, HandConfig
 from palpate.nodes.sim.objects import ObjectModel, load_object
 from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model, uses_exact_contacts
@@ -61,85 +60,9 @@ _INSTABILITY_WARNINGS = (
 )
 #: Their indices in MjData.warning, which the divergence check compares with the counts it has seen.
 _INSTABILITY_INDEX = [int(warning) for warning, _ in _INSTABILITY_WARNINGS]
-#: Up to this many contacts, ``Simulation.contacts`` checks their values for finiteness in one sum.
-_FEW_CONTACTS = 4
-#: No contact: read-only arrays over an empty bytes object, shared by every empty Contacts (nothing can
-#: change them, so the message codec passes them on without a copy).
-_NO_ROWS = codec.frozen(np.zeros((0, 3)))
-_NO_VALUES = codec.frozen(np.zeros(0))
 #: No touching capsule sphere: `Simulation._sphere_hits`'s answer (indices, centres, points, distances,
 #: normals), read-only.
-_NO_HITS = (codec.frozen(np.zeros(0, dtype=np.int64)), _NO_ROWS, _NO_ROWS, _NO_VALUES, _NO_ROWS)
-
-
-@dataclass(frozen=True)
-class Contacts:
-    """Contacts between the effector and the object at one instant (n may be 0).
-
-    positions_m (n, 3): points on the object's surface, world frame, metres.
-    local_positions_m (n, 3): the same points in the frame of the touching effector body.
-    normals (n, 3): unit, outward from the object's surface.
-    forces_n (n,): normal force, >= 0, newtons.
-    links: names of the touching effector bodies, length n.
-    """
-
-    positions_m: np.ndarray
-    local_positions_m: np.ndarray
-    normals: np.ndarray
-    forces_n: np.ndarray
-    links: list[str]
-
-    @staticmethod
-    def empty() -> Contacts:
-        """No contact (read-only arrays)."""
-        return Contacts(_NO_ROWS, _NO_ROWS, _NO_ROWS, _NO_VALUES, [])
-
-    def __len__(self) -> int:
-        return len(self.links)
-
-
-def _unit_and_local_numpy(
-    normals: np.ndarray, points: np.ndarray, bodies: np.ndarray, xmat: np.ndarray, xpos: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals (n, 3) and contact points (n, 3) in their bodies' frames, R^T (p - x), from MuJoCo's
-    body frames xmat (nbody, 9) and xpos (nbody, 3)."""
-    unit = normals / np.linalg.norm(normals, axis=1, keepdims=True)
-    R = xmat[bodies].reshape(-1, 3, 3)
-    return unit, np.einsum("kji,kj->ki", R, points - xpos[bodies])
-
-
-def _unit_and_local(
-    normals: np.ndarray, points: np.ndarray, bodies: list[int], xmat: np.ndarray, xpos: np.ndarray
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """:func:`_unit_and_local_numpy` of a few contacts in Python scalars (numpy's norm adds its three
-    squares left to right, and this einsum its three products: ``frames_match_numpy`` checks both);
-    None for a normal of length zero, which numpy's path turns into NaN (and the caller's check names)."""
-    unit, local = [], []
-    for (n0, n1, n2), (p0, p1, p2), b in zip(normals.tolist(), points.tolist(), bodies, strict=True):
-        length = math.sqrt((n0 * n0 + n1 * n1) + n2 * n2)
-        if length == 0.0:
-            return None
-        unit.append((n0 / length, n1 / length, n2 / length))
-        R, (x0, x1, x2) = xmat[b].tolist(), xpos[b].tolist()
-        v0, v1, v2 = p0 - x0, p1 - x1, p2 - x2
-        local.append(tuple((R[i] * v0 + R[3 + i] * v1) + R[6 + i] * v2 for i in range(3)))
-    return np.array(unit, dtype=np.float64).reshape(-1, 3), np.array(local, dtype=np.float64).reshape(-1, 3)
-
-
-@cache
-def frames_match_numpy(samples: int = 300) -> bool:
-    """Whether :func:`_unit_and_local` gives numpy's bits here (random normals, points and frames)."""
-    rng = np.random.default_rng(20261127)
-    for _ in range(samples):
-        n = int(rng.integers(1, _FEW_CONTACTS + 1))
-        normals, points = rng.standard_normal((n, 3)), 0.1 * rng.standard_normal((n, 3))
-        xmat, xpos = rng.standard_normal((5, 9)), 0.1 * rng.standard_normal((5, 3))
-        bodies = rng.integers(0, 5, n)
-        got = _unit_and_local(normals, points, bodies.tolist(), xmat, xpos)
-        expected = _unit_and_local_numpy(normals, points, bodies, xmat, xpos)
-        if got is None or any(a.tobytes() != e.tobytes() for a, e in zip(got, expected, strict=True)):
-            return False
-    return True
+_NO_HITS = (codec.frozen(np.zeros(0, dtype=np.int64)), NO_ROWS, NO_ROWS, NO_VALUES, NO_ROWS)
 
 
 def _mat_to_quat(R: np.ndarray) -> np.ndarray:
@@ -148,39 +71,6 @@ def _mat_to_quat(R: np.ndarray) -> np.ndarray:
     q = np.zeros(4)
     mujoco.mju_mat2Quat(q, np.asarray(R, dtype=np.float64).reshape(9))
     return q
-
-
-def capsule_spheres(
-    model: mujoco.MjModel, body_mask: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int]]]:
-    """Spheres covering every capsule geom of the bodies in ``body_mask`` (nbody,) bool.
-
-    Centres lie on the capsule axis at spacing radius / 2 (the union deviates from the capsule by at
-    most 1 - sqrt(15/16) = 3 % of the radius). Returns geom ids (K,), offsets in the geom frame
-    (K, 3), radii (K,) and per capsule the (start, stop) index range of its spheres.
-    """
-    gids: list[int] = []
-    offsets: list[tuple[float, float, float]] = []
-    radii: list[float] = []
-    runs: list[tuple[int, int]] = []
-    for g in range(model.ngeom):
-        if not body_mask[model.geom_bodyid[g]] or model.geom_type[g] != mujoco.mjtGeom.mjGEOM_CAPSULE:
-            continue
-        r, half = float(model.geom_size[g, 0]), float(model.geom_size[g, 1])
-        count = int(np.ceil(2 * half / (0.5 * r))) + 1
-        start = len(gids)
-        for s in np.linspace(-half, half, count):  # a capsule's axis is its geom frame's z
-            gids.append(g)
-            offsets.append((0.0, 0.0, float(s)))
-            radii.append(r)
-        runs.append((start, len(gids)))
-    return np.array(gids, dtype=np.int64), np.array(offsets).reshape(-1, 3), np.array(radii), runs
-
-
-def sphere_centres(data: mujoco.MjData, geoms: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """World centres (K, 3) of spheres given by geom ids (K,) and geom-frame offsets (K, 3)."""
-    xmat = data.geom_xmat[geoms].reshape(-1, 3, 3)
-    return data.geom_xpos[geoms] + np.einsum("kij,kj->ki", xmat, offsets)
 
 
 class Simulation:
@@ -871,7 +761,7 @@ class Simulation:
             first = j
         sel = np.array(rows, dtype=np.int64)
         bodies = self._sph_body[idx[sel]]
-        return self._make_contacts(points[sel], normals[sel], np.array(sums), bodies)
+        return make_contacts(points[sel], normals[sel], np.array(sums), bodies, self.data, self._body_names)
 
     # --- hand / finger on convex primitives: MuJoCo's native contacts -------------------------------
     def _native_contacts(self) -> Contacts:
@@ -897,23 +787,7 @@ class Simulation:
             mujoco.mj_contactForce(m, d, int(i), wrench)
             forces[j] = max(0.0, wrench[0])
         effector_geom = np.where(obj1[keep], g2[keep], g1[keep])
-        return self._make_contacts(points, normals, forces, m.geom_bodyid[effector_geom])
-
-    def _make_contacts(
-        self, points: np.ndarray, normals: np.ndarray, forces: np.ndarray, bodies: np.ndarray
-    ) -> Contacts:
-        d = self.data
-        few = None
-        if len(bodies) <= _FEW_CONTACTS and frames_match_numpy():
-            few = _unit_and_local(normals, points, bodies.tolist(), d.xmat, d.xpos)
-        normals, local = few if few is not None else _unit_and_local_numpy(normals, points, bodies, d.xmat, d.xpos)
-        return Contacts(
-            np.ascontiguousarray(points, dtype=np.float64),
-            np.ascontiguousarray(local, dtype=np.float64),
-            np.ascontiguousarray(normals, dtype=np.float64),
-            np.ascontiguousarray(forces, dtype=np.float64),
-            [self._body_names[b] for b in bodies],
-        )
+        return make_contacts(points, normals, forces, m.geom_bodyid[effector_geom], d, self._body_names)
 
     # --- accessors ---------------------------------------------------------------------------------
     def joint_positions(self) -> np.ndarray:
@@ -952,7 +826,7 @@ class Simulation:
                 # differently, and the next step may ask fewer): buffers as in penalty_kernels.sphere_hits
                 state = self._pk_buffers[6]
                 self._hits_current = bool(state[penalty_kernels.S_NEAR] <= FEW_POINTS)
-        if len(out) <= _FEW_CONTACTS and math.isfinite(
+        if len(out) <= FEW_CONTACTS and math.isfinite(
             sum(out.positions_m.ravel().tolist())
             + sum(out.local_positions_m.ravel().tolist())
             + sum(out.normals.ravel().tolist())
@@ -976,42 +850,3 @@ class Simulation:
                 f"diverged: use a smaller time step, e.g. timestep_s: {dt / 2:g}"
             )
         return array
-
-
-def model_sizes(model: mujoco.MjModel) -> dict[str, int]:
-    """What a scene's MuJoCo model holds: bodies (the world excluded), geoms, degrees of freedom,
-    actuators, and the geom pairs MuJoCo's collision detection considers (``contact_pairs``): pairs of
-    geoms on different bodies whose contype and conaffinity match, less parent-child pairs (unless the
-    parent is the world) and pairs of two static bodies, plus explicit ``<pair>`` elements."""
-    contype = np.asarray(model.geom_contype, dtype=np.int64)
-    affinity = np.asarray(model.geom_conaffinity, dtype=np.int64)
-    body = np.asarray(model.geom_bodyid)
-    weld = np.asarray(model.body_weldid)[body]
-    parent = np.asarray(model.body_parentid)
-    g1, g2 = np.triu_indices(model.ngeom, k=1)
-    b1, b2 = body[g1], body[g2]
-    match = ((contype[g1] & affinity[g2]) | (contype[g2] & affinity[g1])) != 0
-    family = ((parent[b1] == b2) & (b2 != 0)) | ((parent[b2] == b1) & (b1 != 0))
-    static = (weld[g1] == 0) & (weld[g2] == 0)
-    pairs = int(np.count_nonzero(match & (b1 != b2) & ~family & ~static)) + int(model.npair)
-    return {
-        "bodies": int(model.nbody) - 1,
-        "geoms": int(model.ngeom),
-        "dof": int(model.nv),
-        "actuators": int(model.nu),
-        "contact_pairs": pairs,
-    }
-
-
-def bare_step_rate(model: mujoco.MjModel, seconds: float = 1.0, batch: int = 100) -> float:
-    """Steps per second of a bare ``mj_step`` loop on ``model`` (fresh data, zero controls)."""
-    data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
-    steps = 0
-    start = time.perf_counter()
-    elapsed = 0.0
-    while elapsed < seconds:
-        mujoco.mj_step(model, data, nstep=batch)
-        steps += batch
-        elapsed = time.perf_counter() - start
-    return steps / elapsed

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from palpate.nodes.sim import capsule_kernels
-from palpate.nodes.sim.core import Simulation, sphere_centres
+from palpate.nodes.sim.capsules import sphere_centres
+from palpate.nodes.sim.core import Simulation
 from palpate.nodes.sim.motion import ExplorationMotion, MotionConfig
 from palpate.nodes.sim.objects import ObjectSpec
 from palpate.nodes.sim.scene import SceneConfig
