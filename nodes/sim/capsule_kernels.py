@@ -1,7 +1,7 @@
 """The broad phase of a hand's or finger's exact-mesh penalty contacts, in compiled code (numba).
 
-Before every physics step, ``Simulation._sphere_hits`` places the capsule spheres (K of them: 42 for
-a finger, 194 for a hand) in the world and keeps those whose 1-Lipschitz bound on the signed
+Before every physics step, ``PenaltyContacts._sphere_hits`` places the capsule spheres (K of them: 42
+for a finger, 194 for a hand) in the world and keeps those whose 1-Lipschitz bound on the signed
 distance, ``d_last - |c - c_last|``, does not rule out a contact; most steps keep none. In numpy that
 is a dozen calls on (K, 3) arrays, about a third of a finger's step. :func:`sphere_bounds` does it in
 one loop with numpy's own order of operations: a centre is ``xpos + R @ offset`` where numpy's
@@ -36,7 +36,7 @@ def place(k: int, xpos: A, xmat: A, geoms: A, offsets: A, centres: A) -> None:
 
 @numba.njit(cache=True)
 def place_all(xpos: A, xmat: A, geoms: A, offsets: A, centres: A) -> None:
-    """World centres (K, 3) of all spheres (``core.sphere_centres``' bits, where :func:`matches_numpy`)."""
+    """World centres (K, 3) of all spheres (``capsules.sphere_centres``' bits, where :func:`matches_numpy`)."""
     for k in range(geoms.shape[0]):
         place(k, xpos, xmat, geoms, offsets, centres)
 

@@ -37,7 +37,8 @@ from palpate.errors import ConfigError
 from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.jsonio import dumps as json_dumps
 from palpate.nodes.sim import capsule_kernels
-from palpate.nodes.sim.core import Simulation, capsule_spheres, sphere_centres
+from palpate.nodes.sim.capsules import capsule_spheres, sphere_centres
+from palpate.nodes.sim.core import Simulation
 from palpate.nodes.sim.effectors import LONG_FINGERS, FingerConfig, HandConfig, finger_joint_names
 from palpate.nodes.sim.objects import ObjectModel, load_object, sample_surface
 from palpate.nodes.sim.scene import OBJECT_BODY, SceneConfig, build_model

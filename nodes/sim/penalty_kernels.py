@@ -278,17 +278,18 @@ def load_query_kernels(sensor: ExactContactSensor) -> None:
     contact: tens of milliseconds once per process, which would otherwise stall a step of a running
     graph."""
     k = closest_kernels
-    triangles, signs = sensor._triangles, sensor._sign_normals
+    centre, triangles, signs, bound_planes, bound_offsets = sensor.query_mesh
     k.project(triangles, 0, 0.0, 0.0, 0.0)
     k.finish(triangles, signs, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, WEAK_PSEUDO_NORMAL, WEAK_SIGN_COS)
     faces, planes, offsets, lower0 = k.build_patch(
-        sensor._bound_planes, sensor._bound_offsets, np.zeros(0, dtype=np.int64), 0.0, 0.0, 0.0, 1.0
+        bound_planes, bound_offsets, np.zeros(0, dtype=np.int64), 0.0, 0.0, 0.0, 1.0
     )
     k.warm_query(triangles, signs, faces, planes, offsets, lower0, 0.0, 0, 0.0, 0.0, 0.0, 0.1, 0.1)
     index = np.zeros(1, dtype=np.int64)
     drop_patch(0, index, index.copy(), index.copy())  # WarmPatches.store's
     sensor.face_index()
-    sensor._scene.closest_face_ids(np.zeros((1, 3)))
+    cx, cy, cz = centre.tolist()
+    sensor.seed_face(cx, cy, cz)  # Open3D's face query at the shifted frame's origin
 
 
 class WarmPatches:
@@ -388,7 +389,7 @@ def query_setup(sensor: ExactContactSensor, warm: WarmClosest) -> tuple[tuple[A,
     offsets), its :func:`face_grid` and the parameter vector with the query's entries set (reach,
     weak-sign limits, patch limits, grid cell, largest face radius); its kernels are loaded first."""
     load_query_kernels(sensor)
-    mesh = (sensor._centre, sensor._triangles, sensor._sign_normals, sensor._bound_planes, sensor._bound_offsets)
+    mesh = sensor.query_mesh
     grid, cell_m, largest = face_grid(sensor)
     params = np.zeros(PARAMS)
     params[P_REACH] = warm.reach_m
@@ -408,7 +409,7 @@ def face_grid(
     cells per axis (3,), each cell's first entry (C + 1,), the faces by cell (F,), the centroids
     (F, 3)), the cell size and the largest face radius about its centroid (``face_index``)."""
     _, _, largest = sensor.face_index()
-    centroids = np.ascontiguousarray(sensor._triangles.mean(axis=1))
+    centroids = np.ascontiguousarray(sensor.query_mesh[1].mean(axis=1))  # of the triangles
     corner = centroids.min(axis=0)
     extent = centroids.max(axis=0) - corner
     while np.prod(np.floor(extent / cell_m) + 1) > max_cells:
@@ -666,10 +667,10 @@ def query_near(
 def sphere_hits(
     resume: int, few_points: int, frames: Any, spheres: Any, mesh: Any, grid: Any, warm: Any, buffers: Any, params: A
 ) -> tuple[int, int]:
-    """``Simulation._sphere_hits``: with resume < 0 the bounds (``capsule_kernels.sphere_bounds``) of
-    the current kinematics (more than ``few_points`` near spheres: BATCH), then the queries from
-    position ``resume`` on (:func:`query_near`); once
-    all are answered, the caches of the near spheres and, in buffers' touch[:state[S_TOUCHING]], the
+    """``PenaltyContacts._sphere_hits`` (nodes/sim/penalty_contact.py): with resume < 0 the bounds
+    (``capsule_kernels.sphere_bounds``) of the current kinematics (more than ``few_points`` near
+    spheres: BATCH), then the queries from position ``resume`` on (:func:`query_near`); once all are
+    answered, the caches of the near spheres and, in buffers' touch[:state[S_TOUCHING]], the
     positions of those that touch. Returns (DONE | NEEDS_PYTHON, the position to answer | BATCH).
 
     frames: MuJoCo's (geom_xpos, geom_xmat); spheres: (geoms, offsets, radius, reach, body, cache_p,

@@ -1,8 +1,8 @@
 """The probe's physics steps in compiled code (numba): MuJoCo's own C functions called from the loop.
 
-``Simulation._probe_advance`` spends most of a contact step in Python around the engine: setting the
-commanded twist, the 1-Lipschitz bound, the warm-started exact query, the projection out of the
-surface. :func:`probe_steps` runs that loop for a batch of steps in one call: it calls ``mj_step``
+``ProbeContact.advance`` (nodes/sim/probe_contact.py) spends most of a contact step in Python around
+the engine: setting the commanded twist, the 1-Lipschitz bound, the warm-started exact query, the
+projection out of the surface. :func:`probe_steps` runs that loop for a batch of steps in one call: it calls ``mj_step``
 and ``mju_quat2Mat`` of MuJoCo's shared library by address (the same library the Python bindings
 use, so the same code), builds and searches the warm query's patch (``penalty_kernels.build``, as
 for a hand's spheres, and ``closest_kernels.warm_query``) and projects the probe. Every expression
@@ -56,7 +56,7 @@ def probe_closest(
     params: np.ndarray,
     candidates: np.ndarray,
 ) -> int:
-    """``Simulation._probe_closest`` at the probe's centre qpos[0:3]: NO_HIT, HIT (written into
+    """``ProbeContact._closest`` at the probe's centre qpos[0:3]: NO_HIT, HIT (written into
     ``cache``) or NEEDS_PYTHON.
 
     mesh, grid, params and candidates as in ``penalty_kernels.query_near``; warm: the probe's patch,
@@ -144,7 +144,7 @@ def probe_steps(
     params: np.ndarray,
     candidates: np.ndarray,
 ) -> tuple[int, int, bool]:
-    """Up to ``steps`` probe steps of ``Simulation._probe_advance``. Returns (steps taken, DONE |
+    """Up to ``steps`` probe steps of ``ProbeContact.advance``. Returns (steps taken, DONE |
     NEEDS_PYTHON, projected). With NEEDS_PYTHON the last step's ``mj_step`` has run but not its
     projection. A call that completes its steps also ends the batch as ``_probe_advance`` does: it
     drops the inward velocity of a last projection (numpy's lines, the dot product summed left to

@@ -3,7 +3,7 @@
 For each scene (probe, finger, hand) touching a YCB object (011_banana; a box when the YCB folder is
 absent, and the output says so), three tiers on the same MuJoCo model:
 
-- bare: a bare ``mj_step`` loop (``nodes/sim/core.py`` ``bare_step_rate``), zero controls, no
+- bare: a bare ``mj_step`` loop (``nodes/sim/model_stats.py`` ``bare_step_rate``), zero controls, no
   contact sensing: the physics alone.
 - in-process: the same launch graph run by ``palpate.runtime.inprocess.InProcessGraph`` (node
   objects, codec encode and decode, lockstep order; one process, no sockets), in a fresh process with
@@ -396,7 +396,7 @@ def scene_model(launch: LaunchFile) -> Any:
 
 def bare_rate(model: Any, seconds: float, trials: int = 3) -> float:
     """Bare mj_step steps per second on ``model``: the best of ``trials`` loops of ``seconds / trials``."""
-    from palpate.nodes.sim.core import bare_step_rate
+    from palpate.nodes.sim.model_stats import bare_step_rate
 
     return max(bare_step_rate(model, seconds / trials) for _ in range(trials))
 
@@ -411,7 +411,7 @@ def bench_scene(scene: str, obj: Mapping[str, Any], config: SimBenchConfig, work
     """One row: bare, in-process and graph rates for ``scene``, the model's sizes and where a tick's
     time goes in each tier; the tiers alternate (ABBA...) over ``config.rounds`` rounds and the best
     round of each counts (a shared machine only slows runs down), with that round's breakdown."""
-    from palpate.nodes.sim.core import model_sizes
+    from palpate.nodes.sim.model_stats import model_sizes
 
     launch, args = scene_launch(scene, obj, config, workdir)
     loaded = load_launch(launch, parse_cli_args(args))

@@ -422,6 +422,20 @@ class ExactContactSensor:
             face_ids=face_ids,
         )
 
+    @property
+    def query_mesh(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What compiled queries (``closest_kernels``) read of the mesh: the centre (3,) that shifts the
+        world frame to the sensor's, the triangles (F, 3, 3) and each face's sign pseudo-normals
+        (F, 7, 3) in the shifted frame, and the faces' lower-bound planes (F, 4, 3) and offsets (F, 4)
+        (see :meth:`_closest_few`). The sensor's own arrays: read them, do not write."""
+        return self._centre, self._triangles, self._sign_normals, self._bound_planes, self._bound_offsets
+
+    def seed_face(self, x: float, y: float, z: float) -> int:
+        """Open3D's closest face to the world point (x, y, z): where a warm-started query that has no
+        face yet starts, as :class:`WarmClosest` seeds its own."""
+        cx, cy, cz = self._centre_list
+        return self._scene.closest_face_ids(np.array([[x - cx, y - cy, z - cz]]))[0]
+
     def face_index(self) -> tuple[Any, np.ndarray, float]:
         """A k-d tree of the face centroids (shifted frame), each face's radius about its centroid (F,)
         and the largest radius: every point of face f lies within radius[f] of centroid[f]. Built once."""

@@ -148,7 +148,8 @@ def test_tables_have_a_row_per_scene_and_the_breakdown_names_every_part() -> Non
 
 def test_model_sizes_count_what_each_scene_builds() -> None:
     from palpate.config import load
-    from palpate.nodes.sim.core import Simulation, model_sizes
+    from palpate.nodes.sim.core import Simulation
+    from palpate.nodes.sim.model_stats import model_sizes
     from palpate.nodes.sim.scene import SceneConfig
 
     sizes = {}

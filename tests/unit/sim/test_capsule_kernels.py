@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from palpate.nodes.sim import capsule_kernels
-from palpate.nodes.sim.core import Simulation, sphere_centres
+from palpate.nodes.sim.capsules import sphere_centres
+from palpate.nodes.sim.core import Simulation
 from palpate.nodes.sim.motion import ExplorationMotion, MotionConfig
 from palpate.nodes.sim.objects import ObjectSpec
 from palpate.nodes.sim.scene import SceneConfig
@@ -51,8 +52,9 @@ def _explore(effector: str, compiled: bool, ticks: int = 250) -> tuple[str, int]
     and contacts per tick, and the contacts."""
     scene = SceneConfig(effector=effector, object=ObjectSpec(kind="torus"))
     sim = Simulation(scene)
-    sim.compiled_bounds = compiled
-    sim.compiled_penalty = False  # the Python step loop, which places the spheres with either path
+    assert sim.penalty_contacts is not None
+    sim.penalty_contacts.compiled_bounds = compiled
+    sim.penalty_contacts.compiled_steps = False  # the Python step loop, which places the spheres with either path
     motion = ExplorationMotion(scene, np.random.default_rng(0), MotionConfig(candidate_samples=400), obj=sim.object)
     digest, contacts = hashlib.sha256(), 0
     for _ in range(ticks):
@@ -76,7 +78,8 @@ def test_compiled_bounds_give_the_numpy_paths_trajectory(effector: str) -> None:
 
 def test_the_simulation_keeps_the_numpy_path_where_the_bits_differ(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(capsule_kernels, "matches_numpy", lambda: False)
-    assert not Simulation(SceneConfig(effector="finger", object=ObjectSpec(kind="torus"))).compiled_bounds
+    penalty = Simulation(SceneConfig(effector="finger", object=ObjectSpec(kind="torus"))).penalty_contacts
+    assert penalty is not None and not penalty.compiled_bounds
 
 
 @pytest.mark.parametrize("effector", ["finger", "hand"])

@@ -12,8 +12,10 @@ import pytest
 from palpate.config import load
 from palpate.errors import ConfigError, SimulationDivergedError
 from palpate.geometry.mesh_query import ExactContactSensor
-from palpate.nodes.sim.core import Contacts, Simulation, bare_step_rate
+from palpate.nodes.sim.contacts import Contacts
+from palpate.nodes.sim.core import Simulation
 from palpate.nodes.sim.effectors import FingerConfig, ProbeConfig
+from palpate.nodes.sim.model_stats import bare_step_rate
 from palpate.nodes.sim.objects import ObjectSpec
 from palpate.nodes.sim.scene import SceneConfig
 
@@ -292,14 +294,14 @@ def test_a_non_finite_state_raises() -> None:
 
 def test_a_few_contacts_frames_in_scalars_give_numpys_bits() -> None:
     """Unit normals and body-frame points of up to four contacts in Python scalars, as numpy's path."""
-    from palpate.nodes.sim.core import _unit_and_local, _unit_and_local_numpy, frames_match_numpy
+    from palpate.nodes.sim.contacts import frames_match_numpy, unit_and_local, unit_and_local_numpy
 
     assert frames_match_numpy(samples=2000)
     normals = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     points, xmat, xpos = np.zeros((2, 3)), np.eye(3).reshape(1, 9), np.zeros((1, 3))
-    assert _unit_and_local(normals, points, [0, 0], xmat, xpos) is None  # numpy's path makes the NaN
+    assert unit_and_local(normals, points, [0, 0], xmat, xpos) is None  # numpy's path makes the NaN
     with np.errstate(invalid="ignore"):
-        assert np.isnan(_unit_and_local_numpy(normals, points, np.array([0, 0]), xmat, xpos)[0][0]).all()
+        assert np.isnan(unit_and_local_numpy(normals, points, np.array([0, 0]), xmat, xpos)[0][0]).all()
 
 
 def test_a_finger_pose_that_is_not_finite_is_named() -> None:

@@ -14,6 +14,7 @@ from palpate.nodes.sim import penalty_kernels
 from palpate.nodes.sim.core import Simulation
 from palpate.nodes.sim.motion import ExplorationMotion, MotionConfig
 from palpate.nodes.sim.objects import ObjectSpec
+from palpate.nodes.sim.penalty_contact import PenaltyContacts
 from palpate.nodes.sim.scene import SceneConfig
 
 TORUS = ObjectSpec(kind="torus")
@@ -24,8 +25,13 @@ def _cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("PALPATE_CACHE_DIR", str(tmp_path / "cache"))
 
 
+def _penalty(sim: Simulation) -> PenaltyContacts:
+    assert sim.penalty_contacts is not None
+    return sim.penalty_contacts
+
+
 def _compiled_or_skip(sim: Simulation) -> None:
-    if not sim.compiled_penalty:
+    if not _penalty(sim).compiled_steps:
         pytest.skip("MuJoCo's library not found, or numpy sums in another order here: the Python loop runs")
 
 
@@ -43,10 +49,11 @@ def _explore(effector: str, compiled: bool, ticks: int = 250, arena_faces: int =
     sim = Simulation(scene)
     if compiled:
         _compiled_or_skip(sim)
-    sim.compiled_penalty = compiled
+    penalty = _penalty(sim)
+    penalty.compiled_steps = compiled
     if arena_faces:
-        sim._patches = penalty_kernels.WarmPatches(
-            len(sim._sph_geom), WarmClosest(sim._sensor).max_patch_faces, capacity=arena_faces
+        penalty.patches = penalty_kernels.WarmPatches(
+            len(penalty.sphere_geoms), WarmClosest(penalty.sensor).max_patch_faces, capacity=arena_faces
         )
     motion = ExplorationMotion(scene, np.random.default_rng(0), MotionConfig(candidate_samples=400), obj=sim.object)
     digest, contacts = hashlib.sha256(), 0
@@ -60,10 +67,10 @@ def _explore(effector: str, compiled: bool, ticks: int = 250, arena_faces: int =
         digest.update(" ".join(c.links).encode())
         contacts += len(c)
     counts = {"builds": 0, "patch": 0}
-    for warm in sim._sph_warm.values():
+    for warm in penalty.warm_queries.values():
         for key in counts:
             counts[key] += warm.counts[key]
-    counts["arena"] = len(sim._patches.faces)
+    counts["arena"] = len(penalty.patches.faces)
     return digest.hexdigest(), contacts, counts
 
 
@@ -84,7 +91,7 @@ def test_reading_the_contacts_between_steps_leaves_the_trajectory_as_it_is(
     """contacts() fills the query buffers that the next step then takes (HITS_CURRENT): the same
     trajectory to the bit as stepping without reading them (FEW_POINTS 0: every query a batch, which
     the step asks again)."""
-    monkeypatch.setattr("palpate.nodes.sim.core.FEW_POINTS", few_points)
+    monkeypatch.setattr("palpate.nodes.sim.penalty_contact.FEW_POINTS", few_points)
     trajectories, touching = [], 0
     for read in (True, False):
         scene = SceneConfig(effector="finger", object=TORUS)
@@ -111,7 +118,7 @@ def test_a_full_arena_hands_the_build_to_python_and_grows() -> None:
 
 def test_more_near_spheres_than_the_few_point_path_go_to_the_sensors_batch(monkeypatch: pytest.MonkeyPatch) -> None:
     """With FEW_POINTS at 0 every step with a near sphere takes the sensor's vectorised query."""
-    monkeypatch.setattr("palpate.nodes.sim.core.FEW_POINTS", 0)
+    monkeypatch.setattr("palpate.nodes.sim.penalty_contact.FEW_POINTS", 0)
     python = _explore("finger", compiled=False, ticks=120)
     compiled = _explore("finger", compiled=True, ticks=120)
     assert python[1] > 0
@@ -119,16 +126,15 @@ def test_more_near_spheres_than_the_few_point_path_go_to_the_sensors_batch(monke
 
 
 def test_warm_patches_pack_each_spheres_patch_and_grow_the_arena() -> None:
-    sim = Simulation(SceneConfig(effector="finger", object=TORUS))
-    assert sim._sensor is not None
+    sensor = _penalty(Simulation(SceneConfig(effector="finger", object=TORUS))).sensor
     patches = penalty_kernels.WarmPatches(3, max_patch_faces=8)  # an arena of 64 faces: it must grow
-    warms = [WarmClosest(sim._sensor) for _ in range(2)]
+    warms = [WarmClosest(sensor) for _ in range(2)]
     for k, (warm, point) in enumerate(zip(warms, ([0.04, 0.0, 0.0], [0.0, 0.035, 0.005]), strict=True)):
         warm.query(np.array(point))
         patches.store(2 * k, warm)
     assert patches.size[1] == 0 and patches.size.sum() > 64 and patches.used[0] == patches.size.sum()
     for k, warm in zip((0, 2), warms, strict=True):
-        fresh = WarmClosest(sim._sensor)
+        fresh = WarmClosest(sensor)
         patches.searches[k] = 5
         patches.load(k, fresh)
         assert patches.searches[k] == 0 and fresh.counts["patch"] == 5
@@ -137,9 +143,7 @@ def test_warm_patches_pack_each_spheres_patch_and_grow_the_arena() -> None:
 
 
 def test_the_face_grid_finds_the_k_d_trees_faces() -> None:
-    sim = Simulation(SceneConfig(effector="finger", object=TORUS))
-    sensor = sim._sensor
-    assert sensor is not None
+    sensor = _penalty(Simulation(SceneConfig(effector="finger", object=TORUS))).sensor
     grid, cell_m, _ = penalty_kernels.face_grid(sensor)
     tree, _, _ = sensor.face_index()
     out = np.zeros(len(sensor.face_normals), dtype=np.int64)
@@ -158,7 +162,7 @@ def test_the_face_grid_finds_the_k_d_trees_faces() -> None:
 def test_without_mujocos_library_the_python_loop_runs(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(penalty_kernels, "mujoco_functions", lambda: None)
     sim = Simulation(SceneConfig(effector="finger", object=TORUS))
-    assert not sim.compiled_penalty
+    assert not _penalty(sim).compiled_steps
     sim.set_joint_targets(np.array([0.0, 1.0, 0.6, 0.3]))
     sim.step(300)
     assert len(sim.contacts()) >= 1
@@ -178,10 +182,10 @@ def test_a_query_from_a_stale_face_gives_the_sensors_answer_and_keeps_a_patch_on
     again only after leaving that patch), a nearer one keeps one."""
     sim = Simulation(SceneConfig(effector="finger", object=TORUS))
     _compiled_or_skip(sim)
-    sensor = sim._sensor
-    assert sensor is not None
+    penalty = _penalty(sim)
+    sensor = penalty.sensor
     k = penalty_kernels
-    reach_m = float(sim._pk_params[k.P_REACH])
+    reach_m = float(penalty.kernel_params[k.P_REACH])
     sphere_reach = np.array([0.008])
     rng = np.random.default_rng(11)
     kept, dropped, python = 0, 0, 0
@@ -195,8 +199,8 @@ def test_a_query_from_a_stale_face_gives_the_sensors_answer_and_keeps_a_patch_on
         points, dist, hit = np.zeros((1, 3)), np.zeros(1), np.zeros(1, dtype=np.int64)
         scratch, search = np.zeros(len(sensor.face_normals), dtype=np.int64), np.zeros(k.SEARCH_SIZE)
         done = k.query_near(
-            0, centre, np.zeros(1, dtype=np.int64), 1, sphere_reach, sim._pk_mesh, sim._pk_grid,
-            patches.arrays(), sim._pk_params, points, dist, hit, scratch, search,
+            0, centre, np.zeros(1, dtype=np.int64), 1, sphere_reach, penalty.kernel_mesh, penalty.kernel_grid,
+            patches.arrays(), penalty.kernel_params, points, dist, hit, scratch, search,
         )  # fmt: skip
         if done == 0:  # Python's turn (too far from the face to build a patch, a weak sign)
             python += 1
@@ -232,13 +236,13 @@ def test_the_steps_leave_their_final_states_queries_to_the_contacts(monkeypatch:
     for _ in range(200):
         sim.set_joint_targets(motion.targets(sim.time_s))
         sim.step(5)
-        held = sim._hits_current
+        held = _penalty(sim).hits_current
         asked.clear()
         read = sim.contacts()
         if held:
             reused += 1
             assert not asked  # read from the buffers
-            sim._hits_current = False  # ask again at the same state
+            _penalty(sim).hits_current = False  # ask again at the same state
             again = sim.contacts()
             assert asked
             for name in ("positions_m", "normals", "forces_n"):

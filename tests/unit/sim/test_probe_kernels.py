@@ -29,7 +29,9 @@ def _run(
     """Press, slide and turn the probe; hash of qpos, qvel and contacts per tick, contacts, compiled flag,
     and the patches built in Python."""
     sim = Simulation(SceneConfig(effector="probe", object=obj, probe=ProbeConfig(start_position_m=start)))
-    sim.compiled_steps = compiled
+    probe = sim.probe_contact
+    assert probe is not None
+    probe.compiled_steps = compiled
     digest = hashlib.sha256()
     normal: np.ndarray | None = None
     touching, contacts = False, 0
@@ -52,8 +54,7 @@ def _run(
         contacts += len(c)
         if touching:
             normal = c.normals.mean(axis=0) / np.linalg.norm(c.normals.mean(axis=0))
-    assert sim._warm is not None
-    return digest.hexdigest(), contacts, int(sim.compiled_steps), sim._warm.counts["builds"]
+    return digest.hexdigest(), contacts, int(probe.compiled_steps), probe.warm_query.counts["builds"]
 
 
 @pytest.mark.parametrize(
@@ -77,6 +78,8 @@ def test_the_steps_end_with_the_contacts_query_and_the_inward_velocity_dropped(m
     nothing), the same hit a fresh query gives, with no velocity into the surface left."""
     sim = Simulation(SceneConfig(effector="probe", object=ObjectSpec(kind="cube", size_m=(0.05,))))
     sim.data.qpos[0:3] = (0.01, 0.005, 0.035)  # 1 cm above the top face
+    probe = sim.probe_contact
+    assert probe is not None
     asked = []
     closest = probe_kernels.probe_closest
 
@@ -95,7 +98,7 @@ def test_the_steps_end_with_the_contacts_query_and_the_inward_velocity_dropped(m
             held += 1
             normal = read.normals[0]
             assert float(sim.data.qvel[0:3] @ normal) > -1e-12  # no velocity into the surface (0.05 m/s before)
-            sim._probe_cache[probe_kernels.HAS_HIT] = 0.0  # ask again at the same centre
+            probe.query_cache[probe_kernels.HAS_HIT] = 0.0  # ask again at the same centre
             again = sim.contacts()
             assert asked
             for name in ("positions_m", "normals", "forces_n"):
