@@ -408,7 +408,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--particles", default=",".join(map(str, KS)), help="comma-separated K values")
     parser.add_argument("--resolutions-mm", default=",".join(f"{r:g}" for r in RESOLUTIONS_MM), help="comma-separated")
     parser.add_argument("--no-memory", action="store_true", help="skip tracemalloc (peak memory column nan)")
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (runs.jsonl, slam_sweep.json, slam_sweep.png)")
+    parser.add_argument(
+        "--out", type=Path, default=DEFAULT_OUT, help="output folder (runs.jsonl, slam_sweep.json, slam_sweep.png)"
+    )
     add_arguments(parser)
     parser.set_defaults(func=main)
 
