@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from scipy.special import logsumexp
 
 from palpate.errors import ConfigError, EstimationError
-from palpate.nodes.mapper.grid import L_FREE, L_OCC, LogOddsGrids, Observed, SparseMap
+from palpate.nodes.mapper.grid import L_FREE, L_OCC, LogOddsGrids, Observed, SparseMap, shown
 from palpate.nodes.mapper.kinematics import KinematicChain
 from palpate.nodes.mapper.observation import FreeVolume, observation_keys
 
@@ -68,7 +68,7 @@ def systematic_resample(weights: FloatArray, rng: np.random.Generator) -> NDArra
     w = np.asarray(weights, dtype=np.float64)
     K = w.size
     if not (K and np.isfinite(w).all() and (w >= 0.0).all() and w.sum() > 0.0):
-        raise ValueError(f"weights must be finite, non-negative and not all zero, got {w.tolist()}")
+        raise ValueError(f"weights must be finite, non-negative and not all zero, got {shown(w)}")
     c = np.cumsum(w)
     c /= c[-1]
     pointers = (rng.random() + np.arange(K)) / K

@@ -29,7 +29,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.special import expit
 
 from palpate.errors import ConfigError
@@ -42,6 +42,14 @@ L_OCC = math.log(0.9 / 0.1)
 L_FREE = math.log(0.1 / 0.9)
 #: ``weighted`` takes particle weights that sum to 1 within this (normalised weights are within 1e-15).
 WEIGHT_SUM_TOLERANCE = 1e-6
+
+
+def shown(values: ArrayLike, limit: int = 5) -> str:
+    """A few of the values, for an error message: ``[0.1, nan, 0.3, ...] (300 values, sum nan)``."""
+    v = np.asarray(values, dtype=np.float64).ravel()
+    if v.size <= limit:
+        return str(v.tolist())
+    return f"{str(v[:limit].tolist())[:-1]}, ...] ({v.size} values, sum {float(v.sum()):.6g})"
 
 
 def belief(log_odds: FloatArray) -> NDArray[np.float64]:
@@ -434,7 +442,7 @@ class LogOddsGrids:
         if anc.shape != (self.n_maps,):
             raise ConfigError(f"ancestors must have shape ({self.n_maps},), got {anc.shape}")
         if len(anc) and not (anc.min() >= 0 and anc.max() < self.n_maps):
-            raise ValueError(f"ancestors must be map indices 0..{self.n_maps - 1}, got {anc.tolist()}")
+            raise ValueError(f"ancestors must be map indices 0..{self.n_maps - 1}, got {shown(anc)}")
         self._table = self._table[anc]
         live = self._table[self._table >= 0]
         self._refcount = np.bincount(live, minlength=len(self._pool)).astype(np.int32)
@@ -474,7 +482,7 @@ class LogOddsGrids:
         """
         w = np.asarray(weights, dtype=np.float64)
         if w.shape != (self.n_maps,) or not (np.isfinite(w).all() and (w >= 0.0).all()):
-            raise ValueError(f"weights must be {self.n_maps} finite non-negative numbers, got {w.tolist()}")
+            raise ValueError(f"weights must be {self.n_maps} finite non-negative numbers, got {shown(w)}")
         if abs(w.sum() - 1.0) > WEIGHT_SUM_TOLERANCE:
             raise ValueError(f"weights must sum to 1, got {float(w.sum())!r}")
         table = self._table[:, : self.n_chunks]

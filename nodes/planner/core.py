@@ -412,7 +412,8 @@ class TouchPlanner:
         if cfg.uses_variance and len(V) and not len(sites):
             raise PlanningError(
                 f"the {cfg.strategy} strategy needs the GP variance on the surface, and this mesh carries "
-                "none: set the gpis node's vertex_variance to candidates or all"
+                "none: set the gpis node's vertex_variance to candidates, all or auto (which gives it to a planner "
+                "that rates by it)"
             )
         if not cfg.uses_variance:
             sites, Q = np.arange(len(V)), np.zeros(len(V))

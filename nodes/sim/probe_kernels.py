@@ -146,7 +146,7 @@ def probe_steps(
 ) -> tuple[int, int, bool]:
     """Up to ``steps`` probe steps of ``ProbeContact.advance``. Returns (steps taken, DONE |
     NEEDS_PYTHON, projected). With NEEDS_PYTHON the last step's ``mj_step`` has run but not its
-    projection. A call that completes its steps also ends the batch as ``_probe_advance`` does: it
+    projection. A call that completes its steps also ends the batch as ``ProbeContact.advance`` does: it
     drops the inward velocity of a last projection (numpy's lines, the dot product summed left to
     right) and then asks :func:`probe_closest` at the projected centre, the query the contacts make
     next (it holds the hit in ``cache``; one that needs Python is left to them), and returns

@@ -346,6 +346,8 @@ def describe(graph: Graph) -> str:
         lines.append(
             f"  {node.rank}. {node.name} ({node.type}) {node.endpoint}" + (f" [{', '.join(flags)}]" if flags else "")
         )
+        for path, (given, value) in node.settled.items():
+            lines.append(f"     {'.'.join(map(str, path))}: {given} -> {value} (set by the graph)")
     lines.append("topics:")
     types = graph.topic_types()
     for topic in sorted(types):

@@ -51,6 +51,8 @@ class GraphNode:
     rank: int = 0
     #: The node's config, loaded from its params.
     config: Any = None
+    #: Parameters the graph set (NodeSpec.settle): key path -> (value in the file, value set).
+    settled: dict[KeyPath, tuple[Any, Any]] = field(default_factory=dict)
 
 
 @dataclass
@@ -362,6 +364,7 @@ def _settle(graph: Graph) -> None:
             inner: Any = params
             for part in parents:
                 inner = inner[part]
+            node.settled[path] = (inner.get(key), value)
             inner[key] = value
         node.params, node.config = params, _check_params(node.entry, node.spec, params)
 

@@ -15,6 +15,7 @@ from typing import Any
 import pytest
 
 from palpate.cli import main
+from palpate.commands.launch import describe
 from palpate.errors import LaunchError
 from palpate.launch.graph import Graph, resolve
 from palpate.launch.loader import load_launch, parse_cli_args
@@ -703,6 +704,7 @@ def test_a_gpis_node_left_to_the_graph_gives_the_variance_only_to_a_planner_that
         return str(node.config.vertex_variance)
 
     assert variance(load(explore, tmp_path)) == "none"  # IGEF, the launch file's default strategy
+    assert "     vertex_variance: auto -> none (set by the graph)" in describe(load(explore, tmp_path)).splitlines()
     assert variance(load(explore, tmp_path, ["strategy:=gpv"])) == "candidates"
     assert variance(load(explore, tmp_path, ["strategy:=tour"])) == "none"
     assert variance(load(explore, tmp_path, ["strategy:=igef", "variance:=all"])) == "all"  # set, not left

@@ -259,3 +259,10 @@ def test_the_per_cell_interface_names_indices_outside_the_grid() -> None:
     g.update_flat(2, [], [7])
     np.testing.assert_array_equal(g.read_flat(2, [7, 8]), np.float32([L_OCC, 0.0]))
     assert g.weighted(np.array([0.0, 0.0, 1.0])).flat.tolist() == [7]
+
+
+def test_a_long_vector_in_a_message_is_shown_in_part() -> None:
+    from palpate.nodes.mapper.grid import shown
+
+    assert shown(np.array([0.5, 0.5])) == "[0.5, 0.5]"
+    assert shown(np.full(300, 0.01)) == "[0.01, 0.01, 0.01, 0.01, 0.01, ...] (300 values, sum 3)"

@@ -243,7 +243,7 @@ def test_vertices_without_a_normal_are_no_candidates_and_other_normals_must_be_u
 def test_gpv_on_a_mesh_without_variance_names_the_gpis_setting() -> None:
     V, N = plane()
     planner = touched_at_origin(PlannerConfig(strategy="gpv"))
-    with pytest.raises(PlanningError, match="vertex_variance to candidates or all"):
+    with pytest.raises(PlanningError, match="vertex_variance to candidates, all or auto"):
         planner.plan("local", 1, V, N, np.zeros(0), over(np.zeros(3)), np.random.default_rng(0), variance_vertices=[])
 
 
