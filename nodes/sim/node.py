@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from palpate.config import PositiveFloat, Validated
+from palpate.config import KeyPath, PositiveFloat, Validated
 from palpate.errors import ConfigError
 from palpate.inputs import MAX_COORDINATE_M, MAX_RATE, bounded
 from palpate.messages import codec, topics
@@ -25,7 +25,7 @@ from palpate.messages.schemas import (
     ObjectTruth,
     Pose,
 )
-from palpate.nodes.sim.objects import ObjectSpec
+from palpate.nodes.sim.objects import ObjectSpec, resolve_mesh_path
 from palpate.nodes.sim.scene import SceneConfig, effector_mount
 from palpate.nodes.sim.session import SimSession, SimTick
 from palpate.runtime.spec import Context, NodeSpec, Port
@@ -181,6 +181,14 @@ def _ports(config: SimNodeConfig) -> tuple[dict[str, Port], dict[str, Port]]:
     return inputs, outputs
 
 
+def _files(config: SimNodeConfig) -> dict[KeyPath, str]:
+    """The object's mesh file, where the scene names one (``ycb:<id>`` resolved)."""
+    spec = config.scene.object
+    if spec.kind != "mesh" or not spec.path:
+        return {}
+    return {("scene", "object", "path"): str(resolve_mesh_path(spec.path))}
+
+
 def _facts(config: SimNodeConfig) -> dict[str, tuple[Any, tuple[str, ...]]]:
     """Where the scene fixes its hand or finger: a mapper of the same graph must be mounted there."""
     return {"hand_mount": (effector_mount(config.scene), ("scene",))}
@@ -193,5 +201,6 @@ SPEC = NodeSpec(
     clock_source=True,
     ports_from_config=_ports,
     facts=_facts,
+    files=_files,
     doc="MuJoCo simulation (hand, finger or probe on a primitive or mesh): the graph's clock source.",
 )

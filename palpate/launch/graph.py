@@ -244,6 +244,7 @@ def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
     _check_wiring(graph)
     _settle(graph)
     _check_facts(graph)
+    _check_files(graph)
     _check_curve(graph)
     _rank(graph)
     return graph
@@ -387,6 +388,24 @@ def _check_facts(graph: Graph) -> None:
                 raise LaunchError(
                     f"{where}: node {node.name!r} ({key}) and node {other.name!r} ({other_key}, {other_where}) "
                     f"disagree on {name}: {_difference(value, other_value)}; make them the same"
+                )
+
+
+def _check_files(graph: Graph) -> None:
+    """The files that the nodes this launcher starts read at their start (NodeSpec.files) exist."""
+    for node in graph.nodes:
+        if node.external or node.spec.files is None:
+            continue
+        try:
+            files = node.spec.files(node.config)
+        except PalpateError as exc:
+            raise LaunchError(f"{node.entry.at('params')}: node {node.name!r}: {exc}") from exc
+        for path, name in files.items():
+            if not Path(name).is_file():
+                what = "does not exist" if not Path(name).exists() else "is not a file"
+                raise LaunchError(
+                    f"{node.entry.param_at(path)}: node {node.name!r} (params.{'.'.join(map(str, path))}): "
+                    f"{name} {what} (resolved from {Path.cwd()})"
                 )
 
 

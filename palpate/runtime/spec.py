@@ -144,6 +144,10 @@ class NodeSpec(Generic[C]):
     #: the GPIS node gives the GP variance only when a planner reading its surface rates by it. They may
     #: not change the node's ports.
     settle: Callable[[C, Callable[[str], list[Any]]], Mapping[KeyPath, Any]] | None = None
+    #: Files the node reads when it starts: config -> {key path of the params: path}. The launcher
+    #: checks, before it starts any process, that those of the nodes it starts itself exist (an
+    #: external node may see another filesystem), naming the launch file's line.
+    files: Callable[[C], Mapping[KeyPath, str]] | None = None
     #: The node never asks to end a run (``ctx.request_stop`` raises). In lockstep, when nothing it
     #: publishes reaches the clock source (a sink, a noise stage feeding a mapper), the clock source then
     #: runs up to TRAIL_TICKS ticks ahead of it instead of waiting for it every tick (docs/runtime.md).

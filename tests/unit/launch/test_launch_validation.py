@@ -750,3 +750,26 @@ def test_set_overrides_a_node_parameter_and_the_log_keeps_it(
             writer.channel(topic, type_name, schema_bytes(type_name, 1))
     with pytest.raises(LaunchError, match=r"--set sim.tick_period_s: --replay stands in for that node"):
         load_graph(explore, [], tmp_path, replay=log, sets=["sim.tick_period_s=0.02"])
+
+
+def test_a_mesh_file_that_is_not_there_is_named_before_anything_starts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """It was named only by the simulator's process, after the launch had started the others."""
+    explore = REPO_ROOT / "launch" / "explore.yaml"
+    missing = ["object:=mesh", "mesh:=no_such_mesh.stl"]
+    with pytest.raises(
+        LaunchError, match=r"explore\.yaml:\d+: node 'sim' \(params\.scene\.object\.path\): no_such_mesh\.stl"
+    ):
+        load(explore, tmp_path, missing)
+    assert main(["launch", str(explore), *missing, "--dry-run", "--bus", str(tmp_path)]) == 2
+    assert "no_such_mesh.stl does not exist (resolved from " in capsys.readouterr().err
+    # a node on another host may see another filesystem: an external simulator's mesh is its own
+    assert main(["launch", str(explore), *missing, "--external", "sim", "--dry-run", "--bus", str(tmp_path)]) == 0
+    capsys.readouterr()
+    mesh = tmp_path / "cube.stl"
+    mesh.write_text("solid cube\nendsolid cube\n")  # present: the simulator reads it at its start
+    load(explore, tmp_path, ["object:=mesh", f"mesh:={mesh}"])
+    monkeypatch.setenv("PALPATE_YCB_DIR", str(tmp_path / "no_folder"))
+    with pytest.raises(LaunchError, match=r"node 'sim': ycb:011_banana: the YCB mesh folder was not found"):
+        load(explore, tmp_path, ["object:=mesh", "mesh:=ycb:011_banana"])
