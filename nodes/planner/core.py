@@ -289,7 +289,10 @@ class Planner:
             return tour_plan(S, N, C, *motion, cfg, Q).scores, None
         if cfg.strategy == "gpv":
             return Q, None  # Alg. 1 line 14: I(s) = GP variance(s)
-        return np.full(valid.size, 1.0 / valid.size), None  # random: uniform
+        if cfg.strategy == "random":
+            return np.full(valid.size, 1.0 / valid.size), None  # uniform
+        # a name added to Strategy without a rating here would otherwise fall through to a uniform one
+        raise PlanningError(f"strategy {cfg.strategy!r} has no rating in Planner._rate")
 
 
 @dataclass(frozen=True)

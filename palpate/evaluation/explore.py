@@ -465,11 +465,13 @@ PLOT_OBJECT = "011_banana"
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate eval explore` (registered by palpate.commands.evaluate)."""
+    from palpate.nodes.planner.config import Strategy
+
     add_objects_arguments(parser)
     parser.add_argument("--runs", type=int, default=3, help="start positions per object (seed = run index; default 3)")
     parser.add_argument(
         "--strategies",
-        help="comma-separated: igef, gpv, random, area, tour (default: igef,gpv; with --quick igef,gpv,tour)",
+        help=f"comma-separated: {', '.join(get_args(Strategy))} (default: igef,gpv; with --quick igef,gpv,tour)",
     )
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, 1 run each")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object, last line")

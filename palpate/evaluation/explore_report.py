@@ -315,7 +315,7 @@ def _json_number(value: float) -> float | None:
     return None if not math.isfinite(value) else round(float(value), 4)
 
 
-#: Line colour of each strategy in the plots.
+#: Line colour of each strategy in the plots; a strategy not listed takes one of SPARE_COLOURS.
 STRATEGY_COLOURS = {
     "igef": "tab:blue",
     "gpv": "tab:orange",
@@ -323,6 +323,14 @@ STRATEGY_COLOURS = {
     "area": "tab:green",
     "tour": "tab:red",
 }
+SPARE_COLOURS = ("tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan")
+
+
+def strategy_colour(strategy: str) -> str:
+    """The plots' colour of a strategy (a new one gets a spare colour, the same in every plot)."""
+    if strategy in STRATEGY_COLOURS:
+        return STRATEGY_COLOURS[strategy]
+    return SPARE_COLOURS[sum(map(ord, strategy)) % len(SPARE_COLOURS)]
 
 
 def plot_against_travel(
@@ -351,7 +359,7 @@ def plot_against_travel(
         s = r["strategy"]
         travel = [t["travel_cm"] for t in r[field]]
         ys = [scale * t[value] for t in r[field]]
-        colour = STRATEGY_COLOURS.get(s, "k")
+        colour = strategy_colour(s)
         ax.plot(travel, ys, color=colour, alpha=0.8, label=None if s in labelled else s.upper())
         labelled.add(s)
     for level in levels:
@@ -385,7 +393,8 @@ def plot_travel_per_object(
     objects = sorted({r["object"] for r in results})
     fig, ax = plt.subplots(figsize=(max(6.0, 0.35 * len(objects) + 2.0), 4.5))
     x = np.arange(len(objects))
-    bars = tuple(zip(_compared(baseline, method), ("tab:orange", "tab:blue"), strict=False))
+    compared = _compared(baseline, method)
+    bars = tuple(zip(compared, map(strategy_colour, compared), strict=False))
     width = 0.8 / len(bars)
     for k, (s, colour) in enumerate(bars):
         values = []

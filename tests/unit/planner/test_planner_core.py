@@ -268,3 +268,15 @@ def test_a_nan_variance_is_refused_by_every_strategy_that_rates_it(config: Plann
             Planner(config).select(*args)
     else:
         assert np.isfinite(Planner(config).select(*args).score)
+
+
+def test_a_strategy_without_a_rating_is_an_error_not_a_uniform_choice() -> None:
+    """A name added to Strategy but not to Planner._rate fell through to the random strategy's uniform
+    scores, whose argmax is always the first candidate: a silent wrong planner."""
+    S, N = plane_patch(radius=0.03)
+    C = np.array([[0.0, 0.0, 0.0]])
+    args = (S, N, np.zeros(len(S)), C, C[-1], np.array([0, 0, -1.0]), np.array([0, 0, -1.0]))
+    config = PlannerConfig()
+    object.__setattr__(config, "strategy", "nearest")  # as if added to Strategy only (the config refuses it)
+    with pytest.raises(PlanningError, match=r"strategy 'nearest' has no rating in Planner\._rate"):
+        Planner(config).select(*args, np.random.default_rng(RNG_SEED))
