@@ -156,3 +156,11 @@ def test_plots_are_written(tmp_path: Path) -> None:
     report.plot_coverage_vs_travel(tmp_path / "c.png", rows, "a")
     report.plot_travel_per_object(tmp_path / "t.png", rows)
     assert (tmp_path / "c.png").stat().st_size > 1000 and (tmp_path / "t.png").stat().st_size > 1000
+
+
+def test_every_strategy_has_a_colour_of_its_own_in_the_plots() -> None:
+    from palpate.evaluation.explore_report import SPARE_COLOURS, STRATEGY_COLOURS, strategy_colour
+
+    assert strategy_colour("igef") == "tab:blue" and strategy_colour("gpv") == "tab:orange"
+    new = strategy_colour("nearest")  # a strategy the table does not list: a spare colour, not black
+    assert new in SPARE_COLOURS and new not in STRATEGY_COLOURS.values() and new == strategy_colour("nearest")
