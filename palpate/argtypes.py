@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 
 def positive_int(text: str) -> int:
@@ -24,6 +25,13 @@ def positive_float(text: str) -> float:
 def non_negative_float(text: str) -> float:
     """A finite number >= 0."""
     return _float(text, positive=False, refusal=f"{text!r} is not a finite number >= 0")
+
+
+def path_arg(text: str) -> Path:
+    """A path that is not empty ('' would be the working directory, which nobody means)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"{text!r} is no path")
+    return Path(text)
 
 
 def add_scale_argument(parser: argparse.ArgumentParser) -> None:

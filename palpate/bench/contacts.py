@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from palpate import jsonio
-from palpate.argtypes import add_scale_argument, non_negative_int, positive_int
+from palpate.argtypes import add_scale_argument, non_negative_int, path_arg, positive_int
 from palpate.errors import BenchmarkError
 from palpate.paths import YCB_DIR_ENV, ycb_dir
 from palpate.text_table import Column, fixed_width_table
@@ -418,7 +418,7 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `palpate bench contacts` beyond the shared --quick and --json."""
-    parser.add_argument("--objects", type=Path, metavar="DIR", help="benchmark every mesh file in DIR")
+    parser.add_argument("--objects", type=path_arg, metavar="DIR", help="benchmark every mesh file in DIR")
     add_scale_argument(parser)
     parser.add_argument(
         "--touches", type=positive_int, help=f"probe touches per object (default {TOUCHES}, --quick {QUICK_TOUCHES})"

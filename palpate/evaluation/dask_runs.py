@@ -299,7 +299,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--workers",
         type=non_negative_int,
         default=0,
-        help="worker processes of the local cluster (default: one per core)",
+        help="worker processes of the local cluster (default, or 0: one per core)",
     )
     parser.add_argument("--resume", action="store_true", help="keep the runs already in OUT/runs.jsonl, run the rest")
 

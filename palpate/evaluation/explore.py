@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from palpate import jsonio
-from palpate.argtypes import add_scale_argument
+from palpate.argtypes import add_scale_argument, path_arg
 from palpate.config import load
 from palpate.errors import ConfigError, LaunchError, MeshError
 from palpate.evaluation.dask_runs import (
@@ -590,7 +590,7 @@ def add_objects_arguments(parser: argparse.ArgumentParser) -> None:
     """``--objects`` (what ``select_cases`` takes) and ``--scale``."""
     parser.add_argument(
         "--objects",
-        type=Path,
+        type=path_arg,
         nargs="+",
         metavar="PATH",
         help="folders of mesh files, or mesh files; metres or see --scale (default: the YCB folder)",
@@ -626,7 +626,9 @@ def select_cases(paths: Sequence[Path] | None, smallest: int | None = None, scal
 
 def strategies_of(args: argparse.Namespace) -> list[str]:
     """The strategies an evaluation runs: --strategies, else igef and gpv, with --quick ours too."""
-    return parse_strategies(args.strategies or ",".join(QUICK_STRATEGIES if args.quick else DEFAULT_STRATEGIES))
+    if args.strategies is not None:  # given, even empty ("--strategies $S" with S unset): it must name some
+        return parse_strategies(args.strategies)
+    return parse_strategies(",".join(QUICK_STRATEGIES if args.quick else DEFAULT_STRATEGIES))
 
 
 def parse_strategies(text: str) -> list[str]:

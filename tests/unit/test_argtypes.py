@@ -35,6 +35,9 @@ from tests.unit.record.synthetic import canonical_log, write_log
         ["bench", "gpis", "--seed", "-1"],
         ["bench", "sim", "--duration", "-1"],
         ["bench", "contacts", "--touches", "0"],
+        ["bench", "contacts", "--objects", ""],
+        ["eval", "explore", "--objects", ""],  # searched the working directory for meshes
+        ["sweep", "explore", "--objects", " "],
     ],
 )
 def test_nonsense_values_are_argparse_errors(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:

@@ -219,6 +219,8 @@ def test_the_quick_evaluation_runs_our_strategy_beside_the_papers_two() -> None:
     assert strategies_of(argparse.Namespace(strategies=None, quick=True)) == ["igef", "gpv", "tour"]
     assert strategies_of(argparse.Namespace(strategies=None, quick=False)) == ["igef", "gpv"]
     assert strategies_of(argparse.Namespace(strategies=" area, igef ", quick=True)) == ["area", "igef"]
+    with pytest.raises(ConfigError, match="names no strategy"):  # "--strategies $S" with S unset ran the defaults
+        strategies_of(argparse.Namespace(strategies="", quick=True))
 
 
 def test_a_run_key_names_the_run_and_digests_the_mesh_bytes_not_its_path(tmp_path: Path) -> None:
