@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from palpate import jsonio
-from palpate.argtypes import non_negative_float, non_negative_int
+from palpate.argtypes import non_negative_float, non_negative_int, path_arg
 from palpate.errors import RecordError
 from palpate.record import mcap_io, recorder
 from palpate.record.bag import Player, PlayOptions, describe
@@ -21,7 +21,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     r.set_defaults(func=run_record)
 
     p = sub.add_parser("replay", help="publish a recorded log on the bus")
-    p.add_argument("file", type=Path, help="MCAP log")
+    p.add_argument("file", type=path_arg, help="MCAP log")
     p.add_argument(
         "--rate", type=non_negative_float, default=1.0, help="speed factor of the recorded sim-time pacing (0: --fast)"
     )
@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--start", type=non_negative_float, default=0.0, metavar="S", help="skip the first S seconds of sim time"
     )
-    p.add_argument("--bus", type=Path, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
+    p.add_argument("--bus", type=path_arg, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
     p.add_argument("--name", default="replay", help="publisher name on the bus (manifest and ipc socket)")
     p.add_argument(
         "--subscribers", type=non_negative_int, default=1, metavar="N", help="wait for N subscribers first (0: no)"
@@ -48,7 +48,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     b = sub.add_parser("bag", help="inspect, repair and filter MCAP logs")
     bsub = b.add_subparsers(dest="bag_command", required=True, metavar="BAG_COMMAND")
     info = bsub.add_parser("info", help="per-topic counts, types and the time span of a log")
-    info.add_argument("file", type=Path)
+    info.add_argument("file", type=path_arg)
     info.add_argument(
         "--json", action="store_true", help="one JSON line: topics, types, start_ns, end_ns, messages, launch"
     )
@@ -57,13 +57,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     info.set_defaults(func=run_info)
     rec = bsub.add_parser("recover", help="rewrite a truncated log (recorder killed) into a valid one")
-    rec.add_argument("file", type=Path)
-    rec.add_argument("-o", "--output", type=Path, help="output log (default FILE.recovered.mcap)")
+    rec.add_argument("file", type=path_arg)
+    rec.add_argument("-o", "--output", type=path_arg, help="output log (default FILE.recovered.mcap)")
     rec.add_argument("--force", action="store_true", help="overwrite an existing output log")
     rec.set_defaults(func=run_recover)
     flt = bsub.add_parser("filter", help="copy a log keeping or dropping topics")
-    flt.add_argument("file", type=Path)
-    flt.add_argument("-o", "--output", type=Path, required=True)
+    flt.add_argument("file", type=path_arg)
+    flt.add_argument("-o", "--output", type=path_arg, required=True)
     flt.add_argument("--topics", nargs="+", metavar="TOPIC", help="keep only these topics")
     flt.add_argument("--exclude", nargs="+", default=[], metavar="TOPIC", help="drop these topics")
     flt.add_argument("--force", action="store_true", help="overwrite an existing output log")
@@ -71,8 +71,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     exp = bsub.add_parser(
         "export", help="rewrite a log for another tool: --foxglove, Foxglove's schemas (scene, transforms, plots)"
     )
-    exp.add_argument("file", type=Path)
-    exp.add_argument("-o", "--output", type=Path, required=True, help="output MCAP file")
+    exp.add_argument("file", type=path_arg)
+    exp.add_argument("-o", "--output", type=path_arg, required=True, help="output MCAP file")
     fmt = exp.add_mutually_exclusive_group(required=True)
     fmt.add_argument(
         "--foxglove",

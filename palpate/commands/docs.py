@@ -9,11 +9,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 import msgpack
 import numpy as np
 
+from palpate.argtypes import path_arg
 from palpate.messages import REGISTRY, codec, topics
 from palpate.messages.base import FieldSpec, Message
 from palpate.messages.schemas import CartesianVelocityCommand, Clock
@@ -40,7 +40,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("docs", help="generate reference documentation from the code")
     what = p.add_subparsers(dest="what", required=True, metavar="WHAT")
     m = what.add_parser("messages", help="the message reference (docs/messages.md) from the schemas")
-    m.add_argument("-o", "--output", type=Path, help="write to this file instead of standard output")
+    m.add_argument("-o", "--output", type=path_arg, help="write to this file instead of standard output")
     m.add_argument("--check", action="store_true", help="exit 1 if OUTPUT differs from a fresh rendering")
     m.set_defaults(func=run_messages)
 

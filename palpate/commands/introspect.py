@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from palpate import jsonio
-from palpate.argtypes import non_negative_float, non_negative_int, positive_int
+from palpate.argtypes import non_negative_float, non_negative_int, path_arg, positive_int
 from palpate.errors import MessageError
 from palpate.messages import codec
 from palpate.messages.base import Message
@@ -40,7 +40,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     t = sub.add_parser("topic", help="list, print and measure topics of the running bus")
     tsub = t.add_subparsers(dest="topic_command", required=True, metavar="TOPIC_COMMAND")
     tl = tsub.add_parser("list", help="topics with their types, publishers and subscribers")
-    tl.add_argument("--bus", type=Path, help=bus_help)
+    tl.add_argument("--bus", type=path_arg, help=bus_help)
     tl.add_argument("--json", action="store_true", help="one JSON line")
     tl.set_defaults(func=run_topic_list)
     te = tsub.add_parser("echo", help="print the messages of a topic, arrays summarised")
@@ -53,23 +53,23 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="N",
         help="exit after N messages (default 0: no limit)",
     )
-    te.add_argument("--bus", type=Path, help=bus_help)
+    te.add_argument("--bus", type=path_arg, help=bus_help)
     te.add_argument("--full", action="store_true", help="print arrays in full")
     te.add_argument("--timeout", type=non_negative_float, default=0.0, metavar="S", help="give up after S s (0: never)")
-    te.add_argument("--curve-keys", type=Path, metavar="FILE", help=CURVE_KEYS_HELP)
+    te.add_argument("--curve-keys", type=path_arg, metavar="FILE", help=CURVE_KEYS_HELP)
     te.set_defaults(func=run_topic_echo)
     th = tsub.add_parser("hz", help="message rate of a topic, in wall-clock and sim time")
     th.add_argument("topic")
     th.add_argument("--window", type=positive_int, default=100, metavar="N", help="messages the rate is measured over")
     th.add_argument("--duration", type=non_negative_float, default=0.0, metavar="S", help="exit after S s (0: never)")
-    th.add_argument("--bus", type=Path, help=bus_help)
-    th.add_argument("--curve-keys", type=Path, metavar="FILE", help=CURVE_KEYS_HELP)
+    th.add_argument("--bus", type=path_arg, help=bus_help)
+    th.add_argument("--curve-keys", type=path_arg, metavar="FILE", help=CURVE_KEYS_HELP)
     th.set_defaults(func=run_topic_hz)
 
     n = sub.add_parser("node", help="nodes of the running bus")
     nsub = n.add_subparsers(dest="node_command", required=True, metavar="NODE_COMMAND")
     nl = nsub.add_parser("list", help="running nodes: pid, endpoint, topics")
-    nl.add_argument("--bus", type=Path, help=bus_help)
+    nl.add_argument("--bus", type=path_arg, help=bus_help)
     nl.add_argument("--json", action="store_true", help="one JSON line")
     nl.set_defaults(func=run_node_list)
 

@@ -15,6 +15,7 @@ import os
 import sys
 from pathlib import Path
 
+from palpate.argtypes import path_arg
 from palpate.runtime.bus import make_curve_keys
 
 KEY_FIELDS = ("public", "secret", "server_public")
@@ -22,7 +23,7 @@ KEY_FIELDS = ("public", "secret", "server_public")
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("keys", help="generate a CurveZMQ key file for the launch key `curve_keys`")
-    p.add_argument("-o", "--output", type=Path, required=True, help="key file to write (JSON, mode 0600)")
+    p.add_argument("-o", "--output", type=path_arg, required=True, help="key file to write (JSON, mode 0600)")
     p.add_argument(
         "--server-public",
         metavar="Z85",

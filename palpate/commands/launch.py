@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from palpate import jsonio
+from palpate.argtypes import path_arg
 from palpate.errors import LaunchError
 from palpate.launch import placement
 from palpate.launch.graph import Graph, resolve
@@ -24,14 +25,14 @@ from palpate.runtime import bus
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("launch", help="run a node graph from a YAML launch file")
-    p.add_argument("file", type=Path, help="launch file")
+    p.add_argument("file", type=path_arg, help="launch file")
     p.add_argument("args", nargs="*", metavar="NAME:=VALUE", help="override launch arguments")
     p.add_argument("--dry-run", action="store_true", help="validate and print the resolved graph; start nothing")
-    p.add_argument("--record", type=Path, metavar="OUT.mcap", help="record every topic of the run")
+    p.add_argument("--record", type=path_arg, metavar="OUT.mcap", help="record every topic of the run")
     p.add_argument("--force", action="store_true", help="let --record replace an existing log")
     p.add_argument(
         "--replay",
-        type=Path,
+        type=path_arg,
         metavar="LOG.mcap",
         help="replay the log's sensor data (the clock source's topics); every other node re-runs",
     )
@@ -54,7 +55,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="A,B",
         help="start these nodes not here but from a driver (as `external: true` in the launch file would)",
     )
-    p.add_argument("--bus", type=Path, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
+    p.add_argument("--bus", type=path_arg, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
     p.add_argument(
         "--spec",
         metavar="NODE",
@@ -66,7 +67,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "demo", help="IGEF explores a torus through the full node graph (launch/demo.yaml); records MCAP, PNG"
     )
     d.add_argument("args", nargs="*", metavar="NAME:=VALUE", help="override launch arguments")
-    d.add_argument("--out", type=Path, default=Path("out/demo"), help="folder for the MCAP log, JSON and PNG")
+    d.add_argument("--out", type=path_arg, default=Path("out/demo"), help="folder for the MCAP log, JSON and PNG")
     d.set_defaults(func=run_demo)
 
 

@@ -12,7 +12,7 @@ import os
 import sys
 from pathlib import Path
 
-from palpate.argtypes import non_negative_float
+from palpate.argtypes import non_negative_float, path_arg
 from palpate.commands.introspect import CURVE_KEYS_HELP
 from palpate.errors import ViewerError
 from palpate.runtime import bus
@@ -31,11 +31,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
             f"from the bus or from an MCAP log. Shown types: {shown}. Needs: pip install 'palpate[viewer]'."
         ),
     )
-    p.add_argument("--log", type=Path, metavar="FILE.mcap", help="view a recorded log instead of the live bus")
-    p.add_argument("--bus", type=Path, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
-    p.add_argument("--save", type=Path, metavar="FILE.rrd", help="write a rerun recording file instead of a window")
+    p.add_argument("--log", type=path_arg, metavar="FILE.mcap", help="view a recorded log instead of the live bus")
+    p.add_argument("--bus", type=path_arg, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
+    p.add_argument("--save", type=path_arg, metavar="FILE.rrd", help="write a rerun recording file instead of a window")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="show only these topics (default: every shown type)")
-    p.add_argument("--curve-keys", type=Path, metavar="FILE", help=CURVE_KEYS_HELP)
+    p.add_argument("--curve-keys", type=path_arg, metavar="FILE", help=CURVE_KEYS_HELP)
     p.add_argument(
         "--duration",
         type=non_negative_float,

@@ -475,10 +475,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, 1 run each")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object, last line")
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (CSV, tables, plots)")
+    parser.add_argument("--out", type=path_arg, default=DEFAULT_OUT, help="output folder (CSV, tables, plots)")
     parser.add_argument(
         "--from-runs",
-        type=Path,
+        type=path_arg,
         metavar="RUNS.jsonl",
         help="no runs: remake the CSV, tables and plots from a runs.jsonl",
     )

@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from palpate import jsonio
+from palpate.argtypes import path_arg
 from palpate.config import NonEmpty, NonNegativeFloat, PositiveFloat, PositiveInt, Validated
 from palpate.errors import ConfigError
 from palpate.evaluation.dask_runs import (
@@ -517,7 +518,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--seeds", type=int, help=f"number of seeds 0..N-1 (default {FULL_SEEDS}, --quick {QUICK_SEEDS})"
     )
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (rows CSV, summary JSON, PNG)")
+    parser.add_argument("--out", type=path_arg, default=DEFAULT_OUT, help="output folder (rows CSV, summary JSON, PNG)")
     parser.add_argument("--particles", type=int, default=100, help="FastSLAM particles K")
     parser.add_argument("--resolution-mm", type=float, default=2.0, help="grid resolution, mm")
     parser.add_argument("--sigma-deg", type=float, default=1.5, help="joint noise standard deviation, degrees")

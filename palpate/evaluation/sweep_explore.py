@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from palpate import jsonio
+from palpate.argtypes import path_arg
 from palpate.errors import ConfigError
 from palpate.evaluation.dask_runs import RunLog, output_folder, report_failures
 from palpate.evaluation.dask_runs import add_arguments as add_cluster_arguments
@@ -92,7 +93,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--runs", type=int, default=1, help="start positions per object")
     parser.add_argument("--strategies", default="igef", help="comma-separated strategies (default igef)")
     parser.add_argument("--only", default="", help="comma-separated setting names or knobs to run (default all)")
-    parser.add_argument("--out", type=Path, default=Path("out/sweep_explore"), help="output folder")
+    parser.add_argument("--out", type=path_arg, default=Path("out/sweep_explore"), help="output folder")
     parser.add_argument("--json", action="store_true", help="print the rows as one JSON list, last line")
     parser.add_argument("--set", action="append", default=[], metavar="NODE.KEY=VALUE", help="applies to all")
     add_cluster_arguments(parser)

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from palpate import jsonio
+from palpate.argtypes import path_arg
 from palpate.config import load
 from palpate.errors import ConfigError
 from palpate.evaluation.dask_runs import (
@@ -409,7 +410,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resolutions-mm", default=",".join(f"{r:g}" for r in RESOLUTIONS_MM), help="comma-separated")
     parser.add_argument("--no-memory", action="store_true", help="skip tracemalloc (peak memory column nan)")
     parser.add_argument(
-        "--out", type=Path, default=DEFAULT_OUT, help="output folder (runs.jsonl, slam_sweep.json, slam_sweep.png)"
+        "--out", type=path_arg, default=DEFAULT_OUT, help="output folder (runs.jsonl, slam_sweep.json, slam_sweep.png)"
     )
     add_arguments(parser)
     parser.set_defaults(func=main)

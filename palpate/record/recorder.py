@@ -39,7 +39,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any, NamedTuple
 
-from palpate.argtypes import positive_int
+from palpate.argtypes import path_arg, positive_int
 from palpate.errors import MalformedMessageError, MessageError, PalpateError
 from palpate.messages import codec, topics
 from palpate.messages.schemas import Clock, LockstepAck, RunControl
@@ -522,8 +522,8 @@ class Recorder:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The recorder's options (shared by `palpate record` and `python -m palpate.record.recorder`)."""
     p.add_argument("topics", nargs="*", metavar="TOPIC", help="topics to record (default: every topic)")
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.mcap", help="log file to write")
-    p.add_argument("--bus", type=Path, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
+    p.add_argument("-o", "--output", type=path_arg, required=True, metavar="FILE.mcap", help="log file to write")
+    p.add_argument("--bus", type=path_arg, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
     p.add_argument("--connect", nargs="+", default=[], metavar="EP", help="publisher endpoints (default: manifests)")
     p.add_argument("--until-stop", action="store_true", help="exit after the graph's stop and its last messages")
     p.add_argument("--compression", choices=sorted(COMPRESSIONS), default="zstd", help="chunk compression")
@@ -546,7 +546,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--curve-keys",
-        type=Path,
+        type=path_arg,
         metavar="FILE",
         help="CurveZMQ key file the recorder connects to keyed publishers with (one their launch admits)",
     )

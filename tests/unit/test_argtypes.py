@@ -38,6 +38,9 @@ from tests.unit.record.synthetic import canonical_log, write_log
         ["bench", "contacts", "--objects", ""],
         ["eval", "explore", "--objects", ""],  # searched the working directory for meshes
         ["sweep", "explore", "--objects", " "],
+        ["eval", "explore", "--out", ""],  # wrote its tables and plots into the working directory
+        ["launch", "x.yaml", "--record", ""],
+        ["record", "-o", ""],
     ],
 )
 def test_nonsense_values_are_argparse_errors(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
