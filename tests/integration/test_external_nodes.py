@@ -91,5 +91,5 @@ def test_a_node_that_publishes_runcontrol_fail_makes_the_run_fail(tmp_path: Path
     assert f"ERROR node cube ended the run as a failure: {reason}" in out, out
     # every node ends as a failure, the first to exit is named (the clock source passes the "fail" on: a
     # node that hears only the clock learns the run failed)
-    assert re.search(r"\[launch\] node '\w+' \(\w+\) ended the run as a failure; the launch exits 1", out), out
+    assert re.search(r"\[launch\] node '\w+' \([\w.:]+\) ended the run as a failure; the launch exits 1", out), out
     assert "ERROR node stats ended the run as a failure: run_failer: sensor lost after 5 ticks" in out, out
