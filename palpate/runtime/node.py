@@ -588,7 +588,8 @@ class NodeRunner:
                 if due is None:
                     if self.stopping and not self.clock_ticks:
                         break
-                    if not self._receive(100) and not self.stopping and self._gone([self.process.clock_name]):
+                    clock_name = self.process.clock_name  # "" in a spec made without a launcher: no clock to lose
+                    if not self._receive(100) and not self.stopping and clock_name and self._gone([clock_name]):
                         # nothing more will come: close in order, as a failed run (the launch exits 1)
                         self.ctx.failure = self.ctx.run_stopped_by = (
                             f"the clock source {_left([self.process.clock_name])}"

@@ -296,3 +296,18 @@ def test_crafted_payloads_repeated_clocks_and_unknown_commands_leave_the_node_ru
     assert "topic sensors/contacts: rejected message (1 so far): ContactSet.forces_n: shape must be a list" in out
     assert "topic clock: rejected message (1 so far): Clock tick 0 repeats or goes back (last 0)" in out
     assert "unknown RunControl command 'status?'" in out
+
+
+def test_a_node_started_without_a_launcher_waits_out_a_slow_driver(tmp_path: Path) -> None:
+    """The harness's spec names no clock source (clock_name ""), as a spec written by hand may not: two
+    silences of the test more than PEER_GRACE_S (2 s) apart once ended such a node, "the clock source ''
+    disconnected", since it looked for a subscription hello/ that nobody makes."""
+    with contact_stats_node(tmp_path) as node:
+        node.tick(0)
+        time.sleep(2.3)  # the test thinks between ticks, longer than the grace
+        node.send(STATS_INPUT, codec.encode(contacts(2)))
+        node.tick(1)
+        assert node.stop() == 0
+    out = text(node.log)
+    assert "disconnected" not in out, out
+    assert "summary: 1 contact sets, 2 contacts" in out, out

