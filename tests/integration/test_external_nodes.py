@@ -9,11 +9,12 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
+import pytest
+
 from palpate.launch.supervisor import external_spec_path
-from tests.integration.launch_helpers import child_env, kill_session, launched, node_pids, text, wait_for
+from tests.integration.launch_helpers import child_env, kill_session, launched, text, wait_for
 
 RUN_FAILER = "tests.integration.fake_nodes:RUN_FAILER"
 
@@ -35,14 +36,17 @@ nodes:
     return path
 
 
-def kill_external_mid_run(tmp_path: Path, name: str) -> tuple[int, str]:
-    """Launch the graph with `name` external, start it from its spec, SIGKILL it once the run is under way:
-    the launch's exit code (within 30 s) and output."""
+def kill_external_mid_run(tmp_path: Path, name: str, monkeypatch: pytest.MonkeyPatch) -> tuple[int, str]:
+    """Launch the graph with `name` external, start it from its spec, SIGKILL it once the run is under way
+    (the clock source has logged its progress: every node is past its start-up): the launch's exit code
+    (within 30 s) and output."""
+    monkeypatch.setenv("PALPATE_PROGRESS_S", "0.2")  # the clock source's "t = ..." lines, wherever it runs
     bus_dir, log = tmp_path / "bus", tmp_path / "launch.log"
+    driver_log = tmp_path / f"{name}.log"
     with launched(graph(tmp_path, name), bus_dir, log) as proc:
         spec = external_spec_path(bus_dir, name)
         wait_for(spec.exists, 60, f"the spec of {name}", log)
-        with (tmp_path / f"{name}.log").open("wb") as out:
+        with driver_log.open("wb") as out:
             driver = subprocess.Popen(
                 [sys.executable, "-m", "palpate.runtime.node", str(spec)],
                 env=child_env(bus_dir),
@@ -51,8 +55,7 @@ def kill_external_mid_run(tmp_path: Path, name: str) -> tuple[int, str]:
                 start_new_session=True,
             )
         try:
-            wait_for(lambda: {"cube", "stats"} <= set(node_pids(bus_dir)), 60, "both nodes", log)
-            time.sleep(1.0)  # the run is under way (ticks of 10 ms)
+            wait_for(lambda: "INFO t = " in text(log) + text(driver_log), 60, "the run to be under way", log)
             os.kill(driver.pid, signal.SIGKILL)
             code = proc.wait(timeout=30)  # before the fix: a dead clock source left the run hanging for good
         finally:
@@ -60,8 +63,8 @@ def kill_external_mid_run(tmp_path: Path, name: str) -> tuple[int, str]:
     return code, text(log)
 
 
-def test_a_dead_external_clock_source_ends_the_run_naming_it(tmp_path: Path) -> None:
-    code, out = kill_external_mid_run(tmp_path, "cube")
+def test_a_dead_external_clock_source_ends_the_run_naming_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    code, out = kill_external_mid_run(tmp_path, "cube", monkeypatch)
     assert code == 1, out
     # the follower closes in order (its summary), as a failed run
     assert "ERROR node stats ended the run as a failure: the clock source 'cube' disconnected without a stop" in out
@@ -69,8 +72,8 @@ def test_a_dead_external_clock_source_ends_the_run_naming_it(tmp_path: Path) -> 
     assert "[launch] node 'stats' (contact_stats) ended the run as a failure; the launch exits 1" in out, out
 
 
-def test_a_dead_external_follower_is_named_at_once(tmp_path: Path) -> None:
-    code, out = kill_external_mid_run(tmp_path, "stats")
+def test_a_dead_external_follower_is_named_at_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    code, out = kill_external_mid_run(tmp_path, "stats", monkeypatch)
     assert code == 1, out
     assert "'stats' disconnected without a stop" in out, out  # in seconds, not after the 120 s timeout
     assert "[launch] node 'cube' (cube_contacts) died with exit code 3" in out, out
