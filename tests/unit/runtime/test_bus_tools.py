@@ -122,9 +122,11 @@ def test_blocking_publisher_waits_instead_of_dropping(ctx: zmq.Context[Any], tmp
             pytest.fail("200 MiB went out to a subscriber that reads nothing")
         assert sent > 0
         received = 0
-        while sub.poll(500):  # everything that send accepted arrives; nothing was dropped
-            sub.recv_multipart()
-            received += 1
+        deadline = time.monotonic() + 10.0  # everything that send accepted arrives; nothing was dropped
+        while received < sent and time.monotonic() < deadline:
+            if sub.poll(100):
+                sub.recv_multipart()
+                received += 1
         assert received == sent
         assert pub.send([b"t/x", payload])  # the queue has room again
     finally:
