@@ -70,10 +70,12 @@ class Harness:
     def stop(self) -> int:
         self.send(topics.GRAPH_CONTROL, codec.encode(RunControl(stamp_ns=0, command="stop", reason="test over")))
         code = self.proc.wait(timeout=60)
-        while self.sub.poll(500):  # the final status goes out just before exit
-            topic, payload = self.sub.recv_multipart()
-            if topic == topics.NODE_STATUS.encode():
-                self.statuses.append(codec.decode(payload, NodeStatus))
+        deadline = time.monotonic() + 10.0  # the final status went out just before exit: wait for it
+        while time.monotonic() < deadline and not (self.statuses and self.statuses[-1].state != "running"):
+            if self.sub.poll(100):
+                topic, payload = self.sub.recv_multipart()
+                if topic == topics.NODE_STATUS.encode():
+                    self.statuses.append(codec.decode(payload, NodeStatus))
         return code
 
 
