@@ -11,7 +11,7 @@ from __future__ import annotations
 import copy
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -113,16 +113,19 @@ class Graph:
         clock = self.clock_source
         if clock is None or self.mode != "lockstep":
             return []
-        feeding = {clock.name}  # nodes with a path of topics to the clock source
-        grown = True
-        while grown:
-            grown = False
-            wanted = {t for n in self.nodes if n.name in feeding for t in n.subscribes.values()}
-            for n in self.nodes:
-                if n.name not in feeding and wanted & set(n.publishes.values()):
-                    feeding.add(n.name)
-                    grown = True
+        feeding = self.feeding([clock.name])
         return [n for n in self.nodes if n.name not in feeding and n.spec.may_trail and not n.external]
+
+    def feeding(self, names: Iterable[str]) -> set[str]:
+        """`names` and the names of every node whose outputs reach one of them through a chain of topics."""
+        found = set(names)
+        frontier = [n for n in self.nodes if n.name in found]
+        while frontier:
+            for peer in self.upstream(frontier.pop()):
+                if peer.name not in found:
+                    found.add(peer.name)
+                    frontier.append(peer)
+        return found
 
     def _connections(self, node: GraphNode) -> list[GraphNode]:
         """Publishers `node` connects to: those of its inputs, plus the clock source (and, for the

@@ -135,7 +135,9 @@ def replay_note(launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] |
     notes = (
         [f"{log_path} was recorded with {', '.join(differ)}; the replayed sensor data is that run's"] if differ else []
     )
-    steering = [name for name in _feeding(graph, nodes) if not graph.by_name[name].evaluator]  # evaluators observe
+    steering = [  # the nodes whose outputs reach the replayed ones; evaluators observe
+        name for name in sorted(graph.feeding(nodes) - set(nodes)) if not graph.by_name[name].evaluator
+    ]
     steered = [
         k for k, changed in changes.items() if k not in replayed and (changed is None or changed & set(steering))
     ]
@@ -145,27 +147,6 @@ def replay_note(launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] |
             "the replay does not follow them, so what they decide now need not match the motion in the log"
         )
     return "note: " + "; ".join(notes) if notes else None
-
-
-def _feeding(graph: Graph, nodes: Sequence[str]) -> list[str]:
-    """The nodes, other than `nodes`, whose outputs reach one of `nodes` through topics, directly or not."""
-    readers = {
-        t: {n.name for n in graph.nodes if t in n.subscribes.values()}
-        for n in graph.nodes
-        for t in n.publishes.values()
-    }
-    found: set[str] = set()
-    targets = set(nodes)
-    while True:
-        more = {
-            n.name
-            for n in graph.nodes
-            if n.name not in targets | found
-            and any(readers.get(t, set()) & (targets | found) for t in n.publishes.values())
-        }
-        if not more:
-            return sorted(found)
-        found |= more
 
 
 def _params_changed(path: Path, args: dict[str, Any], changes: dict[str, Any]) -> dict[str, set[str] | None]:
