@@ -11,10 +11,10 @@ from __future__ import annotations
 import copy
 import math
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from palpate.config import KeyPath, load
 from palpate.errors import BusError, ConfigError, LaunchError, PalpateError
@@ -24,6 +24,7 @@ from palpate.messages import topics
 from palpate.runtime import bus
 from palpate.runtime.spec import TRAIL_TICKS, NodeProcessSpec, NodeSpec
 
+_T = TypeVar("_T")
 _SHARED_TOPICS = {topics.NODE_STATUS, topics.GRAPH_CONTROL}
 #: A node name: it names the node's socket file in the bus directory, so no '/', '..' or ''.
 _NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]*")
@@ -333,14 +334,17 @@ def _check_params(entry: NodeEntry, spec: NodeSpec[Any], params: dict[str, Any])
         raise LaunchError(f"{entry.param_at(exc.path)}: node {entry.fields['name']!r}: {exc}") from exc
 
 
-def _facts_of(node: GraphNode) -> Mapping[str, tuple[Any, KeyPath]]:
-    """The facts `node` states (NodeSpec.facts), by the name they are given in the spec."""
-    if node.spec.facts is None:
-        return {}
+def _of_config(node: GraphNode, function: Callable[[Any], _T]) -> _T:
+    """``function(node.config)`` (a NodeSpec hook); a PalpateError is a LaunchError at the node's params."""
     try:
-        return node.spec.facts(node.config)
+        return function(node.config)
     except PalpateError as exc:
         raise LaunchError(f"{node.entry.at('params')}: node {node.name!r}: {exc}") from exc
+
+
+def _facts_of(node: GraphNode) -> Mapping[str, tuple[Any, KeyPath]]:
+    """The facts `node` states (NodeSpec.facts), by the name they are given in the spec."""
+    return {} if node.spec.facts is None else _of_config(node, node.spec.facts)
 
 
 def _settle(graph: Graph) -> None:
@@ -399,11 +403,7 @@ def _check_files(graph: Graph) -> None:
     for node in graph.nodes:
         if node.external or node.spec.files is None:
             continue
-        try:
-            files = node.spec.files(node.config)
-        except PalpateError as exc:
-            raise LaunchError(f"{node.entry.at('params')}: node {node.name!r}: {exc}") from exc
-        for path, name in files.items():
+        for path, name in _of_config(node, node.spec.files).items():
             if not Path(name).is_file():
                 what = "does not exist" if not Path(name).exists() else "is not a file"
                 raise LaunchError(
