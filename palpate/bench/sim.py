@@ -262,7 +262,7 @@ class SimBenchConfig:
     placement: str = ""
 
 
-QUICK = SimBenchConfig(duration_s=1.0, warmup_s=0.2, bare_seconds=0.5, rounds=1)
+QUICK = SimBenchConfig(duration_s=1.0, warmup_s=0.2, bare_seconds=0.5, rounds=2)
 
 
 def object_section() -> tuple[dict[str, Any], str]:
