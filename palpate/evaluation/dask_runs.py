@@ -380,9 +380,9 @@ def connect(config: ClusterConfig) -> Iterator[Any]:
         finally:
             client.close()
         return
-    # one BLAS thread per worker: the workers already fill the cores (spawned workers read this at start-up)
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
+    # One BLAS thread per worker (the workers already fill the cores) is Dask's own pre-spawn default,
+    # unless this process's environment sets a count; the nanny writes those variables into this
+    # process's environment too, before it spawns a worker.
     with (
         dask.config.set({MALLOC_TRIM_KEY: None}),
         LocalCluster(

@@ -184,3 +184,22 @@ def test_the_local_clusters_workers_keep_glibcs_memory_defaults(monkeypatch: pyt
     monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
     with dask_runs.connect(ClusterConfig(local_workers=1)) as client:
         assert list(client.run(_malloc_trim_threshold).values()) == [None]
+
+
+def _blas_threads() -> dict[str, str | None]:
+    import os
+
+    return {var: os.environ.get(var) for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+
+
+def test_the_local_clusters_workers_get_one_blas_thread_unless_the_environment_says(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Two workers on two cores must not each start a BLAS thread per core; a count the caller's
+    environment sets is kept (monkeypatch restores what the nanny writes into this process's environment)."""
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+        monkeypatch.delenv(var, raising=False)
+    monkeypatch.setenv("MKL_NUM_THREADS", "3")
+    with dask_runs.connect(ClusterConfig(local_workers=1)) as client:
+        (workers,) = client.run(_blas_threads).values()
+    assert workers == {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "3"}
