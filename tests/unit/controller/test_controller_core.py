@@ -275,3 +275,20 @@ def test_a_target_at_the_start_without_a_direction_ends_instead_of_stalling() ->
         ctrl.start(np.zeros(3), np.zeros(3), R0, [chord, 0.0, 0.0], [0.0, 0.0, 1.0])
         run = drive(ctrl, np.zeros(3), R0, nothing, max_steps=60_000)
         assert run.states[-1] is ControllerState.FAILED, (chord, ctrl.tau, ctrl.travelled_m)
+
+
+def test_the_recovery_turns_the_fingertip_to_poke_along_the_target_normal() -> None:
+    """Alg. 1 line 32: R1 <- getRotation(R0, -t_n), the inverted approach. The recovery curve (Eq. 17)
+    reaches the last contact moving along +t_n (from inside the object), and the fingertip turns to
+    poke that way: its z axis goes from -t_n (facing the missed target) to +t_n."""
+    ctrl = TrajectoryController()
+    t_n = np.array([0.0, 0.0, 1.0])
+    ctrl.start(np.zeros(3), V_DOWN, R_DOWN, np.array([0.03, 0.0, 0.0]), t_n)
+    # the only surface: a 1 mm spot at the last contact, which only the recovery reaches
+    run = drive(
+        ctrl, np.zeros(3), R_DOWN, lambda p: ctrl.state is ControllerState.RECOVERY and bool(np.linalg.norm(p) < 1e-3)
+    )
+    assert run.contact_state is ControllerState.RECOVERY
+    assert ctrl.direction @ t_n > 0.9  # arriving along +t_n
+    angle = np.degrees(np.arccos(np.clip(run.R[:, 2] @ t_n, -1, 1)))
+    assert angle < 10.0

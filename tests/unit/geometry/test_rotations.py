@@ -64,6 +64,26 @@ def test_align_axis_is_the_smallest_rotation_and_handles_antiparallel() -> None:
     np.testing.assert_allclose(R, np.diag([-1.0, 1.0, -1.0]), atol=1e-15)
 
 
+def test_antiparallel_half_turn_uses_the_part_of_the_hint_perpendicular_to_a() -> None:
+    # hint (1, 0, 1) against a = e_z: its perpendicular part is e_x, so the half turn is about x,
+    # diag(1, -1, -1); about the raw hint it would take e_z to e_x instead of -e_z
+    R = rotations.align_axis([0, 0, 1.0], [0, 0, -1.0], hint=[1.0, 0, 1.0])
+    np.testing.assert_allclose(R, np.diag([1.0, -1.0, -1.0]), atol=1e-15)
+    R0 = Rotation.from_euler("y", 0.4).as_matrix()  # get_rotation: the hint is the tilted x axis R0[:, 0]
+    R1 = rotations.get_rotation(R0, R0[:, 2])
+    np.testing.assert_allclose(R1[:, 2], -R0[:, 2], atol=1e-12)
+    np.testing.assert_allclose(R1[:, 0], R0[:, 0], atol=1e-12)
+
+
+def test_exp_so3_keeps_the_second_order_term_below_the_small_angle_threshold() -> None:
+    # Rodrigues: R = I + K + (1 - cos t) / t^2 K^2 and (1 - cos t) / t^2 -> 1/2. With w = (1, 2, 0) 1e-9,
+    # K has no (0, 1) entry (w_z = 0), so R[0, 1] = R[1, 0] = w_x w_y / 2 = 1e-18 comes from K^2 alone
+    w = np.array([1e-9, 2e-9, 0.0])
+    R = rotations.exp_so3(w)
+    assert R[0, 1] == pytest.approx(1e-18, rel=1e-12, abs=0) and R[1, 0] == pytest.approx(1e-18, rel=1e-12, abs=0)
+    assert R[2, 1] == pytest.approx(1e-9, rel=1e-12, abs=0) and R[0, 2] == pytest.approx(2e-9, rel=1e-12, abs=0)
+
+
 def test_quat_to_matrix_matches_scipy_and_mujoco_wxyz() -> None:
     mujoco = pytest.importorskip("mujoco")
     for q in np.random.default_rng(7).normal(size=(200, 4)):  # not unit: normalised inside

@@ -75,6 +75,16 @@ def test_for_object_size_scales_lengths_only() -> None:
     assert big.gradient_noise == 0.2 and big.jitter == base.jitter
 
 
+def test_default_gaussian_amplitude_gives_unit_gradient_variance() -> None:
+    # s2 = sigma^2 / 2, so Var df/dx_i = -g1(0) = 2 s2 / sigma^2 = 1, the variance of a unit normal's component
+    kernel = GPISConfig(kernel="gaussian", length_scale_m=0.04).make_kernel()
+    assert kernel.value_variance == pytest.approx(0.04**2 / 2, rel=1e-12)
+    assert kernel.gradient_variance == pytest.approx(1.0, rel=1e-12)
+    explicit = GPISConfig(kernel="gaussian", length_scale_m=0.04, gaussian_variance_m2=0.3).make_kernel()
+    assert explicit.value_variance == pytest.approx(0.3)
+    assert explicit.gradient_variance == pytest.approx(2 * 0.3 / 0.04**2)  # 2 s2 / sigma^2
+
+
 # --- factorisation ----------------------------------------------------------------------------------
 def test_incremental_factor_equals_fresh_cholesky_after_200_contacts() -> None:
     rng = np.random.default_rng(0)

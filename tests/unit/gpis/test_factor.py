@@ -64,3 +64,15 @@ def test_gpis_truncate_equals_a_gp_of_the_first_contacts() -> None:
     np.testing.assert_allclose(full.cholesky_factor(), L, rtol=0, atol=1e-9 * np.abs(L).max())
     np.testing.assert_allclose(full.mean(x), part.mean(x), rtol=0, atol=1e-9)
     np.testing.assert_allclose(full.variance(x), part.variance(x), rtol=0, atol=1e-12)
+
+
+def test_a_full_buffer_is_used_before_it_grows() -> None:
+    L = _factor_of(np.random.default_rng(2), 100)
+    f = GrowingCholesky()
+    for s in range(0, 64, 4):  # 16 contacts of 4 rows: exactly MIN_CAPACITY = 64 rows
+        f.append(L[s : s + 4, :s], L[s : s + 4, s : s + 4])
+    assert f.size == f.capacity == 64
+    f.append(L[64:68, :64], L[64:68, 64:68])  # one more: grows by GROWTH = 1.5, to 96 rows
+    assert f.capacity == 96
+    assert f.nbytes == 96 * 96 * 8
+    np.testing.assert_array_equal(f.view(), L[:68, :68])

@@ -30,6 +30,16 @@ def plate_seen_from_above(spacing: float = 0.01) -> GPIS:
     return gp
 
 
+def test_free_space_gradient_rows_carry_a_huge_multiple_of_the_prior_gradient_variance() -> None:
+    gp = GPIS(GPISConfig(R_m=0.5), prior_centre_m=[0.0, 0.0, -0.005])
+    gp.add_contact([0.0, 0.0, 0.0], UP)
+    gp.add_free_space(np.array([[0.0, 0.0, 0.02]]), R_TIP)
+    # thin plate, a = 1: Var grad f = 6 a R = 3; the free point's gradient rows add 1e6 x that as noise
+    diag = np.diag(gp.observation_covariance())
+    np.testing.assert_allclose(diag[5:8], 3.0 * (1.0 + 1e6), rtol=1e-12)
+    np.testing.assert_allclose(diag[1:4], 3.0 * (1.0 + 1e-10) + 0.1**2, rtol=1e-12)  # a contact's: noise 0.1
+
+
 def below_the_plate() -> np.ndarray:
     """Fingertip centres 2 cm under the plate, where it swept without a contact."""
     xs = np.arange(-0.02, 0.0201, 0.004)

@@ -202,6 +202,22 @@ def test_thin_plate_rejects_distances_beyond_r() -> None:
         k.gradient_contract(x, np.array([[0.0, 0.2, 0.0]]), np.ones((1, 4)))
 
 
+def test_range_check_finds_the_farthest_pair_on_either_side() -> None:
+    k = ThinPlateKernel(1.0)
+    w = np.ones((2, 4))
+    origin = np.zeros((1, 3))
+    # contacts either side of the query: the farthest is 1.5 m away on -x, though the box of y ends at +0.5
+    straddle = np.array([[-1.5, 0.0, 0.0], [0.5, 0.0, 0.0]])
+    for contract in (k.value_contract, k.gradient_contract):
+        with pytest.raises(EstimationError, match="R_m"):
+            contract(origin, straddle, w)
+    # queries either side of one contact: the query at 2 m is beyond R, the one at 0 m is not
+    with pytest.raises(EstimationError, match="R_m"):
+        k.value_contract(np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]]), origin, w[:1])
+    # within R on both sides (0.9 m each way) passes
+    k.check_range(origin, np.array([[-0.9, 0.0, 0.0], [0.9, 0.0, 0.0]]))
+
+
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), float("inf")])
 def test_bad_kernel_parameters_are_config_errors(bad: float) -> None:
     with pytest.raises(ConfigError):

@@ -50,6 +50,18 @@ def test_areas(sphere: trimesh.Trimesh, cube: trimesh.Trimesh) -> None:
     assert mesh_area((sphere.vertices, sphere.faces)) == pytest.approx(4 * np.pi * 0.05**2, rel=2e-3)
 
 
+def test_surface_samples_pick_triangles_by_area() -> None:
+    # two triangles in the plane z = 0 of areas 1/2 and 3/2: a quarter and three quarters of the samples
+    V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [2.0, 0.0, 0.0], [5.0, 0.0, 0.0], [2.0, 1.0, 0.0]])
+    F = np.array([[0, 1, 2], [3, 4, 5]])
+    n = 40_000
+    pts = sample_surface((V, F), n, np.random.default_rng(3))
+    in_small = pts[:, 0] + pts[:, 1] <= 1.0
+    in_large = (pts[:, 0] >= 2.0) & (pts[:, 0] + 3.0 * pts[:, 1] <= 5.0) & (pts[:, 1] >= 0.0)
+    assert np.all(in_small ^ in_large)  # every sample on one of the two triangles
+    assert in_small.mean() == pytest.approx(0.25, abs=5 * np.sqrt(0.25 * 0.75 / n))
+
+
 def test_surface_samples_are_uniform_by_area(cube: trimesh.Trimesh) -> None:
     pts = sample_surface(cube, 60_000, np.random.default_rng(0))
     np.testing.assert_allclose(box_distance(pts, INCH / 2), 0.0, atol=1e-12)

@@ -82,3 +82,11 @@ def test_bad_thresholds_are_refused() -> None:
         ShapeScorer(sphere(), thresholds_m=(0.001, float("nan")))
     with pytest.raises(KeyError, match="no F-score"):
         shape_scores(sphere(), sphere(), samples=100).fscore_at(0.003)
+
+
+def test_a_point_exactly_at_the_threshold_counts_on_both_sides() -> None:
+    # "within tau" is inclusive for precision and recall alike: a distance of 0.001 (the same float as
+    # the threshold) counts at tau = 0.001
+    P, Rc, F = fscore_from_distances(np.array([0.001, 0.0015]), np.array([0.001, 0.0005]), [0.001])
+    assert P == (0.5,) and Rc == (1.0,)
+    assert F[0] == pytest.approx(2 * 0.5 * 1.0 / 1.5, rel=1e-12)

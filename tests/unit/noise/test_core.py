@@ -55,6 +55,17 @@ def test_constant_bias_for_every_joint() -> None:
     _assert_mean_std(samples, q + math.radians(4.0), np.full(4, math.radians(1.0)))
 
 
+def test_a_bias_without_sigma_is_still_added() -> None:
+    # sigma 0: q_noisy = q + b exactly; a joint with neither keeps its bits
+    q = np.radians([10.0, -20.0, 30.0, 5.0])
+    every = JointNoise(JointNoiseConfig(sigma_deg=0.0, bias_deg=2.0), JOINTS, np.random.default_rng(0))
+    np.testing.assert_allclose(every.apply(q), q + math.radians(2.0), rtol=0, atol=1e-15)
+    one = JointNoise(JointNoiseConfig(sigma_deg=0.0, bias_deg={"pip": -1.0}), JOINTS, np.random.default_rng(0))
+    out = one.apply(q)
+    np.testing.assert_array_equal(out[[0, 1, 3]], q[[0, 1, 3]])
+    assert out[2] == pytest.approx(q[2] - math.radians(1.0), rel=0, abs=1e-15)
+
+
 def test_wrong_bias_or_sigma_is_detected() -> None:
     """The statistical check can fail: a 10 % wrong sigma or a 0.1-sigma bias are outside 3 SE."""
     q, samples = _readings(JointNoiseConfig(sigma_deg=1.5), seed=3)

@@ -38,6 +38,18 @@ def test_scores_match_the_slow_formula() -> None:
         np.testing.assert_allclose(fast, slow_scores(S, N, C, config), rtol=1e-12)
 
 
+def test_scores_carry_the_rotation_factor() -> None:
+    # every normal is +z: poking along -z needs no turn (Psi4 = 1); poking along +x a quarter turn,
+    # Psi4 = exp(-(1 + R_z . s_n) / sigma_alpha^2) = exp(-1 / 0.25); the path (from v_n) is the same
+    S, N = plane_grid(half=0.02)
+    C = np.zeros((1, 3))
+    config = PlannerConfig(strategy="area", sigma_alpha=0.5)
+    facing = area_scores(S, N, C, C[-1], DOWN, DOWN, config)
+    sideways = area_scores(S, N, C, C[-1], DOWN, np.array([1.0, 0.0, 0.0]), config)
+    assert facing.max() > 0.0
+    np.testing.assert_allclose(sideways, np.exp(-4.0) * facing, rtol=1e-12)
+
+
 def test_a_touch_in_explored_area_scores_nothing_and_the_best_hop_leaves_the_explored_disc() -> None:
     S, N = plane_grid()
     C = np.zeros((1, 3))

@@ -90,6 +90,15 @@ def test_psi4_prefers_no_rotation() -> None:
     np.testing.assert_allclose(psi4, [1.0, np.exp(-1.0), np.exp(-2.0)], rtol=1e-12)
 
 
+def test_psi4_divides_by_sigma_alpha_squared() -> None:
+    # Eq. 11 with sigma_alpha = 0.5: exp(-2 sin^2(alpha / 2) / 0.25) = exp(-4 (1 - cos alpha)):
+    # 1 facing the target, exp(-4) a quarter turn away, exp(-8) a half turn away
+    cfg = PlannerConfig(sigma_alpha=0.5)
+    normals = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    psi4 = igef_terms(np.zeros((3, 3)), normals, np.ones((1, 3)), np.ones(3), np.zeros(3), np.array([0, 0, -1.0]), cfg)
+    np.testing.assert_allclose(psi4[:, 3], [1.0, np.exp(-4.0), np.exp(-8.0)], rtol=1e-12)
+
+
 def test_igef_picks_a_local_target_and_gpv_the_far_edge() -> None:
     """Fig. 4: after two contacts on a plane, IGEF stays near, GP-V goes to the 6 cm border."""
     S, N = plane_patch(radius=0.07)

@@ -4,10 +4,11 @@ costs, and small planar cases whose tour can be worked out by hand."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from palpate.nodes.planner.config import PlannerConfig
 from palpate.nodes.planner.core import Planner
-from palpate.nodes.planner.tour import best_order, patch_weights, tour_plan
+from palpate.nodes.planner.tour import best_order, greedy_insertion, patch_weights, tour_cost_m, tour_plan
 from tests.unit.planner.planes import DOWN, UP, plane_grid
 
 
@@ -111,3 +112,30 @@ def test_no_site_lies_on_explored_ground_next_to_a_contact() -> None:
     site = S[tour.sites[0]]
     assert np.linalg.norm(site - C[0]) >= rho / 2
     assert np.linalg.norm(site - [0.007, 0.0, 0.0]) <= rho  # it still explores the strip's end
+
+
+def _line_sites() -> tuple[np.ndarray, np.ndarray]:
+    """Sites at x = 1, 2, 3 on a line, the fingertip at 0: start (3,) and hop (3, 3) the distances."""
+    x = np.array([1.0, 2.0, 3.0])
+    return x.copy(), np.abs(x[:, None] - x[None, :])
+
+
+def test_tour_cost_counts_every_hop_and_every_touch() -> None:
+    start, hop = _line_sites()
+    hop[0, 2] = 5.0  # one-way: 1 -> 3 costs 5, 3 -> 1 still 2
+    # r -> x3 (3) + x3 -> x1 (2) + x1 -> x2 (1) + 3 touches of 0.25
+    assert tour_cost_m([2, 0, 1], start, hop, 0.25) == pytest.approx(3.0 + 2.0 + 1.0 + 0.75)
+    # r -> x1 (1) + x1 -> x3 (5, the one-way cost) + 2 touches
+    assert tour_cost_m([0, 2], start, hop, 0.25) == pytest.approx(1.0 + 5.0 + 0.5)
+    assert tour_cost_m([1], start, hop, 0.25) == pytest.approx(2.25)
+
+
+def test_greedy_insertion_puts_a_site_on_the_way_between_two_others() -> None:
+    start, hop = _line_sites()
+    cover = np.eye(3)  # each site explores its own patch; the middle one is worth 0.2, the others 1
+    w = np.array([1.0, 0.2, 1.0])
+    config = PlannerConfig(strategy="tour", tour_touch_cost_m=0.0, tour_sites=3)
+    # J = (sum of gains) / travel. 1st: x1 (1 / 1). 2nd: x3 at the end (2 / 3) beats x2 at the end
+    # (1.2 / 2). 3rd, x2 into tour (x1, x3) of travel 3: first 2.2 / (3 + 2 + 1 - 1), between
+    # 2.2 / (3 + 1 + 1 - 2) = 0.73 (the hop x1 -> x3 it replaces is saved), last 2.2 / (3 + 1) = 0.55
+    assert greedy_insertion(cover, w, np.ones(3), start, hop, config) == [0, 1, 2]
