@@ -2,8 +2,11 @@
 
 Map RMSE (what ``map_rmse`` computes). Let d(c) be the signed distance from the centre of cell c
 to the true surface (negative inside the object) and h = resolution / 2. The ground-truth
-occupancy of a cell is 1 when d(c) <= h (the cell holds object: for faces aligned with the grid,
-exactly the cells the object overlaps) and 0 otherwise. The evaluation region is the surface band
+occupancy of a cell is 1 when d(c) <= h (its centre lies inside the object or within half a cell
+outside it: the cells the surface passes through, where contacts fall) and 0 otherwise. A face
+that lies exactly on cell boundaries (the evaluation's grids keep the cube's faces 0.5 mm inside
+their cells) leaves its shell on the outer side: a contact exactly on a face at the low end of an
+axis falls in the inner cell, at d = -h, outside the band. The evaluation region is the surface band
 
     B = { c : -h < d(c) <= h + band_m }
 
