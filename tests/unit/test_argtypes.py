@@ -3,10 +3,19 @@ that hears nothing say so."""
 
 from __future__ import annotations
 
+import argparse
+import re
 from pathlib import Path
 
 import pytest
 
+from palpate.argtypes import (
+    non_negative_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    positive_scale,
+)
 from palpate.cli import build_parser, main
 from tests.unit.record.synthetic import canonical_log, write_log
 
@@ -66,3 +75,18 @@ def test_replay_refuses_a_start_past_the_end_of_the_log(tmp_path: Path, capsys: 
 def test_topic_echo_says_when_nothing_arrived(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["topic", "echo", "nope", "--timeout", "0.2", "--bus", str(tmp_path)]) == 1
     assert "nothing arrived on 'nope' in 0.2 s" in capsys.readouterr().err
+
+
+def test_the_bounds_of_the_argument_types() -> None:
+    assert (positive_int("1"), non_negative_int("0")) == (1, 0)
+    assert (non_negative_float("0"), positive_float("1e-300"), positive_scale("0.001")) == (0.0, 1e-300, 0.001)
+    for parse, text, refusal in [
+        (positive_int, "0", "'0' is not a positive integer"),
+        (non_negative_int, "-1", "'-1' is not an integer >= 0"),
+        (positive_float, "0", "'0' is not a finite number > 0"),
+        (positive_float, "-0.0", "'-0.0' is not a finite number > 0"),
+        (positive_scale, "0", "expected a finite number > 0 (0.001: millimetres), got '0'"),
+        (non_negative_float, "-1e-300", "'-1e-300' is not a finite number >= 0"),
+    ]:
+        with pytest.raises(argparse.ArgumentTypeError, match=rf"^{re.escape(refusal)}$"):
+            parse(text)

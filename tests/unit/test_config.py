@@ -25,6 +25,7 @@ from palpate.config import (
     NonNegativeFloat,
     OneOf,
     PositiveFloat,
+    PositiveInt,
     Range,
     ScalarIsTuple,
     Validated,
@@ -32,6 +33,7 @@ from palpate.config import (
     _split,
     check,
     load,
+    load_yaml,
 )
 from palpate.errors import ConfigError, LaunchError
 from palpate.launch.graph import resolve
@@ -465,3 +467,40 @@ def test_an_integer_too_large_for_a_float_is_a_config_error() -> None:
 
     with pytest.raises(ConfigError, match=r"sigma1_m: expected a finite number > 0, got 1000"):
         load(PlannerConfig, {"sigma1_m": 10**400}, "planner")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Edges(Validated):
+    workers: PositiveInt = 1
+    point_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    level: Literal[1, 2] = 1
+    either: int | str = 0
+
+
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ({"workers": 0}, "where.workers: expected an integer >= 1, got 0"),
+        ({"point_m": [1, 2, 3, 4]}, "where.point_m: expected 3 items, got [1, 2, 3, 4]"),
+        ({"level": 1.0}, "where.level: expected one of [1, 2], got 1.0"),
+        ({"either": None}, "where.either: expected int | str, got None"),
+    ],
+)
+def test_edges_of_the_declared_types_are_refused(params: dict[str, Any], message: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        load(Edges, params, "where")
+    assert str(info.value) == message
+
+
+def test_edges_of_the_declared_types_pass() -> None:
+    assert load(Edges, {"workers": 1, "point_m": [1, 2, 3], "level": 2, "either": "x"}) == Edges(
+        workers=1, point_m=(1.0, 2.0, 3.0), level=2, either="x"
+    )
+
+
+def test_a_yaml_document_error_names_the_line_of_the_key() -> None:
+    text = "rate_hz: 1\ninner:\n  offset_m: [0, 0, 0]\n  radius_m: -1\n"
+    with pytest.raises(ConfigError) as info:
+        load_yaml(Config, text, "config.yaml", "config")
+    assert str(info.value) == "config.yaml:4: config.inner.radius_m: expected a finite number > 0, got -1"
+    assert info.value.path == ("inner", "radius_m")

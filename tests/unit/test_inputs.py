@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -17,8 +19,11 @@ from palpate.inputs import (
     select_named,
     triangle_mesh,
     unique_names,
+    unit_or_zero,
+    unit_or_zero_rows,
     unit_quaternion,
     unit_vectors,
+    within_reach,
 )
 
 
@@ -219,3 +224,76 @@ def test_per_vertex_spreads_values_over_their_vertices_and_refuses_bad_indices()
 def test_all_finite_agrees_with_numpy(values: list[float]) -> None:
     array = np.array(values, dtype=np.float64).reshape(-1, 1) if len(values) > 3 else np.array(values, np.float64)
     assert all_finite(array) == bool(np.isfinite(array).all())
+
+
+def test_many_coordinates_pass_up_to_the_bound_and_nan_anywhere_is_refused() -> None:
+    """More than a few values (numpy's path) and NaN where allowed (so not the scalar path): the bound
+    itself passes; a NaN in any place of a few values is refused."""
+    edge = np.full((7, 3), MAX_COORDINATE_M)
+    edge[::2] *= -1.0
+    assert coordinates(edge, "positions_m").tobytes() == edge.tobytes()
+    assert coordinates([np.nan, MAX_COORDINATE_M, -MAX_COORDINATE_M], "p", allow_nan=True)[1] == MAX_COORDINATE_M
+    for at in range(3):
+        row = [0.0, 0.0, 0.0]
+        row[at] = np.nan
+        with pytest.raises(InputError, match=r"^position_m: coordinate nan is not finite$"):
+            coordinates(row, "position_m")
+
+
+def test_many_values_pass_at_either_bound() -> None:
+    values = np.array([0.0, 10.0] * 10)
+    assert bounded(values, "forces_n", 10.0, "N", lower=0.0).tobytes() == values.tobytes()
+    assert bounded(-values, "x", 10.0).tobytes() == (-values).tobytes()
+
+
+def test_bounded_names_the_value_below_when_values_lie_on_both_sides() -> None:
+    with pytest.raises(InputError, match=r"^forces_n: value -1 N is outside \[0, 10\] N$"):
+        bounded([20.0, -1.0], "forces_n", 10.0, "N", lower=0.0)
+
+
+def test_non_unit_vectors_name_the_first_bad_row() -> None:
+    with pytest.raises(InputError, match=r"^normals: row 1 has norm 0, not 1"):
+        unit_vectors([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 2.0, 0.0]], "normals")
+
+
+@pytest.mark.parametrize("shape", [(1, 4), (2, 2), (5,)])
+def test_a_quaternion_of_another_shape_is_refused(shape: tuple[int, ...]) -> None:
+    q = np.zeros(shape)
+    q.ravel()[0] = 1.0
+    with pytest.raises(
+        InputError, match=rf"^quaternion_wxyz: a quaternion has 4 components .* got shape {re.escape(str(shape))}$"
+    ):
+        unit_quaternion(q, "quaternion_wxyz")
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered in divide:RuntimeWarning")  # numpy's inf / inf
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_a_quaternion_that_is_not_finite_is_refused(bad: float) -> None:
+    with pytest.raises(InputError, match=r"^quaternion_wxyz: norm (nan|inf) is not that of a unit quaternion"):
+        unit_quaternion([bad, 0.0, 0.0, 1.0], "quaternion_wxyz")
+
+
+def test_select_named_ignores_a_repeated_name_it_does_not_need() -> None:
+    q = select_named(["a", "x", "b", "x", "c"], np.array([1.0, 9.0, 2.0, 9.0, 3.0]), ["a", "b", "c"], "names")
+    assert q.tolist() == [1.0, 2.0, 3.0]
+
+
+def test_a_direction_may_be_a_unit_vector_or_exactly_zero() -> None:
+    assert unit_or_zero([0.0, 0.0, 0.0], "normal").tolist() == [0.0, 0.0, 0.0]
+    assert unit_or_zero([0.0, 0.0, 1.0], "normal").tolist() == [0.0, 0.0, 1.0]
+    with pytest.raises(InputError, match=r"^normal: norm 0.5, neither 0 nor 1 \(\+-0.01\)"):
+        unit_or_zero([0.0, 0.0, 0.5], "normal")
+    rows = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    assert unit_or_zero_rows(rows, "normals").tobytes() == rows.tobytes()
+    with pytest.raises(InputError, match=r"^normals: row 1 has norm 0.5, neither 0 nor 1"):
+        unit_or_zero_rows([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]], "normals")
+
+
+def test_a_point_beyond_reach_or_not_finite_is_refused() -> None:
+    centre = np.zeros(3)
+    near = np.array([[0.1, 0.0, 0.0], [0.0, 0.5, 0.0]])
+    assert within_reach(near, centre, 0.5, "positions_m", "finger") is near
+    with pytest.raises(InputError, match=r"^positions_m: entry 1 lies 0.9 m from the finger at \[0.0, 0.0, 0.0\]"):
+        within_reach(np.array([[0.1, 0.0, 0.0], [0.9, 0.0, 0.0]]), centre, 0.5, "positions_m", "finger")
+    with pytest.raises(InputError, match=r"^positions_m: entry 0 lies nan m from the finger"):
+        within_reach(np.array([[np.nan, 0.0, 0.0]]), centre, 0.5, "positions_m", "finger")

@@ -16,9 +16,9 @@ import pytest
 
 from palpate.cli import main
 from palpate.commands.launch import describe
-from palpate.errors import LaunchError
+from palpate.errors import ConfigError, LaunchError
 from palpate.launch.graph import Graph, resolve
-from palpate.launch.loader import load_launch, parse_cli_args
+from palpate.launch.loader import apply_params, load_launch, parse_cli_args, parse_node_params
 from palpate.paths import REPO_ROOT
 
 LAUNCH_FILES = sorted((REPO_ROOT / "launch").glob("*.yaml"))
@@ -773,3 +773,102 @@ def test_a_mesh_file_that_is_not_there_is_named_before_anything_starts(
     monkeypatch.setenv("PALPATE_YCB_DIR", str(tmp_path / "no_folder"))
     with pytest.raises(LaunchError, match=r"node 'sim': ycb:011_banana: the YCB mesh folder was not found"):
         load(explore, tmp_path, ["object:=mesh", "mesh:=ycb:011_banana"])
+
+
+# --- more faults named at their file, line and key -------------------------------------------------------
+
+
+def test_a_seed_of_true_is_no_integer(tmp_path: Path) -> None:
+    path = tmp_path / "seed.yaml"
+    path.write_text("seed: true\nnodes:\n  - name: cube\n    type: cube_contacts\n")
+    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}:1: seed must be an integer >= 0 .*, got True$"):
+        load(path, tmp_path)
+
+
+def test_a_node_without_a_type_is_named_at_its_entry(tmp_path: Path) -> None:
+    path = tmp_path / "untyped.yaml"
+    path.write_text("mode: realtime\nnodes:\n  - name: cube\n    params: {}\n")
+    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}:3: node needs a 'type'$"):
+        load(path, tmp_path)
+
+
+def test_an_include_error_is_named_at_the_line_of_its_file_key(tmp_path: Path) -> None:
+    path = tmp_path / "parent.yaml"
+    path.write_text("include:\n  - args: {report: true}\n    file: missing.yaml\nnodes: []\n")
+    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}:3: included launch file .*missing.yaml does not"):
+        load(path, tmp_path)
+
+
+def test_a_file_that_includes_itself_is_named_at_the_include(tmp_path: Path) -> None:
+    path = tmp_path / "self.yaml"
+    path.write_text("include:\n  - file: self.yaml\nnodes: []\n")
+    where = re.escape(str(path))
+    with pytest.raises(LaunchError, match=rf"^{where}:2: include cycle: {where} -> {where}$"):
+        load(path, tmp_path)
+
+
+def test_an_impossible_date_says_what_is_wrong_with_it(tmp_path: Path) -> None:
+    path = tmp_path / "date.yaml"
+    path.write_text("description: ok\nnodes: []\nmode: 2001-13-45\n")
+    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}:3: cannot read '2001-13-45': month must be in"):
+        load(path, tmp_path)
+
+
+@pytest.mark.parametrize(("port", "ok"), [(65535, True), (65536, False), (1, True)])
+def test_the_highest_port_is_65535(port: int, ok: bool, tmp_path: Path) -> None:
+    path = tmp_path / "port.yaml"
+    path.write_text(
+        f"mode: realtime\nnodes:\n  - name: cube\n    type: cube_contacts\n    host: 127.0.0.1\n    port: {port}\n"
+    )
+    if ok:
+        assert load(path, tmp_path).by_name["cube"].endpoint == f"tcp://127.0.0.1:{port}"
+        return
+    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}:6: port must be an integer from 1 to 65535, got"):
+        load(path, tmp_path)
+
+
+def test_respawn_needs_realtime(tmp_path: Path) -> None:
+    path = tmp_path / "respawn.yaml"
+    path.write_text(
+        "nodes:\n  - name: cube\n    type: cube_contacts\n  - name: stats\n    type: contact_stats\n    respawn: true\n"
+    )
+    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}:6: node 'stats': respawn needs 'mode: realtime'"):
+        load(path, tmp_path)
+
+
+def test_a_graph_has_one_clock_source(tmp_path: Path) -> None:
+    path = tmp_path / "clocks.yaml"
+    path.write_text(
+        "nodes:\n  - name: cube\n    type: cube_contacts\n"
+        "  - name: cube2\n    type: cube_contacts\n    remaps: {contacts: other/contacts}\n"
+    )
+    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}:4: two clock sources \(cube, cube2\); keep one$"):
+        load(path, tmp_path)
+
+
+def test_a_missing_file_a_node_reads_is_named_at_its_key(tmp_path: Path) -> None:
+    path = tmp_path / "mesh.yaml"
+    path.write_text(
+        "nodes:\n  - name: sim\n    type: sim\n    params:\n      scene:\n        object:\n"
+        "          kind: mesh\n          path: no_such_mesh.stl\n"
+    )
+    with pytest.raises(
+        LaunchError, match=rf"^{re.escape(str(path))}:8: node 'sim' \(params.scene.object.path\): no_such_mesh.stl does"
+    ):
+        load(path, tmp_path)
+
+
+@pytest.mark.parametrize("item", [":=3", "seed"])
+def test_a_command_line_argument_needs_a_name_and_a_value(item: str) -> None:
+    with pytest.raises(LaunchError, match=rf"^launch argument '{item}' must look like name:=value$"):
+        parse_cli_args([item])
+
+
+def test_a_set_parameter_names_node_and_key() -> None:
+    assert parse_node_params(["cube.edge_m=0.1"]) == {"cube.edge_m": 0.1}
+    with pytest.raises(ConfigError, match=r"^--set 'seed': expected NODE.KEY=VALUE"):
+        parse_node_params(["seed=3"])
+    launch = load_launch(DATA / "with_args.yaml")
+    for dotted in ("cube.", "nobody.edge_m"):
+        with pytest.raises(ConfigError, match=rf"^parameter override '{dotted}': expected node.key with node one of"):
+            apply_params(launch, [(dotted, 1)])

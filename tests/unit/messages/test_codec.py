@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, ClassVar
 
 import msgpack
 import numpy as np
@@ -19,8 +19,8 @@ from palpate.errors import (
     UnknownMessageTypeError,
 )
 from palpate.messages import REGISTRY, codec
-from palpate.messages.base import FieldSpec, Message
-from palpate.messages.schemas import ContactSet, NodeStatus, Pose, TouchEvent, Trajectory
+from palpate.messages.base import FieldSpec, Message, array
+from palpate.messages.schemas import ContactSet, NodeStatus, Pose, SurfaceMesh, TouchEvent, Trajectory
 
 ALL_TYPES = sorted(REGISTRY)
 
@@ -543,3 +543,127 @@ def test_transfer_raises_the_codecs_errors() -> None:
     object.__setattr__(odd, "stamp_ns", 5.0)  # a float in an int field
     with pytest.raises(MessageError):
         codec.transfer(odd)
+
+
+# --- faults a foreign encoder can send, each named ----------------------------
+
+
+def test_an_older_schema_version_is_refused_too() -> None:
+    payload = repack(codec.encode(contact_set()), lambda h, b: h.update(version=ContactSet.VERSION - 1))
+    with pytest.raises(SchemaVersionError, match=r"ContactSet has schema version 0; this build speaks version 1"):
+        codec.decode(payload, ContactSet)
+
+
+def test_fields_that_are_not_a_map_are_named() -> None:
+    payload = repack(codec.encode(contact_set()), lambda h, b: h.update(fields=[1, 2]))
+    with pytest.raises(MalformedMessageError, match=r"^ContactSet: 'fields' must be a map$"):
+        codec.decode(payload)
+
+
+def test_an_array_map_without_one_of_its_keys_is_named() -> None:
+    for key in ("dtype", "shape", "offset", "nbytes"):
+        payload = repack(codec.encode(contact_set()), lambda h, b, k=key: h["fields"]["forces_n"].pop(k))
+        with pytest.raises(
+            MalformedMessageError, match=r"ContactSet.forces_n must be an array map with dtype, shape, offset, nbytes"
+        ):
+            codec.decode(payload)
+
+
+def test_a_negative_array_offset_is_outside_the_blob() -> None:
+    payload = repack(codec.encode(contact_set(3)), lambda h, b: h["fields"]["positions_m"].update(offset=-8))
+    with pytest.raises(MalformedMessageError, match=r"ContactSet.positions_m: data range offset=-8 nbytes=72 is not"):
+        codec.decode(payload)
+
+
+def test_a_payload_of_three_items_is_not_an_envelope() -> None:
+    header, blob = msgpack.unpackb(codec.encode(contact_set()), raw=False)
+    with pytest.raises(MalformedMessageError, match=r"payload is not a 2-item msgpack array \[header, blob\]"):
+        codec.decode(msgpack.packb([header, blob, b""], use_bin_type=True))
+
+
+def test_every_array_starts_at_a_multiple_of_8_bytes_of_the_blob() -> None:
+    """The wire contract (docs/messages.md): a decoder in another language may read each array in place.
+    An int32 array of an odd length is followed by padding."""
+    mesh = SurfaceMesh(
+        stamp_ns=0,
+        region="global",
+        num_contacts=1,
+        vertices_m=np.zeros((3, 3)),
+        faces=np.array([[0, 1, 2]], np.int32),  # 12 bytes
+        vertex_normals=np.ones((3, 3)),
+        variance_vertices=np.arange(3, dtype=np.int32),  # 12 bytes
+        vertex_variance=np.full(3, 0.5),
+    )
+    header, blob = msgpack.unpackb(codec.encode(mesh), raw=False)
+    offsets = {name: value["offset"] for name, value in header["fields"].items() if isinstance(value, dict)}
+    assert offsets == {
+        "vertices_m": 0,
+        "faces": 72,
+        "vertex_normals": 88,
+        "variance_vertices": 160,
+        "vertex_variance": 176,
+    }
+    assert len(blob) == 176 + 24 and blob[84:88] == b"\0" * 4  # zero padding after the faces
+    assert codec.decode(codec.encode(mesh)) == mesh
+
+
+def test_a_big_message_whose_type_name_has_32_characters_round_trips() -> None:
+    """32 bytes is one past msgpack's fixstr: the header that aligns a big blob is not widened then."""
+
+    class LongNamedMessage(Message):
+        TYPE: ClassVar[str] = "X" * 32
+        VERSION: ClassVar[int] = 1
+        values: np.ndarray = array(("n",), "float64", "values")
+
+    try:
+        message = LongNamedMessage(stamp_ns=1, values=np.arange(2000.0))  # a 16 KB blob
+        decoded = codec.decode(codec.encode(message), LongNamedMessage)
+        assert type(decoded) is LongNamedMessage and decoded == message
+    finally:
+        del REGISTRY[LongNamedMessage.TYPE]
+
+
+# --- transfer refuses what decoding the payload refuses ------------------------
+
+
+def test_transfer_refuses_an_infinite_float_field_naming_it() -> None:
+    trajectory = example(Trajectory, np.random.default_rng(1))
+    object.__setattr__(trajectory, "length_m", math.inf)
+    with pytest.raises(NonFiniteError, match=r"Trajectory\.length_m must be finite, got inf"):
+        codec.transfer(trajectory)
+
+
+def test_transfer_refuses_a_string_list_holding_another_type() -> None:
+    bad = contact_set(3)
+    object.__setattr__(bad, "links", ["a", 3, "c"])
+    with pytest.raises(MalformedMessageError, match=r"ContactSet\.links must be a list of strings"):
+        codec.transfer(bad)
+
+
+def test_transfer_delivers_a_transposed_received_array_c_ordered() -> None:
+    """A received array transposed (a read-only view of the same bytes, not C-ordered) is copied into
+    C order, as decoding its payload would deliver it."""
+    received = codec.transfer(contact_set(3))
+    transposed = received.positions_m.T
+    assert not transposed.flags.c_contiguous and not transposed.flags.writeable
+    message = ContactSet(
+        stamp_ns=1,
+        positions_m=transposed,
+        local_positions_m=received.local_positions_m,
+        normals=received.normals,
+        forces_n=received.forces_n,
+        links=received.links,
+    )
+    got = codec.transfer(message)
+    _same_as_received(message, got)
+    np.testing.assert_array_equal(got.positions_m, transposed)
+
+
+def test_arrays_that_are_not_c_ordered_are_sent_in_c_order() -> None:
+    grid = np.arange(12.0).reshape(3, 4)
+    message = contact_set(3)
+    object.__setattr__(message, "positions_m", grid[:, :3])  # a slice: rows 32 bytes apart
+    object.__setattr__(message, "normals", np.asfortranarray(grid[:, 1:]))
+    decoded = codec.decode(codec.encode(message), ContactSet)
+    np.testing.assert_array_equal(decoded.positions_m, grid[:, :3])
+    np.testing.assert_array_equal(decoded.normals, grid[:, 1:])

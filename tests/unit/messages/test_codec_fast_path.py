@@ -304,3 +304,36 @@ def test_frozen_arrays_are_read_only_copies_that_transfer_passes_on() -> None:
         links=["a", "b"],
     )
     assert codec.transfer(message).positions_m is frozen
+
+
+def test_a_blob_with_bytes_past_its_arrays_decodes_when_its_length_is_no_multiple_of_8() -> None:
+    """Bytes past the last array are outside every array; a blob of 8k + 1 bytes cannot be read as one
+    float64 array, so the whole-blob test must not run (it raised numpy's ValueError)."""
+    message = ContactSet(
+        stamp_ns=0,
+        positions_m=np.ones((2, 3)),
+        local_positions_m=np.zeros((2, 3)),
+        normals=np.ones((2, 3)),
+        forces_n=np.ones(2),
+        links=["a", "b"],
+    )
+    header, blob = split(codec.encode(message))
+    assert codec.decode(msgpack.packb([header, blob + b"\0"], use_bin_type=True), ContactSet) == message
+
+
+def test_a_negative_dimension_is_refused_even_when_nbytes_agrees(monkeypatch: pytest.MonkeyPatch) -> None:
+    """shape [-1] with nbytes -8 (= -1 x 8): numpy's frombuffer reads count -1 as 'the rest of the blob'."""
+    message = ContactSet(
+        stamp_ns=0,
+        positions_m=np.ones((1, 3)),
+        local_positions_m=np.zeros((1, 3)),
+        normals=np.ones((1, 3)),
+        forces_n=np.full(1, 2.0),  # the last array: the rest of the blob is exactly it
+        links=["a"],
+    )
+    header, blob = split(codec.encode(message))
+    header["fields"]["forces_n"].update(shape=[-1], nbytes=-8)
+    payload = msgpack.packb([header, blob], use_bin_type=True)
+    expected = ("MalformedMessageError", "ContactSet.forces_n: shape must be a list of non-negative ints")
+    assert outcome(payload, ContactSet) == expected
+    assert checked_outcome(payload, ContactSet, monkeypatch) == expected

@@ -161,3 +161,37 @@ def test_integer_arrays_are_validated_before_a_checking_send() -> None:
     with pytest.raises(OutputError, match=r"invalid ObjectTruth"):
         ctx.publish("out", broken)
     assert not sent
+
+
+class TwoFields:
+    """A node that refuses a pose for its position or for its quaternion, whichever is bad."""
+
+    def on_pose(self, message: Pose) -> None:
+        if not np.all(np.abs(message.position_m) < 10.0):
+            raise InputError("position_m", "too far")
+        if abs(float(np.linalg.norm(message.quaternion_wxyz)) - 1.0) > 0.01:
+            raise InputError("quaternion_wxyz", "not a unit quaternion")
+
+    def on_tick(self, stamp_ns: int) -> None:
+        """Nothing per tick."""
+
+
+def test_the_log_is_rate_limited_per_field_of_one_topic(caplog: pytest.LogCaptureFixture) -> None:
+    ctx, node = context(), TwoFields()
+    far = dataclasses.replace(pose([1.0, 0.0, 0.0, 0.0]), position_m=np.array([99.0, 0.0, 0.0]))
+    with caplog.at_level(logging.WARNING):
+        for _ in range(10):
+            assert not deliver(ctx, node, "pose", "a", pose([0.0, 0.0, 0.0, 0.0]))
+        assert not deliver(ctx, node, "pose", "a", far)  # another field of the same topic: logged at once
+    assert ctx.counters["input_errors"] == 11
+    assert caplog.records[-1].getMessage() == (
+        "node ctrl, topic a: input rejected, field Pose.position_m: too far (1 so far)"
+    )
+
+
+def test_publishing_on_a_port_the_node_lacks_names_its_ports() -> None:
+    sent: list[Message] = []
+    ctx = NodeContext("echo", 0, lambda topic, message: sent.append(message), {"out": "echo/pose", "aux": "echo/aux"})
+    with pytest.raises(KeyError, match=r"node 'echo' has no output port 'outt'; ports: \['aux', 'out'\]"):
+        ctx.publish("outt", pose([1.0, 0.0, 0.0, 0.0]))
+    assert not sent
