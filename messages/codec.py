@@ -279,6 +279,7 @@ def transfer(message: M) -> M:
     plan = _plan_of(cls)
     values = _transfer_values(plan, message.__dict__)
     if values is None:
+        validate(message)  # a fault encode cannot tell (an int beyond 64 bits) is named here
         return decode(encode(message), cls)
     if plan.plain_init:  # as _build
         out = object.__new__(cls)
@@ -317,7 +318,7 @@ def _transfer_values(plan: _Plan, fields: Mapping[str, Any]) -> dict[str, Any] |
                 if type(item) is not str:
                     return None
             value = list(value)
-        elif type(value) is not _EXACT_TYPE[kind]:
+        elif type(value) is not _EXACT_TYPE[kind] or (kind == "int" and not _INT64_MIN <= value <= _INT64_MAX):
             return None
         values[f.name] = value
     if not math.isfinite(total):  # a NaN or infinity (or finite values that overflow: decode passes them)
@@ -661,6 +662,8 @@ def validate(message: Message) -> None:
                 raise NonFiniteError(f"{f.where} must be finite, but holds NaN or infinity")
         elif f.check_finite and not math.isfinite(value):
             raise NonFiniteError(f"{f.where} must be finite, got {value}")
+        elif f.kind == "int" and type(value) is int and not _INT64_MIN <= value <= _INT64_MAX:
+            raise MalformedMessageError(f"{f.where} must be in the signed 64-bit range, got {value}")
     if not plan.dims:
         return
     values = {**fields, **converted} if converted else fields
@@ -691,6 +694,8 @@ def _surely_valid(plan: _Plan, fields: Mapping[str, Any]) -> bool:
             if type(value) is not float:
                 return False
             total += value
+        elif f.kind == "int" and type(value) is int and not _INT64_MIN <= value <= _INT64_MAX:
+            return False
     try:
         return math.isfinite(total) and (not plan.dims or _dims_agree(plan, fields))
     except TypeError:  # a string list that has no length

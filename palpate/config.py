@@ -256,7 +256,7 @@ def _value(hint: Any, value: Any, where: str, path: KeyPath, *, convert: bool, m
                 continue
         raise fail(_type_name(base))
     if origin is typing.Literal:
-        if value in args and isinstance(value, str | int):
+        if any(type(value) is type(arg) and value == arg for arg in args):  # True is not the literal 1
             return value
         raise fail(f"one of {list(args)}")
     if base is bool:

@@ -483,6 +483,7 @@ class Edges(Validated):
         ({"workers": 0}, "where.workers: expected an integer >= 1, got 0"),
         ({"point_m": [1, 2, 3, 4]}, "where.point_m: expected 3 items, got [1, 2, 3, 4]"),
         ({"level": 1.0}, "where.level: expected one of [1, 2], got 1.0"),
+        ({"level": True}, "where.level: expected one of [1, 2], got True"),
         ({"either": None}, "where.either: expected int | str, got None"),
     ],
 )

@@ -20,7 +20,7 @@ from palpate.errors import (
 )
 from palpate.messages import REGISTRY, codec
 from palpate.messages.base import FieldSpec, Message, array
-from palpate.messages.schemas import ContactSet, NodeStatus, Pose, SurfaceMesh, TouchEvent, Trajectory
+from palpate.messages.schemas import Clock, ContactSet, NodeStatus, Pose, SurfaceMesh, TouchEvent, Trajectory
 
 ALL_TYPES = sorted(REGISTRY)
 
@@ -631,6 +631,21 @@ def test_transfer_refuses_an_infinite_float_field_naming_it() -> None:
     object.__setattr__(trajectory, "length_m", math.inf)
     with pytest.raises(NonFiniteError, match=r"Trajectory\.length_m must be finite, got inf"):
         codec.transfer(trajectory)
+
+
+@pytest.mark.parametrize("stamp", [1 << 63, -(1 << 63) - 1, 1 << 64])
+def test_an_int_beyond_64_bits_is_refused_before_it_is_sent(stamp: int) -> None:
+    """The wire's ints are signed 64-bit: a node's check before sending (validate) and the in-process
+    executor (transfer) refuse by name what decoding the payload refuses (msgpack cannot even pack 2**64)."""
+    clock = Clock(stamp_ns=stamp, tick=0, period_ns=1, lockstep=True)
+    for check in (codec.validate, codec.transfer):
+        with pytest.raises(
+            MalformedMessageError, match=rf"Clock\.stamp_ns must be in the signed 64-bit range, got {stamp}"
+        ):
+            check(clock)
+    edges = Clock(stamp_ns=(1 << 63) - 1, tick=-(1 << 63), period_ns=1, lockstep=True)
+    codec.validate(edges)
+    assert codec.transfer(edges) == codec.decode(codec.encode(edges)) == edges
 
 
 def test_transfer_refuses_a_string_list_holding_another_type() -> None:

@@ -195,3 +195,15 @@ def test_publishing_on_a_port_the_node_lacks_names_its_ports() -> None:
     with pytest.raises(KeyError, match=r"node 'echo' has no output port 'outt'; ports: \['aux', 'out'\]"):
         ctx.publish("outt", pose([1.0, 0.0, 0.0, 0.0]))
     assert not sent
+
+
+def test_an_int_beyond_64_bits_is_an_output_error_in_process() -> None:
+    """The in-process executor's transfer stands in for the check before sending: the node's message is
+    counted and named, and nothing is delivered."""
+    from palpate.messages.schemas import Clock
+
+    sent: list[Message] = []
+    ctx = NodeContext("clock", 0, lambda topic, m: sent.append(codec.transfer(m)), {"out": "clock"}, send_checks=True)
+    with pytest.raises(OutputError, match=r"published an invalid Clock on port 'out': .*signed 64-bit range"):
+        ctx.publish("out", Clock(stamp_ns=1 << 64, tick=0, period_ns=1, lockstep=True))
+    assert not sent and ctx.counters["output_errors"] == 1
