@@ -318,7 +318,7 @@ def _transfer_values(plan: _Plan, fields: Mapping[str, Any]) -> dict[str, Any] |
                 if type(item) is not str:
                     return None
             value = list(value)
-        elif type(value) is not _EXACT_TYPE[kind] or (kind == "int" and not _INT64_MIN <= value <= _INT64_MAX):
+        elif type(value) is not _EXACT_TYPE[kind] or (kind == "int" and not _in_int64(value)):
             return None
         values[f.name] = value
     if not math.isfinite(total):  # a NaN or infinity (or finite values that overflow: decode passes them)
@@ -326,6 +326,11 @@ def _transfer_values(plan: _Plan, fields: Mapping[str, Any]) -> dict[str, Any] |
     if plan.dims and not _dims_agree(plan, values):
         return None
     return values
+
+
+def _in_int64(value: object) -> bool:
+    """Whether an int field's value is an int within the wire's signed 64 bits."""
+    return isinstance(value, int) and _INT64_MIN <= value <= _INT64_MAX
 
 
 def _immutable_array(f: _FieldPlan, value: Any) -> np.ndarray | None:
