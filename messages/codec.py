@@ -533,7 +533,9 @@ def _build_checked(cls: type[Message], fields: Mapping[str, Any], blob: memoryvi
     missing = specs.keys() - fields.keys()
     extra = fields.keys() - specs.keys()
     if missing or extra:
-        raise MalformedMessageError(f"{cls.TYPE}: missing fields {sorted(missing)}, unknown fields {sorted(extra)}")
+        # another encoder's keys may be bytes beside strings (msgpack's bin keys), which do not sort together
+        unknown = sorted(extra, key=repr)
+        raise MalformedMessageError(f"{cls.TYPE}: missing fields {sorted(missing)}, unknown fields {unknown}")
     values = {name: _field_value(cls.TYPE, name, spec, fields[name], blob) for name, spec in specs.items()}
     check_dimensions(cls, values)
     return cls(**values)

@@ -20,8 +20,8 @@ mixtures), quaternions and normals unit or not, integer fields up to the int64 l
 the hand's joint and link names and the topics' words, shuffled, cut, duplicated, unknown or empty.
 A third of these are plausible in every field, two fifths plausible but for one extreme field. The
 other 30 % are malformed payloads: random bytes, truncated or bit-flipped payloads, another message
-type, another schema version, missing, extra or mistyped fields, NaN in a finite field, a claimed
-array larger than the payload.
+type, another schema version, missing, extra or mistyped fields, field names sent as msgpack bin
+(bytes) beside str ones, NaN in a finite field, a claimed array larger than the payload.
 
 A crash is an exception that would end a node process: anything but a PalpateError from a handler,
 or any exception from `on_tick`, `step()` or `close()`. The report counts frames, decode errors,
@@ -300,6 +300,7 @@ class FrameGenerator:
                     "missing-field",
                     "extra-field",
                     "mistyped-field",
+                    "binary-keys",
                     "non-finite",
                     "huge-claimed-array",
                 ]
@@ -334,6 +335,9 @@ class FrameGenerator:
             fields["unexpected_" + pick] = 1
         elif what == "mistyped-field":
             fields[pick] = [None, "text", 1.5, [1, 2], {"a": 1}, True][int(rng.integers(6))]
+        elif what == "binary-keys":  # another encoder's bin keys beside str ones: a field renamed, one added
+            fields[pick.encode()] = fields.pop(pick)
+            fields["unexpected_" + pick] = 1
         elif what == "non-finite":
             floats = [n for n, s in self.specs.items() if s.finite and (s.kind == "float" or s.dtype == "<f8")]
             if not floats:

@@ -633,6 +633,17 @@ def test_transfer_refuses_an_infinite_float_field_naming_it() -> None:
         codec.transfer(trajectory)
 
 
+def test_field_names_sent_as_bytes_beside_strings_are_named_unknown() -> None:
+    """An encoder that sends some keys as msgpack bin (bytes) and others as str: the keys do not sort
+    together, and the error still names them (it raised TypeError)."""
+    fields = {"stamp_ns": 1, b"tick": 0, "period_ns": 1, "lockstep": True, b"x": 1, "y": 2}
+    payload = b"\x92" + msgpack.packb({"type": "Clock", "version": 1, "fields": fields}) + msgpack.packb(b"")
+    with pytest.raises(
+        MalformedMessageError, match=r"Clock: missing fields \['tick'\], unknown fields \['y', b'tick', b'x'\]"
+    ):
+        codec.decode(payload)
+
+
 @pytest.mark.parametrize("stamp", [1 << 63, -(1 << 63) - 1, 1 << 64])
 def test_an_int_beyond_64_bits_is_refused_before_it_is_sent(stamp: int) -> None:
     """The wire's ints are signed 64-bit: a node's check before sending (validate) and the in-process
