@@ -669,7 +669,7 @@ def validate(message: Message) -> None:
                 raise NonFiniteError(f"{f.where} must be finite, but holds NaN or infinity")
         elif f.check_finite and not math.isfinite(value):
             raise NonFiniteError(f"{f.where} must be finite, got {value}")
-        elif f.kind == "int" and type(value) is int and not _INT64_MIN <= value <= _INT64_MAX:
+        elif f.kind == "int" and type(value) is int and not _in_int64(value):
             raise MalformedMessageError(f"{f.where} must be in the signed 64-bit range, got {value}")
     if not plan.dims:
         return
@@ -701,7 +701,7 @@ def _surely_valid(plan: _Plan, fields: Mapping[str, Any]) -> bool:
             if type(value) is not float:
                 return False
             total += value
-        elif f.kind == "int" and type(value) is int and not _INT64_MIN <= value <= _INT64_MAX:
+        elif f.kind == "int" and type(value) is int and not _in_int64(value):
             return False
     try:
         return math.isfinite(total) and (not plan.dims or _dims_agree(plan, fields))
