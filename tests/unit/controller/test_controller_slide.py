@@ -172,3 +172,47 @@ def test_a_slide_under_noisy_normals_arrives_when_it_weighs_them_down() -> None:
     weighed = [slide(0.3) for _ in range(5)]
     assert max(latest) > 0.01  # some slides ended centimetres short
     assert max(weighed) < 0.002
+
+
+def test_a_slide_whose_contact_is_exactly_slide_arrive_m_from_the_target_has_arrived() -> None:
+    loop = touched_at_origin()
+    r = loop.arming.last_fingertip.copy()
+    target = r + np.array([TouchConfig().slide_arrive_m, 0.0, 0.0])  # 1 mm along the floor: arrived (<=)
+    loop.aim(r, R_DOWN, target, UP, target, slide=True)
+    step = loop.step(1000 * TICK_NS, r, R_DOWN, r[None, :], UP[None, :], np.ones(1))
+    assert step.touch is not None and loop.slide is None
+
+
+def test_a_slide_turns_the_fingertip_so_that_it_faces_the_target_normal_on_arrival() -> None:
+    """The target's normal tilted 0.3 rad from the floor's: the fingertip turns 0.3 rad over the
+    2 cm still to go at v0 = 5 cm/s (0.4 s), at 0.75 rad/s about y."""
+    loop = touched_at_origin()
+    r = loop.arming.last_fingertip.copy()
+    tilted = np.array([np.sin(0.3), 0.0, np.cos(0.3)])
+    target = r + np.array([0.02, 0.0, 0.0])
+    loop.aim(r, R_DOWN, target, tilted, target, slide=True)
+    step = loop.step(1000 * TICK_NS, r, R_DOWN, r[None, :], UP[None, :], np.ones(1))
+    assert step.touch is None
+    np.testing.assert_allclose(np.abs(step.angular_rad_s), [0.0, 0.3 / 0.4, 0.0], atol=1e-9)
+
+
+def test_a_slide_ends_once_the_fingertip_has_moved_its_travel_budget() -> None:
+    """A fingertip shaken 3 mm sideways a tick while it stays in contact (its poses jump) ends its slide by
+    the travel budget, long before the time budget (2.2 s = 220 ticks): twice the 5 cm to the target plus
+    slide_slack_m's 1 cm, 0.11 m travelled from the slide's start (the odometer already reads the first
+    slide's 2 cm). The moves are 1.5 mm then 3 mm a tick: 0.0015 + 0.003 x 37 = 0.1125 m >= 0.11 m after
+    tick 38, so tick 39 ends it, its own 3 mm step counted with the touch (0.1155 m)."""
+    loop = touched_at_origin()
+    first, _, _ = run_slide(loop, floor, [0.02, 0.0, 0.0])
+    assert first is not None and loop.travelled_m > 0.019
+    start_m = loop.travelled_m
+    r0 = loop.arming.last_fingertip.copy()
+    target = r0 + np.array([0.05, 0.0, 0.0])
+    loop.aim(r0, R_DOWN, target, UP, target, slide=True)
+    for tick in range(300):
+        r = r0 + np.array([0.0, 0.0015 * (-1) ** tick if tick else 0.0, 0.0])
+        step = loop.step((5000 + tick) * TICK_NS, r, R_DOWN, r[None, :], UP[None, :], np.ones(1))
+        if step.touch is not None:
+            break
+    assert tick == 39
+    assert loop.travelled_m - start_m == pytest.approx(0.1155)

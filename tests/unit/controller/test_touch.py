@@ -16,6 +16,7 @@ from palpate.nodes.controller.core import (
     TouchArming,
     TouchConfig,
     TouchLoop,
+    retract_direction,
 )
 from palpate.nodes.controller.trajectory import ControllerConfig, ControllerState
 
@@ -75,6 +76,12 @@ def test_sliding_beyond_rearm_distance_rearms() -> None:
     assert not off.update(TICK_NS, *slid(0.05))  # 0 disables it
 
 
+def test_sliding_exactly_rearm_distance_does_not_rearm() -> None:
+    # both the fingertip and its contact 3 mm (exactly, sqrt(0.003^2)) from the last touch: not "more than"
+    arming = touched_arming(TouchConfig(rearm_distance_m=0.003, rearm_push_s=0.0))
+    assert not arming.update(TICK_NS, *slid(0.003))
+
+
 def test_the_fingertip_rolling_over_an_edge_does_not_rearm() -> None:
     # the contact stays on the edge at the origin while the fingertip's centre turns about it by 60 deg
     arming = touched_arming(TouchConfig(rearm_distance_m=0.003, rearm_push_s=0.0))
@@ -131,6 +138,26 @@ def test_a_fingertip_held_in_place_in_contact_for_rearm_push_s_rearms_whatever_t
     assert arming.held is None
     arming.disarm()  # a new target: the fingertip waited in place for it, which is no hold
     assert not arming.update(100 * TICK_NS, tip, positions, unforced)
+
+
+def test_a_new_target_restarts_the_held_in_place_clock() -> None:
+    """Held in place (force 0) from tick 1; a new target at tick 6 starts the 0.1 s over from tick 11."""
+    arming = touched_arming(TouchConfig(rearm_distance_m=0.0, rearm_push_s=0.1))
+    tip, positions = slid(0.0)[:2]
+    unforced = np.array([0.0])
+    assert not arming.update(1 * TICK_NS, tip, positions, unforced)  # held from here
+    assert not arming.update(6 * TICK_NS, tip, positions, unforced)
+    arming.disarm()  # a new target
+    assert not arming.update(11 * TICK_NS, tip, positions, unforced)  # 0.1 s since tick 1, but held anew from here
+    assert not arming.update(20 * TICK_NS, tip, positions, unforced)  # 0.09 s since tick 11
+    assert arming.update(21 * TICK_NS, tip, positions, unforced)  # 0.1 s since tick 11
+
+
+def test_v_n_exactly_at_the_retract_cosine_is_kept() -> None:
+    # v_n . (-n) = 0.8 exactly, the cosine asked for: v_n points into the surface enough (>=)
+    v_n = np.array([0.6, 0.0, -0.8])
+    np.testing.assert_array_equal(retract_direction(v_n, UP, 0.8), v_n)
+    np.testing.assert_array_equal(retract_direction(v_n, UP, 0.81), -UP)
 
 
 # --- TouchLoop ----------------------------------------------------------------------------------------

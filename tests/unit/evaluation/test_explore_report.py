@@ -75,6 +75,28 @@ def test_paired_means_average_per_object_then_over_objects() -> None:
     assert half["gpv"]["travel_cm"] == pytest.approx((75.0 + 25.0 + 499.5) / 3)
 
 
+def test_a_run_that_errored_is_neither_paired_nor_completed_even_with_its_milestones() -> None:
+    rows = [run("a", "gpv", 0, 100.0), {**run("a", "igef", 0, 60.0), "error": "planner crashed"}]
+    means = report.paired_means(rows, ("gpv", "igef"), "80")
+    assert means["gpv"]["paired_runs"] == 0 and math.isnan(means["gpv"]["travel_cm"])
+    assert means["igef"]["runs"] == 1 and means["igef"]["runs_completed"] == 0
+    assert means["gpv"]["runs_completed"] == 1
+
+
+def test_a_figure_missing_in_some_runs_is_averaged_over_the_runs_that_have_it() -> None:
+    rows = [
+        run("a", "tour", 0, 10.0, rmse=2.0),
+        run("a", "tour", 1, 10.0),  # no RMSE (null): object a's mean is its other run's 2.0
+        run("b", "tour", 0, 10.0, rmse=4.0),
+        run("c", "tour", 0, 10.0),  # no RMSE at all: object c drops out of this figure only
+    ]
+    for row in (rows[1], rows[3]):
+        row["milestones"]["80"]["rmse_mm"] = None
+    means = report.paired_means(rows, ("tour",), "80")
+    assert means["tour"]["rmse_mm"] == pytest.approx((2.0 + 4.0) / 2)  # objects a and b
+    assert means["tour"]["travel_cm"] == pytest.approx(10.0) and means["tour"]["objects"] == 3
+
+
 def test_contacts_per_covering_bound_is_averaged_like_the_milestone_figures() -> None:
     rows = [
         run("a", "tour", 0, 10.0, contacts=43),

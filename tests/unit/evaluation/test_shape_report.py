@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +30,24 @@ def test_first_reaching_and_last_within() -> None:
     assert first_reaching(series) == series[1] and first_reaching(series, 0.99) is None
     assert last_within(series, contacts=25) == series[1] and last_within(series, contacts=5) is None
     assert last_within(series, travel_cm=100.0) == series[2]  # the run ended earlier: its final estimate
+
+
+def test_the_goal_and_the_budgets_are_inclusive() -> None:
+    series = [point(10, 20.0, 0.5), point(50, 100.0, 0.9)]
+    assert first_reaching(series) == series[1]  # F = 0.9 reaches F >= 0.9
+    assert last_within(series, contacts=50) == series[1]  # 50 contacts are within a budget of 50
+    assert last_within(series, travel_cm=100.0) == series[1]  # 1 m of travel is within 1 m
+
+
+def test_runs_that_errored_are_left_out() -> None:
+    results = [
+        run("a", 0, "igef", [point(10, 100.0, 0.95)]),
+        {**run("a", 0, "area", [point(10, 50.0, 0.95)]), "error": "sim diverged"},
+    ]
+    summary = shape_summary(results, ["igef", "area"])
+    assert summary["igef"]["paired_runs_f2"] == 0 and summary["igef"]["runs_with_shape"] == 1
+    assert summary["area"]["runs_with_shape"] == 0 and summary["area"]["runs_reaching_f2"] == 0
+    assert math.isnan(summary["area"]["fscore_2mm_at_50_contacts"])
 
 
 def test_effort_is_paired_and_averaged_per_object_first() -> None:

@@ -131,3 +131,45 @@ def test_shape_scores_of_an_earlier_request_are_labelled_with_its_touch() -> Non
     early = ev.shape(V, F, contacts=1)
     assert early.contacts == 1 and early.travel_cm == 10.0 and early.coverage == ev.touches[0].coverage
     assert ev.touches[0].coverage < ev.touches[1].coverage
+
+
+def test_a_touch_that_brings_coverage_exactly_to_the_goal_reaches_it_and_completes_the_run() -> None:
+    V, F = _cube(0.05)
+    side, down = np.array([0.025, 0.0, 0.0]), np.array([-1.0, 0.0, 0.0])
+    probe = ExplorationEvaluator(V, F, EvalConfig(coverage_samples=1000))
+    probe.add_touch(side, np.full(3, np.nan), 0.0, 0.0, down)
+    exact = probe.touches[0].coverage  # the same samples (rng seed 0) in every evaluator of this cube
+    ev = ExplorationEvaluator(V, F, EvalConfig(coverage_samples=1000, coverage_goal=exact, milestones=(exact,)))
+    assert ev.add_touch(side, np.full(3, np.nan), 0.0, 0.0, down) == [exact]  # coverage == milestone: reached
+    assert ev.finished == "goal" and ev.summary()["complete"]
+
+
+def test_a_touch_whose_travel_equals_the_travel_budget_ends_the_run() -> None:
+    config = EvalConfig(coverage_samples=1000, max_travel_m=0.5, travel_per_bound_m=0.0)
+    ev = ExplorationEvaluator(*_cube(0.05), config)
+    down = np.array([-1.0, 0.0, 0.0])
+    ev.add_touch(np.array([0.025, 0.0, 0.0]), np.full(3, np.nan), 0.49, 0.0, down)
+    assert ev.finished == ""
+    ev.add_touch(np.array([-0.025, 0.0, 0.0]), np.full(3, np.nan), 0.5, 0.0, down)  # 0.5 m >= 0.5 m budget
+    assert ev.finished == "travel budget"
+
+
+def test_an_incomplete_runs_milestones_hold_its_last_odometry_and_mean_miss() -> None:
+    """Three touches, the budget ends the run: the milestones keep the last touch's travel and rotation
+    (the odometry is cumulative), the mean of the defined prediction misses, and the run is incomplete."""
+    config = EvalConfig(coverage_samples=1000, max_contacts=3, contacts_per_bound=0.0)
+    ev = ExplorationEvaluator(*_cube(0.05), config)
+    axis = np.array([-1.0, 0.0, 0.0])
+    ev.add_touch(np.array([0.025, 0.0, 0.0]), np.array([0.026, 0.0, 0.0]), 0.10, 5.0, axis)  # 1 mm miss
+    ev.add_touch(np.array([-0.025, 0.0, 0.0]), np.array([-0.028, 0.0, 0.0]), 0.30, 12.0, axis)  # 3 mm miss
+    ev.add_touch(np.array([0.0, 0.025, 0.0]), np.full(3, np.nan), 0.45, 20.0, axis)  # no prediction
+    assert ev.finished == "contact budget"
+    ev.close_incomplete()
+    for fraction in (0.5, 0.8):
+        m = ev.milestones[fraction]
+        assert not m.reached and m.contacts == 3
+        assert m.travel_cm == pytest.approx(45.0)  # 100 x the last touch's 0.45 m
+        assert m.rotation_deg == pytest.approx(20.0)  # the last touch's reading, not a sum
+        assert m.prediction_miss_mm == pytest.approx(2.0)  # mean of 1 mm and 3 mm; the NaN left out
+    summary = ev.summary()
+    assert summary["complete"] is False and summary["finished"] == "contact budget"

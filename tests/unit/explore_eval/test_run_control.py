@@ -176,3 +176,14 @@ def test_a_last_surface_that_never_comes_ends_the_run_after_the_wait() -> None:
     assert not touch(stalled, S_NS)
     assert stalled.tick(32 * S_NS)  # stalled: asks for the last surface
     assert not stalled.overdue(37 * S_NS) and stalled.overdue(38 * S_NS)
+
+
+def test_a_checkpoints_late_surface_does_not_stand_in_for_the_last_one() -> None:
+    """The checkpoint's surface comes after the finishing touch and answers only the checkpoint: the run
+    still waits for its last surface, and is overdue surface_wait_s after the finishing touch."""
+    ev = FakeEvaluator([([], ""), ([0.8], "goal")], EvalConfig(shape_every_contacts=1, surface_wait_s=5.0))
+    run = RunControl(ev)  # type: ignore[arg-type]
+    assert touch(run, 1 * S_NS) and touch(run, 2 * S_NS)
+    assert not run.surface(*surface(3), num_contacts=1)
+    assert not run.overdue(7 * S_NS)  # 5 s after the finishing touch at 2 s: still waiting
+    assert run.overdue(7 * S_NS + 1)

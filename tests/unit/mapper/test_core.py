@@ -70,6 +70,8 @@ def test_bad_input_is_rejected_and_changes_nothing(scene: tuple[KinematicChain, 
         (bad_q, rec.contact_links[t], rec.contact_local_m[t], "not finite"),
         (rec.q_true[t][:3], rec.contact_links[t], rec.contact_local_m[t], "shape"),
         (rec.q_true[t], np.array([7]), np.zeros((1, 3)), "outside"),
+        (rec.q_true[t], np.array([3]), np.zeros((1, 3)), r"outside 0\.\.2"),  # the chain has links 0, 1, 2
+        (rec.q_true[t], np.array([-1]), np.zeros((1, 3)), r"outside 0\.\.2"),  # not numpy's last link
         (rec.q_true[t], np.array([0, 1]), np.zeros((1, 3)), "contact links"),
         (rec.q_true[t], np.array([0]), np.full((1, 3), np.inf), "not finite"),
         (rec.q_true[t], np.array([1, 1]), np.zeros((1, 6)), r"positions \(n, 3\); got shapes \(2,\) and \(1, 6\)"),
@@ -97,6 +99,7 @@ def test_counters_and_timing(scene: tuple[KinematicChain, TappingRecord]) -> Non
     assert c.contacts == sum(len(x) for x in rec.contact_links) > 0
     assert c.mean_update_ms > 0 and math.isfinite(c.last_update_ms)
     assert c.free_points_outside == 0 and c.contacts_outside == 0
+    assert 1 < c.resamples <= c.updates  # every resampling since the start (5 particles resample often)
     est = m.pose_estimate()
     assert est.mean_q_rad.shape == (4,) and est.best_q_rad.shape == (4,)
 
@@ -181,3 +184,20 @@ def test_cores_import_no_sockets() -> None:
         names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
         names |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
         assert not any(n.split(".")[0] == "zmq" or "codec" in n for n in names), path.name
+
+
+def test_the_chunk_table_counts_partial_chunks(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A 9 x 9 x 9 grid in chunks of 8: ceil(9 / 8)^3 + 1 = 9 chunks, 4 bytes each for 1000 maps: 36 kB,
+    more than a machine of 20 kB (floor(9 / 8)^3 + 1 = 2 chunks would fit)."""
+    from palpate.nodes.mapper import core
+    from palpate.nodes.mapper.grid import GridSpec
+
+    config = MapperConfig(region_min_m=(0.0, 0.0, 0.0), region_max_m=(0.018, 0.018, 0.018), n_particles=1000)
+    spec = GridSpec.from_bounds(config.region_min_m, config.region_max_m, config.resolution_m)
+    assert spec.shape == (9, 9, 9) and config.chunk_edge == 8
+    memory = {"SC_PAGE_SIZE": 1, "SC_PHYS_PAGES": 20_000}
+    monkeypatch.setattr(core.os, "sysconf", lambda name: memory[name])
+    with pytest.raises(ConfigError, match="chunk table"):
+        core.check_memory(config, spec, 1000, 0)
+    memory["SC_PHYS_PAGES"] = 36_000
+    core.check_memory(config, spec, 1000, 0)  # exactly fits

@@ -78,6 +78,12 @@ def test_a_reading_beyond_a_full_turn_is_refused_as_degrees_sent_as_radians(chai
     np.testing.assert_array_equal(mapper.calls[0][0], np.full(4, -6.28))  # the previous reading
 
 
+def test_a_reading_beyond_a_full_turn_either_way_is_refused(chain: KinematicChain) -> None:
+    session, _ = _session(chain)
+    with pytest.raises(InputError, match=r"joint 'index_mcp_flex' reads -45 rad, more than a full turn"):
+        session.joint_reading(chain.joint_names, np.array([0.1, -45.0, 0.0, 0.0]), 0)
+
+
 def test_only_contacts_on_the_chain_are_kept_as_link_indices(chain: KinematicChain) -> None:
     session, _ = _session(chain)
     local = np.arange(15.0).reshape(5, 3)

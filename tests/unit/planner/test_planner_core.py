@@ -164,6 +164,27 @@ def test_no_candidate_is_a_clear_error() -> None:
         )
 
 
+def test_arrays_of_the_wrong_shape_or_not_finite_are_refused_by_name() -> None:
+    planner, rng = Planner(), np.random.default_rng(0)
+    C, down = np.zeros((1, 3)), np.array([0, 0, -1.0])
+    S, N = np.array([[0.01, 0.0, 0.0, 0.0]]), np.array([[0.0, 0.0, 1.0, 0.0]])  # 4 columns
+    with pytest.raises(PlanningError, match=r"candidates_m must have shape \(m, 3\)"):
+        planner.select(S, N, np.ones(1), C, C[0], down, down, rng)
+    S, N = np.array([[0.01, 0.0, 0.0]]), np.array([[0.0, 0.0, 1.0]])
+    with pytest.raises(PlanningError, match="r must be a finite 3-vector"):
+        planner.select(S, N, np.ones(1), C, np.array([np.nan, 0.0, 0.0]), down, down, rng)
+
+
+def test_v_n_is_normalised_before_it_shapes_the_curve() -> None:
+    S, N = plane_patch()
+    C, down = np.zeros((1, 3)), np.array([0.0, 0.0, -1.0])
+    planner = Planner(PlannerConfig(strategy="igef"))
+    unit = planner.select(S, N, np.ones(len(S)), C, C[0], down, down, np.random.default_rng(0))
+    longer = planner.select(S, N, np.ones(len(S)), C, C[0], 3.0 * down, down, np.random.default_rng(0))
+    assert longer.index == unit.index
+    np.testing.assert_array_equal(longer.scores, unit.scores)  # (0, 0, -3) / 3 is (0, 0, -1) exactly
+
+
 def test_target_closer_than_the_fingertip_radius_is_finite() -> None:
     cfg = PlannerConfig()
     r = np.array([0.0, 0.0, 0.004])  # fingertip centre 4 mm above the last contact

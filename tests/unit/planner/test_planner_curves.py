@@ -58,3 +58,22 @@ def test_points_beyond_the_patch_count_as_clear() -> None:
         V, N, start, np.array([0.0, 0.0, -1.0]), np.array([[0.2, 0.0, 0.2]]), np.array([[0, 0, 1.0]]), 0.007
     )
     assert clear.all()
+
+
+def test_the_curves_start_where_the_fingertip_rests_is_not_checked() -> None:
+    """Samples lie at tau in (0, 1): a fingertip centre 6.5 mm over an estimate it rests on (closer than
+    the 7 mm clearance) can still leave along a curve whose first sample (tau = 1/32) is 7.4 mm over it."""
+    V, N = _plane()
+    start = np.array([0.0, 0.0, 0.0065])
+    centres, normals = np.array([[0.03, 0.0, 0.008]]), np.array([[0.0, 0.0, 1.0]])
+    assert curves_clear(V, N, start, np.array([0.0, 0.0, -1.0]), centres, normals, 0.007).all()
+
+
+def test_a_curve_exactly_at_the_clearance_is_clear() -> None:
+    # a point fingertip (clearance 0) hopping along the plane z = 0 against a sideways target normal:
+    # every sample lies on the plane, signed distance 0 >= 0
+    V, N = _plane()
+    clear = curves_clear(
+        V, N, np.zeros(3), np.zeros(3), np.array([[0.02, 0.0, 0.0]]), np.array([[-1.0, 0.0, 0.0]]), 0.0
+    )
+    assert clear.all()

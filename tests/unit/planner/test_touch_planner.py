@@ -271,3 +271,22 @@ def test_a_target_near_the_last_contact_and_facing_as_it_does_is_reached_by_a_sl
     assert plan is not None
     assert np.linalg.norm(plan.selection.target_m) > 0.001  # every target of the plane lies that far
     assert plan.selection.slide is slides
+
+
+def test_a_target_exactly_at_the_slide_reach_is_reached_by_a_slide() -> None:
+    V, N = plane()
+    rng = np.random.default_rng(0)
+
+    def plan(reach_m: float) -> tuple[np.ndarray, bool]:
+        planner = TouchPlanner(PlannerConfig(strategy="igef", slide_max_m=reach_m))
+        planner.add_touch(np.zeros(3), np.full(3, np.nan), [0.0, 0.0, -1.0], [0.0, 0.0, 1.0])
+        plan = planner.plan("local", 1, V, N, np.ones(len(V)), over(np.zeros(3)), rng)
+        assert plan is not None
+        return plan.selection.target_m, plan.selection.slide
+
+    target, _ = plan(0.06)
+    reach = float(np.linalg.norm(target))  # the chosen target's distance from the contact at the origin
+    at_reach, slides = plan(reach)
+    np.testing.assert_array_equal(at_reach, target)  # the same choice (the reach decides only the slide)
+    assert slides  # a target at the reach lies within it (<=)
+    assert plan(float(np.nextafter(reach, 0.0)))[1] is False  # a hair less: it lifts

@@ -21,7 +21,7 @@ from palpate.record import mcap_io
 from palpate.record.launch_support import replace_publishers_with_log
 from palpate.record.mcap_io import LogWriter
 from palpate.record.replay_node import ReplayConfig, ReplayNode, ports_from_config
-from tests.unit.record.synthetic import PERIOD_NS, canonical_log, lockstep_streams, write_log
+from tests.unit.record.synthetic import PERIOD_NS, canonical_log, lockstep_streams, mesh, write_log
 
 DEMO = REPO_ROOT / "launch" / "demo_minimal.yaml"
 
@@ -207,3 +207,22 @@ def test_a_replay_note_leaves_out_arguments_that_do_not_set_the_replaced_nodes(t
     assert "(controller, gpis, noise, planner)" in steered  # every node whose outputs reach the simulator
     # parameters set with --set are compared too
     assert "was recorded with --set {'planner.tour_sites': 6} (here nothing)" in (note({"planner.tour_sites": 6}) or "")
+
+
+def test_a_step_publishes_by_the_recorded_publishers_rank_with_the_start_ups_messages_first(tmp_path: Path) -> None:
+    """The estimator (ranked before the contacts' publisher in `order`) published a mesh at start-up
+    (tick -1, no clock stamp) and one in tick 0: the first step sends both, in that order, then the
+    contacts the clock source recorded first."""
+    streams = lockstep_streams(1)
+    startup = mesh(0, size_m=0.005)
+    cube, est = streams["cube"][:2], [(topics.SURFACE_MESH, startup), *streams["est"][:3]]  # est: ack -1 after it
+    path = tmp_path / "run.mcap"
+    write_log(path, [est[0], est[1], *cube, est[2], est[3]])
+    wanted = (topics.CONTACTS, topics.SURFACE_MESH)
+    ctx = FakeContext({t: t for t in wanted})
+    node = ReplayNode(
+        ReplayConfig(path=str(path), topics=wanted, order={topics.SURFACE_MESH: 1, topics.CONTACTS: 2}), ctx
+    )
+    assert node.step() == 0
+    expected = [(topics.SURFACE_MESH, startup), est[2], cube[0]]
+    assert ctx.sent == [(t, codec.encode(m)) for t, m in expected]

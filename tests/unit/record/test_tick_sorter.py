@@ -9,7 +9,7 @@ from palpate.messages.base import Message
 from palpate.messages.schemas import Clock, LockstepAck, RunControl
 from palpate.record.mcap_io import peek
 from palpate.record.recorder import Entry, TickSorter
-from tests.unit.record.synthetic import PERIOD_NS, contacts, lockstep_streams
+from tests.unit.record.synthetic import PERIOD_NS, contacts, lockstep_streams, mesh
 
 
 def _interleave(
@@ -125,3 +125,73 @@ def test_a_stop_or_a_fail_ends_the_recording_and_no_other_command_does() -> None
         payload = codec.encode(message)
         sorter.add("sim", topics.GRAPH_CONTROL, payload, peek(payload))
         assert sorter.stopped is ends, command
+
+
+def _add(sorter: TickSorter, source: str, topic: str, message: Message) -> None:
+    payload = codec.encode(message)
+    sorter.add(source, topic, payload, peek(payload))
+
+
+def _ack(node: str, tick: int) -> LockstepAck:
+    return LockstepAck(stamp_ns=max(tick, 0) * PERIOD_NS, node=node, tick=tick)
+
+
+def _clock(tick: int) -> Clock:
+    return Clock(stamp_ns=tick * PERIOD_NS, tick=tick, period_ns=PERIOD_NS, lockstep=True)
+
+
+def _topics(batches: list[list[Entry]]) -> list[list[str]]:
+    return [[e.topic for e in batch] for batch in batches]
+
+
+def test_a_tick_waits_for_the_clocks_next_tick_or_the_stop_and_the_clock_source_goes_first() -> None:
+    """The clock source's endpoint sorts after the node's name, yet its messages lead each tick."""
+    sorter = TickSorter()
+    for source in ("tcp://zz-clock", "tcp://node"):
+        sorter.expect(source)
+    _add(sorter, "tcp://zz-clock", topics.CONTACTS, contacts(0))
+    _add(sorter, "tcp://zz-clock", topics.CLOCK, _clock(0))
+    _add(sorter, "tcp://node", topics.SURFACE_MESH, mesh(0))
+    _add(sorter, "tcp://node", topics.LOCKSTEP_ACK, _ack("a_node", 0))
+    assert sorter.ready() == []  # the clock has not started tick 1: more of tick 0 may come
+    _add(sorter, "tcp://zz-clock", topics.CLOCK, _clock(1))
+    assert _topics(sorter.ready()) == [[topics.CONTACTS, topics.CLOCK, topics.SURFACE_MESH, topics.LOCKSTEP_ACK]]
+    _add(sorter, "tcp://node", topics.LOCKSTEP_ACK, _ack("a_node", 1))
+    assert sorter.ready() == []
+    stop = RunControl(stamp_ns=PERIOD_NS, command="stop", reason="done")
+    _add(sorter, "tcp://zz-clock", topics.GRAPH_CONTROL, stop)
+    assert _topics(sorter.ready()) == [[topics.CLOCK, topics.LOCKSTEP_ACK]]  # stopped: tick 1 is the last
+
+
+def test_a_respawned_nodes_older_marker_files_under_its_last_tick() -> None:
+    sorter = TickSorter()
+    for source in ("clock", "node"):
+        sorter.expect(source)
+    for tick in (0, 1):
+        _add(sorter, "clock", topics.CLOCK, _clock(tick))
+        _add(sorter, "node", topics.SURFACE_MESH, mesh(tick * PERIOD_NS))
+        _add(sorter, "node", topics.LOCKSTEP_ACK, _ack("node", tick))
+    _add(sorter, "node", topics.SURFACE_MESH, mesh(0, size_m=0.02))  # the node starts over ...
+    _add(sorter, "node", topics.LOCKSTEP_ACK, _ack("node", 0))  # ... and acknowledges tick 0 again
+    _add(sorter, "clock", topics.CLOCK, _clock(2))
+    ticks = sorter.ready()
+    assert _topics(ticks) == [
+        [topics.CLOCK, topics.SURFACE_MESH, topics.LOCKSTEP_ACK],
+        [topics.CLOCK, topics.SURFACE_MESH, topics.LOCKSTEP_ACK, topics.SURFACE_MESH, topics.LOCKSTEP_ACK],
+    ]  # tick 1 is complete: the node's last marker is still tick 1
+
+
+def test_publishers_without_markers_hold_nothing_back_and_go_along_in_arrival_order() -> None:
+    sorter = TickSorter()
+    for source in ("clock", "m1", "m2"):
+        sorter.expect(source)
+    for source in ("m1", "m2"):
+        sorter.unexpect(source)  # no markers will come from these (not lockstep nodes)
+    _add(sorter, "clock", topics.CLOCK, _clock(0))
+    arrivals = [("m1", contacts(0, offset=1.0)), ("m2", contacts(0, offset=2.0))]
+    arrivals += [("m2", contacts(0, offset=3.0)), ("m1", contacts(0, offset=4.0))]
+    for source, message in arrivals:
+        _add(sorter, source, topics.CONTACTS, message)
+    _add(sorter, "clock", topics.CLOCK, _clock(1))
+    (tick0,) = sorter.ready()
+    assert [e.payload for e in tick0[1:]] == [codec.encode(m) for _, m in arrivals]

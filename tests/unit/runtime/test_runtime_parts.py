@@ -474,3 +474,138 @@ def test_a_warning_in_a_node_process_is_one_log_line(caplog: pytest.LogCaptureFi
         with caplog.at_level("WARNING"):
             warnings.warn("two.stl: the mesh holds 2 separate bodies", MeshWarning, stacklevel=1)
     assert caplog.messages == ["MeshWarning: two.stl: the mesh holds 2 separate bodies"]
+
+
+# --- InProcessGraph on hand-made nodes: delivery order, stops, transfers ----------------------------
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class TalkerParams(Validated):
+    """When a hand-made node asks to stop (0: never), and whether as a failure."""
+
+    stop_at: int = 0
+    failed: bool = False
+
+
+class Talker:
+    """Publishes one Pose (frame: its name, x: the tick) on each output port per tick, from one object it
+    changes in place; asks to stop at tick ``stop_at``; records what it hears (frame, x) on any input.
+    As the clock source (``step``) it runs three ticks."""
+
+    def __init__(self, config: TalkerParams, ctx: Any) -> None:
+        from palpate.messages.schemas import Pose
+
+        self.config, self.ctx = config, ctx
+        self.pose = Pose(
+            stamp_ns=0,
+            frame=ctx.name,
+            position_m=np.zeros(3),
+            quaternion_wxyz=np.array([1.0, 0.0, 0.0, 0.0]),
+            linear_velocity_m_s=np.zeros(3),
+            angular_velocity_rad_s=np.zeros(3),
+        )
+        self.heard: list[tuple[str, float]] = []
+        self.ticks = 0
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("on_") and name != "on_tick":  # any input port
+            return lambda message: self.heard.append((message.frame, float(message.position_m[0])))
+        raise AttributeError(name)
+
+    def _talk(self) -> None:
+        self.ticks += 1
+        self.pose.position_m[0] = self.ticks  # the same object, changed in place
+        for port in sorted(self.ctx.outputs):
+            self.ctx.publish(port, self.pose)
+        if self.ticks == self.config.stop_at:
+            self.ctx.request_stop(f"{self.ctx.name} stops", failed=self.config.failed)
+
+    def step(self) -> int | None:
+        if self.ticks == 3:
+            return None
+        self._talk()
+        return self.ticks * 1000
+
+    def on_tick(self, stamp_ns: int) -> None:
+        self._talk()
+
+
+def _talkers(tmp_path: Path, wiring: list[tuple[str, list[str], list[str]]], **params: dict[str, Any]) -> Any:
+    """An InProcessGraph of Talkers in rank order, the first the clock source: (name, topics it
+    publishes, topics it reads) each."""
+    from palpate.runtime.inprocess import InProcessGraph
+
+    spec = NodeSpec(name="talker", config=TalkerParams, factory=Talker)
+    clock = NodeSpec(name="talker", config=TalkerParams, factory=Talker, clock_source=True)
+    members = []
+    for rank, (name, out, read) in enumerate(wiring):
+        process = NodeProcessSpec(
+            name=name,
+            type="talker",
+            node_spec="tests:unused",
+            params=params.get(name, {}),
+            bus_dir=str(tmp_path),
+            endpoint=f"ipc://{tmp_path}/{name}.pub",
+            publishes={topic.replace("/", "_"): topic for topic in out},
+            subscribes={topic.replace("/", "_"): topic for topic in read},
+            connect=[],
+            clock_source=rank == 0,
+        )
+        members.append((clock if rank == 0 else spec, process))
+    return InProcessGraph(members)
+
+
+def test_in_process_inputs_are_handled_by_publisher_rank_then_publish_order(tmp_path: Path) -> None:
+    """The reader (rank 2) gets the later-ranked node's message of tick t - 1 (a feedback edge) before the
+    clock's and the earlier node's of tick t, yet handles them by rank: clock, early (two topics, in the
+    order published), late."""
+    graph = _talkers(
+        tmp_path,
+        [
+            ("clock", ["t/clock"], []),
+            ("early", ["t/early_a", "t/early_b"], []),
+            ("reader", [], ["t/late", "t/early_b", "t/clock", "t/early_a"]),
+            ("late", ["t/late"], []),
+        ],
+    )
+    assert graph.run() == 3
+    heard = graph.node("reader").heard
+    assert heard == [
+        ("clock", 1.0), ("early", 1.0), ("early", 1.0),
+        ("clock", 2.0), ("early", 2.0), ("early", 2.0), ("late", 1.0),
+        ("clock", 3.0), ("early", 3.0), ("early", 3.0), ("late", 2.0),
+    ]  # fmt: skip
+
+
+def test_in_process_a_message_is_transferred_once_per_tick_it_is_sent_in(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The early node sends one Pose object on two topics each tick, changed in place between ticks: one
+    transfer per tick, and each tick's subscribers see that tick's value."""
+    from palpate.runtime import inprocess
+
+    transfers: list[str] = []
+    real = codec.transfer
+
+    def counting(message: Any) -> Any:
+        transfers.append(message.frame)
+        return real(message)
+
+    monkeypatch.setattr(inprocess.codec, "transfer", counting)
+    graph = _talkers(tmp_path, [("clock", [], []), ("early", ["t/a", "t/b"], []), ("reader", [], ["t/a", "t/b"])])
+    assert graph.run() == 3
+    assert transfers == ["early"] * 3
+    assert graph.node("reader").heard == [("early", x) for x in (1.0, 1.0, 2.0, 2.0, 3.0, 3.0)]
+
+
+def test_in_process_the_first_stop_and_the_first_failure_by_rank_end_the_run(tmp_path: Path) -> None:
+    wiring: list[tuple[str, list[str], list[str]]] = [("clock", [], []), ("one", [], []), ("two", [], [])]
+    both = {"one": {"stop_at": 2, "failed": True}, "two": {"stop_at": 2, "failed": True}}
+    graph = _talkers(tmp_path, wiring, **both)
+    assert graph.run() == 2
+    assert graph.stop_reason == "one stops" and graph.failure == "one stops"
+    assert graph.members[2].ctx.run_stopped_by == "one stops"  # two asked too, for another reason
+    assert graph.members[1].ctx.run_stopped_by == ""  # its own stop
+    assert graph.members[0].ctx.run_stopped_by == "one stops"
+    clock = _talkers(tmp_path, wiring, clock={"stop_at": 1})
+    assert clock.run() == 1 and clock.stop_reason == "clock stops"  # the clock source's own stop counts too

@@ -312,3 +312,23 @@ def test_a_finger_pose_that_is_not_finite_is_named() -> None:
     sim._fresh = False  # as after a step
     with pytest.raises(SimulationDivergedError, match="effector position are not finite"):
         sim.effector_pose()
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_a_probe_centre_inside_the_object_is_pushed_out_along_the_face_normal(compiled: bool) -> None:
+    """Centre 5 mm under the cube's top face (z = 0.025), nearest that face: one step puts it one
+    probe radius above the face, over the same point, whatever the steps run in."""
+    sim = Simulation(SceneConfig(effector="probe", object=CUBE))
+    probe = sim.probe_contact
+    assert probe is not None
+    if compiled and not probe.compiled_steps:
+        pytest.skip("MuJoCo's library not found: no compiled steps")
+    probe.compiled_steps = compiled
+    sim.data.qpos[0:3] = (0.01, 0.005, 0.02)
+    sim.set_velocity(np.zeros(3), np.zeros(3))
+    sim.step(1)
+    np.testing.assert_allclose(sim.effector_pose()[0], (0.01, 0.005, 0.025 + probe.radius_m), atol=1e-9)
+    c = sim.contacts()
+    assert len(c) == 1
+    np.testing.assert_allclose(c.normals[0], (0.0, 0.0, 1.0), atol=1e-9)
+    np.testing.assert_allclose(c.positions_m[0], (0.01, 0.005, 0.025), atol=1e-9)

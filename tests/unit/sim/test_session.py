@@ -79,6 +79,10 @@ def test_ticks_start_unstepped_then_step_a_tick_each_until_the_duration() -> Non
         ({"tick_period_s": 0.006, "duration_s": 0.03}, (3, 6_000_000, 5)),
         ({"tick_period_s": 0.01, "duration_s": 0.034}, (5, 10_000_000, 3)),  # rounded to whole ticks
         ({"tick_period_s": 0.002, "duration_s": 1.0}, (1, 2_000_000, 500)),
+        # quotients a hair below a whole number (0.009 / 0.0002 = 44.99999999999999, 0.3 / 0.1 =
+        # 2.9999999999999996) are rounded, not truncated
+        ({"tick_period_s": 0.009, "timestep_s": 0.0002, "duration_s": 0.09}, (45, 9_000_000, 10)),
+        ({"tick_period_s": 0.1, "duration_s": 0.3}, (50, 100_000_000, 3)),
     ],
 )
 def test_schedule_follows_the_period_and_the_duration(timing: dict[str, float], expected: tuple[int, int, int]) -> None:
