@@ -65,9 +65,13 @@ READ_ERRORS = (
     MemoryError,
     zstandard.ZstdError,
     zlib.error,
+    KeyError,  # a chunk's message or channel names an id the summary does not define
+    OSError,  # a seek to a damaged offset (a chunk index's, or before the start of a tiny file)
 )
 #: The bytes every MCAP file starts and ends with.
 MCAP_MAGIC = b"\x89MCAP0\r\n"
+#: Bytes of a footer record (opcode, length, summary start, summary offset start, summary CRC).
+FOOTER_BYTES = 1 + 8 + 8 + 8 + 4
 
 
 _WHOLE_UNPACK_BYTES = 16_384
@@ -303,7 +307,7 @@ def _check_complete(stream: IO[bytes], path: str | Path) -> None:
     if head != MCAP_MAGIC:
         raise RecordError(f"{path} is not an MCAP log (it does not start with MCAP's magic bytes)")
     stream.seek(max(0, size - len(MCAP_MAGIC)))
-    if size < 2 * len(MCAP_MAGIC) or stream.read() != MCAP_MAGIC:
+    if size < 2 * len(MCAP_MAGIC) + FOOTER_BYTES or stream.read() != MCAP_MAGIC:
         raise RecordError(
             f"{path} ends before the log's footer: its recorder was killed or is still writing it; "
             f"`palpate bag recover {path}` writes what it holds into a complete log"
@@ -312,8 +316,11 @@ def _check_complete(stream: IO[bytes], path: str | Path) -> None:
 
 
 def _unreadable(path: str | Path, exc: BaseException) -> RecordError:
+    what = f"{type(exc).__name__}: {exc}"
+    if isinstance(exc, KeyError):
+        what = f"a record names channel or schema id {exc}, which the log's summary does not define"
     return RecordError(
-        f"{path}: cannot read the MCAP log ({type(exc).__name__}: {exc}); the file is damaged: "
+        f"{path}: cannot read the MCAP log ({what}); the file is damaged: "
         f"`palpate bag recover {path}` keeps every intact chunk"
     )
 
@@ -332,10 +339,13 @@ def _reader(path: str | Path, *, validate_crcs: bool = False) -> Iterator[McapRe
 
 def read_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[LoggedMessage]:
     """Messages of a finished log in file order (the recorder's canonical order), optionally of `topics`.
-    Every chunk's CRC is checked: a damaged log is a RecordError, never altered data."""
+    Every chunk's CRC is checked, and the messages read are counted against the summary's statistics:
+    a damaged log is a RecordError, never altered or missing data (a lost or repeated chunk index)."""
     wanted = None if topics is None else list(topics)
+    read = 0
     with _reader(path, validate_crcs=True) as reader:
         for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=False):
+            read += 1
             yield LoggedMessage(
                 channel.topic,
                 schema.name if schema is not None else "",
@@ -344,6 +354,26 @@ def read_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iter
                 message.publish_time,
                 message.sequence,
             )
+        expected = _counted(reader.get_summary(), wanted)
+    if expected is not None and read != expected:
+        of = "" if wanted is None else f" of the topics read ({', '.join(sorted(wanted))})"
+        raise RecordError(
+            f"{path}: its summary counts {expected} messages{of}, its chunks hold {read}; the file is damaged: "
+            f"`palpate bag recover {path}` rewrites what it holds"
+        )
+
+
+def _counted(summary: Summary | None, topics: list[str] | None) -> int | None:
+    """How many messages (of `topics`, or all) the summary's statistics count; None when it does not say."""
+    if summary is None or summary.statistics is None:
+        return None
+    stats = summary.statistics
+    if topics is None:
+        return stats.message_count
+    if not stats.channel_message_counts and stats.message_count:
+        return None  # a writer that counts no channel
+    ids = {i for i, channel in summary.channels.items() if channel.topic in topics}
+    return sum(n for i, n in stats.channel_message_counts.items() if i in ids)
 
 
 @dataclass
@@ -605,13 +635,18 @@ def copy_log(
 
     report = RecoverReport()
     with output_file(src, dst, "filter", overwrite) as partial, LogWriter(partial, compression=compression) as out:
-        count = copy_records(iter_records_tolerant(src, report), out, keep=keep)
+        count = copy_records(iter_records_tolerant(src, report), out, keep=keep, report=report)
         if report.truncated:
             raise RecordError(f"{src} is truncated ({report.reason}); run `palpate bag recover {src}` first")
         if report.damaged_chunks:
             raise RecordError(
                 f"{src} holds {report.damaged_chunks} damaged chunk(s) ({report.damage}); run "
                 f"`palpate bag recover {src}` first"
+            )
+        if report.orphaned:
+            raise RecordError(
+                f"{src} holds {report.orphaned} message(s) on channels it never defines: the file is damaged; "
+                f"run `palpate bag recover {src}` first"
             )
         if count == 0:
             raise RecordError(f"{src}: no message of the topics kept; wrote nothing (see palpate bag info {src})")

@@ -300,3 +300,68 @@ def test_bag_info_check_reads_every_chunk_and_filter_refuses_to_keep_nothing(
     out = tmp_path / "none.mcap"
     assert main(["bag", "filter", str(full), "-o", str(out), "--topics", "controller/nothing"]) == 2
     assert "no message of the topics kept; wrote nothing" in capsys.readouterr().err and not out.exists()
+
+
+def _top_records(data: bytes) -> list[tuple[int, int, int]]:
+    """(opcode, start, end) of a log's top-level records, after the leading magic."""
+    out, pos = [], len(mcap_io.MCAP_MAGIC)
+    while pos + 9 <= len(data):
+        length = int.from_bytes(data[pos + 1 : pos + 9], "little")
+        out.append((data[pos], pos, pos + 9 + length))
+        if data[pos] == 0x02:  # the footer
+            break
+        pos += 9 + length
+    return out
+
+
+def test_a_summary_that_loses_or_repeats_a_chunk_or_its_offset_is_refused_by_name(tmp_path: Path) -> None:
+    full = tmp_path / "full.mcap"
+    write_log(full, canonical_log(4), flush_each=True)  # one chunk per message
+    data = full.read_bytes()
+    indexes = [(s, e) for op, s, e in _top_records(data) if op == 0x08]  # the summary's chunk indexes
+    s, e = indexes[2]
+    damaged = tmp_path / "damaged.mcap"
+    for content in (data[:s] + data[e:], data[:e] + data[s:e] + data[e:]):  # a chunk index lost, repeated
+        damaged.write_bytes(content)
+        with pytest.raises(RecordError, match=r"damaged\.mcap: its summary counts \d+ messages, its chunks hold"):
+            list(mcap_io.read_messages(damaged))  # not one message fewer or more without a word
+        with pytest.raises(RecordError, match=r"damaged\.mcap: its summary counts \d+ messages of the topics"):
+            list(mcap_io.read_messages(damaged, [topics.CLOCK, topics.CONTACTS, topics.LOCKSTEP_ACK]))
+    offset = bytearray(data)
+    offset[s + 9 + 8 + 8 + 7] ^= 0x80  # the chunk index's chunk start offset, beyond any file
+    damaged.write_bytes(bytes(offset))
+    with pytest.raises(RecordError, match=r"damaged\.mcap: cannot read the MCAP log"):  # not OSError
+        list(mcap_io.read_messages(damaged))
+    assert len(list(mcap_io.read_messages(full))) == len(canonical_log(4))
+
+
+def test_a_message_on_a_channel_the_log_never_defines_is_named(tmp_path: Path) -> None:
+    from mcap.writer import Writer
+
+    path = tmp_path / "orphan.mcap"
+    payload = codec.encode(contacts(0))
+    with path.open("wb") as stream:
+        writer = Writer(stream)
+        writer.start(profile=mcap_io.PROFILE, library="test")
+        schema = writer.register_schema("ContactSet", mcap_io.SCHEMA_ENCODING, b"{}")
+        channel = writer.register_channel(topics.CONTACTS, mcap_io.MESSAGE_ENCODING, schema)
+        writer.add_message(channel, 0, payload, 0)
+        writer.add_message(channel + 7, 1, payload, 1)  # a channel id no record defines
+        writer.add_message(channel, 2, payload, 2)
+        writer.finish()
+    with pytest.raises(RecordError, match=r"orphan\.mcap: cannot read .*channel or schema id \d+"):  # not KeyError
+        list(mcap_io.read_messages(path))
+    with pytest.raises(RecordError, match=r"orphan\.mcap holds 1 message\(s\) on channels it never defines"):
+        mcap_io.copy_log(path, tmp_path / "copy.mcap")
+    report = mcap_io.recover(path, tmp_path / "fixed.mcap")
+    assert report.messages == 2 and report.orphaned == 1
+
+
+def test_a_file_too_short_for_a_footer_is_named(tmp_path: Path) -> None:
+    short = tmp_path / "short.mcap"
+    for content in (mcap_io.MCAP_MAGIC * 2, mcap_io.MCAP_MAGIC + b"\x01" * 20 + mcap_io.MCAP_MAGIC):
+        short.write_bytes(content)
+        with pytest.raises(RecordError, match=r"short\.mcap ends before the log's footer"):  # not OSError
+            mcap_io.summarize(short)
+        with pytest.raises(RecordError, match=r"short\.mcap"):
+            mcap_io.recover(short, tmp_path / "fixed.mcap")
