@@ -168,6 +168,7 @@ def run_export(args: argparse.Namespace) -> int:
     print(
         f"exported {report.converted} of {report.read} messages as {total} Foxglove messages to {args.output}"
         + (f"; {report.undecodable} undecodable skipped" if report.undecodable else "")
+        + (f"; {report.unusable} unusable skipped (last: {report.last_unusable})" if report.unusable else "")
     )
     width = max([len(t) for t, _ in report.written] + [5])
     for (topic, schema), count in sorted(report.written.items()):

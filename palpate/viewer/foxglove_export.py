@@ -41,7 +41,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from palpate import jsonio
-from palpate.errors import MessageError, RecordError
+from palpate.errors import InputError, MessageError, RecordError
 from palpate.geometry.bezier import bezier_point
 from palpate.geometry.rotations import align_axis, matrix_to_quat
 from palpate.messages import codec
@@ -393,6 +393,10 @@ class ExportReport:
     read: int = 0
     converted: int = 0
     undecodable: int = 0
+    #: Messages that decode but hold values the export cannot draw (a mesh naming vertices it lacks),
+    #: skipped as the nodes skip them; the last one's topic, time and reason.
+    unusable: int = 0
+    last_unusable: str = ""
     written: Counter[tuple[str, str]] = field(default_factory=Counter)
 
 
@@ -406,7 +410,6 @@ def _decoded(path: Path, topics: list[str] | None, report: ExportReport) -> Iter
         except MessageError:
             report.undecodable += 1
             continue
-        report.converted += 1
         yield logged.topic, logged.sequence, message
 
 
@@ -420,7 +423,14 @@ def export_foxglove(src: Path, dst: Path, topics: list[str] | None = None, *, ov
     report = ExportReport()
     with output_file(src, dst, "export", overwrite) as partial, LogWriter(partial, profile="") as writer:
         for topic, sequence, message in _decoded(Path(src), topics, report):
-            for out in scene.convert(topic, message):
+            try:
+                converted = scene.convert(topic, message)
+            except InputError as exc:
+                report.unusable += 1
+                report.last_unusable = f"{topic} at {message.stamp_ns} ns: {exc}"
+                continue
+            report.converted += 1
+            for out in converted:
                 s = out.schema
                 channel = writer.channel(
                     out.topic, s.name, s.data, encoding=s.encoding, message_encoding=s.message_encoding

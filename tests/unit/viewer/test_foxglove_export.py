@@ -15,7 +15,7 @@ from mcap.reader import make_reader
 from palpate import cli
 from palpate.geometry.rotations import quat_to_matrix
 from palpate.messages.schemas import Clock, NodeStatus
-from tests.unit.viewer.viewer_messages import TETRA_F, TETRA_V, contacts, grid, session, write_mcap
+from tests.unit.viewer.viewer_messages import TETRA_F, TETRA_V, contacts, grid, session, surface, write_mcap
 
 pytest.importorskip("foxglove")
 protobuf = pytest.importorskip("google.protobuf")
@@ -211,3 +211,20 @@ def test_a_failed_export_leaves_no_output(tmp_path: Path, capsys: pytest.Capture
     out.write_bytes(b"earlier export")  # an existing output stays as it was, even with --force
     assert cli.main(["bag", "export", str(statuses), "-o", str(out), "--foxglove", "--force"]) == 2
     assert out.read_bytes() == b"earlier export"
+
+
+def test_a_message_the_export_cannot_draw_is_skipped_and_counted(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A surface that decodes but names variance at vertices it lacks (a damaged or foreign log): the
+    export goes on without it, as a node skips such an input, and says so (it ended the export, exit 2)."""
+    bad = surface(5 * MS)
+    bad.variance_vertices[:] = np.arange(4, dtype=np.int32) + 32
+    log = tmp_path / "run.mcap"
+    write_mcap(log, [*session(), ("surface/mesh", bad)])
+    out = tmp_path / "foxglove.mcap"
+    assert cli.main(["bag", "export", str(log), "-o", str(out), "--foxglove"]) == 0
+    printed = capsys.readouterr().out
+    assert "exported 14 of 17 messages" in printed  # 16 in the session (2 clocks), 1 unusable
+    assert "1 unusable skipped (last: surface/mesh at 5000000 ns: variance_vertices:" in printed
+    assert len(read_back(out)["surface/mesh"]) == 1  # the good surface only
