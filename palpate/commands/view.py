@@ -11,13 +11,18 @@ import argparse
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from palpate.argtypes import non_negative_float, path_arg
 from palpate.commands.introspect import CURVE_KEYS_HELP
-from palpate.errors import ViewerError
+from palpate.errors import InputError, ViewerError
 from palpate.runtime import bus
 from palpate.viewer import require_rerun
 from palpate.viewer.rerun_log import SHOWN_TYPES, SceneLogger
+
+if TYPE_CHECKING:
+    from palpate.messages.base import Message
+    from palpate.viewer.sources import SourceStats
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -71,7 +76,7 @@ def run_view(args: argparse.Namespace) -> int:
         sink = open_recording(save=args.save)
         try:
             for topic, message in log_source:
-                scene.log_message(sink, topic, message)
+                _draw(scene, sink, topic, message, log_source.stats)
         finally:
             sink.close()
         stats, origin, code = log_source.stats, str(args.log), 0
@@ -83,7 +88,7 @@ def run_view(args: argparse.Namespace) -> int:
         print(f"palpate view: watching bus {bus_dir} (Ctrl-C to stop)", flush=True)
         try:
             for topic, message in bus_source.messages(args.duration):
-                scene.log_message(sink, topic, message)
+                _draw(scene, sink, topic, message, bus_source.stats)
         finally:
             bus_source.close()
             sink.close()
@@ -97,7 +102,23 @@ def run_view(args: argparse.Namespace) -> int:
         print(
             f"palpate view: {stats.undecodable} undecodable messages skipped, last: {stats.last_error}", file=sys.stderr
         )
+    if stats.unusable:
+        print(
+            f"palpate view: {stats.unusable} messages with values it cannot draw skipped, last: {stats.last_unusable}",
+            file=sys.stderr,
+        )
     if args.save is not None:
         size = args.save.stat().st_size if args.save.exists() else 0
         print(f"palpate view: wrote {args.save} ({size / 1024:.1f} KiB); open it with `rerun {args.save}`")
     return code
+
+
+def _draw(scene: SceneLogger, sink: Any, topic: str, message: Message, stats: SourceStats) -> None:
+    """Log one message to the viewer; one that decodes but holds values it cannot draw is skipped and
+    counted (as a node skips it), not the end of the viewer."""
+    try:
+        scene.log_message(sink, topic, message)
+    except InputError as exc:
+        stats.shown -= 1  # counted as shown when it was received
+        stats.unusable += 1
+        stats.last_unusable = f"{topic} at {message.stamp_ns} ns: {exc}"

@@ -37,12 +37,15 @@ DISCOVERY_PERIOD_S = 0.1
 
 @dataclass
 class SourceStats:
-    """Messages seen, shown (decoded and of a shown type) and undecodable."""
+    """Messages seen, shown (decoded, of a shown type and drawn), undecodable, and unusable (decoded
+    but holding values the viewer cannot draw, such as a surface naming vertices it lacks)."""
 
     received: int = 0
     shown: int = 0
     undecodable: int = 0
     last_error: str = ""
+    unusable: int = 0
+    last_unusable: str = ""
 
 
 def _wanted(topic: str, wanted: frozenset[str] | None) -> bool:

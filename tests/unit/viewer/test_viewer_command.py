@@ -10,7 +10,7 @@ import pytest
 
 from palpate import cli
 from palpate.viewer import EXTRA_HINT
-from tests.unit.viewer.viewer_messages import session, write_mcap
+from tests.unit.viewer.viewer_messages import session, surface, write_mcap
 
 
 @pytest.fixture
@@ -131,3 +131,21 @@ def test_the_live_viewer_ends_with_a_stopped_or_a_failed_run(tmp_path: Path) -> 
             assert source.stopped is ends, command
         finally:
             source.close()
+
+
+def test_a_message_the_viewer_cannot_draw_is_skipped_and_counted(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """A surface that decodes but names variance at vertices it lacks: the viewer goes on without it, as
+    a node skips such an input, and says so (it ended the viewer)."""
+    pytest.importorskip("rerun")
+    bad = surface(5_000_000)
+    bad.variance_vertices[:] = [32, 33, 34, 35]
+    log = tmp_path / "run.mcap"
+    write_mcap(log, [*session(), ("surface/mesh", bad)])
+    assert cli.main(["view", "--log", str(log), "--save", str(tmp_path / "run.rrd")]) == 0
+    captured = capsys.readouterr()
+    assert "14 of 17 messages shown" in captured.out
+    assert "1 messages with values it cannot draw skipped, last: surface/mesh at 5000000 ns: variance_vertices:" in (
+        captured.err
+    )
