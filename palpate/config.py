@@ -140,7 +140,7 @@ def load(cls: type[T], data: Any, where: str = "", path: KeyPath = ()) -> T:
     except ConfigError as exc:  # a check across fields in __post_init__
         full = (*path, *exc.path)
         raise ConfigError(f"{_loc(where, path)}: {exc}", full) from None
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, ArithmeticError) as exc:  # ArithmeticError: a check's sum of huge values
         raise ConfigError(f"{_loc(where, path)}: {exc}", path) from exc
 
 

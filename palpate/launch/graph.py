@@ -281,11 +281,16 @@ def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
     if not isinstance(remaps, dict):
         raise LaunchError(f"{entry.at('remaps')}: remaps must be a mapping port: topic")
     ports = {**spec.inputs, **spec.outputs}
-    for port in remaps:
+    for port, topic in remaps.items():
         if port not in ports:
             raise LaunchError(
                 f"{entry.remap_lines.get(port, entry.at('remaps'))}: node {name!r} ({node_type}) has no port {port!r}; "
                 f"ports: {sorted(ports)}"
+            )
+        if not isinstance(topic, str) or not topic.strip("/"):  # null would be the topic 'None', '' every topic
+            raise LaunchError(
+                f"{entry.remap_lines.get(port, entry.at('remaps'))}: node {name!r} remaps port {port!r} to {topic!r}; "
+                "a topic is a non-empty string"
             )
     namespace = str(f.get("namespace", "")).strip("/")
 

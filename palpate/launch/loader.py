@@ -27,8 +27,9 @@ _Loader.add_implicit_resolver(
     "tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*(\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789")
 )
 _CONSTRUCTOR = yaml.constructor.SafeConstructor()
-#: What PyYAML's constructors raise for a tagged value they cannot build (`!!bool maybe`, `!!timestamp x`).
-_CONSTRUCT_ERRORS = (ValueError, KeyError, AttributeError, TypeError, OverflowError)
+#: What PyYAML's constructors raise for a tagged value they cannot build (`!!bool maybe`, `!!timestamp x`,
+#: `!!int` with no value: an IndexError).
+_CONSTRUCT_ERRORS = (ValueError, KeyError, AttributeError, TypeError, OverflowError, IndexError)
 #: Most values a launch file may expand to, aliases included (a "billion laughs" file is refused).
 MAX_VALUES = 1_000_000
 _ARG = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
@@ -110,6 +111,11 @@ def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any
             raise LaunchError(f"launch argument {item!r} must look like name{separator}value")
         try:
             out[name] = yaml.load(value, Loader=_Loader) if value else ""
+        except RecursionError:
+            raise LaunchError(
+                f"launch argument {item[:80]!r} from the command line: nested too deeply to read (lists or "
+                "mappings inside each other)"
+            ) from None
         except (yaml.YAMLError, *_CONSTRUCT_ERRORS) as exc:
             problem = getattr(exc, "problem", None) or _construct_problem(exc, "")
             raise LaunchError(
@@ -128,14 +134,28 @@ def parse_node_params(items: Sequence[str]) -> dict[str, Any]:
     return out
 
 
+def _named_nodes(launch: LaunchFile) -> dict[str, NodeEntry]:
+    """The nodes of `launch` by name; a name that is no string is the error `resolve` would raise for it."""
+    for entry in launch.nodes:
+        name = entry.fields["name"]
+        if not isinstance(name, str):
+            raise LaunchError(f"{entry.at('name')}: name must be a string, got {name!r}")
+    return {entry.fields["name"]: entry for entry in launch.nodes}
+
+
 def apply_params(launch: LaunchFile, params: Iterable[tuple[str, Any]]) -> None:
     """Set dotted node parameters ``"node.key.subkey" = value`` in a loaded launch file, in place."""
-    nodes = {entry.fields["name"]: entry for entry in launch.nodes}
+    nodes = _named_nodes(launch)
     for dotted, value in params:
         name, _, path = dotted.partition(".")
         if name not in nodes or not path:
             raise ConfigError(f"parameter override {dotted!r}: expected node.key with node one of {sorted(nodes)}")
-        target = nodes[name].fields.setdefault("params", {})
+        entry = nodes[name]
+        if entry.fields.get("params") is None:  # no params, or `params:` with no value: none set yet
+            entry.fields["params"] = {}
+        target = entry.fields["params"]
+        if not isinstance(target, dict):
+            raise LaunchError(f"{entry.at('params')}: params must be a mapping")
         keys = path.split(".")
         for key in keys[:-1]:
             target = target.setdefault(key, {})
@@ -157,7 +177,7 @@ def _merged(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
 def with_external(launch: LaunchFile, names: Sequence[str]) -> LaunchFile:
     """`launch` with the nodes `names` marked ``external: true`` (``palpate launch --external``): wired and
     waited for, but started by a driver, not the launcher."""
-    known = [entry.fields["name"] for entry in launch.nodes]
+    known = list(_named_nodes(launch))
     unknown = sorted(set(names) - set(known))
     if unknown:
         raise LaunchError(f"--external: no node {unknown} in {_display(launch.path)}; its nodes: {sorted(known)}")

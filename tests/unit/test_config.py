@@ -181,6 +181,23 @@ def test_checks_across_fields_stay_in_post_init_and_name_their_key() -> None:
     assert info.value.path == ("high_s",)
 
 
+def test_a_check_across_fields_that_overflows_is_a_config_error() -> None:
+    """A fuzzer's find: the simulator's tick_period_s = 1e308 made its check's round() raise OverflowError."""
+
+    @dataclass(frozen=True, kw_only=True)
+    class Ticks(Validated):
+        tick_s: PositiveFloat = 0.01
+        step_s: PositiveFloat = 0.002
+
+        def __post_init__(self) -> None:
+            super().__post_init__()
+            if round(self.tick_s / self.step_s) < 1:
+                raise ConfigError("tick_s must be at least step_s", ("tick_s",))
+
+    with pytest.raises(ConfigError, match=r"^params: cannot convert float infinity to integer$"):
+        load(Ticks, {"tick_s": 1e308, "step_s": 1e-300}, "params")
+
+
 def test_building_in_python_runs_the_same_checks() -> None:
     with pytest.raises(ConfigError, match=r"^Config\.rate_hz: expected a finite number > 0, got nan$"):
         Config(rate_hz=math.nan)

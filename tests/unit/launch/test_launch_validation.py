@@ -18,7 +18,7 @@ from palpate.cli import main
 from palpate.commands.launch import describe
 from palpate.errors import ConfigError, LaunchError
 from palpate.launch.graph import Graph, resolve
-from palpate.launch.loader import apply_params, load_launch, parse_cli_args, parse_node_params
+from palpate.launch.loader import apply_params, load_launch, parse_cli_args, parse_node_params, with_external
 from palpate.paths import REPO_ROOT
 
 LAUNCH_FILES = sorted((REPO_ROOT / "launch").glob("*.yaml"))
@@ -628,6 +628,8 @@ def test_a_yaml_merge_key_is_named_at_its_line(tmp_path: Path) -> None:
         (b"include:\n  - file: " + b"x" * 5000 + b"\nnodes: []\n", r":2: include file 'x+' is no usable path"),
         (b"nodes:\n  - name: a\n    type: sim\n    max_restarts: " + b"9" * 400 + b"\n", r":4: max_restarts must be"),
         (b"nodes:\n  - name: a\n    type: '..:x'\n", r":3: node type '..:x': cannot import \.\."),
+        (b"description: ok\nnodes:\n  - name: a\n    type: !!int\n", r":4: cannot read '': not a valid int"),
+        (b"nodes:\n  - name: sim\n    type: sim\n    params: {tick_period_s: 1.0e+308}\n", r":4: node 'sim': params: "),
     ],
     ids=[
         "binary",
@@ -640,6 +642,8 @@ def test_a_yaml_merge_key_is_named_at_its_line(tmp_path: Path) -> None:
         "long-include",
         "huge-int",
         "relative-type",
+        "empty-int-tag",
+        "huge-tick",
     ],
 )
 def test_a_fuzzed_launch_file_is_a_launch_error_never_a_traceback(text: bytes, expected: str, tmp_path: Path) -> None:
@@ -650,10 +654,48 @@ def test_a_fuzzed_launch_file_is_a_launch_error_never_a_traceback(text: bytes, e
         load(path, tmp_path)
 
 
-@pytest.mark.parametrize("value", ["2001-13-45", "!!bool maybe", "!!timestamp nope", "!!float x"])
+@pytest.mark.parametrize("value", ["2001-13-45", "!!bool maybe", "!!timestamp nope", "!!float x", "!!int"])
 def test_a_fuzzed_command_line_value_is_a_launch_error(value: str) -> None:
     with pytest.raises(LaunchError, match=r"from the command line: its value is not valid YAML"):
         parse_cli_args([f"seed:={value}"])
+
+
+def test_a_command_line_value_nested_too_deeply_is_a_launch_error() -> None:
+    """A fuzzer's find: a RecursionError traceback."""
+    with pytest.raises(LaunchError, match=r"^launch argument 'seed:=\[+' from the command line: nested too deeply"):
+        parse_cli_args(["seed:=" + "[" * 5000])
+
+
+@pytest.mark.parametrize(
+    ("node", "expected"),
+    [
+        ("  - name: a\n    type: noise\n    params: 3\n", r":5: params must be a mapping$"),
+        ("  - name: [a]\n    type: noise\n", r":3: name must be a string, got \['a'\]$"),
+        ("  - name: 5\n    type: noise\n", r":3: name must be a string, got 5$"),
+    ],
+    ids=["params-not-a-mapping", "name-a-list", "name-a-number"],
+)
+def test_set_and_external_on_a_node_entry_of_the_wrong_shape_name_its_line(
+    node: str, expected: str, tmp_path: Path
+) -> None:
+    """A fuzzer's finds: --set (and --external) on such a file raised AttributeError or TypeError."""
+    path = tmp_path / "shape.yaml"
+    path.write_text("mode: realtime\nnodes:\n" + node + "  - name: b\n    type: noise\n")
+    named = "name must" in expected  # a bad name fails whichever node --set names; bad params only their node's
+    for dotted in ("a.contacts", "b.contacts", "nobody.contacts") if named else ("a.contacts",):
+        with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}{expected}"):
+            apply_params(load_launch(path), [(dotted, True)])
+    if named:
+        with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}{expected}"):
+            with_external(load_launch(path), ["b"])
+
+
+def test_set_on_a_node_whose_params_have_no_value_sets_the_parameter(tmp_path: Path) -> None:
+    path = tmp_path / "empty_params.yaml"
+    path.write_text("nodes:\n  - name: a\n    type: cube_contacts\n    params:\n")
+    launch = load_launch(path)
+    apply_params(launch, [("a.edge_m", 0.1)])
+    assert resolve(launch, bus_dir=tmp_path).by_name["a"].config.edge_m == 0.1
 
 
 def test_external_on_the_command_line_marks_nodes_as_the_file_key_does(
@@ -872,3 +914,16 @@ def test_a_set_parameter_names_node_and_key() -> None:
     for dotted in ("cube.", "nobody.edge_m"):
         with pytest.raises(ConfigError, match=rf"^parameter override '{dotted}': expected node.key with node one of"):
             apply_params(launch, [(dotted, 1)])
+
+
+@pytest.mark.parametrize("topic", ["''", "/", "null", "5", "[a]"])
+def test_a_remap_to_no_topic_is_named_at_its_line(topic: str, tmp_path: Path) -> None:
+    """A fuzzer's finds: '' and '/' subscribed to every topic (a ZeroMQ prefix), null became the topic 'None'."""
+    path = tmp_path / "remap.yaml"
+    path.write_text(
+        "nodes:\n  - name: cube\n    type: cube_contacts\n  - name: estimator\n    type: bbox_estimator\n"
+        f"    remaps:\n      mesh: {topic}\n"
+    )
+    expected = rf"^{re.escape(str(path))}:7: node 'estimator' remaps port 'mesh' to .*; a topic is a non-empty string$"
+    with pytest.raises(LaunchError, match=expected):
+        load(path, tmp_path)
