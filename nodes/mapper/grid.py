@@ -76,6 +76,10 @@ def update_log_odds(
     return new
 
 
+#: Most cells a grid may have: its flat cell indices are int64.
+MAX_CELLS = 2.0**62
+
+
 @dataclass(frozen=True, kw_only=True)
 class GridSpec:
     """Geometry of a grid: cell (i, j, k) covers origin_m + [i, i+1) * resolution_m (per axis).
@@ -107,7 +111,16 @@ class GridSpec:
             raise ConfigError(f"region max {max_m!r} must exceed region min {min_m!r} on every axis")
         if not (math.isfinite(resolution_m) and resolution_m > 0):
             raise ConfigError(f"resolution_m must be a positive number, got {resolution_m!r}")
-        n = np.maximum(1, np.ceil((hi - lo) / resolution_m - 1e-9)).astype(int)
+        with np.errstate(over="ignore"):
+            cells = np.maximum(1.0, np.ceil((hi - lo) / resolution_m - 1e-9))
+            total = float(np.prod(cells))
+        if not total < MAX_CELLS:  # also inf and NaN
+            raise ConfigError(
+                f"resolution_m {resolution_m!r} is too fine for the region {min_m!r} to {max_m!r}: "
+                f"{' x '.join(f'{c:.3g}' for c in cells)} cells, more than {MAX_CELLS:.3g} (flat cell indices are "
+                "64-bit); use a coarser resolution or a smaller region"
+            )
+        n = cells.astype(int)
         return cls(
             origin_m=(float(lo[0]), float(lo[1]), float(lo[2])),
             resolution_m=float(resolution_m),

@@ -266,3 +266,12 @@ def test_a_long_vector_in_a_message_is_shown_in_part() -> None:
 
     assert shown(np.array([0.5, 0.5])) == "[0.5, 0.5]"
     assert shown(np.full(300, 0.01)) == "[0.01, 0.01, 0.01, 0.01, 0.01, ...] (300 values, sum 3)"
+
+
+@pytest.mark.parametrize("resolution_m", [5e-324, 1e-21])
+def test_a_resolution_too_fine_for_int64_cell_indices_is_refused_by_name(resolution_m: float) -> None:
+    """5e-324 m overflowed the cell counts to negative numbers ("shape must be 3 positive cell counts");
+    1e-21 m over 9 cm gives 9e19 cells per axis."""
+    with pytest.raises(ConfigError, match=r"resolution_m .* is too fine for the region .* more than 4.61e\+18"):
+        GridSpec.from_bounds((-0.045,) * 3, (0.045,) * 3, resolution_m)
+    assert GridSpec.from_bounds((-0.045,) * 3, (0.045,) * 3, 1e-6).shape == (90_000,) * 3  # 7.3e14 cells: sparse
