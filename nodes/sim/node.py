@@ -8,6 +8,7 @@ joint angles, the object and its mesh) goes on `truth/` topics, which only evalu
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -50,7 +51,7 @@ class SimNodeConfig(Validated):
     def __post_init__(self) -> None:
         super().__post_init__()
         steps = self.tick_period_s / self.scene.timestep_s
-        if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
+        if not math.isfinite(steps) or abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
             raise ConfigError(
                 f"tick_period_s = {self.tick_period_s!r} must be a positive multiple of the scene's time step "
                 f"{self.scene.timestep_s!r}",

@@ -629,7 +629,10 @@ def test_a_yaml_merge_key_is_named_at_its_line(tmp_path: Path) -> None:
         (b"nodes:\n  - name: a\n    type: sim\n    max_restarts: " + b"9" * 400 + b"\n", r":4: max_restarts must be"),
         (b"nodes:\n  - name: a\n    type: '..:x'\n", r":3: node type '..:x': cannot import \.\."),
         (b"description: ok\nnodes:\n  - name: a\n    type: !!int\n", r":4: cannot read '': not a valid int"),
-        (b"nodes:\n  - name: sim\n    type: sim\n    params: {tick_period_s: 1.0e+308}\n", r":4: node 'sim': params: "),
+        (
+            b"nodes:\n  - name: sim\n    type: sim\n    params: {tick_period_s: 1.0e+308}\n",
+            r":4: node 'sim': params: tick_period_s = 1e\+308 must be a positive multiple",
+        ),
     ],
     ids=[
         "binary",
