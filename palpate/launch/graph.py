@@ -254,6 +254,16 @@ def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
     return graph
 
 
+#: Topics the runtime itself publishes on (lockstep, stop, status): no port may be remapped onto them.
+RUNTIME_TOPICS = (topics.CLOCK, topics.LOCKSTEP_ACK, topics.NODE_STATUS, topics.GRAPH_CONTROL)
+
+
+def _runtime_topic(topic: str) -> bool:
+    """Whether `topic` is one of the runtime's own, or the hello/<node> topic a node subscribes to on
+    every publisher it connects to."""
+    return topic in RUNTIME_TOPICS or topic.startswith("hello/")
+
+
 def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
     f = entry.fields
     name, node_type = f["name"], f["type"]
@@ -291,6 +301,11 @@ def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
             raise LaunchError(
                 f"{entry.remap_lines.get(port, entry.at('remaps'))}: node {name!r} remaps port {port!r} to {topic!r}; "
                 "a topic is a non-empty string"
+            )
+        if _runtime_topic(topic.strip("/")):
+            raise LaunchError(
+                f"{entry.remap_lines.get(port, entry.at('remaps'))}: node {name!r} remaps port {port!r} to the "
+                f"runtime's own topic {topic!r} (the runtime's topics: {', '.join(RUNTIME_TOPICS)}, hello/<node>)"
             )
     namespace = str(f.get("namespace", "")).strip("/")
 

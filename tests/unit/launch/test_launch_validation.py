@@ -930,3 +930,16 @@ def test_a_remap_to_no_topic_is_named_at_its_line(topic: str, tmp_path: Path) ->
     expected = rf"^{re.escape(str(path))}:7: node 'estimator' remaps port 'mesh' to .*; a topic is a non-empty string$"
     with pytest.raises(LaunchError, match=expected):
         load(path, tmp_path)
+
+
+@pytest.mark.parametrize("topic", ["clock", "/status", "graph/control", "lockstep/ack", "hello/cube"])
+def test_a_remap_onto_the_runtimes_own_topics_is_named_at_its_line(topic: str, tmp_path: Path) -> None:
+    """A port remapped onto a topic the runtime publishes on (a mesh on `clock`) passed --dry-run."""
+    path = tmp_path / "remap.yaml"
+    path.write_text(
+        "nodes:\n  - name: cube\n    type: cube_contacts\n  - name: estimator\n    type: bbox_estimator\n"
+        f"    remaps:\n      mesh: {topic}\n"
+    )
+    expected = rf"^{re.escape(str(path))}:7: node 'estimator' remaps port 'mesh' to the runtime's own topic"
+    with pytest.raises(LaunchError, match=expected):
+        load(path, tmp_path)
