@@ -55,6 +55,19 @@ def parse(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.N
     return args
 
 
+#: An error message longer than this is printed as its start and its end: one that echoes a bad value
+#: in full (a 200,000-character argument name) would fill the terminal.
+MAX_ERROR_CHARS = 4000
+
+
+def shortened(message: str, limit: int = MAX_ERROR_CHARS) -> str:
+    """`message`, or its first and last limit / 2 characters with how many were left out between."""
+    if len(message) <= limit:
+        return message
+    half = limit // 2
+    return f"{message[:half]} ... [{len(message) - 2 * half:,} characters left out] ... {message[-half:]}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parse(parser, argv)
@@ -64,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.flush()  # here, where a closed pipe is caught below, not at exit
         return code
     except PalpateError as exc:
-        print(f"palpate {args.command}: {exc}", file=sys.stderr)
+        print(f"palpate {args.command}: {shortened(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

@@ -943,3 +943,16 @@ def test_a_remap_onto_the_runtimes_own_topics_is_named_at_its_line(topic: str, t
     expected = rf"^{re.escape(str(path))}:7: node 'estimator' remaps port 'mesh' to the runtime's own topic"
     with pytest.raises(LaunchError, match=expected):
         load(path, tmp_path)
+
+
+def test_an_error_that_echoes_a_huge_value_prints_its_start_and_end(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A launch fuzzer's find: an undeclared argument name of 200,000 characters made a 200 kB error line."""
+    path = tmp_path / "huge.yaml"
+    path.write_text("nodes:\n  - name: cube\n    type: cube_contacts\n")
+    name = "x" * 200_000
+    assert main(["launch", str(path), "--dry-run", f"{name}:=1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("palpate launch: ") and len(err) < 4100
+    assert "characters left out" in err
