@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from pathlib import Path
+from typing import Any
 
 
 def positive_int(text: str) -> int:
@@ -25,6 +27,43 @@ def positive_float(text: str) -> float:
 def non_negative_float(text: str) -> float:
     """A finite number >= 0."""
     return _float(text, positive=False, refusal=f"{text!r} is not a finite number >= 0")
+
+
+def bounded_positive_int(highest: int) -> Any:
+    """An argument type: an integer from 1 to `highest` (a larger one would overflow a buffer's length)."""
+
+    def parse(text: str) -> int:
+        value = positive_int(text)
+        if value > highest:
+            raise argparse.ArgumentTypeError(f"{_shown(text)} is more than {highest:,}")
+        return value
+
+    parse.__name__ = "positive_int"  # argparse names the type in its message for a ValueError
+    return parse
+
+
+def json_object(text: str) -> dict[str, Any]:
+    """A JSON object, ``{"key": value, ...}``."""
+    try:
+        value = json.loads(text)
+    except (ValueError, RecursionError):
+        raise argparse.ArgumentTypeError(f"{_shown(text)} is not JSON; give an object {{...}}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"{_shown(text)} is not a JSON object {{...}}")
+    return value
+
+
+def json_string_map(text: str) -> dict[str, str]:
+    """A JSON object whose values are strings, ``{"key": "text", ...}``."""
+    value = json_object(text)
+    if not all(isinstance(v, str) for v in value.values()):
+        raise argparse.ArgumentTypeError(f"{_shown(text)}: every value must be a string")
+    return value
+
+
+def _shown(text: str, limit: int = 200) -> str:
+    """`text` quoted, its middle left out when it is long (an error message echoes it)."""
+    return repr(text) if len(text) <= limit else f"{text[: limit // 2]!r}...{text[-limit // 2 :]!r}"
 
 
 def path_arg(text: str) -> Path:

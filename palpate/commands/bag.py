@@ -99,7 +99,11 @@ def run_replay(args: argparse.Namespace) -> int:
 
 def run_record(args: argparse.Namespace) -> int:
     """`palpate record`: as the recorder, refusing to replace an existing log without --force."""
-    if args.output.is_file() and not args.force:
+    try:
+        exists = args.output.is_file()
+    except OSError as exc:  # a name too long
+        raise RecordError(f"-o {args.output}: {exc.strerror}") from exc
+    if exists and not args.force:
         raise RecordError(f"{args.output} exists; pass --force to replace it, or choose another output with -o")
     return recorder.run(args)
 

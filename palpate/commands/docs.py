@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 import msgpack
 import numpy as np
@@ -51,18 +52,37 @@ def run_messages(args: argparse.Namespace) -> int:
         if args.output is None:
             print("palpate docs messages: --check needs -o FILE", file=sys.stderr)
             return 2
-        current = args.output.read_text() if args.output.exists() else ""
-        if current != text:
+        expected = text.encode()
+        try:  # no more than the rendering and a byte: -o /dev/zero is out of date, not the end of the memory
+            current = _read_start(args.output, len(expected) + 1) if args.output.exists() else b""
+        except (OSError, RecursionError) as exc:
+            print(f"palpate docs messages: cannot read {args.output}: {_why(exc)}", file=sys.stderr)
+            return 2
+        if current != expected:
             print(f"{args.output} is out of date: run `make docs` (palpate docs messages -o {args.output})")
             return 1
         return 0
     if args.output is None:
         sys.stdout.write(text)
     else:
-        args.output.parent.mkdir(parents=True, exist_ok=True)
-        args.output.write_text(text)
+        try:
+            args.output.parent.mkdir(parents=True, exist_ok=True)
+            args.output.write_bytes(text.encode())
+        except (OSError, RecursionError) as exc:  # (RecursionError: mkdir of a path of 1,000s of parts)
+            print(f"palpate docs messages: cannot write {args.output}: {_why(exc)}", file=sys.stderr)
+            return 2
         print(f"wrote {args.output} ({len(documented_types())} message types)")
     return 0
+
+
+def _read_start(path: Path, size: int) -> bytes:
+    """The first `size` bytes of the file at `path`."""
+    with path.open("rb") as stream:
+        return stream.read(size)
+
+
+def _why(exc: BaseException) -> str:
+    return exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
 
 
 def documented_types() -> list[type[Message]]:

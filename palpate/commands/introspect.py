@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from palpate import jsonio
-from palpate.argtypes import non_negative_float, non_negative_int, path_arg, positive_int
+from palpate.argtypes import bounded_positive_int, non_negative_float, non_negative_int, path_arg
 from palpate.errors import MessageError
 from palpate.messages import codec
 from palpate.messages.base import Message
@@ -29,6 +29,8 @@ from palpate.runtime import bus
 
 DISCOVERY_PERIOD_S = 0.5
 _INLINE_ELEMENTS = 6
+#: Largest `topic hz --window` (messages kept for the rate).
+MAX_WINDOW = 10_000_000
 
 
 #: Help of the tools' `--curve-keys` option.
@@ -60,7 +62,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     te.set_defaults(func=run_topic_echo)
     th = tsub.add_parser("hz", help="message rate of a topic, in wall-clock and sim time")
     th.add_argument("topic")
-    th.add_argument("--window", type=positive_int, default=100, metavar="N", help="messages the rate is measured over")
+    th.add_argument(
+        "--window",
+        type=bounded_positive_int(MAX_WINDOW),
+        default=100,
+        metavar="N",
+        help="messages the rate is measured over",
+    )
     th.add_argument("--duration", type=non_negative_float, default=0.0, metavar="S", help="exit after S s (0: never)")
     th.add_argument("--bus", type=path_arg, help=bus_help)
     th.add_argument("--curve-keys", type=path_arg, metavar="FILE", help=CURVE_KEYS_HELP)

@@ -48,12 +48,16 @@ def run_keys(args: argparse.Namespace) -> int:
     if server_public is not None and len(server_public) != 40:
         print("palpate keys: --server-public must be a 40-character z85 public key", file=sys.stderr)
         return 2
+    keys = make_curve_keys(server_public)
     try:
-        write_keys(args.output, make_curve_keys(server_public), force=args.force)
-    except FileExistsError:
-        print(f"palpate keys: {args.output} exists; pass --force to replace it", file=sys.stderr)
+        write_keys(args.output, keys, force=args.force)
+    except (OSError, RecursionError) as exc:  # (RecursionError: mkdir of a path of 1,000s of parts)
+        if isinstance(exc, FileExistsError) and os.path.lexists(args.output):  # (not a file in the folder's way)
+            print(f"palpate keys: {args.output} exists; pass --force to replace it", file=sys.stderr)
+            return 2
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
+        print(f"palpate keys: cannot write {args.output}: {why}", file=sys.stderr)
         return 2
-    keys = json.loads(args.output.read_text())
     print(f"wrote {args.output}; public key {keys['public']}")
     print(f"use it in a launch file as `curve_keys: {args.output}` on every node of the cross-host links")
     return 0

@@ -265,12 +265,23 @@ def run_graph(graph: Graph, record: Path | None = None, *, overwrite: bool = Fal
     return code
 
 
+def make_folder(path: Path, option: str) -> None:
+    """Create the folder `path` (and its parents) or raise LaunchError naming `option` and why not."""
+    try:
+        if path.exists() and not path.is_dir():
+            raise LaunchError(f"{option} {path} is a file, not a folder; give a folder")
+        path.mkdir(parents=True, exist_ok=True)
+    except (OSError, RecursionError) as exc:  # (RecursionError: pathlib's mkdir of a path of 1,000s of parts)
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
+        raise LaunchError(f"{option} {path}: cannot create the folder: {why}") from None
+
+
 def run_demo(args: argparse.Namespace) -> int:
     """launch/demo.yaml through the full node graph, recorded to OUT/explore.mcap; prints the metrics."""
     import json
 
     out: Path = args.out.resolve()
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out, "--out")
     given = {item.partition(":=")[0] for item in args.args}
     defaults = {"results": out / "explore.json", "plot": out / "explore.png"}
     overrides = [*args.args, *(f"{k}:={v}" for k, v in defaults.items() if k not in given)]

@@ -32,6 +32,8 @@ _CONSTRUCTOR = yaml.constructor.SafeConstructor()
 _CONSTRUCT_ERRORS = (ValueError, KeyError, AttributeError, TypeError, OverflowError, IndexError)
 #: Most values a launch file may expand to, aliases included (a "billion laughs" file is refused).
 MAX_VALUES = 1_000_000
+#: A launch file larger than this (bytes) is refused unread: /dev/zero as the file would fill the memory.
+MAX_LAUNCH_BYTES = 16 << 20
 _ARG = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
 
 TOP_KEYS = {"args", "mode", "seed", "include", "nodes", "description", "placement"}
@@ -228,9 +230,12 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
 def _compose(path: Path, name: str) -> yaml.Node | None:
     """The YAML node tree of the file (None when it is empty); every error names the file and line."""
     try:
-        data = path.read_bytes()
+        with path.open("rb") as stream:
+            data = stream.read(MAX_LAUNCH_BYTES + 1)
     except OSError as exc:
         raise LaunchError(f"{name}: cannot read launch file: {exc.strerror}") from exc
+    if len(data) > MAX_LAUNCH_BYTES:
+        raise LaunchError(f"{name}: larger than {MAX_LAUNCH_BYTES >> 20} MiB: not a launch file")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -11,6 +11,7 @@ subscribers (``--subscribers``).
 from __future__ import annotations
 
 import logging
+import math
 import os
 import signal
 import time
@@ -63,7 +64,10 @@ class Player:
         self.path = path
         self.options = options
         self.bus_dir = bus_dir if bus_dir is not None else bus.default_bus_dir()
-        self.bus_dir.mkdir(parents=True, exist_ok=True)
+        try:
+            bus.usable_dir(self.bus_dir).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise RecordError(f"--bus {self.bus_dir}: cannot create the bus directory: {exc.strerror}") from exc
         summary = mcap_io.summarize(path)
         missing = [t for t in options.topics if t not in summary.topics]
         if missing:
@@ -71,10 +75,11 @@ class Player:
         self.types = {t: ty for t, ty in summary.types.items() if not options.topics or t in options.topics}
         if not self.types:
             raise RecordError(f"{path} holds no messages to replay")
-        self.start_ns = summary.start_ns + round(options.start_s * 1e9)
-        if self.start_ns > summary.end_ns:
+        offset_ns = options.start_s * 1e9
+        if not math.isfinite(offset_ns) or summary.start_ns + round(offset_ns) > summary.end_ns:
             span_s = (summary.end_ns - summary.start_ns) * 1e-9
             raise RecordError(f"--start {options.start_s:g} s is past the end of {path}, which spans {span_s:.3f} s")
+        self.start_ns = summary.start_ns + round(offset_ns)
         self.interrupted = False
         self.sent = 0
 

@@ -300,8 +300,11 @@ def _open(path: str | Path) -> IO[bytes]:
 
 def _check_complete(stream: IO[bytes], path: str | Path) -> None:
     """RecordError naming what is wrong unless `stream` starts and ends with MCAP's magic bytes."""
-    head = stream.read(len(MCAP_MAGIC))
-    size = stream.seek(0, os.SEEK_END)
+    try:
+        head = stream.read(len(MCAP_MAGIC))
+        size = stream.seek(0, os.SEEK_END)
+    except OSError as exc:  # /proc/self/mem opens but cannot be read
+        raise RecordError(f"cannot read log {str(path)!r}: {exc.strerror}") from exc
     if size == 0:
         raise RecordError(f"{path} is empty (0 bytes): not an MCAP log")
     if head != MCAP_MAGIC:

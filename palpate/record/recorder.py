@@ -27,7 +27,6 @@ SIGINT and SIGTERM write what is queued and finish the file.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import signal
 import sys
@@ -39,8 +38,8 @@ from pathlib import Path
 from types import FrameType
 from typing import Any, NamedTuple
 
-from palpate.argtypes import path_arg, positive_int
-from palpate.errors import MalformedMessageError, MessageError, PalpateError
+from palpate.argtypes import json_object, json_string_map, path_arg, positive_int
+from palpate.errors import MalformedMessageError, MessageError, PalpateError, RecordError
 from palpate.messages import codec, topics
 from palpate.messages.schemas import Clock, LockstepAck, RunControl
 from palpate.record.mcap_io import COMPRESSIONS, INTERNAL_TOPICS, LAUNCH_METADATA, LogWriter, PayloadInfo, peek
@@ -539,7 +538,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--curve-servers",
-        type=json.loads,
+        type=json_string_map,
         default={},
         metavar="JSON",
         help='CurveZMQ server keys of keyed publishers, {"ENDPOINT": "z85 public key"} (manifest mode reads them)',
@@ -552,7 +551,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--about",
-        type=json.loads,
+        type=json_object,
         default={},
         metavar="JSON",
         help='what made the run, kept in the log: {"launch_file": ..., "args": ..., "seed": ...} (palpate launch)',
@@ -563,7 +562,11 @@ def run(args: argparse.Namespace) -> int:
     """Run a recorder configured by `add_arguments` options."""
     if args.output.suffix != ".mcap":
         log.warning("writing MCAP to %s (the usual extension is .mcap)", args.output)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        args.output.parent.mkdir(parents=True, exist_ok=True)
+    except (OSError, RecursionError) as exc:  # (RecursionError: mkdir of a path of 1,000s of parts)
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
+        raise RecordError(f"-o {args.output}: cannot create its folder: {why}") from None
     recorder = Recorder(
         args.output,
         topics_wanted=args.topics,

@@ -150,7 +150,11 @@ class Manifest:
 def read_manifests(bus_dir: str | Path) -> list[Manifest]:
     """Manifests of live publishers (entries whose process is gone are skipped)."""
     manifests = []
-    for path in sorted(Path(bus_dir).glob("*.json")):
+    try:
+        paths = sorted(Path(bus_dir).glob("*.json"))
+    except OSError as exc:
+        raise BusError(f"cannot read bus directory {bus_dir}: {exc.strerror}") from exc
+    for path in paths:
         try:
             manifest = Manifest(**json.loads(path.read_text()))
         except (OSError, ValueError, TypeError):

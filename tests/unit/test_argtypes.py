@@ -10,6 +10,9 @@ from pathlib import Path
 import pytest
 
 from palpate.argtypes import (
+    bounded_positive_int,
+    json_object,
+    json_string_map,
     non_negative_float,
     non_negative_int,
     positive_float,
@@ -50,6 +53,10 @@ from tests.unit.record.synthetic import canonical_log, write_log
         ["eval", "explore", "--out", ""],  # wrote its tables and plots into the working directory
         ["launch", "x.yaml", "--record", ""],
         ["record", "-o", ""],
+        ["topic", "hz", "clock", "--window", str(2**70)],  # OverflowError making the rate's buffer
+        ["record", "-o", "x.mcap", "--about", "[1]"],  # AttributeError: 'list' object has no attribute 'items'
+        ["record", "-o", "x.mcap", "--curve-servers", '"s"'],  # ValueError from dict()
+        ["record", "-o", "x.mcap", "--curve-servers", '{"tcp://h:1": 1}'],
     ],
 )
 def test_nonsense_values_are_argparse_errors(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
@@ -58,6 +65,60 @@ def test_nonsense_values_are_argparse_errors(argv: list[str], capsys: pytest.Cap
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     assert "argument" in err and argv[-2] in err and repr(argv[-1]) in err, err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["demo", "--out", "{file}"], "palpate demo: --out "),  # FileExistsError
+        (["demo", "--out", "{file}/x"], "palpate demo: --out "),  # NotADirectoryError
+        (["demo", "--out", "d/" * 1500], "palpate demo: --out "),  # RecursionError in pathlib's mkdir
+        (["docs", "messages", "-o", "{dir}"], "palpate docs messages: cannot write"),  # IsADirectoryError
+        (["docs", "messages", "-o", "{file}/x.md"], "palpate docs messages: cannot write"),  # FileExistsError
+        (["docs", "messages", "--check", "-o", "{dir}"], "palpate docs messages: cannot read"),
+        (["keys", "-o", "{dir}", "--force"], "palpate keys: cannot write"),  # IsADirectoryError
+        (["keys", "-o", "{file}/x.key"], "palpate keys: cannot write"),  # FileExistsError from mkdir
+        (["keys", "-o", "/dev/null", "--force"], "wrote /dev/null"),  # read the key back: JSONDecodeError
+        (["record", "-o", "{file}/x.mcap", "--bus", "{dir}"], "palpate record: -o "),  # FileExistsError
+        (["record", "-o", "a" * 300, "--bus", "{dir}"], "palpate record: -o "),  # OSError: name too long
+        (["replay", "{log}", "--bus", "{file}"], "is not a directory"),  # FileExistsError
+        (["replay", "{log}", "--start", "1e308", "--bus", "{dir}"], "past the end of"),  # OverflowError
+        (["topic", "list", "--bus", "a" * 300], "cannot read bus directory"),  # OSError: name too long
+        (["node", "list", "--bus", "a" * 300], "cannot read bus directory"),
+    ],
+)
+def test_command_lines_found_by_the_fuzzer_give_a_palpate_error(
+    argv: list[str], message: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "file").write_bytes(b"not a folder")
+    (tmp_path / "dir").mkdir()
+    write_log(tmp_path / "run.mcap", canonical_log(3))
+    places = {"file": "file", "dir": "dir", "log": "run.mcap"}
+    code = main([item.format(**places) for item in argv])
+    out, err = capsys.readouterr()
+    assert code == (0 if message.startswith("wrote") else 2), err
+    assert message in out + err
+
+
+def test_docs_check_reads_no_more_than_the_reference(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["docs", "messages", "--check", "-o", "/dev/zero"]) == 1  # read /dev/zero to the end: MemoryError
+    assert "out of date" in capsys.readouterr().out
+
+
+def test_json_and_bounded_argument_types() -> None:
+    assert (json_object('{"a": [1]}'), json_string_map('{"a": "b"}')) == ({"a": [1]}, {"a": "b"})
+    assert bounded_positive_int(5)("5") == 5
+    for parse, text, refusal in [
+        (json_object, "[1]", "'[1]' is not a JSON object {...}"),
+        (json_object, "{", "'{' is not JSON; give an object {...}"),
+        (json_object, "[" * 100_000, f"{'[' * 100!r}...{'[' * 100!r} is not JSON; give an object {{...}}"),
+        (json_string_map, '{"a": 1}', "'{\"a\": 1}': every value must be a string"),
+        (bounded_positive_int(5), "6", "'6' is more than 5"),
+        (bounded_positive_int(5), "0", "'0' is not a positive integer"),
+    ]:
+        with pytest.raises(argparse.ArgumentTypeError, match=rf"^{re.escape(refusal)}$"):
+            parse(text)
 
 
 def test_sensible_values_pass() -> None:

@@ -956,3 +956,8 @@ def test_an_error_that_echoes_a_huge_value_prints_its_start_and_end(
     err = capsys.readouterr().err
     assert err.startswith("palpate launch: ") and len(err) < 4100
     assert "characters left out" in err
+
+
+def test_a_launch_file_that_never_ends_is_refused_unread() -> None:
+    with pytest.raises(LaunchError, match=r"/dev/zero: larger than 16 MiB: not a launch file"):
+        load_launch("/dev/zero")  # read to its end: MemoryError, or the kernel's OOM killer

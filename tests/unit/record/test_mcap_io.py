@@ -365,3 +365,8 @@ def test_a_file_too_short_for_a_footer_is_named(tmp_path: Path) -> None:
             mcap_io.summarize(short)
         with pytest.raises(RecordError, match=r"short\.mcap"):
             mcap_io.recover(short, tmp_path / "fixed.mcap")
+
+
+def test_a_file_that_opens_but_cannot_be_read_is_named() -> None:
+    with pytest.raises(RecordError, match=r"cannot read log '/proc/self/mem'"):
+        mcap_io.summarize("/proc/self/mem")  # OSError: [Errno 5] Input/output error
