@@ -34,3 +34,9 @@ def cache_dir() -> Path:
     path = Path(configured) if configured else Path.home() / ".cache" / "palpate"
     path.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def why_not(exc: BaseException) -> str:
+    """What stopped a file operation, for a message: the OS's reason, else the exception's type
+    (pathlib's mkdir of a path of thousands of parts raises RecursionError)."""
+    return exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__

@@ -18,6 +18,7 @@ from palpate.argtypes import path_arg
 from palpate.messages import REGISTRY, codec, topics
 from palpate.messages.base import FieldSpec, Message
 from palpate.messages.schemas import CartesianVelocityCommand, Clock
+from palpate.paths import why_not
 
 _KINDS = {
     "int": "int",
@@ -56,7 +57,7 @@ def run_messages(args: argparse.Namespace) -> int:
         try:  # no more than the rendering and a byte: -o /dev/zero is out of date, not the end of the memory
             current = _read_start(args.output, len(expected) + 1) if args.output.exists() else b""
         except (OSError, RecursionError) as exc:
-            print(f"palpate docs messages: cannot read {args.output}: {_why(exc)}", file=sys.stderr)
+            print(f"palpate docs messages: cannot read {args.output}: {why_not(exc)}", file=sys.stderr)
             return 2
         if current != expected:
             print(f"{args.output} is out of date: run `make docs` (palpate docs messages -o {args.output})")
@@ -69,7 +70,7 @@ def run_messages(args: argparse.Namespace) -> int:
             args.output.parent.mkdir(parents=True, exist_ok=True)
             args.output.write_bytes(text.encode())
         except (OSError, RecursionError) as exc:  # (RecursionError: mkdir of a path of 1,000s of parts)
-            print(f"palpate docs messages: cannot write {args.output}: {_why(exc)}", file=sys.stderr)
+            print(f"palpate docs messages: cannot write {args.output}: {why_not(exc)}", file=sys.stderr)
             return 2
         print(f"wrote {args.output} ({len(documented_types())} message types)")
     return 0
@@ -79,10 +80,6 @@ def _read_start(path: Path, size: int) -> bytes:
     """The first `size` bytes of the file at `path`."""
     with path.open("rb") as stream:
         return stream.read(size)
-
-
-def _why(exc: BaseException) -> str:
-    return exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
 
 
 def documented_types() -> list[type[Message]]:

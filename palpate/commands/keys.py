@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from palpate.argtypes import path_arg
+from palpate.paths import why_not
 from palpate.runtime.bus import make_curve_keys
 
 KEY_FIELDS = ("public", "secret", "server_public")
@@ -55,7 +56,7 @@ def run_keys(args: argparse.Namespace) -> int:
         if isinstance(exc, FileExistsError) and os.path.lexists(args.output):  # (not a file in the folder's way)
             print(f"palpate keys: {args.output} exists; pass --force to replace it", file=sys.stderr)
             return 2
-        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
+        why = why_not(exc)
         print(f"palpate keys: cannot write {args.output}: {why}", file=sys.stderr)
         return 2
     print(f"wrote {args.output}; public key {keys['public']}")

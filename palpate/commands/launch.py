@@ -19,7 +19,7 @@ from palpate.launch import placement
 from palpate.launch.graph import Graph, resolve
 from palpate.launch.loader import apply_params, load_launch, parse_cli_args, parse_node_params, with_external
 from palpate.launch.supervisor import Supervisor
-from palpate.paths import LAUNCH_DIR, REPO_ROOT
+from palpate.paths import LAUNCH_DIR, REPO_ROOT, why_not
 from palpate.runtime import bus
 
 
@@ -272,7 +272,7 @@ def make_folder(path: Path, option: str) -> None:
             raise LaunchError(f"{option} {path} is a file, not a folder; give a folder")
         path.mkdir(parents=True, exist_ok=True)
     except (OSError, RecursionError) as exc:  # (RecursionError: pathlib's mkdir of a path of 1,000s of parts)
-        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
+        why = why_not(exc)
         raise LaunchError(f"{option} {path}: cannot create the folder: {why}") from None
 
 

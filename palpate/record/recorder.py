@@ -42,6 +42,7 @@ from palpate.argtypes import json_object, json_string_map, path_arg, positive_in
 from palpate.errors import MalformedMessageError, MessageError, PalpateError, RecordError
 from palpate.messages import codec, topics
 from palpate.messages.schemas import Clock, LockstepAck, RunControl
+from palpate.paths import why_not
 from palpate.record.mcap_io import COMPRESSIONS, INTERNAL_TOPICS, LAUNCH_METADATA, LogWriter, PayloadInfo, peek
 from palpate.runtime import bus
 
@@ -565,7 +566,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         args.output.parent.mkdir(parents=True, exist_ok=True)
     except (OSError, RecursionError) as exc:  # (RecursionError: mkdir of a path of 1,000s of parts)
-        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
+        why = why_not(exc)
         raise RecordError(f"-o {args.output}: cannot create its folder: {why}") from None
     recorder = Recorder(
         args.output,
