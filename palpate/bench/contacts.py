@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from palpate import jsonio
-from palpate.argtypes import add_scale_argument, non_negative_int, path_arg, positive_int
+from palpate.argtypes import add_scale_argument, bounded_positive_int, non_negative_int, path_arg
 from palpate.errors import BenchmarkError
 from palpate.paths import YCB_DIR_ENV, ycb_dir
 from palpate.text_table import Column, fixed_width_table
@@ -61,6 +61,8 @@ MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb")
 #: Touches per object (--quick: QUICK_TOUCHES).
 TOUCHES = 1000
 QUICK_TOUCHES = 200
+#: Most touches per object --touches takes (each is a probe sample held in memory).
+MAX_TOUCHES = 10_000_000
 #: The warm-started query answers as the sensor does, bit for bit (tests/unit/geometry/test_warm_closest.py);
 #: the benchmark allows rounding.
 WARM_DEVIATION_MAX_M = 1e-12
@@ -421,7 +423,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--objects", type=path_arg, metavar="DIR", help="benchmark every mesh file in DIR")
     add_scale_argument(parser)
     parser.add_argument(
-        "--touches", type=positive_int, help=f"probe touches per object (default {TOUCHES}, --quick {QUICK_TOUCHES})"
+        "--touches",
+        type=bounded_positive_int(MAX_TOUCHES),
+        help=f"probe touches per object (default {TOUCHES}, --quick {QUICK_TOUCHES})",
     )
     parser.add_argument("--seed", type=non_negative_int, default=0, help="seed of the sampled touches and free probes")
 

@@ -132,6 +132,8 @@ def run_info(args: argparse.Namespace) -> int:
 
 
 def run_recover(args: argparse.Namespace) -> int:
+    if not args.file.name:  # `/`: no name to put the default output beside
+        raise RecordError(f"{args.file} is a directory, not a log; give the log file to recover")
     output = args.output or args.file.with_name(args.file.stem + ".recovered.mcap")
     report = mcap_io.recover(args.file, output, overwrite=args.force)
     state = f"input truncated ({report.reason})" if report.truncated else "input was complete"
@@ -156,8 +158,11 @@ def run_filter(args: argparse.Namespace) -> int:
 
 def _not_in_log(path: Path, topics: list[str]) -> None:
     """Say on stderr which of `topics` the log does not hold (a typo keeps or drops nothing)."""
-    if not path.is_file():
-        return  # the copy names it
+    try:
+        if not path.is_file():
+            return  # the copy names it
+    except OSError:  # a name too long: the copy names it too
+        return
     missing = sorted(set(topics) - set(mcap_io.topic_types(path)))
     if missing:
         print(f"palpate bag: {path} has no topic {', '.join(missing)} (see palpate bag info)", file=sys.stderr)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from palpate.argtypes import path_arg
 from palpate.paths import why_not
-from palpate.runtime.bus import make_curve_keys
+from palpate.runtime.bus import is_z85_key, make_curve_keys
 
 KEY_FIELDS = ("public", "secret", "server_public")
 
@@ -46,7 +46,7 @@ def write_keys(path: Path, keys: dict[str, str], *, force: bool = False) -> None
 
 def run_keys(args: argparse.Namespace) -> int:
     server_public = args.server_public
-    if server_public is not None and len(server_public) != 40:
+    if server_public is not None and not is_z85_key(server_public):
         print("palpate keys: --server-public must be a 40-character z85 public key", file=sys.stderr)
         return 2
     keys = make_curve_keys(server_public)

@@ -40,6 +40,7 @@ from palpate.errors import MalformedMessageError, MessageError, RecordError
 from palpate.messages import codec, topics
 from palpate.messages.base import REGISTRY
 from palpate.messages.schemas import Clock, LockstepAck
+from palpate.paths import why_not
 
 MESSAGE_ENCODING = "msgpack"
 SCHEMA_ENCODING = "jsonschema"
@@ -663,14 +664,17 @@ def output_file(src: str | Path, dst: str | Path, command: str, overwrite: bool 
 
     Refuses a `dst` that is `src` (under any name) and a `src` it cannot open, before creating anything."""
     src, dst = Path(src), Path(dst)
-    if src.resolve() == dst.resolve() or (src.exists() and dst.exists() and os.path.samefile(src, dst)):
-        raise RecordError(f"{command} would overwrite its input {src}; choose another output with -o")
-    if dst.is_dir():
-        raise RecordError(f"{dst} is a directory; give -o a file name")
-    if not dst.parent.is_dir():
-        raise RecordError(f"{dst}: the folder {dst.parent} does not exist; create it or give -o another path")
-    if dst.exists() and not overwrite:
-        raise RecordError(f"{dst} exists; pass --force to replace it, or choose another output with -o")
+    try:
+        if src.resolve() == dst.resolve() or (src.exists() and dst.exists() and os.path.samefile(src, dst)):
+            raise RecordError(f"{command} would overwrite its input {src}; choose another output with -o")
+        if dst.is_dir():
+            raise RecordError(f"{dst} is a directory; give -o a file name")
+        if not dst.parent.is_dir():
+            raise RecordError(f"{dst}: the folder {dst.parent} does not exist; create it or give -o another path")
+        if dst.exists() and not overwrite:
+            raise RecordError(f"{dst} exists; pass --force to replace it, or choose another output with -o")
+    except OSError as exc:  # a name too long, a loop of links
+        raise RecordError(f"-o {dst}: {why_not(exc)}") from exc
     _open(src).close()
     partial = dst.with_name(f".{dst.name}.partial")
     try:

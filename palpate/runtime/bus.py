@@ -260,10 +260,26 @@ def client_curve(server_public: str, client_keys: Mapping[str, str] | None = Non
     return {"public": public.decode(), "secret": secret.decode(), "server_public": server_public}
 
 
+#: A key file is about 150 bytes; one larger than this is refused unread.
+MAX_KEY_FILE_BYTES = 65_536
+
+
+def is_z85_key(text: str) -> bool:
+    """Whether `text` is a 32-byte CurveZMQ key in z85 (40 characters of ZeroMQ's alphabet)."""
+    try:
+        return len(text) == 40 and len(z85.decode(text)) == 32
+    except (KeyError, ValueError):  # a character outside the alphabet
+        return False
+
+
 def read_key_file(path: str | Path) -> dict[str, str]:
     """The z85 keys of a key file written by `palpate keys` ({"public", "secret", "server_public"})."""
     try:
-        keys = json.loads(Path(path).expanduser().read_text())
+        with Path(path).expanduser().open("rb") as stream:
+            data = stream.read(MAX_KEY_FILE_BYTES + 1)  # /dev/zero as the key file would fill the memory
+        if len(data) > MAX_KEY_FILE_BYTES:
+            raise ValueError(f"larger than {MAX_KEY_FILE_BYTES:,} bytes: not a key file")
+        keys = json.loads(data)
     except (OSError, ValueError) as exc:
         raise BusError(f"cannot read CurveZMQ key file {str(path)!r}: {exc}") from exc
     if not isinstance(keys, dict) or {"public", "secret"} - set(keys):

@@ -57,6 +57,7 @@ from tests.unit.record.synthetic import canonical_log, write_log
         ["record", "-o", "x.mcap", "--about", "[1]"],  # AttributeError: 'list' object has no attribute 'items'
         ["record", "-o", "x.mcap", "--curve-servers", '"s"'],  # ValueError from dict()
         ["record", "-o", "x.mcap", "--curve-servers", '{"tcp://h:1": 1}'],
+        ["bench", "contacts", "--touches", str(2**70)],  # ValueError sampling the touches
     ],
 )
 def test_nonsense_values_are_argparse_errors(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
@@ -79,12 +80,17 @@ def test_nonsense_values_are_argparse_errors(argv: list[str], capsys: pytest.Cap
         (["keys", "-o", "{dir}", "--force"], "palpate keys: cannot write"),  # IsADirectoryError
         (["keys", "-o", "{file}/x.key"], "palpate keys: cannot write"),  # FileExistsError from mkdir
         (["keys", "-o", "/dev/null", "--force"], "wrote /dev/null"),  # read the key back: JSONDecodeError
+        (["keys", "-o", "k.key", "--server-public", "~" * 40], "must be a 40-character z85"),  # failed at connect
         (["record", "-o", "{file}/x.mcap", "--bus", "{dir}"], "palpate record: -o "),  # FileExistsError
         (["record", "-o", "a" * 300, "--bus", "{dir}"], "palpate record: -o "),  # OSError: name too long
         (["replay", "{log}", "--bus", "{file}"], "is not a directory"),  # FileExistsError
         (["replay", "{log}", "--start", "1e308", "--bus", "{dir}"], "past the end of"),  # OverflowError
         (["topic", "list", "--bus", "a" * 300], "cannot read bus directory"),  # OSError: name too long
         (["node", "list", "--bus", "a" * 300], "cannot read bus directory"),
+        (["bag", "recover", "{log}", "-o", "a" * 300, "--force"], "palpate bag: -o "),  # OSError: name too long
+        (["bag", "recover", "/", "--force"], "is a directory, not a log"),  # ValueError: Path('/').with_name
+        (["bag", "filter", "a" * 300, "-o", "x.mcap", "--topics", "t"], "palpate bag: "),  # OSError in is_file
+        (["topic", "echo", "clock", "--bus", "{dir}", "--curve-keys", "/dev/zero"], "not a key file"),  # MemoryError
     ],
 )
 def test_command_lines_found_by_the_fuzzer_give_a_palpate_error(
