@@ -157,3 +157,54 @@ def test_only_the_whole_object_mesh_keeps_the_swept_free_space() -> None:
     assert whole_without.region == whole_with.region == "global"
     # ... the whole-object mesh with free space keeps them out: no estimated surface below them
     assert whole_without.vertices_m[:, 2].min() < -0.02 < whole_with.vertices_m[:, 2].min()
+
+
+class _LineGP:
+    """A stand-in estimator for ``enforce``: f(x) = x (the first coordinate), which free space does not
+    move; records each round's observations and refuses the rounds listed in `refuse` (0-based)."""
+
+    supports_free_space = True
+
+    def __init__(self, refuse: tuple[int, ...] = ()) -> None:
+        self.rounds: list[np.ndarray] = []
+        self.refuse = refuse
+
+    def mean(self, x: np.ndarray) -> np.ndarray:
+        return np.asarray(x, dtype=np.float64)[:, 0].copy()
+
+    def add_free_space(self, points_m: np.ndarray, distance_m: float) -> None:
+        if len(self.rounds) in self.refuse:
+            self.rounds.append(np.zeros((0, 3)))
+            raise EstimationError("refused")
+        self.rounds.append(np.array(points_m))
+
+
+def test_enforce_observes_only_centres_below_the_radius_minus_the_tolerance_and_each_once() -> None:
+    """f = x with r = 8 mm and tolerance 0.3 mm: slack x - r = -0.1, -0.5, +0.5, -8 mm, so only the
+    second and fourth centres break f >= r - tolerance. The mean does not move, so later rounds find
+    nothing new (each centre is observed at most once)."""
+    swept = np.array([[0.0079, 0.0, 0.0], [0.0075, 0.0, 0.0], [0.0085, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    gp = _LineGP()
+    added, refused = enforce(gp, swept, R_TIP, 0.001, rounds=4, tolerance_m=3e-4)  # type: ignore[arg-type]
+    assert not refused and sorted(added.tolist()) == [1, 3] and len(gp.rounds) == 1
+    assert sorted(gp.rounds[0][:, 0].tolist()) == [0.0, 0.0075]
+
+
+def test_a_refused_round_stops_enforce_and_keeps_the_earlier_rounds() -> None:
+    """Two broken centres in one 1 cm voxel: round 1 observes the more broken (x = 0), round 2 the
+    other, and is refused: the first stays, the refusal is reported."""
+    swept = np.array([[0.004, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    gp = _LineGP(refuse=(1,))
+    added, refused = enforce(gp, swept, R_TIP, 0.01, rounds=6, tolerance_m=0.0)  # type: ignore[arg-type]
+    assert refused and added.tolist() == [1] and len(gp.rounds) == 2
+    added, refused = enforce(_LineGP(), swept, R_TIP, 0.01, rounds=6, tolerance_m=0.0)  # type: ignore[arg-type]
+    assert not refused and added.tolist() == [1, 0]
+
+
+def test_swept_voxels_are_floored_on_both_sides_of_zero() -> None:
+    """floor(-0.05) = -1 and floor(0.05) = 0: centres 0.1 mm either side of 0 lie in different 2 mm voxels."""
+    swept = SweptSpace(0.002)
+    swept.add([-0.0001, 0.0, 0.0])
+    swept.add([0.0001, 0.0, 0.0])
+    swept.add([-0.0019, 0.0, 0.0])  # voxel -1 again
+    np.testing.assert_allclose(swept.points_m()[:, 0], [-0.0001, 0.0001])

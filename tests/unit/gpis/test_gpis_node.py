@@ -11,10 +11,13 @@ from palpate.config import load
 from palpate.errors import ConfigError, InputError
 from palpate.messages.base import Message
 from palpate.messages.schemas import SurfaceMesh, SurfaceRequest
+from palpate.nodes.gpis import session as session_module
 from palpate.nodes.gpis.core import GPIS, GPISConfig
 from palpate.nodes.gpis.local import AutoGPIS
-from palpate.nodes.gpis.node import GPISNode
-from palpate.nodes.gpis.session import GPISNodeConfig
+from palpate.nodes.gpis.node import GPISNode, _facts, _settle
+from palpate.nodes.gpis.reach import holding, touch_reach
+from palpate.nodes.gpis.session import GPISNodeConfig, GPISSession
+from palpate.nodes.gpis.surface import grid_reach
 from palpate.runtime.node import NodeContext
 from tests.unit.node_messages import touch
 
@@ -116,3 +119,110 @@ def test_a_local_resolution_no_touch_could_mesh_is_a_config_error() -> None:
         with pytest.raises(ConfigError, match=r"local_resolution_m = .* makes a local grid of more than"):
             load(GPISNodeConfig, {"local_resolution_m": step})
     assert load(GPISNodeConfig, {"local_resolution_m": 0.0004}).local_resolution_m == 0.0004  # 301^3 nodes
+
+
+def test_touch_reach_covers_the_local_grid_and_the_whole_object_box_with_the_touch() -> None:
+    """One contact at 0, a touch at x = 0.3, half extent 1 cm, margin 5 cm: the local grid's far corner is
+    sqrt(0.31^2 + 2 x 0.01^2) = 0.3103 m from the contact, the diagonal of the box of both grown by 5 cm
+    sqrt(0.4^2 + 0.1^2 + 0.1^2) = 0.4243 m: the larger counts."""
+    gp = GPIS(GPISConfig())
+    assert touch_reach(gp, [0.3, 0.0, 0.0], 0.01, 0.05) == 0.0  # no contact yet: nothing to hold
+    gp.add_contact([0.0, 0.0, 0.0], [0.0, 0.0, 1.0])
+    assert touch_reach(gp, [0.3, 0.0, 0.0], 0.01, 0.05) == pytest.approx(np.sqrt(0.18), rel=1e-12)
+    assert touch_reach(gp, [0.3, 0.0, 0.0], 0.01, 0.0) == pytest.approx(np.sqrt(0.31**2 + 2e-4), rel=1e-12)
+    assert grid_reach(np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]]), np.zeros(3), 0.01) == pytest.approx(
+        np.sqrt(0.11**2 + 2e-4), rel=1e-12
+    )  # the farther contact's corner, not the nearer's
+
+
+def test_holding_doubles_r_until_it_has_the_headroom() -> None:
+    """R_m = 0.5 m holds 0.45 m as it is; 0.9 m needs R_m >= 1.25 x 0.9 = 1.125 m: 0.5 -> 1 -> 2 m
+    (1 m would hold 0.9 m, but without the headroom); beyond the cap the GP is returned unchanged."""
+    gp = GPIS(GPISConfig(), prior_centre_m=[0.0, 0.0, -0.01])
+    gp.add_contact([0.0, 0.0, 0.0], [0.0, 0.0, 1.0])
+    assert holding(gp, 0.45, 8.0) is gp
+    grown = holding(gp, 0.9, 8.0)
+    assert grown.config.R_m == 2.0 and grown.n_contacts == 1
+    np.testing.assert_array_equal(grown.prior_centre_m, [0.0, 0.0, -0.01])
+    assert holding(gp, 0.9, 1.5) is gp
+
+
+def test_the_session_counts_a_finer_local_mesh_and_gives_the_variance_where_configured() -> None:
+    """The needle of test_surface: its second touch is meshed on a 2.5 mm grid (counted); a sphere
+    touch is not. vertex_variance "all" gives every vertex a variance, "candidates" some."""
+    P = np.array([[0.000354, -0.000354, 0.030298], [-0.000462, 0.000191, 0.028963]])
+    N = np.array([[0.688312, -0.725415, 0.0], [-0.856953, 0.515394, 0.0]])
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    needle = GPISSession(GPISNodeConfig(local_half_extent_m=0.05))
+    needle.touch(P[0], N[0])
+    assert needle.take_counts() == {}
+    needle.touch(P[1], N[1])
+    assert needle.take_counts() == {"local_mesh_refined": 1}
+    rng = np.random.default_rng(3)
+    u = rng.standard_normal((30, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    meshes = {}
+    for where in ("all", "candidates"):
+        session = GPISSession(GPISNodeConfig(local_half_extent_m=0.05, vertex_variance=where))
+        session.gp.add_contacts(0.04 * u[:-1], u[:-1])
+        meshes[where] = session.touch(0.04 * u[-1], u[-1])
+        assert session.take_counts() == {}
+    everywhere, candidates = meshes["all"], meshes["candidates"]
+    np.testing.assert_array_equal(everywhere.variance_vertices, np.arange(len(everywhere.vertices)))
+    assert 0 < len(candidates.variance_vertices) < len(candidates.vertices) / 2
+
+
+def test_the_whole_object_mesh_enforces_the_swept_centres_in_its_box_and_counts(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The box of contacts at x = 0 and 2 cm grown by 3 cm reaches z = -3 cm: the centre swept at
+    z = -2 cm is enforced, the one at -5 cm not. The counters take what ``enforce`` reports."""
+    session = GPISSession(GPISNodeConfig(free_space=True, global_margin_m=0.03))
+    session.gp.add_contacts(np.array([[0.0, 0.0, 0.0], [0.02, 0.0, 0.0]]), np.tile([0.0, 0.0, 1.0], (2, 1)))
+    session.no_contact()  # no pose yet
+    for centre in ([0.01, 0.0, -0.02], [0.01, 0.0, -0.05]):
+        session.pose(centre)
+        session.no_contact()
+    seen: list[np.ndarray] = []
+
+    def fake_enforce(gp: object, centres: np.ndarray, *args: object) -> tuple[np.ndarray, bool]:
+        seen.append(centres.copy())
+        return np.arange(3), True
+
+    monkeypatch.setattr(session_module, "enforce", fake_enforce)
+    session.whole(False)
+    assert len(seen) == 1
+    np.testing.assert_array_equal(seen[0], [[0.01, 0.0, -0.02]])
+    assert session.take_counts() == {"free_space_points": 3, "free_space_refused": 1}
+    assert session.take_counts() == {}
+
+
+def test_the_node_publishes_the_contact_count_and_the_kernel_range_only_once_grown() -> None:
+    ctx = NodeContext("gpis", 0, lambda topic, message: None, {"surface": "surface/mesh"})
+    node = GPISNode(GPISNodeConfig(), ctx)
+    node.on_touches(touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]))
+    assert ctx.metrics["contacts"] == 1.0 and "kernel_R_m" not in ctx.metrics
+
+
+def test_the_variance_facts_and_the_auto_setting() -> None:
+    """Vertex variance "auto" and "candidates" state the candidates' step; "auto" settles on what the
+    planner states."""
+    for where, step in (("auto", True), ("candidates", True), ("all", False), ("none", False)):
+        facts = _facts(GPISNodeConfig(vertex_variance=where, variance_step_m=0.007))
+        assert facts["surface:candidate_variance"][0] == ("not given" if where == "none" else "given")
+        assert facts.get("surface:candidate_step_m") == ((0.007, ("variance_step_m",)) if step else None)
+    auto = GPISNodeConfig(vertex_variance="auto")
+    assert _settle(auto, lambda key: ["given"]) == {("vertex_variance",): "candidates"}
+    assert _settle(auto, lambda key: []) == {("vertex_variance",): "none"}
+    assert _settle(GPISNodeConfig(vertex_variance="all"), lambda key: ["given"]) == {}
+
+
+def test_growth_allows_for_the_local_grid_overhanging_its_half_extent() -> None:
+    """At 7 mm steps a 0.12 m box takes 19 nodes: the grid's half extent is 63 mm, not 60. A touch
+    0.431 m from the first needs sqrt(0.494^2 + 2 x 0.063^2) = 0.502 m > R_m = 0.5 m (it would fit at
+    60 mm: 0.498 m): the session grows the kernel for it instead of letting the mesh refuse it."""
+    session = GPISSession(GPISNodeConfig(local_resolution_m=0.007, global_margin_m=0.0, global_resolution_m=0.001))
+    session.touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0])
+    session.touch([0.431, 0.0, 0.03], [1.0, 0.0, 0.0])
+    assert session.gp.config.R_m == 1.0 and session.gp.n_contacts == 2
+    assert session.take_counts() == {"kernel_grown": 1}

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from palpate.errors import ConfigError, EstimationError
 from palpate.nodes.gpis.core import GPIS, GPISConfig
 from palpate.nodes.gpis.expert_pack import FAR_SLOT
-from palpate.nodes.gpis.local import AutoGPIS, LocalGPIS, make_estimator
+from palpate.nodes.gpis.local import AutoGPIS, LocalGPIS, _pack, make_estimator
 
 AXES = np.array([0.06, 0.04, 0.03])
 CENTRE = np.array([0.013, -0.007, 0.1])  # off the voxel grid's origin on purpose
@@ -279,3 +281,107 @@ def test_the_pack_holds_every_experts_current_rows_after_many_updates_and_compac
         np.testing.assert_array_equal(packed_A[starts[s] : ends[s]], alpha)
     keys, slots = local._pack.table()
     assert np.all(np.diff(keys) > 0) and sorted(slots.tolist()) == list(range(1, local.n_experts + 1))
+
+
+#: Voxels of 4 cm: a point with every coordinate in (0.01, 0.03) m is in voxel (0, 0, 0)'s data box only.
+WIDE = GPISConfig(local_cell_m=0.04, local_blend_m=0.004, local_margin_m=0.006)
+
+
+def _expert_000(local: LocalGPIS) -> int:
+    key = int(_pack(np.zeros(3, dtype=np.int64)))
+    assert key in local._experts
+    return key
+
+
+def test_an_expert_over_the_cap_halves_its_margin_once_when_that_is_enough() -> None:
+    """Voxel 0's box is [-0.01, 0.05] per axis with margin 6 mm, [-0.007, 0.047] with 3 mm: a fourth
+    contact at x = -0.009 lies only in the first, so one halving brings the expert back to the cap."""
+    local = LocalGPIS(dataclasses.replace(WIDE, local_max_contacts=3))
+    P = np.array([[0.02, 0.02, 0.02], [0.022, 0.02, 0.02], [0.02, 0.022, 0.02], [-0.009, 0.02, 0.02]])
+    local.add_contacts(P, np.tile([0.0, 0.0, 1.0], (4, 1)))
+    key = _expert_000(local)
+    assert local._margins == {key: 0.003}  # 0.006 / 2 (not 0, not a quarter)
+    np.testing.assert_array_equal(local._experts[key].positions_m, P[:3])
+    assert key not in local._thinned
+    local.add_contact([-0.0085, 0.02, 0.02], [0.0, 0.0, 1.0])  # in the 6 mm box only: not the expert's now
+    assert local._margins == {key: 0.003}
+    np.testing.assert_array_equal(local._experts[key].positions_m, P[:3])
+
+
+def test_a_thinned_expert_keeps_the_first_contact_per_cube_of_an_eighth_cell_and_remembers_them() -> None:
+    """Cap 4, five contacts on x in voxel 0's interior: margin 0 keeps all five, so the expert is thinned
+    to one per cube of edge h / 8 = 5 mm; x / 5 mm = 2.1, 2.3, 3.1, 4.1, 4.2 gives cubes 2, 3, 4 (three
+    contacts, at most the cap: no coarser cube). A later contact in a new cube (5) joins; one more
+    in that cube does not."""
+    local = LocalGPIS(dataclasses.replace(WIDE, local_max_contacts=4))
+    x = np.array([0.0105, 0.0115, 0.0155, 0.0205, 0.021])
+    P = np.column_stack([x, np.full(5, 0.02), np.full(5, 0.02)])
+    up = np.tile([0.0, 0.0, 1.0], (5, 1))
+    local.add_contacts(P, up)
+    key = _expert_000(local)
+    assert local._margins[key] == 0.0 and local._thinned[key][0] == 0.005
+    np.testing.assert_array_equal(local._experts[key].positions_m, P[[0, 2, 3]])
+    local.add_contact([0.0255, 0.02, 0.02], [0.0, 0.0, 1.0])  # cube 5: new
+    assert local._experts[key].n_contacts == 4
+    local.add_contact([0.026, 0.02, 0.02], [0.0, 0.0, 1.0])  # cube 5 again: left out
+    assert local._experts[key].n_contacts == 4 and local._thinned[key][0] == 0.005
+    assert local.n_contacts == 7
+
+
+def test_the_far_field_keeps_the_first_contact_of_each_of_its_voxels_across_batches() -> None:
+    """local_far_cell_m = 2 cm: x = 1, 2 mm share cell 0, 30 mm is cell 1, 50 mm cell 2."""
+    local = LocalGPIS(CONFIG)
+    up = np.tile([0.0, 0.0, 1.0], (3, 1))
+    first = np.array([[0.001, 0.001, 0.001], [0.002, 0.001, 0.001], [0.03, 0.001, 0.001]])
+    local.add_contacts(first, up)
+    local.add_contacts(np.array([[0.003, 0.002, 0.001], [0.05, 0.001, 0.001]]), up[:2])
+    assert local._far is not None
+    np.testing.assert_array_equal(local._far.positions_m, [first[0], first[2], [0.05, 0.001, 0.001]])
+
+
+def test_where_no_expert_weighs_the_estimate_is_the_far_fields_and_the_handover_is_smooth() -> None:
+    """w_far = 1 away from every expert: f = m + (f_far - m) = f_far exactly, with its gradient. In the
+    band where experts hand over to the far field, the gradient (w_far's gradient term included) is
+    still the derivative of the mean."""
+    rng = np.random.default_rng(14)
+    P, N = ellipsoid(60, rng)
+    local = LocalGPIS(CONFIG)
+    local.add_contacts(P, N)
+    assert local._far is not None
+    x = CENTRE + rng.uniform(-0.07, 0.07, (3000, 3))
+    pairs = local._pairs(x, gradient=True)
+    alone = np.setdiff1d(pairs.far_point[pairs.far_weight == 1.0], pairs.point)  # no expert weighs these
+    assert len(alone) > 20
+    np.testing.assert_allclose(local.mean(x[alone]), local._far.mean(x[alone]), rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(local.gradient(x[alone]), local._far.gradient(x[alone]), rtol=1e-10, atol=1e-12)
+    band = pairs.far_point[(pairs.far_weight > 0.05) & (pairs.far_weight < 0.95)]
+    assert len(band) > 20
+    xs, h = x[band], 1e-6
+    fd = np.column_stack([(local.mean(xs + h * e) - local.mean(xs - h * e)) / (2 * h) for e in np.eye(3)])
+    np.testing.assert_allclose(local.gradient(xs), fd, rtol=0, atol=1e-6)
+
+
+def test_the_mixture_variance_is_never_negative(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With a prior variance of 0, Eq. 6 (prior minus a positive term) is negative for every expert:
+    the mixture clamps each at +0.0."""
+    rng = np.random.default_rng(15)
+    P, N = ellipsoid(60, rng)
+    local = LocalGPIS(CONFIG)
+    local.add_contacts(P, N)
+    monkeypatch.setattr(type(local.kernel), "value_variance", property(lambda self: 0.0))
+    x = near_surface(rng, 50, 0.003)
+    assert local.variance(x).tobytes() == np.zeros(len(x)).tobytes()
+
+
+def test_a_failed_update_cuts_an_existing_expert_back() -> None:
+    """The contact at x = 21 mm joins the existing expert of voxel 0 (box [-0.01, 0.03]) and opens a
+    new far-field cell, where it fails: 0.511 m from the contact at x = -0.49 (R_m = 0.5 m)."""
+    local = LocalGPIS(CONFIG)
+    local.add_contacts(np.array([[0.0, 0.01, 0.01], [-0.49, 0.01, 0.01]]), np.tile([1.0, 0.0, 0.0], (2, 1)))
+    sizes = dict(zip(local._experts, local.expert_sizes(), strict=True))
+    x = np.array([[0.0, 0.01, 0.01], [0.004, 0.012, 0.008]])
+    before = local.mean(x)
+    with pytest.raises(EstimationError, match="R_m"):
+        local.add_contact([0.021, 0.01, 0.01], [1.0, 0.0, 0.0])
+    assert dict(zip(local._experts, local.expert_sizes(), strict=True)) == sizes
+    np.testing.assert_array_equal(local.mean(x), before)

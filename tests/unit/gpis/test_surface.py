@@ -13,9 +13,11 @@ from palpate.nodes.gpis.surface import (
     FINER_LOCAL_GRIDS,
     SurfaceMeshArrays,
     add_touch,
+    axis_nodes,
     global_surface,
     grid_axes,
     local_surface,
+    meshes_point,
     sample_mean,
     whole_surface,
 )
@@ -272,3 +274,94 @@ def test_a_touch_on_a_surface_thinner_than_the_grid_is_meshed_on_a_finer_one() -
     Ps, Ns = sphere_contacts(30, np.random.default_rng(3), 0.04)
     sphere.add_contacts(Ps[:-1], Ns[:-1])
     assert add_touch(sphere, Ps[-1], Ns[-1], 0.05, 0.005).resolution_m == 0.005
+
+
+class _Ball:
+    """An analytic stand-in for the GP mean: the signed distance |x - c| - r of a ball."""
+
+    def __init__(self, centre: np.ndarray, radius: float) -> None:
+        self.centre, self.radius = centre, radius
+
+    def mean(self, x: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(np.asarray(x) - self.centre, axis=1) - self.radius
+
+
+def test_coarse_to_fine_sampling_finds_a_ball_between_the_coarse_nodes() -> None:
+    """A 2 mm ball centred on the fine node in the middle of a 10 mm coarse cell: every coarse corner is
+    sqrt(3) x 5 - 2 = 6.66 mm outside (of one sign, within the 15 mm band), so the cell is refined and
+    the fine centre node gets its exact value, -2 mm."""
+    axes = grid_axes(np.zeros(3), np.full(3, 0.04), 0.005)  # 9 nodes per axis, 0 ... 0.04
+    ball = _Ball(np.full(3, 0.015), 0.002)  # the fine node (3, 3, 3): centre of coarse cell (1, 1, 1)
+    fast = sample_mean(ball, axes)  # type: ignore[arg-type]
+    assert fast[3, 3, 3] == pytest.approx(-0.002, abs=1e-15)
+    np.testing.assert_array_equal(np.sign(fast), np.sign(sample_mean(ball, axes, refine=False)))  # type: ignore[arg-type]
+
+
+def test_axis_nodes_counts() -> None:
+    """0.1 / 0.005 is 20.000000000000004 in floating point: still 20 steps, 21 nodes; 12 mm at 5 mm needs
+    3 steps, 4 nodes, made odd: 5; an empty extent still gets 3."""
+    assert axis_nodes(0.1, 0.005) == 21
+    assert axis_nodes(0.012, 0.005) == 5
+    assert axis_nodes(0.0, 0.005) == 3
+
+
+def test_a_point_is_meshed_within_one_cell_diagonal() -> None:
+    """sqrt(3) x 1 mm = 1.732 mm: a vertex 1.7 mm away counts, one 1.76 mm away does not."""
+    point = np.zeros(3)
+    for distance, meshed in ((0.0017, True), (0.00176, False)):
+        vertices = np.array([[distance, 0.0, 0.0], [0.01, 0.0, 0.0], [0.01, 0.01, 0.0]])
+        mesh = SurfaceMeshArrays(
+            vertices=vertices,
+            faces=np.array([[0, 1, 2]], dtype=np.int32),
+            vertex_normals=np.tile([0.0, 0.0, 1.0], (3, 1)),
+            variance_vertices=np.zeros(0, dtype=np.int32),
+            vertex_variance=np.zeros(0),
+        )
+        assert meshes_point(mesh, point, 0.001) is meshed
+    assert not meshes_point(SurfaceMeshArrays.empty(), point, 0.001)
+
+
+class _Slab:
+    """An analytic stand-in for the GP that ``add_touch`` meshes: the signed distance of the slab
+    0.2 mm <= z <= 1.7 mm (1.5 mm thick, unbounded in x and y), touched at the origin just below it."""
+
+    n_contacts = 0
+
+    def add_contact(self, position_m: np.ndarray, normal: np.ndarray) -> None:
+        pass
+
+    def mean(self, x: np.ndarray) -> np.ndarray:
+        return np.abs(np.asarray(x)[:, 2] - 0.00095) - 0.00075
+
+    def gradient(self, x: np.ndarray) -> np.ndarray:
+        g = np.zeros((len(x), 3))
+        g[:, 2] = np.sign(np.asarray(x)[:, 2] - 0.00095)
+        return g
+
+    def variance(self, x: np.ndarray) -> np.ndarray:
+        return np.zeros(len(x))
+
+
+def test_a_sheet_is_meshed_on_the_first_grid_fine_enough_over_the_box_of_that_level() -> None:
+    """The grids are centred on the touch, so their nodes lie at z = k h: one is inside the slab only for
+    h = 1.25 mm (0.2 < 1.25 < 1.7 mm), the third grid. The first refinement (2.5 mm) keeps the 2 cm half
+    box, the second halves it: the mesh spans x, y in +-1 cm."""
+    touched = add_touch(_Slab(), [0.0, 0.0, 0.0], [0.0, 0.0, -1.0], 0.02, 0.005, with_variance=False)  # type: ignore[arg-type]
+    assert touched.resolution_m == 0.00125
+    assert np.abs(touched.mesh.vertices[:, :2]).max() == pytest.approx(0.01, abs=1e-8)
+    # the upper face, exact: f is linear between the nodes at z = 1.25 and 2.5 mm (-0.45 and +0.8 mm)
+    assert np.abs(touched.mesh.vertices[:, 2] - 0.0017).min() < 1e-8  # (marching cubes works in float32)
+
+
+def test_fine_nodes_away_from_the_surface_hold_the_trilinear_values() -> None:
+    """For a plane f = x - 3 mm, trilinear interpolation of the coarse nodes is exact: the coarse-to-fine
+    volume equals the fully evaluated one at every node, refined or not. (The coarse cells at x >= 2 cm,
+    with corners f >= 17 mm > 1.5 x 10 mm, are not refined: their fine nodes are interpolated.)"""
+
+    class Plane:
+        def mean(self, x: np.ndarray) -> np.ndarray:
+            return np.asarray(x)[:, 0] - 0.003
+
+    axes = grid_axes(np.zeros(3), np.full(3, 0.04), 0.005)
+    fast, full = sample_mean(Plane(), axes), sample_mean(Plane(), axes, refine=False)  # type: ignore[arg-type]
+    np.testing.assert_allclose(fast, full, rtol=0, atol=1e-15)
