@@ -8,6 +8,11 @@ CLOCK = "clock"
 LOCKSTEP_ACK = "lockstep/ack"
 NODE_STATUS = "status"
 GRAPH_CONTROL = "graph/control"
+#: The runtime's own topics (lockstep, stop, status): no node port is wired to them, a replay never
+#: republishes them.
+RUNTIME_TOPICS = (CLOCK, LOCKSTEP_ACK, NODE_STATUS, GRAPH_CONTROL)
+#: Prefix of hello/<node>, the topic each node subscribes to on every publisher it connects to.
+HELLO_PREFIX = "hello/"
 
 JOINT_STATES = "sensors/joint_states"
 JOINT_COMMANDS = "commands/joints"

@@ -254,16 +254,6 @@ def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
     return graph
 
 
-#: Topics the runtime itself publishes on (lockstep, stop, status): no port may be remapped onto them.
-RUNTIME_TOPICS = (topics.CLOCK, topics.LOCKSTEP_ACK, topics.NODE_STATUS, topics.GRAPH_CONTROL)
-
-
-def _runtime_topic(topic: str) -> bool:
-    """Whether `topic` is one of the runtime's own, or the hello/<node> topic a node subscribes to on
-    every publisher it connects to."""
-    return topic in RUNTIME_TOPICS or topic.startswith("hello/")
-
-
 def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
     f = entry.fields
     name, node_type = f["name"], f["type"]
@@ -292,20 +282,16 @@ def _resolve_node(entry: NodeEntry, index: int, bus_dir: Path) -> GraphNode:
         raise LaunchError(f"{entry.at('remaps')}: remaps must be a mapping port: topic")
     ports = {**spec.inputs, **spec.outputs}
     for port, topic in remaps.items():
+        at = entry.remap_lines.get(port, entry.at("remaps"))
         if port not in ports:
+            raise LaunchError(f"{at}: node {name!r} ({node_type}) has no port {port!r}; ports: {sorted(ports)}")
+        bare = topic.strip("/") if isinstance(topic, str) else ""
+        if not bare:  # null would be the topic 'None', '' every topic
+            raise LaunchError(f"{at}: node {name!r} remaps port {port!r} to {topic!r}; a topic is a non-empty string")
+        if bare in topics.RUNTIME_TOPICS or bare.startswith(topics.HELLO_PREFIX):
             raise LaunchError(
-                f"{entry.remap_lines.get(port, entry.at('remaps'))}: node {name!r} ({node_type}) has no port {port!r}; "
-                f"ports: {sorted(ports)}"
-            )
-        if not isinstance(topic, str) or not topic.strip("/"):  # null would be the topic 'None', '' every topic
-            raise LaunchError(
-                f"{entry.remap_lines.get(port, entry.at('remaps'))}: node {name!r} remaps port {port!r} to {topic!r}; "
-                "a topic is a non-empty string"
-            )
-        if _runtime_topic(topic.strip("/")):
-            raise LaunchError(
-                f"{entry.remap_lines.get(port, entry.at('remaps'))}: node {name!r} remaps port {port!r} to the "
-                f"runtime's own topic {topic!r} (the runtime's topics: {', '.join(RUNTIME_TOPICS)}, hello/<node>)"
+                f"{at}: node {name!r} remaps port {port!r} to the runtime's own topic {topic!r} (the runtime's "
+                f"topics: {', '.join(topics.RUNTIME_TOPICS)}, {topics.HELLO_PREFIX}<node>)"
             )
     namespace = str(f.get("namespace", "")).strip("/")
 

@@ -28,7 +28,7 @@ from palpate.record import mcap_io
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 #: Topics the runtime publishes itself; a replay node never republishes them.
-RUNTIME_TOPICS = frozenset({*mcap_io.INTERNAL_TOPICS, topics.NODE_STATUS})
+RUNTIME_TOPICS = frozenset(topics.RUNTIME_TOPICS)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -76,7 +76,7 @@ PROGRESS_ENV = "PALPATE_PROGRESS_S"
 
 def hello_topic(node: str) -> str:
     """The topic a node subscribes to so that its publishers know it is connected."""
-    return f"hello/{node}"
+    return f"{topics.HELLO_PREFIX}{node}"
 
 
 class NodeContext:
@@ -493,7 +493,8 @@ class NodeRunner:
                 return
             if time.monotonic() > deadline:
                 missing = self.counter.missing(expected)
-                absent = ", ".join(sorted(t.removeprefix("hello/") for t in missing if t.startswith("hello/")))
+                hello = topics.HELLO_PREFIX
+                absent = ", ".join(sorted(t.removeprefix(hello) for t in missing if t.startswith(hello)))
                 hint = f"; not connected: {absent} (an external node's driver not started?)" if absent else ""
                 raise TimeoutError(f"subscribers never connected within {self.start_timeout_s:.0f} s: {missing}{hint}")
             self._receive(50)
