@@ -40,3 +40,10 @@ def why_not(exc: BaseException) -> str:
     """What stopped a file operation, for a message: the OS's reason, else the exception's type
     (pathlib's mkdir of a path of thousands of parts raises RecursionError)."""
     return exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
+
+
+def read_start(path: str | Path, size: int) -> bytes:
+    """At most the first `size` bytes of the file at `path` (a caller that asks for one byte more than it
+    takes tells a file too large without reading it to the end: /dev/zero would fill the memory)."""
+    with Path(path).open("rb") as stream:
+        return stream.read(size)

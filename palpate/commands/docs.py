@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 import msgpack
 import numpy as np
@@ -18,7 +17,7 @@ from palpate.argtypes import path_arg
 from palpate.messages import REGISTRY, codec, topics
 from palpate.messages.base import FieldSpec, Message
 from palpate.messages.schemas import CartesianVelocityCommand, Clock
-from palpate.paths import why_not
+from palpate.paths import read_start, why_not
 
 _KINDS = {
     "int": "int",
@@ -55,7 +54,7 @@ def run_messages(args: argparse.Namespace) -> int:
             return 2
         expected = text.encode()
         try:  # no more than the rendering and a byte: -o /dev/zero is out of date, not the end of the memory
-            current = _read_start(args.output, len(expected) + 1) if args.output.exists() else b""
+            current = read_start(args.output, len(expected) + 1) if args.output.exists() else b""
         except (OSError, RecursionError) as exc:
             print(f"palpate docs messages: cannot read {args.output}: {why_not(exc)}", file=sys.stderr)
             return 2
@@ -74,12 +73,6 @@ def run_messages(args: argparse.Namespace) -> int:
             return 2
         print(f"wrote {args.output} ({len(documented_types())} message types)")
     return 0
-
-
-def _read_start(path: Path, size: int) -> bytes:
-    """The first `size` bytes of the file at `path`."""
-    with path.open("rb") as stream:
-        return stream.read(size)
 
 
 def documented_types() -> list[type[Message]]:

@@ -16,6 +16,7 @@ import yaml
 from palpate.config import KeyPath, key_lines, line_at
 from palpate.errors import ConfigError, LaunchError
 from palpate.launch.placement import PLACEMENTS
+from palpate.paths import read_start
 
 
 class _Loader(yaml.SafeLoader):
@@ -230,8 +231,7 @@ def _load(path: Path, overrides: dict[str, Any], stack: tuple[Path, ...], sites:
 def _compose(path: Path, name: str) -> yaml.Node | None:
     """The YAML node tree of the file (None when it is empty); every error names the file and line."""
     try:
-        with path.open("rb") as stream:
-            data = stream.read(MAX_LAUNCH_BYTES + 1)
+        data = read_start(path, MAX_LAUNCH_BYTES + 1)
     except OSError as exc:
         raise LaunchError(f"{name}: cannot read launch file: {exc.strerror}") from exc
     if len(data) > MAX_LAUNCH_BYTES:

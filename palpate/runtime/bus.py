@@ -39,6 +39,7 @@ from zmq.utils import z85
 from zmq.utils.monitor import recv_monitor_message
 
 from palpate.errors import BusError
+from palpate.paths import read_start
 
 log = logging.getLogger("palpate.bus")
 
@@ -275,8 +276,7 @@ def is_z85_key(text: str) -> bool:
 def read_key_file(path: str | Path) -> dict[str, str]:
     """The z85 keys of a key file written by `palpate keys` ({"public", "secret", "server_public"})."""
     try:
-        with Path(path).expanduser().open("rb") as stream:
-            data = stream.read(MAX_KEY_FILE_BYTES + 1)  # /dev/zero as the key file would fill the memory
+        data = read_start(Path(path).expanduser(), MAX_KEY_FILE_BYTES + 1)
         if len(data) > MAX_KEY_FILE_BYTES:
             raise ValueError(f"larger than {MAX_KEY_FILE_BYTES:,} bytes: not a key file")
         keys = json.loads(data)
