@@ -72,6 +72,18 @@ def checked_outcome(payload: bytes, expected: type[Message] | None, monkeypatch:
         return outcome(payload, expected)
 
 
+def two_contacts(stamp_ns: int = 0) -> ContactSet:
+    """A ContactSet of two contacts, its arrays of ones (the local positions zeros)."""
+    return ContactSet(
+        stamp_ns=stamp_ns,
+        positions_m=np.ones((2, 3)),
+        local_positions_m=np.zeros((2, 3)),
+        normals=np.ones((2, 3)),
+        forces_n=np.ones(2),
+        links=["a", "b"],
+    )
+
+
 def split(payload: bytes) -> tuple[dict[str, Any], bytes]:
     header, blob = msgpack.unpackb(payload, raw=False)
     return header, blob
@@ -147,14 +159,7 @@ def test_nan_in_any_array_is_named_despite_the_whole_blob_check() -> None:
 
 def test_non_finite_bytes_outside_the_arrays_are_not_an_error() -> None:
     """A foreign sender may leave other bytes between arrays: only the arrays must be finite."""
-    message = ContactSet(
-        stamp_ns=0,
-        positions_m=np.ones((2, 3)),
-        local_positions_m=np.zeros((2, 3)),
-        normals=np.ones((2, 3)),
-        forces_n=np.ones(2),
-        links=["a", "b"],
-    )
+    message = two_contacts()
     header, blob = split(codec.encode(message))
     gap = np.array([np.nan]).tobytes()
     fields = header["fields"]
@@ -195,14 +200,7 @@ def test_validate_names_shape_and_dimension_faults() -> None:
 
 
 def test_small_payloads_split_in_one_call_and_wide_blob_headers_take_the_general_path() -> None:
-    message = ContactSet(
-        stamp_ns=5,
-        positions_m=np.ones((2, 3)),
-        local_positions_m=np.zeros((2, 3)),
-        normals=np.ones((2, 3)),
-        forces_n=np.ones(2),
-        links=["a", "b"],
-    )
+    message = two_contacts(stamp_ns=5)
     payload = codec.encode(message)
     header, blob = split(payload)
     fast = codec._split_small(memoryview(payload))
@@ -309,14 +307,7 @@ def test_frozen_arrays_are_read_only_copies_that_transfer_passes_on() -> None:
 def test_a_blob_with_bytes_past_its_arrays_decodes_when_its_length_is_no_multiple_of_8() -> None:
     """Bytes past the last array are outside every array; a blob of 8k + 1 bytes cannot be read as one
     float64 array, so the whole-blob test must not run (it raised numpy's ValueError)."""
-    message = ContactSet(
-        stamp_ns=0,
-        positions_m=np.ones((2, 3)),
-        local_positions_m=np.zeros((2, 3)),
-        normals=np.ones((2, 3)),
-        forces_n=np.ones(2),
-        links=["a", "b"],
-    )
+    message = two_contacts()
     header, blob = split(codec.encode(message))
     assert codec.decode(msgpack.packb([header, blob + b"\0"], use_bin_type=True), ContactSet) == message
 
