@@ -823,25 +823,40 @@ def test_a_mesh_file_that_is_not_there_is_named_before_anything_starts(
 # --- more faults named at their file, line and key -------------------------------------------------------
 
 
-def test_a_seed_of_true_is_no_integer(tmp_path: Path) -> None:
-    path = tmp_path / "seed.yaml"
-    path.write_text("seed: true\nnodes:\n  - name: cube\n    type: cube_contacts\n")
-    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}:1: seed must be an integer >= 0 .*, got True$"):
+def assert_refused(tmp_path: Path, name: str, text: str, at: str) -> None:
+    """`text`, written as the launch file `name`, is a LaunchError that starts with its path and then
+    matches `at` (a pattern: ':LINE: message')."""
+    path = tmp_path / name
+    path.write_text(text)
+    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}{at}"):
         load(path, tmp_path)
+
+
+def test_a_seed_of_true_is_no_integer(tmp_path: Path) -> None:
+    assert_refused(
+        tmp_path,
+        "seed.yaml",
+        "seed: true\nnodes:\n  - name: cube\n    type: cube_contacts\n",
+        r":1: seed must be an integer >= 0 .*, got True$",
+    )
 
 
 def test_a_node_without_a_type_is_named_at_its_entry(tmp_path: Path) -> None:
-    path = tmp_path / "untyped.yaml"
-    path.write_text("mode: realtime\nnodes:\n  - name: cube\n    params: {}\n")
-    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}:3: node needs a 'type'$"):
-        load(path, tmp_path)
+    assert_refused(
+        tmp_path,
+        "untyped.yaml",
+        "mode: realtime\nnodes:\n  - name: cube\n    params: {}\n",
+        r":3: node needs a 'type'$",
+    )
 
 
 def test_an_include_error_is_named_at_the_line_of_its_file_key(tmp_path: Path) -> None:
-    path = tmp_path / "parent.yaml"
-    path.write_text("include:\n  - args: {report: true}\n    file: missing.yaml\nnodes: []\n")
-    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}:3: included launch file .*missing.yaml does not"):
-        load(path, tmp_path)
+    assert_refused(
+        tmp_path,
+        "parent.yaml",
+        "include:\n  - args: {report: true}\n    file: missing.yaml\nnodes: []\n",
+        r":3: included launch file .*missing.yaml does not",
+    )
 
 
 def test_a_file_that_includes_itself_is_named_at_the_include(tmp_path: Path) -> None:
@@ -853,10 +868,12 @@ def test_a_file_that_includes_itself_is_named_at_the_include(tmp_path: Path) -> 
 
 
 def test_an_impossible_date_says_what_is_wrong_with_it(tmp_path: Path) -> None:
-    path = tmp_path / "date.yaml"
-    path.write_text("description: ok\nnodes: []\nmode: 2001-13-45\n")
-    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}:3: cannot read '2001-13-45': month must be in"):
-        load(path, tmp_path)
+    assert_refused(
+        tmp_path,
+        "date.yaml",
+        "description: ok\nnodes: []\nmode: 2001-13-45\n",
+        r":3: cannot read '2001-13-45': month must be in",
+    )
 
 
 @pytest.mark.parametrize(("port", "ok"), [(65535, True), (65536, False), (1, True)])
@@ -873,22 +890,23 @@ def test_the_highest_port_is_65535(port: int, ok: bool, tmp_path: Path) -> None:
 
 
 def test_respawn_needs_realtime(tmp_path: Path) -> None:
-    path = tmp_path / "respawn.yaml"
-    path.write_text(
-        "nodes:\n  - name: cube\n    type: cube_contacts\n  - name: stats\n    type: contact_stats\n    respawn: true\n"
+    assert_refused(
+        tmp_path,
+        "respawn.yaml",
+        "nodes:\n  - name: cube\n    type: cube_contacts\n"
+        "  - name: stats\n    type: contact_stats\n    respawn: true\n",
+        r":6: node 'stats': respawn needs 'mode: realtime'",
     )
-    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}:6: node 'stats': respawn needs 'mode: realtime'"):
-        load(path, tmp_path)
 
 
 def test_a_graph_has_one_clock_source(tmp_path: Path) -> None:
-    path = tmp_path / "clocks.yaml"
-    path.write_text(
+    assert_refused(
+        tmp_path,
+        "clocks.yaml",
         "nodes:\n  - name: cube\n    type: cube_contacts\n"
-        "  - name: cube2\n    type: cube_contacts\n    remaps: {contacts: other/contacts}\n"
+        "  - name: cube2\n    type: cube_contacts\n    remaps: {contacts: other/contacts}\n",
+        r":4: two clock sources \(cube, cube2\); keep one$",
     )
-    with pytest.raises(LaunchError, match=rf"^{re.escape(str(path))}:4: two clock sources \(cube, cube2\); keep one$"):
-        load(path, tmp_path)
 
 
 def test_a_missing_file_a_node_reads_is_named_at_its_key(tmp_path: Path) -> None:
@@ -922,27 +940,25 @@ def test_a_set_parameter_names_node_and_key() -> None:
 @pytest.mark.parametrize("topic", ["''", "/", "null", "5", "[a]"])
 def test_a_remap_to_no_topic_is_named_at_its_line(topic: str, tmp_path: Path) -> None:
     """A fuzzer's finds: '' and '/' subscribed to every topic (a ZeroMQ prefix), null became the topic 'None'."""
-    path = tmp_path / "remap.yaml"
-    path.write_text(
+    assert_refused(
+        tmp_path,
+        "remap.yaml",
         "nodes:\n  - name: cube\n    type: cube_contacts\n  - name: estimator\n    type: bbox_estimator\n"
-        f"    remaps:\n      mesh: {topic}\n"
+        f"    remaps:\n      mesh: {topic}\n",
+        r":7: node 'estimator' remaps port 'mesh' to .*; a topic is a non-empty string$",
     )
-    expected = rf"^{re.escape(str(path))}:7: node 'estimator' remaps port 'mesh' to .*; a topic is a non-empty string$"
-    with pytest.raises(LaunchError, match=expected):
-        load(path, tmp_path)
 
 
 @pytest.mark.parametrize("topic", ["clock", "/status", "graph/control", "lockstep/ack", "hello/cube"])
 def test_a_remap_onto_the_runtimes_own_topics_is_named_at_its_line(topic: str, tmp_path: Path) -> None:
     """A port remapped onto a topic the runtime publishes on (a mesh on `clock`) passed --dry-run."""
-    path = tmp_path / "remap.yaml"
-    path.write_text(
+    assert_refused(
+        tmp_path,
+        "remap.yaml",
         "nodes:\n  - name: cube\n    type: cube_contacts\n  - name: estimator\n    type: bbox_estimator\n"
-        f"    remaps:\n      mesh: {topic}\n"
+        f"    remaps:\n      mesh: {topic}\n",
+        r":7: node 'estimator' remaps port 'mesh' to the runtime's own topic",
     )
-    expected = rf"^{re.escape(str(path))}:7: node 'estimator' remaps port 'mesh' to the runtime's own topic"
-    with pytest.raises(LaunchError, match=expected):
-        load(path, tmp_path)
 
 
 def test_an_error_that_echoes_a_huge_value_prints_its_start_and_end(
