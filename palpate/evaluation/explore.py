@@ -705,14 +705,15 @@ def main(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - start
     report.write_csv(out / "runs.csv", results)
     baseline, method = ("gpv", "igef") if {"gpv", "igef"} <= set(strategies) else (strategies[0], strategies[-1])
+    others = [s for s in strategies if s not in (baseline, method)]
     shape = shape_report.shape_summary(results, strategies)
     text = (
         f"# Exploration evaluation\n\n{len(cases)} objects x {runs} runs x {len(strategies)} strategies"
         + ("" if outcome is None else f", {elapsed / 60:.1f} min wall; {outcome.summary()}")
         + ".\n\n## Averages (Table 2)\n\n"
-        + report.table2(results, baseline, method)
+        + report.table2(results, baseline, method, others)
         + "\n\n## Per object (Table 4)\n\n"
-        + report.table4(results, baseline, method)
+        + report.table4(results, baseline, method, others)
         + "\n\n## Whole shape (F-score and Chamfer distance of the whole estimate)\n\n"
         + shape_report.shape_table(shape)
         + "\n"
@@ -723,7 +724,7 @@ def main(args: argparse.Namespace) -> int:
         report.plot_coverage_vs_travel(
             out / "coverage_vs_travel.png", results, PLOT_OBJECT if PLOT_OBJECT in names else names[0]
         )
-        report.plot_travel_per_object(out / "travel_per_object.png", results, baseline, method)
+        report.plot_travel_per_object(out / "travel_per_object.png", results, baseline, method, others)
         shape_report.plot_fscore_vs_travel(
             out / "fscore_vs_travel.png", results, PLOT_OBJECT if PLOT_OBJECT in names else names[0]
         )

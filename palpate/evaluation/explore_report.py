@@ -169,17 +169,30 @@ def _fmt(value: float, unit: str = "", digits: int = 1) -> str:
     return f"{value:.{digits}f}" + (f" {unit}" if unit else "")
 
 
-def _compared(baseline: str, method: str) -> tuple[str, ...]:
-    """The strategies a table compares: both, or one when an evaluation ran a single strategy."""
-    return (baseline,) if baseline == method else (baseline, method)
+def _compared(baseline: str, method: str, others: Sequence[str] = ()) -> tuple[str, ...]:
+    """The strategies a table compares: the baseline, the method, then the others in their order,
+    each once (one column when an evaluation ran a single strategy)."""
+    return tuple(dict.fromkeys((baseline, method, *others)))
 
 
-def table2(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: str = "igef") -> str:
-    """Markdown table in the form of the paper's Table 2 (averages at 50 % and 80 % coverage); with
-    baseline == method (a single strategy) its averages alone, without the improvement column."""
-    shown = _compared(baseline, method)
-    pair = len(shown) == 2
-    header = ["Coverage", "Metric", *(s.upper() for s in shown)] + (["Avg. improvement"] if pair else [])
+def _improvement_headers(shown: Sequence[str]) -> list[str]:
+    """The improvement columns: the paper's one for two strategies, else one per strategy against the baseline."""
+    if len(shown) == 2:
+        return ["Avg. improvement"]
+    return [f"{s.upper()} vs {shown[0].upper()}" for s in shown[1:]]
+
+
+def table2(
+    results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: str = "igef", others: Sequence[str] = ()
+) -> str:
+    """Markdown table in the form of the paper's Table 2 (averages at 50 % and 80 % coverage).
+
+    Columns: baseline, method, then ``others``; the improvement of each against the baseline (one
+    column, the paper's, for two strategies; none for a single strategy, baseline == method).
+    """
+    shown = _compared(baseline, method, others)
+    improvements = _improvement_headers(shown) if len(shown) > 1 else []
+    header = ["Coverage", "Metric", *(s.upper() for s in shown), *improvements]
     lines = ["| " + " | ".join(header) + " |", "|---|---|" + "---:|" * (len(header) - 2)]
     notes = []
     for percent in MILESTONES:
@@ -187,12 +200,12 @@ def table2(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: 
         for key, label, unit in (*METRICS, BOUND_METRIC):
             digits = 2 if (unit == "mm" and "miss" not in key) or key in ("confident_fraction", BOUND_METRIC[0]) else 1
             cells = [_fmt(means[s][key], unit, digits) for s in shown]
-            if pair:
-                cells.append(_fmt(improvement_pct(means[baseline][key], means[method][key]), "%", 0))
+            if improvements:
+                cells += [_fmt(improvement_pct(means[baseline][key], means[s][key]), "%", 0) for s in shown[1:]]
             lines.append(f"| {percent} % | {label} | " + " | ".join(cells) + " |")
         first = means[shown[0]]
         completed = ", ".join(f"{s.upper()} {int(means[s]['runs_completed'])}/{int(means[s]['runs'])}" for s in shown)
-        counted = "paired runs" if pair else "runs"
+        counted = "paired runs" if improvements else "runs"
         notes.append(
             f"{percent} %: {int(first['paired_runs'])} {counted} on {int(first['objects'])} objects; "
             f"completed {completed}"
@@ -201,27 +214,29 @@ def table2(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: 
     lines.append(
         "Averages over paired runs only (every strategy reached the coverage in that (object, run)): "
         "per object, then over objects."
-        + (" Improvement = (baseline - method) / baseline. " if pair else " ")
+        + (" Improvement = (baseline - method) / baseline. " if improvements else " ")
         + "; ".join(notes)
         + "."
     )
     return "\n".join(lines)
 
 
-def table4(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: str = "igef") -> str:
+def table4(
+    results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: str = "igef", others: Sequence[str] = ()
+) -> str:
     """Markdown table in the form of the paper's Table 4: per object, travel at 80 % coverage.
 
     Each strategy's travel is its mean over its own completed runs (the count beside it); the
-    improvement compares the paired runs only; the covering bound (contacts) is beside it. With
-    baseline == method (a single strategy) its columns alone, without the improvement.
+    improvement of each strategy against the baseline compares the paired runs only; the covering
+    bound (contacts) is beside it. Columns as in :func:`table2`.
     """
-    shown = _compared(baseline, method)
-    pair = len(shown) == 2
+    shown = _compared(baseline, method, others)
+    improvements = _improvement_headers(shown) if len(shown) > 1 else []
     objects = sorted({r["object"] for r in results})
     header = (
         ["Object"]
         + [f"{s.upper()} travel" for s in shown]
-        + (["Improvement (paired)"] if pair else [])
+        + ["Improvement (paired)" if h == "Avg. improvement" else f"{h} (paired)" for h in improvements]
         + [f"{s.upper()} contacts" for s in shown]
         + ["Covering bound (contacts)", "Coverage reached " + " / ".join(s.upper() for s in shown)]
     )
@@ -237,9 +252,11 @@ def table4(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: 
             contacts = float(np.mean([_value(r, "80", "contacts") for r in done])) if done else math.nan
             cells.append(f"{_fmt(travel, 'cm')} ({len(done)}/{len(runs)})")
             contact_cells.append(_fmt(contacts, "", 0))
-        if pair:
+        if improvements:
             paired = paired_means(mine, shown, "80")
-            cells.append(_fmt(improvement_pct(paired[baseline]["travel_cm"], paired[method]["travel_cm"]), "%", 1))
+            cells += [
+                _fmt(improvement_pct(paired[baseline]["travel_cm"], paired[s]["travel_cm"]), "%", 1) for s in shown[1:]
+            ]
         bound = next((float(r["covering_bound_contacts"]) for r in mine if "covering_bound_contacts" in r), math.nan)
         coverage = " / ".join(
             _fmt(100.0 * _mean([float(r.get("coverage", 0.0)) for r in mine if r["strategy"] == s]), "%", 0)
@@ -248,14 +265,14 @@ def table4(results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: 
         lines.append("| " + " | ".join([name, *cells, *contact_cells, _fmt(bound, "", 0), coverage]) + " |")
     avg = paired_means(results, shown, "80")
     cells = [_fmt(avg[s]["travel_cm"], "cm") for s in shown]
-    if pair:
-        cells.append(_fmt(improvement_pct(avg[baseline]["travel_cm"], avg[method]["travel_cm"]), "%", 1))
+    if improvements:
+        cells += [_fmt(improvement_pct(avg[baseline]["travel_cm"], avg[s]["travel_cm"]), "%", 1) for s in shown[1:]]
     cells += [_fmt(avg[s]["contacts"], "", 0) for s in shown]
     lines.append("| " + " | ".join(["**average (paired)**", *cells, "", ""]) + " |")
     lines.append("")
     lines.append(
         "Travel at 80 % coverage, mean over each strategy's completed runs (completed/runs in brackets)"
-        + ("; the improvement compares the paired runs only" if pair else "")
+        + ("; the improvement compares the paired runs only" if improvements else "")
         + ". Covering bound: 1.21 x 0.8 x area / (pi (6 mm)^2), "
         "the fewest 6 mm discs that cover 80 % of a flat surface of that area."
     )
@@ -382,9 +399,13 @@ def plot_coverage_vs_travel(path: Path, results: Sequence[Mapping[str, Any]], ob
 
 
 def plot_travel_per_object(
-    path: Path, results: Sequence[Mapping[str, Any]], baseline: str = "gpv", method: str = "igef"
+    path: Path,
+    results: Sequence[Mapping[str, Any]],
+    baseline: str = "gpv",
+    method: str = "igef",
+    others: Sequence[str] = (),
 ) -> None:
-    """Per-object travel at 80 % coverage for both strategies (bars; completed runs only)."""
+    """Per-object travel at 80 % coverage for every strategy compared (bars; completed runs only)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -393,7 +414,7 @@ def plot_travel_per_object(
     objects = sorted({r["object"] for r in results})
     fig, ax = plt.subplots(figsize=(max(6.0, 0.35 * len(objects) + 2.0), 4.5))
     x = np.arange(len(objects))
-    compared = _compared(baseline, method)
+    compared = _compared(baseline, method, others)
     bars = tuple(zip(compared, map(strategy_colour, compared), strict=False))
     width = 0.8 / len(bars)
     for k, (s, colour) in enumerate(bars):

@@ -163,6 +163,24 @@ def test_tables_of_a_single_strategy_show_it_once_without_an_improvement(tmp_pat
     assert (tmp_path / "t.png").stat().st_size > 1000
 
 
+def test_tables_of_more_strategies_show_each_against_the_baseline_over_runs_all_complete() -> None:
+    tour = [run("a", "tour", 0, 40.0), run("a", "tour", 1, None), run("b", "tour", 0, 20.0), run("c", "tour", 0, 15.0)]
+    rows = RESULTS + tour
+    t2 = report.table2(rows, "gpv", "igef", ["tour", "igef"])  # a repeated strategy is one column
+    assert "| Coverage | Metric | GPV | IGEF | TOUR | IGEF vs GPV | TOUR vs GPV |" in t2
+    # at 80 % only a/0 has all three: GP-V 100, IGEF 60 (40 %), tour 40 (60 %)
+    assert "| 80 % | Avg. traveled distance | 100.0 cm | 60.0 cm | 40.0 cm | 40 % | 60 % |" in t2
+    assert "80 %: 1 paired runs on 1 objects; completed GPV 3/4, IGEF 3/4, TOUR 3/4" in t2
+    t4 = report.table4(rows, "gpv", "igef", ["tour"])
+    header, rule, *lines = t4.splitlines()
+    assert "| IGEF vs GPV (paired) | TOUR vs GPV (paired) |" in header
+    columns = header.count("|")
+    assert rule.count("|") == columns and all(x.count("|") == columns for x in lines if x.startswith("|"))
+    row_a = next(line for line in lines if line.startswith("| a |"))
+    assert "| 150.0 cm (2/2) | 80.0 cm (2/2) | 40.0 cm (1/2) | 40.0 % | 60.0 % |" in row_a
+    assert row_a.endswith("| 80 % / 80 % / 70 % |")  # the mean coverage of each strategy's runs
+
+
 def test_csv_has_one_row_per_run_with_milestone_columns(tmp_path: Path) -> None:
     path = tmp_path / "runs.csv"
     report.write_csv(path, RESULTS)
@@ -176,7 +194,7 @@ def test_csv_has_one_row_per_run_with_milestone_columns(tmp_path: Path) -> None:
 def test_plots_are_written(tmp_path: Path) -> None:
     rows = [dict(r, touches=[{"travel_cm": 1.0 * i, "coverage": 0.01 * i} for i in range(5)]) for r in RESULTS]
     report.plot_coverage_vs_travel(tmp_path / "c.png", rows, "a")
-    report.plot_travel_per_object(tmp_path / "t.png", rows)
+    report.plot_travel_per_object(tmp_path / "t.png", rows, others=["tour"])  # a strategy without runs: no bars
     assert (tmp_path / "c.png").stat().st_size > 1000 and (tmp_path / "t.png").stat().st_size > 1000
 
 
