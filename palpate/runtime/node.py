@@ -31,7 +31,7 @@ import sys
 import threading
 import time
 import warnings
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
@@ -257,6 +257,7 @@ class NodeRunner:
         self._bad_by_topic: dict[str, int] = {}  # payloads rejected per topic (their log lines are throttled)
         self._refused_by_topic: dict[str, int] = {}  # messages the node's handler refused, per topic
         self._used_topics: set[str] = set()  # topics of which the node took at least one message
+        self._superseded_by_topic: Counter[str] = Counter()  # real time: state messages a newer one replaced unread
         self.last_clock = -1  # the last Clock tick received
         self.backward = set(process.backward_upstream)
         self.stopping = False
@@ -383,17 +384,21 @@ class NodeRunner:
 
     def _note_unused_inputs(self) -> None:
         """At the end of the run, a warning for each input topic of which every message was refused:
-        the node ran without it (its first refusals are logged above with their reasons)."""
+        the node ran without it (its first refusals are logged above with their reasons). In real time a
+        state message that a newer one replaced was never read, so it counts apart."""
         for topic in sorted(self.input_types):
             undecoded, refused = self._bad_by_topic.get(topic, 0), self._refused_by_topic.get(topic, 0)
             if topic not in self._used_topics and undecoded + refused:
+                superseded = self._superseded_by_topic.get(topic, 0)
                 log.warning(
-                    "node %s used no message on %s: all %d were refused (%d did not decode, %d were unusable)",
+                    "node %s used no message on %s: %s%d were refused (%d did not decode, %d were unusable)%s",
                     self.process.name,
                     topic,
+                    "" if superseded else "all ",
                     undecoded + refused,
                     undecoded,
                     refused,
+                    f", {superseded} more were replaced by newer ones unread" if superseded else "",
                 )
 
     def _decode(self, topic: str, payload: Any, cls: type[Message]) -> Any:
@@ -427,7 +432,10 @@ class NodeRunner:
         else:
             batch, self.buffer = self.buffer, []
         if latest_only:
-            batch = _latest_state_messages(batch, self.input_types)
+            kept = _latest_state_messages(batch, self.input_types)
+            if len(kept) < len(batch):
+                self._superseded_by_topic.update(Counter(item[3] for item in batch) - Counter(item[3] for item in kept))
+            batch = kept
         for _, _, _, topic, payload in batch:
             message = self._decode(topic, payload, self.input_types[topic])
             if message is None:

@@ -461,6 +461,34 @@ def test_a_start_up_without_a_peer_names_it_as_perhaps_an_external_node(tmp_path
         runner._close_sockets(linger_ms=0)
 
 
+def test_unused_input_warning_counts_apart_what_a_real_time_node_never_read(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """In real time a burst of state messages is read newest first: the two older ones are replaced
+    unread, the newest is refused, and the warning says so instead of "all 1 were refused"."""
+    from palpate.runtime.node import NodeRunner
+    from palpate.runtime.spec import Port
+
+    process = dataclasses.replace(bare_process(tmp_path, "reader"), subscribes={"contacts": "sensors/contacts"})
+    spec = NodeSpec(
+        name="reader", config=NoParams, factory=lambda c, ctx: Idle(), inputs={"contacts": Port(ContactSet)}
+    )
+    runner = NodeRunner(spec, process)
+    try:
+        for i in range(3):
+            runner.buffer.append((-1, 0, i, "sensors/contacts", b"not msgpack"))
+        runner.dispatch(latest_only=True)
+        with caplog.at_level("WARNING"):
+            runner._note_unused_inputs()
+    finally:
+        runner._close_sockets(linger_ms=0)
+    assert runner.ctx.counters["decode_errors"] == 1
+    assert caplog.messages[-1] == (
+        "node reader used no message on sensors/contacts: 1 were refused (1 did not decode, 0 were unusable), "
+        "2 more were replaced by newer ones unread"
+    )
+
+
 def test_a_warning_in_a_node_process_is_one_log_line(caplog: pytest.LogCaptureFixture) -> None:
     """Python's own format adds the source line that warned (`local = read_mesh_file(...)`)."""
     import warnings
