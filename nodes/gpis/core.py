@@ -92,6 +92,8 @@ class GPISConfig(Validated):
         then local (rebuilt once from every contact). docs/exploration.md says when to pick which.
     local_blend_m: half-width of the band around each voxel face where two experts hand over.
     local_far_cell_m: the local estimator's far-field GP keeps one contact per voxel of this edge.
+    local_far_max_contacts: a far field holding more doubles its voxel edge until it holds at most
+        this many (its memory, 128 n^2 bytes, stays bounded on objects of any size).
     local_max_contacts: an expert holding more contacts halves its margin and is rebuilt (down to
         margin 0): dense regions keep small experts, sparse ones the full local_margin_m.
     """
@@ -113,6 +115,7 @@ class GPISConfig(Validated):
     local_blend_m: PositiveFloat = 0.0015
     local_margin_m: NonNegativeFloat = 0.003
     local_far_cell_m: PositiveFloat = 0.02
+    local_far_max_contacts: Annotated[int, Positive] = 1000
     local_max_contacts: Annotated[int, Positive] = 64
 
     def __post_init__(self) -> None:

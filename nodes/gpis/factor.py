@@ -33,7 +33,7 @@ FloatArray = NDArray[np.float64]
 #: amortised copy per row stays O(rows)).
 GROWTH = 1.5
 #: Smallest capacity (rows) allocated.
-MIN_CAPACITY = 64
+MIN_CAPACITY = 16
 
 
 def _blas_function(name: str, *argtypes: Any) -> Any:

@@ -34,7 +34,9 @@ bounds both the cost per touch and the memory, whatever the history.
 Blending. With a set E(x) of experts that exist (hold at least one contact) and the weight left over
 w_far = 1 - sum_{i in E} w_i taken by a far-field expert (an exact GPIS over one contact per voxel of
 edge local_far_cell_m, the first to arrive, so that empty regions deep inside or far outside keep
-the sign that the whole object gives them), and the shared prior mean m(x) of Eq. 2:
+the sign that the whole object gives them; past local_far_max_contacts its edge doubles and it keeps
+the first contact of each larger voxel, which is in it already), and the shared prior mean m(x) of
+Eq. 2:
 
     f(x)      = m(x) + sum_i w_i(x) r_i(x) + w_far(x) r_far(x)        (r = an expert's f - m)
     grad f(x) = grad m(x) + sum_i [w_i grad r_i + r_i grad w_i] + w_far grad r_far + r_far grad w_far,
@@ -114,6 +116,7 @@ class LocalGPIS:
         self._thinned: dict[int, tuple[float, set[tuple[int, int, int]]]] = {}
         self._pack = ExpertPack()  # every expert's contacts and weights, for the compiled loops
         self._far: GPIS | None = None
+        self._far_cell_m = self.config.local_far_cell_m
         self._far_cells: set[int] = set()
         self._P = np.zeros((0, 3))
         self._N = np.zeros((0, 3))
@@ -219,6 +222,8 @@ class LocalGPIS:
         if far_new.size:
             self._pack.set(None, far)
         self._far_cells.update(int(k) for k in _pack(self._far_index(P[far_new])))
+        if far.n_contacts > self.config.local_far_max_contacts:
+            self._coarsen_far(far)
         self._centre = centre
         self._note_held(P, groups)
         self._append(P, N)
@@ -281,6 +286,21 @@ class LocalGPIS:
         self._margins[key] = margin
         self._pack.set(key, expert)
 
+    def _coarsen_far(self, far: GPIS) -> None:
+        """Double the far field's voxel edge until it holds at most local_far_max_contacts, keeping the
+        first contact of each larger voxel (the first ever there is the first of its smaller voxel, so it
+        is among the far field's contacts), and rebuild it from those."""
+        positions, normals = far.positions_m, far.normals
+        rows = np.arange(len(positions))
+        while len(rows) > self.config.local_far_max_contacts:
+            self._far_cell_m *= 2.0
+            _, first = np.unique(_pack(self._far_index(positions)), return_index=True)
+            rows = np.sort(first)
+        self._far = GPIS(self.config, prior_centre_m=far.prior_centre_m)
+        self._far.add_contacts(positions[rows], normals[rows])
+        self._far_cells = {int(k) for k in _pack(self._far_index(positions[rows]))}
+        self._pack.set(None, self._far)
+
     def _note_held(self, P: FloatArray, groups: dict[int, IntArray]) -> None:
         """Record the cubes of the contacts a thinned expert has just taken."""
         for key, rows in groups.items():
@@ -319,7 +339,7 @@ class LocalGPIS:
         return {int(k_all[s]): r_all[s:e] for s, e in zip(starts, ends, strict=True)}
 
     def _far_index(self, P: FloatArray) -> IntArray:
-        return np.floor(P / self.config.local_far_cell_m).astype(np.int64)
+        return np.floor(P / self._far_cell_m).astype(np.int64)
 
     def _far_members(self, P: FloatArray) -> IntArray:
         """Rows of P that are the first contact in their far-field voxel (this batch included)."""

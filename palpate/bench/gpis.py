@@ -181,8 +181,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--shapes",
         nargs="+",
-        choices=("ellipsoid", "ycb"),
-        help="scaling benchmark: true surfaces (default ellipsoid ycb; --quick ellipsoid)",
+        choices=("ellipsoid", "ycb", "box"),
+        help="scaling benchmark: true surfaces (default ellipsoid ycb; --quick ellipsoid; box: a 1 m cube)",
     )
     parser.add_argument(
         "--estimator",

@@ -1,9 +1,9 @@
 """`palpate bench gpis` (issue 11): the GPIS step at 200, 2000 and 10,000 contacts, exact and local.
 
 Per shape (a 12 x 8 x 6 cm ellipsoid, and the YCB coffee can 002_master_chef_can when the YCB folder
-is there) and number of contacts n, one fresh subprocess builds the estimator from n - repeats
-contacts sampled uniformly on the true surface (one batch, not timed) and then times `repeats` steps
-of Algorithm 1, each adding one contact:
+is there; on request a 1 m cube, whose rows hold the memory of a large object) and number of contacts
+n, one fresh subprocess builds the estimator from n - repeats contacts sampled uniformly on the true
+surface (one batch, not timed) and then times `repeats` steps of Algorithm 1, each adding one contact:
 
     IGEF step = add_contact + local surface around it without vertex variance
     GP-V step = IGEF step + GP variance (Eq. 6) at the vertices GP-V rates (the GPIS node's default
@@ -37,7 +37,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,6 +45,9 @@ from numpy.typing import NDArray
 from palpate import jsonio
 from palpate.errors import BenchmarkError
 from palpate.text_table import Column, fixed_width_table
+
+if TYPE_CHECKING:
+    from palpate.nodes.gpis.core import GPISConfig
 
 FloatArray = NDArray[np.float64]
 
@@ -56,6 +59,10 @@ QUICK_REPEATS = 3
 EXACT_MAX = 2000
 YCB_OBJECT = "002_master_chef_can"
 SHAPES = ("ellipsoid", "ycb")
+#: Shapes `--shapes` also takes: "box", a cube of BOX_EDGE_M (a large object: the GP's kernel range grows
+#: to hold it, as the GPIS node's does, and the local estimator's far field reaches its cap).
+EXTRA_SHAPES = ("box",)
+BOX_EDGE_M = 1.0
 ELLIPSOID_AXES_M = np.array([0.06, 0.04, 0.03])
 #: Goals per number of contacts: IGEF ms, GP-V ms, peak MB (None: no memory goal).
 GOALS: dict[int, tuple[float, float, float | None]] = {200: (10.0, 20.0, None), 2000: (20.0, 40.0, 300.0),
@@ -103,6 +110,22 @@ class _Shape:
             mesh: Any = trimesh.load(path, force="mesh")
             self._mesh = mesh
             self.centre = np.asarray(mesh.bounds, dtype=np.float64).mean(axis=0)
+        elif name == "box":
+            import trimesh
+
+            self._mesh = trimesh.creation.box(extents=(BOX_EDGE_M,) * 3)
+            self.centre = np.zeros(3)
+
+    def config(self, gp: GPISConfig) -> GPISConfig:
+        """The GPIS node's parameters for this shape: R_m grown, as the node grows it, to hold the shape."""
+        if self.name != "box":
+            return gp
+        from palpate.nodes.gpis.reach import HEADROOM
+
+        R_m = gp.R_m
+        while R_m < HEADROOM * BOX_EDGE_M * np.sqrt(3.0):
+            R_m *= 2.0
+        return dataclasses.replace(gp, R_m=R_m)
 
     def contacts(self, n: int, seed: int) -> tuple[FloatArray, FloatArray]:
         rng = np.random.default_rng(seed)
@@ -131,7 +154,6 @@ def measure_row(shape: str, n: int, estimator: str, repeats: int, seed: int) -> 
     are the same for the same (shape, n, seed).
     """
     from palpate.geometry.thinning import thin_near
-    from palpate.nodes.gpis.core import GPISConfig
     from palpate.nodes.gpis.local import make_estimator
     from palpate.nodes.gpis.session import GPISNodeConfig
     from palpate.nodes.gpis.surface import local_surface
@@ -139,7 +161,7 @@ def measure_row(shape: str, n: int, estimator: str, repeats: int, seed: int) -> 
     node = GPISNodeConfig()
     truth = _Shape(shape)
     P, N = truth.contacts(n, seed)
-    config: GPISConfig = dataclasses.replace(node.gp, estimator=estimator)
+    config = truth.config(dataclasses.replace(node.gp, estimator=estimator))
     truth.distance_m(P[:1])  # load the distance query (Open3D) before the memory baseline
     base_mb = _rss_mb()
     gp = make_estimator(config)
@@ -245,8 +267,9 @@ def default_field_at(
     from palpate.nodes.gpis.local import make_estimator
     from palpate.nodes.gpis.session import GPISNodeConfig
 
-    P, N = _Shape(shape).contacts(n, seed)
-    gp = make_estimator(dataclasses.replace(GPISNodeConfig().gp, estimator=estimator))
+    truth = _Shape(shape)
+    P, N = truth.contacts(n, seed)
+    gp = make_estimator(truth.config(dataclasses.replace(GPISNodeConfig().gp, estimator=estimator)))
     gp.add_contacts(P[: n - repeats], N[: n - repeats])
     for i in range(n - repeats, n):
         gp.add_contact(P[i], N[i])

@@ -411,7 +411,8 @@ def episode_task(episode: Episode, prefix: str = "explore", profile: bool = Fals
 def run_episode_on_worker(episode: Episode, profile: bool, *mesh: SharedFile) -> dict[str, Any]:
     """On a Dask worker: run the episode on the worker's copy of its mesh (``profile``: as
     :func:`run_episode`). A run that raises a PalpateError (a bad mesh, a diverged simulation) is a row
-    with ``error`` set and coverage 0: it would fail the same way on any worker."""
+    with ``error`` set and coverage 0: it would fail the same way on any worker. So is a run that ran
+    out of memory (Dask would retry it, repeating its hours on a large object)."""
     import warnings
 
     from palpate.errors import MeshWarning, PalpateError
@@ -424,17 +425,28 @@ def run_episode_on_worker(episode: Episode, profile: bool, *mesh: SharedFile) ->
             # the main process read this file to draw the starts (episodes) and said what is odd about it
             warnings.simplefilter("ignore", MeshWarning)
             return run_episode(episode, profile=profile)
+    except MemoryError as exc:
+        return error_row(
+            episode,
+            f"MemoryError: the run ran out of memory ({exc or 'no detail'}); cap it with --max-contacts "
+            "or give each worker more memory (fewer --workers)",
+        )
     except PalpateError as exc:
         message = str(exc).replace(episode.case.mesh, original) if mesh else str(exc)  # the user's file
-        return {
-            "object": episode.case.name,
-            "strategy": episode.strategy,
-            "run": episode.run,
-            "error": f"{type(exc).__name__}: {message}",
-            "complete": False,
-            "coverage": 0.0,
-            "contacts": 0,
-        }
+        return error_row(episode, f"{type(exc).__name__}: {message}")
+
+
+def error_row(episode: Episode, error: str) -> dict[str, Any]:
+    """The row of a run that could not finish: ``error`` set, no coverage, no contacts."""
+    return {
+        "object": episode.case.name,
+        "strategy": episode.strategy,
+        "run": episode.run,
+        "error": error,
+        "complete": False,
+        "coverage": 0.0,
+        "contacts": 0,
+    }
 
 
 def run_episodes(

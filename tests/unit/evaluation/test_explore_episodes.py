@@ -379,6 +379,29 @@ def test_a_worker_names_the_users_mesh_file_and_leaves_its_warnings_to_the_main_
     assert not [w for w in caught if issubclass(w.category, MeshWarning)]
 
 
+def test_a_run_out_of_memory_is_an_error_row_not_a_task_for_dask_to_retry(monkeypatch: pytest.MonkeyPatch) -> None:
+    from palpate.evaluation import explore
+
+    case = ObjectCase(name="crate", kind="mesh", mesh="crate.stl")
+    start = {"start_m": (0.0, 0.0, 0.1), "target_m": (0.0, 0.0, 0.0), "quaternion_wxyz": (0.0, 1.0, 0.0, 0.0)}
+    episode = explore.Episode(case=case, strategy="tour", run=2, **start)
+
+    def runs_out(episode: explore.Episode, profile: bool = False) -> dict[str, object]:
+        raise MemoryError("Unable to allocate 9.59 GiB for an array with shape (35875, 35875)")
+
+    monkeypatch.setattr(explore, "run_episode", runs_out)
+    row = explore.run_episode_on_worker(episode, False)
+    assert row["error"].startswith("MemoryError: the run ran out of memory (Unable to allocate 9.59 GiB")
+    assert "--max-contacts" in row["error"]
+    assert (row["object"], row["strategy"], row["run"], row["complete"], row["contacts"]) == (
+        "crate",
+        "tour",
+        2,
+        False,
+        0,
+    )
+
+
 def test_a_symlink_loop_in_the_objects_folder_is_named(tmp_path: Path) -> None:
     trimesh.creation.box((0.05, 0.05, 0.05)).export(tmp_path / "box.stl")
     (tmp_path / "loop1.stl").symlink_to("loop2.stl")

@@ -339,6 +339,29 @@ def test_the_far_field_keeps_the_first_contact_of_each_of_its_voxels_across_batc
     np.testing.assert_array_equal(local._far.positions_m, [first[0], first[2], [0.05, 0.001, 0.001]])
 
 
+def test_a_far_field_over_its_cap_doubles_its_voxels_and_keeps_the_first_contact_of_each() -> None:
+    """Along x at 1 cm steps, 2 cm voxels: every other contact is a voxel's first. With a cap of 5, the
+    sixth such contact (x = 10 cm) makes the voxels 4 cm (x = 0, 4, 8 cm kept), in one batch or one by one."""
+    config = dataclasses.replace(CONFIG, local_far_max_contacts=5)
+    P = np.column_stack([np.arange(12) * 0.01 + 0.001, np.full(12, 0.001), np.full(12, 0.001)])
+    up = np.tile([0.0, 0.0, 1.0], (12, 1))
+    for batched in (True, False):
+        local = LocalGPIS(config)
+        if batched:
+            local.add_contacts(P[:11], up[:11])
+        else:
+            for p, n in zip(P[:11], up[:11], strict=True):
+                local.add_contact(p, n)
+        assert local._far is not None and local._far_cell_m == 0.04
+        np.testing.assert_array_equal(local._far.positions_m, P[[0, 4, 8]])
+        assert local._pack.experts[FAR_SLOT] is local._far
+        local.add_contact(P[11], up[11])  # x = 11.1 cm: its 4 cm voxel (8-12 cm) holds x = 8.1 cm already
+        np.testing.assert_array_equal(local._far.positions_m, P[[0, 4, 8]])
+        local.add_contact([0.121, 0.001, 0.001], [0.0, 0.0, 1.0])  # 12.1 cm: voxel 3 of 4 cm, new
+        np.testing.assert_array_equal(local._far.positions_m[-1], [0.121, 0.001, 0.001])
+        assert np.isfinite(local.mean(P)).all()
+
+
 def test_where_no_expert_weighs_the_estimate_is_the_far_fields_and_the_handover_is_smooth() -> None:
     """w_far = 1 away from every expert: f = m + (f_far - m) = f_far exactly, with its gradient. In the
     band where experts hand over to the far field, the gradient (w_far's gradient term included) is
