@@ -63,9 +63,21 @@ DEFAULT_SIZES_M: dict[str, tuple[float, ...]] = {
 }
 #: A 3x3 speed cube is 57 mm on each side.
 RUBIKS_CUBE_EDGE_M = 0.057
-#: Objects outside this bounding-box size are taken as a unit mistake (mm vs m).
+#: Objects outside this bounding-box size are refused: most are a unit mistake (mm vs m).
 MIN_EXTENT_M = 0.002
 MAX_EXTENT_M = 2.0
+#: A size outside the range above is called a unit mistake only when a factor of 1000 brings it here.
+PLAUSIBLE_EXTENT_M = (0.005, 1.0)
+
+
+def unit_mistake(extent_m: float) -> float | None:
+    """The factor (0.001 or 1000) that turns an object `extent_m` across outside MIN_EXTENT_M..MAX_EXTENT_M
+    into one of a plausible size (PLAUSIBLE_EXTENT_M), or None when neither does (a genuine size)."""
+    factor = 0.001 if extent_m > MAX_EXTENT_M else 1000.0
+    low, high = PLAUSIBLE_EXTENT_M
+    return factor if low <= extent_m * factor <= high else None
+
+
 #: Tessellation of the generated curved primitives: the icosphere deviates from the true sphere by
 #: at most 0.1 % of the radius, the 128-gon cylinder by 0.03 %, the 128 x 64 torus by 0.1 %.
 SPHERE_SUBDIVISIONS = 4
@@ -128,11 +140,16 @@ def _normalise_spec(spec: ObjectSpec) -> None:
         elif spec.kind == "torus":
             extent = 2.0 * (size[0] + size[1])
         if not MIN_EXTENT_M <= extent <= MAX_EXTENT_M:
-            guess = [round(v * (0.001 if extent > MAX_EXTENT_M else 1000.0), 6) for v in size]
+            factor = unit_mistake(extent)
+            hint = (
+                "sizes are in metres (millimetres given as metres or the reverse?), e.g. size_m: "
+                f"{[round(v * factor, 6) for v in size]}"
+                if factor
+                else "the scenes hold no such object; give a size within that range"
+            )
             raise ConfigError(
                 f"size_m = {list(size)!r}: the {spec.kind} would be {extent:g} m across, outside "
-                f"{MIN_EXTENT_M * 1000:g} mm to {MAX_EXTENT_M:g} m; sizes are in metres "
-                f"(millimetres given as metres or the reverse?), e.g. size_m: {guess}",
+                f"{MIN_EXTENT_M * 1000:g} mm to {MAX_EXTENT_M:g} m; {hint}",
                 ("size_m",),
             )
     if spec.kind == "mesh":
@@ -492,7 +509,14 @@ def _check_scale(size: float, path: Path, scale: float) -> None:
     if MIN_EXTENT_M <= size <= MAX_EXTENT_M:
         return
     limit = "over 2 m" if size > MAX_EXTENT_M else "under 2 mm"
-    fix = np.format_float_positional(scale * (0.001 if size > MAX_EXTENT_M else 1000.0), trim="-")
+    factor = unit_mistake(size)
+    if factor is None:
+        raise MeshError(
+            f"{path}: out of range: the mesh is {size:.6g} m across after scale {scale:g} ({limit}: the "
+            f"scenes hold objects {MIN_EXTENT_M * 1000:g} mm to {MAX_EXTENT_M:g} m across, and no mix-up of "
+            "millimetres and metres explains this size); use an object within that range"
+        )
+    fix = np.format_float_positional(scale * factor, trim="-")
     raise MeshError(
         f"{path}: absurd scale: the mesh is {size:.6g} m across after scale {scale:g} ({limit}: the scenes "
         f"hold objects {MIN_EXTENT_M * 1000:g} mm to {MAX_EXTENT_M:g} m across); "

@@ -368,8 +368,29 @@ def test_coordinates_near_1e30_are_an_absurd_scale_not_a_degenerate_mesh(tmp_pat
     box = trimesh.creation.box(extents=[1.0, 1.0, 1.0])
     lines = [f"v {x:.6e} {y:.6e} {z:.6e}" for x, y, z in box.vertices * 1e30]
     path.write_text("\n".join(lines + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in box.faces]) + "\n")
-    with pytest.raises(MeshError, match=r"huge\.obj: absurd scale: the mesh is 1e\+30 m across"):
+    with pytest.raises(MeshError, match=r"huge\.obj: out of range: the mesh is 1e\+30 m across"):
         load_object(_mesh_spec(path))
+
+
+@pytest.mark.parametrize(("extent", "scale"), [(3.0, 1.0), (0.002, 0.999)])
+def test_a_size_no_unit_mistake_explains_gets_no_scale_that_would_make_it_absurd(
+    tmp_path: Path, extent: float, scale: float
+) -> None:
+    """A 3 m box (3 mm as millimetres) and a 1.998 mm one (2 m): no factor of 1000 gives a plausible object."""
+    path = tmp_path / "crate.stl"
+    trimesh.creation.box(extents=[extent] * 3).export(path)
+    with pytest.raises(MeshError) as info:
+        load_object(_mesh_spec(path, scale))
+    message = str(info.value)
+    assert "crate.stl: out of range" in message and "no mix-up of millimetres and metres explains" in message
+    assert "scale of" not in message
+
+
+def test_a_primitive_too_large_for_any_unit_mistake_is_not_told_to_shrink_a_thousandfold() -> None:
+    with pytest.raises(ConfigError) as info:
+        load(ObjectSpec, {"kind": "box", "size_m": [3, 3, 3]}, "scenes/x.yaml: object")
+    assert "3 m across" in str(info.value) and "the scenes hold no such object" in str(info.value)
+    assert "size_m: [0.003" not in str(info.value)
 
 
 def test_non_watertight_mesh_warns_what_it_affects(tmp_path: Path) -> None:
