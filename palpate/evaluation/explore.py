@@ -372,6 +372,24 @@ def report_stopped(results: Sequence[Mapping[str, Any]]) -> None:
         )
 
 
+def report_short(results: Sequence[Mapping[str, Any]]) -> None:
+    """Print on stderr, once per way of ending (budget, no progress, ...), the runs that ended short of
+    the goal, with the coverage of the first (runs another node stopped: ``report_stopped``)."""
+    by_end: dict[str, list[Mapping[str, Any]]] = {}
+    for r in results:
+        end = str(r.get("finished") or "")
+        if "error" not in r and end not in ("", "goal", "stopped"):
+            by_end.setdefault(end, []).append(r)
+    for end, runs in by_end.items():
+        first = runs[0]
+        print(
+            f"{len(runs)} run(s) ended short of the coverage goal by {end} (first: {first['object']} "
+            f"{first['strategy']} run {first['run']}, {100.0 * float(first.get('coverage', 0.0)):.0f} % with "
+            f"{first.get('contacts', 0)} contacts); runs.csv holds each run's end",
+            file=sys.stderr,
+        )
+
+
 def _time_planning(graph: Any) -> list[float]:
     """Accumulate the CPU seconds of the per-contact work (GPIS update + local surface, planner) into
     the returned one-element list while the graph runs."""
@@ -744,6 +762,7 @@ def main(args: argparse.Namespace) -> int:
     print(text)
     report_errors(errors)
     report_stopped(results)
+    report_short(results)
     plots = "coverage_vs_travel.png, travel_per_object.png, fscore_vs_travel.png"
     print(f"wrote {out}: runs.csv, runs.jsonl, tables.md, {plots}")
     profiled = profile_summary(results) if args.profile else {}

@@ -22,6 +22,7 @@ from palpate.evaluation.explore import (
     probe_quaternion,
     profile_summary,
     profile_table,
+    report_short,
     report_stopped,
     run_episode,
     stopped_early,
@@ -332,6 +333,29 @@ def test_a_run_another_node_ends_is_marked_stopped_and_reported_once_per_reason(
     report_stopped([row, {**row, "run": 1}, finished])
     err = capsys.readouterr().err.splitlines()
     assert err == [f"2 run(s) stopped early (first: sphere igef run 0): {row['stop_reason']}"]
+
+
+def test_runs_that_ended_short_of_the_goal_are_named_once_per_way_of_ending(capsys: pytest.CaptureFixture[str]) -> None:
+    def row(run: int, finished: str, coverage: float, **more: object) -> dict[str, object]:
+        return {"object": "crate", "strategy": "igef", "run": run, "finished": finished, "coverage": coverage,
+                "contacts": 2516, **more}  # fmt: skip
+
+    report_short(
+        [
+            row(0, "goal", 0.8),
+            row(1, "no progress", 0.017),
+            row(2, "contact budget", 0.64),
+            row(3, "no progress", 0.2),
+            row(4, "stopped", 0.1),  # report_stopped names these
+            row(5, "", 0.0, error="MeshError: crate.stl: ..."),  # and report_errors these
+        ]
+    )
+    assert capsys.readouterr().err.splitlines() == [
+        "2 run(s) ended short of the coverage goal by no progress (first: crate igef run 1, 2 % with 2516 "
+        "contacts); runs.csv holds each run's end",
+        "1 run(s) ended short of the coverage goal by contact budget (first: crate igef run 2, 64 % with 2516 "
+        "contacts); runs.csv holds each run's end",
+    ]
 
 
 def test_a_profiled_run_carries_each_parts_seconds_and_the_summary_adds_them_up() -> None:
