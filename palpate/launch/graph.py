@@ -9,6 +9,7 @@ mounted where the simulator's finger is not). Each error names the file, the lin
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -16,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
+from palpate import jsonio
 from palpate.config import KeyPath, load
 from palpate.errors import BusError, ConfigError, LaunchError, PalpateError
 from palpate.launch.loader import LaunchFile, NodeEntry, Where
@@ -388,20 +390,39 @@ def _check_facts(graph: Graph) -> None:
     stating = [n for n in graph.nodes if n.spec.facts is not None]
     if len(stating) < 2:
         return
-    first: dict[str, tuple[GraphNode, Any, Where, str]] = {}
+    first: dict[str, tuple[GraphNode, Any, Where, str, KeyPath]] = {}
     for node in stating:
         for fact, (value, path) in _facts_of(node).items():
             name = _fact_name(node, fact)
             where, key = node.entry.param_at(path), ".".join(["params", *map(str, path)])
             if name not in first:
-                first[name] = (node, value, where, key)
+                first[name] = (node, value, where, key, path)
                 continue
-            other, other_value, other_where, other_key = first[name]
+            other, other_value, other_where, other_key, other_path = first[name]
             if value != other_value:
+                hint = _same_by_set(node, path, value, other_value) or _same_by_set(
+                    other, other_path, other_value, value
+                )
                 raise LaunchError(
                     f"{where}: node {node.name!r} ({key}) and node {other.name!r} ({other_key}, {other_where}) "
                     f"disagree on {name}: {_difference(value, other_value)}; make them the same"
+                    + (f", e.g. {hint}" if hint else "")
                 )
+
+
+def _same_by_set(node: GraphNode, path: KeyPath, value: Any, wanted: Any) -> str:
+    """The ``--set`` arguments that make `node` state `wanted` instead of `value`, when the fact is a
+    mapping of its config's own fields at `path` (a mapper's mount); else ''."""
+    if not (isinstance(value, dict) and isinstance(wanted, dict) and set(value) == set(wanted)):
+        return ""
+    config = node.config
+    for part in path:
+        config = getattr(config, str(part), None)
+    changed = [k for k in value if value[k] != wanted[k]]
+    if config is None or not all(dataclasses.is_dataclass(config) and hasattr(config, k) for k in changed):
+        return ""
+    dotted = ".".join([node.name, *map(str, path)])
+    return " ".join(f"--set {dotted}.{k}={jsonio.dumps(wanted[k], separators=(',', ':'))}" for k in changed)
 
 
 def _check_files(graph: Graph) -> None:

@@ -112,9 +112,15 @@ BAD = [
         [],
         "node 'mapper' (params.mount) and node 'sim' (params.scene, tests/data/launch/mount_not_the_sims.yaml:7) "
         "disagree on hand_mount: "
-        "base_position_m [-0.09662, 0.035, 0.0785] here, [-0.09312, 0.035, 0.075] there",
+        "base_position_m [-0.09662, 0.035, 0.0785] here, [-0.09312, 0.035, 0.075] there; make them the same, "
+        "e.g. --set mapper.mount.base_position_m=[-0.09312,0.035,0.075]",
     ),
-    ("mount_other_finger.yaml", [], "disagree on hand_mount: finger 'index' here, 'ring' there; make them the same"),
+    (
+        "mount_other_finger.yaml",
+        [],
+        "disagree on hand_mount: finger 'index' here, 'ring' there; make them the same, e.g. --set "
+        'mapper.mount.finger="ring"',
+    ),
     ("mount_object_missing.yaml", [], "node 'sim': does_not_exist.stl: mesh file not found"),
     ("mount_unknown_finger.yaml", [], "node 'mapper': params.mount.finger: expected one of ['index', 'middle', "),
     ("mount_thumb_on_finger.yaml", [], "params.mount: finger = 'thumb': the single-finger effector is a long finger"),
@@ -133,6 +139,17 @@ def test_bad_launch_file_names_file_line_and_key(
     message = str(info.value)
     assert message.startswith(f"{where}: "), message
     assert expected in message, message
+
+
+@pytest.mark.parametrize("name", ["mount_not_the_sims.yaml", "mount_other_finger.yaml"])
+def test_the_set_that_a_disagreement_proposes_makes_the_nodes_agree(name: str, tmp_path: Path) -> None:
+    with pytest.raises(LaunchError) as info:
+        load(DATA / name, tmp_path, [])
+    proposed = str(info.value).split(", e.g. ")[1].split(" (with")[0].split()
+    assert proposed[0] == "--set" and len(proposed) == 2
+    launch = load_launch(DATA / name, parse_cli_args([]))
+    apply_params(launch, parse_node_params([proposed[1]]).items())
+    resolve(launch, bus_dir=tmp_path)
 
 
 def test_cli_reports_a_bad_file_and_starts_nothing(
