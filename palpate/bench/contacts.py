@@ -44,7 +44,7 @@ import numpy as np
 
 from palpate import jsonio
 from palpate.argtypes import add_scale_argument, bounded_positive_int, non_negative_int, path_arg
-from palpate.errors import BenchmarkError
+from palpate.errors import BenchmarkError, MeshError
 from palpate.paths import YCB_DIR_ENV, ycb_dir
 from palpate.text_table import Column, fixed_width_table
 
@@ -468,9 +468,15 @@ def main(args: argparse.Namespace) -> int:
     )
     rng = np.random.default_rng(seed)
     rows: list[dict[str, Any]] = []
+    refused: dict[str, str] = {}  # file name -> why the simulator would not load it
     start = time.perf_counter()
     for path in paths:
-        rows.extend(run_contact_bench([path], touches, rng, scale=scale))
+        try:
+            rows.extend(run_contact_bench([path], touches, rng, scale=scale))
+        except MeshError as exc:  # one bad file in a folder: the others are still benchmarked
+            refused[path.name] = str(exc)
+            print(f"  {path.name}: refused: {exc}", file=sys.stderr, flush=True)
+            continue
         row = rows[-1]
         print(
             f"  {row['object']}: p95 {row['position_p95_mm']:.2e} mm, {row['normal_p95_deg']:.2e} deg, "
@@ -478,11 +484,16 @@ def main(args: argparse.Namespace) -> int:
             file=sys.stderr,
             flush=True,
         )
-    print(format_table(rows))
+    if rows:
+        print(format_table(rows))
     out = summary(rows)
+    if refused:  # every object asked for must pass: a refused one did not
+        out["pass"] = False
+        print(f"{len(refused)} of {len(paths)} mesh files refused (FAIL): " + "; ".join(refused.values()))
     if args.json:
         out = {
             **out,
+            "refused": refused,
             "touches_per_object": touches,
             "seed": seed,
             "seconds": time.perf_counter() - start,

@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from palpate.bench import contacts as bench_contacts
-from palpate.errors import BenchmarkError, MeshError
+from palpate.errors import BenchmarkError
 from palpate.geometry.mesh_query import ExactContactSensor
 from palpate.nodes.sim.objects import ObjectSpec, load_object
 
@@ -102,12 +102,27 @@ def test_contacts_reads_a_folder_in_millimetres_with_scale(tmp_path: Path, capsy
 
     trimesh.creation.torus(40.0, 12.0, major_sections=48, minor_sections=24).export(tmp_path / "torus_mm.stl")
     args = argparse.Namespace(objects=tmp_path, touches=40, seed=1, quick=True, json=True, scale=1.0)
-    with pytest.raises(MeshError, match=r"--scale 0\.001 for palpate eval explore, sweep explore and bench contacts"):
-        bench_contacts.main(args)
-    capsys.readouterr()
+    assert bench_contacts.main(args) == 1
+    last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert not last["pass"] and last["rows"] == [] and list(last["refused"]) == ["torus_mm.stl"]
+    assert "--scale 0.001 for palpate eval explore, sweep explore and bench contacts" in last["refused"]["torus_mm.stl"]
     assert bench_contacts.main(argparse.Namespace(**{**vars(args), "scale": 0.001})) == 0
     last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert last["pass"] and last["rows"][0]["object"] == "torus_mm"
+    assert last["pass"] and last["rows"][0]["object"] == "torus_mm" and last["refused"] == {}
+
+
+def test_a_refused_mesh_file_fails_the_benchmark_but_the_others_are_benchmarked(tmp_path: Path, capsys: Any) -> None:
+    import trimesh
+
+    trimesh.creation.box(extents=(3.0, 3.0, 3.0)).export(tmp_path / "a_crate.stl")  # 3 m: out of range
+    trimesh.creation.icosphere(subdivisions=2, radius=0.03).export(tmp_path / "b_ball.stl")
+    args = argparse.Namespace(objects=tmp_path, touches=40, seed=1, quick=True, json=True, scale=1.0)
+    assert bench_contacts.main(args) == 1
+    out = capsys.readouterr().out.strip().splitlines()
+    last = json.loads(out[-1])
+    assert [row["object"] for row in last["rows"]] == ["b_ball"] and last["phantom_contacts"] == 0
+    assert list(last["refused"]) == ["a_crate.stl"] and not last["pass"]
+    assert out[-2].startswith("1 of 2 mesh files refused (FAIL): ") and "a_crate.stl: out of range" in out[-2]
 
 
 def test_an_entry_named_like_a_mesh_that_is_no_file_is_named(tmp_path: Path) -> None:
