@@ -46,6 +46,8 @@ from palpate.errors import ClusterError, ConfigError
 SCHEDULER_ENV = "PALPATE_SCHEDULER"
 #: Longest time between two redraws of the progress bar, seconds.
 REFRESH_S = 2.0
+#: Dask event topic on which a running task says how far it is (``report_progress``).
+PROGRESS_TOPIC = "palpate-run-progress"
 #: The field of a runs.jsonl line that holds its run key.
 KEY_FIELD = "run_key"
 
@@ -477,7 +479,16 @@ def run_tasks(
                 for t in todo
             }
             attempts: dict[str, int] = {}
-            shown: tuple[int, ...] = ()
+            shown: tuple[Any, ...] = ()
+            latest: dict[str, str] = {}  # key -> its newest progress, newest last
+
+            def note(event: tuple[float, Any]) -> None:
+                msg = event[1]
+                if isinstance(msg, dict) and "key" in msg:
+                    latest.pop(str(msg["key"]), None)
+                    latest[str(msg["key"])] = str(msg.get("text", ""))
+
+            client.subscribe_topic(PROGRESS_TOPIC, note)
             queue = as_completed(list(pending), loop=client.loop)
             while not queue.is_empty():
                 batch = queue.next_batch(block=False)
@@ -503,10 +514,17 @@ def run_tasks(
                     future.release()
                     bar.update(1)
                 outcome.retried = len(attempts)
-                status = (len(outcome.rows), state["running"], len(outcome.failed), outcome.retried)
+                running = {t.key: t for t in pending.values()}
+                status = (
+                    len(outcome.rows),
+                    state["running"],
+                    len(outcome.failed),
+                    outcome.retried,
+                    _progress_text(latest, running),
+                )
                 if status != shown:
                     shown = status
-                    bar.set_postfix_str("done {}, running {}, failed {}, retried {}".format(*status))
+                    bar.set_postfix_str("done {}, running {}, failed {}, retried {}{}".format(*status))
                 elif time.time() - bar.last_print_t > REFRESH_S:
                     bar.refresh()  # the elapsed time moves while long runs are in flight
                 if not batch:
@@ -524,6 +542,28 @@ def run_tasks(
         bar.close()
     outcome.wall_s = time.perf_counter() - start
     return outcome
+
+
+def report_progress(text: str) -> None:
+    """From a task on a Dask worker: how far it is (``text``, short), shown beside its label in the
+    progress bar of :func:`run_tasks`. Outside a Dask task, nothing."""
+    try:
+        from distributed import get_worker
+
+        worker = get_worker()
+        key = worker.get_current_task()
+    except (ImportError, ValueError):  # not on a worker
+        return
+    if key is not None:
+        worker.log_event(PROGRESS_TOPIC, {"key": str(key), "text": text})
+
+
+def _progress_text(latest: Mapping[str, str], running: Mapping[str, RunTask]) -> str:
+    """The newest progress of a task still running: '; LABEL: TEXT', or ''."""
+    for key in reversed(list(latest)):
+        if key in running:
+            return f"; {running[key].label or key}: {latest[key]}"
+    return ""
 
 
 def _share_files(client: Any, tasks: Sequence[RunTask]) -> dict[Path, Any]:

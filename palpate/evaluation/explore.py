@@ -48,6 +48,7 @@ from palpate.evaluation.dask_runs import (
     output_folder,
     read_rows,
     report_failures,
+    report_progress,
     run_key,
     run_tasks,
 )
@@ -273,6 +274,8 @@ def episodes(
     return out
 
 
+#: A running evaluation run says how far it is at most this often (wall seconds; ``run_episode``).
+PROGRESS_EVERY_S = 10.0
 #: Simulated time a run may take per second of travelling its whole travel budget at the controller's
 #: speed v0 (touches, turns and the controller's slower steps near a target take the rest).
 CLOCK_PER_TRAVEL_BUDGET = 2.0
@@ -313,16 +316,25 @@ def _triple(v: FloatArray) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
-def run_episode(episode: Episode, launch_path: Path = EXPLORE_LAUNCH, *, profile: bool = False) -> dict[str, Any]:
+def run_episode(
+    episode: Episode,
+    launch_path: Path = EXPLORE_LAUNCH,
+    *,
+    profile: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
     """Run one episode in this process; returns the evaluator's summary plus timing and identity, and
     with ``profile`` the wall seconds of each part of the graph's ticks (``InProcessGraph(profile=True)``:
-    each node's input handling and on_tick, the clock's step, message transfer) as ``node_s``."""
+    each node's input handling and on_tick, the clock's step, message transfer) as ``node_s``.
+    ``progress`` is told the contacts, coverage and travel so far, at most every PROGRESS_EVERY_S of wall time."""
     from palpate.launch.graph import resolve
     from palpate.runtime.inprocess import InProcessGraph
 
     t0, c0 = time.perf_counter(), time.process_time()
     graph = InProcessGraph(resolve(episode_launch(episode, launch_path)).in_process_members(), profile=profile)
     plan_s = _time_planning(graph)
+    if progress is not None:
+        _report_touches(graph.node("eval"), progress)
     t1 = time.perf_counter()
     ticks = graph.run()
     t2, c2 = time.perf_counter(), time.process_time()
@@ -390,6 +402,24 @@ def report_short(results: Sequence[Mapping[str, Any]]) -> None:
         )
 
 
+def _report_touches(evaluator: Any, progress: Callable[[str], None]) -> None:
+    """Wrap the evaluator node's touch handler: after a touch, at most every PROGRESS_EVERY_S seconds,
+    tell ``progress`` the contacts, the coverage and the travel so far."""
+    inner = evaluator.on_touches
+    last = [time.perf_counter()]
+
+    def reported(message: Any) -> None:
+        inner(message)
+        now = time.perf_counter()
+        touches = evaluator.run.evaluator.touches if evaluator.run is not None else []
+        if touches and now - last[0] >= PROGRESS_EVERY_S:
+            last[0] = now
+            t = touches[-1]
+            progress(f"{len(touches)} contacts, {100.0 * t.coverage:.1f} % covered, {t.travel_cm / 100.0:.1f} m")
+
+    evaluator.on_touches = reported
+
+
 def _time_planning(graph: Any) -> list[float]:
     """Accumulate the CPU seconds of the per-contact work (GPIS update + local surface, planner) into
     the returned one-element list while the graph runs."""
@@ -442,7 +472,7 @@ def run_episode_on_worker(episode: Episode, profile: bool, *mesh: SharedFile) ->
         with warnings.catch_warnings():
             # the main process read this file to draw the starts (episodes) and said what is odd about it
             warnings.simplefilter("ignore", MeshWarning)
-            return run_episode(episode, profile=profile)
+            return run_episode(episode, profile=profile, progress=report_progress)
     except MemoryError as exc:
         return error_row(
             episode,

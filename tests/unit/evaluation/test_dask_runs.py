@@ -141,6 +141,40 @@ def test_run_tasks_skips_finished_runs_retries_and_reports_failures(tmp_path: Pa
     assert sorted(r["run_key"] for r in lines(path)) == ["done", "one", "two"]
 
 
+def _reports(n: int) -> dict[str, int]:
+    dask_runs.report_progress(f"{n} contacts")
+    return {"x": n}
+
+
+@pytest.mark.slow
+def test_a_task_on_a_worker_tells_the_client_how_far_it_is() -> None:
+    import time
+
+    from distributed import Client, LocalCluster
+
+    events: list[tuple[float, object]] = []
+    with (
+        LocalCluster(n_workers=1, processes=False, threads_per_worker=1, dashboard_address=None) as cluster,
+        Client(cluster) as client,
+    ):
+        client.subscribe_topic(dask_runs.PROGRESS_TOPIC, events.append)
+        assert client.submit(_reports, 12, key="run-a").result() == {"x": 12}
+        deadline = time.monotonic() + 10.0
+        while not events and time.monotonic() < deadline:
+            time.sleep(0.05)
+    assert [(msg["key"], msg["text"]) for _, msg in events] == [("run-a", "12 contacts")]  # type: ignore[index]
+    assert _reports(3) == {"x": 3}  # outside a Dask task it reports nothing and does not fail
+
+
+def test_the_bar_shows_the_newest_progress_of_a_run_still_running() -> None:
+    running = {"a": RunTask(key="a", function=dict, label="cup igef run 0"), "c": RunTask(key="c", function=dict)}
+    latest = {"a": "10 contacts", "b": "99 contacts", "c": "5 contacts"}  # b has finished
+    assert dask_runs._progress_text(latest, running) == "; c: 5 contacts"
+    del running["c"]
+    assert dask_runs._progress_text(latest, running) == "; cup igef run 0: 10 contacts"
+    assert dask_runs._progress_text(latest, {}) == ""
+
+
 def test_two_runs_with_one_key_are_refused(tmp_path: Path) -> None:
     with RunLog(tmp_path / "runs.jsonl", resume=False) as log, pytest.raises(ConfigError, match="run key"):
         dask_runs.run_tasks([RunTask(key="a", function=dict), RunTask(key="a", function=dict)], log, ClusterConfig())

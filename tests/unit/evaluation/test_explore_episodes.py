@@ -358,6 +358,27 @@ def test_runs_that_ended_short_of_the_goal_are_named_once_per_way_of_ending(caps
     ]
 
 
+def test_a_run_tells_its_progress_after_a_touch_at_most_every_ten_seconds(monkeypatch: pytest.MonkeyPatch) -> None:
+    from types import SimpleNamespace
+
+    from palpate.evaluation import explore
+
+    clock = [100.0]
+    monkeypatch.setattr(explore.time, "perf_counter", lambda: clock[0])
+    touches: list[SimpleNamespace] = []
+    handled: list[int] = []
+    node = SimpleNamespace(run=SimpleNamespace(evaluator=SimpleNamespace(touches=touches)))
+    node.on_touches = handled.append
+    told: list[str] = []
+    explore._report_touches(node, told.append)
+    for i, t in enumerate((5.0, 10.0, 12.0, 19.9, 20.0)):
+        clock[0] = 100.0 + t
+        touches.append(SimpleNamespace(coverage=0.01 * (i + 1), travel_cm=150.0 * (i + 1)))
+        node.on_touches(i)
+    assert handled == [0, 1, 2, 3, 4]  # every touch reaches the evaluator
+    assert told == ["2 contacts, 2.0 % covered, 3.0 m", "5 contacts, 5.0 % covered, 7.5 m"]  # at 10 s and 20 s
+
+
 def test_a_profiled_run_carries_each_parts_seconds_and_the_summary_adds_them_up() -> None:
     case = ObjectCase(name="sphere", kind="sphere", size_m=(0.03,))
     (episode,) = episodes([case], 1, ("gpv",), params={"eval.eval.coverage_goal": 0.05})  # a few touches
@@ -390,7 +411,7 @@ def test_a_worker_names_the_users_mesh_file_and_leaves_its_warnings_to_the_main_
     start = {"start_m": (0.0, 0.0, 0.1), "target_m": (0.0, 0.0, 0.0), "quaternion_wxyz": (0.0, 1.0, 0.0, 0.0)}
     episode = explore.Episode(case=case, strategy="igef", run=0, **start)
 
-    def fails(episode: explore.Episode, profile: bool = False) -> dict[str, object]:
+    def fails(episode: explore.Episode, profile: bool = False, progress: object = None) -> dict[str, object]:
         warnings.warn(f"{episode.case.mesh}: 3 duplicate faces dropped", MeshWarning, stacklevel=1)
         raise MeshError(f"{episode.case.mesh}: the mesh has no volume")
 
@@ -410,7 +431,7 @@ def test_a_run_out_of_memory_is_an_error_row_not_a_task_for_dask_to_retry(monkey
     start = {"start_m": (0.0, 0.0, 0.1), "target_m": (0.0, 0.0, 0.0), "quaternion_wxyz": (0.0, 1.0, 0.0, 0.0)}
     episode = explore.Episode(case=case, strategy="tour", run=2, **start)
 
-    def runs_out(episode: explore.Episode, profile: bool = False) -> dict[str, object]:
+    def runs_out(episode: explore.Episode, profile: bool = False, progress: object = None) -> dict[str, object]:
         raise MemoryError("Unable to allocate 9.59 GiB for an array with shape (35875, 35875)")
 
     monkeypatch.setattr(explore, "run_episode", runs_out)
