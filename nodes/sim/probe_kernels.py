@@ -8,7 +8,9 @@ use, so the same code), builds and searches the warm query's patch (``penalty_ke
 for a hand's spheres, and ``closest_kernels.warm_query``) and projects the probe. Every expression
 is the one of the Python path, in the same order (numpy's 3-element dot products and 3x3
 matrix-vector products sum left to right; numba compiles without fast-math, so without fused
-multiply-adds), so both paths give the same bits; a test runs them side by side. Whatever needs
+multiply-adds), so both paths give the same bits where numpy's BLAS sums left to right (OpenBLAS's
+AVX2 kernels; with its AVX-512 ones, which fuse multiply-adds, the Python path differs in the last
+bits); a test runs them side by side. Whatever needs
 Python (the first query, a patch too far from the surface or too large, a weak sign decided by
 Open3D's ray parity, a non-finite state) ends the call right after that step's ``mj_step``, and the
 caller finishes the step on the Python path and calls again.

@@ -31,7 +31,8 @@ def _hat(w: FloatArray) -> FloatArray:
 
 def dot3(a: list[float], b: list[float]) -> float:
     """a . b of two 3-vectors given as floats, summed left to right: the bits of numpy's ``a @ b`` on
-    float64 (3,) arrays (BLAS ddot), without its call overhead (the controller's per-tick path)."""
+    float64 (3,) arrays (BLAS ddot) where BLAS sums left to right (OpenBLAS's AVX2 kernels; its AVX-512
+    ones fuse multiply-adds, an ulp or so apart), without its call overhead (the controller's per-tick path)."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 

@@ -20,7 +20,7 @@ def test_one_point_per_voxel_nearest_its_centre_within_the_radius() -> None:
     for i in keep[:50]:  # the kept point is the nearest to its voxel centre among the voxel's points
         same = inside & np.all(voxel == voxel[i], axis=1)
         d = np.linalg.norm(rel[same] - voxel[i], axis=1)
-        assert np.linalg.norm(rel[i] - voxel[i]) == d.min()
+        assert np.linalg.norm(rel[i : i + 1] - voxel[i], axis=1)[0] == d.min()  # the same sum as d's
 
 
 def test_thinning_the_kept_points_again_keeps_them_all() -> None:
