@@ -465,6 +465,7 @@ def run_tasks(
     if not todo:
         return outcome
     bar = tqdm(total=len(tasks), initial=outcome.resumed, unit="run", smoothing=0.0, disable=not config.progress)
+    latest: dict[str, str] = {}  # key -> its newest progress, newest last
     try:
         with terminate_as_interrupt(), connect(config) as client:
             outcome.workers = len(client.scheduler_info().get("workers", {}))
@@ -480,7 +481,6 @@ def run_tasks(
             }
             attempts: dict[str, int] = {}
             shown: tuple[Any, ...] = ()
-            latest: dict[str, str] = {}  # key -> its newest progress, newest last
 
             def note(event: tuple[float, Any]) -> None:
                 msg = event[1]
@@ -537,11 +537,24 @@ def run_tasks(
             else f"no run finished; {log.path} is as it was"
         )
         print(f"\ninterrupted: {kept}", file=sys.stderr)
+        for line in lost_in_flight(latest, outcome, todo):
+            print(line, file=sys.stderr)
         raise
     finally:
         bar.close()
     outcome.wall_s = time.perf_counter() - start
     return outcome
+
+
+def lost_in_flight(latest: Mapping[str, str], outcome: Outcome, tasks: Sequence[RunTask]) -> list[str]:
+    """A line per run that had said how far it was (``latest``) and neither finished nor failed: what an
+    interruption loses."""
+    labels = {t.key: t.label or t.key for t in tasks}
+    return [
+        f"  lost in flight: {labels.get(key, key)}: {text}"
+        for key, text in latest.items()
+        if key not in outcome.rows and key not in outcome.failed
+    ]
 
 
 def report_progress(text: str) -> None:

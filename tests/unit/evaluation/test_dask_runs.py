@@ -175,6 +175,15 @@ def test_the_bar_shows_the_newest_progress_of_a_run_still_running() -> None:
     assert dask_runs._progress_text(latest, {}) == ""
 
 
+def test_an_interruption_names_the_runs_it_loses_with_how_far_they_had_come() -> None:
+    tasks = [RunTask(key=k, function=dict, label=f"cup {k}") for k in ("a", "b", "c", "d")]
+    outcome = dask_runs.Outcome(rows={"a": {"x": 1}}, failed={"b": "b: TypeError"})
+    latest = {"a": "900 contacts", "b": "5 contacts", "c": "1978 contacts, 25.9 % covered, 41.0 m"}
+    assert dask_runs.lost_in_flight(latest, outcome, tasks) == [
+        "  lost in flight: cup c: 1978 contacts, 25.9 % covered, 41.0 m"  # d had said nothing yet
+    ]
+
+
 def test_two_runs_with_one_key_are_refused(tmp_path: Path) -> None:
     with RunLog(tmp_path / "runs.jsonl", resume=False) as log, pytest.raises(ConfigError, match="run key"):
         dask_runs.run_tasks([RunTask(key="a", function=dict), RunTask(key="a", function=dict)], log, ClusterConfig())
