@@ -42,7 +42,7 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-from palpate.config import NonNegativeFloat, OneOf, Positive, PositiveFloat, Validated
+from palpate.config import NonNegativeFloat, OneOf, Positive, PositiveFloat, Range, Validated
 from palpate.errors import ConfigError, EstimationError
 from palpate.nodes.gpis.factor import GrowingCholesky
 from palpate.nodes.gpis.kernels import ROWS_PER_POINT, GaussianKernel, IsotropicKernel, ThinPlateKernel
@@ -115,7 +115,7 @@ class GPISConfig(Validated):
     local_blend_m: PositiveFloat = 0.0015
     local_margin_m: NonNegativeFloat = 0.003
     local_far_cell_m: PositiveFloat = 0.02
-    local_far_max_contacts: Annotated[int, Positive] = 1000
+    local_far_max_contacts: Annotated[int, Range(ge=8)] = 1000  # 8 octants about the origin: fewer never fit
     local_max_contacts: Annotated[int, Positive] = 64
 
     def __post_init__(self) -> None:

@@ -202,6 +202,7 @@ class LocalGPIS:
         staged: dict[int, GPIS] = {}
         far = self._far if self._far is not None else GPIS(self.config, prior_centre_m=centre)
         far_size = far.n_contacts
+        coarse: tuple[GPIS, float, set[int]] | None = None
         try:
             for key, rows in groups.items():
                 expert = self._experts.get(key)
@@ -210,20 +211,23 @@ class LocalGPIS:
                 expert.add_contacts(P[rows], N[rows])
             if far_new.size:
                 far.add_contacts(P[far_new], N[far_new])
+            if far.n_contacts > self.config.local_far_max_contacts:
+                coarse = self._coarsened_far(far)
         except EstimationError:
             for key, size in sizes.items():
                 self._experts[key].truncate(size)
             far.truncate(far_size)
             raise
         self._experts.update(staged)
-        self._far = far
         for key in groups:
             self._pack.set(key, self._experts[key])
-        if far_new.size:
+        if coarse is not None:
+            far, self._far_cell_m, self._far_cells = coarse
+        else:
+            self._far_cells.update(int(k) for k in _pack(self._far_index(P[far_new])))
+        self._far = far
+        if far_new.size or coarse is not None:
             self._pack.set(None, far)
-        self._far_cells.update(int(k) for k in _pack(self._far_index(P[far_new])))
-        if far.n_contacts > self.config.local_far_max_contacts:
-            self._coarsen_far(far)
         self._centre = centre
         self._note_held(P, groups)
         self._append(P, N)
@@ -286,20 +290,19 @@ class LocalGPIS:
         self._margins[key] = margin
         self._pack.set(key, expert)
 
-    def _coarsen_far(self, far: GPIS) -> None:
-        """Double the far field's voxel edge until it holds at most local_far_max_contacts, keeping the
+    def _coarsened_far(self, far: GPIS) -> tuple[GPIS, float, set[int]]:
+        """The far field with its voxel edge doubled until it holds at most local_far_max_contacts: the
         first contact of each larger voxel (the first ever there is the first of its smaller voxel, so it
-        is among the far field's contacts), and rebuild it from those."""
+        is among ``far``'s contacts), rebuilt; with its edge and its voxels' keys. Changes nothing here."""
         positions, normals = far.positions_m, far.normals
-        rows = np.arange(len(positions))
+        cell, rows = self._far_cell_m, np.arange(len(positions))
         while len(rows) > self.config.local_far_max_contacts:
-            self._far_cell_m *= 2.0
-            _, first = np.unique(_pack(self._far_index(positions)), return_index=True)
+            cell *= 2.0
+            _, first = np.unique(_pack(np.floor(positions / cell).astype(np.int64)), return_index=True)
             rows = np.sort(first)
-        self._far = GPIS(self.config, prior_centre_m=far.prior_centre_m)
-        self._far.add_contacts(positions[rows], normals[rows])
-        self._far_cells = {int(k) for k in _pack(self._far_index(positions[rows]))}
-        self._pack.set(None, self._far)
+        rebuilt = GPIS(self.config, prior_centre_m=far.prior_centre_m)
+        rebuilt.add_contacts(positions[rows], normals[rows])
+        return rebuilt, cell, {int(k) for k in _pack(np.floor(positions[rows] / cell).astype(np.int64))}
 
     def _note_held(self, P: FloatArray, groups: dict[int, IntArray]) -> None:
         """Record the cubes of the contacts a thinned expert has just taken."""

@@ -145,7 +145,7 @@ def _normalise_spec(spec: ObjectSpec) -> None:
                 "sizes are in metres (millimetres given as metres or the reverse?), e.g. size_m: "
                 f"{[round(v * factor, 6) for v in size]}"
                 if factor
-                else "the scenes hold no such object; give a size within that range"
+                else "no factor of 1000 makes it 5 mm to 1 m; give a size within that range"
             )
             raise ConfigError(
                 f"size_m = {list(size)!r}: the {spec.kind} would be {extent:g} m across, outside "
@@ -513,8 +513,9 @@ def _check_scale(size: float, path: Path, scale: float) -> None:
     if factor is None:
         raise MeshError(
             f"{path}: out of range: the mesh is {size:.6g} m across after scale {scale:g} ({limit}: the "
-            f"scenes hold objects {MIN_EXTENT_M * 1000:g} mm to {MAX_EXTENT_M:g} m across, and no mix-up of "
-            "millimetres and metres explains this size); use an object within that range"
+            f"scenes hold objects {MIN_EXTENT_M * 1000:g} mm to {MAX_EXTENT_M:g} m across; no factor of 1000 "
+            "makes it 5 mm to 1 m). A file in other units takes their scale (0.01 for centimetres, 0.0254 "
+            "for inches; object.scale, scale:= or --scale); else use an object within that range"
         )
     fix = np.format_float_positional(scale * factor, trim="-")
     raise MeshError(

@@ -156,6 +156,8 @@ class _Times:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `palpate bench gpis` beyond the shared --quick and --json."""
+    from palpate.bench.gpis_scale import EXTRA_SHAPES, SHAPES
+
     parser.add_argument(
         "--contacts",
         type=positive_int,
@@ -181,7 +183,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--shapes",
         nargs="+",
-        choices=("ellipsoid", "ycb", "box"),
+        choices=(*SHAPES, *EXTRA_SHAPES),
         help="scaling benchmark: true surfaces (default ellipsoid ycb; --quick ellipsoid; box: a 1 m cube)",
     )
     parser.add_argument(

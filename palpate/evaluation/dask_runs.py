@@ -573,9 +573,9 @@ def report_progress(text: str) -> None:
 
 def _progress_text(latest: Mapping[str, str], running: Mapping[str, RunTask]) -> str:
     """The newest progress of a task still running: '; LABEL: TEXT', or ''."""
-    for key in reversed(list(latest)):
+    for key, text in reversed(list(latest.items())):  # one snapshot: the client's thread updates `latest`
         if key in running:
-            return f"; {running[key].label or key}: {latest[key]}"
+            return f"; {running[key].label or key}: {text}"
     return ""
 
 

@@ -415,7 +415,8 @@ def _report_touches(evaluator: Any, progress: Callable[[str], None]) -> None:
         if touches and now - last[0] >= PROGRESS_EVERY_S:
             last[0] = now
             t = touches[-1]
-            progress(f"{len(touches)} contacts, {100.0 * t.coverage:.1f} % covered, {t.travel_cm / 100.0:.1f} m")
+            contacts = f"{len(touches)} contact" + ("s" if len(touches) != 1 else "")
+            progress(f"{contacts}, {100.0 * t.coverage:.1f} % covered, {t.travel_cm / 100.0:.1f} m")
 
     evaluator.on_touches = reported
 
@@ -477,7 +478,7 @@ def run_episode_on_worker(episode: Episode, profile: bool, *mesh: SharedFile) ->
         return error_row(
             episode,
             f"MemoryError: the run ran out of memory ({exc or 'no detail'}); cap it with --max-contacts "
-            "or give each worker more memory (fewer --workers)",
+            "(--set eval.eval.max_contacts=N in a sweep), or give each worker more memory (fewer --workers)",
         )
     except PalpateError as exc:
         message = str(exc).replace(episode.case.mesh, original) if mesh else str(exc)  # the user's file

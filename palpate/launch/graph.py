@@ -9,9 +9,9 @@ mounted where the simulator's finger is not). Each error names the file, the lin
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
 import re
+import shlex
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -390,18 +390,18 @@ def _check_facts(graph: Graph) -> None:
     stating = [n for n in graph.nodes if n.spec.facts is not None]
     if len(stating) < 2:
         return
-    first: dict[str, tuple[GraphNode, Any, Where, str, KeyPath]] = {}
+    first: dict[str, tuple[GraphNode, str, Any, Where, str, KeyPath]] = {}
     for node in stating:
         for fact, (value, path) in _facts_of(node).items():
             name = _fact_name(node, fact)
             where, key = node.entry.param_at(path), ".".join(["params", *map(str, path)])
             if name not in first:
-                first[name] = (node, value, where, key, path)
+                first[name] = (node, fact, value, where, key, path)
                 continue
-            other, other_value, other_where, other_key, other_path = first[name]
+            other, other_fact, other_value, other_where, other_key, other_path = first[name]
             if value != other_value:
-                hint = _same_by_set(node, path, value, other_value) or _same_by_set(
-                    other, other_path, other_value, value
+                hint = _same_by_set(node, fact, path, value, other_value) or _same_by_set(
+                    other, other_fact, other_path, other_value, value
                 )
                 raise LaunchError(
                     f"{where}: node {node.name!r} ({key}) and node {other.name!r} ({other_key}, {other_where}) "
@@ -410,19 +410,31 @@ def _check_facts(graph: Graph) -> None:
                 )
 
 
-def _same_by_set(node: GraphNode, path: KeyPath, value: Any, wanted: Any) -> str:
-    """The ``--set`` arguments that make `node` state `wanted` instead of `value`, when the fact is a
-    mapping of its config's own fields at `path` (a mapper's mount); else ''."""
+def _same_by_set(node: GraphNode, fact: str, path: KeyPath, value: Any, wanted: Any) -> str:
+    """The ``--set`` arguments that make `node` state `wanted` for `fact` instead of `value`, tried: the
+    fact's differing keys set as keys of the params at `path` (a mapper's mount), then the node's config
+    loaded and the fact stated again; '' when that does not give `wanted` (the sim's scene says it
+    otherwise)."""
     if not (isinstance(value, dict) and isinstance(wanted, dict) and set(value) == set(wanted)):
         return ""
-    config = node.config
-    for part in path:
-        config = getattr(config, str(part), None)
     changed = [k for k in value if value[k] != wanted[k]]
-    if config is None or not all(dataclasses.is_dataclass(config) and hasattr(config, k) for k in changed):
+    params = copy.deepcopy(node.params) if isinstance(node.params, dict) else {}
+    inner: Any = params
+    for part in path:
+        inner = inner.setdefault(part, {}) if isinstance(inner, dict) else None
+    if not isinstance(inner, dict) or node.spec.facts is None:
+        return ""
+    inner.update({k: wanted[k] for k in changed})
+    try:
+        stated = node.spec.facts(load(node.spec.config, params, "params"))[fact][0]
+    except (PalpateError, KeyError, TypeError, ValueError):
+        return ""
+    if stated != wanted:
         return ""
     dotted = ".".join([node.name, *map(str, path)])
-    return " ".join(f"--set {dotted}.{k}={jsonio.dumps(wanted[k], separators=(',', ':'))}" for k in changed)
+    return " ".join(
+        "--set " + shlex.quote(f"{dotted}.{k}={jsonio.dumps(wanted[k], separators=(',', ':'))}") for k in changed
+    )
 
 
 def _check_files(graph: Graph) -> None:

@@ -379,6 +379,19 @@ def test_a_run_tells_its_progress_after_a_touch_at_most_every_ten_seconds(monkey
     assert told == ["2 contacts, 2.0 % covered, 3.0 m", "5 contacts, 5.0 % covered, 7.5 m"]  # at 10 s and 20 s
 
 
+def test_a_real_run_reports_its_progress_through_the_evaluators_touches(monkeypatch: pytest.MonkeyPatch) -> None:
+    from palpate.evaluation import explore
+
+    monkeypatch.setattr(explore, "PROGRESS_EVERY_S", 0.0)  # after every touch
+    case = ObjectCase(name="sphere", kind="sphere", size_m=(0.03,))
+    (episode,) = episodes([case], 1, ("igef",), params={"eval.eval.coverage_goal": 0.05})
+    told: list[str] = []
+    row = run_episode(episode, progress=told.append)
+    assert len(told) == row["contacts"] >= 2
+    assert told[0].startswith("1 contact, ") and told[-1].startswith(f"{row['contacts']} contacts, ")
+    assert f", {100.0 * row['coverage']:.1f} % covered, " in told[-1]  # the last touch's, as the row's
+
+
 def test_a_profiled_run_carries_each_parts_seconds_and_the_summary_adds_them_up() -> None:
     case = ObjectCase(name="sphere", kind="sphere", size_m=(0.03,))
     (episode,) = episodes([case], 1, ("gpv",), params={"eval.eval.coverage_goal": 0.05})  # a few touches

@@ -340,26 +340,47 @@ def test_the_far_field_keeps_the_first_contact_of_each_of_its_voxels_across_batc
 
 
 def test_a_far_field_over_its_cap_doubles_its_voxels_and_keeps_the_first_contact_of_each() -> None:
-    """Along x at 1 cm steps, 2 cm voxels: every other contact is a voxel's first. With a cap of 5, the
-    sixth such contact (x = 10 cm) makes the voxels 4 cm (x = 0, 4, 8 cm kept), in one batch or one by one."""
-    config = dataclasses.replace(CONFIG, local_far_max_contacts=5)
-    P = np.column_stack([np.arange(12) * 0.01 + 0.001, np.full(12, 0.001), np.full(12, 0.001)])
-    up = np.tile([0.0, 0.0, 1.0], (12, 1))
+    """Along x at 1 cm steps, 2 cm voxels: every other contact is a voxel's first. With a cap of 8, the
+    ninth such contact (x = 16 cm) makes the voxels 4 cm (x = 0, 4, 8, 12, 16 cm kept), in one batch or
+    one by one."""
+    config = dataclasses.replace(CONFIG, local_far_max_contacts=8)
+    P = np.column_stack([np.arange(20) * 0.01 + 0.001, np.full(20, 0.001), np.full(20, 0.001)])
+    up = np.tile([0.0, 0.0, 1.0], (20, 1))
     for batched in (True, False):
         local = LocalGPIS(config)
         if batched:
-            local.add_contacts(P[:11], up[:11])
+            local.add_contacts(P, up)
         else:
-            for p, n in zip(P[:11], up[:11], strict=True):
+            for p, n in zip(P, up, strict=True):
                 local.add_contact(p, n)
         assert local._far is not None and local._far_cell_m == 0.04
-        np.testing.assert_array_equal(local._far.positions_m, P[[0, 4, 8]])
+        np.testing.assert_array_equal(local._far.positions_m, P[[0, 4, 8, 12, 16]])  # 17-19: voxel 4 is held
         assert local._pack.experts[FAR_SLOT] is local._far
-        local.add_contact(P[11], up[11])  # x = 11.1 cm: its 4 cm voxel (8-12 cm) holds x = 8.1 cm already
-        np.testing.assert_array_equal(local._far.positions_m, P[[0, 4, 8]])
-        local.add_contact([0.121, 0.001, 0.001], [0.0, 0.0, 1.0])  # 12.1 cm: voxel 3 of 4 cm, new
-        np.testing.assert_array_equal(local._far.positions_m[-1], [0.121, 0.001, 0.001])
+        local.add_contact([0.201, 0.001, 0.001], [0.0, 0.0, 1.0])  # 20.1 cm: voxel 5 of 4 cm, new
+        np.testing.assert_array_equal(local._far.positions_m[-1], [0.201, 0.001, 0.001])
         assert np.isfinite(local.mean(P)).all()
+    with pytest.raises(ConfigError, match="local_far_max_contacts"):  # 8 octants about the origin: 7 never fit
+        dataclasses.replace(CONFIG, local_far_max_contacts=7)
+
+
+def test_a_far_field_that_fails_to_coarsen_leaves_the_estimator_as_it_was(monkeypatch: pytest.MonkeyPatch) -> None:
+    config = dataclasses.replace(CONFIG, local_far_max_contacts=8)
+    P = np.column_stack([np.arange(9) * 0.02 + 0.001, np.full(9, 0.001), np.full(9, 0.001)])
+    up = np.tile([0.0, 0.0, 1.0], (9, 1))
+    local = LocalGPIS(config)
+    local.add_contacts(P[:8], up[:8])
+    before = (local.n_contacts, sorted(local.expert_sizes()), local._far_cell_m, set(local._far_cells))
+    far = local._far
+    assert far is not None and far.n_contacts == 8
+
+    def fails(self: LocalGPIS, far: GPIS) -> None:
+        raise EstimationError("the rebuilt far field does not factor")
+
+    monkeypatch.setattr(LocalGPIS, "_coarsened_far", fails)
+    with pytest.raises(EstimationError, match="does not factor"):
+        local.add_contact(P[8], up[8])
+    assert (local.n_contacts, sorted(local.expert_sizes()), local._far_cell_m, set(local._far_cells)) == before
+    assert local._far is far and far.n_contacts == 8 and local._pack.experts[FAR_SLOT] is far
 
 
 def test_where_no_expert_weighs_the_estimate_is_the_far_fields_and_the_handover_is_smooth() -> None:

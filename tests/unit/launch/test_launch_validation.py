@@ -113,13 +113,13 @@ BAD = [
         "node 'mapper' (params.mount) and node 'sim' (params.scene, tests/data/launch/mount_not_the_sims.yaml:7) "
         "disagree on hand_mount: "
         "base_position_m [-0.09662, 0.035, 0.0785] here, [-0.09312, 0.035, 0.075] there; make them the same, "
-        "e.g. --set mapper.mount.base_position_m=[-0.09312,0.035,0.075]",
+        "e.g. --set 'mapper.mount.base_position_m=[-0.09312,0.035,0.075]'",
     ),
     (
         "mount_other_finger.yaml",
         [],
         "disagree on hand_mount: finger 'index' here, 'ring' there; make them the same, e.g. --set "
-        'mapper.mount.finger="ring"',
+        """'mapper.mount.finger="ring"'""",
     ),
     ("mount_object_missing.yaml", [], "node 'sim': does_not_exist.stl: mesh file not found"),
     ("mount_unknown_finger.yaml", [], "node 'mapper': params.mount.finger: expected one of ['index', 'middle', "),
@@ -142,12 +142,23 @@ def test_bad_launch_file_names_file_line_and_key(
 
 
 @pytest.mark.parametrize("name", ["mount_not_the_sims.yaml", "mount_other_finger.yaml"])
-def test_the_set_that_a_disagreement_proposes_makes_the_nodes_agree(name: str, tmp_path: Path) -> None:
+@pytest.mark.parametrize("mapper_first", [False, True])
+def test_the_set_that_a_disagreement_proposes_makes_the_nodes_agree(
+    name: str, mapper_first: bool, tmp_path: Path
+) -> None:
+    """Whichever node the file lists first: a set on the sim's scene (its `finger` is a mapping of the
+    finger's settings, not a name) would not do, so the mapper's is proposed."""
+    path = DATA / name
+    if mapper_first:
+        text = (REPO_ROOT / path).read_text()
+        head, sim, mapper = re.split(r"(?=  - name: (?:sim|mapper)\n)", text)
+        path = tmp_path / name
+        path.write_text(head + mapper.rstrip("\n") + "\n" + sim)
     with pytest.raises(LaunchError) as info:
-        load(DATA / name, tmp_path, [])
-    proposed = str(info.value).split(", e.g. ")[1].split(" (with")[0].split()
-    assert proposed[0] == "--set" and len(proposed) == 2
-    launch = load_launch(DATA / name, parse_cli_args([]))
+        load(path, tmp_path, [])
+    proposed = shlex.split(str(info.value).split(", e.g. ")[1].split(" (with")[0])
+    assert proposed[0] == "--set" and proposed[1].startswith("mapper.mount.") and len(proposed) == 2
+    launch = load_launch(path, parse_cli_args([]))
     apply_params(launch, parse_node_params([proposed[1]]).items())
     resolve(launch, bus_dir=tmp_path)
 

@@ -382,14 +382,14 @@ def test_a_size_no_unit_mistake_explains_gets_no_scale_that_would_make_it_absurd
     with pytest.raises(MeshError) as info:
         load_object(_mesh_spec(path, scale))
     message = str(info.value)
-    assert "crate.stl: out of range" in message and "no mix-up of millimetres and metres explains" in message
-    assert "scale of" not in message
+    assert "crate.stl: out of range" in message and "no factor of 1000 makes it 5 mm to 1 m" in message
+    assert "0.01 for centimetres, 0.0254 for inches" in message and "scale of" not in message
 
 
 def test_a_primitive_too_large_for_any_unit_mistake_is_not_told_to_shrink_a_thousandfold() -> None:
     with pytest.raises(ConfigError) as info:
         load(ObjectSpec, {"kind": "box", "size_m": [3, 3, 3]}, "scenes/x.yaml: object")
-    assert "3 m across" in str(info.value) and "the scenes hold no such object" in str(info.value)
+    assert "3 m across" in str(info.value) and "no factor of 1000 makes it 5 mm to 1 m" in str(info.value)
     assert "size_m: [0.003" not in str(info.value)
 
 
