@@ -95,6 +95,11 @@ def _pack(idx: IntArray) -> IntArray:
     return (i[..., 0] << (2 * _KEY_BITS)) | (i[..., 1] << _KEY_BITS) | i[..., 2]
 
 
+def _voxel_keys(P: FloatArray, cell_m: float) -> IntArray:
+    """Keys (n,) of the voxels of edge cell_m that hold the points P (n, 3)."""
+    return _pack(np.floor(P / cell_m).astype(np.int64))
+
+
 class LocalGPIS:
     """Partition-of-unity blend of exact GPIS experts on a voxel grid (see the module docstring).
 
@@ -224,7 +229,7 @@ class LocalGPIS:
         if coarse is not None:
             far, self._far_cell_m, self._far_cells = coarse
         else:
-            self._far_cells.update(int(k) for k in _pack(self._far_index(P[far_new])))
+            self._far_cells.update(int(k) for k in _voxel_keys(P[far_new], self._far_cell_m))
         self._far = far
         if far_new.size or coarse is not None:
             self._pack.set(None, far)
@@ -298,11 +303,11 @@ class LocalGPIS:
         cell, rows = self._far_cell_m, np.arange(len(positions))
         while len(rows) > self.config.local_far_max_contacts:
             cell *= 2.0
-            _, first = np.unique(_pack(np.floor(positions / cell).astype(np.int64)), return_index=True)
+            _, first = np.unique(_voxel_keys(positions, cell), return_index=True)
             rows = np.sort(first)
         rebuilt = GPIS(self.config, prior_centre_m=far.prior_centre_m)
         rebuilt.add_contacts(positions[rows], normals[rows])
-        return rebuilt, cell, {int(k) for k in _pack(np.floor(positions[rows] / cell).astype(np.int64))}
+        return rebuilt, cell, {int(k) for k in _voxel_keys(positions[rows], cell)}
 
     def _note_held(self, P: FloatArray, groups: dict[int, IntArray]) -> None:
         """Record the cubes of the contacts a thinned expert has just taken."""
@@ -341,12 +346,9 @@ class LocalGPIS:
         ends = np.r_[starts[1:], len(k_all)]
         return {int(k_all[s]): r_all[s:e] for s, e in zip(starts, ends, strict=True)}
 
-    def _far_index(self, P: FloatArray) -> IntArray:
-        return np.floor(P / self._far_cell_m).astype(np.int64)
-
     def _far_members(self, P: FloatArray) -> IntArray:
         """Rows of P that are the first contact in their far-field voxel (this batch included)."""
-        keys = _pack(self._far_index(P))
+        keys = _voxel_keys(P, self._far_cell_m)
         out, seen = [], set(self._far_cells)
         for r, k in enumerate(keys.tolist()):
             if k not in seen:
