@@ -241,6 +241,22 @@ def refuse_to_start(config: NoParams, ctx: Any) -> Any:
     raise EstimationError("this node cannot start")
 
 
+def recorded_transfers(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
+    """The messages the in-process executor transfers from now on (codec.transfer still does the work),
+    in order."""
+    from palpate.runtime import inprocess
+
+    recorded: list[Any] = []
+    real = codec.transfer
+
+    def recording(message: Any) -> Any:
+        recorded.append(message)
+        return real(message)
+
+    monkeypatch.setattr(inprocess.codec, "transfer", recording)
+    return recorded
+
+
 def bare_process(bus_dir: Path, name: str, **fields: Any) -> NodeProcessSpec:
     """The process spec of a real-time node `name` that publishes and reads nothing, on `bus_dir`."""
     return NodeProcessSpec(
@@ -342,27 +358,20 @@ def test_in_process_messages_nobody_reads_are_validated_not_transferred(
     executor only validates it (counted in messages_out all the same); with one, it is transferred."""
     from palpate.launch.graph import resolve
     from palpate.launch.loader import load_launch
-    from palpate.messages import codec
     from palpate.paths import LAUNCH_DIR
     from palpate.runtime import inprocess
 
-    transferred: list[str] = []
-    real = codec.transfer
-
-    def counting(message: Any) -> Any:
-        transferred.append(message.TYPE)
-        return real(message)
-
-    monkeypatch.setattr(inprocess.codec, "transfer", counting)
+    transferred = recorded_transfers(monkeypatch)
     members = resolve(load_launch(LAUNCH_DIR / "demo_minimal.yaml"), bus_dir=tmp_path).in_process_members()
     graph = inprocess.InProcessGraph(members)
     graph.run(max_ticks=5)
-    assert "SurfaceMesh" not in transferred and "ContactSet" in transferred
+    types = [message.TYPE for message in transferred]
+    assert "SurfaceMesh" not in types and "ContactSet" in types
     assert graph.members[[m.process.name for m in graph.members].index("estimator")].ctx.counters["messages_out"] == 5
     transferred.clear()
     heard: list[str] = []
     inprocess.InProcessGraph(members, listener=lambda tick, node, topic, message: heard.append(topic)).run(max_ticks=5)
-    assert "SurfaceMesh" in transferred and "surface/mesh" in heard
+    assert "SurfaceMesh" in [message.TYPE for message in transferred] and "surface/mesh" in heard
 
 
 def test_a_stuck_tick_names_the_node_that_holds_it_up_not_those_waiting_for_it(tmp_path: Path) -> None:
@@ -610,19 +619,10 @@ def test_in_process_a_message_is_transferred_once_per_tick_it_is_sent_in(
 ) -> None:
     """The early node sends one Pose object on two topics each tick, changed in place between ticks: one
     transfer per tick, and each tick's subscribers see that tick's value."""
-    from palpate.runtime import inprocess
-
-    transfers: list[str] = []
-    real = codec.transfer
-
-    def counting(message: Any) -> Any:
-        transfers.append(message.frame)
-        return real(message)
-
-    monkeypatch.setattr(inprocess.codec, "transfer", counting)
+    transfers = recorded_transfers(monkeypatch)
     graph = _talkers(tmp_path, [("clock", [], []), ("early", ["t/a", "t/b"], []), ("reader", [], ["t/a", "t/b"])])
     assert graph.run() == 3
-    assert transfers == ["early"] * 3
+    assert [message.frame for message in transfers] == ["early"] * 3
     assert graph.node("reader").heard == [("early", x) for x in (1.0, 1.0, 2.0, 2.0, 3.0, 3.0)]
 
 
