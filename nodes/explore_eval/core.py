@@ -169,6 +169,8 @@ class TouchRecord:
     prediction_miss_mm: float
     angle_deg: float
     missed: bool
+    #: The measured outward unit normal (as the estimator got it), or None when not given.
+    normal: list[float] | None = None
 
 
 @dataclass(frozen=True)
@@ -219,6 +221,7 @@ class RunControl:
         rotation_deg: float,
         fingertip_axis: np.ndarray | None,
         missed: bool,
+        normal: np.ndarray | None = None,
     ) -> bool:
         """Fold in a touch (see ExplorationEvaluator.add_touch; no fingertip axis: -z); True when the
         whole-object surface must be requested. Touches after the finishing one are ignored."""
@@ -227,7 +230,7 @@ class RunControl:
         ev = self.evaluator
         self.last_touch_ns = stamp_ns
         axis = np.array([0.0, 0.0, -1.0]) if fingertip_axis is None else fingertip_axis
-        reached = ev.add_touch(position_m, predicted_m, travel_m, rotation_deg, axis, missed)
+        reached = ev.add_touch(position_m, predicted_m, travel_m, rotation_deg, axis, missed, normal)
         every = ev.shape_interval
         checkpoint = every > 0 and len(ev.touches) % every == 0
         if reached or ev.finished or checkpoint:
@@ -347,8 +350,10 @@ class ExplorationEvaluator:
         rotation_deg: float,
         fingertip_axis: np.ndarray,
         missed: bool = False,
+        normal: np.ndarray | None = None,
     ) -> list[float]:
-        """Fold in one touch; returns the milestones (fractions) this touch reached."""
+        """Fold in one touch (``normal``, the measured one, is only recorded); returns the milestones
+        (fractions) this touch reached."""
         self.tracker.add_contact(position_m)
         true_normal = self.sensor.closest(np.asarray(position_m, dtype=np.float64)[None]).normals[0]
         miss = float(np.linalg.norm(predicted_m - position_m)) if np.all(np.isfinite(predicted_m)) else math.nan
@@ -362,6 +367,7 @@ class ExplorationEvaluator:
             prediction_miss_mm=1000.0 * miss,
             angle_deg=float(angle_to_normal_deg(fingertip_axis, true_normal)[0]),
             missed=missed,
+            normal=None if normal is None else [float(v) for v in normal],
         )
         gained = not self.touches or record.coverage > self.touches[-1].coverage
         self._touches_without_gain = 0 if gained else self._touches_without_gain + 1

@@ -80,6 +80,7 @@ class ExploreEvalNode:
             message.rotation_deg,
             None if self.fingertip_quaternion is None else quat_to_matrix(self.fingertip_quaternion)[:, 2],
             message.missed,
+            np.array(coordinates(message.normal, "normal")),
         )
         self.ctx.metrics["coverage"] = self.run.evaluator.tracker.coverage
         if asks:

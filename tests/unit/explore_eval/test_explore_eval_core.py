@@ -173,3 +173,14 @@ def test_an_incomplete_runs_milestones_hold_its_last_odometry_and_mean_miss() ->
         assert m.prediction_miss_mm == pytest.approx(2.0)  # mean of 1 mm and 3 mm; the NaN left out
     summary = ev.summary()
     assert summary["complete"] is False and summary["finished"] == "contact budget"
+
+
+def test_a_touch_records_its_measured_normal_and_none_without_one() -> None:
+    V, F = _cube(0.05)
+    ev = ExplorationEvaluator(V, F, EvalConfig())
+    down = np.array([0.0, 0.0, -1.0])
+    ev.add_touch(V[0], V[0], 0.0, 0.0, down, normal=np.array([0.0, 0.6, 0.8]))
+    ev.add_touch(V[1], V[1], 0.0, 0.0, down)
+    touches = ev.summary()["touches"]
+    assert touches[0]["normal"] == [0.0, 0.6, 0.8]
+    assert touches[1]["normal"] is None

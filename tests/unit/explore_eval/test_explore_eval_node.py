@@ -122,6 +122,7 @@ def test_a_repeated_truth_keeps_the_records_and_another_object_is_refused() -> N
     first = node.evaluator
     node.on_touches(touch)
     assert first is not None and first.tracker.contacts == 1
+    assert first.touches[0].normal == [0.0, 0.0, 1.0]  # recorded, so the estimate can be rebuilt
     node.on_truth_object(truth(V, F))  # latched or re-published: nothing changes
     assert node.evaluator is first and first.tracker.contacts == 1
     with pytest.raises(InputError, match=r"^name: a second object 'ball' during the run on 'box'"):
