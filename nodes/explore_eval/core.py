@@ -435,11 +435,8 @@ class ExplorationEvaluator:
         m = self.milestones[fraction]
         if shape is not None:
             m.chamfer_mm, m.fscore_2mm = shape.chamfer_mm, shape.fscore_2mm
-        m.rmse_mm = 1000.0 * scores.confident.estimate_to_truth_m
-        m.confident_fraction = scores.confident_fraction
-        m.rmse_symmetric_mm = 1000.0 * scores.whole.symmetric_m
-        m.rmse_estimate_to_truth_mm = 1000.0 * scores.whole.estimate_to_truth_m
-        m.rmse_truth_to_estimate_mm = 1000.0 * scores.whole.truth_to_estimate_m
+        for key, value in surface_fields(scores).items():
+            setattr(m, key, value)
 
     def rmse(self, vertices_m: np.ndarray, faces: np.ndarray, vertex_variance: np.ndarray) -> SurfaceScores:
         """Surface RMSE between an estimated mesh (vertices (v, 3) m, faces (f, 3), GP variance (v,) m^2)
@@ -475,6 +472,17 @@ class ExplorationEvaluator:
             "shape": [asdict(p) for p in self.shape_series],
             "touches": [asdict(t) for t in self.touches],
         }
+
+
+def surface_fields(scores: SurfaceScores) -> dict[str, float]:
+    """A milestone's surface figures (Milestone fields, mm) from an estimate's scores."""
+    return {
+        "rmse_mm": 1000.0 * scores.confident.estimate_to_truth_m,
+        "confident_fraction": scores.confident_fraction,
+        "rmse_symmetric_mm": 1000.0 * scores.whole.symmetric_m,
+        "rmse_estimate_to_truth_mm": 1000.0 * scores.whole.estimate_to_truth_m,
+        "rmse_truth_to_estimate_mm": 1000.0 * scores.whole.truth_to_estimate_m,
+    }
 
 
 def _sensor(vertices_m: np.ndarray, faces: np.ndarray) -> ExactContactSensor:

@@ -15,6 +15,7 @@ from collections.abc import Callable, Mapping
 EVALUATIONS: dict[str, str] = {
     "explore": "palpate.evaluation.explore:configure",
     "slam": "palpate.evaluation.slam:configure",
+    "rescore": "palpate.evaluation.rescore:configure",
 }
 #: `palpate sweep NAME` -> "module:function(parser)".
 SWEEPS: dict[str, str] = {
@@ -26,6 +27,7 @@ HELP = {
     "eval": {
         "explore": "active tactile exploration (paper 002): the strategies (IGEF, GP-V, ...) on a folder of meshes",
         "slam": "Haptic SLAM (paper 000): known pose, dead reckoning and FastSLAM maps of the Rubik's cube",
+        "rescore": "an explore evaluation's whole estimate rebuilt from its touches under other GPIS settings",
     },
     "sweep": {
         "explore": "exploration's speed-accuracy knobs (GP, mesh step, candidate step, time step, speed, noise)",
