@@ -13,16 +13,18 @@ from __future__ import annotations
 
 import argparse
 import math
+import tempfile
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from palpate import jsonio
 from palpate.argtypes import path_arg
-from palpate.errors import ConfigError
+from palpate.errors import ConfigError, InputError, PalpateError
 from palpate.evaluation.dask_runs import (
     RunLog,
     RunTask,
@@ -46,6 +48,10 @@ from palpate.evaluation.explore import (
     select_cases,
 )
 
+if TYPE_CHECKING:
+    from palpate.nodes.explore_eval.core import EvalConfig
+    from palpate.nodes.gpis.session import GPISNodeConfig
+
 #: --out default.
 DEFAULT_OUT = Path("out/eval_rescore")
 #: The milestone figures a rebuild replaces (``explore_eval.core.surface_fields``).
@@ -58,36 +64,49 @@ REBUILT = (
 )
 
 
-def gpis_config(strategy: str, params: Mapping[str, Any], launch_path: Path = EXPLORE_LAUNCH) -> Any:
-    """The GPIS node's config in an evaluated run of ``strategy`` with node overrides ``params``, as the
-    launch file resolves it. ConfigError for settings a rebuild cannot follow."""
+def node_configs(
+    strategy: str, params: Mapping[str, Any], launch_path: Path = EXPLORE_LAUNCH
+) -> tuple[GPISNodeConfig, EvalConfig]:
+    """The GPIS node's config and the evaluator's settings in an evaluated run of ``strategy`` with
+    node overrides ``params`` (all of the run's, as ``episode_launch`` applies them), as the launch
+    file resolves them. ConfigError for settings a rebuild cannot follow."""
     from palpate.launch.graph import resolve
     from palpate.launch.loader import apply_params, load_launch
 
     launch = load_launch(launch_path, {"strategy": strategy})
     apply_params(launch, params.items())
-    config = next(node.config for node in resolve(launch).nodes if node.name == "gpis")
-    if config.free_space:
+    with tempfile.TemporaryDirectory() as bus_dir:
+        nodes = {node.name: node.config for node in resolve(launch, bus_dir=Path(bus_dir)).nodes}
+    if nodes["gpis"].free_space:
         raise ConfigError(
             "gpis.free_space: the free space comes from the fingertip's path, which runs.jsonl does not hold; "
             "a rebuild cannot follow it (run the evaluation with the setting instead)"
         )
-    return config
+    return nodes["gpis"], nodes["eval"].eval
 
 
 def rebuilt_scores(
-    truth: tuple[np.ndarray, np.ndarray], positions_m: np.ndarray, normals: np.ndarray, config: Any
+    truth: tuple[np.ndarray, np.ndarray],
+    positions_m: np.ndarray,
+    normals: np.ndarray,
+    config: GPISNodeConfig,
+    eval_config: EvalConfig | None = None,
 ) -> dict[str, float]:
     """The milestone's surface figures (REBUILT) of the whole estimate that a GPIS node with ``config``
-    makes from these contacts (positions (n, 3) m, unit normals (n, 3)), against the true mesh."""
-    from palpate.nodes.explore_eval.core import ExplorationEvaluator, surface_fields
+    makes from these contacts (positions (n, 3) m, unit normals (n, 3)), scored against the true mesh
+    as the evaluator with ``eval_config`` scores it. A touch the estimator refuses is left out, as the
+    node leaves it out (an input error there)."""
+    from palpate.nodes.explore_eval.core import EvalConfig, ExplorationEvaluator, surface_fields
     from palpate.nodes.gpis.session import GPISSession
 
     session = GPISSession(config)
     for position, normal in zip(positions_m, normals, strict=True):
-        session.touch(position, normal)
+        try:
+            session.touch(position, normal)
+        except InputError:
+            continue
     mesh = session.whole(variance=True)
-    evaluator = ExplorationEvaluator(*truth)
+    evaluator = ExplorationEvaluator(*truth, eval_config or EvalConfig())
     return surface_fields(evaluator.rmse(mesh.vertices, mesh.faces, mesh.vertex_variance))
 
 
@@ -95,17 +114,19 @@ def rescore_on_worker(
     case: ObjectCase,
     positions_m: list[list[float]],
     normals: list[list[float]],
-    config: Any,
+    configs: tuple[GPISNodeConfig, EvalConfig],
     identity: dict[str, Any],
     *mesh: SharedFile,
 ) -> dict[str, Any]:
     """On a Dask worker: ``identity`` (the run's object, strategy, run and milestone) with the rebuilt
-    figures, on the worker's copy of the mesh."""
-    from dataclasses import replace
-
+    figures, on the worker's copy of the mesh; with ``error`` instead when the estimator cannot make
+    the surface (it would fail the same way on any worker)."""
     if mesh:
         case = replace(case, mesh=str(local_copy(mesh[0])))
-    scores = rebuilt_scores(case.true_mesh(), np.array(positions_m), np.array(normals), config)
+    try:
+        scores = rebuilt_scores(case.true_mesh(), np.array(positions_m), np.array(normals), *configs)
+    except PalpateError as exc:
+        return {**identity, "error": f"{type(exc).__name__}: {exc}"}
     return {**identity, "rebuilt": scores}
 
 
@@ -129,7 +150,8 @@ def tasks_of(
     source: Path,
 ) -> list[RunTask]:
     """One task per run that reached ``percent``, rebuilt with its own settings and ``sets`` on top."""
-    configs: dict[str, Any] = {}
+    configs: dict[str, tuple[GPISNodeConfig, EvalConfig]] = {}
+    areas: dict[str, float] = {}
     tasks = []
     for run in runs:
         milestone = run.get("milestones", {}).get(percent)
@@ -137,14 +159,16 @@ def tasks_of(
             continue
         if run["object"] not in cases:
             raise ConfigError(f"{source}: object {run['object']!r} is not among --objects; give its mesh's folder")
-        params = {k: v for k, v in run.get("params", {}).items() if k.startswith("gpis.")} | dict(sets)
+        case = cases[run["object"]]
+        _check_size(run, case, areas, source)
+        params = dict(run.get("params", {})) | dict(sets)
         signature = jsonio.dumps([run["strategy"], params], sort_keys=True)
         if signature not in configs:
-            configs[signature] = gpis_config(run["strategy"], params)
-        case = cases[run["object"]]
+            configs[signature] = node_configs(run["strategy"], params)
         positions, normals = touches_at(run, percent, source)
         identity = {"object": run["object"], "strategy": run["strategy"], "run": run["run"], "milestone": percent}
-        spec = [identity, signature, file_digest(Path(case.mesh)) if case.mesh else case.kind, positions, normals]
+        mesh = file_digest(Path(case.mesh)) if case.mesh else ""
+        spec = [identity, signature, asdict(replace(case, mesh=mesh)), positions, normals]
         tasks.append(
             RunTask(
                 key=run_key(f"rescore-{run['object']}-{run['strategy']}-{run['run']}", spec),
@@ -155,6 +179,23 @@ def tasks_of(
             )
         )
     return tasks
+
+
+def _check_size(run: Mapping[str, Any], case: ObjectCase, areas: dict[str, float], source: Path) -> None:
+    """ConfigError when the mesh found for the run's object has another area than the one it ran on
+    (another file of that name, or another --scale)."""
+    recorded = run.get("area_m2")
+    if recorded is None:
+        return
+    if case.name not in areas:
+        from palpate.metrics.exploration import mesh_area
+
+        areas[case.name] = mesh_area(case.true_mesh())
+    if not math.isclose(areas[case.name], float(recorded), rel_tol=1e-6):
+        raise ConfigError(
+            f"{source}: {case.name} ran on a surface of {recorded:.6g} m^2, but {case.mesh or case.kind} is "
+            f"{areas[case.name]:.6g} m^2 here; give the same mesh with the --scale the evaluation had"
+        )
 
 
 def with_rebuilt(
@@ -240,10 +281,14 @@ def main(args: argparse.Namespace) -> int:
     cases = {c.name: c for c in select_cases(args.objects, scale=args.scale)}
     tasks = tasks_of(runs, cases, sets, percent, args.runs)
     if not tasks:
-        raise ConfigError(f"{args.runs}: no run reached the {percent} % milestone; nothing to rescore")
+        held = sorted({key for r in runs for key in r.get("milestones", {})}, key=float)
+        raise ConfigError(
+            f"{args.runs}: no run reached the {percent} % milestone (its milestones: {', '.join(held) or 'none'}); "
+            "nothing to rescore"
+        )
     start = time.perf_counter()
     output_folder(args.out)
-    with RunLog(args.out / "rescored.jsonl", resume=False) as log:
+    with RunLog(args.out / "rescored.jsonl", resume=args.resume) as log:
         outcome = run_tasks(tasks, log, cluster_config(args))
     report_failures(outcome)
     summary = comparison(runs, with_rebuilt(runs, outcome.ordered(tasks), percent), strategies, percent)

@@ -13,6 +13,7 @@ import pytest
 from palpate.errors import ConfigError
 from palpate.evaluation import rescore
 from palpate.evaluation.explore import ObjectCase
+from palpate.metrics.exploration import mesh_area
 
 SPHERE = ObjectCase(name="sphere", kind="sphere", size_m=(0.03,))  # a 3 cm radius ball of the sim
 
@@ -39,21 +40,60 @@ def _run(strategy: str, run: int = 0, count: int = 40, symmetric_mm: float = 9.0
 
 
 def test_a_rebuild_of_contacts_over_a_sphere_finds_the_sphere() -> None:
-    config = rescore.gpis_config("tour", {})
+    config, eval_config = rescore.node_configs("tour", {})
     run = _run("tour")
     positions, normals = rescore.touches_at(run, "80", Path("runs.jsonl"))
     assert len(positions) == 40
-    scores = rescore.rebuilt_scores(SPHERE.true_mesh(), np.array(positions), np.array(normals), config)
+    scores = rescore.rebuilt_scores(SPHERE.true_mesh(), np.array(positions), np.array(normals), config, eval_config)
     assert set(scores) == set(rescore.REBUILT)
     assert 0.0 < scores["rmse_symmetric_mm"] < 0.5  # 40 exact contacts all round a 3 cm ball
     assert 0.5 < scores["confident_fraction"] <= 1.0
 
 
-def test_a_gpis_setting_reaches_the_rebuild_and_refuses_what_it_cannot_follow() -> None:
-    assert rescore.gpis_config("gpv", {"gpis.gp.R_m": 2.0}).gp.R_m == 2.0
-    assert rescore.gpis_config("gpv", {}).gp.R_m == 0.5
+def test_a_touch_the_estimator_refuses_is_left_out_as_the_node_leaves_it_out() -> None:
+    config, _ = rescore.node_configs("tour", {})
+    positions, normals = (np.array(x) for x in rescore.touches_at(_run("tour"), "80", Path("r.jsonl")))
+    kept = rescore.rebuilt_scores(SPHERE.true_mesh(), positions, normals, config)
+    refused = np.vstack([positions, [[0.0, 0.0, 0.03]]]), np.vstack([normals, [[0.0, 0.0, 0.0]]])  # no direction
+    assert rescore.rebuilt_scores(SPHERE.true_mesh(), *refused, config) == kept
+
+
+def test_the_worker_gives_an_error_row_where_the_estimator_cannot_mesh() -> None:
+    configs = rescore.node_configs("tour", {"gpis.grow_kernel": False, "gpis.gp.R_m": 0.01})
+    positions, normals = rescore.touches_at(_run("tour"), "80", Path("r.jsonl"))
+    identity = {"object": "sphere", "strategy": "tour", "run": 0, "milestone": "80"}
+    row = rescore.rescore_on_worker(SPHERE, positions, normals, configs, identity)
+    assert row["error"].startswith("EstimationError: ") and "rebuilt" not in row
+
+
+def test_the_runs_own_settings_and_the_sets_on_top_reach_the_rebuild() -> None:
+    run = _run("gpv")
+    run["params"] = {
+        "gpis.gp.R_m": 1.0,
+        "eval.eval.rmse_samples": 5000,
+        "planner.candidate_step_m": 0.01,
+        "gpis.variance_step_m": 0.01,
+    }  # planner and gpis must agree on the step: both apply
+    (task,) = rescore.tasks_of([run], {"sphere": SPHERE}, {"gpis.gp.gradient_noise": 0.03}, "80", Path("r.jsonl"))
+    gpis, evaluation = task.args[3]
+    assert (gpis.gp.R_m, gpis.gp.gradient_noise, gpis.variance_step_m) == (1.0, 0.03, 0.01)
+    assert evaluation.rmse_samples == 5000
+    (again,) = rescore.tasks_of([run], {"sphere": SPHERE}, {"gpis.gp.gradient_noise": 0.1}, "80", Path("r.jsonl"))
+    assert again.key != task.key  # other settings, another run on --resume
+
+
+def test_settings_a_rebuild_cannot_follow_are_refused() -> None:
     with pytest.raises(ConfigError, match="free space comes from the fingertip's path"):
-        rescore.gpis_config("tour", {"gpis.free_space": True})
+        rescore.node_configs("tour", {"gpis.free_space": True})
+
+
+def test_a_mesh_of_another_size_than_the_run_had_is_named() -> None:
+    run = _run("gpv")
+    run["area_m2"] = 4.0 * np.pi * 0.03**2 * 1e6  # the run's object was a thousand times larger (mm)
+    with pytest.raises(ConfigError, match=r"sphere ran on a surface of 1?\d+(\.\d+)? m\^2, but sphere is"):
+        rescore.tasks_of([run], {"sphere": SPHERE}, {}, "80", Path("r.jsonl"))
+    run["area_m2"] = mesh_area(SPHERE.true_mesh())
+    assert len(rescore.tasks_of([run], {"sphere": SPHERE}, {}, "80", Path("r.jsonl"))) == 1
 
 
 def test_runs_without_touch_normals_are_named() -> None:
