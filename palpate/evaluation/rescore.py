@@ -44,6 +44,7 @@ from palpate.evaluation.explore import (
     add_objects_arguments,
     overrides_under,
     parse_sets,
+    report_errors,
     runs_from,
     select_cases,
 )
@@ -201,9 +202,9 @@ def _check_size(run: Mapping[str, Any], case: ObjectCase, areas: dict[str, float
 def with_rebuilt(
     runs: Sequence[Mapping[str, Any]], rows: Sequence[Mapping[str, Any]], percent: str
 ) -> list[dict[str, Any]]:
-    """The runs with their milestone's REBUILT figures replaced by the rebuilt ones (runs not rebuilt
-    are left out)."""
-    rebuilt = {(r["object"], r["strategy"], r["run"]): r["rebuilt"] for r in rows}
+    """The runs with their milestone's REBUILT figures replaced by the rebuilt ones (runs not rebuilt,
+    or rebuilt with an error, are left out)."""
+    rebuilt = {(r["object"], r["strategy"], r["run"]): r["rebuilt"] for r in rows if "rebuilt" in r}
     out = []
     for run in runs:
         scores = rebuilt.get((run["object"], run["strategy"], run["run"]))
@@ -291,7 +292,9 @@ def main(args: argparse.Namespace) -> int:
     with RunLog(args.out / "rescored.jsonl", resume=args.resume) as log:
         outcome = run_tasks(tasks, log, cluster_config(args))
     report_failures(outcome)
-    summary = comparison(runs, with_rebuilt(runs, outcome.ordered(tasks), percent), strategies, percent)
+    rows = outcome.ordered(tasks)
+    report_errors([r for r in rows if "error" in r])
+    summary = comparison(runs, with_rebuilt(runs, rows, percent), strategies, percent)
     settings = overrides_under(sets.items(), "gpis.") or "their own settings"
     print(
         f"{len(outcome.rows)} runs rebuilt at {percent} % with {settings} in {time.perf_counter() - start:.0f} s; "
@@ -299,4 +302,4 @@ def main(args: argparse.Namespace) -> int:
     )
     if args.json:
         print(jsonio.dumps({"milestone": args.milestone, "set": sets, **summary}))
-    return 1 if outcome.failed else 0
+    return 1 if outcome.failed or any("error" in r for r in rows) else 0

@@ -120,7 +120,9 @@ def test_the_comparison_pairs_the_runs_every_strategy_rebuilt() -> None:
         {"object": "sphere", "strategy": "tour", "run": 0, "rebuilt": {"rmse_symmetric_mm": 1.0}},
         {"object": "sphere", "strategy": "tour", "run": 1, "rebuilt": {"rmse_symmetric_mm": 5.0}},
     ]
-    summary = rescore.comparison(runs, rescore.with_rebuilt(runs, rebuilt, "80"), ["igef", "tour"], "80")
+    failed = {"object": "sphere", "strategy": "tour", "run": 2, "error": "EstimationError: ..."}
+    runs.append(_run("tour", 2))
+    summary = rescore.comparison(runs, rescore.with_rebuilt(runs, [*rebuilt, failed], "80"), ["igef", "tour"], "80")
     assert summary["tour"]["paired_runs"] == 1  # igef has no run 1
     assert summary["tour"]["recorded_rmse_symmetric_mm"] == 2.0
     assert summary["tour"]["rmse_symmetric_mm"] == 1.0
