@@ -262,13 +262,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="a GPIS node setting for the rebuild, on top of the run's own (YAML value), e.g. gpis.gp.R_m=2.0",
     )
     parser.add_argument("--json", action="store_true", help="print the comparison as one JSON object, last line")
-    parser.add_argument("--out", type=path_arg, default=DEFAULT_OUT, help="output folder (rescored.jsonl)")
+    parser.add_argument("--out", type=path_arg, default=DEFAULT_OUT, help="output folder (rescored.jsonl, tables.md)")
     add_cluster_arguments(parser)
     parser.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:
-    """`palpate eval rescore`: rebuild, write OUT/rescored.jsonl, print the comparison."""
+    """`palpate eval rescore`: rebuild, write OUT/rescored.jsonl and OUT/tables.md, print the comparison."""
     sets = parse_sets(args.set)
     others = sorted(key for key in sets if not key.startswith("gpis."))
     if others:
@@ -296,10 +296,10 @@ def main(args: argparse.Namespace) -> int:
     report_errors([r for r in rows if "error" in r])
     summary = comparison(runs, with_rebuilt(runs, rows, percent), strategies, percent)
     settings = overrides_under(sets.items(), "gpis.") or "their own settings"
-    print(
-        f"{len(outcome.rows)} runs rebuilt at {percent} % with {settings} in {time.perf_counter() - start:.0f} s; "
-        f"wrote {args.out / 'rescored.jsonl'}\n\n{table(summary, percent)}"
-    )
+    text = f"{len(outcome.rows)} runs of {args.runs} rebuilt at {percent} % with {settings}.\n\n"
+    text += table(summary, percent) + "\n"
+    (args.out / "tables.md").write_text(text)
+    print(f"{text}\nwrote {args.out}: rescored.jsonl, tables.md ({time.perf_counter() - start:.0f} s)")
     if args.json:
         print(jsonio.dumps({"milestone": args.milestone, "set": sets, **summary}))
     return 1 if outcome.failed or any("error" in r for r in rows) else 0

@@ -135,3 +135,44 @@ def test_other_nodes_settings_are_refused_before_any_work(tmp_path: Path) -> Non
     args = argparse.Namespace(set=["planner.tour_sites=6"], runs=tmp_path / "runs.jsonl")
     with pytest.raises(ConfigError, match=r"^--set planner\.tour_sites: a rescore rebuilds the GPIS estimate only"):
         rescore.main(args)
+
+
+@pytest.mark.slow
+def test_the_command_rebuilds_writes_its_tables_and_reproduces_the_recorded_figures(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+
+    import trimesh
+
+    from palpate import jsonio
+
+    objects = tmp_path / "objects"
+    objects.mkdir()
+    trimesh.creation.icosphere(subdivisions=3, radius=0.03).export(objects / "ball.stl")
+    (case,) = rescore.select_cases([objects])
+    runs = []
+    for strategy in ("igef", "tour"):
+        run = _run(strategy, count=30 if strategy == "igef" else 40)
+        run["object"], run["area_m2"] = "ball", mesh_area(case.true_mesh())
+        config, eval_config = rescore.node_configs(strategy, run["params"])
+        positions, normals = rescore.touches_at(run, "80", tmp_path)
+        truth = case.true_mesh()
+        recorded = rescore.rebuilt_scores(truth, np.array(positions), np.array(normals), config, eval_config)
+        run["milestones"]["80"].update(recorded)  # as the evaluation recorded them
+        runs.append(run)
+    runs.append({"object": "ball", "strategy": "tour", "run": 1, "error": "MeshError: ..."})
+    source = tmp_path / "runs.jsonl"
+    source.write_text("".join(jsonio.dumps(r) + "\n" for r in runs))
+    parser = argparse.ArgumentParser()
+    rescore.configure(parser)
+    out = tmp_path / "out"
+    args = parser.parse_args([str(source), "--objects", str(objects), "--out", str(out), "--workers", "1", "--json"])
+    assert rescore.main(args) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    for strategy in ("igef", "tour"):
+        assert summary[strategy]["paired_runs"] == 1
+        assert summary[strategy]["rmse_symmetric_mm"] == summary[strategy]["recorded_rmse_symmetric_mm"]
+    assert summary["igef"]["rmse_symmetric_mm"] != summary["tour"]["rmse_symmetric_mm"]  # 30 contacts against 40
+    assert "| tour | 1 |" in (out / "tables.md").read_text()
+    assert len((out / "rescored.jsonl").read_text().splitlines()) == 2
