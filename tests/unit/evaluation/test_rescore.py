@@ -12,7 +12,7 @@ import pytest
 
 from palpate.errors import ConfigError
 from palpate.evaluation import rescore
-from palpate.evaluation.explore import ObjectCase
+from palpate.evaluation.explore import ObjectCase, select_cases
 from palpate.metrics.exploration import mesh_area
 
 SPHERE = ObjectCase(name="sphere", kind="sphere", size_m=(0.03,))  # a 3 cm radius ball of the sim
@@ -150,7 +150,7 @@ def test_the_command_rebuilds_writes_its_tables_and_reproduces_the_recorded_figu
     objects = tmp_path / "objects"
     objects.mkdir()
     trimesh.creation.icosphere(subdivisions=3, radius=0.03).export(objects / "ball.stl")
-    (case,) = rescore.select_cases([objects])
+    (case,) = select_cases([objects])
     runs = []
     for strategy in ("igef", "tour"):
         run = _run(strategy, count=30 if strategy == "igef" else 40)
