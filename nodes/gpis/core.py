@@ -35,6 +35,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterator
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
 from typing import Annotated, Protocol
 
@@ -240,6 +242,16 @@ def first_centre(config: GPISConfig, centre: FloatArray | None, P: FloatArray, N
     return centre
 
 
+class PriorMean(Protocol):
+    """A prior mean given as a function (``GPIS.replaced_prior``), e.g. ``hull_prior.SmoothHull``."""
+
+    def mean(self, x: FloatArray) -> FloatArray: ...
+
+    def gradient(self, x: FloatArray) -> FloatArray: ...
+
+    def mean_and_gradient(self, x: FloatArray) -> tuple[FloatArray, FloatArray]: ...
+
+
 class SurfaceEstimator(Protocol):
     """What the surface mesher, the node and the benchmark need from a GPIS (exact or local)."""
 
@@ -267,6 +279,11 @@ class SurfaceEstimator(Protocol):
 
     def drop_free_space(self) -> None: ...
 
+    @property
+    def supports_replaced_prior(self) -> bool: ...
+
+    def replaced_prior(self, prior: PriorMean) -> AbstractContextManager[None]: ...
+
     def add_contacts(self, positions_m: ArrayLike, normals: ArrayLike) -> None: ...
 
     def mean(self, x: ArrayLike) -> FloatArray: ...
@@ -289,6 +306,7 @@ class GPIS:
         if prior_centre_m is not None:
             self._centre = _points(prior_centre_m, "prior_centre_m")[0].copy()
         self._given_centre = self._centre
+        self._replacement: PriorMean | None = None  # the prior within ``replaced_prior``
         self._P = np.zeros((0, 3))  # every observed point: the contacts and the free-space points
         self._N = np.zeros((0, 3))  # their normals (zero rows for free-space points)
         self._is_contact = np.zeros(0, dtype=bool)
@@ -336,6 +354,10 @@ class GPIS:
         return None if self._centre is None else self._centre.copy()
 
     @property
+    def supports_replaced_prior(self) -> bool:
+        return True
+
+    @property
     def observation_noise(self) -> FloatArray:
         """Variances (4,) added to the diagonal per contact: value row, then the three gradient rows."""
         return self._diag.copy()
@@ -366,6 +388,8 @@ class GPIS:
         N = _unit_normals(normals, len(P))
         if len(P) == 0:
             return
+        if self._replacement is not None:
+            raise EstimationError("contacts cannot be added while the prior is replaced (see replaced_prior)")
         centre = first_centre(self.config, self._centre, P, N)
         # Residual targets y - m_obs: value rows 0 - m(c_p), gradient rows c_n - grad m(c_p).
         targets = np.empty((len(P), ROWS_PER_POINT))
@@ -458,12 +482,36 @@ class GPIS:
         self._is_contact = self._is_contact[:n].copy()
         self._alpha = None
 
+    @contextmanager
+    def replaced_prior(self, prior: PriorMean) -> Iterator[None]:
+        """Within the block the GP has the prior mean ``prior`` in place of the configured one, on the
+        same contacts: the residual targets y - m_obs change, the factor does not (one solve, O(n^2)).
+        Free space added within the block is dropped with it, and the GP is then as before, to the bit.
+        Refused while the GP holds free space (its targets would need the old prior)."""
+        if self.n_free_space:
+            raise EstimationError("a prior cannot be replaced while free-space observations are held")
+        if self._replacement is not None:
+            raise EstimationError("the prior is replaced already")
+        saved = self._z, self._alpha
+        if len(self._P):
+            m, g = prior.mean_and_gradient(self._P)
+            targets = np.concatenate([-m[:, None], self._N - g], axis=1)
+            self._z = self._L.solve(targets.ravel())
+        self._alpha, self._replacement = None, prior
+        try:
+            yield
+        finally:
+            self.drop_free_space()
+            (self._z, self._alpha), self._replacement = saved, None
+
     def truncate(self, n_contacts: int) -> None:
         """Keep the first n_contacts contacts only (exact: the factor's leading block is their factor)."""
         if not 0 <= n_contacts <= self.n_contacts:
             raise EstimationError(f"cannot keep {n_contacts} of {self.n_contacts} contacts")
         if self.n_free_space:
             raise EstimationError("cannot truncate a GP that holds free-space observations")
+        if self._replacement is not None:
+            raise EstimationError("cannot truncate a GP while its prior is replaced")
         rows = ROWS_PER_POINT * n_contacts
         self._L.truncate(rows)
         self._z = self._z[:rows].copy()
@@ -548,9 +596,13 @@ class GPIS:
         return self._centre
 
     def _prior_mean(self, x: FloatArray, centre: FloatArray | None) -> FloatArray:
+        if self._replacement is not None:
+            return self._replacement.mean(x)
         return prior_mean(self.config, x, centre)
 
     def _prior_gradient(self, x: FloatArray, centre: FloatArray | None) -> FloatArray:
+        if self._replacement is not None:
+            return self._replacement.gradient(x)
         return prior_gradient(self.config, x, centre)
 
     @staticmethod

@@ -53,6 +53,7 @@ GP are measured in tests/unit/gpis/test_local.py and by `palpate bench gpis`.
 
 from __future__ import annotations
 
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,6 +63,7 @@ from palpate.errors import EstimationError
 from palpate.nodes.gpis.core import (
     GPIS,
     GPISConfig,
+    PriorMean,
     _points,
     _unit_normals,
     first_centre,
@@ -152,6 +154,14 @@ class LocalGPIS:
 
     def drop_free_space(self) -> None:
         """Nothing to drop (it takes none)."""
+
+    @property
+    def supports_replaced_prior(self) -> bool:
+        return False
+
+    def replaced_prior(self, prior: PriorMean) -> AbstractContextManager[None]:
+        """Refused: each expert and the far field hold residuals of the shared prior."""
+        raise EstimationError("the local GPIS cannot replace its prior; use the exact estimator")
 
     @property
     def prior_centre_m(self) -> FloatArray | None:
@@ -527,6 +537,14 @@ class AutoGPIS:
 
     def drop_free_space(self) -> None:
         self._impl.drop_free_space()
+
+    @property
+    def supports_replaced_prior(self) -> bool:
+        """While exact (see ``GPIS.replaced_prior``)."""
+        return self._impl.supports_replaced_prior
+
+    def replaced_prior(self, prior: PriorMean) -> AbstractContextManager[None]:
+        return self._impl.replaced_prior(prior)
 
     @property
     def factor_bytes(self) -> int:

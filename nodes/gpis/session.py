@@ -6,7 +6,8 @@
   touch it cannot take leaves the estimator as it was (InputError).
 - A whole-object request meshes every contact. With ``free_space``, the fingertip centres swept
   without a contact hold f >= the fingertip radius for that mesh only (``enforce``), and are dropped
-  after it.
+  after it. With ``whole_prior: hull`` its prior is the contacts' smoothed convex hull, for that mesh
+  only.
 - With ``free_space``, each contact message without a contact marks the fingertip's last centre as
   swept.
 """
@@ -14,6 +15,7 @@
 from __future__ import annotations
 
 from collections import Counter
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from typing import Annotated, Literal
 
@@ -25,6 +27,7 @@ from palpate.errors import ConfigError, EstimationError
 from palpate.inputs import coordinates
 from palpate.nodes.gpis.core import GPISConfig, SurfaceEstimator
 from palpate.nodes.gpis.free_space import SweptSpace, enforce, within_box
+from palpate.nodes.gpis.hull_prior import SmoothHull
 from palpate.nodes.gpis.local import make_estimator
 from palpate.nodes.gpis.reach import holding, touch_reach
 from palpate.nodes.gpis.surface import (
@@ -86,6 +89,16 @@ class GPISNodeConfig(Validated):
     free_space_rounds: Annotated[int, Range(ge=1)] = 6
     #: A centre counts as breaking f >= r only below r - this.
     free_space_tolerance_m: NonNegativeFloat = 0.0
+    #: Not in the paper: the prior mean of the whole-object mesh. "same": the GP's own (gp.prior);
+    #: "hull": the contacts' convex hull, smoothed (``hull_prior.SmoothHull``: the log-sum-exp of its
+    #: face planes at whole_prior_tau_m), so that the unexplored parts are extrapolated from the shape
+    #: the contacts span. The local meshes (the planner's) keep the GP's own, so no path changes.
+    #: Where the hull is no solid (under four contacts, flat, or thinner than 2 tau) or the estimator
+    #: is local, the mesh keeps the GP's own prior (counter ``whole_prior_kept``). Exact estimator
+    #: only. docs/exploration.md, "The whole estimate's prior".
+    whole_prior: Literal["same", "hull"] = "same"
+    #: Blending length tau of the hull's faces, metres.
+    whole_prior_tau_m: PositiveFloat = 0.006
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -104,7 +117,9 @@ class GPISSession:
     Events for the node's counters pile up until ``take_counts``: ``local_mesh_refined`` (the surface
     at a touch was thinner than the grid: its mesh was made on a finer one), ``kernel_grown``,
     ``kernel_not_grown`` (the contacts did not factor with the larger range), ``free_space_points``,
-    ``free_space_refused`` (the covariance would not factor with more: the mesh has those added).
+    ``free_space_refused`` (the covariance would not factor with more: the mesh has those added),
+    ``whole_prior_kept`` (a whole-object mesh asked for the hull prior kept the GP's own, see
+    GPISNodeConfig.whole_prior).
     """
 
     def __init__(self, config: GPISNodeConfig) -> None:
@@ -152,12 +167,24 @@ class GPISSession:
     def whole(self, variance: bool) -> SurfaceMeshArrays:
         """The whole-object mesh of every contact, with the GP variance at every vertex if asked."""
         cfg = self.config
-        try:
-            if cfg.free_space:
-                self._enforce_free_space()
-            return whole_surface(self.gp, cfg.global_margin_m, cfg.global_resolution_m, with_variance=variance)
-        finally:
-            self.gp.drop_free_space()  # the active set is this mesh's own (see GPISNodeConfig.free_space)
+        with self._whole_prior():
+            try:
+                if cfg.free_space:
+                    self._enforce_free_space()
+                return whole_surface(self.gp, cfg.global_margin_m, cfg.global_resolution_m, with_variance=variance)
+            finally:
+                self.gp.drop_free_space()  # the active set is this mesh's own (see GPISNodeConfig.free_space)
+
+    def _whole_prior(self) -> AbstractContextManager[None]:
+        """The whole-object mesh's prior (see GPISNodeConfig.whole_prior), for the duration of the mesh."""
+        cfg, gp = self.config, self.gp
+        if cfg.whole_prior == "same":
+            return nullcontext()
+        hull = SmoothHull.of(gp.positions_m, cfg.whole_prior_tau_m) if gp.supports_replaced_prior else None
+        if hull is None:
+            self._counts["whole_prior_kept"] += 1
+            return nullcontext()
+        return gp.replaced_prior(hull)
 
     def _enforce_free_space(self) -> None:
         """f >= fingertip radius at the swept centres in the whole-object box (see GPISNodeConfig)."""
