@@ -1,54 +1,62 @@
-"""A smooth convex prior mean from the contacts: the log-sum-exp of their convex hull's face planes.
+"""A smooth convex prior mean from the contacts: their convex hull, seen from K even directions and blended.
 
-With the hull's faces as planes a_i . x + d_i = 0 (a_i outward unit normals, a_i . x + d_i <= 0
-inside),
+For K unit directions u_k spread evenly over the sphere (a Fibonacci lattice), the contacts' support
+planes u_k . x = h(u_k), h(u) = max_j u . p_j, bound their convex hull from outside; with
+s_k(x) = u_k . x - h(u_k) the signed distance of x beyond plane k,
 
-    m(x) = tau log sum_i exp((a_i . x + d_i) / tau),   grad m(x) = sum_i w_i(x) a_i,
-    w(x) = softmax((A x + d) / tau),
+    m(x) = tau log sum_k exp(s_k(x) / tau),   grad m(x) = sum_k w_k(x) u_k,
+    w(x) = softmax(s(x) / tau),
 
-a smooth maximum of the signed plane distances (as the smooth convexes of CvxNet, Deng et al., CVPR
-2020): the hull's shape with its edges blended over about tau, and a gradient that turns smoothly
-from one face's normal to the next. Used as the prior of a whole-object mesh
-(``GPISNodeConfig.whole_prior``): the GP then extrapolates the unexplored parts from the shape the
-contacts span rather than from a sphere at the first contact. m exceeds the hard maximum by up to
-tau log(faces); the thin-plate kernel takes up such a near-constant offset (its constant term has
-variance R_m^3), so the shape of m, not its level, is what the prior gives.
+a smooth maximum of the planes (the smooth convexes of CvxNet, Deng et al., CVPR 2020): the hull's
+shape with its edges blended over about tau, and a gradient that turns smoothly from one side's
+normal to the next. It is the prior of a whole-object mesh (``GPISNodeConfig.whole_prior``): the GP
+then extrapolates the unexplored parts from the shape the contacts span, not from a sphere at the
+first contact. The planes are fixed directions, not the hull's faces, so the cost is K per query
+point however many contacts there are, and every direction weighs alike. m exceeds the largest
+s_k by up to tau log K; the thin-plate kernel takes up such a near-constant offset (its constant
+term has variance R_m^3), so the shape of m, not its level, is what the prior gives.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import ConvexHull, QhullError
 
 FloatArray = NDArray[np.float64]
 
-#: Query points x faces per chunk of the plane distances (about 32 MB of float64).
-_CHUNK_ENTRIES = 1 << 22
+#: Query points x planes per chunk (about 2 MB of float64: the passes stay in cache).
+_CHUNK_ENTRIES = 1 << 18
+
+
+def even_directions(count: int) -> FloatArray:
+    """count unit vectors (count, 3) spread evenly over the sphere (a Fibonacci lattice)."""
+    i = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * i / count
+    r = np.sqrt(1.0 - z * z)
+    phi = np.pi * (1.0 + np.sqrt(5.0)) * i
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
 class SmoothHull:
-    """The prior m(x) above for planes A (F, 3) (outward unit normals) and offsets d (F,), at tau > 0 m."""
+    """The prior m(x) above for planes u_k . x + d_k = 0 (U (K, 3) unit normals, d (K,)) and tau > 0 m."""
 
-    def __init__(self, A: FloatArray, d: FloatArray, tau_m: float) -> None:
-        self.A, self.d, self.tau_m = A, d, tau_m
+    def __init__(self, U: FloatArray, d: FloatArray, tau_m: float) -> None:
+        self.U, self.d, self.tau_m = U, d, tau_m
 
     @classmethod
-    def of(cls, points_m: FloatArray, tau_m: float) -> SmoothHull | None:
-        """The prior of the convex hull of points (n, 3), or None where the hull is no solid at tau's
-        scale: fewer than four points, all in a plane, or thinner than 2 tau across any face's
-        direction (a patch seen from one side: its hull says nothing about the inside)."""
+    def of(cls, points_m: FloatArray, tau_m: float, directions: int) -> SmoothHull | None:
+        """The prior of points (n, 3) seen from ``directions`` even directions, or None where their hull
+        is no solid at tau's scale: fewer than four points, or thinner than 2 tau in some direction
+        (a patch seen from one side, all in a plane: its hull says nothing about the inside)."""
         if len(points_m) < 4:
             return None
-        try:
-            hull = ConvexHull(points_m)
-        except QhullError:  # flat or otherwise degenerate
+        U = even_directions(directions)
+        support = (points_m @ U.T).max(axis=0)  # h(u_k)
+        axes = np.linalg.eigh(np.cov(points_m.T))[1]  # principal axes: the thinnest direction among them
+        along = points_m @ np.concatenate([U, axes.T]).T
+        if (along.max(axis=0) - along.min(axis=0)).min() < 2.0 * tau_m:  # the extent along each
             return None
-        A, d = hull.equations[:, :3].copy(), hull.equations[:, 3].copy()
-        widths = -(points_m[hull.vertices] @ A.T + d).min(axis=0)  # per face: how far the hull reaches behind it
-        if widths.min() < 2.0 * tau_m:
-            return None
-        return cls(A, d, tau_m)
+        return cls(U, -support, tau_m)
 
     def mean(self, x: FloatArray) -> FloatArray:
         """m(x) (m,) at x (m, 3)."""
@@ -59,14 +67,18 @@ class SmoothHull:
         return self.mean_and_gradient(x)[1]
 
     def mean_and_gradient(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """(m(x) (m,), grad m(x) (m, 3)), in chunks of bounded memory."""
+        """(m(x) (m,), grad m(x) (m, 3)), in chunks that stay in cache."""
         value, grad = np.empty(len(x)), np.empty((len(x), 3))
-        step = max(1, _CHUNK_ENTRIES // len(self.A))
+        step = max(1, _CHUNK_ENTRIES // len(self.U))
         for start in range(0, len(x), step):
-            s = x[start : start + step] @ self.A.T + self.d  # signed plane distances (k, F)
+            chunk = slice(start, start + step)
+            s = x[chunk] @ self.U.T
+            s += self.d  # signed distances beyond the planes (k, K)
             top = s.max(axis=1, keepdims=True)
-            w = np.exp((s - top) / self.tau_m)  # every term <= 1: no overflow
-            total = w.sum(axis=1, keepdims=True)
-            value[start : start + step] = top[:, 0] + self.tau_m * np.log(total[:, 0])
-            grad[start : start + step] = (w / total) @ self.A
+            s -= top
+            s *= 1.0 / self.tau_m
+            np.exp(s, out=s)  # every term <= 1: no overflow
+            total = s.sum(axis=1)
+            value[chunk] = top[:, 0] + self.tau_m * np.log(total)
+            grad[chunk] = (s @ self.U) / total[:, None]
         return value, grad

@@ -91,14 +91,17 @@ class GPISNodeConfig(Validated):
     free_space_tolerance_m: NonNegativeFloat = 0.0
     #: Not in the paper: the prior mean of the whole-object mesh. "same": the GP's own (gp.prior);
     #: "hull": the contacts' convex hull, smoothed (``hull_prior.SmoothHull``: the log-sum-exp of its
-    #: face planes at whole_prior_tau_m), so that the unexplored parts are extrapolated from the shape
-    #: the contacts span. The local meshes (the planner's) keep the GP's own, so no path changes.
-    #: Where the hull is no solid (under four contacts, flat, or thinner than 2 tau) or the estimator
-    #: is local, the mesh keeps the GP's own prior (counter ``whole_prior_kept``). Exact estimator
-    #: only. docs/exploration.md, "The whole estimate's prior".
+    #: support planes in whole_prior_directions even directions, blended over whole_prior_tau_m), so
+    #: that the unexplored parts are extrapolated from the shape the contacts span. The local meshes
+    #: (the planner's) keep the GP's own, so no path changes. Where the hull is no solid (under four
+    #: contacts, or thinner than 2 tau in some direction) or the estimator is local, the mesh keeps
+    #: the GP's own prior (counter ``whole_prior_kept``). Exact estimator only. docs/exploration.md,
+    #: "The whole estimate's prior".
     whole_prior: Literal["same", "hull"] = "same"
-    #: Blending length tau of the hull's faces, metres.
+    #: Blending length tau of the hull's planes, metres.
     whole_prior_tau_m: PositiveFloat = 0.006
+    #: Directions of the hull's support planes (the prior's cost per query point).
+    whole_prior_directions: Annotated[int, Range(ge=4)] = 256
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -180,7 +183,9 @@ class GPISSession:
         cfg, gp = self.config, self.gp
         if cfg.whole_prior == "same":
             return nullcontext()
-        hull = SmoothHull.of(gp.positions_m, cfg.whole_prior_tau_m) if gp.supports_replaced_prior else None
+        hull = None
+        if gp.supports_replaced_prior:
+            hull = SmoothHull.of(gp.positions_m, cfg.whole_prior_tau_m, cfg.whole_prior_directions)
         if hull is None:
             self._counts["whole_prior_kept"] += 1
             return nullcontext()

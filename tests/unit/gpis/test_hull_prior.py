@@ -8,7 +8,7 @@ import pytest
 
 from palpate.errors import EstimationError
 from palpate.nodes.gpis.core import GPIS, GPISConfig
-from palpate.nodes.gpis.hull_prior import SmoothHull
+from palpate.nodes.gpis.hull_prior import SmoothHull, even_directions
 from palpate.nodes.gpis.local import AutoGPIS, LocalGPIS
 from palpate.nodes.gpis.session import GPISNodeConfig, GPISSession
 
@@ -29,21 +29,34 @@ def ellipsoid(n: int, axes: tuple[float, float, float], seed: int = 0) -> tuple[
     return P, N / np.linalg.norm(N, axis=1, keepdims=True)
 
 
-def test_the_smooth_hull_lies_between_the_hard_maximum_and_it_plus_tau_log_faces() -> None:
-    hull = SmoothHull.of(cube_corners(0.05), TAU)
-    assert hull is not None and len(hull.A) == 12  # two triangles per face
+def test_even_directions_are_unit_vectors_spread_over_the_sphere() -> None:
+    U = even_directions(256)
+    np.testing.assert_allclose(np.linalg.norm(U, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(U.mean(axis=0), 0.0, atol=5e-3)  # no side favoured
+    nearest = np.sort(U @ U.T, axis=1)[:, -2]  # cosine to the nearest other direction
+    angles = np.degrees(np.arccos(nearest))
+    assert angles.min() > 9.0 and angles.max() < 16.0  # 4 pi / 256 sr each: about 12.7 deg apart
+
+
+def test_the_smooth_hull_lies_between_the_support_planes_and_them_plus_tau_log_k() -> None:
+    hull = SmoothHull.of(cube_corners(0.05), TAU, 256)
+    assert hull is not None
+    support = (cube_corners(0.05) @ hull.U.T).max(axis=0)
+    np.testing.assert_allclose(hull.d, -support)
     x = np.random.default_rng(1).uniform(-0.08, 0.08, size=(500, 3))
-    hard = (x @ hull.A.T + hull.d).max(axis=1)
+    hard = (x @ hull.U.T + hull.d).max(axis=1)
     m = hull.mean(x)
-    assert np.all(m >= hard - 1e-15) and np.all(m <= hard + TAU * np.log(12) + 1e-15)
-    far = np.array([[0.0, 0.0, 0.5]])  # straight above the top face: the two top triangles decide
-    assert hull.mean(far)[0] == pytest.approx(0.475 + TAU * np.log(2), abs=1e-12)
-    np.testing.assert_allclose(hull.gradient(far), [[0.0, 0.0, 1.0]], atol=1e-12)
+    assert np.all(m >= hard - 1e-15) and np.all(m <= hard + TAU * np.log(256) + 1e-15)
+    # far beyond the top face the gradient blends the directions nearest +z (the lattice's lie a few
+    # degrees off it); beyond a side face, that side's
+    g = hull.gradient(np.array([[0.0, 0.0, 0.5], [0.5, 0.0, 0.0]]))
+    assert g[0, 2] > 0.98 and np.hypot(g[0, 0], g[0, 1]) < 0.05
+    assert g[1, 0] > 0.98 and np.hypot(g[1, 1], g[1, 2]) < 0.05
 
 
 def test_the_smooth_hull_gradient_is_the_derivative_of_its_mean() -> None:
     P, _ = ellipsoid(60, (0.05, 0.03, 0.02))
-    hull = SmoothHull.of(P, TAU)
+    hull = SmoothHull.of(P, TAU, 64)
     assert hull is not None
     x = np.random.default_rng(2).uniform(-0.06, 0.06, size=(50, 3))
     h = 1e-7
@@ -52,16 +65,18 @@ def test_the_smooth_hull_gradient_is_the_derivative_of_its_mean() -> None:
     value, grad = hull.mean_and_gradient(x)
     np.testing.assert_array_equal(value, hull.mean(x))
     np.testing.assert_array_equal(grad, hull.gradient(x))
+    big = np.random.default_rng(3).uniform(-0.06, 0.06, size=(5000, 3))  # more than one chunk
+    np.testing.assert_allclose(hull.mean(big)[:50], SmoothHull(hull.U, hull.d, TAU).mean(big[:50]), rtol=0, atol=0)
 
 
 def test_no_smooth_hull_where_the_contacts_span_no_solid() -> None:
-    assert SmoothHull.of(cube_corners(0.05)[:3], TAU) is None  # fewer than four
+    assert SmoothHull.of(cube_corners(0.05)[:3], TAU, 256) is None  # fewer than four
     flat = cube_corners(0.05)
     flat[:, 2] = 0.0
-    assert SmoothHull.of(flat, TAU) is None  # all in a plane
+    assert SmoothHull.of(flat, TAU, 256) is None  # all in a plane
     slab = cube_corners(0.05) * [1.0, 1.0, 0.2]  # 1 cm thick: less than 2 tau across
-    assert SmoothHull.of(slab, TAU) is None
-    assert SmoothHull.of(slab, 0.004) is not None
+    assert SmoothHull.of(slab, TAU, 256) is None
+    assert SmoothHull.of(slab, 0.004, 256) is not None
 
 
 def reference_mean(gp: GPIS, prior: SmoothHull, x: np.ndarray) -> np.ndarray:
@@ -79,7 +94,7 @@ def test_a_replaced_prior_is_the_gp_with_that_prior_and_leaves_it_as_it_was() ->
     gp.add_contacts(P, N)
     x = np.random.default_rng(3).uniform(-0.06, 0.06, size=(30, 3))
     before_mean, before_grad = gp.mean(x), gp.gradient(x)
-    hull = SmoothHull.of(P, TAU)
+    hull = SmoothHull.of(P, TAU, 256)
     assert hull is not None
     with gp.replaced_prior(hull):
         replaced = gp.mean(x)
@@ -97,7 +112,7 @@ def test_a_replaced_prior_is_the_gp_with_that_prior_and_leaves_it_as_it_was() ->
 
 def test_a_prior_is_not_replaced_under_free_space_nor_in_the_local_estimator() -> None:
     P, N = ellipsoid(40, (0.05, 0.03, 0.02))
-    hull = SmoothHull.of(P, TAU)
+    hull = SmoothHull.of(P, TAU, 256)
     assert hull is not None
     gp = GPIS(GPISConfig())
     gp.add_contacts(P, N)
