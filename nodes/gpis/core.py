@@ -501,8 +501,10 @@ class GPIS:
         try:
             yield
         finally:
-            self.drop_free_space()
-            (self._z, self._alpha), self._replacement = saved, None
+            try:
+                self.drop_free_space()
+            finally:
+                (self._z, self._alpha), self._replacement = saved, None
 
     def truncate(self, n_contacts: int) -> None:
         """Keep the first n_contacts contacts only (exact: the factor's leading block is their factor)."""

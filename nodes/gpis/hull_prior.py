@@ -4,7 +4,7 @@ For K unit directions u_k spread evenly over the sphere (a Fibonacci lattice), t
 planes u_k . x = h(u_k), h(u) = max_j u . p_j, bound their convex hull from outside; with
 s_k(x) = u_k . x - h(u_k) the signed distance of x beyond plane k,
 
-    m(x) = tau log sum_k exp(s_k(x) / tau),   grad m(x) = sum_k w_k(x) u_k,
+    m(x) = tau log (1/K) sum_k exp(s_k(x) / tau),   grad m(x) = sum_k w_k(x) u_k,
     w(x) = softmax(s(x) / tau),
 
 a smooth maximum of the planes (the smooth convexes of CvxNet, Deng et al., CVPR 2020): the hull's
@@ -12,9 +12,12 @@ shape with its edges blended over about tau, and a gradient that turns smoothly 
 normal to the next. It is the prior of a whole-object mesh (``GPISNodeConfig.whole_prior``): the GP
 then extrapolates the unexplored parts from the shape the contacts span, not from a sphere at the
 first contact. The planes are fixed directions, not the hull's faces, so the cost is K per query
-point however many contacts there are, and every direction weighs alike. m exceeds the largest
-s_k by up to tau log K; the thin-plate kernel takes up such a near-constant offset (its constant
-term has variance R_m^3), so the shape of m, not its level, is what the prior gives.
+point however many contacts there are, and every direction weighs alike. m lies between the largest
+s_k minus tau log K and the largest s_k; as the mean over the directions it tends to a limit as K
+grows (at the centre of a ball of contacts it is minus the radius). Near the surface it lies below
+the hull's distance by tau times the log of the share of directions whose planes pass within about
+tau, which depends on the hull's curvature there: the level shifts over the surface by a few tau at
+most, and the GP's residual takes it up near the contacts.
 """
 
 from __future__ import annotations
@@ -79,6 +82,6 @@ class SmoothHull:
             s *= 1.0 / self.tau_m
             np.exp(s, out=s)  # every term <= 1: no overflow
             total = s.sum(axis=1)
-            value[chunk] = top[:, 0] + self.tau_m * np.log(total)
+            value[chunk] = top[:, 0] + self.tau_m * np.log(total / len(self.U))
             grad[chunk] = (s @ self.U) / total[:, None]
         return value, grad

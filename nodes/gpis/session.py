@@ -100,7 +100,8 @@ class GPISNodeConfig(Validated):
     whole_prior: Literal["same", "hull"] = "same"
     #: Blending length tau of the hull's planes, metres.
     whole_prior_tau_m: PositiveFloat = 0.006
-    #: Directions of the hull's support planes (the prior's cost per query point).
+    #: Directions of the hull's support planes: the prior's cost per query point, and how closely it
+    #: follows the hull (256: about 13 degrees apart).
     whole_prior_directions: Annotated[int, Range(ge=4)] = 256
 
     def __post_init__(self) -> None:
@@ -181,7 +182,7 @@ class GPISSession:
     def _whole_prior(self) -> AbstractContextManager[None]:
         """The whole-object mesh's prior (see GPISNodeConfig.whole_prior), for the duration of the mesh."""
         cfg, gp = self.config, self.gp
-        if cfg.whole_prior == "same":
+        if cfg.whole_prior == "same" or gp.n_contacts == 0:
             return nullcontext()
         hull = None
         if gp.supports_replaced_prior:
