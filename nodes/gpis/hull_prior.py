@@ -16,8 +16,8 @@ point however many contacts there are, and every direction weighs alike. m lies 
 s_k minus tau log K and the largest s_k; as the mean over the directions it tends to a limit as K
 grows (at the centre of a ball of contacts it is minus the radius). Near the surface it lies below
 the hull's distance by tau times the log of the share of directions whose planes pass within about
-tau, which depends on the hull's curvature there: the level shifts over the surface by a few tau at
-most, and the GP's residual takes it up near the contacts.
+tau, which depends on the hull's curvature there (least at a sharp corner, most on a flat face):
+several tau, which the GP's residual takes up near the contacts.
 """
 
 from __future__ import annotations
@@ -49,8 +49,9 @@ class SmoothHull:
     @classmethod
     def of(cls, points_m: FloatArray, tau_m: float, directions: int) -> SmoothHull | None:
         """The prior of points (n, 3) seen from ``directions`` even directions, or None where their hull
-        is no solid at tau's scale: fewer than four points, or thinner than 2 tau in some direction
-        (a patch seen from one side, all in a plane: its hull says nothing about the inside)."""
+        is no solid at tau's scale: fewer than four points, or thinner than 2 tau along one of the
+        directions or a principal axis (a flat patch seen from one side: its hull says nothing about
+        the inside)."""
         if len(points_m) < 4:
             return None
         U = even_directions(directions)
