@@ -282,6 +282,9 @@ class SurfaceEstimator(Protocol):
     @property
     def supports_replaced_prior(self) -> bool: ...
 
+    @property
+    def prior_replaced(self) -> bool: ...
+
     def replaced_prior(self, prior: PriorMean) -> AbstractContextManager[None]: ...
 
     def add_contacts(self, positions_m: ArrayLike, normals: ArrayLike) -> None: ...
@@ -356,6 +359,11 @@ class GPIS:
     @property
     def supports_replaced_prior(self) -> bool:
         return True
+
+    @property
+    def prior_replaced(self) -> bool:
+        """Within ``replaced_prior``."""
+        return self._replacement is not None
 
     @property
     def observation_noise(self) -> FloatArray:

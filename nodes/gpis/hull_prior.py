@@ -64,15 +64,19 @@ class SmoothHull:
 
     def mean(self, x: FloatArray) -> FloatArray:
         """m(x) (m,) at x (m, 3)."""
-        return self.mean_and_gradient(x)[0]
+        return self._evaluate(x, gradient=False)[0]
 
     def gradient(self, x: FloatArray) -> FloatArray:
         """grad m(x) (m, 3) at x (m, 3)."""
         return self.mean_and_gradient(x)[1]
 
     def mean_and_gradient(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """(m(x) (m,), grad m(x) (m, 3)), in chunks that stay in cache."""
-        value, grad = np.empty(len(x)), np.empty((len(x), 3))
+        """(m(x) (m,), grad m(x) (m, 3))."""
+        return self._evaluate(x, gradient=True)
+
+    def _evaluate(self, x: FloatArray, *, gradient: bool) -> tuple[FloatArray, FloatArray]:
+        """m(x) and, when asked, grad m(x) (zeros otherwise), in chunks that stay in cache."""
+        value, grad = np.empty(len(x)), np.zeros((len(x), 3))
         step = max(1, _CHUNK_ENTRIES // len(self.U))
         for start in range(0, len(x), step):
             chunk = slice(start, start + step)
@@ -84,5 +88,6 @@ class SmoothHull:
             np.exp(s, out=s)  # every term <= 1: no overflow
             total = s.sum(axis=1)
             value[chunk] = top[:, 0] + self.tau_m * np.log(total / len(self.U))
-            grad[chunk] = (s @ self.U) / total[:, None]
+            if gradient:
+                grad[chunk] = (s @ self.U) / total[:, None]
         return value, grad

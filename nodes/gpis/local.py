@@ -53,8 +53,7 @@ GP are measured in tests/unit/gpis/test_local.py and by `palpate bench gpis`.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import AbstractContextManager, contextmanager
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 
 import numpy as np
@@ -158,6 +157,10 @@ class LocalGPIS:
 
     @property
     def supports_replaced_prior(self) -> bool:
+        return False
+
+    @property
+    def prior_replaced(self) -> bool:
         return False
 
     def replaced_prior(self, prior: PriorMean) -> AbstractContextManager[None]:
@@ -502,7 +505,6 @@ class AutoGPIS:
         self.config = config if config is not None else GPISConfig()
         self._impl: GPIS | LocalGPIS = GPIS(self.config, prior_centre_m=prior_centre_m)
         self.kernel = self._impl.kernel
-        self._replaced = False  # within replaced_prior
 
     @property
     def estimator(self) -> GPIS | LocalGPIS:
@@ -545,15 +547,13 @@ class AutoGPIS:
         """While exact (see ``GPIS.replaced_prior``)."""
         return self._impl.supports_replaced_prior
 
-    @contextmanager
-    def replaced_prior(self, prior: PriorMean) -> Iterator[None]:
+    @property
+    def prior_replaced(self) -> bool:
+        return self._impl.prior_replaced
+
+    def replaced_prior(self, prior: PriorMean) -> AbstractContextManager[None]:
         """The exact GP's (``GPIS.replaced_prior``); no contacts are taken within the block."""
-        with self._impl.replaced_prior(prior):
-            self._replaced = True
-            try:
-                yield
-            finally:
-                self._replaced = False
+        return self._impl.replaced_prior(prior)
 
     @property
     def factor_bytes(self) -> int:
@@ -564,7 +564,7 @@ class AutoGPIS:
 
     def add_contacts(self, positions_m: ArrayLike, normals: ArrayLike) -> None:
         P = _points(positions_m, "contact positions")
-        if self._replaced:  # the switch to the local estimator would skip GPIS.add_contacts's refusal
+        if self.prior_replaced:  # the switch to the local estimator would skip GPIS.add_contacts's refusal
             raise EstimationError("contacts cannot be added while the prior is replaced (see replaced_prior)")
         impl = self._impl
         if isinstance(impl, LocalGPIS) or impl.n_contacts + len(P) <= self.config.auto_local_above_contacts:
