@@ -30,7 +30,6 @@ TRUTH_OBJECT = "truth/object"
 OCCUPANCY_GRID = "map/occupancy"
 WEIGHTED_OCCUPANCY_GRID = "map/occupancy_weighted"
 PARTICLES = "map/particles"
-POSE_ESTIMATE = "map/pose_estimate"
 
 SURFACE_MESH = "surface/mesh"
 SURFACE_REQUEST = "surface/request"
