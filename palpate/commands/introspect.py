@@ -157,6 +157,7 @@ class TopicTap:
         self.tap = bus.PublisherTap(client_keys=client_keys)
         self.last_discovery = 0.0
         self.interrupted = False
+        self.noted_undeclared = False
 
     @property
     def endpoints(self) -> set[str]:
@@ -169,6 +170,9 @@ class TopicTap:
         declared = [m for m in manifests if self.topic in m.publishes]
         self.tap.connect(declared or manifests)
         self.last_discovery = time.monotonic()
+        if not self.noted_undeclared and (note := bus.undeclared(self.topic, manifests)):
+            self.noted_undeclared = True
+            print(f"topic: {note}; waiting for one", file=sys.stderr, flush=True)
 
     def receive(self, timeout_s: float) -> list[tuple[float, bytes]]:
         """Payloads of the topic that arrive within `timeout_s`, with their arrival times."""

@@ -39,6 +39,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--log", type=path_arg, metavar="FILE.mcap", help="view a recorded log instead of the live bus")
     p.add_argument("--bus", type=path_arg, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
     p.add_argument("--save", type=path_arg, metavar="FILE.rrd", help="write a rerun recording file instead of a window")
+    p.add_argument("--force", action="store_true", help="replace an existing --save file")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="show only these topics (default: every shown type)")
     p.add_argument("--curve-keys", type=path_arg, metavar="FILE", help=CURVE_KEYS_HELP)
     p.add_argument(
@@ -70,29 +71,39 @@ def run_view(args: argparse.Namespace) -> int:
     from palpate.viewer.sink import open_recording  # imports rerun
     from palpate.viewer.sources import BusSource, LogSource
 
+    if args.save is not None and args.save.exists() and not args.force:
+        raise ViewerError(f"{args.save} exists; pass --force to replace it, or choose another --save file")
+    partial = None if args.save is None else args.save.with_name(f".{args.save.name}.partial")
     scene = SceneLogger()
-    if args.log is not None:
-        log_source = LogSource(args.log, args.topics)  # checks the file before the recording is created
-        sink = open_recording(save=args.save)
-        try:
-            for topic, message in log_source:
-                _draw(scene, sink, topic, message, log_source.stats)
-        finally:
-            sink.close()
-        stats, origin, code = log_source.stats, str(args.log), 0
-    else:
-        bus_dir = Path(args.bus) if args.bus else bus.default_bus_dir()
-        sink = open_recording(save=args.save)
-        client_keys = bus.read_key_file(args.curve_keys) if args.curve_keys else None
-        bus_source = BusSource(bus_dir, args.topics, client_keys)
-        print(f"palpate view: watching bus {bus_dir} (Ctrl-C to stop)", flush=True)
-        try:
-            for topic, message in bus_source.messages(args.duration):
-                _draw(scene, sink, topic, message, bus_source.stats)
-        finally:
-            bus_source.close()
-            sink.close()
-        stats, origin, code = bus_source.stats, f"bus {bus_dir}", 130 if bus_source.interrupted else 0
+    try:
+        if args.log is not None:
+            log_source = LogSource(args.log, args.topics)  # checks the file before the recording is created
+            _note_missing_topics(log_source.missing_topics(), f"{args.log} has no topic")
+            sink = open_recording(save=partial)
+            try:
+                for topic, message in log_source:
+                    _draw(scene, sink, topic, message, log_source.stats)
+            finally:
+                sink.close()
+            stats, origin, code = log_source.stats, str(args.log), 0
+        else:
+            bus_dir = Path(args.bus) if args.bus else bus.default_bus_dir()
+            sink = open_recording(save=partial)
+            client_keys = bus.read_key_file(args.curve_keys) if args.curve_keys else None
+            bus_source = BusSource(bus_dir, args.topics, client_keys)
+            print(f"palpate view: watching bus {bus_dir} (Ctrl-C to stop)", flush=True)
+            try:
+                for topic, message in bus_source.messages(args.duration):
+                    _draw(scene, sink, topic, message, bus_source.stats)
+            finally:
+                bus_source.close()
+                sink.close()
+            stats, origin, code = bus_source.stats, f"bus {bus_dir}", 130 if bus_source.interrupted else 0
+        if partial is not None and args.save is not None:
+            os.replace(partial, args.save)  # whole: a failure above leaves no half recording under its name
+    finally:
+        if partial is not None:
+            partial.unlink(missing_ok=True)
     print(f"palpate view: {stats.shown} of {stats.received} messages shown from {origin}", flush=True)
     if stats.shown == 0:
         print(
@@ -111,6 +122,12 @@ def run_view(args: argparse.Namespace) -> int:
         size = args.save.stat().st_size if args.save.exists() else 0
         print(f"palpate view: wrote {args.save} ({size / 1024:.1f} KiB); open it with `rerun {args.save}`")
     return code
+
+
+def _note_missing_topics(missing: list[str], what: str) -> None:
+    """Say on stderr which asked-for topics there are none of (a typo shows nothing and says nothing else)."""
+    if missing:
+        print(f"palpate view: {what} {', '.join(missing)} (see palpate bag info / palpate topic list)", file=sys.stderr)
 
 
 def _draw(scene: SceneLogger, sink: Any, topic: str, message: Message, stats: SourceStats) -> None:

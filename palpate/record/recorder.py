@@ -315,6 +315,8 @@ class Recorder:
         self.first_held: float | None = None
         self.first_message: float | None = None
         self.unmarked_since: dict[str, float] = {}
+        self.recorded_topics: set[str] = set()  # topics of the messages recorded so far
+        self.undeclared_noted: set[str] = set()  # wanted topics already said to have no publisher
 
     # --- discovery ---------------------------------------------------------------------------------
     def _base_topics(self) -> list[str]:
@@ -374,6 +376,14 @@ class Recorder:
             conn = self.connections.get(manifest.endpoint)
             if conn is not None and not conn.manifest_seen:
                 self._subscribe_manifest(conn, manifest)
+        self._note_undeclared(manifests)
+
+    def _note_undeclared(self, manifests: list[bus.Manifest]) -> None:
+        """Say once for each wanted topic that no publisher on the bus declares (a typo records nothing)."""
+        for topic in self.wanted:
+            if topic not in self.undeclared_noted and (note := bus.undeclared(topic, manifests)):
+                self.undeclared_noted.add(topic)
+                log.warning("%s; it is recorded if a publisher of it appears", note)
 
     # --- receiving ---------------------------------------------------------------------------------
     def _drain(self, conn: _Connection, limit: int = 5000) -> None:
@@ -395,6 +405,7 @@ class Recorder:
                     log.warning("topic %s from %s: not recorded: %s", topic, conn.key, exc)
                 continue
             self.received += 1
+            self.recorded_topics.add(topic)
             self.sorter.add(conn.key, topic, frames[1], info)
 
     def _on_connection_changes(self, conn: _Connection) -> None:
@@ -478,6 +489,8 @@ class Recorder:
                 skipped,
             )
             return 0
+        if missing := [t for t in self.wanted if t not in self.recorded_topics]:
+            log.warning("recorded no message on %s (see palpate topic list)", ", ".join(missing))
         active = time.monotonic() - self.first_message
         log.info(
             "recorded %d messages to %s, %.0f msg/s over %.1f s from the first message%s",

@@ -21,6 +21,7 @@ CurveZMQ publisher admits only the client keys the launcher lists (`ClientAllowL
 from __future__ import annotations
 
 import contextlib
+import difflib
 import hashlib
 import json
 import logging
@@ -39,6 +40,7 @@ from zmq.utils import z85
 from zmq.utils.monitor import recv_monitor_message
 
 from palpate.errors import BusError
+from palpate.messages import topics as topic_names
 from palpate.paths import read_start
 
 log = logging.getLogger("palpate.bus")
@@ -146,6 +148,20 @@ class Manifest:
         tmp.write_text(json.dumps(asdict(self), sort_keys=True))
         tmp.replace(path)
         return path
+
+
+def undeclared(topic: str, manifests: Sequence[Manifest]) -> str | None:
+    """What to tell a user who asks for a topic that none of the running publishers declares (a typo
+    records, echoes or measures nothing), with the closest declared topic; None when one declares it,
+    when it is one of the runtime's own topics, or when no publisher is running yet."""
+    if not manifests or topic in topic_names.RUNTIME_TOPICS or topic.startswith(topic_names.HELLO_PREFIX):
+        return None
+    declared = sorted({t for m in manifests for t in m.publishes})
+    if topic in declared:
+        return None
+    close = difflib.get_close_matches(topic, declared, n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return f"no publisher on the bus declares topic {topic!r}{hint}; see palpate topic list"
 
 
 def read_manifests(bus_dir: str | Path) -> list[Manifest]:

@@ -15,6 +15,7 @@ for a node the graph waits for. It stops at the graph's RunControl "stop".
 from __future__ import annotations
 
 import signal
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -23,11 +24,11 @@ from types import FrameType
 
 from mcap.reader import make_reader
 
-from palpate.errors import MessageError, ViewerError
+from palpate.errors import MessageError, PalpateError, ViewerError
 from palpate.messages import codec
 from palpate.messages.base import Message
 from palpate.messages.schemas import RunControl
-from palpate.record.mcap_io import READ_ERRORS
+from palpate.record.mcap_io import READ_ERRORS, topic_types
 from palpate.runtime import bus
 from palpate.viewer.rerun_log import SHOWN_TYPE_NAMES
 
@@ -61,6 +62,16 @@ class LogSource:
         self.stats = SourceStats()
         if not self.path.is_file():
             raise ViewerError(f"no log file {str(self.path)!r}")
+
+    def missing_topics(self) -> list[str]:
+        """The asked-for topics the log holds no channel of (none when it cannot be read: iterating names that)."""
+        if not self.wanted:
+            return []
+        try:
+            held = set(topic_types(self.path))
+        except (PalpateError, *READ_ERRORS):
+            return []
+        return sorted(self.wanted - held)
 
     def __iter__(self) -> Iterator[tuple[str, Message]]:
         with self.path.open("rb") as stream:
@@ -104,6 +115,7 @@ class BusSource:
         self.last_discovery = -float("inf")
         self.stopped = False  # the graph published RunControl "stop"
         self.interrupted = False
+        self.noted_undeclared: set[str] = set()  # asked-for topics said to have no publisher
 
     def discover(self) -> None:
         """Connect to publishers not yet connected and learn the types of their topics."""
@@ -112,6 +124,10 @@ class BusSource:
             self.types.update(manifest.publishes)
         self.tap.connect(manifests)
         self.last_discovery = time.monotonic()
+        for topic in sorted(self.wanted or ()):
+            if topic not in self.noted_undeclared and (note := bus.undeclared(topic, manifests)):
+                self.noted_undeclared.add(topic)
+                print(f"palpate view: {note}; waiting for one", file=sys.stderr, flush=True)
 
     def _shown(self, topic: str) -> bool:
         type_name = self.types.get(topic)

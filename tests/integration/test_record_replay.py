@@ -172,6 +172,21 @@ def test_replayed_messages_equal_the_recorded_ones(recorded: Path, tmp_path: Pat
     assert replayed == messages(recorded)  # payloads, topics and order
 
 
+def test_a_topic_no_publisher_sends_is_named_after_recording(recorded: Path, tmp_path: Path) -> None:
+    """A misspelt topic records nothing: the recorder says so (it cannot refuse: a publisher may come later)."""
+    bus_dir = tmp_path / "bus"
+    out = tmp_path / "typo.mcap"
+    log = tmp_path / "record.log"
+    wanted = ["sensors/contact", topics.CONTACTS]
+    with started(bus_dir, log, "record", "-o", str(out), *wanted, "--until-stop", "--bus", str(bus_dir)) as recorder:
+        player = palpate(bus_dir, "replay", str(recorded), "--fast", "--bus", str(bus_dir))
+        assert player.returncode == 0, player.stdout + player.stderr
+        assert recorder.wait(timeout=60) == 0, log.read_text()
+    text = log.read_text()
+    assert "recorded no message on sensors/contact (see palpate topic list)" in text, text
+    assert len(messages(out, [topics.CONTACTS])) == TICKS
+
+
 def test_launch_replay_reruns_the_estimator_byte_for_byte(recorded: Path, tmp_path: Path) -> None:
     sensors = tmp_path / "sensors.mcap"  # the run without the estimator's output (`palpate bag filter`)
     copy_log(recorded, sensors, exclude=[topics.SURFACE_MESH])

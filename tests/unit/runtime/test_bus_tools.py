@@ -133,3 +133,18 @@ def test_blocking_publisher_waits_instead_of_dropping(ctx: zmq.Context[Any], tmp
         sub.close(linger=0)
         pub.close()
     assert not (tmp_path / "player.pub").exists()  # closing deletes the socket file
+
+
+def test_undeclared_names_the_closest_declared_topic() -> None:
+    running = [
+        bus.Manifest("sim", "ipc:///x", 1, {"sensors/contacts": "ContactSet", "sensors/effector_pose": "Pose"}, {})
+    ]
+    assert bus.undeclared("sensors/contact", running) == (
+        "no publisher on the bus declares topic 'sensors/contact' (did you mean 'sensors/contacts'?); "
+        "see palpate topic list"
+    )
+    assert bus.undeclared("zzz", running) == "no publisher on the bus declares topic 'zzz'; see palpate topic list"
+    assert bus.undeclared("sensors/contacts", running) is None  # declared
+    assert bus.undeclared("clock", running) is None  # the runtime's own topics are in no manifest
+    assert bus.undeclared("hello/sim", running) is None
+    assert bus.undeclared("sensors/contact", []) is None  # nothing running yet: a publisher may come

@@ -74,6 +74,21 @@ def test_view_damaged_log_says_recover(capsys: pytest.CaptureFixture[str], log_f
     damaged.write_bytes(log_file.read_bytes()[: log_file.stat().st_size // 2])
     assert cli.main(["view", "--log", str(damaged), "--save", str(tmp_path / "out.rrd")]) == 2
     assert "palpate bag recover" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged.mcap", "run.mcap"]  # no half recording
+
+
+def test_save_replaces_a_file_only_with_force(
+    capsys: pytest.CaptureFixture[str], log_file: Path, tmp_path: Path
+) -> None:
+    pytest.importorskip("rerun")
+    out = tmp_path / "run.rrd"
+    out.write_bytes(b"earlier")
+    assert cli.main(["view", "--log", str(log_file), "--save", str(out)]) == 2
+    assert "exists; pass --force" in capsys.readouterr().err
+    assert out.read_bytes() == b"earlier"
+    assert cli.main(["view", "--log", str(log_file), "--save", str(out), "--force"]) == 0
+    assert out.stat().st_size > len(b"earlier")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap", "run.rrd"]
 
 
 def test_save_writes_an_rrd_with_the_scene(capsys: pytest.CaptureFixture[str], log_file: Path, tmp_path: Path) -> None:
@@ -116,6 +131,14 @@ def test_topics_filter(capsys: pytest.CaptureFixture[str], log_file: Path, tmp_p
     assert "1 of 1 messages shown" in capsys.readouterr().out
     entities = {c.entity_path for c in RrdReader(out).stream()} - {"/__properties", "/world"}
     assert entities == {"/world/surface/mesh/local"}
+
+    typo = tmp_path / "typo.rrd"
+    assert (
+        cli.main(["view", "--log", str(log_file), "--save", str(typo), "--topics", "surface/mesh", "surface/msh"]) == 0
+    )
+    captured = capsys.readouterr()
+    assert f"{log_file} has no topic surface/msh" in captured.err  # a typo shows nothing: it is named
+    assert "1 of 1 messages shown" in captured.out
 
 
 def test_the_live_viewer_ends_with_a_stopped_or_a_failed_run(tmp_path: Path) -> None:
