@@ -9,13 +9,14 @@ joint angles, the object and its mesh) goes on `truth/` topics, which only evalu
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from palpate.config import KeyPath, PositiveFloat, Validated
-from palpate.errors import ConfigError
+from palpate.errors import ConfigError, MeshError, MeshWarning
 from palpate.inputs import MAX_COORDINATE_M, MAX_RATE, bounded
 from palpate.messages import codec, topics
 from palpate.messages.schemas import (
@@ -26,7 +27,7 @@ from palpate.messages.schemas import (
     ObjectTruth,
     Pose,
 )
-from palpate.nodes.sim.objects import ObjectSpec, resolve_mesh_path
+from palpate.nodes.sim.objects import ObjectSpec, read_mesh_file, resolve_mesh_path
 from palpate.nodes.sim.scene import SceneConfig, effector_mount
 from palpate.nodes.sim.session import SimSession, SimTick
 from palpate.runtime.spec import Context, NodeSpec, Port
@@ -190,6 +191,20 @@ def _files(config: SimNodeConfig) -> dict[KeyPath, str]:
     return {("scene", "object", "path"): str(resolve_mesh_path(spec.path))}
 
 
+def _checks(config: SimNodeConfig) -> dict[KeyPath, str]:
+    """What is wrong with the object's mesh file (absurd scale, degenerate, unreadable), read as the node will."""
+    spec = config.scene.object
+    if spec.kind != "mesh" or not spec.path:
+        return {}
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", MeshWarning)  # the node says them when it starts
+            read_mesh_file(resolve_mesh_path(spec.path), spec.scale)
+    except MeshError as exc:
+        return {("scene", "object", "path"): str(exc)}
+    return {}
+
+
 def _facts(config: SimNodeConfig) -> dict[str, tuple[Any, tuple[str, ...]]]:
     """Where the scene fixes its hand or finger: a mapper of the same graph must be mounted there."""
     return {"hand_mount": (effector_mount(config.scene), ("scene",))}
@@ -203,5 +218,6 @@ SPEC = NodeSpec(
     ports_from_config=_ports,
     facts=_facts,
     files=_files,
+    checks=_checks,
     doc="MuJoCo simulation (hand, finger or probe on a primitive or mesh): the graph's clock source.",
 )

@@ -16,7 +16,7 @@ from palpate import jsonio
 from palpate.argtypes import path_arg
 from palpate.errors import LaunchError
 from palpate.launch import placement
-from palpate.launch.graph import Graph, resolve
+from palpate.launch.graph import Graph, check_file_contents, resolve
 from palpate.launch.loader import apply_params, load_launch, parse_cli_args, parse_node_params, with_external
 from palpate.launch.supervisor import Supervisor
 from palpate.paths import LAUNCH_DIR, REPO_ROOT, why_not
@@ -107,7 +107,9 @@ def load_graph(
             if lost := sorted(key for key in launch.overrides if key.partition(".")[0] not in kept):
                 raise LaunchError(f"--set {', '.join(lost)}: --replay stands in for that node; its data is the log's")
             launch = replayed
-        return resolve(launch, bus_dir=bus_dir)
+        graph = resolve(launch, bus_dir=bus_dir)
+        check_file_contents(graph)
+        return graph
     except LaunchError as exc:
         named = _from_the_command_line(exc, path, overrides)
         relevant = [item for item in sets or () if f"node '{item.partition('.')[0]}'" in str(named)]

@@ -451,6 +451,18 @@ def _check_files(graph: Graph) -> None:
                 )
 
 
+def check_file_contents(graph: Graph) -> None:
+    """What the files of the nodes this launcher starts hold (NodeSpec.checks): LaunchError at the line
+    that names the file. It reads them, so ``palpate launch`` calls it, not every in-process run."""
+    for node in graph.nodes:
+        if node.external or node.spec.checks is None:
+            continue
+        for path, problem in _of_config(node, node.spec.checks).items():
+            raise LaunchError(
+                f"{node.entry.param_at(path)}: node {node.name!r} (params.{'.'.join(map(str, path))}): {problem}"
+            )
+
+
 def _fact_name(node: GraphNode, fact: str) -> str:
     """The name a fact is compared under: a fact of a port (``"PORT:name"``) under its topic, ``"topic:name"``."""
     port, sep, name = fact.partition(":")

@@ -148,6 +148,11 @@ class NodeSpec(Generic[C]):
     #: checks, before it starts any process, that those of the nodes it starts itself exist (an
     #: external node may see another filesystem), naming the launch file's line.
     files: Callable[[C], Mapping[KeyPath, str]] | None = None
+    #: What is wrong in those files that only reading them shows (a mesh in millimetres read as metres):
+    #: config -> {key path of the params: the problem}. ``palpate launch`` runs it for the nodes it
+    #: starts, before it starts any process; in-process runs leave it to the node (an evaluation checks
+    #: its objects itself, once, rather than at every run).
+    checks: Callable[[C], Mapping[KeyPath, str]] | None = None
     #: The node never asks to end a run (``ctx.request_stop`` raises). In lockstep, when nothing it
     #: publishes reaches the clock source (a sink, a noise stage feeding a mapper), the clock source then
     #: runs up to TRAIL_TICKS ticks ahead of it instead of waiting for it every tick (docs/runtime.md).

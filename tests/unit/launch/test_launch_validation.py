@@ -848,6 +848,27 @@ def test_a_mesh_file_that_is_not_there_is_named_before_anything_starts(
         load(explore, tmp_path, ["object:=mesh", "mesh:=ycb:011_banana"])
 
 
+def test_a_mesh_at_an_absurd_scale_is_named_before_anything_starts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A part drawn in millimetres, read as metres: named by the simulator's process only, after the launch
+    had started the others, although runtime.md says the launch checks everything first."""
+    import trimesh
+
+    explore = REPO_ROOT / "launch" / "explore.yaml"
+    mesh = tmp_path / "part.stl"
+    trimesh.creation.box(extents=[40.0, 30.0, 20.0]).export(mesh)  # 40 mm drawn as 40 m
+    given = ["object:=mesh", f"mesh:={mesh}"]
+    assert main(["launch", str(explore), *given, "--dry-run", "--bus", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert re.search(r"explore\.yaml:\d+: node 'sim' \(params\.scene\.object\.path\): .*part\.stl: absurd scale", err)
+    assert "scale:=0.001" in err
+    assert main(["launch", str(explore), *given, "scale:=0.001", "--dry-run", "--bus", str(tmp_path)]) == 0
+    capsys.readouterr()
+    # an external simulator reads its own files
+    assert main(["launch", str(explore), *given, "--external", "sim", "--dry-run", "--bus", str(tmp_path)]) == 0
+
+
 # --- more faults named at their file, line and key -------------------------------------------------------
 
 
