@@ -67,12 +67,18 @@ def decode(payload: bytes, type_name: str) -> dict[str, Any]:
 
 # --- the bus (docs/runtime.md, "External nodes") -------------------------------------------------------
 def read_spec(bus_dir: str, name: str, timeout_s: float = 60.0) -> dict[str, Any]:
-    """The process spec the launcher writes for external node `name`: <bus dir>/external/<name>.json."""
+    """The process spec the launcher writes for external node `name`: <bus dir>/external/<name>.json
+    (says once that it waits; a one-line exit after `timeout_s`)."""
     path = Path(bus_dir) / "external" / f"{name}.json"
     deadline = time.monotonic() + timeout_s
+    if not path.is_file():
+        print(f"[{name}] waiting for {path} (palpate launch FILE --external {name} --bus {bus_dir})", flush=True)
     while not path.is_file():
         if time.monotonic() > deadline:
-            raise TimeoutError(f"{path} did not appear in {timeout_s:.0f} s: is `palpate launch` running?")
+            raise SystemExit(
+                f"[{name}] {path} did not appear in {timeout_s:.0f} s: is `palpate launch` running on that bus, "
+                f"with a node {name!r} marked external?"
+            )
         time.sleep(0.05)
     return json.loads(path.read_text())
 

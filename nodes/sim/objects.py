@@ -155,8 +155,7 @@ def _normalise_spec(spec: ObjectSpec) -> None:
     if spec.kind == "mesh":
         if not spec.path:
             raise ConfigError(
-                f"path = {spec.path!r}: kind 'mesh' needs a path to a mesh file in metres "
-                "(or ycb:<id>, e.g. ycb:011_banana)",
+                "no path given: kind 'mesh' needs a path to a mesh file in metres (or ycb:<id>, e.g. ycb:011_banana)",
                 ("path",),
             )
     elif spec.path is not None:

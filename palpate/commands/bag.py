@@ -122,6 +122,8 @@ def run_info(args: argparse.Namespace) -> int:
         print(jsonio.dumps({**summary.as_json(), "launch": mcap_io.launch_values(launch)}))
     else:
         print(describe(summary, args.file))
+        if args.check:
+            print(f"  checked: every chunk's CRC, and {summary.messages} messages read as the summary counts")
         if launch:
             print(
                 f"  recorded by palpate launch {launch.get('launch_file', '?')}, seed {launch.get('seed', '?')}, "

@@ -108,10 +108,15 @@ def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any
     """`name:=value` pairs (or `name<separator>value`) from the command line; values are parsed as
     YAML scalars, an empty value is the empty string."""
     out: dict[str, Any] = {}
+    given: dict[str, str] = {}
     for item in items:
         name, sep, value = item.partition(separator)
         if not sep or not name:
             raise LaunchError(f"launch argument {item!r} must look like name{separator}value")
+        if name in given:  # the last would win without a word, as no launch file's key may repeat
+            what = f"launch argument {name!r}" if separator == ":=" else f"{name!r}"
+            raise LaunchError(f"{what} is given twice on the command line ({given[name]!r} and {item!r}); give it once")
+        given[name] = item
         try:
             out[name] = yaml.load(value, Loader=_Loader) if value else ""
         except RecursionError:
@@ -130,6 +135,9 @@ def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any
 
 def parse_node_params(items: Sequence[str]) -> dict[str, Any]:
     """``--set`` items ``["node.key=value", ...]`` -> {"node.key": value}, values parsed as YAML scalars."""
+    for item in items:
+        if "=" not in item or item.startswith("="):
+            raise ConfigError(f"--set {item!r}: expected NODE.KEY=VALUE, e.g. planner.candidate_step_m=0.005")
     out = parse_cli_args(items, separator="=")
     for key in out:
         if "." not in key:

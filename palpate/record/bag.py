@@ -30,7 +30,7 @@ def describe(summary: mcap_io.LogSummary, path: Path) -> str:
     """A log's per-topic counts, types and rates, and its time span, as a table."""
     span_s = (summary.end_ns - summary.start_ns) * 1e-9
     lines = [
-        f"log {path}: {summary.messages} messages on {len(summary.topics)} topics, "
+        f"log {path}: {_count(summary.messages, 'message')} on {_count(len(summary.topics), 'topic')}, "
         f"sim time {summary.start_ns * 1e-9:.3f} .. {summary.end_ns * 1e-9:.3f} s ({span_s:.3f} s)"
     ]
     width = max([len(t) for t in summary.topics] + [5])
@@ -41,6 +41,10 @@ def describe(summary: mcap_io.LogSummary, path: Path) -> str:
         rate = f"{count / span_s:.1f} Hz" if span_s > 0 else "-"
         lines.append(f"  {topic:<{width}}  {summary.types.get(topic, ''):<{type_width}}  {count:>8}  {rate:>10}")
     return "\n".join(lines)
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -684,8 +684,9 @@ def holding_up(
 
 def _left(peers: list[str]) -> str:
     """What a lost lockstep peer's error says."""
+    hellos = ", ".join(topics.HELLO_PREFIX + peer for peer in peers)
     return (
-        f"{', '.join(map(repr, peers))} disconnected without a stop (subscription hello/<node> gone for "
+        f"{', '.join(map(repr, peers))} disconnected without a stop (subscription {hellos} gone for "
         f"{PEER_GRACE_S:.0f} s: the process died or closed its sockets; a lockstep node cannot rejoin a run)"
     )
 

@@ -113,6 +113,11 @@ def test_bag_info_reports_the_counts_of_a_recorded_run(recorded: Path, tmp_path:
     text = palpate(tmp_path, "bag", "info", str(recorded))
     assert text.returncode == 0 and f"{topics.SURFACE_MESH}" in text.stdout
     assert "recorded by palpate launch launch/demo_minimal.yaml, seed 0" in text.stdout
+    assert f"{info['messages']} messages on {len(info['topics'])} topics" in text.stdout
+    assert "checked:" not in text.stdout  # only --check reads the chunks, and says so
+    checked = palpate(tmp_path, "bag", "info", "--check", str(recorded))
+    assert checked.returncode == 0, checked.stderr
+    assert f"checked: every chunk's CRC, and {info['messages']} messages read as the summary counts" in checked.stdout
 
 
 def test_a_lockstep_recording_closes_a_chunk_every_ten_ticks(recorded: Path) -> None:

@@ -267,6 +267,15 @@ def test_parse_cli_args() -> None:
         parse_cli_args(["a=1"])
     # YAML 1.2's floats too, which YAML 1.1 reads as text
     assert parse_cli_args(["a:=1e3", "b:=-2.5E-3", "c:=1.0e400"]) == {"a": 1000.0, "b": -0.0025, "c": float("inf")}
+    # the last of two would win without a word (a launch file's keys may not repeat either)
+    with pytest.raises(
+        LaunchError, match=r"launch argument 'a' is given twice on the command line \('a:=1' and 'a:=2'\)"
+    ):
+        parse_cli_args(["a:=1", "b:=1", "a:=2"])
+    with pytest.raises(LaunchError, match=r"'sim.seed' is given twice on the command line"):
+        parse_node_params(["sim.seed=1", "sim.seed=1"])
+    with pytest.raises(ConfigError, match=r"--set 'gpis.gp.kernel': expected NODE.KEY=VALUE"):
+        parse_node_params(["gpis.gp.kernel"])  # not "launch argument ... name=value": it is no launch argument
 
 
 def test_a_bad_value_on_the_command_line_is_an_error_saying_so(

@@ -68,6 +68,8 @@ def test_load_fills_defaults_and_converts_lists() -> None:
         ({"kind": "mesh"}, "needs a path"),
         ({"kind": "cube", "path": "a.stl"}, "only kind 'mesh' takes a path"),
         ({"kind": "mesh", "path": "a.stl", "scale": 0}, "object.scale: expected a finite number > 0, got 0"),
+        ({"kind": "mesh", "path": ""}, "object: no path given: kind 'mesh' needs a path to a mesh file"),
+        ({"kind": "mesh"}, "object: no path given: kind 'mesh' needs a path to a mesh file"),
         ({"kind": "cube", "position_m": [0, 0]}, "object.position_m: expected 3 items, got [0, 0]"),
         ({"kind": "cube", "position_m": [0, 0, math.inf]}, "object.position_m[2]: expected a finite number, got inf"),
         ({"kind": "cube", "quaternion_wxyz": [0, 0, 0, 0]}, "object: quaternion_wxyz = [0.0, 0.0, 0.0, 0.0]: norm 0"),
