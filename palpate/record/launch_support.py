@@ -130,20 +130,32 @@ def replay_note(launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] |
     differ = [listed(replayed)] if replayed else []
     if info.get("seed") not in (None, str(launch.seed)):
         differ.append(f"seed {info['seed']} (here {launch.seed})")
-    if params_then != launch.overrides:  # --set: another node's parameters than the recorded run's
-        differ.append(f"--set {params_then or 'nothing'} (here {launch.overrides or 'nothing'})")
+    absent = object()
+    set_keys = [
+        k
+        for k in params_then.keys() | launch.overrides.keys()
+        if params_then.get(k, absent) != launch.overrides.get(k, absent)
+    ]
+    set_nodes = {key.partition(".")[0] for key in set_keys}
+    sets = f"--set {params_then or 'nothing'} (here {launch.overrides or 'nothing'})"
+    if set_nodes & set(nodes):  # --set: the replaced nodes' parameters differ from the recorded run's
+        differ.append(sets)
     notes = (
         [f"{log_path} was recorded with {', '.join(differ)}; the replayed sensor data is that run's"] if differ else []
     )
     steering = [  # the nodes whose outputs reach the replayed ones; evaluators observe
         name for name in sorted(graph.feeding(nodes) - set(nodes)) if not graph.by_name[name].evaluator
     ]
-    steered = [
-        k for k, changed in changes.items() if k not in replayed and (changed is None or changed & set(steering))
+    steered = [  # what differs, and the steering nodes it changes (an argument in `replayed` is noted above)
+        f"{listed([k])} changes {', '.join(sorted(changed & set(steering)))}"
+        for k, changed in changes.items()
+        if k not in replayed and changed is not None and changed & set(steering)
     ]
+    if set_nodes & set(steering) and not set_nodes & set(nodes):
+        steered.append(f"{sets} changes {', '.join(sorted(set_nodes & set(steering)))}")
     if steered:
         notes.append(
-            f"{listed(steered)} change nodes whose outputs steered the recorded motion ({', '.join(steering)}); "
+            f"{'; '.join(steered)}: nodes whose outputs steered the recorded motion (of {', '.join(steering)}); "
             "the replay does not follow them, so what they decide now need not match the motion in the log"
         )
     return "note: " + "; ".join(notes) if notes else None

@@ -203,10 +203,20 @@ def test_a_replay_note_leaves_out_arguments_that_do_not_set_the_replaced_nodes(t
     assert "object:='sphere' (here 'torus')" in (note(object="sphere") or "")  # the simulator's object
     # the planner and the controller steered the recorded motion: another strategy is noted as such
     steered = note(strategy="tour") or ""
-    assert steered.startswith("note: strategy:='tour' (here 'igef') change nodes whose outputs steered the recorded")
-    assert "(controller, gpis, noise, planner)" in steered  # every node whose outputs reach the simulator
-    # parameters set with --set are compared too
-    assert "was recorded with --set {'planner.tour_sites': 6} (here nothing)" in (note({"planner.tour_sites": 6}) or "")
+    assert steered.startswith(  # the node it changes, among every node whose outputs reach the simulator
+        "note: strategy:='tour' (here 'igef') changes planner: nodes whose outputs steered the recorded motion "
+        "(of controller, gpis, noise, planner); the replay does not follow them"
+    ), steered
+    # parameters set with --set are compared too, by the node they set
+    tour_sites = note({"planner.tour_sites": 6}) or ""
+    assert tour_sites.startswith("note: --set {'planner.tour_sites': 6} (here nothing) changes planner: nodes whose"), (
+        tour_sites
+    )
+    assert "sensor data" not in tour_sites  # the planner is not replayed
+    assert "was recorded with --set {'sim.tick_period_s': 0.02} (here nothing); the replayed sensor data" in (
+        note({"sim.tick_period_s": 0.02}) or ""
+    )
+    assert note({"eval.report": True}) is None  # the evaluator observes
 
 
 def test_a_step_publishes_by_the_recorded_publishers_rank_with_the_start_ups_messages_first(tmp_path: Path) -> None:
