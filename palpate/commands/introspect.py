@@ -270,7 +270,8 @@ def run_topic_echo(args: argparse.Namespace) -> int:
 
 
 class RateMeter:
-    """Rates over the last `window` messages, in wall-clock time and in sim time (from the stamps)."""
+    """Rates over the last `window` messages, in wall-clock time and in sim time (from the stamps); the
+    window starts again where sim time goes back."""
 
     def __init__(self, window: int):
         self.arrivals: deque[float] = deque(maxlen=max(2, window))
@@ -278,6 +279,9 @@ class RateMeter:
         self.total = 0
 
     def add(self, arrival_s: float, stamp_ns: int) -> None:
+        if self.stamps and stamp_ns < self.stamps[-1]:  # sim time went back (a replay looped, a new run): anew
+            self.arrivals.clear()
+            self.stamps.clear()
         self.arrivals.append(arrival_s)
         self.stamps.append(stamp_ns)
         self.total += 1

@@ -746,7 +746,6 @@ def main(args: argparse.Namespace) -> int:
     if runs < 1:
         raise ConfigError(f"--runs must be >= 1, got {runs}")
     out: Path = args.out
-    output_folder(out)
     start = time.perf_counter()
     outcome = None
     if args.from_runs is not None:
@@ -754,11 +753,13 @@ def main(args: argparse.Namespace) -> int:
         cases = sorted({r["object"] for r in results})
         runs = 1 + max((int(r["run"]) for r in results), default=0)
         strategies = [s for s in strategies if any(r["strategy"] == s for r in results)]
+        output_folder(out)
     else:
         chosen = select_cases(args.objects, QUICK_OBJECTS if args.quick else None, args.scale)
         cases = [c.name for c in chosen]
         items = episodes(chosen, runs, strategies, params=eval_params(args))
         check_episodes(items)
+        output_folder(out)  # once the command line holds: a refused one leaves no empty folder
         with RunLog(out / "runs.jsonl", resume=args.resume) as log:
             rows, outcome = run_episodes(items, log, cluster_config(args), profile=args.profile)
         results = [r for r in rows if r is not None]

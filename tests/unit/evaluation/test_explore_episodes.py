@@ -466,3 +466,13 @@ def test_a_symlink_loop_in_the_objects_folder_is_named(tmp_path: Path) -> None:
     (tmp_path / "loop2.stl").symlink_to("loop1.stl")
     with pytest.raises(MeshError, match=r"loop1\.stl: cannot follow it to a mesh file"):
         objects_in(tmp_path)
+
+
+def test_a_refused_evaluation_leaves_no_empty_out_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """An outside walkthrough: a missing --objects folder was named, but the --out folder had been made."""
+    from palpate.cli import main
+
+    out = tmp_path / "out"
+    assert main(["eval", "explore", "--objects", str(tmp_path / "none"), "--out", str(out)]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert not out.exists()

@@ -28,6 +28,11 @@ def test_rates_over_a_window_in_wall_and_sim_time() -> None:
     np.testing.assert_allclose(meter.wall_hz(), 10.0, rtol=1e-9)
     np.testing.assert_allclose(meter.sim_hz(), 50.0, rtol=1e-9)
     assert RateMeter(3).report().endswith("not enough for a rate")
+    # a replay that loops starts sim time again: the window starts again (it read 0.00 Hz sim across the wrap)
+    meter.add(2.0, 0)
+    meter.add(2.1, 20_000_000)
+    assert len(meter.stamps) == 2 and meter.total == 22
+    np.testing.assert_allclose(meter.sim_hz(), 50.0, rtol=1e-9)
 
 
 def test_topic_table_joins_publishers_and_subscribers() -> None:
