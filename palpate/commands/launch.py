@@ -17,7 +17,14 @@ from palpate.argtypes import path_arg
 from palpate.errors import LaunchError
 from palpate.launch import placement
 from palpate.launch.graph import Graph, check_file_contents, resolve
-from palpate.launch.loader import apply_params, load_launch, parse_cli_args, parse_node_params, with_external
+from palpate.launch.loader import (
+    apply_params,
+    arguments_set_at,
+    load_launch,
+    parse_cli_args,
+    parse_node_params,
+    with_external,
+)
 from palpate.launch.supervisor import Supervisor
 from palpate.paths import LAUNCH_DIR, REPO_ROOT, why_not
 from palpate.runtime import bus
@@ -89,9 +96,12 @@ def load_graph(
     sets: list[str] | None = None,
 ) -> Graph:
     try:
-        launch = load_launch(path, parse_cli_args(overrides))
+        arguments = parse_cli_args(overrides)
+        launch = load_launch(path, arguments)
         if sets:
-            apply_params(launch, parse_node_params(sets).items())
+            params = parse_node_params(sets)
+            _refuse_set_over_arguments(path, arguments, params)
+            apply_params(launch, params.items())
         if external:
             launch = with_external(launch, external)
         if replay is not None:
@@ -114,6 +124,17 @@ def load_graph(
         named = _from_the_command_line(exc, path, overrides)
         relevant = [item for item in sets or () if f"node '{item.partition('.')[0]}'" in str(named)]
         raise LaunchError(f"{named} (with --set {' --set '.join(relevant)})") if relevant else named from exc
+
+
+def _refuse_set_over_arguments(path: Path, arguments: dict[str, Any], params: dict[str, Any]) -> None:
+    """LaunchError where a --set key and a name:=value of the command line set the same parameter (the
+    --set would win without a word)."""
+    for key, names in arguments_set_at(path, arguments, params).items():
+        given = ", ".join(f"{name}:={arguments[name]!r}" for name in names)
+        raise LaunchError(
+            f"--set {key}={params[key]!r} and {given} set the same parameter ({path} puts "
+            f"{', '.join(names)} in {key}); give one of them"
+        )
 
 
 def _from_the_command_line(exc: LaunchError, path: Path, overrides: list[str]) -> LaunchError:

@@ -14,7 +14,7 @@ from typing import Any
 import yaml
 
 from palpate.config import KeyPath, key_lines, line_at
-from palpate.errors import ConfigError, LaunchError
+from palpate.errors import ConfigError, LaunchError, PalpateError
 from palpate.launch.placement import PLACEMENTS
 from palpate.paths import read_start
 
@@ -175,6 +175,55 @@ def apply_params(launch: LaunchFile, params: Iterable[tuple[str, Any]]) -> None:
         old = target.get(keys[-1])
         target[keys[-1]] = _merged(old, value) if isinstance(old, dict) and isinstance(value, dict) else value
         launch.overrides[dotted] = value
+
+
+def arguments_set_at(path: str | Path, args: Mapping[str, Any], sets: Mapping[str, Any]) -> dict[str, list[str]]:
+    """For each ``--set`` key of `sets` (dotted node parameter -> value), the arguments of `args` whose value
+    the launch file puts where that ``--set`` writes (a mapping is merged key by key, so only under its
+    keys). Each argument is found by loading the file with a value no parameter holds in its place; one
+    the file refuses so is left out."""
+    found: dict[str, list[str]] = {key: [] for key in sets}
+    for name in sorted(args):
+        marker = f"<palpate: where is argument {name}?>"
+        try:
+            probed = load_launch(path, {**args, name: marker}).nodes
+        except PalpateError:
+            continue
+        params = {entry.fields.get("name"): entry.fields.get("params") for entry in probed}
+        for key, value in sets.items():
+            node, _, rest = key.partition(".")
+            if any(_written_over(params.get(node), leaf.split("."), marker) for leaf in _leaves(rest, value)):
+                found[key].append(name)
+    return {key: names for key, names in found.items() if names}
+
+
+def _leaves(key: str, value: Any) -> list[str]:
+    """The dotted keys a --set of `value` at `key` writes: a mapping is merged, so its leaves."""
+    if isinstance(value, dict) and value:
+        return [leaf for k, v in value.items() for leaf in _leaves(f"{key}.{k}", v)]
+    return [key]
+
+
+def _written_over(params: Any, path: list[str], marker: str) -> bool:
+    """Whether setting `path` in `params` replaces a value that holds `marker` (a value that is no
+    mapping on the way is replaced whole)."""
+    value = params
+    for part in path:
+        if not isinstance(value, dict):
+            return _holds(value, marker)
+        value = value.get(part)
+    return _holds(value, marker)
+
+
+def _holds(value: Any, marker: str) -> bool:
+    """Whether `marker` is `value`, or in a string, list or mapping value within it."""
+    if isinstance(value, str):
+        return marker in value
+    if isinstance(value, dict):
+        return any(_holds(v, marker) for v in value.values())
+    if isinstance(value, list | tuple):
+        return any(_holds(v, marker) for v in value)
+    return False
 
 
 def _merged(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:

@@ -857,6 +857,23 @@ def test_a_mesh_file_that_is_not_there_is_named_before_anything_starts(
         load(explore, tmp_path, ["object:=mesh", "mesh:=ycb:011_banana"])
 
 
+def test_a_set_and_an_argument_on_one_parameter_are_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """An outside walkthrough: `--set planner.strategy=gpv strategy:=igef` ran GP-V without a word."""
+    from palpate.launch.loader import arguments_set_at
+
+    explore = REPO_ROOT / "launch" / "explore.yaml"
+    args = {"strategy": "igef", "object": "sphere", "seed": 3}
+    assert arguments_set_at(explore, args, {"planner.strategy": "gpv"}) == {"planner.strategy": ["strategy"]}
+    assert arguments_set_at(explore, args, {"sim.scene.object.kind": "cube"}) == {"sim.scene.object.kind": ["object"]}
+    assert arguments_set_at(explore, args, {"sim.scene": {"object": {"kind": "cube"}}}) == {"sim.scene": ["object"]}
+    # a mapping is merged key by key: the argument's value below it stays, so nothing is overruled
+    assert arguments_set_at(explore, args, {"sim.scene": {"effector": "probe"}}) == {}
+    assert arguments_set_at(explore, args, {"gpis.gp.R_m": 1.0, "planner.tour_sites": 6}) == {}
+    assert main(["launch", str(explore), "strategy:=igef", "--set", "planner.strategy=gpv", "--dry-run"]) == 2
+    assert "--set planner.strategy='gpv' and strategy:='igef' set the same parameter" in capsys.readouterr().err
+    assert main(["launch", str(explore), "seed:=3", "--set", "planner.tour_sites=6", "--dry-run"]) == 0
+
+
 def test_a_mesh_at_an_absurd_scale_is_named_before_anything_starts(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
