@@ -253,7 +253,11 @@ def _topic_table() -> list[str]:
         "*State* types carry the latest value of something (a pose, a map): in real-time mode a subscriber",
         "that falls behind keeps only the newest message of a burst. Other types are events and are never",
         "dropped. Topics under `truth/` hold simulator ground truth; only evaluator nodes may read them.",
-        "Launch files can remap any port to another topic and prefix topics with a namespace.",
+        "Launch files can remap any port to another topic and prefix topics with a namespace. The shipped",
+        f"nodes also publish on other topics than their type's: the noise node on `{topics.NOISY_CONTACTS}`",
+        f"and `{topics.NOISY_JOINT_STATES}`, the simulator on `{topics.TRUTH_JOINT_STATES}`, the mapper on",
+        f"`{topics.WEIGHTED_OCCUPANCY_GRID}`. `palpate launch --dry-run FILE` lists every topic of a graph with",
+        "its type, its publisher and its readers.",
         "",
     ]
     return lines
