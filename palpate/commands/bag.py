@@ -123,7 +123,8 @@ def run_info(args: argparse.Namespace) -> int:
     else:
         print(describe(summary, args.file))
         if args.check:
-            print(f"  checked: every chunk's CRC, and {summary.messages} messages read as the summary counts")
+            counted = f"{summary.messages} message" + ("" if summary.messages == 1 else "s")
+            print(f"  checked: every chunk's CRC, and {counted} read as the summary counts")
         if launch:
             print(
                 f"  recorded by palpate launch {launch.get('launch_file', '?')}, seed {launch.get('seed', '?')}, "

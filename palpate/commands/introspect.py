@@ -152,12 +152,12 @@ def run_node_list(args: argparse.Namespace) -> int:
 class TopicTap:
     """A SUB socket on one topic that follows the publishers appearing in the bus directory."""
 
-    def __init__(self, bus_dir: Path, topic: str, client_keys: dict[str, str] | None = None):
-        self.bus_dir, self.topic = bus_dir, topic
+    def __init__(self, bus_dir: Path, topic: str, client_keys: dict[str, str] | None = None, command: str = "topic"):
+        self.bus_dir, self.topic, self.command = bus_dir, topic, command
         self.tap = bus.PublisherTap(client_keys=client_keys)
         self.last_discovery = 0.0
         self.interrupted = False
-        self.noted_undeclared = False
+        self.undeclared = bus.UndeclaredTopics([topic])
 
     @property
     def endpoints(self) -> set[str]:
@@ -170,9 +170,8 @@ class TopicTap:
         declared = [m for m in manifests if self.topic in m.publishes]
         self.tap.connect(declared or manifests)
         self.last_discovery = time.monotonic()
-        if not self.noted_undeclared and (note := bus.undeclared(self.topic, manifests)):
-            self.noted_undeclared = True
-            print(f"topic: {note}; waiting for one", file=sys.stderr, flush=True)
+        for note in self.undeclared.notes(manifests, self.last_discovery):
+            print(f"{self.command}: {note}; waiting for one", file=sys.stderr, flush=True)
 
     def receive(self, timeout_s: float) -> list[tuple[float, bytes]]:
         """Payloads of the topic that arrive within `timeout_s`, with their arrival times."""
@@ -242,7 +241,7 @@ def format_message(topic: str, message: Message, *, full: bool = False) -> str:
 
 
 def run_topic_echo(args: argparse.Namespace) -> int:
-    tap = TopicTap(_bus_dir(args), args.topic, _client_keys(args))
+    tap = TopicTap(_bus_dir(args), args.topic, _client_keys(args), command="topic echo")
     seen = 0
 
     def handle(arrival: float, payload: bytes) -> bool:
@@ -271,7 +270,7 @@ def run_topic_echo(args: argparse.Namespace) -> int:
 
 class RateMeter:
     """Rates over the last `window` messages, in wall-clock time and in sim time (from the stamps); the
-    window starts again where sim time goes back."""
+    window starts again where sim time goes back before it (publishers interleaved a tick apart do not)."""
 
     def __init__(self, window: int):
         self.arrivals: deque[float] = deque(maxlen=max(2, window))
@@ -279,7 +278,7 @@ class RateMeter:
         self.total = 0
 
     def add(self, arrival_s: float, stamp_ns: int) -> None:
-        if self.stamps and stamp_ns < self.stamps[-1]:  # sim time went back (a replay looped, a new run): anew
+        if self.stamps and stamp_ns < self.stamps[0]:  # before the window: a replay looped, a new run; anew
             self.arrivals.clear()
             self.stamps.clear()
         self.arrivals.append(arrival_s)
@@ -305,7 +304,7 @@ class RateMeter:
 
 
 def run_topic_hz(args: argparse.Namespace) -> int:
-    tap = TopicTap(_bus_dir(args), args.topic, _client_keys(args))
+    tap = TopicTap(_bus_dir(args), args.topic, _client_keys(args), command="topic hz")
     meter = RateMeter(args.window)
     last_report = time.monotonic()
 

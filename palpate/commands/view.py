@@ -68,18 +68,17 @@ def run_view(args: argparse.Namespace) -> int:
             "no display (DISPLAY and WAYLAND_DISPLAY are unset): write a recording with --save FILE.rrd "
             "and open it with `rerun FILE.rrd` on a machine with a display"
         )
-    from palpate.viewer.sink import open_recording  # imports rerun
+    from palpate.viewer.sink import SaveTarget, open_recording  # imports rerun
     from palpate.viewer.sources import BusSource, LogSource
 
-    if args.save is not None and args.save.exists() and not args.force:
-        raise ViewerError(f"{args.save} exists; pass --force to replace it, or choose another --save file")
-    partial = None if args.save is None else args.save.with_name(f".{args.save.name}.partial")
+    target = None if args.save is None else SaveTarget.of(args.save, force=args.force)
+    writing = None if target is None else target.writing
     scene = SceneLogger()
     try:
         if args.log is not None:
             log_source = LogSource(args.log, args.topics)  # checks the file before the recording is created
             _note_missing_topics(log_source.missing_topics(), f"{args.log} has no topic")
-            sink = open_recording(save=partial)
+            sink = open_recording(save=writing)
             try:
                 for topic, message in log_source:
                     _draw(scene, sink, topic, message, log_source.stats)
@@ -88,7 +87,7 @@ def run_view(args: argparse.Namespace) -> int:
             stats, origin, code = log_source.stats, str(args.log), 0
         else:
             bus_dir = Path(args.bus) if args.bus else bus.default_bus_dir()
-            sink = open_recording(save=partial)
+            sink = open_recording(save=writing)
             client_keys = bus.read_key_file(args.curve_keys) if args.curve_keys else None
             bus_source = BusSource(bus_dir, args.topics, client_keys)
             print(f"palpate view: watching bus {bus_dir} (Ctrl-C to stop)", flush=True)
@@ -99,11 +98,14 @@ def run_view(args: argparse.Namespace) -> int:
                 bus_source.close()
                 sink.close()
             stats, origin, code = bus_source.stats, f"bus {bus_dir}", 130 if bus_source.interrupted else 0
-        if partial is not None and args.save is not None:
-            os.replace(partial, args.save)  # whole: a failure above leaves no half recording under its name
-    finally:
-        if partial is not None:
-            partial.unlink(missing_ok=True)
+    except BaseException:
+        if target is not None:  # a log can be viewed again; a live run cannot: keep what it recorded
+            kept = target.abandon(keep=args.log is None)
+            if kept is not None:
+                print(f"palpate view: the recording up to the failure is in {kept}", file=sys.stderr)
+        raise
+    if target is not None:
+        target.commit()
     print(f"palpate view: {stats.shown} of {stats.received} messages shown from {origin}", flush=True)
     if stats.shown == 0:
         print(
@@ -118,9 +120,11 @@ def run_view(args: argparse.Namespace) -> int:
             f"palpate view: {stats.unusable} messages with values it cannot draw skipped, last: {stats.last_unusable}",
             file=sys.stderr,
         )
-    if args.save is not None:
-        size = args.save.stat().st_size if args.save.exists() else 0
+    if target is not None and target.path.is_file():
+        size = target.path.stat().st_size
         print(f"palpate view: wrote {args.save} ({size / 1024:.1f} KiB); open it with `rerun {args.save}`")
+    elif target is not None:
+        print(f"palpate view: wrote the recording into {args.save}")
     return code
 
 

@@ -544,7 +544,7 @@ def main(args: argparse.Namespace) -> int:
         n_particles=args.particles,
         resolution_m=args.resolution_mm * 1e-3,
         sigma_deg=args.sigma_deg,
-        launch_args=parse_cli_args(args.arg, separator="="),
+        launch_args=parse_cli_args(args.arg, separator="=", option="--arg"),
     )
     t0 = time.perf_counter()
     cluster = cluster_config(args)

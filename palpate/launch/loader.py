@@ -104,9 +104,10 @@ class LaunchFile:
     overrides: dict[str, Any] = field(default_factory=dict)
 
 
-def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any]:
+def parse_cli_args(items: Sequence[str], separator: str = ":=", option: str = "") -> dict[str, Any]:
     """`name:=value` pairs (or `name<separator>value`) from the command line; values are parsed as
-    YAML scalars, an empty value is the empty string."""
+    YAML scalars, an empty value is the empty string. A name given twice is refused (`option`, such as
+    "--set", names where the pairs came from)."""
     out: dict[str, Any] = {}
     given: dict[str, str] = {}
     for item in items:
@@ -114,7 +115,7 @@ def parse_cli_args(items: Sequence[str], separator: str = ":=") -> dict[str, Any
         if not sep or not name:
             raise LaunchError(f"launch argument {item!r} must look like name{separator}value")
         if name in given:  # the last would win without a word, as no launch file's key may repeat
-            what = f"launch argument {name!r}" if separator == ":=" else f"{name!r}"
+            what = f"{option} {name!r}" if option else f"launch argument {name!r}"
             raise LaunchError(f"{what} is given twice on the command line ({given[name]!r} and {item!r}); give it once")
         given[name] = item
         try:
@@ -138,7 +139,7 @@ def parse_node_params(items: Sequence[str]) -> dict[str, Any]:
     for item in items:
         if "=" not in item or item.startswith("="):
             raise ConfigError(f"--set {item!r}: expected NODE.KEY=VALUE, e.g. planner.candidate_step_m=0.005")
-    out = parse_cli_args(items, separator="=")
+    out = parse_cli_args(items, separator="=", option="--set")
     for key in out:
         if "." not in key:
             raise ConfigError(f"--set {key!r}: expected NODE.KEY=VALUE, e.g. planner.candidate_step_m=0.005")

@@ -316,7 +316,7 @@ class Recorder:
         self.first_message: float | None = None
         self.unmarked_since: dict[str, float] = {}
         self.recorded_topics: set[str] = set()  # topics of the messages recorded so far
-        self.undeclared_noted: set[str] = set()  # wanted topics already said to have no publisher
+        self.undeclared = bus.UndeclaredTopics(self.wanted)  # wanted topics no publisher declares
 
     # --- discovery ---------------------------------------------------------------------------------
     def _base_topics(self) -> list[str]:
@@ -379,11 +379,12 @@ class Recorder:
         self._note_undeclared(manifests)
 
     def _note_undeclared(self, manifests: list[bus.Manifest]) -> None:
-        """Say once for each wanted topic that no publisher on the bus declares (a typo records nothing)."""
-        for topic in self.wanted:
-            if topic not in self.undeclared_noted and (note := bus.undeclared(topic, manifests)):
-                self.undeclared_noted.add(topic)
-                log.warning("%s; it is recorded if a publisher of it appears", note)
+        """Say once for each wanted topic that no publisher on the bus declares (a typo records nothing);
+        not for --connect endpoints, which need not write manifests here."""
+        if self.static:
+            return
+        for note in self.undeclared.notes(manifests, time.monotonic()):
+            log.warning("%s; it is recorded if a publisher of it appears", note)
 
     # --- receiving ---------------------------------------------------------------------------------
     def _drain(self, conn: _Connection, limit: int = 5000) -> None:

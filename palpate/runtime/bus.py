@@ -164,6 +164,33 @@ def undeclared(topic: str, manifests: Sequence[Manifest]) -> str | None:
     return f"no publisher on the bus declares topic {topic!r}{hint}; see palpate topic list"
 
 
+class UndeclaredTopics:
+    """Tells, once per asked-for topic, that no running publisher declares it (``undeclared``), but only
+    once the running publishers have stayed the same for ``settle_s``: a graph that is starting writes
+    its nodes' manifests one by one."""
+
+    def __init__(self, wanted: Sequence[str], settle_s: float = 2.0) -> None:
+        self.wanted, self.settle_s = list(wanted), settle_s
+        self.told: set[str] = set()
+        self._running: frozenset[str] | None = None
+        self._since = 0.0
+
+    def notes(self, manifests: Sequence[Manifest], now_s: float) -> list[str]:
+        """What to tell now, given the manifests read at monotonic time ``now_s``."""
+        running = frozenset(m.endpoint for m in manifests)
+        if running != self._running:
+            self._running, self._since = running, now_s
+            return []
+        if now_s - self._since < self.settle_s:
+            return []
+        out = []
+        for topic in self.wanted:
+            if topic not in self.told and (note := undeclared(topic, manifests)):
+                self.told.add(topic)
+                out.append(note)
+        return out
+
+
 def read_manifests(bus_dir: str | Path) -> list[Manifest]:
     """Manifests of live publishers (entries whose process is gone are skipped)."""
     manifests = []

@@ -12,6 +12,7 @@ import os
 import shutil
 import sys
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -76,6 +77,55 @@ def rerun_executable() -> str | None:
         return found
     beside = Path(sys.executable).parent / "rerun"
     return str(beside) if beside.is_file() and os.access(beside, os.X_OK) else None
+
+
+@dataclass(frozen=True)
+class SaveTarget:
+    """Where ``--save`` puts a recording: streamed into a hidden file beside a regular file and renamed onto
+    it when whole (a failure leaves no half recording under its name), or into the path itself when it is
+    a device or a pipe (/dev/null). A link is written through, to the file it names."""
+
+    path: Path
+    writing: Path
+
+    @classmethod
+    def of(cls, save: Path, *, force: bool) -> SaveTarget:
+        """The target of ``--save save``; ViewerError for a folder, a missing folder, or a file without force."""
+        target = save.resolve() if save.is_symlink() else save
+        if target.is_dir():
+            raise ViewerError(f"--save {save} is a folder; give a file name, such as {save / 'run.rrd'}")
+        if target.exists() and not target.is_file():  # a device or a pipe: nothing to replace
+            return cls(target, target)
+        if target.exists() and not force:
+            raise ViewerError(f"{save} exists; pass --force to replace it, or choose another --save file")
+        if not target.parent.is_dir():
+            raise ViewerError(f"cannot write the recording {str(save)!r}: its folder {target.parent} does not exist")
+        return cls(target, target.with_name(f".{target.name}.partial"))
+
+    def commit(self) -> None:
+        """The whole recording under its name (ViewerError, the recording kept where it is, if it cannot be)."""
+        if self.writing == self.path:
+            return
+        try:
+            os.replace(self.writing, self.path)
+        except OSError as exc:
+            raise ViewerError(
+                f"cannot put the recording at {self.path} ({exc.strerror or exc}); it is in {self.writing}"
+            ) from exc
+
+    def abandon(self, *, keep: bool) -> Path | None:
+        """After a failure: with keep, what was recorded goes under the name (or stays where it is, if it
+        cannot), which it returns; else it is deleted. None when nothing is kept."""
+        if self.writing == self.path or not self.writing.exists():
+            return None
+        if not keep:
+            self.writing.unlink(missing_ok=True)
+            return None
+        try:
+            os.replace(self.writing, self.path)
+        except OSError:
+            return self.writing
+        return self.path
 
 
 def open_recording(*, save: Path | None = None) -> RerunLogger:

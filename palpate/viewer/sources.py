@@ -115,7 +115,7 @@ class BusSource:
         self.last_discovery = -float("inf")
         self.stopped = False  # the graph published RunControl "stop"
         self.interrupted = False
-        self.noted_undeclared: set[str] = set()  # asked-for topics said to have no publisher
+        self.undeclared = bus.UndeclaredTopics(sorted(self.wanted or ()))  # asked-for topics nobody declares
 
     def discover(self) -> None:
         """Connect to publishers not yet connected and learn the types of their topics."""
@@ -124,10 +124,8 @@ class BusSource:
             self.types.update(manifest.publishes)
         self.tap.connect(manifests)
         self.last_discovery = time.monotonic()
-        for topic in sorted(self.wanted or ()):
-            if topic not in self.noted_undeclared and (note := bus.undeclared(topic, manifests)):
-                self.noted_undeclared.add(topic)
-                print(f"palpate view: {note}; waiting for one", file=sys.stderr, flush=True)
+        for note in self.undeclared.notes(manifests, self.last_discovery):
+            print(f"palpate view: {note}; waiting for one", file=sys.stderr, flush=True)
 
     def _shown(self, topic: str) -> bool:
         type_name = self.types.get(topic)

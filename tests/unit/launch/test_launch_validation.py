@@ -272,7 +272,7 @@ def test_parse_cli_args() -> None:
         LaunchError, match=r"launch argument 'a' is given twice on the command line \('a:=1' and 'a:=2'\)"
     ):
         parse_cli_args(["a:=1", "b:=1", "a:=2"])
-    with pytest.raises(LaunchError, match=r"'sim.seed' is given twice on the command line"):
+    with pytest.raises(LaunchError, match=r"--set 'sim.seed' is given twice on the command line"):
         parse_node_params(["sim.seed=1", "sim.seed=1"])
     with pytest.raises(ConfigError, match=r"--set 'gpis.gp.kernel': expected NODE.KEY=VALUE"):
         parse_node_params(["gpis.gp.kernel"])  # not "launch argument ... name=value": it is no launch argument

@@ -33,6 +33,10 @@ def test_rates_over_a_window_in_wall_and_sim_time() -> None:
     meter.add(2.1, 20_000_000)
     assert len(meter.stamps) == 2 and meter.total == 22
     np.testing.assert_allclose(meter.sim_hz(), 50.0, rtol=1e-9)
+    # publishers a tick apart, interleaved (lockstep acknowledgements): no new start
+    meter.add(2.2, 30_000_000)
+    meter.add(2.3, 25_000_000)
+    assert len(meter.stamps) == 4
 
 
 def test_topic_table_joins_publishers_and_subscribers() -> None:

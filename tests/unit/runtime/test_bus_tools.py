@@ -148,3 +148,18 @@ def test_undeclared_names_the_closest_declared_topic() -> None:
     assert bus.undeclared("clock", running) is None  # the runtime's own topics are in no manifest
     assert bus.undeclared("hello/sim", running) is None
     assert bus.undeclared("sensors/contact", []) is None  # nothing running yet: a publisher may come
+
+
+def test_undeclared_topics_are_told_once_the_running_publishers_settle() -> None:
+    """An outside review: a tool started before `palpate launch` said so while the nodes were still
+    writing their manifests one by one."""
+    sim = bus.Manifest("sim", "ipc:///sim", 1, {"sensors/contacts": "ContactSet"}, {})
+    gpis = bus.Manifest("gpis", "ipc:///gpis", 2, {"surface/mesh": "SurfaceMesh"}, {})
+    told = bus.UndeclaredTopics(["surface/mesh", "surface/msh"], settle_s=2.0)
+    assert told.notes([sim], 0.0) == []  # the graph is starting
+    assert told.notes([sim], 1.0) == []
+    assert told.notes([sim, gpis], 1.5) == []  # another publisher came: the clock starts again
+    assert told.notes([sim, gpis], 3.0) == []
+    notes = told.notes([sim, gpis], 3.6)
+    assert len(notes) == 1 and notes[0].startswith("no publisher on the bus declares topic 'surface/msh' (did you")
+    assert told.notes([sim, gpis], 10.0) == []  # once

@@ -122,6 +122,37 @@ def test_save_writes_an_rrd_with_the_scene(capsys: pytest.CaptureFixture[str], l
     assert all(c.is_static for c in chunks if c.entity_path == "/world/truth/object")
 
 
+def test_save_targets_a_folder_a_device_and_a_link_as_a_user_expects(tmp_path: Path) -> None:
+    """An outside review: `--save DIR --force` wrote the whole recording and then failed in a traceback,
+    `--save /dev/null --force` made /dev/null a regular file, a link was replaced by a file."""
+    pytest.importorskip("rerun")
+    from palpate.errors import ViewerError
+    from palpate.viewer.sink import SaveTarget
+
+    with pytest.raises(ViewerError, match="is a folder; give a file name"):
+        SaveTarget.of(tmp_path, force=True)
+    with pytest.raises(ViewerError, match=r"its folder .* does not exist"):
+        SaveTarget.of(tmp_path / "no" / "run.rrd", force=False)
+    device = SaveTarget.of(Path("/dev/null"), force=False)  # a device is written as it is, never replaced
+    assert device.writing == device.path == Path("/dev/null")
+    real = tmp_path / "real.rrd"
+    real.write_bytes(b"old")
+    link = tmp_path / "link.rrd"
+    link.symlink_to(real)
+    through = SaveTarget.of(link, force=True)
+    assert through.path == real.resolve() and through.writing.name == ".real.rrd.partial"
+    through.writing.write_bytes(b"new")
+    through.commit()
+    assert link.is_symlink() and real.read_bytes() == b"new"
+    # after a failure: a log's recording is deleted (view it again), a live one's kept under the name
+    again = SaveTarget.of(tmp_path / "live.rrd", force=False)
+    again.writing.write_bytes(b"so far")
+    assert again.abandon(keep=True) == tmp_path / "live.rrd" and (tmp_path / "live.rrd").read_bytes() == b"so far"
+    gone = SaveTarget.of(tmp_path / "log.rrd", force=False)
+    gone.writing.write_bytes(b"half")
+    assert gone.abandon(keep=False) is None and not gone.writing.exists() and not gone.path.exists()
+
+
 def test_topics_filter(capsys: pytest.CaptureFixture[str], log_file: Path, tmp_path: Path) -> None:
     pytest.importorskip("rerun")
     from rerun.chunk import RrdReader
