@@ -92,7 +92,7 @@ def test_parameter_overrides_are_checked() -> None:
         "planner.candidate_step_m": 0.01,
         "gpis.gp.kernel": "gaussian",
     }
-    with pytest.raises(LaunchError, match="must look like name=value"):
+    with pytest.raises(ConfigError, match=r"--set 'no_equals_sign': expected NODE\.KEY=VALUE"):
         parse_sets(["no_equals_sign"])
     with pytest.raises(ConfigError, match=r"NODE\.KEY=VALUE"):
         parse_sets(["candidate_step_m=0.01"])
