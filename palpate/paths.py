@@ -23,9 +23,14 @@ def ycb_dir() -> Path | None:
 
     Returns None when the folder does not exist, so that callers can skip with a reason.
     """
-    configured = os.environ.get(YCB_DIR_ENV)
-    candidate = Path(configured) if configured else REPO_ROOT.parent / "shared" / "data" / "ycb"
+    candidate = ycb_dir_looked_at()
     return candidate if candidate.is_dir() else None
+
+
+def ycb_dir_looked_at() -> Path:
+    """Where ``ycb_dir`` looks (to name it when nothing is there)."""
+    configured = os.environ.get(YCB_DIR_ENV)
+    return Path(configured) if configured else REPO_ROOT.parent / "shared" / "data" / "ycb"
 
 
 def cache_dir() -> Path:

@@ -289,8 +289,8 @@ def read_rows(path: Path, *, hint: str) -> list[tuple[int, Row]]:
 
 
 # --- the cluster -----------------------------------------------------------------------------------------
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """--scheduler, --workers and --resume of every command that runs on Dask."""
+def add_arguments(parser: argparse.ArgumentParser, runs_file: str = "runs.jsonl") -> None:
+    """--scheduler, --workers and --resume (of OUT/`runs_file`) of every command that runs on Dask."""
     parser.add_argument(
         "--scheduler",
         metavar="tcp://HOST:PORT",
@@ -303,7 +303,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=0,
         help="worker processes of the local cluster (default, or 0: one per core)",
     )
-    parser.add_argument("--resume", action="store_true", help="keep the runs already in OUT/runs.jsonl, run the rest")
+    parser.add_argument("--resume", action="store_true", help=f"keep the runs already in OUT/{runs_file}, run the rest")
 
 
 def config_from_args(args: argparse.Namespace, **changes: Any) -> ClusterConfig:

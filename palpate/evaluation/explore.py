@@ -69,6 +69,7 @@ MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb")
 OTHER_3D_SUFFIXES = (".3ds", ".3mf", ".blend", ".dae", ".dxf", ".fbx", ".gltf", ".igs", ".step", ".stp", ".xyz")
 #: Strategies compared by default (the paper's Table 2).
 DEFAULT_STRATEGIES = ("igef", "gpv")
+DEFAULT_RUNS = 3  # start positions per object
 #: Strategies of --quick: the paper's two and ours.
 QUICK_STRATEGIES = ("igef", "gpv", "tour")
 
@@ -529,10 +530,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     from palpate.nodes.planner.config import Strategy
 
     add_objects_arguments(parser)
-    parser.add_argument("--runs", type=int, default=3, help="start positions per object (seed = run index; default 3)")
+    parser.add_argument(
+        "--runs", type=int, help=f"start positions per object (seed = run index; default {DEFAULT_RUNS}; --quick: 1)"
+    )
     parser.add_argument(
         "--strategies",
-        help=f"comma-separated: {', '.join(get_args(Strategy))} (default: igef,gpv; with --quick igef,gpv,tour)",
+        help=f"comma-separated: {', '.join(get_args(Strategy))} (default: igef,gpv; with --quick igef,gpv,tour; "
+        "with --from-runs every strategy the file holds)",
     )
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, 1 run each")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object, last line")
@@ -624,12 +628,15 @@ def eval_params(args: argparse.Namespace) -> dict[str, Any]:
     return params
 
 
-def runs_from(path: Path) -> list[dict[str, Any]]:
-    """The runs of a runs.jsonl file (``--from-runs``): ConfigError for a line that is not a run or that
-    repeats the object, strategy and run of an earlier line (runs made with other settings, left in a file
-    that --resume went on with); a last line cut off by a kill is left out with a warning."""
+def runs_from(path: Path, given_as: str = "--from-runs") -> list[dict[str, Any]]:
+    """The runs of a runs.jsonl file (``--from-runs``; `given_as` names the argument in errors): ConfigError
+    for a line that is not a run or that repeats the object, strategy and run of an earlier line (runs made
+    with other settings, left in a file that --resume went on with); a last line cut off by a kill is left
+    out with a warning."""
     if not path.is_file():
-        raise ConfigError(f"--from-runs {str(path)!r} is not a file; give a runs.jsonl")
+        raise ConfigError(f"{given_as} {str(path)!r} is not a file; give a runs.jsonl")
+    if path.suffix.lower() == ".csv":
+        raise ConfigError(f"{given_as} {str(path)!r} is the runs' table; give the runs.jsonl beside it")
     seen: dict[tuple[Any, Any, Any], int] = {}
     results = []
     for number, row in read_rows(path, hint="remove the line"):
@@ -662,12 +669,15 @@ def add_objects_arguments(parser: argparse.ArgumentParser) -> None:
 def select_cases(paths: Sequence[Path] | None, smallest: int | None = None, scale: float = 1.0) -> list[ObjectCase]:
     """The objects of an evaluation: every mesh of the folders and every mesh file in ``paths`` (default:
     the YCB folder), in metres after ``scale``, or only the ``smallest`` ones by surface area."""
-    from palpate.paths import ycb_dir
+    from palpate.paths import YCB_DIR_ENV, ycb_dir, ycb_dir_looked_at
 
     if not paths:
         ycb = ycb_dir()
         if ycb is None:
-            raise ConfigError("no --objects given and the YCB meshes are not found (set PALPATE_YCB_DIR)")
+            raise ConfigError(
+                f"no --objects given and the YCB meshes are not found: {ycb_dir_looked_at()} is no folder "
+                f"(give --objects DIR, or set {YCB_DIR_ENV} to the YCB folder)"
+            )
         paths = [ycb]
     cases: list[ObjectCase] = []
     for path in paths:
@@ -690,6 +700,37 @@ def strategies_of(args: argparse.Namespace) -> list[str]:
     if args.strategies is not None:  # given, even empty ("--strategies $S" with S unset): it must name some
         return parse_strategies(args.strategies)
     return parse_strategies(",".join(QUICK_STRATEGIES if args.quick else DEFAULT_STRATEGIES))
+
+
+def runs_of(args: argparse.Namespace) -> int:
+    """--runs, at least 1; --quick runs one start per object and takes no --runs."""
+    if args.quick:
+        if args.runs is not None:
+            raise ConfigError(f"--quick runs one start per object; leave out --runs {args.runs}")
+        return 1
+    runs = DEFAULT_RUNS if args.runs is None else args.runs
+    if runs < 1:
+        raise ConfigError(f"--runs must be >= 1, got {runs}")
+    return runs
+
+
+def strategies_in(results: Sequence[Mapping[str, Any]], asked: str | None, path: Path) -> list[str]:
+    """The strategies the tables of --from-runs hold: those asked for (each must be in the file), else
+    every strategy the file holds, in the order of the planner's list."""
+    from palpate.nodes.planner.config import Strategy
+
+    held = [s for s in get_args(Strategy) if any(r["strategy"] == s for r in results)]
+    if asked is None:
+        if not held:
+            raise ConfigError(f"--from-runs {str(path)!r} holds no run")
+        return held
+    strategies = parse_strategies(asked)
+    if missing := [s for s in strategies if s not in held]:
+        raise ConfigError(
+            f"--from-runs {str(path)!r} holds no run of {', '.join(missing)}; "
+            f"its strategies: {', '.join(held) or 'none'}"
+        )
+    return strategies
 
 
 def parse_strategies(text: str) -> list[str]:
@@ -742,9 +783,7 @@ def main(args: argparse.Namespace) -> int:
     from palpate.evaluation import shape_report
 
     strategies = strategies_of(args)
-    runs = 1 if args.quick else args.runs
-    if runs < 1:
-        raise ConfigError(f"--runs must be >= 1, got {runs}")
+    runs = runs_of(args)
     out: Path = args.out
     start = time.perf_counter()
     outcome = None
@@ -752,7 +791,7 @@ def main(args: argparse.Namespace) -> int:
         results = runs_from(args.from_runs)
         cases = sorted({r["object"] for r in results})
         runs = 1 + max((int(r["run"]) for r in results), default=0)
-        strategies = [s for s in strategies if any(r["strategy"] == s for r in results)]
+        strategies = strategies_in(results, args.strategies, args.from_runs)
         output_folder(out)
     else:
         chosen = select_cases(args.objects, QUICK_OBJECTS if args.quick else None, args.scale)

@@ -263,7 +263,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--json", action="store_true", help="print the comparison as one JSON object, last line")
     parser.add_argument("--out", type=path_arg, default=DEFAULT_OUT, help="output folder (rescored.jsonl, tables.md)")
-    add_cluster_arguments(parser)
+    add_cluster_arguments(parser, runs_file="rescored.jsonl")
     parser.set_defaults(func=main)
 
 
@@ -277,7 +277,7 @@ def main(args: argparse.Namespace) -> int:
             "path, which needs a new evaluation"
         )
     percent = str(args.milestone)
-    runs = runs_from(args.runs)
+    runs = runs_from(args.runs, given_as="RUNS.jsonl")
     strategies = list(dict.fromkeys(r["strategy"] for r in runs))
     cases = {c.name: c for c in select_cases(args.objects, scale=args.scale)}
     tasks = tasks_of(runs, cases, sets, percent, args.runs)

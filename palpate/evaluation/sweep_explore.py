@@ -90,7 +90,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate sweep explore`."""
     add_objects_arguments(parser)
     parser.add_argument("--quick", action="store_true", help=f"the {QUICK_OBJECTS} smallest objects, IGEF, 1 run")
-    parser.add_argument("--runs", type=int, default=1, help="start positions per object")
+    parser.add_argument("--runs", type=int, help="start positions per object (default 1)")
     parser.add_argument("--strategies", default="igef", help="comma-separated strategies (default igef)")
     parser.add_argument("--only", default="", help="comma-separated setting names or knobs to run (default all)")
     parser.add_argument("--out", type=path_arg, default=Path("out/sweep_explore"), help="output folder")
@@ -225,7 +225,9 @@ def main(args: argparse.Namespace) -> int:
     """Run the sweep; write sweep.md, sweep.png and runs.jsonl into --out."""
     strategies = parse_strategies(args.strategies)
     settings = chosen_settings(args.only)
-    runs = 1 if args.quick else args.runs
+    if args.quick and args.runs is not None:
+        raise ConfigError(f"--quick runs one start per object; leave out --runs {args.runs}")
+    runs = 1 if args.runs is None else args.runs
     if runs < 1:
         raise ConfigError(f"--runs must be >= 1, got {runs}")
     cases = select_cases(args.objects, QUICK_OBJECTS if args.quick else FULL_OBJECTS, args.scale)

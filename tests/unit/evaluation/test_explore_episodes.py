@@ -476,3 +476,38 @@ def test_a_refused_evaluation_leaves_no_empty_out_folder(tmp_path: Path, capsys:
     assert main(["eval", "explore", "--objects", str(tmp_path / "none"), "--out", str(out)]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_quick_takes_no_runs_and_from_runs_tables_the_strategies_it_holds(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An outside walkthrough: `--quick --runs 0` ran one start per object without a word; `--from-runs`
+    with a strategy the file lacks was an IndexError traceback, and without --strategies it tabled
+    IGEF and GP-V only, dropping the quick run's tour."""
+    import argparse
+
+    from palpate.cli import main
+    from palpate.evaluation.explore import runs_from, runs_of, strategies_in
+
+    with pytest.raises(ConfigError, match="--quick runs one start per object; leave out --runs 0"):
+        runs_of(argparse.Namespace(quick=True, runs=0))
+    assert runs_of(argparse.Namespace(quick=True, runs=None)) == 1
+    assert runs_of(argparse.Namespace(quick=False, runs=None)) == 3
+    with pytest.raises(ConfigError, match="--runs must be >= 1, got 0"):
+        runs_of(argparse.Namespace(quick=False, runs=0))
+    assert main(["sweep", "explore", "--quick", "--runs", "2", "--out", str(tmp_path / "sw")]) == 2
+    assert "--quick runs one start per object" in capsys.readouterr().err
+    rows = [{"object": "box", "strategy": s, "run": 0} for s in ("tour", "gpv", "igef")]
+    assert strategies_in(rows, None, tmp_path) == ["igef", "gpv", "tour"]  # the planner's order
+    assert strategies_in(rows, "tour,igef", tmp_path) == ["tour", "igef"]
+    with pytest.raises(ConfigError, match="holds no run of area; its strategies: igef, gpv, tour"):
+        strategies_in(rows, "igef,area", tmp_path)
+    table = tmp_path / "runs.csv"
+    table.write_text("object,strategy\n")
+    with pytest.raises(ConfigError, match=r"is the runs' table; give the runs\.jsonl beside it"):
+        runs_from(table)
+    with pytest.raises(ConfigError, match=r"^RUNS\.jsonl '.*none\.jsonl' is not a file"):
+        runs_from(tmp_path / "none.jsonl", given_as="RUNS.jsonl")
+    monkeypatch.setenv("PALPATE_YCB_DIR", str(tmp_path / "nowhere"))
+    assert main(["eval", "explore", "--out", str(tmp_path / "o")]) == 2
+    assert f"{tmp_path / 'nowhere'} is no folder (give --objects DIR, or set PALPATE_YCB_DIR" in capsys.readouterr().err
