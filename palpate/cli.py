@@ -7,8 +7,10 @@ import importlib
 import logging
 import os
 import sys
+import warnings
+from typing import TextIO
 
-from palpate.errors import PalpateError
+from palpate.errors import MeshWarning, PalpateError
 
 #: Sub-command modules, each with `register(subparsers)` that sets `func` on its parser.
 COMMAND_MODULES = [
@@ -68,10 +70,31 @@ def shortened(message: str, limit: int = MAX_ERROR_CHARS) -> str:
     return f"{message[:half]} ... [{len(message) - 2 * half:,} characters left out] ... {message[-half:]}"
 
 
+def _show_mesh_warnings(command: str) -> None:
+    """Print palpate's mesh warnings as one line named by the command (Python's form shows our source)."""
+    default = warnings.showwarning
+
+    def show(
+        message: Warning | str,
+        category: type[Warning],
+        filename: str,
+        lineno: int,
+        file: TextIO | None = None,
+        line: str | None = None,
+    ) -> None:
+        if issubclass(category, MeshWarning):
+            print(f"palpate {command}: warning: {message}", file=sys.stderr)
+        else:
+            default(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parse(parser, argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(message)s")
+    _show_mesh_warnings(args.command)
     try:
         code = int(args.func(args) or 0)
         sys.stdout.flush()  # here, where a closed pipe is caught below, not at exit

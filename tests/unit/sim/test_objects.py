@@ -490,3 +490,19 @@ def test_sampled_surface_points_are_on_the_surface() -> None:
     closest = ExactContactSensor(mesh).closest(points + 1e-3 * normals)
     np.testing.assert_allclose(closest.distance_m, 1e-3, atol=1e-12)
     np.testing.assert_allclose(closest.normals, normals, atol=1e-12)
+
+
+def test_the_command_line_prints_a_mesh_warning_as_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    """An outside walkthrough: it came in Python's form, with our source file, line and code."""
+    import warnings
+
+    from palpate import cli
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        cli._show_mesh_warnings("eval")
+        warnings.warn(MeshWarning("x.stl: the mesh holds 2 separate bodies"), stacklevel=1)
+        warnings.warn(UserWarning("another library's"), stacklevel=1)
+    err = capsys.readouterr().err
+    assert "palpate eval: warning: x.stl: the mesh holds 2 separate bodies\n" in err
+    assert "UserWarning: another library's" in err  # the others as Python shows them
