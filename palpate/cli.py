@@ -71,7 +71,11 @@ def shortened(message: str, limit: int = MAX_ERROR_CHARS) -> str:
 
 
 def _show_mesh_warnings(command: str) -> None:
-    """Print palpate's mesh warnings as one line named by the command (Python's form shows our source)."""
+    """Print palpate's mesh warnings as one line named by the command (Python's form shows our source);
+    installed once per process, the command's name updated on each call."""
+    _warning_command[0] = command
+    if getattr(warnings.showwarning, "_palpate", False):
+        return
     default = warnings.showwarning
 
     def show(
@@ -83,11 +87,15 @@ def _show_mesh_warnings(command: str) -> None:
         line: str | None = None,
     ) -> None:
         if issubclass(category, MeshWarning):
-            print(f"palpate {command}: warning: {message}", file=sys.stderr)
+            print(f"palpate {_warning_command[0]}: warning: {message}", file=sys.stderr)
         else:
             default(message, category, filename, lineno, file, line)
 
+    show._palpate = True  # type: ignore[attr-defined]
     warnings.showwarning = show
+
+
+_warning_command = ["palpate"]  # the running command, for `_show_mesh_warnings`
 
 
 def main(argv: list[str] | None = None) -> int:

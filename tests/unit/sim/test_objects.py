@@ -502,7 +502,10 @@ def test_the_command_line_prints_a_mesh_warning_as_one_line(capsys: pytest.Captu
     with warnings.catch_warnings():
         warnings.simplefilter("always")
         warnings.showwarning = lambda message, *rest: shown_as_before.append(str(message))
-        cli._show_mesh_warnings("eval")
+        cli._show_mesh_warnings("launch")
+        installed = warnings.showwarning
+        cli._show_mesh_warnings("eval")  # once installed: a second command (tests, one process) only renames
+        assert warnings.showwarning is installed  # not wrapped again at each call
         warnings.warn(MeshWarning("x.stl: the mesh holds 2 separate bodies"), stacklevel=1)
         warnings.warn(UserWarning("another library's"), stacklevel=1)
     assert capsys.readouterr().err == "palpate eval: warning: x.stl: the mesh holds 2 separate bodies\n"
