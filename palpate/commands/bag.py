@@ -10,7 +10,7 @@ from palpate import jsonio
 from palpate.argtypes import non_negative_float, non_negative_int, path_arg
 from palpate.errors import RecordError
 from palpate.record import mcap_io, recorder
-from palpate.record.bag import Player, PlayOptions, describe
+from palpate.record.bag import Player, PlayOptions, counted, describe
 from palpate.runtime import bus
 
 
@@ -123,8 +123,8 @@ def run_info(args: argparse.Namespace) -> int:
     else:
         print(describe(summary, args.file))
         if args.check:
-            counted = f"{summary.messages} message" + ("" if summary.messages == 1 else "s")
-            print(f"  checked: every chunk's CRC, and {counted} read as the summary counts")
+            messages = counted(summary.messages, "message")
+            print(f"  checked: every chunk's CRC, and {messages} read as the summary counts")
         if launch:
             print(
                 f"  recorded by palpate launch {launch.get('launch_file', '?')}, seed {launch.get('seed', '?')}, "

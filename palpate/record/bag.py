@@ -30,7 +30,7 @@ def describe(summary: mcap_io.LogSummary, path: Path) -> str:
     """A log's per-topic counts, types and rates, and its time span, as a table."""
     span_s = (summary.end_ns - summary.start_ns) * 1e-9
     lines = [
-        f"log {path}: {_count(summary.messages, 'message')} on {_count(len(summary.topics), 'topic')}, "
+        f"log {path}: {counted(summary.messages, 'message')} on {counted(len(summary.topics), 'topic')}, "
         f"sim time {summary.start_ns * 1e-9:.3f} .. {summary.end_ns * 1e-9:.3f} s ({span_s:.3f} s)"
     ]
     width = max([len(t) for t in summary.topics] + [5])
@@ -43,7 +43,8 @@ def describe(summary: mcap_io.LogSummary, path: Path) -> str:
     return "\n".join(lines)
 
 
-def _count(n: int, noun: str) -> str:
+def counted(n: int, noun: str) -> str:
+    """'1 message', '2 messages'."""
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
