@@ -702,13 +702,13 @@ def strategies_of(args: argparse.Namespace) -> list[str]:
     return parse_strategies(",".join(QUICK_STRATEGIES if args.quick else DEFAULT_STRATEGIES))
 
 
-def runs_of(args: argparse.Namespace) -> int:
-    """--runs, at least 1; --quick runs one start per object and takes no --runs."""
+def runs_of(args: argparse.Namespace, default: int = DEFAULT_RUNS) -> int:
+    """--runs (else `default`), at least 1; --quick runs one start per object and takes no --runs."""
     if args.quick:
         if args.runs is not None:
             raise ConfigError(f"--quick runs one start per object; leave out --runs {args.runs}")
         return 1
-    runs = DEFAULT_RUNS if args.runs is None else args.runs
+    runs = default if args.runs is None else args.runs
     if runs < 1:
         raise ConfigError(f"--runs must be >= 1, got {runs}")
     return runs

@@ -41,6 +41,7 @@ from palpate.evaluation.explore import (
     report_errors,
     report_stopped,
     run_episodes,
+    runs_of,
     select_cases,
 )
 
@@ -225,11 +226,7 @@ def main(args: argparse.Namespace) -> int:
     """Run the sweep; write sweep.md, sweep.png and runs.jsonl into --out."""
     strategies = parse_strategies(args.strategies)
     settings = chosen_settings(args.only)
-    if args.quick and args.runs is not None:
-        raise ConfigError(f"--quick runs one start per object; leave out --runs {args.runs}")
-    runs = 1 if args.runs is None else args.runs
-    if runs < 1:
-        raise ConfigError(f"--runs must be >= 1, got {runs}")
+    runs = runs_of(args, default=1)
     cases = select_cases(args.objects, QUICK_OBJECTS if args.quick else FULL_OBJECTS, args.scale)
     if args.objects and len(cases) < len(select_cases(args.objects, None, args.scale)):
         print(f"sweep explore takes the {len(cases)} smallest of the objects given (by area)", file=sys.stderr)

@@ -234,6 +234,11 @@ class LogWriter:
             channel_id = self._channels[key] = self._writer.register_channel(topic, message_encoding, schema_id)
         return channel_id
 
+    @property
+    def topics(self) -> set[str]:
+        """The topics of the channels registered so far (``write`` registers a channel with its first message)."""
+        return {topic for topic, _ in self._channels}
+
     def write(self, topic: str, payload: bytes, info: PayloadInfo, sequence: int = 0) -> None:
         """Append one payload on `topic`; log and publish time are its stamp."""
         channel_id = self._channels.get((topic, info.type))

@@ -315,7 +315,6 @@ class Recorder:
         self.first_held: float | None = None
         self.first_message: float | None = None
         self.unmarked_since: dict[str, float] = {}
-        self.recorded_topics: set[str] = set()  # topics of the messages recorded so far
         self.undeclared = bus.UndeclaredTopics(self.wanted)  # wanted topics no publisher declares
 
     # --- discovery ---------------------------------------------------------------------------------
@@ -406,7 +405,6 @@ class Recorder:
                     log.warning("topic %s from %s: not recorded: %s", topic, conn.key, exc)
                 continue
             self.received += 1
-            self.recorded_topics.add(topic)
             self.sorter.add(conn.key, topic, frames[1], info)
 
     def _on_connection_changes(self, conn: _Connection) -> None:
@@ -490,7 +488,7 @@ class Recorder:
                 skipped,
             )
             return 0
-        if missing := [t for t in self.wanted if t not in self.recorded_topics]:
+        if missing := [t for t in self.wanted if t not in self.writer.topics]:
             log.warning("recorded no message on %s (see palpate topic list)", ", ".join(missing))
         active = time.monotonic() - self.first_message
         log.info(
