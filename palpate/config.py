@@ -37,6 +37,7 @@ error style with the rest of palpate.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import math
 import numbers
@@ -128,7 +129,11 @@ def load(cls: type[T], data: Any, where: str = "", path: KeyPath = ()) -> T:
     for key in data:
         if key not in fields:
             known = ", ".join(sorted(fields))
-            raise ConfigError(f"{_loc(where, (*path, key))}: unknown key {key!r}; known keys: {known}", (*path, key))
+            close = difflib.get_close_matches(str(key), fields, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise ConfigError(
+                f"{_loc(where, (*path, key))}: unknown key {key!r}; known keys: {known}{hint}", (*path, key)
+            )
     values: dict[str, Any] = {}
     for name, info in fields.items():
         if name in data and not (BlankIsDefault in info.meta and _blank(data[name])):

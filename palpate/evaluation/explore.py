@@ -615,9 +615,13 @@ def parse_sets(items: Sequence[str]) -> dict[str, Any]:
     return out
 
 
+#: The evaluations' own override of every run (no per-run printing), not a user's: errors leave it out.
+QUIET_RUNS: dict[str, Any] = {"eval.report": False}
+
+
 def eval_params(args: argparse.Namespace) -> dict[str, Any]:
     """Node parameter overrides of an evaluation: budgets, no per-run printing, and --set."""
-    params: dict[str, Any] = {"eval.report": False}
+    params: dict[str, Any] = dict(QUIET_RUNS)
     if args.max_contacts is not None:  # a budget given is the budget, whatever the object's size
         params["eval.eval.max_contacts"] = args.max_contacts
         params["eval.eval.contacts_per_bound"] = 0.0
@@ -764,7 +768,7 @@ def check_episodes(items: Sequence[Episode], launch_path: Path = EXPLORE_LAUNCH)
             try:
                 resolve(episode_launch(episode, launch_path), bus_dir=Path(bus_dir))
             except LaunchError as exc:
-                sets = ", ".join(f"{key}={value}" for key, value in episode.params)
+                sets = ", ".join(f"{key}={value}" for key, value in episode.params if key not in QUIET_RUNS)
                 raise LaunchError(f"{exc} (strategy {episode.strategy}; parameters {sets or 'none'})") from exc
 
 

@@ -32,6 +32,7 @@ from palpate.evaluation.dask_runs import RunLog, output_folder, report_failures
 from palpate.evaluation.dask_runs import add_arguments as add_cluster_arguments
 from palpate.evaluation.dask_runs import config_from_args as cluster_config
 from palpate.evaluation.explore import (
+    QUIET_RUNS,
     Episode,
     add_objects_arguments,
     check_episodes,
@@ -230,7 +231,7 @@ def main(args: argparse.Namespace) -> int:
     cases = select_cases(args.objects, QUICK_OBJECTS if args.quick else FULL_OBJECTS, args.scale)
     if args.objects and len(cases) < len(select_cases(args.objects, None, args.scale)):
         print(f"sweep explore takes the {len(cases)} smallest of the objects given (by area)", file=sys.stderr)
-    common = {"eval.report": False, **parse_sets(args.set)}
+    common = {**QUIET_RUNS, **parse_sets(args.set)}
     check_sets(settings, common)
     base = episodes(cases, runs, strategies, params=common)  # budgets and clocks after --set
     pairs = sweep_episodes(base, settings, common)

@@ -151,6 +151,15 @@ def test_errors_name_the_key_path_the_value_and_what_is_allowed(params: dict[str
     assert str(info.value).startswith(message), str(info.value)
 
 
+def test_an_unknown_key_names_the_closest_known_one() -> None:
+    with pytest.raises(
+        ConfigError, match=r"^where\.delay: unknown key 'delay'; known keys: count, .*; did you mean 'delay_s'\?$"
+    ):
+        load(Config, {"rate_hz": 1, "delay": 1}, "where")
+    with pytest.raises(ConfigError, match=r"^where\.qqq: unknown key 'qqq'; known keys: count, .*, size_m$"):
+        load(Config, {"rate_hz": 1, "qqq": 1}, "where")
+
+
 def test_error_paths_lead_to_the_key() -> None:
     with pytest.raises(ConfigError) as info:
         load(Config, {"rate_hz": 1, "parts": [{}, {"offset_m": [0, 0, math.inf]}]})

@@ -11,6 +11,7 @@ import trimesh
 from palpate.errors import ConfigError, LaunchError, MeshError
 from palpate.evaluation.explore import (
     EXPLORE_LAUNCH,
+    QUIET_RUNS,
     ObjectCase,
     approach,
     check_episodes,
@@ -112,7 +113,8 @@ def test_strategies_and_overrides_are_checked_before_any_run() -> None:
     for text, error in ((",", "names no strategy"), ("igef,foo", "unknown strategy 'foo'"), ("gpv,gpv", "twice")):
         with pytest.raises(ConfigError, match=error):
             parse_strategies(text)
-    [episode] = episodes([ObjectCase(name="cube", kind="cube")], 1, ["igef"], params={"noise.position_sigma_m": -1})
+    params = {**QUIET_RUNS, "noise.position_sigma_m": -1}  # the evaluation's own override is not named
+    [episode] = episodes([ObjectCase(name="cube", kind="cube")], 1, ["igef"], params=params)
     # the error names the parameters too, which are not in the file it points at
     bad = r"node 'noise': params\.position_sigma_m: expected a finite number >= 0.*\(strategy igef; parameters noise\."
     with pytest.raises(LaunchError, match=bad + r"position_sigma_m=-1\)$"):
