@@ -293,7 +293,8 @@ def _note_size(name: str, area: float, bound: float, config: EvalConfig) -> None
     """Say on stderr when an object (area m^2, covering bound in contacts) is so small that a touch or
     two may reach the evaluator's coverage goal: its run then ends early, and only its shape scores
     (F-score, Chamfer) tell how well it was learnt; or so large that its run takes hours, with the
-    budgets it gets and how to cap them."""
+    budgets it gets and how to cap them (or, under a contact budget too small for the goal, that its
+    runs end there)."""
     goal, radius_m = config.coverage_goal, config.radius_m
     if bound < FEW_TOUCHES:
         print(
@@ -304,6 +305,14 @@ def _note_size(name: str, area: float, bound: float, config: EvalConfig) -> None
         )
     elif bound > MANY_TOUCHES:
         contacts, travel_m = config.contact_budget(bound), config.travel_budget_m(bound)
+        if contacts < bound:  # the budget ends every run first: no hours, and no goal
+            print(
+                f"note: {name} has {area:.3g} m^2 of surface: {bound:,.0f} touches of {radius_m * 1e3:g} mm cover "
+                f"{goal:.0%} of it at best, more than its budget of {contacts:,.0f} contacts, so its runs end at "
+                "the budget short of that coverage (give --scale if the mesh is not in metres)",
+                file=sys.stderr,
+            )
+            return
         print(
             f"note: {name} has {area:.3g} m^2 of surface: {bound:,.0f} touches of {radius_m * 1e3:g} mm cover "
             f"{goal:.0%} of it, so its runs may take hours; their budgets are {contacts:,.0f} contacts and "
