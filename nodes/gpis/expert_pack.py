@@ -28,8 +28,7 @@ class ExpertPack:
 
     def __init__(self) -> None:
         self.experts: list[GPIS | None] = [None]  # slot -> expert; slot 0 (far field) None until it exists
-        self._slot_of: dict[int, int] = {}
-        self._keys: list[int] = []  # key of slot s + 1
+        self._slot_of: dict[int, int] = {}  # key -> slot of the experts in the table
         self._dirty: set[int] = set()
         self._table: tuple[IntArray, IntArray] | None = None
         self._P = np.zeros((0, 3))
@@ -48,17 +47,25 @@ class ExpertPack:
         else:
             slot = self._slot_of[key] = len(self.experts)
             self.experts.append(expert)
-            self._keys.append(key)
             self._table = None
         self.experts[slot] = expert
         self._dirty.add(slot)
 
+    def drop(self, key: int) -> None:
+        """Expert `key` holds no contact any more: out of the table, so that its weight goes to the far
+        field (its slot stays empty; a later ``set`` of the key takes a new one)."""
+        slot = self._slot_of.pop(key)
+        self.experts[slot] = None
+        self._dirty.add(slot)
+        self._table = None
+
     def table(self) -> tuple[IntArray, IntArray]:
         """The experts' keys sorted (e,) and the slot of each (e,) (``local_kernels.blend_pairs``' table)."""
         if self._table is None:
-            keys = np.array(self._keys, dtype=np.int64)
+            keys = np.fromiter(self._slot_of.keys(), dtype=np.int64, count=len(self._slot_of))
+            slots = np.fromiter(self._slot_of.values(), dtype=np.int64, count=len(self._slot_of))
             order = np.argsort(keys, kind="stable")
-            self._table = (keys[order], order + 1)
+            self._table = (keys[order], slots[order])
         return self._table
 
     def arrays(self) -> tuple[FloatArray, FloatArray, IntArray, IntArray]:

@@ -26,7 +26,8 @@ to eight near voxel faces, edges and corners; the weights sum to 1 and have cont
 voxel on each axis, so each point it weighs has data on every side up to at least local_margin_m.
 An expert that grows past local_max_contacts halves its own margin (to 0 once below b / 4) and is
 rebuilt from the contacts in its smaller box: where contacts are dense the data a few millimetres
-around a point pin the surface. An expert still over the cap at margin 0 (a voxel touched again and
+around a point pin the surface (one left with no contact in its box leaves the table, and the far
+field takes its weight). An expert still over the cap at margin 0 (a voxel touched again and
 again) keeps one contact per cube of edge s, the first to arrive, from s = h / 8 doubling until it
 holds at most local_max_contacts; later contacts in an occupied cube leave it as it is. So the cap
 bounds both the cost per touch and the memory, whatever the history.
@@ -305,9 +306,13 @@ class LocalGPIS:
                 self._thinned[key] = (edge, held)
             expert = GPIS(self.config, prior_centre_m=self._centre)
             expert.add_contacts(positions[rows], normals[rows])
-        self._experts[key] = expert
         self._margins[key] = margin
-        self._pack.set(key, expert)
+        if expert.n_contacts == 0:  # none left in its box: it is no expert of E, the far field takes its weight
+            del self._experts[key]
+            self._pack.drop(key)
+        else:
+            self._experts[key] = expert
+            self._pack.set(key, expert)
 
     def _coarsened_far(self, far: GPIS) -> tuple[GPIS, float, set[int]]:
         """The far field with its voxel edge doubled until it holds at most local_far_max_contacts: the

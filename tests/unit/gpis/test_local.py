@@ -293,6 +293,23 @@ def _expert_000(local: LocalGPIS) -> int:
     return key
 
 
+def test_an_expert_that_shrinks_to_no_contact_hands_its_weight_to_the_far_field() -> None:
+    """An outside audit: one contact touched 65 times (one over the cap) left four of the eight experts
+    around it with no contact once their margins shrank; they stayed in the table and gave the points
+    they weigh the prior variance (0.03 m^2 against the exact GP's 2e-5, 14 mm from the contact)."""
+    p = np.array([[0.00944086, -0.00991952, 0.04808818]])
+    n = p / np.linalg.norm(p)
+    q = np.array([[0.0, 0.0, 0.05]])
+    for k in (64, 65):
+        exact, local = GPIS(GPISConfig()), LocalGPIS(GPISConfig())
+        exact.add_contacts(np.repeat(p, k, axis=0), np.repeat(n, k, axis=0))
+        local.add_contacts(np.repeat(p, k, axis=0), np.repeat(n, k, axis=0))
+        assert min(local.expert_sizes()) >= 1, local.expert_sizes()
+        assert local.variance(q)[0] == pytest.approx(exact.variance(q)[0], rel=0.2)
+        assert local.mean(q)[0] == pytest.approx(exact.mean(q)[0], rel=0.01)
+    assert local.n_experts < 8  # the shrunk ones are gone
+
+
 def test_an_expert_over_the_cap_halves_its_margin_once_when_that_is_enough() -> None:
     """Voxel 0's box is [-0.01, 0.05] per axis with margin 6 mm, [-0.007, 0.047] with 3 mm: a fourth
     contact at x = -0.009 lies only in the first, so one halving brings the expert back to the cap."""
