@@ -122,10 +122,11 @@ class GPISConfig(Validated):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.value_noise_m == 0 and self.gradient_noise == 0 and self.jitter == 0:
+        if self.jitter == 0 and (self.value_noise_m == 0 or self.gradient_noise == 0):
+            zero = " and ".join(k for k in ("value_noise_m", "gradient_noise") if getattr(self, k) == 0)
             raise ConfigError(
-                "GPISConfig: value_noise_m, gradient_noise and jitter are all 0; duplicate contacts would "
-                "make the covariance singular. Set jitter > 0 (e.g. 1e-10)"
+                f"GPISConfig: {zero} and jitter are 0; duplicate contacts would make the covariance singular "
+                "(their value or normal rows are the same). Set jitter > 0 (e.g. 1e-10)"
             )
         if self.local_blend_m > 0.5 * self.local_cell_m:
             raise ConfigError(

@@ -30,16 +30,14 @@ HEADROOM = 1.25
 def touch_reach(gp: SurfaceEstimator, position_m: ArrayLike, half_extent_m: float, margin_m: float) -> float:
     """Largest distance, metres, that adding a touch at position_m (3,) needs the kernel to hold: from a
     contact so far to a point of the cube of half edge half_extent_m around the touch (its local mesh's
-    grid, as ``surface.add_touch`` checks it), and across the contacts' bounding box, the touch
-    included, grown by margin_m (the whole-object mesh's grid, as ``surface.whole_surface`` meshes it);
-    0 before the first contact. InputError (naming ``position_m``) for a position beyond
-    palpate.inputs' bounds."""
+    grid, as ``surface.add_touch`` checks it), and across the contacts' bounding box, grown by margin_m
+    (the whole-object mesh's grid, as ``surface.whole_surface`` meshes it); the touch counts among the
+    contacts in both (the first touch's own local grid needs sqrt(3) half_extent_m). InputError (naming
+    ``position_m``) for a position beyond palpate.inputs' bounds."""
     p = np.asarray(coordinates(position_m, "position_m"), dtype=np.float64)
-    if not gp.n_contacts:
-        return 0.0
-    P = gp.positions_m
+    P = np.vstack([gp.positions_m, p])
     local = grid_reach(P, p, half_extent_m)
-    lower, upper = whole_box(np.vstack([P, p]), margin_m)
+    lower, upper = whole_box(P, margin_m)
     return max(local, float(np.linalg.norm(upper - lower)))
 
 

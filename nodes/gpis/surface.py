@@ -308,20 +308,20 @@ def add_touch(
     Atomic: InputError (naming the TouchEvent field) leaves the GP as it was, for a position beyond
     palpate.inputs' bounds, a normal that is not unit, or a touch the kernel cannot hold together with
     the contacts so far (thin plate: some point of its local grid, or of an earlier contact's, would be
-    farther than R_m from a contact, so that this mesh and every later one would fail).
+    farther than R_m from a contact, the touch included, so that this mesh and every later one would
+    fail).
     """
     p = coordinates(position_m, "position_m")
     n = unit_vectors(normal, "normal")
     axes = grid_axes(p - half_extent_m, p + half_extent_m, resolution_m)
-    if gp.n_contacts:
-        # every local grid has these half extents, so the same bound holds both ways round
-        e = np.array([0.5 * float(a[-1] - a[0]) for a in axes])
-        reach = grid_reach(gp.positions_m, np.asarray(p), e)
-        try:
-            gp.kernel.check_distances(reach)
-        except EstimationError as exc:
-            reason = f"the GPIS cannot add this touch to its {gp.n_contacts} contacts: {exc}"
-            raise InputError("position_m", reason) from exc
+    # every local grid has these half extents, so the same bound holds both ways round
+    e = np.array([0.5 * float(a[-1] - a[0]) for a in axes])
+    reach = grid_reach(np.vstack([gp.positions_m, p]), np.asarray(p), e)
+    try:
+        gp.kernel.check_distances(reach)
+    except EstimationError as exc:
+        held = f"to its {gp.n_contacts} contacts" if gp.n_contacts else "(its first) with its local mesh"
+        raise InputError("position_m", f"the GPIS cannot add this touch {held}: {exc}") from exc
     gp.add_contact(p, n)
     sites = None if variance_near is None else (lambda v: thin_near(v, p, *variance_near))
     coarse = mesh_from_grid(gp, axes, with_variance=with_variance, variance_sites=sites)

@@ -31,6 +31,7 @@ from palpate.inputs import (
     coordinates,
     unit_or_zero,
     unit_or_zero_rows,
+    unit_quaternion,
     vertex_subset,
 )
 from palpate.nodes.planner.checks import points, unit_rows, vector
@@ -380,6 +381,8 @@ class TouchPlanner:
             return None
         # a surface the planner cannot use is refused before anything changes (InputError)
         V, normals, sites, Q = _surface(vertices_m, vertex_normals, vertex_variance, variance_vertices)
+        if fingertip is not None:  # so is a pose
+            fingertip = (coordinates(fingertip[0], "position_m"), unit_quaternion(fingertip[1], "quaternion_wxyz"))
         self.planned_for = len(self.contacts)
         if fingertip is None:
             raise PlanningError("no fingertip pose received yet; the simulation or driver must publish one")

@@ -271,6 +271,8 @@ def confident_faces(faces: ArrayLike, vertex_variance: ArrayLike, max_sigma_m: f
     if F.ndim != 2 or F.shape[1] != 3:
         raise ValueError(f"faces must have shape (f, 3), got {F.shape}")
     var = np.asarray(vertex_variance, dtype=np.float64)
+    if len(F) and (var.ndim != 1 or len(var) <= int(F.max())):
+        raise ValueError(f"vertex_variance {var.shape} has no value for vertex {int(F.max())} that the faces use")
     ok = var <= max_sigma_m**2  # False for NaN
     return F[ok[F].all(axis=1)] if len(F) else F
 
@@ -295,4 +297,6 @@ def prediction_miss_m(predicted: ArrayLike, actual: ArrayLike) -> FloatArray:
     """Prediction miss |predicted - actual contact| per touch (n,), metres. Inputs (n, 3) or (3,)."""
     p = np.atleast_2d(np.asarray(predicted, dtype=np.float64))
     q = np.atleast_2d(np.asarray(actual, dtype=np.float64))
+    if p.shape != q.shape or p.shape[1:] != (3,):
+        raise ValueError(f"predicted {p.shape} and actual {q.shape} must be the same (n, 3) or (3,)")
     return np.asarray(np.linalg.norm(p - q, axis=1), dtype=np.float64)

@@ -65,6 +65,17 @@ def test_bad_config_is_rejected_with_the_value(kwargs: dict[str, object]) -> Non
         GPISConfig(**kwargs)  # type: ignore[arg-type]
 
 
+@pytest.mark.parametrize("zero", ["value_noise_m", "gradient_noise"])
+def test_no_jitter_needs_both_noises_as_duplicate_contacts_would_repeat_a_row(zero: str) -> None:
+    """An outside audit: value_noise_m = jitter = 0 was accepted (only all three 0 were refused), and three
+    identical contacts then failed with advice about R_m."""
+    with pytest.raises(ConfigError, match=rf"^GPISConfig: {zero} and jitter are 0; duplicate contacts"):
+        GPISConfig(**{zero: 0.0, "jitter": 0.0})  # type: ignore[arg-type]
+    gp = GPIS(GPISConfig(**{zero: 0.0}))  # type: ignore[arg-type]  # the default jitter holds them
+    gp.add_contacts(np.repeat([[0.0, 0.0, 0.05]], 3, axis=0), np.repeat([[0.0, 0.0, 1.0]], 3, axis=0))
+    assert gp.n_contacts == 3
+
+
 def test_for_object_size_scales_lengths_only() -> None:
     base, big = GPISConfig(), GPISConfig.for_object_size(1.0, gradient_noise=0.2)
     assert big.R_m == pytest.approx(5 * base.R_m)

@@ -81,19 +81,34 @@ def test_an_object_larger_than_the_kernels_reach_grows_it_and_keeps_every_contac
 
 
 def test_the_whole_object_mesh_after_a_touch_is_held_at_the_touch_not_at_the_request() -> None:
-    """Touches 0.3 m apart fit R_m = 0.5 m locally, but the whole-object mesh with a 0.3 m margin would
-    span 1.25 m: the second touch already grows R_m (twice, to 2 m >= 1.25 x 1.25 m), so that when the
-    evaluator asks for that mesh does not change the GP the planner's meshes come from."""
+    """The whole-object mesh with a 0.3 m margin spans 1.04 m around one touch (sqrt(3) 0.6 m) and 1.25 m
+    around two 0.3 m apart: the first touch already grows R_m (twice, to 2 m >= 1.25 x 1.25 m), so that
+    when the evaluator asks for that mesh does not change the GP the planner's meshes come from."""
     sent: list[Message] = []
     ctx = NodeContext("gpis", 0, lambda topic, message: sent.append(message), {"surface": "surface/mesh"})
     node = GPISNode(GPISNodeConfig(global_margin_m=0.3, global_resolution_m=0.01), ctx)
     node.on_touches(touch([0.0, 0.0, 0.03], [0.0, 0.0, 1.0]))
-    assert node.session.gp.config.R_m == 0.5
+    assert node.session.gp.config.R_m == 2.0 and ctx.counters["kernel_grown"] == 1
     node.on_touches(touch([0.3, 0.0, 0.03], [1.0, 0.0, 0.0]))
     assert node.session.gp.config.R_m == 2.0 and ctx.counters["kernel_grown"] == 1 and node.session.gp.n_contacts == 2
     node.on_request(SurfaceRequest(stamp_ns=0, region="global", variance=False))
     assert node.session.gp.config.R_m == 2.0 and ctx.counters["kernel_grown"] == 1
     assert isinstance(sent[-1], SurfaceMesh) and sent[-1].region == "global" and len(sent[-1].vertices_m) > 0
+
+
+def test_a_first_touch_whose_own_local_mesh_the_kernel_cannot_hold_grows_it_or_is_refused() -> None:
+    """An outside audit: R_m = 5 cm (a 2 cm object's) against the +-6 cm local box, whose corners lie
+    10.4 cm from the touch: the first touch was taken without growing, then its mesh failed, and the
+    contact stayed. Now it grows the kernel; without growth it is refused with nothing changed."""
+    gp = GPISConfig.for_object_size(0.02)
+    grown = GPISSession(GPISNodeConfig(gp=gp))
+    mesh = grown.touch([0.0, 0.0, 0.005], [0.0, 0.0, 1.0])
+    assert grown.gp.n_contacts == 1 and grown.gp.config.R_m >= 1.25 * np.sqrt(3) * 0.06 and len(mesh.vertices) > 0
+    assert grown.take_counts()["kernel_grown"] == 1
+    fixed = GPISSession(GPISNodeConfig(gp=gp, grow_kernel=False))
+    with pytest.raises(InputError, match=r"^position_m: the GPIS cannot add this touch \(its first\) with its local"):
+        fixed.touch([0.0, 0.0, 0.005], [0.0, 0.0, 1.0])
+    assert fixed.gp.n_contacts == 0 and fixed.gp.config.R_m == gp.R_m
 
 
 def test_a_refused_touch_leaves_the_kernel_as_it_was_and_growth_stops_at_its_cap() -> None:
@@ -126,7 +141,9 @@ def test_touch_reach_covers_the_local_grid_and_the_whole_object_box_with_the_tou
     sqrt(0.31^2 + 2 x 0.01^2) = 0.3103 m from the contact, the diagonal of the box of both grown by 5 cm
     sqrt(0.4^2 + 0.1^2 + 0.1^2) = 0.4243 m: the larger counts."""
     gp = GPIS(GPISConfig())
-    assert touch_reach(gp, [0.3, 0.0, 0.0], 0.01, 0.05) == 0.0  # no contact yet: nothing to hold
+    # no contact yet: the touch's own grid corner (sqrt(3) cm) or the diagonal of its point grown by 5 cm
+    assert touch_reach(gp, [0.3, 0.0, 0.0], 0.01, 0.05) == pytest.approx(np.sqrt(3) * 0.1, rel=1e-12)
+    assert touch_reach(gp, [0.3, 0.0, 0.0], 0.01, 0.0) == pytest.approx(np.sqrt(3) * 0.01, rel=1e-12)
     gp.add_contact([0.0, 0.0, 0.0], [0.0, 0.0, 1.0])
     assert touch_reach(gp, [0.3, 0.0, 0.0], 0.01, 0.05) == pytest.approx(np.sqrt(0.18), rel=1e-12)
     assert touch_reach(gp, [0.3, 0.0, 0.0], 0.01, 0.0) == pytest.approx(np.sqrt(0.31**2 + 2e-4), rel=1e-12)

@@ -326,6 +326,8 @@ class _Slab:
     0.2 mm <= z <= 1.7 mm (1.5 mm thick, unbounded in x and y), touched at the origin just below it."""
 
     n_contacts = 0
+    positions_m = np.zeros((0, 3))
+    kernel = GPIS().kernel  # thin plate, R_m = 0.5 m: holds the +-2 cm local box
 
     def add_contact(self, position_m: np.ndarray, normal: np.ndarray) -> None:
         pass

@@ -195,6 +195,8 @@ def test_angle_to_normal() -> None:
 def test_prediction_miss() -> None:
     miss = prediction_miss_m(np.array([[0.0, 0.0, 0.0], [0.003, 0.004, 0.0]]), np.zeros((2, 3)))
     np.testing.assert_allclose(miss, [0.0, 0.005], atol=1e-15)
+    with pytest.raises(ValueError, match=r"predicted \(2, 3\) and actual \(3, 3\) must be the same"):
+        prediction_miss_m(np.zeros((2, 3)), np.zeros((3, 3)))  # numpy would broadcast or fail without the shapes
 
 
 def test_bad_meshes_raise() -> None:
@@ -237,6 +239,8 @@ def test_point_arrays_of_the_wrong_shape_or_not_finite_are_named() -> None:
     np.testing.assert_allclose(field.distance([0.0, 0.0, 0.0]), [0.025])  # one point (3,)
     with pytest.raises(ValueError, match=r"faces must have shape \(f, 3\), got \(2, 2\)"):
         confident_faces(np.zeros((2, 2), dtype=int), np.zeros(3), 0.001)
+    with pytest.raises(ValueError, match=r"vertex_variance \(2,\) has no value for vertex 2"):
+        confident_faces(np.array([[0, 1, 2]]), np.zeros(2), 0.001)  # an IndexError without the check
 
 
 def test_the_angle_to_a_zero_vector_is_undefined() -> None:

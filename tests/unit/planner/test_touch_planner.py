@@ -59,6 +59,18 @@ def test_planning_without_a_fingertip_pose_is_an_error() -> None:
         planner.plan("local", 1, V, N, np.ones(len(V)), None, np.random.default_rng(0))
 
 
+def test_a_fingertip_pose_with_nan_or_a_zero_quaternion_is_refused_before_anything_changes() -> None:
+    """An outside audit: a NaN position made every candidate inadmissible without a word (the node
+    checks poses; the core did not)."""
+    V, N = plane()
+    planner = touched_at_origin(PlannerConfig(strategy="gpv"))
+    tip = over(np.zeros(3))
+    for bad, field in (((np.array([np.nan, 0.0, 0.03]), tip[1]), "position_m"), ((tip[0], np.zeros(4)), "quaternion")):
+        with pytest.raises(InputError, match=rf"^{field}"):
+            planner.plan("local", 1, V, N, np.ones(len(V)), bad, np.random.default_rng(0))
+    assert planner.plan("local", 1, V, N, np.ones(len(V)), tip, np.random.default_rng(0)) is not None  # still due
+
+
 def test_a_touch_that_landed_away_from_its_target_remembers_the_target() -> None:
     planner = TouchPlanner(PlannerConfig(unreached_miss_m=0.005))
     planner.add_touch([0.0, 0.0, 0.0], [np.nan] * 3, [0.0, 0.0, -1.0])  # no target
