@@ -127,21 +127,26 @@ def check_memory(config: MapperConfig, spec: GridSpec, n_maps: int, points: int)
     """ConfigError naming the settings when the maps' index table or one update's arrays would not fit in
     this machine's memory (numpy's allocation error came from deep in the mapper, at start or mid-run)."""
     chunks = math.prod(-(-n // config.chunk_edge) for n in spec.shape) + 1
+    edge = config.chunk_edge
     need = {
-        "the particles' chunk table": 4 * n_maps * chunks,
-        "one update's free-volume arrays": BYTES_PER_POINT_AND_PARTICLE * n_maps * points,
+        f"the maps' chunk table ({chunks:,} chunks of {edge}^3 cells a map)": 4 * n_maps * chunks,
+        f"one update's free-volume arrays ({points:,} free-volume points a pose)": BYTES_PER_POINT_AND_PARTICLE
+        * n_maps
+        * points,
     }
     try:
         have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):
         return
+    maps = "one map" if n_maps == 1 else f"n_particles = {n_maps} maps"
     for what, size in need.items():
         if size > have:
             raise ConfigError(
-                f"n_particles = {config.n_particles} at resolution_m = {config.resolution_m!r} needs "
-                f"{size / 2**30:.3g} GiB for {what} ({points} free-volume points a particle), more than this "
-                f"machine's {have / 2**30:.3g} GiB; use fewer particles or a coarser resolution",
-                ("n_particles",),
+                f"{maps} at resolution_m = {config.resolution_m!r} need {size / 2**30:.3g} GiB for {what}, more "
+                f"than this machine's {have / 2**30:.3g} GiB; use "
+                + ("fewer particles or " if n_maps > 1 else "")
+                + "a coarser resolution (or free_spacing_m / free_margin_m)",
+                ("n_particles",) if n_maps > 1 else ("resolution_m",),
             )
 
 
