@@ -156,11 +156,17 @@ def paired_means(
     return out
 
 
-def improvement_pct(baseline: float, method: float) -> float:
-    """(baseline - method) / baseline in percent: how much smaller the method's figure is."""
+#: Milestone figures where more is better (the others are costs and errors: less is better).
+HIGHER_IS_BETTER = frozenset({"confident_fraction"})
+
+
+def improvement_pct(baseline: float, method: float, higher_is_better: bool = False) -> float:
+    """(baseline - method) / baseline in percent: how much smaller the method's figure is; for a figure
+    where more is better, (method - baseline) / baseline. Positive: the method does better."""
     if not (math.isfinite(baseline) and math.isfinite(method)) or baseline == 0.0:
         return math.nan
-    return 100.0 * (baseline - method) / baseline
+    gain = method - baseline if higher_is_better else baseline - method
+    return 100.0 * gain / baseline
 
 
 def _fmt(value: float, unit: str = "", digits: int = 1) -> str:
@@ -201,7 +207,8 @@ def table2(
             digits = 2 if (unit == "mm" and "miss" not in key) or key in ("confident_fraction", BOUND_METRIC[0]) else 1
             cells = [_fmt(means[s][key], unit, digits) for s in shown]
             if improvements:
-                cells += [_fmt(improvement_pct(means[baseline][key], means[s][key]), "%", 0) for s in shown[1:]]
+                better = key in HIGHER_IS_BETTER
+                cells += [_fmt(improvement_pct(means[baseline][key], means[s][key], better), "%", 0) for s in shown[1:]]
             lines.append(f"| {percent} % | {label} | " + " | ".join(cells) + " |")
         first = means[shown[0]]
         completed = ", ".join(f"{s.upper()} {int(means[s]['runs_completed'])}/{int(means[s]['runs'])}" for s in shown)
@@ -214,7 +221,12 @@ def table2(
     lines.append(
         "Averages over paired runs only (every strategy reached the coverage in that (object, run)): "
         "per object, then over objects."
-        + (" Improvement = (baseline - method) / baseline. " if improvements else " ")
+        + (
+            " Improvement = (baseline - method) / baseline; for the confident fraction, where more is better, "
+            "(method - baseline) / baseline. "
+            if improvements
+            else " "
+        )
         + "; ".join(notes)
         + "."
     )

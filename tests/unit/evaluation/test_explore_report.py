@@ -115,6 +115,9 @@ def test_contacts_per_covering_bound_is_averaged_like_the_milestone_figures() ->
 def test_improvement_is_relative_to_the_baseline() -> None:
     assert report.improvement_pct(159.0, 117.0) == pytest.approx(26.4, abs=0.1)
     assert math.isnan(report.improvement_pct(0.0, 1.0))
+    # more of the confident fraction is better: 0.8 -> 1.0 is an improvement (an outside audit found it signed
+    # as a loss in the tables)
+    assert report.improvement_pct(0.8, 1.0, higher_is_better=True) == pytest.approx(25.0)
     assert math.isnan(report.improvement_pct(math.nan, 1.0))
 
 
@@ -134,6 +137,13 @@ def test_the_shape_figures_join_the_summary_without_replacing_its_own() -> None:
     assert summary["igef"]["runs"] == 4 and summary["igef"]["runs_with_shape"] == 1
     with pytest.raises(ValueError, match="'runs' would replace"):
         report.summary_json(RESULTS, ("igef", "gpv"), extra={"igef": {"runs": 1}})
+
+
+def test_a_larger_confident_fraction_counts_as_an_improvement_in_the_table() -> None:
+    rows = [run("a", "gpv", 0, 100.0), run("a", "igef", 0, 60.0)]
+    for row, fraction in zip(rows, (0.8, 1.0), strict=True):
+        row["milestones"]["80"]["confident_fraction"] = fraction
+    assert "| 80 % | Avg. confident fraction of the estimate | 0.80 | 1.00 | 25 % |" in report.table2(rows)
 
 
 def test_tables_state_counts_and_mark_incomplete_objects() -> None:
