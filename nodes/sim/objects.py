@@ -36,6 +36,7 @@ from palpate.config import BlankIsDefault, OneOf, PositiveFloat, ScalarIsTuple, 
 from palpate.errors import ConfigError, MeshError, MeshWarning
 from palpate.geometry.mesh_query import MAX_RING_ENTRIES
 from palpate.geometry.rotations import quat_to_matrix
+from palpate.inputs import MAX_COORDINATE_M
 from palpate.paths import YCB_DIR_ENV, cache_dir, ycb_dir
 
 #: Object kinds a scene may name.
@@ -68,6 +69,8 @@ MIN_EXTENT_M = 0.002
 MAX_EXTENT_M = 2.0
 #: A size outside the range above is called a unit mistake only when a factor of 1000 brings it here.
 PLAUSIBLE_EXTENT_M = (0.005, 1.0)
+#: The units a mesh file may be in, with the scale (metres per unit) that reads each.
+FILE_UNITS = (("metres", 1.0), ("millimetres", 0.001), ("centimetres", 0.01), ("inches", 0.0254))
 
 
 def unit_mistake(extent_m: float) -> float | None:
@@ -503,27 +506,77 @@ def _thickness(vertices: np.ndarray) -> float:
     return float(along.max() - along.min())
 
 
+def unit_scales(file_extent: float) -> list[tuple[str, float, float]]:
+    """(unit, scale, extent in metres) of the FILE_UNITS that make a mesh `file_extent` file units across
+    an object of a plausible size (PLAUSIBLE_EXTENT_M); else of those that make it one the scenes hold
+    (MIN_EXTENT_M..MAX_EXTENT_M); else none."""
+    sized = [(unit, scale, file_extent * scale) for unit, scale in FILE_UNITS]
+    for low, high in (PLAUSIBLE_EXTENT_M, (MIN_EXTENT_M, MAX_EXTENT_M)):
+        fits = [fit for fit in sized if low <= fit[2] <= high]
+        if fits:
+            return fits
+    return []
+
+
 def _check_scale(size: float, path: Path, scale: float) -> None:
-    """MeshError when a mesh `size` metres across (after `scale`) is absurd: millimetres as metres or the reverse."""
+    """MeshError when a mesh `size` metres across (after `scale`) is absurd: a file in one unit read in
+    another (the scales of the units that would read it well, from the file's own extent), or no
+    object the scenes hold in any unit."""
     if MIN_EXTENT_M <= size <= MAX_EXTENT_M:
         return
     limit = "over 2 m" if size > MAX_EXTENT_M else "under 2 mm"
-    factor = unit_mistake(size)
-    if factor is None:
+    held = f"({limit}: the scenes hold objects {MIN_EXTENT_M * 1000:g} mm to {MAX_EXTENT_M:g} m across)"
+    fits = unit_scales(size / scale)
+    if not fits:
         raise MeshError(
-            f"{path}: out of range: the mesh is {size:.6g} m across after scale {scale:g} ({limit}: the "
-            f"scenes hold objects {MIN_EXTENT_M * 1000:g} mm to {MAX_EXTENT_M:g} m across; no factor of 1000 "
-            "makes it 5 mm to 1 m). A file in other units takes their scale (0.01 for centimetres, 0.0254 "
-            "for inches; object.scale, scale:= or --scale); else use an object within that range"
+            f"{path}: out of range: the mesh is {size:.6g} m across after scale {scale:g} {held}, and in no "
+            f"unit ({', '.join(unit for unit, _ in FILE_UNITS)}) would it be; use an object within that range"
         )
-    fix = np.format_float_positional(scale * factor, trim="-")
-    raise MeshError(
-        f"{path}: absurd scale: the mesh is {size:.6g} m across after scale {scale:g} ({limit}: the scenes "
-        f"hold objects {MIN_EXTENT_M * 1000:g} mm to {MAX_EXTENT_M:g} m across); "
-        f"millimetres given as metres or the reverse? Give it a scale of {fix}: object.scale in a "
-        f"scene, scale:={fix} for launch/explore.yaml and launch/probe.yaml, --scale {fix} for "
-        "palpate eval explore, sweep explore and bench contacts (or convert the file to metres)"
+    if len(fits) == 1:
+        unit, _, extent_m = fits[0]
+        fix = np.format_float_positional(fits[0][1], trim="-")
+        raise MeshError(
+            f"{path}: absurd scale: the mesh is {size:.6g} m across after scale {scale:g} {held}; a file in "
+            f"{unit}? Give it a scale of {fix} ({_across(extent_m)} across): object.scale in a scene, "
+            f"scale:={fix} for launch/explore.yaml and launch/probe.yaml, --scale {fix} for palpate eval "
+            "explore, sweep explore and bench contacts (or convert the file to metres)"
+        )
+    choices = ", ".join(
+        f"{np.format_float_positional(s, trim='-')} for {unit} ({_across(m)} across)" for unit, s, m in fits
     )
+    first_unit, first = fits[0][0], np.format_float_positional(fits[0][1], trim="-")
+    raise MeshError(
+        f"{path}: absurd scale: the mesh is {size:.6g} m across after scale {scale:g} {held}; which unit is "
+        f"the file in? Give it that unit's scale, {choices}: object.scale in a scene, scale:= for "
+        "launch/explore.yaml and launch/probe.yaml, --scale for palpate eval explore, sweep explore and bench "
+        f"contacts (for {first_unit}: scale:={first}, --scale {first}; or convert the file to metres)"
+    )
+
+
+def _across(extent_m: float) -> str:
+    """A size for a message: millimetres below 1 cm, centimetres below 1 m, else metres."""
+    if extent_m < 0.01:
+        return f"{extent_m * 1000:.3g} mm"
+    return f"{extent_m * 100:.3g} cm" if extent_m < 1.0 else f"{extent_m:.3g} m"
+
+
+#: A mesh's vertices lie at most this far from the origin (per axis): every position in a scene stays
+#: within palpate.inputs' MAX_COORDINATE_M, with room for a probe that starts beside the object.
+MAX_MESH_COORDINATE_M = MAX_COORDINATE_M - 2.0 * MAX_EXTENT_M
+
+
+def _check_placement(mesh: trimesh.Trimesh, path: Path) -> None:
+    """MeshError for a mesh placed so far from the origin that the positions around it would be refused
+    (the probe's start, its contacts: an outside walkthrough saw a mesh at 10 km end as "the effector left
+    the world")."""
+    far = float(np.abs(mesh.bounds).max())
+    if far > MAX_MESH_COORDINATE_M:
+        centre = ", ".join(f"{c:.6g}" for c in mesh.bounds.mean(axis=0))
+        raise MeshError(
+            f"{path}: the mesh lies {far:.6g} m from the origin along an axis (its centre at ({centre}) m); "
+            f"scene positions stay within {MAX_COORDINATE_M:g} m of it, so move the mesh within "
+            f"{MAX_MESH_COORDINATE_M:g} m (the YCB meshes are centred on it)"
+        )
 
 
 def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
@@ -535,6 +588,7 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
     extents = np.asarray(mesh.extents, dtype=np.float64)
     size = float(extents.max())
     _check_scale(size, path, scale)
+    _check_placement(mesh, path)
     if mesh.is_watertight and not mesh.is_winding_consistent:
         _rewind(mesh, path)
     volume = float(mesh.volume) if mesh.is_watertight else 0.0

@@ -114,7 +114,7 @@ def test_contacts_reads_a_folder_in_millimetres_with_scale(tmp_path: Path, capsy
 def test_a_refused_mesh_file_fails_the_benchmark_but_the_others_are_benchmarked(tmp_path: Path, capsys: Any) -> None:
     import trimesh
 
-    trimesh.creation.box(extents=(3.0, 3.0, 3.0)).export(tmp_path / "a_crate.stl")  # 3 m: out of range
+    trimesh.creation.box(extents=(3.0, 3.0, 3.0)).export(tmp_path / "a_crate.stl")  # 3 m: too large
     trimesh.creation.icosphere(subdivisions=2, radius=0.03).export(tmp_path / "b_ball.stl")
     args = argparse.Namespace(objects=tmp_path, touches=40, seed=1, quick=True, json=True, scale=1.0)
     assert bench_contacts.main(args) == 1
@@ -122,7 +122,7 @@ def test_a_refused_mesh_file_fails_the_benchmark_but_the_others_are_benchmarked(
     last = json.loads(out[-1])
     assert [row["object"] for row in last["rows"]] == ["b_ball"] and last["phantom_contacts"] == 0
     assert list(last["refused"]) == ["a_crate.stl"] and not last["pass"]
-    assert out[-2].startswith("1 of 2 mesh files refused (FAIL): ") and "a_crate.stl: out of range" in out[-2]
+    assert out[-2].startswith("1 of 2 mesh files refused (FAIL): ") and "a_crate.stl: absurd scale" in out[-2]
 
 
 def test_an_entry_named_like_a_mesh_that_is_no_file_is_named(tmp_path: Path) -> None:

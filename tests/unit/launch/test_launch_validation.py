@@ -888,7 +888,7 @@ def test_a_mesh_at_an_absurd_scale_is_named_before_anything_starts(
     assert main(["launch", str(explore), *given, "--dry-run", "--bus", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert re.search(r"explore\.yaml:\d+: node 'sim' \(params\.scene\.object\.path\): .*part\.stl: absurd scale", err)
-    assert "scale:=0.001" in err
+    assert "0.001 for millimetres (4 cm across), 0.01 for centimetres (40 cm across)" in err and "scale:=0.001" in err
     assert main(["launch", str(explore), *given, "scale:=0.001", "--dry-run", "--bus", str(tmp_path)]) == 0
     capsys.readouterr()
     # an external simulator reads its own files

@@ -347,13 +347,19 @@ HOLD = r": the scenes hold objects 2 mm to 2 m across\)"
         (
             150.0,
             1.0,
-            r"150 m across after scale 1 \(over 2 m" + HOLD + r"; millimetres given as metres .*scale of 0\.001: ",
+            r"150 m across after scale 1 \(over 2 m" + HOLD + r"; a file in millimetres\? Give it a scale of 0\.001 "
+            r"\(15 cm across\): .*--scale 0\.001 for palpate eval explore",
         ),
         (
             0.1,
             0.001,
-            r"0\.0001 m across after scale 0\.001 \(under 2 mm" + HOLD + r".*scale of 1: .*--scale 1 for palpate eval",
+            r"0\.0001 m across after scale 0\.001 \(under 2 mm" + HOLD + r"; a file in metres\? .*scale of 1 \(10 cm",
         ),
+        # an outside walkthrough: a 1.5 m box in millimetres was told of centimetres and inches, and with
+        # --scale 0.01 to take 0.00001 (a 1.5 cm object, accepted without a word): the hint now reads the
+        # file's own extent, and 1.5 m is held though not within 5 mm to 1 m
+        (1500.0, 1.0, r"; a file in millimetres\? Give it a scale of 0\.001 \(1\.5 m across\)"),
+        (1500.0, 0.01, r"15 m across after scale 0\.01 .*; a file in millimetres\? Give it a scale of 0\.001 "),
     ],
 )
 def test_absurd_scale(tmp_path: Path, extent: float, scale: float, fragment: str) -> None:
@@ -370,22 +376,34 @@ def test_coordinates_near_1e30_are_an_absurd_scale_not_a_degenerate_mesh(tmp_pat
     box = trimesh.creation.box(extents=[1.0, 1.0, 1.0])
     lines = [f"v {x:.6e} {y:.6e} {z:.6e}" for x, y, z in box.vertices * 1e30]
     path.write_text("\n".join(lines + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in box.faces]) + "\n")
-    with pytest.raises(MeshError, match=r"huge\.obj: out of range: the mesh is 1e\+30 m across"):
+    with pytest.raises(MeshError, match=r"huge\.obj: out of range: the mesh is 1e\+30 m across.* in no unit \(metres"):
         load_object(_mesh_spec(path))
 
 
-@pytest.mark.parametrize(("extent", "scale"), [(3.0, 1.0), (0.002, 0.999)])
-def test_a_size_no_unit_mistake_explains_gets_no_scale_that_would_make_it_absurd(
-    tmp_path: Path, extent: float, scale: float
-) -> None:
-    """A 3 m box (3 mm as millimetres) and a 1.998 mm one (2 m): no factor of 1000 gives a plausible object."""
+def test_a_mesh_far_from_the_origin_is_refused_by_name(tmp_path: Path) -> None:
+    """An outside walkthrough: a 6 cm sphere at x = 10 km passed every check, then the run failed as "the
+    effector left the world" (launch) or on a probe start the user never set (eval explore)."""
+    sphere = trimesh.creation.icosphere(radius=0.03)
+    sphere.apply_translation([10_000.0, 0.0, 0.0])
+    sphere.export(tmp_path / "far.stl")
+    with pytest.raises(MeshError, match=r"far\.stl: the mesh lies 10000 m from the origin .*\(10000, 0, 0\) m"):
+        load_object(_mesh_spec(tmp_path / "far.stl"))
+    sphere.apply_translation([-9_100.0, 0.0, 0.0])  # 900 m out: within reach
+    sphere.export(tmp_path / "near.stl")
+    assert load_object(_mesh_spec(tmp_path / "near.stl")).mesh.bounds[1, 0] == pytest.approx(900.03)
+
+
+def test_a_file_several_units_could_explain_is_given_each_units_scale_and_size(tmp_path: Path) -> None:
+    """A 3 m box: 3 mm in millimetres is held but small; 3 cm in centimetres and 7.62 cm in inches are
+    plausible sizes, so those are offered, each with the size it gives, and no scale off by a factor."""
     path = tmp_path / "crate.stl"
-    trimesh.creation.box(extents=[extent] * 3).export(path)
+    trimesh.creation.box(extents=[3.0] * 3).export(path)
     with pytest.raises(MeshError) as info:
-        load_object(_mesh_spec(path, scale))
+        load_object(_mesh_spec(path))
     message = str(info.value)
-    assert "crate.stl: out of range" in message and "no factor of 1000 makes it 5 mm to 1 m" in message
-    assert "0.01 for centimetres, 0.0254 for inches" in message and "scale of" not in message
+    assert "crate.stl: absurd scale" in message and "which unit is the file in?" in message
+    assert "0.01 for centimetres (3 cm across), 0.0254 for inches (7.62 cm across)" in message
+    assert "0.001" not in message
 
 
 def test_a_primitive_too_large_for_any_unit_mistake_is_not_told_to_shrink_a_thousandfold() -> None:
