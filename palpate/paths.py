@@ -16,6 +16,8 @@ LAUNCH_DIR = Path(_launch_files.__file__).resolve().parent
 YCB_DIR_ENV = "PALPATE_YCB_DIR"
 #: Environment variable for the on-disk cache (convex decompositions, ...).
 CACHE_DIR_ENV = "PALPATE_CACHE_DIR"
+#: Mesh files an evaluation or benchmark takes from a folder (the simulator reads any format trimesh does).
+MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb", ".gltf")
 
 
 def ycb_dir() -> Path | None:

@@ -45,7 +45,7 @@ import numpy as np
 from palpate import jsonio
 from palpate.argtypes import add_scale_argument, bounded_positive_int, non_negative_int, path_arg
 from palpate.errors import BenchmarkError, MeshError
-from palpate.paths import YCB_DIR_ENV, ycb_dir
+from palpate.paths import MESH_SUFFIXES, YCB_DIR_ENV, ycb_dir
 from palpate.text_table import Column, fixed_width_table
 
 # `palpate bench` imports this module to build its parser: scipy, trimesh and the sensor (open3d)
@@ -57,7 +57,6 @@ if TYPE_CHECKING:
 
 #: Default objects of the issue's check (file-name globs in the YCB folder).
 DEFAULT_OBJECTS = ("011_banana.stl", "051_large_clamp.stl", "065-*_cups.stl", "030_fork.stl")
-MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb")
 #: Touches per object (--quick: QUICK_TOUCHES).
 TOUCHES = 1000
 QUICK_TOUCHES = 200

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from palpate import jsonio
-from palpate.argtypes import add_scale_argument, path_arg
+from palpate.argtypes import add_scale_argument, path_arg, positive_float, positive_int
 from palpate.config import load
 from palpate.errors import ConfigError, LaunchError, MeshError
 from palpate.evaluation.dask_runs import (
@@ -54,7 +54,7 @@ from palpate.evaluation.dask_runs import (
 )
 from palpate.evaluation.dask_runs import add_arguments as add_cluster_arguments
 from palpate.evaluation.dask_runs import config_from_args as cluster_config
-from palpate.paths import LAUNCH_DIR
+from palpate.paths import LAUNCH_DIR, MESH_SUFFIXES
 
 if TYPE_CHECKING:
     from palpate.nodes.explore_eval.core import EvalConfig
@@ -63,10 +63,8 @@ FloatArray = NDArray[np.float64]
 
 #: The launch file every episode runs.
 EXPLORE_LAUNCH = LAUNCH_DIR / "explore.yaml"
-#: Mesh file suffixes taken from an --objects folder.
-MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb")
 #: Other 3-D formats: an --objects folder's files of these are named as skipped (others, a README, quietly).
-OTHER_3D_SUFFIXES = (".3ds", ".3mf", ".blend", ".dae", ".dxf", ".fbx", ".gltf", ".igs", ".step", ".stp", ".xyz")
+OTHER_3D_SUFFIXES = (".3ds", ".3mf", ".blend", ".dae", ".dxf", ".fbx", ".igs", ".step", ".stp", ".xyz")
 #: Strategies compared by default (the paper's Table 2).
 DEFAULT_STRATEGIES = ("igef", "gpv")
 DEFAULT_RUNS = 3  # start positions per object
@@ -99,6 +97,13 @@ class ObjectCase:
         return np.asarray(model.mesh.vertices, dtype=np.float64), np.asarray(model.mesh.faces, dtype=np.int64)
 
 
+def _subfolders_with_meshes(folder: Path) -> list[str]:
+    """The names of ``folder``'s subfolders that hold mesh files themselves (sorted)."""
+    return sorted(
+        d.name for d in folder.iterdir() if d.is_dir() and any(p.suffix.lower() in MESH_SUFFIXES for p in d.iterdir())
+    )
+
+
 def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
     """Every mesh file in ``folder`` (sorted by name) as an ObjectCase, in metres after ``scale``; a mesh
     file itself is one."""
@@ -118,8 +123,16 @@ def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
             f"{', '.join(skipped)}; convert them to one of {', '.join(MESH_SUFFIXES)}",
             file=sys.stderr,
         )
+    below = _subfolders_with_meshes(folder)
+    if below and files:
+        print(
+            f"--objects {str(folder)!r}: its subfolders are not searched; {', '.join(below)} hold mesh files "
+            "(give them as --objects too)",
+            file=sys.stderr,
+        )
     if not files:
-        raise ConfigError(f"no mesh files ({', '.join(MESH_SUFFIXES)}) in {str(folder)!r}")
+        inside = f" (its subfolders {', '.join(below)} hold some: give them as --objects)" if below else ""
+        raise ConfigError(f"no mesh files ({', '.join(MESH_SUFFIXES)}) in {str(folder)!r}{inside}")
     by_name: dict[str, Path] = {}
     for p in files:
         if p.stem in by_name:  # runs, tables and resumed logs know an object by its name
@@ -557,10 +570,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="no runs: remake the CSV, tables and plots from a runs.jsonl",
     )
     parser.add_argument(
-        "--max-contacts", type=int, help="contact budget per run (default: max(800, 2.5 x the object's covering bound))"
+        "--max-contacts",
+        type=positive_int,
+        help="contact budget per run (default: max(800, 2.5 x the object's covering bound))",
     )
     parser.add_argument(
-        "--max-travel-m", type=float, help="travel budget per run, metres (default: max(20, 0.05 x covering bound))"
+        "--max-travel-m",
+        type=positive_float,
+        help="travel budget per run, metres (default: max(20, 0.05 x covering bound))",
     )
     parser.add_argument(
         "--set",

@@ -389,7 +389,8 @@ def plot_against_travel(
         travel = [t["travel_cm"] for t in r[field]]
         ys = [scale * t[value] for t in r[field]]
         colour = strategy_colour(s)
-        ax.plot(travel, ys, color=colour, alpha=0.8, label=None if s in labelled else s.upper())
+        marker = "o" if len(travel) == 1 else None  # a line of one point draws nothing (a run of one touch)
+        ax.plot(travel, ys, color=colour, alpha=0.8, marker=marker, label=None if s in labelled else s.upper())
         labelled.add(s)
     for level in levels:
         ax.axhline(level, color="0.6", linewidth=0.8, linestyle="--")

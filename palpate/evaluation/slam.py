@@ -546,6 +546,7 @@ def main(args: argparse.Namespace) -> int:
         sigma_deg=args.sigma_deg,
         launch_args=parse_cli_args(args.arg, separator="=", option="--arg"),
     )
+    check_launch(config)
     t0 = time.perf_counter()
     cluster = cluster_config(args)
     print(
@@ -595,6 +596,15 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         print(jsonio.dumps(out))
     return 1 if outcome.failed else 0
+
+
+def check_launch(config: SlamEvalConfig, launch_path: Path = SLAM_LAUNCH) -> None:
+    """The launch file with the first seed's arguments, resolved here before any worker starts: an unknown
+    or bad --arg fails once, naming it, instead of in every run (LaunchError)."""
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch
+
+    resolve(load_launch(launch_path, config.arguments(config.seeds[0])))
 
 
 def _write_csv(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:

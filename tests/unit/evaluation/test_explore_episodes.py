@@ -201,6 +201,24 @@ def test_files_of_other_3d_formats_in_the_folder_are_named_as_skipped(
     assert "skipped 1 file(s) of formats palpate does not read: scan.xyz" in err and "README" not in err
 
 
+def test_gltf_files_are_taken_and_subfolders_with_meshes_are_named(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An outside walkthrough: a .gltf that `palpate launch` reads was refused by eval explore, and a
+    subfolder's meshes were skipped without a word."""
+    trimesh.creation.box(extents=(0.05, 0.05, 0.05)).export(tmp_path / "box.gltf")
+    (tmp_path / "more").mkdir()
+    trimesh.creation.box(extents=(0.05, 0.05, 0.05)).export(tmp_path / "more" / "crate.stl")
+    assert [c.name for c in objects_in(tmp_path)] == ["box"]
+    assert "its subfolders are not searched; more hold mesh files" in capsys.readouterr().err
+    (tmp_path / "box.gltf").unlink()
+    with pytest.raises(
+        ConfigError, match=r"no mesh files .* \(its subfolders more hold some: give them as --objects\)"
+    ):
+        objects_in(tmp_path)
+    assert [c.name for c in objects_in(tmp_path / "more")] == ["crate"]
+
+
 def test_a_budget_given_on_the_command_line_is_not_scaled_by_the_object() -> None:
     import argparse
 

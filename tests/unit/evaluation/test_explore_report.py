@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from palpate.evaluation import explore_report as report
@@ -206,6 +207,22 @@ def test_plots_are_written(tmp_path: Path) -> None:
     report.plot_coverage_vs_travel(tmp_path / "c.png", rows, "a")
     report.plot_travel_per_object(tmp_path / "t.png", rows, others=["tour"])  # a strategy without runs: no bars
     assert (tmp_path / "c.png").stat().st_size > 1000 and (tmp_path / "t.png").stat().st_size > 1000
+
+
+def test_a_run_of_one_point_is_drawn(tmp_path: Path) -> None:
+    """An outside walkthrough: a run of one touch (a 3 mm sphere covered at once) left its plot empty."""
+    import matplotlib.colors
+    import matplotlib.image
+
+    colour = 255 * np.array(matplotlib.colors.to_rgb(report.strategy_colour(RESULTS[0]["strategy"])))
+
+    def coloured_pixels(points: int) -> int:
+        row = dict(RESULTS[0], touches=[{"travel_cm": 5.0, "coverage": 0.5}] * points)
+        report.plot_coverage_vs_travel(tmp_path / "c.png", [row], "a")
+        rgb = matplotlib.image.imread(tmp_path / "c.png")[..., :3] * 255
+        return int((abs(rgb - colour).max(axis=-1) < 40).sum())
+
+    assert coloured_pixels(1) > coloured_pixels(2) + 20  # a marker, where two points at one place draw no line
 
 
 def test_every_strategy_has_a_colour_of_its_own_in_the_plots() -> None:

@@ -139,6 +139,16 @@ def test_publish_period_lands_on_every_snapshot() -> None:
     assert SlamEvalConfig(launch_args={"free_reward": True}).arguments(1)["free_reward"] is True
 
 
+def test_an_unknown_launch_argument_is_refused_before_any_run() -> None:
+    """An outside walkthrough: `--arg object=mesh` started a cluster and failed every seed (and --resume
+    would have failed them again)."""
+    from palpate.evaluation.slam import check_launch
+
+    with pytest.raises(LaunchError, match=r"slam_eval\.yaml:\d+: unknown launch argument 'object'"):
+        check_launch(SlamEvalConfig(launch_args={"object": "mesh"}))
+    check_launch(SlamEvalConfig(launch_args={"free_reward": True}))
+
+
 def test_box_truth_from_the_vertices_of_a_box_and_not_of_anything_else() -> None:
     corners = np.array([[x, y, z] for x in (-1, 3) for y in (0, 2) for z in (-5, 5)], dtype=np.float64) * 0.01
     box = BoxTruth.from_vertices(corners)
