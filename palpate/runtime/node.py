@@ -47,7 +47,15 @@ from palpate.messages import codec, topics
 from palpate.messages.base import Message
 from palpate.messages.schemas import Clock, LockstepAck, NodeStatus, RunControl
 from palpate.runtime import bus, memory, timing
-from palpate.runtime.spec import EXIT_RUN_FAILED, START_TIMEOUT_S, ClockSource, NodeLike, NodeProcessSpec, NodeSpec
+from palpate.runtime.spec import (
+    EXIT_RUN_FAILED,
+    START_TIMEOUT_S,
+    TRAIL_TICKS,
+    ClockSource,
+    NodeLike,
+    NodeProcessSpec,
+    NodeSpec,
+)
 
 STOP_TOPIC = topics.GRAPH_CONTROL
 #: RunControl commands: "stop" ends the run; "fail" ends it as a failure (each node that receives it exits
@@ -258,7 +266,10 @@ class NodeRunner:
         self._refused_by_topic: dict[str, int] = {}  # messages the node's handler refused, per topic
         self._used_topics: set[str] = set()  # topics of which the node took at least one message
         self._superseded_by_topic: Counter[str] = Counter()  # real time: state messages a newer one replaced unread
-        self.last_clock = -1  # the last Clock tick received
+        self.last_clock = -1  # the last Clock tick received (sent, in the clock source)
+        #: How far ahead of the last Clock an upstream acknowledgement may be: one tick, and a trailing
+        #: node's upstream may run TRAIL_TICKS ahead of it.
+        self._ack_lead = TRAIL_TICKS if self.spec.may_trail else 0
         self.backward = set(process.backward_upstream)
         self.stopping = False
         self.stop_reason = ""  # the first reason another node (or a signal) gave for stopping the run
@@ -344,6 +355,15 @@ class NodeRunner:
             clock = self._decode(topic, payload, Clock)
             if clock is not None and self.lockstep and clock.tick <= self.last_clock:
                 self._bad_input(topic, f"Clock tick {clock.tick} repeats or goes back (last {self.last_clock})")
+            elif clock is not None and self.lockstep and self.last_clock >= 0 and clock.tick > self.last_clock + 1:
+                # the clock source waits for this node before its next tick, and sends every tick in turn:
+                # a tick further on comes from another publisher on the topic
+                self._bad_input(
+                    topic,
+                    f"Clock tick {clock.tick} skips ahead of tick {self.last_clock + 1}; a lockstep clock source "
+                    f"sends every tick in turn (only the clock source, {self.process.clock_name or 'the sim'}, "
+                    "publishes on this topic)",
+                )
             elif clock is not None:
                 self.clock_ticks.append(clock)
                 self.last_clock = max(self.last_clock, clock.tick)
@@ -351,7 +371,15 @@ class NodeRunner:
                     self.timer.mark(clock.tick, "clock_received")
         elif topic == topics.LOCKSTEP_ACK:
             ack = self._decode(topic, payload, LockstepAck)
-            if ack is not None:
+            if ack is not None and self.lockstep and ack.tick > self.last_clock + 1 + self._ack_lead:
+                # no node acknowledges a tick the clock source has not sent; believed, it would file every
+                # later message of that node under a tick that never comes
+                self._bad_input(
+                    topic,
+                    f"LockstepAck of tick {ack.tick} from {ack.node!r} is ahead of the clock (last tick "
+                    f"{self.last_clock})",
+                )
+            elif ack is not None:
                 self.acks[ack.node] = max(ack.tick, self.acks.get(ack.node, -2))
         elif topic == STOP_TOPIC:
             control = self._decode(topic, payload, RunControl)
@@ -559,6 +587,7 @@ class NodeRunner:
             self._send_internal(
                 topics.CLOCK, Clock(stamp_ns=stamp, tick=tick, period_ns=period_ns, lockstep=self.lockstep)
             )
+            self.last_clock = tick
             if self.lockstep:
                 self._wait_for_acks(in_loop, tick)
                 if trailing:  # nodes that read nothing of the loop: up to trail_ticks ticks behind

@@ -300,6 +300,29 @@ def test_crafted_payloads_repeated_clocks_and_unknown_commands_leave_the_node_ru
     assert "unknown RunControl command 'status?'" in out
 
 
+def test_a_clock_that_skips_ahead_and_an_acknowledgement_ahead_of_the_clock_are_refused(tmp_path: Path) -> None:
+    """An outside driver audit: a Clock of tick 25 published by a follower at tick 20 was followed, then the
+    clock source's own tick 21 refused as going back, and the run died blaming the controller; one
+    LockstepAck of tick t + 1000 filed every later message of its sender under a tick that never came.
+    A lockstep clock sends every tick in turn, and no node acknowledges a tick not yet sent: both are
+    counted, logged and dropped, and the node goes on."""
+    with contact_stats_node(tmp_path) as node:
+        node.tick(0)
+        node.send(topics.CLOCK, codec.encode(Clock(stamp_ns=0, tick=25, period_ns=10_000_000, lockstep=True)))
+        node.send(topics.LOCKSTEP_ACK, codec.encode(LockstepAck(stamp_ns=0, node="noise", tick=1000)))
+        node.send(topics.LOCKSTEP_ACK, codec.encode(LockstepAck(stamp_ns=0, node="noise", tick=1)))  # may be
+        node.send(STATS_INPUT, codec.encode(contacts(2)))
+        node.tick(1)
+        node.tick(2)
+        assert node.proc.poll() is None, f"the node stopped:\n{text(node.log)}"
+        assert node.stop() == 0
+    finished = counters(node.statuses[-1])
+    assert finished["decode_errors"] == 2 and finished["messages_in"] == 1
+    out = text(node.log)
+    assert "topic clock: rejected message (1 so far): Clock tick 25 skips ahead of tick 1" in out
+    assert "LockstepAck of tick 1000 from 'noise' is ahead of the clock (last tick 0)" in out
+
+
 def test_a_node_started_without_a_launcher_waits_out_a_slow_driver(tmp_path: Path) -> None:
     """The harness's spec names no clock source (clock_name ""), as a spec written by hand may not: two
     silences of the test more than PEER_GRACE_S (2 s) apart once ended such a node, "the clock source ''
