@@ -11,7 +11,8 @@ Ports: one output per replayed topic, named after the topic (``ports_from_config
 ``path`` (the log) and ``topics`` (default: every data topic of the log). ``order`` gives each
 topic the rank its publisher had in the recorded graph: a tick's messages go out sorted by it, as
 the recorded subscribers dispatched them. A log of a message version this build does not speak is
-refused before the run; a recorded message that does not decode ends the run as a failure.
+refused before the run; a recorded message that does not decode ends the run as a failure, and
+ticks the log lacks (a recovered log) are counted in ``replay_ticks_missing`` and logged.
 """
 
 from __future__ import annotations
@@ -83,6 +84,7 @@ class ReplayNode:
         self._next = self._next_tick()
         self.period_ns = self._next.period_ns if self._next is not None else 0
         self.ticks = 0
+        self._last_recorded: int | None = None  # the recorded tick number last replayed
 
     def _next_tick(self) -> mcap_io.LogTick | None:
         """The next recorded tick with a clock stamp; messages of stamp-less ticks (start-up) join it."""
@@ -113,9 +115,26 @@ class ReplayNode:
                 )
                 return None
             self.ctx.publish(message.topic, decoded)
+        self._note_gap(tick)
         self._next = self._next_tick()
         self.ticks += 1
         return tick.stamp_ns
+
+    def _note_gap(self, tick: mcap_io.LogTick) -> None:
+        """Count and log ticks the log lacks between the last replayed one and ``tick`` (a recovered log
+        skips the ticks of its damaged chunks): from there the replay is not the recorded run."""
+        if tick.tick is not None and self._last_recorded is not None and tick.tick > self._last_recorded + 1:
+            missing = tick.tick - self._last_recorded - 1
+            self.ctx.count("replay_ticks_missing", missing)
+            self.ctx.log.warning(
+                "replay: the log holds no tick %d to %d (%d missing, a recovered log lacks its damaged chunks); "
+                "they are not replayed, and the graph's results differ from the recorded run from here",
+                self._last_recorded + 1,
+                tick.tick - 1,
+                missing,
+            )
+        if tick.tick is not None:
+            self._last_recorded = tick.tick
 
     def on_tick(self, stamp_ns: int) -> None:
         """A clock source has nothing to do after its own tick."""
