@@ -24,7 +24,7 @@ import numpy as np
 
 from palpate import jsonio
 from palpate.argtypes import path_arg
-from palpate.errors import ConfigError, InputError, PalpateError
+from palpate.errors import ConfigError, EstimationError, InputError, PalpateError
 from palpate.evaluation.dask_runs import (
     RunLog,
     RunTask,
@@ -96,16 +96,19 @@ def rebuilt_scores(
     """The milestone's surface figures (REBUILT) of the whole estimate that a GPIS node with ``config``
     makes from these contacts (positions (n, 3) m, unit normals (n, 3)), scored against the true mesh
     as the evaluator with ``eval_config`` scores it. A touch the estimator refuses is left out, as the
-    node leaves it out (an input error there)."""
+    node leaves it out (an input error there); EstimationError when it refuses every one."""
     from palpate.nodes.explore_eval.core import EvalConfig, ExplorationEvaluator, surface_fields
     from palpate.nodes.gpis.session import GPISSession
 
     session = GPISSession(config)
+    refused: list[InputError] = []
     for position, normal in zip(positions_m, normals, strict=True):
         try:
             session.touch(position, normal)
-        except InputError:
-            continue
+        except InputError as exc:
+            refused.append(exc)
+    if refused and session.gp.n_contacts == 0:
+        raise EstimationError(f"the estimator took none of the {len(refused)} touches: {refused[0]}")
     mesh = session.whole(variance=True)
     evaluator = ExplorationEvaluator(*truth, eval_config or EvalConfig())
     return surface_fields(evaluator.rmse(mesh.vertices, mesh.faces, mesh.vertex_variance))
