@@ -255,6 +255,8 @@ def decode(payload: bytes | memoryview, expected: type[M] | None = None) -> M:
             f"{type_name}: 'version' must be a msgpack int, got {type(version).__name__} {version!r} "
             "(an encoder that sends every number as a float?)"
         )
+    if version < 1:
+        raise SchemaVersionError(f"{type_name} has schema version {version!r}; versions count from 1")
     if version != cls.VERSION:
         raise SchemaVersionError(
             f"{type_name} has schema version {version!r}; this build speaks version {cls.VERSION}: "
@@ -575,14 +577,15 @@ def _array_value(where: str, spec: FieldSpec, raw: Any, blob: memoryview) -> np.
     ):
         raise MalformedMessageError(f"{where} must have shape {_shape_text(spec.shape)}, got {tuple(shape)}")
     count = math.prod(shape)
-    if (
-        type(offset) is not int
-        or type(nbytes) is not int
-        or nbytes != count * dtype.itemsize
-        or offset < 0
-        or offset + nbytes > len(blob)
-    ):
-        raise MalformedMessageError(f"{where}: data range offset={offset!r} nbytes={nbytes!r} is not in the blob")
+    if type(nbytes) is int and nbytes != count * dtype.itemsize:
+        raise MalformedMessageError(
+            f"{where}: nbytes={nbytes!r} does not match shape {tuple(shape)} of {spec.dtype} "
+            f"({count * dtype.itemsize} bytes)"
+        )
+    if type(offset) is not int or type(nbytes) is not int or offset < 0 or offset + nbytes > len(blob):
+        raise MalformedMessageError(
+            f"{where}: data range offset={offset!r} nbytes={nbytes!r} is not in the blob of {len(blob)} bytes"
+        )
     arr = np.frombuffer(blob, dtype=dtype, count=count, offset=offset).reshape(shape)
     if spec.finite and arr.dtype.kind == "f" and not np.isfinite(arr).all():
         raise NonFiniteError(f"{where} must be finite, but holds NaN or infinity")

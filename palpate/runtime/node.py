@@ -347,7 +347,8 @@ class NodeRunner:
 
     def _on_frames(self, frames: list[Any]) -> None:
         if len(frames) != 2:
-            self._bad_input("?", f"expected 2 frames [topic, payload], got {len(frames)}")
+            topic = bytes(frames[0].buffer).decode(errors="replace") if frames else "?"
+            self._bad_input(topic, f"expected 2 frames [topic, payload], got {len(frames)}")
             return
         topic = bytes(frames[0].buffer).decode(errors="replace")
         payload = frames[1].buffer

@@ -312,15 +312,17 @@ def test_a_clock_that_skips_ahead_and_an_acknowledgement_ahead_of_the_clock_are_
         node.send(topics.LOCKSTEP_ACK, codec.encode(LockstepAck(stamp_ns=0, node="noise", tick=1000)))
         node.send(topics.LOCKSTEP_ACK, codec.encode(LockstepAck(stamp_ns=0, node="noise", tick=1)))  # may be
         node.send(STATS_INPUT, codec.encode(contacts(2)))
+        node.pub.send_multipart([STATS_INPUT.encode(), codec.encode(contacts(2)), b"extra"])  # its topic is named
         node.tick(1)
         node.tick(2)
         assert node.proc.poll() is None, f"the node stopped:\n{text(node.log)}"
         assert node.stop() == 0
     finished = counters(node.statuses[-1])
-    assert finished["decode_errors"] == 2 and finished["messages_in"] == 1
+    assert finished["decode_errors"] == 3 and finished["messages_in"] == 1
     out = text(node.log)
     assert "topic clock: rejected message (1 so far): Clock tick 25 skips ahead of tick 1" in out
     assert "LockstepAck of tick 1000 from 'noise' is ahead of the clock (last tick 0)" in out
+    assert f"topic {STATS_INPUT}: rejected message (1 so far): expected 2 frames [topic, payload], got 3" in out
 
 
 def test_a_node_started_without_a_launcher_waits_out_a_slow_driver(tmp_path: Path) -> None:
