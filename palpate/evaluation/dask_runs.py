@@ -33,6 +33,7 @@ import os
 import signal
 import sys
 import time
+import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -586,7 +587,9 @@ def _share_files(client: Any, tasks: Sequence[RunTask]) -> dict[Path, Any]:
     out = {}
     for path in sorted({p for t in tasks for p in t.files}):
         shared = SharedFile.read(path)
-        out[path] = client.submit(_same, shared, key=f"palpate-file-{shared.sha256}", pure=False)
+        with warnings.catch_warnings():  # a large mesh is such a task by design: Dask's advice is not the user's
+            warnings.filterwarnings("ignore", message="Sending large graph", category=UserWarning)
+            out[path] = client.submit(_same, shared, key=f"palpate-file-{shared.sha256}", pure=False)
     return out
 
 

@@ -166,6 +166,30 @@ def test_a_task_on_a_worker_tells_the_client_how_far_it_is() -> None:
     assert _reports(3) == {"x": 3}  # outside a Dask task it reports nothing and does not fail
 
 
+def test_a_large_mesh_is_shared_without_dasks_large_graph_warning(tmp_path: Path) -> None:
+    """An outside walkthrough: a 327k-face mesh printed distributed's "Sending large graph" advice, which a
+    user cannot act on (the file's bytes are in its task by design, so a lost worker's copy is remade)."""
+    import os
+    import warnings
+
+    from distributed import Client, LocalCluster
+
+    mesh = tmp_path / "fine.stl"
+    mesh.write_bytes(os.urandom(12 * 2**20))
+
+    class Task:
+        files = (mesh,)
+
+    with (
+        LocalCluster(n_workers=1, processes=False, threads_per_worker=1, dashboard_address=None) as cluster,
+        Client(cluster) as client,
+        warnings.catch_warnings(),
+    ):
+        warnings.simplefilter("error", UserWarning)
+        shared = dask_runs._share_files(client, [Task()])  # type: ignore[list-item]
+        assert shared[mesh].result().data == mesh.read_bytes()
+
+
 def test_the_bar_shows_the_newest_progress_of_a_run_still_running() -> None:
     running = {"a": RunTask(key="a", function=dict, label="cup igef run 0"), "c": RunTask(key="c", function=dict)}
     latest = {"a": "10 contacts", "b": "99 contacts", "c": "5 contacts"}  # b has finished
