@@ -67,7 +67,8 @@ RUBIKS_CUBE_EDGE_M = 0.057
 #: Objects outside this bounding-box size are refused: most are a unit mistake (mm vs m).
 MIN_EXTENT_M = 0.002
 MAX_EXTENT_M = 2.0
-#: A size outside the range above is called a unit mistake only when a factor of 1000 brings it here.
+#: A size outside the range above is called a unit mistake only when a factor of 1000 (a primitive's
+#: size_m) or a file unit (a mesh, ``unit_scales``) brings it here.
 PLAUSIBLE_EXTENT_M = (0.005, 1.0)
 #: The units a mesh file may be in, with the scale (metres per unit) that reads each.
 FILE_UNITS = (("metres", 1.0), ("millimetres", 0.001), ("centimetres", 0.01), ("inches", 0.0254))
