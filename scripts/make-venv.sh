@@ -7,8 +7,12 @@ if [ -x "$venv/bin/python" ] && "$venv/bin/python" -m pip --version >/dev/null 2
     exit 0
 fi
 if ! "$python" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
-    found=$("$python" --version 2>&1 || echo "not found")
-    echo "palpate set-up: needs Python 3.11 or newer; $python is: $found. Run: make PYTHON=python3.11 demo" >&2
+    if command -v "$python" >/dev/null 2>&1; then
+        found="$("$python" --version 2>&1 | head -n 1)"
+    else
+        found="not found"
+    fi
+    echo "palpate set-up: needs Python 3.11 or newer; $python is: $found. Give make another one, for example: make PYTHON=python3.11 test (or demo)" >&2
     exit 1
 fi
 rm -rf "$venv"  # a half-made one (no pip) is made again

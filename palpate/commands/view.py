@@ -104,12 +104,17 @@ def run_view(args: argparse.Namespace) -> int:
             if kept is not None:
                 print(f"palpate view: the recording up to the failure is in {kept}", file=sys.stderr)
         raise
-    if target is not None:
+    empty_log = stats.shown == 0 and args.log is not None  # a log viewed again shows nothing again
+    if target is not None and empty_log:
+        target.abandon(keep=False)
+    elif target is not None:
         target.commit()
     print(f"palpate view: {stats.shown} of {stats.received} messages shown from {origin}", flush=True)
     if stats.shown == 0:
         print(
-            f"palpate view: nothing to show; the viewer shows {', '.join(c.TYPE for c in SHOWN_TYPES)}", file=sys.stderr
+            f"palpate view: nothing to show; the viewer shows {', '.join(c.TYPE for c in SHOWN_TYPES)}"
+            + (f"; {args.save} not written" if target is not None and empty_log else ""),
+            file=sys.stderr,
         )
     if stats.undecodable:
         print(
@@ -120,6 +125,8 @@ def run_view(args: argparse.Namespace) -> int:
             f"palpate view: {stats.unusable} messages with values it cannot draw skipped, last: {stats.last_unusable}",
             file=sys.stderr,
         )
+    if empty_log:
+        return 1
     if target is not None and target.path.is_file():
         size = target.path.stat().st_size
         print(f"palpate view: wrote {args.save} ({size / 1024:.1f} KiB); open it with `rerun {args.save}`")

@@ -532,10 +532,12 @@ def run_tasks(
                     time.sleep(config.poll_s)
     except KeyboardInterrupt:
         bar.close()
+        finished = sum(1 for t in tasks if t.key in log.rows)  # a resumed file may hold another command's runs
         kept = (
-            f"{len(log.rows)} finished run(s) are in {log.path}; the same command with --resume goes on from them"
-            if log.started
-            else f"no run finished; {log.path} is as it was"
+            f"{finished} of its {len(tasks)} run(s) are finished in {log.path}; the same command with --resume "
+            "goes on from them"
+            if log.started and finished
+            else f"no run of it finished; {log.path} is as it was"
         )
         print(f"\ninterrupted: {kept}", file=sys.stderr)
         for line in lost_in_flight(latest, outcome, todo):

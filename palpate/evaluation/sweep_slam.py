@@ -61,7 +61,7 @@ QUICK_SKIP = frozenset({(1.0, 300)})
 #: the surface matters too: with 0.5 mm (1.0 mm) the known-pose map scored rmse 0.178 (0.079), with
 #: 1.5 mm 0.015 (palpate sweep slam --quick --resolutions-mm 1).
 FREE_MARGIN_MM = {1.0: 1.5, 2.0: 0.5, 4.0: 2.5}
-DEFAULT_OUT = Path("out") / "slam"
+DEFAULT_OUT = Path("out") / "sweep_slam"  # not eval slam's: each keeps its own runs.jsonl
 
 
 @dataclass(frozen=True)

@@ -163,3 +163,22 @@ def test_undeclared_topics_are_told_once_the_running_publishers_settle() -> None
     notes = told.notes([sim, gpis], 3.6)
     assert len(notes) == 1 and notes[0].startswith("no publisher on the bus declares topic 'surface/msh' (did you")
     assert told.notes([sim, gpis], 10.0) == []  # once
+
+
+def test_a_topic_command_on_a_bus_without_publishers_says_so_once(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An outside walkthrough: `topic echo clock --bus /nonexistent` waited for ever without a word."""
+    from palpate.commands import introspect
+
+    monkeypatch.setattr(introspect, "EMPTY_BUS_NOTE_S", 0.0)
+    tap = introspect.TopicTap(tmp_path / "nowhere", "clock", command="topic echo")
+    try:
+        tap.discover()
+        assert capsys.readouterr().err == ""  # the first look starts the wait
+        tap.discover()
+        tap.discover()
+    finally:
+        tap.close()
+    err = capsys.readouterr().err
+    assert err.count("topic echo: no publisher on bus ") == 1 and "a folder that does not exist yet" in err

@@ -91,6 +91,17 @@ def test_save_replaces_a_file_only_with_force(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap", "run.rrd"]
 
 
+def test_a_log_with_nothing_to_show_writes_no_recording_and_exits_1(
+    capsys: pytest.CaptureFixture[str], log_file: Path, tmp_path: Path
+) -> None:
+    """An outside walkthrough: `--topics clock` said "nothing to show", yet exited 0 with an empty .rrd."""
+    pytest.importorskip("rerun")
+    out = tmp_path / "clock.rrd"
+    assert cli.main(["view", "--log", str(log_file), "--save", str(out), "--topics", "clock"]) == 1
+    assert "nothing to show; the viewer shows ObjectTruth" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap"]  # neither the file nor a partial one
+
+
 def test_save_writes_an_rrd_with_the_scene(capsys: pytest.CaptureFixture[str], log_file: Path, tmp_path: Path) -> None:
     pytest.importorskip("rerun")
     from rerun.chunk import RrdReader
