@@ -51,30 +51,55 @@ class MapperNode:
         self.chain = KinematicChain.from_description(load_hand(), config.mount)
         self.core = Mapper(config.mapper, self.chain, ctx.rng)
         self.session = MapperSession(self.core, config.publish_period_s, config.label)
-        self._warned = False  # that every contact lies outside the region
+        self._warned: set[str] = set()  # the one-time warnings given
+        self._contacts_seen = 0  # contact points received, on the finger or not
+        self._last_tick_ns: int | None = None  # the last update's stamp, and the last maps'
+        self._last_maps_ns: int | None = None
 
     def on_joint_states(self, message: JointState) -> None:
         self.session.joint_reading(message.names, message.positions_rad, message.stamp_ns)
 
     def on_contacts(self, message: ContactSet) -> None:
-        self.session.contacts(message.links, message.local_positions_m, message.stamp_ns)
+        kept = self.session.contacts(message.links, message.local_positions_m, message.stamp_ns)
+        off = len(message.links) - len(kept.links)
+        self._contacts_seen += len(message.links)
+        if off:  # another finger's, or the palm's: this mapper models one finger
+            self.ctx.count("contacts_off_finger", off)
+        if self._contacts_seen >= WARN_OUTSIDE_AFTER and self.ctx.counters.get("contacts_off_finger") == (
+            self._contacts_seen
+        ):
+            self._warn_once(
+                "finger",
+                "mapper: the first %d contacts all lie on links of another finger than its %s (the scene's tapping "
+                "finger is another one; set the mapper's mount.finger to it); the maps stay empty",
+                self._contacts_seen,
+                self.config.mount.finger,
+            )
 
     def on_tick(self, stamp_ns: int) -> None:
         step = self.session.tick(stamp_ns)
         if step is None:
             return
+        self._last_tick_ns = stamp_ns
         c = self.core.counters
         self.ctx.metrics.update(updates=c.updates, n_eff=self.core.n_eff)
         self.ctx.counters.update(contacts_outside=c.contacts_outside, free_points_outside=c.free_points_outside)
+        region = (self.config.mapper.region_min_m, self.config.mapper.region_max_m)
         maps = self.core.grids.n_maps  # each particle places every contact
-        if not self._warned and c.contacts >= WARN_OUTSIDE_AFTER and c.contacts_outside == maps * c.contacts:
-            self._warned = True
-            self.ctx.log.warning(
+        if c.contacts >= WARN_OUTSIDE_AFTER and c.contacts_outside == maps * c.contacts:
+            self._warn_once(
+                "all outside",
                 "mapper: the first %d contacts all lie outside the mapped region (region_min_m %s, region_max_m %s); "
                 "the maps stay empty: widen the region to hold the object",
                 c.contacts,
-                self.config.mapper.region_min_m,
-                self.config.mapper.region_max_m,
+                *region,
+            )
+        elif 0 < c.contacts_outside < maps * c.contacts and "all outside" not in self._warned:  # some inside
+            self._warn_once(
+                "outside",
+                "mapper: a contact lies outside the mapped region (region_min_m %s, region_max_m %s), and the maps "
+                "leave it out (counter contacts_outside, per particle map): widen the region to hold the object",
+                *region,
             )
         self.ctx.timings["ms_per_update"] = c.mean_update_ms
         if self.core.filter is not None:
@@ -82,7 +107,19 @@ class MapperNode:
         if step.publish_maps:
             self.publish_maps(stamp_ns)
 
+    def close(self) -> None:
+        """At the end of the run, the maps of the last update when the last ones published are older (a
+        run whose length is no multiple of ``publish_period_s`` would end without its last maps)."""
+        if self._last_tick_ns is not None and self._last_tick_ns != self._last_maps_ns:
+            self.publish_maps(self._last_tick_ns)
+
+    def _warn_once(self, kind: str, text: str, *args: Any) -> None:
+        if kind not in self._warned:
+            self._warned.add(kind)
+            self.ctx.log.warning(text, *args)
+
     def publish_maps(self, stamp_ns: int) -> None:
+        self._last_maps_ns = stamp_ns
         self._publish_map("map", self.core.best_map(), self.session.label, stamp_ns)
         if self.core.filter is not None:
             self._publish_map("weighted_map", self.core.weighted_map(), "weighted", stamp_ns)

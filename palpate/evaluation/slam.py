@@ -67,6 +67,22 @@ METHODS = ("known", "fastslam", "dead_reckoning")
 MAP_TOPICS = {"map/known": "known", "map/fastslam": "fastslam", "map/dead_reckoning": "dead_reckoning"}
 MAPPER_NODES = {"known": "mapper_known", "fastslam": "mapper_fastslam", "dead_reckoning": "mapper_dead_reckoning"}
 DEFAULT_OUT = Path("out") / "slam"
+#: Free margin per resolution: the depth below the finger's surface from which its volume counts as
+#: free. It must be at least the distance from a face of the cube to the outer face of the cells
+#: that hold it, or the free update clears cube cells at the true pose: on this grid (region from
+#: -45 mm, cube faces at +-28.5 mm) 0.5 mm at 1 and 2 mm cells, 2.5 mm at 4 mm (docs/slam.md).
+#: Other resolutions take the mapper's default (one cell). At 1 mm cells the finger's press into
+#: the surface matters too: with 0.5 mm (1.0 mm) the known-pose map scored rmse 0.178 (0.079), with
+#: 1.5 mm 0.015 (palpate sweep slam --quick --resolutions-mm 1).
+FREE_MARGIN_MM = {1.0: 1.5, 2.0: 0.5, 4.0: 2.5}
+
+
+def free_margin_m(resolution_m: float) -> float | None:
+    """The measured free margin for cells of ``resolution_m`` on this grid (FREE_MARGIN_MM), metres;
+    None (the mapper's one cell) for a resolution not measured."""
+    margin = FREE_MARGIN_MM.get(round(resolution_m * 1e3, 9))
+    return None if margin is None else margin * 1e-3
+
 
 #: How to set each launch argument of slam_eval.yaml that the evaluation sets itself
 #: (SlamEvalConfig.own_arguments; a test checks that the keys agree) instead of with --arg.
@@ -129,8 +145,10 @@ class SlamEvalConfig(Validated):
         }
 
     def arguments(self, seed: int) -> dict[str, Any]:
-        """Launch arguments of slam_eval.yaml for one seed: the evaluation's own and ``launch_args``."""
-        return {**self.own_arguments(seed), **self.launch_args}
+        """Launch arguments of slam_eval.yaml for one seed: the evaluation's own, the free margin measured
+        for its resolution (``free_margin_m``; --arg free_margin_m=... sets another), and ``launch_args``."""
+        margin = {"free_margin_m": free_margin_m(self.resolution_m)}
+        return {**self.own_arguments(seed), **margin, **self.launch_args}
 
 
 # --- ground truth ------------------------------------------------------------------------------------

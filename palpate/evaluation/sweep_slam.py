@@ -44,7 +44,7 @@ from palpate.evaluation.dask_runs import (
     run_key,
     run_tasks,
 )
-from palpate.evaluation.slam import SLAM_LAUNCH, BoxTruth, Scorer, SlamEvalConfig
+from palpate.evaluation.slam import SLAM_LAUNCH, BoxTruth, Scorer, SlamEvalConfig, free_margin_m
 from palpate.text_table import Column, fixed_width_table
 
 FloatArray = NDArray[np.float64]
@@ -53,14 +53,6 @@ KS = (1, 10, 30, 100, 300)
 RESOLUTIONS_MM = (1.0, 2.0, 4.0)
 #: (resolution_mm, K) left out by --quick: K=300 at 1 mm alone takes longer than the rest together.
 QUICK_SKIP = frozenset({(1.0, 300)})
-#: Free margin per resolution: the depth below the finger's surface from which its volume counts as
-#: free. It must be at least the distance from a face of the cube to the outer face of the cells
-#: that hold it, or the free update clears cube cells at the true pose: on this grid (region from
-#: -45 mm, cube faces at +-28.5 mm) 0.5 mm at 1 and 2 mm cells, 2.5 mm at 4 mm (docs/slam.md).
-#: Other resolutions take the mapper's default (one cell). At 1 mm cells the finger's press into
-#: the surface matters too: with 0.5 mm (1.0 mm) the known-pose map scored rmse 0.178 (0.079), with
-#: 1.5 mm 0.015 (palpate sweep slam --quick --resolutions-mm 1).
-FREE_MARGIN_MM = {1.0: 1.5, 2.0: 0.5, 4.0: 2.5}
 DEFAULT_OUT = Path("out") / "sweep_slam"  # not eval slam's: each keeps its own runs.jsonl
 
 
@@ -240,8 +232,7 @@ def sweep(
     params = fastslam_params(sigma_deg=config.sigma_deg)
     rows: list[Any] = []
     for res_mm in resolutions_mm:
-        margin = FREE_MARGIN_MM.get(float(res_mm))
-        params["free_margin_m"] = None if margin is None else margin * 1e-3
+        params["free_margin_m"] = free_margin_m(res_mm * 1e-3)
         known = mapper_config(params, res_mm * 1e-3, mode="known")
         runs = [("known", 0, known, stream.q_true), ("dead_reckoning", 0, known, stream.q_noisy)]
         runs += [

@@ -102,3 +102,40 @@ def test_a_region_that_misses_every_contact_is_said_once(file: str) -> None:
     ctx.log.removeHandler(handler)
     said = [m for m in said if "outside the mapped region" in m]
     assert len(said) == 1 and "the first 10 contacts" in said[0]
+
+
+def test_a_run_that_ends_between_two_publications_publishes_its_last_maps_at_the_end() -> None:
+    """An outside walkthrough: map_known.yaml with duration_s:=2.5 recorded no map after 2.0 s, and
+    slam_eval.yaml launched for 5 s (10 s period) none after 0 s."""
+    node, sent = mapper("map_known.yaml")
+    joints = list(node.chain.joint_names)
+    for tick in range(251):  # 0 .. 2.5 s; maps at 0, 1 and 2 s
+        node.on_joint_states(reading(joints, np.radians([0.0, 20.0, 30.0, 10.0]), tick * 10_000_000))
+        node.on_tick(tick * 10_000_000)
+    stamps = [m.stamp_ns for topic, m in sent if topic == "map/occupancy"]
+    assert stamps == [0, 1_000_000_000, 2_000_000_000]
+    node.close()
+    node.close()  # once: the last maps are then the newest
+    assert [m.stamp_ns for topic, m in sent if topic == "map/occupancy"][3:] == [2_500_000_000]
+
+
+def test_contacts_on_another_finger_are_counted_and_said_once() -> None:
+    """An outside walkthrough: a hand scene tapping with the index finger and a mapper of the ring finger
+    mapped nothing, without a count or a word."""
+    node, _ = mapper("map_known.yaml")
+    said: list[str] = []
+    handler = logging.Handler()
+    handler.emit = lambda record: said.append(record.getMessage())  # type: ignore[method-assign]
+    node.ctx.log.addHandler(handler)
+    joints = list(node.chain.joint_names)
+    try:
+        for tick in range(12):
+            stamp = tick * 10_000_000
+            node.on_joint_states(reading(joints, np.radians([0.0, 20.0, 30.0, 10.0]), stamp))
+            node.on_contacts(contacts(["ring_distal"], np.array([[0.0, 0.0, -0.008]]), stamp))
+            node.on_tick(stamp)
+    finally:
+        node.ctx.log.removeHandler(handler)
+    assert node.ctx.counters["contacts_off_finger"] == 12
+    finger = [m for m in said if "another finger" in m]
+    assert len(finger) == 1 and "the first 10 contacts all lie on links of another finger than its index" in finger[0]
