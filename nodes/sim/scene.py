@@ -210,7 +210,8 @@ def effector_base_position(scene: SceneConfig, obj: ObjectModel) -> np.ndarray:
 
 
 def effector_mount(scene: SceneConfig) -> dict[str, Any]:
-    """Where the scene fixes its hand or finger (``mount_fact``): what a mapper of this finger states.
+    """Where the scene fixes its hand or finger, and the finger that taps (``mount_fact``): what a mapper
+    of this finger states.
 
     Loads the object only when the base is placed from it (no ``base_position_m``).
     """
@@ -220,7 +221,10 @@ def effector_mount(scene: SceneConfig) -> dict[str, Any]:
     base = cfg.base_position_m
     if base is None:
         base = tuple(effector_base_position(scene, load_object(scene.object)))
-    finger = cfg.finger if isinstance(cfg, FingerConfig) else None
+    if isinstance(cfg, FingerConfig):
+        finger = cfg.finger
+    else:  # the hand taps with this finger (``motion``): the one a mapper of its contacts models
+        finger = cfg.pose_finger if cfg.pose_finger in LONG_FINGERS else "index"
     return mount_fact(scene.effector, finger, cfg.scale, base, cfg.base_quaternion_wxyz)
 
 

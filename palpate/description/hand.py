@@ -268,12 +268,14 @@ def mount_fact(
     base_position_m: Sequence[float],
     base_quaternion_wxyz: Sequence[float],
 ) -> dict[str, Any]:
-    """Where a hand (effector "hand") or its single finger (effector "finger", ``finger`` its name) is
-    fixed in the world, as a model built from the description holds it (rounded as the simulator's
-    MJCF writes it): what a simulator's scene and the mappers that model its finger must agree on."""
+    """Where a hand (effector "hand") or its single finger (effector "finger") is fixed in the world, as a
+    model built from the description holds it (rounded as the simulator's MJCF writes it), and
+    ``finger``, the finger that taps (the single one, or the hand's tapping finger): what a simulator's
+    scene and the mappers that model its finger must agree on (a mapper of another finger of a hand
+    would see none of the taps)."""
     return {
         "effector": effector,
-        **({"finger": finger} if effector == "finger" else {}),
+        **({"finger": finger} if finger is not None else {}),
         "scale": as_written(scale),
         "base_position_m": [as_written(v) for v in base_position_m],
         "base_quaternion_wxyz": [as_written(v) for v in base_quaternion_wxyz],

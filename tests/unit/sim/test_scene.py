@@ -11,7 +11,7 @@ import pytest
 from palpate.config import load
 from palpate.description import load_hand, mount_fact
 from palpate.errors import ConfigError
-from palpate.nodes.sim.effectors import FingerConfig, ProbeConfig
+from palpate.nodes.sim.effectors import FingerConfig, HandConfig, ProbeConfig
 from palpate.nodes.sim.objects import KINDS, ObjectSpec, load_object
 from palpate.nodes.sim.scene import (
     SceneConfig,
@@ -147,7 +147,13 @@ def test_the_descriptions_finger_mount_is_where_the_default_scene_puts_the_finge
     given = SceneConfig(effector="finger", finger=FingerConfig(base_position_m=(0.1, 0.2, 0.3)), object=NOT_LOADED)
     assert effector_mount(given)["base_position_m"] == [0.1, 0.2, 0.3]
     assert effector_mount(SceneConfig(effector="probe")) == {"effector": "probe"}
-    assert "finger" not in effector_mount(SceneConfig(effector="hand"))
+    # the hand taps with its pose finger (the index for the thumb): a mapper of another finger sees no tap
+    hand = SceneConfig(effector="hand", object=NOT_LOADED, hand=HandConfig(base_position_m=(0.1, 0.2, 0.3)))
+    assert effector_mount(hand)["finger"] == "index"
+    ring = SceneConfig(
+        effector="hand", object=NOT_LOADED, hand=HandConfig(base_position_m=(0.1, 0.2, 0.3), pose_finger="ring")
+    )
+    assert effector_mount(ring)["finger"] == "ring"
 
 
 def test_hand_places_its_index_mcp_like_the_finger() -> None:
