@@ -123,7 +123,7 @@ class GPISConfig(Validated):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.jitter == 0 and (self.value_noise_m == 0 or self.gradient_noise == 0):
-            zero = " and ".join(k for k in ("value_noise_m", "gradient_noise") if getattr(self, k) == 0)
+            zero = ", ".join(k for k in ("value_noise_m", "gradient_noise") if getattr(self, k) == 0)
             raise ConfigError(
                 f"GPISConfig: {zero} and jitter are 0; duplicate contacts would make the covariance singular "
                 "(their value or normal rows are the same). Set jitter > 0 (e.g. 1e-10)"

@@ -138,11 +138,11 @@ def check_memory(config: MapperConfig, spec: GridSpec, n_maps: int, points: int)
         have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):
         return
-    maps = "one map" if n_maps == 1 else f"n_particles = {n_maps} maps"
+    maps = "one map needs" if n_maps == 1 else f"n_particles = {n_maps} maps need"
     for what, size in need.items():
         if size > have:
             raise ConfigError(
-                f"{maps} at resolution_m = {config.resolution_m!r} need {size / 2**30:.3g} GiB for {what}, more "
+                f"{maps} {size / 2**30:.3g} GiB at resolution_m = {config.resolution_m!r} for {what}, more "
                 f"than this machine's {have / 2**30:.3g} GiB; use "
                 + ("fewer particles or " if n_maps > 1 else "")
                 + "a coarser resolution (or free_spacing_m / free_margin_m)",

@@ -16,6 +16,7 @@ import numpy as np
 
 from palpate.config import PositiveFloat, Validated
 from palpate.description import load_hand
+from palpate.errors import PalpateError
 from palpate.messages import topics
 from palpate.messages.schemas import ContactSet, JointState, OccupancyGrid, ParticleSetSummary
 from palpate.nodes.mapper.core import Mapper, MapperConfig
@@ -52,7 +53,6 @@ class MapperNode:
         self.core = Mapper(config.mapper, self.chain, ctx.rng)
         self.session = MapperSession(self.core, config.publish_period_s, config.label)
         self._warned: set[str] = set()  # the one-time warnings given
-        self._contacts_seen = 0  # contact points received, on the finger or not
         self._last_tick_ns: int | None = None  # the last update's stamp, and the last maps'
         self._last_maps_ns: int | None = None
 
@@ -60,19 +60,16 @@ class MapperNode:
         self.session.joint_reading(message.names, message.positions_rad, message.stamp_ns)
 
     def on_contacts(self, message: ContactSet) -> None:
-        kept = self.session.contacts(message.links, message.local_positions_m, message.stamp_ns)
-        off = len(message.links) - len(kept.links)
-        self._contacts_seen += len(message.links)
+        self.session.contacts(message.links, message.local_positions_m, message.stamp_ns)
+        received, off = self.session.contacts_received, self.session.contacts_off_chain
         if off:  # another finger's, or the palm's: this mapper models one finger
-            self.ctx.count("contacts_off_finger", off)
-        if self._contacts_seen >= WARN_OUTSIDE_AFTER and self.ctx.counters.get("contacts_off_finger") == (
-            self._contacts_seen
-        ):
+            self.ctx.counters["contacts_off_finger"] = off
+        if received >= WARN_OUTSIDE_AFTER and off == received:
             self._warn_once(
                 "finger",
                 "mapper: the first %d contacts all lie on links of another finger than its %s (the scene's tapping "
                 "finger is another one; set the mapper's mount.finger to it); the maps stay empty",
-                self._contacts_seen,
+                received,
                 self.config.mount.finger,
             )
 
@@ -108,10 +105,15 @@ class MapperNode:
             self.publish_maps(stamp_ns)
 
     def close(self) -> None:
-        """At the end of the run, the maps of the last update when the last ones published are older (a
-        run whose length is no multiple of ``publish_period_s`` would end without its last maps)."""
-        if self._last_tick_ns is not None and self._last_tick_ns != self._last_maps_ns:
+        """At the end of a run, the maps of the last update when the last ones published are older (a run
+        whose length is no multiple of ``publish_period_s`` would end without its last maps); not after a
+        failure, whose state they would show (and whose error a fault here would hide)."""
+        if self.ctx.failure or self._last_tick_ns is None or self._last_tick_ns == self._last_maps_ns:
+            return
+        try:
             self.publish_maps(self._last_tick_ns)
+        except PalpateError as exc:
+            self.ctx.log.warning("mapper: the last maps were not published: %s", exc)
 
     def _warn_once(self, kind: str, text: str, *args: Any) -> None:
         if kind not in self._warned:

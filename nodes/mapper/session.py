@@ -73,6 +73,9 @@ class MapperSession:
         self.next_publish_ns = 0
         self._reading: JointReading | None = None
         self._contacts: ChainContacts | None = None
+        #: Contact points received, and those on links the chain does not have (another finger's).
+        self.contacts_received = 0
+        self.contacts_off_chain = 0
 
     def joint_reading(self, names: Sequence[str], positions_rad: ArrayLike, stamp_ns: int) -> JointReading:
         """Keep a reading (joint names and angles in the message's order) for the next tick; returns
@@ -93,9 +96,11 @@ class MapperSession:
 
     def contacts(self, links: Sequence[str], local_positions_m: ArrayLike, stamp_ns: int) -> ChainContacts:
         """Keep the contacts (the link of each and its position in that link's frame) that lie on the
-        chain's links, as link indices; returns them."""
+        chain's links, as link indices; returns them. Counts those on other links."""
         index = match_names(links, self.chain.link_names).index
         on_chain = index >= 0
+        self.contacts_received += len(index)
+        self.contacts_off_chain += int(np.count_nonzero(~on_chain))
         contacts = ChainContacts(
             stamp_ns=stamp_ns,
             links=index[on_chain].astype(np.int64),

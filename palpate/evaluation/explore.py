@@ -20,6 +20,7 @@ process graph; ``tests/integration/test_explore_graph.py`` checks both give the 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import tempfile
@@ -98,16 +99,43 @@ class ObjectCase:
 
 
 def _subfolders_with_meshes(folder: Path) -> list[str]:
-    """The names of ``folder``'s subfolders that hold mesh files themselves (sorted)."""
-    return sorted(
-        d.name for d in folder.iterdir() if d.is_dir() and any(p.suffix.lower() in MESH_SUFFIXES for p in d.iterdir())
+    """The names of ``folder``'s subfolders that hold mesh files themselves (sorted; one that cannot be
+    read is left out)."""
+    found = []
+    for d in folder.iterdir():
+        try:
+            if d.is_dir() and any(p.suffix.lower() in MESH_SUFFIXES for p in d.iterdir()):
+                found.append(d.name)
+        except OSError:  # lost+found, another user's folder
+            continue
+    return sorted(found)
+
+
+def _check_self_contained(path: Path) -> None:
+    """ConfigError for a .gltf whose buffers or images lie in files beside it: an evaluation ships each
+    mesh to its workers as one file (a .glb holds everything)."""
+    if path.suffix.lower() != ".gltf":
+        return
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return  # the mesh check names what is wrong with it
+    parts = [*document.get("buffers", []), *document.get("images", [])] if isinstance(document, dict) else []
+    beside = sorted(
+        {str(p["uri"]) for p in parts if isinstance(p, dict) and "uri" in p and not str(p["uri"]).startswith("data:")}
     )
+    if beside:
+        raise ConfigError(
+            f"{path}: a .gltf that keeps its data in files beside it ({', '.join(beside)}); an evaluation sends "
+            "each mesh to its workers as one file: export it as .glb (or with embedded buffers)"
+        )
 
 
 def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
     """Every mesh file in ``folder`` (sorted by name) as an ObjectCase, in metres after ``scale``; a mesh
     file itself is one."""
     if folder.is_file() and folder.suffix.lower() in MESH_SUFFIXES:
+        _check_self_contained(folder)
         return [ObjectCase(name=folder.stem, kind="mesh", mesh=_resolved(folder), scale=scale)]
     if not folder.exists():
         raise ConfigError(f"--objects {str(folder)!r} does not exist")
@@ -141,6 +169,7 @@ def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
                 "rename one: an object's file name without its extension names it in the runs and tables"
             )
         by_name[p.stem] = p
+        _check_self_contained(p)
     return [ObjectCase(name=p.stem, kind="mesh", mesh=_resolved(p), scale=scale) for p in files]
 
 

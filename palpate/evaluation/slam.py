@@ -70,7 +70,7 @@ DEFAULT_OUT = Path("out") / "slam"
 #: Free margin per resolution: the depth below the finger's surface from which its volume counts as
 #: free. It must be at least the distance from a face of the cube to the outer face of the cells
 #: that hold it, or the free update clears cube cells at the true pose: on this grid (region from
-#: -45 mm, cube faces at +-28.5 mm) 0.5 mm at 1 and 2 mm cells, 2.5 mm at 4 mm (docs/slam.md).
+#: -45 mm, cube faces at +-28.5 mm) that is 0.5 mm at 1 and 2 mm cells and 2.5 mm at 4 mm (docs/slam.md).
 #: Other resolutions take the mapper's default (one cell). At 1 mm cells the finger's press into
 #: the surface matters too: with 0.5 mm (1.0 mm) the known-pose map scored rmse 0.178 (0.079), with
 #: 1.5 mm 0.015 (palpate sweep slam --quick --resolutions-mm 1).
@@ -501,7 +501,7 @@ def run_seeds(
     spec = {k: v for k, v in asdict(config).items() if k != "seeds"}
     tasks = [
         RunTask(
-            key=run_key(f"slam-seed{seed}", {"seed": seed, **spec}),
+            key=run_key(f"slam-seed{seed}", {"seed": seed, **spec, "arguments": config.arguments(seed)}),
             function=run_seed_on_worker,
             args=(seed, config, seed == plot_seed),
             label=f"seed {seed}",

@@ -84,7 +84,7 @@ class ReplayNode:
         self._next = self._next_tick()
         self.period_ns = self._next.period_ns if self._next is not None else 0
         self.ticks = 0
-        self._last_recorded: int | None = None  # the recorded tick number last replayed
+        self._last_recorded = -1  # the recorded tick number last replayed (a run's ticks count from 0)
 
     def _next_tick(self) -> mcap_io.LogTick | None:
         """The next recorded tick with a clock stamp; messages of stamp-less ticks (start-up) join it."""
@@ -121,20 +121,21 @@ class ReplayNode:
         return tick.stamp_ns
 
     def _note_gap(self, tick: mcap_io.LogTick) -> None:
-        """Count and log ticks the log lacks between the last replayed one and ``tick`` (a recovered log
-        skips the ticks of its damaged chunks): from there the replay is not the recorded run."""
-        if tick.tick is not None and self._last_recorded is not None and tick.tick > self._last_recorded + 1:
-            missing = tick.tick - self._last_recorded - 1
-            self.ctx.count("replay_ticks_missing", missing)
+        """Count and log ticks the log lacks before ``tick`` since the last replayed one (from tick 0: a
+        recovered log skips the ticks of its damaged chunks, a recording started late those before it):
+        from there the replay is not the recorded run."""
+        if tick.tick is None:
+            return
+        first, last = self._last_recorded + 1, tick.tick - 1
+        if last >= first:
+            self.ctx.count("replay_ticks_missing", last - first + 1)
             self.ctx.log.warning(
-                "replay: the log holds no tick %d to %d (%d missing, a recovered log lacks its damaged chunks); "
-                "they are not replayed, and the graph's results differ from the recorded run from here",
-                self._last_recorded + 1,
-                tick.tick - 1,
-                missing,
+                "replay: the log holds no %s (%d missing: a recovered log lacks its damaged chunks, a recording "
+                "started late its start); the graph's results differ from the recorded run from here",
+                f"tick {first}" if first == last else f"ticks {first} to {last}",
+                last - first + 1,
             )
-        if tick.tick is not None:
-            self._last_recorded = tick.tick
+        self._last_recorded = tick.tick
 
     def on_tick(self, stamp_ns: int) -> None:
         """A clock source has nothing to do after its own tick."""

@@ -356,14 +356,14 @@ class NodeRunner:
             clock = self._decode(topic, payload, Clock)
             if clock is not None and self.lockstep and clock.tick <= self.last_clock:
                 self._bad_input(topic, f"Clock tick {clock.tick} repeats or goes back (last {self.last_clock})")
-            elif clock is not None and self.lockstep and self.last_clock >= 0 and clock.tick > self.last_clock + 1:
-                # the clock source waits for this node before its next tick, and sends every tick in turn:
-                # a tick further on comes from another publisher on the topic
+            elif clock is not None and self.lockstep and clock.tick > self.last_clock + 1:
+                # the clock source starts at tick 0, waits for this node before its next tick and sends every
+                # tick in turn: a tick further on comes from another publisher on the topic
+                source = repr(self.process.clock_name) if self.process.clock_name else "the graph's clock source"
                 self._bad_input(
                     topic,
                     f"Clock tick {clock.tick} skips ahead of tick {self.last_clock + 1}; a lockstep clock source "
-                    f"sends every tick in turn (only the clock source, {self.process.clock_name or 'the sim'}, "
-                    "publishes on this topic)",
+                    f"sends every tick in turn from 0 (only it, {source}, publishes on this topic)",
                 )
             elif clock is not None:
                 self.clock_ticks.append(clock)
@@ -666,8 +666,8 @@ class NodeRunner:
                     break
 
     def _due_tick(self, tick: int) -> int | None:
-        """The tick to run now (lockstep): `tick`, or a later one the clock source skipped to (counted in
-        `clock_skips`); None until its Clock and the upstream nodes' acknowledgements are in."""
+        """The tick to run now (lockstep): the oldest Clock's, which is `tick` (Clocks come in turn from 0:
+        ``_on_frames`` refuses the others); None until it and the upstream nodes' acknowledgements are in."""
         if not self.clock_ticks:
             return None
         due = self.clock_ticks[0].tick
@@ -675,9 +675,6 @@ class NodeRunner:
         backward = all(self.acks.get(n, -2) >= due - 1 for n in self.process.backward_upstream)
         if not (forward and backward):
             return None
-        if due > tick:
-            self.ctx.count("clock_skips")
-            log.warning("node %s: the clock skipped from tick %d to %d", self.process.name, tick, due)
         return due
 
     def _after_tick(self) -> None:

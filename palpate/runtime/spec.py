@@ -56,6 +56,8 @@ class Context(Protocol):
     stamp_ns: int
     #: Why the run ended when another node ended it ("" while it runs, or when this node ended it).
     run_stopped_by: str
+    #: Why the run failed, when it did: this node's failed stop or a RunControl "fail" ("" otherwise).
+    failure: str
     log: logging.Logger
 
     @property

@@ -307,7 +307,8 @@ def test_a_clock_that_skips_ahead_and_an_acknowledgement_ahead_of_the_clock_are_
     A lockstep clock sends every tick in turn, and no node acknowledges a tick not yet sent: both are
     counted, logged and dropped, and the node goes on."""
     with contact_stats_node(tmp_path) as node:
-        node.tick(0)
+        node.send(topics.CLOCK, codec.encode(Clock(stamp_ns=0, tick=3, period_ns=10_000_000, lockstep=True)))
+        node.tick(0)  # a lockstep clock starts at 0: a first Clock of tick 3 is another publisher's too
         node.send(topics.CLOCK, codec.encode(Clock(stamp_ns=0, tick=25, period_ns=10_000_000, lockstep=True)))
         node.send(topics.LOCKSTEP_ACK, codec.encode(LockstepAck(stamp_ns=0, node="noise", tick=1000)))
         node.send(topics.LOCKSTEP_ACK, codec.encode(LockstepAck(stamp_ns=0, node="noise", tick=1)))  # may be
@@ -318,9 +319,10 @@ def test_a_clock_that_skips_ahead_and_an_acknowledgement_ahead_of_the_clock_are_
         assert node.proc.poll() is None, f"the node stopped:\n{text(node.log)}"
         assert node.stop() == 0
     finished = counters(node.statuses[-1])
-    assert finished["decode_errors"] == 3 and finished["messages_in"] == 1
+    assert finished["decode_errors"] == 4 and finished["messages_in"] == 1
     out = text(node.log)
-    assert "topic clock: rejected message (1 so far): Clock tick 25 skips ahead of tick 1" in out
+    assert "topic clock: rejected message (1 so far): Clock tick 3 skips ahead of tick 0" in out
+    assert "topic clock: rejected message (2 so far): Clock tick 25 skips ahead of tick 1" in out
     assert "LockstepAck of tick 1000 from 'noise' is ahead of the clock (last tick 0)" in out
     assert f"topic {STATS_INPUT}: rejected message (1 so far): expected 2 frames [topic, payload], got 3" in out
 

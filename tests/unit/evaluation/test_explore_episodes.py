@@ -205,8 +205,20 @@ def test_gltf_files_are_taken_and_subfolders_with_meshes_are_named(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """An outside walkthrough: a .gltf that `palpate launch` reads was refused by eval explore, and a
-    subfolder's meshes were skipped without a word."""
-    trimesh.creation.box(extents=(0.05, 0.05, 0.05)).export(tmp_path / "box.gltf")
+    subfolder's meshes were skipped without a word. A .gltf whose buffers lie beside it is refused by
+    name (a review: the worker gets the one file, and every run failed on its missing .bin)."""
+    box = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
+    box.export(tmp_path / "box.gltf", embed_buffers=True)
+    (tmp_path / "split").mkdir()
+    box.export(tmp_path / "split" / "box.gltf")  # trimesh writes gltf_buffer_0.bin beside it
+    with pytest.raises(
+        ConfigError, match=r"box\.gltf: a \.gltf that keeps its data in files beside it \(gltf_buffer_0"
+    ):
+        objects_in(tmp_path / "split")
+    with pytest.raises(ConfigError, match=r"export it as \.glb"):
+        objects_in(tmp_path / "split" / "box.gltf")
+    capsys.readouterr()
+    (tmp_path / "split" / "box.gltf").unlink()
     (tmp_path / "more").mkdir()
     trimesh.creation.box(extents=(0.05, 0.05, 0.05)).export(tmp_path / "more" / "crate.stl")
     assert [c.name for c in objects_in(tmp_path)] == ["box"]

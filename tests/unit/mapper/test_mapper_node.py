@@ -114,6 +114,10 @@ def test_a_run_that_ends_between_two_publications_publishes_its_last_maps_at_the
         node.on_tick(tick * 10_000_000)
     stamps = [m.stamp_ns for topic, m in sent if topic == "map/occupancy"]
     assert stamps == [0, 1_000_000_000, 2_000_000_000]
+    node.ctx.failure = "controller: lost"  # a failed run's state is not published as its last maps
+    node.close()
+    assert [m.stamp_ns for topic, m in sent if topic == "map/occupancy"] == stamps
+    node.ctx.failure = ""
     node.close()
     node.close()  # once: the last maps are then the newest
     assert [m.stamp_ns for topic, m in sent if topic == "map/occupancy"][3:] == [2_500_000_000]
