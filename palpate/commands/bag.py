@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 from palpate import jsonio
 from palpate.argtypes import non_negative_float, non_negative_int, path_arg
-from palpate.errors import RecordError
+from palpate.errors import MessageError, RecordError
+from palpate.messages import codec, topics
+from palpate.messages.schemas import Clock
 from palpate.record import mcap_io, recorder
 from palpate.record.bag import Player, PlayOptions, counted, describe
 from palpate.runtime import bus
@@ -108,23 +111,53 @@ def run_record(args: argparse.Namespace) -> int:
     return recorder.run(args)
 
 
+def tick_gaps(ticks: Sequence[int]) -> list[tuple[int, int]]:
+    """The spans (first, last) of ticks from 0 to the largest that ``ticks`` (a log's Clocks) lack."""
+    seen = sorted(set(ticks))
+    gaps, expected = [], 0
+    for tick in seen:
+        if tick > expected:
+            gaps.append((expected, tick - 1))
+        expected = max(expected, tick + 1)
+    return gaps
+
+
 def run_info(args: argparse.Namespace) -> int:
     summary = mcap_io.summarize(args.file)
     launch = mcap_io.launch_info(args.file)
+    gaps: list[tuple[int, int]] = []
     if args.check:
-        read = sum(1 for _ in mcap_io.read_messages(args.file))  # RecordError at a damaged chunk
+        read, ticks = 0, []
+        for message in mcap_io.read_messages(args.file):  # RecordError at a damaged chunk
+            read += 1
+            if message.topic == topics.CLOCK:
+                try:
+                    ticks.append(codec.decode(message.data, Clock).tick)
+                except MessageError:  # a recorded Clock this build cannot read counts no tick
+                    continue
         if read != summary.messages:
             raise RecordError(
                 f"{args.file}: its summary counts {summary.messages} messages, its chunks hold {read}; "
                 f"`palpate bag recover {args.file}` rewrites what it holds"
             )
+        gaps = tick_gaps(ticks)
     if args.json:
-        print(jsonio.dumps({**summary.as_json(), "launch": mcap_io.launch_values(launch)}))
+        extra = {"ticks_missing": sum(last - first + 1 for first, last in gaps)} if args.check else {}
+        print(jsonio.dumps({**summary.as_json(), **extra, "launch": mcap_io.launch_values(launch)}))
     else:
         print(describe(summary, args.file))
         if args.check:
             messages = counted(summary.messages, "message")
             print(f"  checked: every chunk's CRC, and {messages} read as the summary counts")
+        if gaps:
+            spans = ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in gaps[:10]) + (
+                ", ..." if len(gaps) > 10 else ""
+            )
+            missing = sum(b - a + 1 for a, b in gaps)
+            print(
+                f"  clock: {counted(missing, 'tick')} missing ({spans}): a recovered log lacks its damaged "
+                "chunks, a recording started late its start; a replay of it differs from the run from there"
+            )
         if launch:
             print(
                 f"  recorded by palpate launch {launch.get('launch_file', '?')}, seed {launch.get('seed', '?')}, "
