@@ -27,7 +27,7 @@ from palpate.messages import codec, topics
 from palpate.messages.schemas import Clock, ContactSet, LockstepAck, NodeStatus, RunControl
 from palpate.paths import REPO_ROOT
 from palpate.runtime import bus
-from palpate.runtime.spec import EXIT_RUN_FAILED, NodeProcessSpec
+from palpate.runtime.spec import EXIT_RUN_FAILED, TRAIL_TICKS, NodeProcessSpec
 from tests.integration.launch_helpers import child_env, kill_session, text
 
 STATS_INPUT = "sensors/contacts"
@@ -325,6 +325,33 @@ def test_a_clock_that_skips_ahead_and_an_acknowledgement_ahead_of_the_clock_are_
     assert "topic clock: rejected message (2 so far): Clock tick 25 skips ahead of tick 1" in out
     assert "LockstepAck of tick 1000 from 'noise' is ahead of the clock (last tick 0)" in out
     assert f"topic {STATS_INPUT}: rejected message (1 so far): expected 2 frames [topic, payload], got 3" in out
+
+
+def test_a_node_that_may_trail_takes_acknowledgements_up_to_trail_ticks_ahead_and_no_further(
+    tmp_path: Path,
+) -> None:
+    """The bound is tight (a review): the clock runs up to TRAIL_TICKS ahead of a node that may trail, so
+    an upstream node's acknowledgement may be that far past its last Clock plus one, and no further."""
+    target = next(t for t in fuzz.targets(one_per_type=True) if t.process.type == "noise")
+    assert target.spec.may_trail
+    inputs = dict(target.process.subscribes)
+    with node_process(
+        tmp_path,
+        name="noise",
+        node_type="noise",
+        params=target.process.params,
+        publishes=dict(target.process.publishes),
+        subscribes=inputs,
+        wanted={**dict.fromkeys(inputs.values(), 1), topics.CLOCK: 1, topics.GRAPH_CONTROL: 1},
+        timeout_s=30.0,
+    ) as node:
+        node.tick(0)
+        for ahead in (TRAIL_TICKS + 1, TRAIL_TICKS + 2):  # 0 + 1 + TRAIL_TICKS is the last it takes
+            node.send(topics.LOCKSTEP_ACK, codec.encode(LockstepAck(stamp_ns=0, node="sim", tick=ahead)))
+        node.tick(1)
+        assert node.stop() == 0
+    assert counters(node.statuses[-1])["decode_errors"] == 1
+    assert f"LockstepAck of tick {TRAIL_TICKS + 2} from 'sim' is ahead of the clock (last tick 0)" in text(node.log)
 
 
 def test_a_node_started_without_a_launcher_waits_out_a_slow_driver(tmp_path: Path) -> None:
