@@ -462,6 +462,15 @@ def run_tasks(
     start = time.perf_counter()
     outcome = Outcome(rows={t.key: log.rows[t.key] for t in tasks if t.key in log.rows})
     outcome.resumed = len(outcome.rows)
+    foreign = len(log.rows) - outcome.resumed
+    if foreign:  # rows of other settings (a --set changed), objects or strategies: kept, not this command's
+        runs = "1 run" if foreign == 1 else f"{foreign} runs"
+        print(
+            f"note: {runs} in {log.path} {'is' if foreign == 1 else 'are'} no run of this "
+            "command (other settings, objects or strategies); kept, while its own runs join the file, "
+            "which --from-runs then refuses where two hold the same run: give each setting an --out of its own",
+            file=sys.stderr,
+        )
     todo = [t for t in tasks if t.key not in log.rows]
     if not todo:
         return outcome

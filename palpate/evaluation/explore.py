@@ -836,6 +836,33 @@ def episode_launch(episode: Episode, launch_path: Path = EXPLORE_LAUNCH) -> Any:
     return launch
 
 
+def _note_from_runs(args: argparse.Namespace, out: Path) -> None:
+    """Say on stderr what --from-runs leaves aside: the options of a run (it tables the file's runs as they
+    are), and a runs.jsonl in --out that is not the file tabled (the tables would no longer describe it)."""
+    ignored = [
+        option
+        for option, given in (
+            ("--runs", args.runs is not None),
+            ("--quick", args.quick),
+            ("--objects", bool(args.objects)),
+            ("--set", bool(args.set)),
+            ("--max-contacts", args.max_contacts is not None),
+            ("--max-travel-m", args.max_travel_m is not None),
+            ("--resume", args.resume),
+            ("--profile", args.profile),
+        )
+        if given
+    ]
+    if ignored:
+        print(f"--from-runs tables the file's runs as they are; ignored: {', '.join(ignored)}", file=sys.stderr)
+    kept = out / "runs.jsonl"
+    if kept.is_file() and kept.resolve() != Path(args.from_runs).resolve():
+        print(
+            f"note: {kept} is not {args.from_runs}, whose runs the tables and runs.csv in {out} now describe",
+            file=sys.stderr,
+        )
+
+
 def main(args: argparse.Namespace) -> int:
     """`palpate eval explore`: run, write CSV/JSONL/tables/plots into --out, print the tables."""
     from palpate.evaluation import explore_report as report
@@ -851,6 +878,7 @@ def main(args: argparse.Namespace) -> int:
         cases = sorted({r["object"] for r in results})
         runs = 1 + max((int(r["run"]) for r in results), default=0)
         strategies = strategies_in(results, args.strategies, args.from_runs)
+        _note_from_runs(args, out)
         output_folder(out)
     else:
         chosen = select_cases(args.objects, QUICK_OBJECTS if args.quick else None, args.scale)
@@ -894,7 +922,8 @@ def main(args: argparse.Namespace) -> int:
     report_stopped(results)
     report_short(results)
     plots = "coverage_vs_travel.png, travel_per_object.png, fscore_vs_travel.png"
-    print(f"wrote {out}: runs.csv, runs.jsonl, tables.md, {plots}")
+    made = "runs.csv" if args.from_runs is not None else "runs.csv, runs.jsonl"
+    print(f"wrote {out}: {made}, tables.md, {plots}")
     profiled = profile_summary(results) if args.profile else {}
     if profiled:
         print(profile_table(results, strategies))

@@ -122,9 +122,11 @@ def test_an_unreachable_scheduler_is_named_in_the_error() -> None:
 
 
 @pytest.mark.slow
-def test_run_tasks_skips_finished_runs_retries_and_reports_failures(tmp_path: Path) -> None:
+def test_run_tasks_skips_finished_runs_retries_and_reports_failures(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     path = tmp_path / "runs.jsonl"
-    path.write_text('{"run_key": "done", "x": 0}\n')
+    path.write_text('{"run_key": "done", "x": 0}\n{"run_key": "other-setting", "x": 9}\n')
     tasks = [
         RunTask(key="done", function=dict, args=(5,)),  # would raise: must not run again
         RunTask(key="one", function=dict, args=([("x", 1)],)),
@@ -138,7 +140,9 @@ def test_run_tasks_skips_finished_runs_retries_and_reports_failures(tmp_path: Pa
     assert outcome.resumed == 1
     assert list(outcome.failed) == ["bad"] and "bad run: TypeError" in outcome.failed["bad"]
     assert outcome.retried == 1
-    assert sorted(r["run_key"] for r in lines(path)) == ["done", "one", "two"]
+    assert sorted(r["run_key"] for r in lines(path)) == ["done", "one", "other-setting", "two"]
+    # an outside walkthrough: a --resume with another --set joined its runs to the others' without a word
+    assert "note: 1 run in " in capsys.readouterr().err
 
 
 def _reports(n: int) -> dict[str, int]:

@@ -545,3 +545,36 @@ def test_quick_takes_no_runs_and_from_runs_tables_the_strategies_it_holds(
     monkeypatch.setenv("PALPATE_YCB_DIR", str(tmp_path / "nowhere"))
     assert main(["eval", "explore", "--out", str(tmp_path / "o")]) == 2
     assert f"{tmp_path / 'nowhere'} is no folder (give --objects DIR, or set PALPATE_YCB_DIR" in capsys.readouterr().err
+
+
+def test_from_runs_names_what_it_leaves_aside_and_writes_no_runs_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An outside walkthrough: `--from-runs F --out D` said it wrote D/runs.jsonl (it does not: D's own,
+    of other runs, stayed beside tables of F's), and took --runs and --set without a word."""
+    import argparse
+
+    from palpate.evaluation.explore import _note_from_runs
+
+    given = tmp_path / "given.jsonl"
+    given.write_text("")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "runs.jsonl").write_text("")
+    args = argparse.Namespace(
+        from_runs=given,
+        runs=2,
+        quick=False,
+        objects=None,
+        set=["planner.tour_pool=3"],
+        max_contacts=None,
+        max_travel_m=None,
+        resume=False,
+        profile=False,
+    )
+    _note_from_runs(args, out)
+    err = capsys.readouterr().err
+    assert "--from-runs tables the file's runs as they are; ignored: --runs, --set" in err
+    assert f"note: {out / 'runs.jsonl'} is not {given}" in err
+    _note_from_runs(argparse.Namespace(**{**vars(args), "runs": None, "set": []}), tmp_path)  # no runs.jsonl there
+    assert capsys.readouterr().err == ""
