@@ -77,6 +77,10 @@ DEFAULT_OUT = Path("out") / "slam"
 FREE_MARGIN_MM = {1.0: 1.5, 2.0: 0.5, 4.0: 2.5}
 
 
+#: A map needs at least this many cells across its region to have a surface to score.
+MIN_CELLS_ACROSS = 4
+
+
 def free_margin_m(resolution_m: float) -> float | None:
     """The measured free margin for cells of ``resolution_m`` on this grid (FREE_MARGIN_MM), metres;
     None (the mapper's one cell) for a resolution not measured."""
@@ -618,11 +622,24 @@ def main(args: argparse.Namespace) -> int:
 
 def check_launch(config: SlamEvalConfig, launch_path: Path = SLAM_LAUNCH) -> None:
     """The launch file with the first seed's arguments, resolved here before any worker starts: an unknown
-    or bad --arg fails once, naming it, instead of in every run (LaunchError)."""
+    or bad --arg fails once, naming it, instead of in every run (LaunchError); and ConfigError for cells
+    so coarse that a map has fewer than MIN_CELLS_ACROSS across its region (nothing to score)."""
     from palpate.launch.graph import resolve
     from palpate.launch.loader import load_launch
+    from palpate.nodes.mapper.node import MapperNodeConfig
 
-    resolve(load_launch(launch_path, config.arguments(config.seeds[0])))
+    graph = resolve(load_launch(launch_path, config.arguments(config.seeds[0])))
+    for node in graph.nodes:
+        if not isinstance(node.config, MapperNodeConfig):
+            continue
+        mapper = node.config.mapper
+        extent_m = min(hi - lo for lo, hi in zip(mapper.region_min_m, mapper.region_max_m, strict=True))
+        if extent_m / mapper.resolution_m < MIN_CELLS_ACROSS:
+            raise ConfigError(
+                f"--resolution-mm {mapper.resolution_m * 1e3:g}: cells of that size leave fewer than "
+                f"{MIN_CELLS_ACROSS} across the {extent_m * 1e3:g} mm region the maps cover; their maps cannot "
+                f"be scored (give at most {extent_m * 1e3 / MIN_CELLS_ACROSS:g} mm)"
+            )
 
 
 def _write_csv(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:

@@ -44,7 +44,14 @@ from palpate.evaluation.dask_runs import (
     run_key,
     run_tasks,
 )
-from palpate.evaluation.slam import SLAM_LAUNCH, BoxTruth, Scorer, SlamEvalConfig, free_margin_m
+from palpate.evaluation.slam import (
+    MIN_CELLS_ACROSS,
+    SLAM_LAUNCH,
+    BoxTruth,
+    Scorer,
+    SlamEvalConfig,
+    free_margin_m,
+)
 from palpate.text_table import Column, fixed_width_table
 
 FloatArray = NDArray[np.float64]
@@ -337,8 +344,6 @@ def plot(path: Path, rows: Sequence[Mapping[str, Any]], title: str) -> None:
     plt.close(fig)
 
 
-#: A map needs at least this many cells across its region to have a surface to score.
-MIN_CELLS_ACROSS = 4
 #: Resolutions with more cells than this per map (0.2 mm over the 90 mm region) get a note on stderr.
 MANY_CELLS = 50_000_000
 

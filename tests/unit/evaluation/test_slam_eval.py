@@ -158,6 +158,10 @@ def test_an_unknown_launch_argument_is_refused_before_any_run() -> None:
     with pytest.raises(LaunchError, match=r"slam_eval\.yaml:\d+: unknown launch argument 'object'"):
         check_launch(SlamEvalConfig(launch_args={"object": "mesh"}))
     check_launch(SlamEvalConfig(launch_args={"free_reward": True}))
+    # an outside walkthrough: 50 mm cells (one or two across the 90 mm region) ran, scoring nothing
+    with pytest.raises(ConfigError, match=r"^--resolution-mm 50: cells of that size leave fewer than 4 across"):
+        check_launch(SlamEvalConfig(resolution_m=0.05))
+    check_launch(SlamEvalConfig(resolution_m=0.0225))
 
 
 def test_box_truth_from_the_vertices_of_a_box_and_not_of_anything_else() -> None:
