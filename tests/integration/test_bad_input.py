@@ -152,6 +152,25 @@ def contact_stats_node(tmp_path: Path) -> Iterator[Harness]:
         yield harness
 
 
+@contextmanager
+def shipped_node(tmp_path: Path, node_type: str) -> Iterator[tuple[Harness, fuzz.FuzzTarget]]:
+    """A node process of `node_type` as the shipped launch files configure it (the fuzzer's target), in
+    lockstep mode, wired to sockets owned by the test; with that target."""
+    target = next(t for t in fuzz.targets(one_per_type=True) if t.process.type == node_type)
+    inputs = dict(target.process.subscribes)
+    with node_process(
+        tmp_path,
+        name=node_type,
+        node_type=node_type,
+        params=target.process.params,
+        publishes=dict(target.process.publishes),
+        subscribes=inputs,
+        wanted={**dict.fromkeys(inputs.values(), 1), topics.CLOCK: 1, topics.GRAPH_CONTROL: 1},
+        timeout_s=30.0,
+    ) as harness:
+        yield harness, target
+
+
 def contacts(n: int = 3, nan: bool = False) -> ContactSet:
     positions = np.arange(3.0 * n).reshape(n, 3) * 0.01
     if nan:
@@ -240,19 +259,9 @@ def test_a_node_process_survives_the_fuzzer_and_counts_what_it_refused(tmp_path:
     refused input is logged with node, topic, field and reason. The node may end its run as a failure
     (the controller, when a fuzzed pose puts the fingertip past its initial target without a contact):
     an orderly stop whose exit status and log say so."""
-    target = next(t for t in fuzz.targets(one_per_type=True) if t.process.type == node_type)
-    inputs = dict(target.process.subscribes)
     frames = 300
-    with node_process(
-        tmp_path,
-        name=node_type,
-        node_type=node_type,
-        params=target.process.params,
-        publishes=dict(target.process.publishes),
-        subscribes=inputs,
-        wanted={**dict.fromkeys(inputs.values(), 1), topics.CLOCK: 1, topics.GRAPH_CONTROL: 1},
-        timeout_s=30.0,
-    ) as node:
+    with shipped_node(tmp_path, node_type) as (node, target):
+        inputs = dict(target.process.subscribes)
         rng = np.random.default_rng(15)
         generators = {port: fuzz.FrameGenerator(target.spec.inputs[port].message, rng) for port in inputs}
         for tick in range(frames):
@@ -332,19 +341,8 @@ def test_a_node_that_may_trail_takes_acknowledgements_up_to_trail_ticks_ahead_an
 ) -> None:
     """The bound is tight (a review): the clock runs up to TRAIL_TICKS ahead of a node that may trail, so
     an upstream node's acknowledgement may be that far past its last Clock plus one, and no further."""
-    target = next(t for t in fuzz.targets(one_per_type=True) if t.process.type == "noise")
-    assert target.spec.may_trail
-    inputs = dict(target.process.subscribes)
-    with node_process(
-        tmp_path,
-        name="noise",
-        node_type="noise",
-        params=target.process.params,
-        publishes=dict(target.process.publishes),
-        subscribes=inputs,
-        wanted={**dict.fromkeys(inputs.values(), 1), topics.CLOCK: 1, topics.GRAPH_CONTROL: 1},
-        timeout_s=30.0,
-    ) as node:
+    with shipped_node(tmp_path, "noise") as (node, target):
+        assert target.spec.may_trail
         node.tick(0)
         for ahead in (TRAIL_TICKS + 1, TRAIL_TICKS + 2):  # 0 + 1 + TRAIL_TICKS is the last it takes
             node.send(topics.LOCKSTEP_ACK, codec.encode(LockstepAck(stamp_ns=0, node="sim", tick=ahead)))
