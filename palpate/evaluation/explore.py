@@ -98,11 +98,11 @@ class ObjectCase:
         return np.asarray(model.mesh.vertices, dtype=np.float64), np.asarray(model.mesh.faces, dtype=np.int64)
 
 
-def _subfolders_with_meshes(folder: Path) -> list[str]:
-    """The names of ``folder``'s subfolders that hold mesh files themselves (sorted; one that cannot be
-    read is left out)."""
+def _subfolders_with_meshes(entries: Sequence[Path]) -> list[str]:
+    """The names of the subfolders among a folder's ``entries`` that hold mesh files themselves (sorted;
+    one that cannot be read is left out)."""
     found = []
-    for d in folder.iterdir():
+    for d in entries:
         try:
             if d.is_dir() and any(p.suffix.lower() in MESH_SUFFIXES for p in d.iterdir()):
                 found.append(d.name)
@@ -143,15 +143,16 @@ def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
         raise ConfigError(
             f"--objects {str(folder)!r} is neither a folder nor a mesh file ({', '.join(MESH_SUFFIXES)}; see --scale)"
         )
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
-    skipped = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in OTHER_3D_SUFFIXES)
+    entries = list(folder.iterdir())
+    files = sorted(p for p in entries if p.suffix.lower() in MESH_SUFFIXES)
+    skipped = sorted(p.name for p in entries if p.suffix.lower() in OTHER_3D_SUFFIXES)
     if skipped:
         print(
             f"--objects {str(folder)!r}: skipped {len(skipped)} file(s) of formats palpate does not read: "
             f"{', '.join(skipped)}; convert them to one of {', '.join(MESH_SUFFIXES)}",
             file=sys.stderr,
         )
-    below = _subfolders_with_meshes(folder)
+    below = _subfolders_with_meshes(entries)
     if below and files:
         print(
             f"--objects {str(folder)!r}: its subfolders are not searched; {', '.join(below)} hold mesh files "
