@@ -198,6 +198,21 @@ MIN_APPROACH_M = 1e-9
 AXIS_APPROACH_M = 0.5
 
 
+def tick_step_problem(v0_m_s: float, tick_s: float, tip_radius_m: float) -> str:
+    """Why the fingertip cannot be controlled at this speed and tick ('' when it can): the controller
+    sees a contact only at the next tick, so a tick's travel at v0 beyond the fingertip's radius can
+    carry it into, or through, the surface before it reacts."""
+    step_m = v0_m_s * tick_s
+    if tip_radius_m <= 0.0 or step_m <= tip_radius_m:
+        return ""
+    return (
+        f"controller: at v0 = {v0_m_s:g} m/s a tick of {tick_s:g} s moves the fingertip {step_m * 1e3:.4g} mm, "
+        f"more than its {tip_radius_m * 1e3:g} mm radius, so it can pass through a surface before it sees the "
+        f"contact; lower the controller's controller.v0_m_s or the sim's tick_period_s (v0 x tick at most "
+        f"{tip_radius_m * 1e3:g} mm)"
+    )
+
+
 #: A slide that loses the surface finishes along the Eq. 15 curve to its target when the fingertip is
 #: at least this far from its place there, metres (the planner's min_hop_m); nearer, the curve is too
 #: short for the controller to follow (it looks ahead less than one control step), and the fingertip

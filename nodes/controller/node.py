@@ -15,7 +15,7 @@ from palpate.geometry.bezier import bezier_length
 from palpate.geometry.rotations import matrix_to_quat
 from palpate.inputs import contact_arrays, fingertip_pose, within_reach
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, Pose, TouchEvent, TouchTarget, Trajectory
-from palpate.nodes.controller.core import AXIS_APPROACH_M, Touch, TouchConfig, TouchLoop
+from palpate.nodes.controller.core import AXIS_APPROACH_M, Touch, TouchConfig, TouchLoop, tick_step_problem
 from palpate.nodes.controller.trajectory import ControllerConfig
 from palpate.runtime.spec import Context, NodeSpec, Port
 
@@ -46,6 +46,7 @@ class ControllerNode:
         self.core = TouchLoop(config, config.controller, config.initial_target_m)
         self.pose: tuple[np.ndarray, np.ndarray] | None = None  # fingertip position (3,) m, orientation (3, 3)
         self.contacts = _NO_CONTACT
+        self._first_stamp_ns: int | None = None  # until the tick period is known and checked
 
     def on_pose(self, message: Pose) -> None:
         self.pose = fingertip_pose(message.position_m, message.quaternion_wxyz)
@@ -103,7 +104,22 @@ class ControllerNode:
             "launch/explore.yaml, or target:=null to approach along the fingertip's poking axis)"
         )
 
+    def _check_tick(self, stamp_ns: int) -> str:
+        """The speed against the tick period (tick_step_problem), once, from the first two stamps."""
+        if self._first_stamp_ns is None:
+            self._first_stamp_ns = stamp_ns
+            return ""
+        if self._first_stamp_ns < 0:
+            return ""
+        tick_s = (stamp_ns - self._first_stamp_ns) * 1e-9
+        self._first_stamp_ns = -1
+        return tick_step_problem(self.config.controller.v0_m_s, tick_s, self.config.tip_radius_m)
+
     def on_tick(self, stamp_ns: int) -> None:
+        problem = self._check_tick(stamp_ns)
+        if problem:
+            self.ctx.request_stop(problem, failed=True)
+            return
         if self.pose is None:
             return
         step = self.core.step(stamp_ns, *self.pose, *self.contacts)

@@ -159,9 +159,7 @@ class TopicTap:
         self.tap = bus.PublisherTap(client_keys=client_keys)
         self.last_discovery = 0.0
         self.interrupted = False
-        self.undeclared = bus.UndeclaredTopics([topic])
-        self._empty_since: float | None = None  # since when the bus has had no publisher
-        self._told_empty = False
+        self.undeclared = bus.UndeclaredTopics([topic], bus_dir, settle_s=EMPTY_BUS_NOTE_S)
 
     @property
     def endpoints(self) -> set[str]:
@@ -176,25 +174,8 @@ class TopicTap:
         self.last_discovery = time.monotonic()
         for note in self.undeclared.notes(manifests, self.last_discovery):
             print(f"{self.command}: {note}; waiting for one", file=sys.stderr, flush=True)
-        self._note_empty_bus(bool(manifests))
-
-    def _note_empty_bus(self, has_publishers: bool) -> None:
-        """Say once when the bus has had no publisher for EMPTY_BUS_NOTE_S (a wrong --bus waited silently)."""
-        now = time.monotonic()
-        if has_publishers or self._told_empty:
-            self._empty_since = None
-            return
-        if self._empty_since is None:
-            self._empty_since = now
-        elif now - self._empty_since >= EMPTY_BUS_NOTE_S:
-            self._told_empty = True
-            where = "" if self.bus_dir.is_dir() else ", a folder that does not exist yet"
-            print(
-                f"{self.command}: no publisher on bus {self.bus_dir}{where}; waiting for a graph launched with "
-                f"--bus {self.bus_dir} (palpate node list shows a bus's publishers)",
-                file=sys.stderr,
-                flush=True,
-            )
+        if empty := self.undeclared.empty_bus_note(manifests, self.last_discovery):
+            print(f"{self.command}: {empty}", file=sys.stderr, flush=True)
 
     def receive(self, timeout_s: float) -> list[tuple[float, bytes]]:
         """Payloads of the topic that arrive within `timeout_s`, with their arrival times."""

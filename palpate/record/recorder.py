@@ -315,7 +315,7 @@ class Recorder:
         self.first_held: float | None = None
         self.first_message: float | None = None
         self.unmarked_since: dict[str, float] = {}
-        self.undeclared = bus.UndeclaredTopics(self.wanted)  # wanted topics no publisher declares
+        self.undeclared = bus.UndeclaredTopics(self.wanted, self.bus_dir)  # wanted topics no publisher declares
 
     # --- discovery ---------------------------------------------------------------------------------
     def _base_topics(self) -> list[str]:
@@ -382,8 +382,11 @@ class Recorder:
         not for --connect endpoints, which need not write manifests here."""
         if self.static:
             return
-        for note in self.undeclared.notes(manifests, time.monotonic()):
+        now = time.monotonic()
+        for note in self.undeclared.notes(manifests, now):
             log.warning("%s; it is recorded if a publisher of it appears", note)
+        if empty := self.undeclared.empty_bus_note(manifests, now):
+            log.warning("%s", empty)
 
     # --- receiving ---------------------------------------------------------------------------------
     def _drain(self, conn: _Connection, limit: int = 5000) -> None:

@@ -167,13 +167,17 @@ def undeclared(topic: str, manifests: Sequence[Manifest]) -> str | None:
 class UndeclaredTopics:
     """Tells, once per asked-for topic, that no running publisher declares it (``undeclared``), but only
     once the running publishers have stayed the same for ``settle_s``: a graph that is starting writes
-    its nodes' manifests one by one."""
+    its nodes' manifests one by one. Given ``bus_dir``, ``empty_bus_note`` tells once that the bus has
+    had no publisher at all for ``settle_s``."""
 
-    def __init__(self, wanted: Sequence[str], settle_s: float = 2.0) -> None:
+    def __init__(self, wanted: Sequence[str], bus_dir: str | Path | None = None, settle_s: float = 2.0) -> None:
         self.wanted, self.settle_s = list(wanted), settle_s
+        self.bus_dir = None if bus_dir is None else Path(bus_dir)
         self.told: set[str] = set()
         self._running: frozenset[str] | None = None
         self._since = 0.0
+        self._empty_since: float | None = None  # since when the bus has had no publisher
+        self._told_empty = False
 
     def notes(self, manifests: Sequence[Manifest], now_s: float) -> list[str]:
         """What to tell now, given the manifests read at monotonic time ``now_s``."""
@@ -189,6 +193,24 @@ class UndeclaredTopics:
                 self.told.add(topic)
                 out.append(note)
         return out
+
+    def empty_bus_note(self, manifests: Sequence[Manifest], now_s: float) -> str | None:
+        """Once, when the bus (``bus_dir``) has had no publisher for ``settle_s``: a wrong --bus waits
+        silently otherwise."""
+        if manifests or self._told_empty or self.bus_dir is None:
+            self._empty_since = None
+            return None
+        if self._empty_since is None:  # the first look starts the wait
+            self._empty_since = now_s
+            return None
+        if now_s - self._empty_since < self.settle_s:
+            return None
+        self._told_empty = True
+        where = "" if self.bus_dir.is_dir() else ", a folder that does not exist yet"
+        return (
+            f"no publisher on bus {self.bus_dir}{where}; waiting for a graph launched with --bus {self.bus_dir} "
+            "(palpate node list shows a bus's publishers)"
+        )
 
 
 def read_manifests(bus_dir: str | Path) -> list[Manifest]:

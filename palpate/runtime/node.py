@@ -128,6 +128,7 @@ class NodeContext:
         self._send_checks = send_checks
         self._may_stop = may_stop
         self._rejections: dict[tuple[str, str], int] = {}
+        self._first_rejection = ""
         self.log = logging.getLogger(f"palpate.{name}")
 
     def publish(self, port: str, message: Message) -> None:
@@ -152,6 +153,9 @@ class NodeContext:
                 f"node {self.name!r} asked to stop the run ({reason}), but its NodeSpec says may_trail=True, "
                 "which promises it never does: remove may_trail from the spec"
             )
+        rejected = self.counters["input_errors"]
+        if failed and rejected:  # the likelier cause of a failure, which the reason itself may not know
+            reason += f" ({rejected} input message(s) rejected before this; the first: {self._first_rejection})"
         self.stop_requested = reason
         if failed and not self.failure:
             self.failure = reason
@@ -169,8 +173,10 @@ class NodeContext:
         field = getattr(error, "field", "")
         where = f"field {message.TYPE}.{field}" if field else message.TYPE
         n = self._rejections[topic, where] = self._rejections.get((topic, where), 0) + 1
+        reason = getattr(error, "reason", str(error))
+        if not self._first_rejection:
+            self._first_rejection = f"topic {topic}, {where}: {reason}"
         if _worth_logging(n):
-            reason = getattr(error, "reason", str(error))
             self.log.warning(
                 "node %s, topic %s: input rejected, %s: %s (%d so far)", self.name, topic, where, reason, n
             )

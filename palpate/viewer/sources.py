@@ -115,7 +115,7 @@ class BusSource:
         self.last_discovery = -float("inf")
         self.stopped = False  # the graph published RunControl "stop"
         self.interrupted = False
-        self.undeclared = bus.UndeclaredTopics(sorted(self.wanted or ()))  # asked-for topics nobody declares
+        self.undeclared = bus.UndeclaredTopics(sorted(self.wanted or ()), self.bus_dir)  # topics nobody declares
 
     def discover(self) -> None:
         """Connect to publishers not yet connected and learn the types of their topics."""
@@ -126,6 +126,8 @@ class BusSource:
         self.last_discovery = time.monotonic()
         for note in self.undeclared.notes(manifests, self.last_discovery):
             print(f"palpate view: {note}; waiting for one", file=sys.stderr, flush=True)
+        if empty := self.undeclared.empty_bus_note(manifests, self.last_discovery):
+            print(f"palpate view: {empty}", file=sys.stderr, flush=True)
 
     def _shown(self, topic: str) -> bool:
         type_name = self.types.get(topic)

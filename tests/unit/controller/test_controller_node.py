@@ -12,6 +12,7 @@ from palpate.messages import codec
 from palpate.messages.base import Message
 from palpate.messages.schemas import ContactSet, TouchTarget
 from palpate.nodes.controller.node import ControllerNode, ControllerNodeConfig
+from palpate.nodes.controller.trajectory import ControllerConfig
 from tests.unit.node_messages import no_contacts, pose
 
 #: The probe's orientation in these tests: its poking axis along -z.
@@ -176,3 +177,22 @@ def test_a_contact_no_part_of_the_fingertip_can_make_is_refused() -> None:
     ):
         node.on_contacts(_contact_at([0.0, 0.0, 25.0]))
     np.testing.assert_array_equal(node.contacts[0], [[0.0, 0.0, 0.13]])  # the state before the refused set
+
+
+@pytest.mark.parametrize(
+    ("v0", "tick_ns", "stops"),
+    [(0.05, 10_000_000, False), (0.8, 10_000_000, False), (100.0, 10_000_000, True), (0.05, 10_000_000_000, True)],
+)
+def test_a_tick_that_carries_the_fingertip_past_its_radius_stops_the_run_naming_both_knobs(
+    v0: float, tick_ns: int, stops: bool
+) -> None:
+    ctx = FakeCtx()
+    config = ControllerNodeConfig(controller=ControllerConfig(v0_m_s=v0))
+    node = ControllerNode(config, ctx)
+    node.on_contacts(no_contacts())
+    for tick in range(3):
+        node.on_pose(pose(np.array([0.0, 0.0, 0.05]), FACING_DOWN, "probe"))
+        node.on_tick(tick * tick_ns)
+    assert ctx.stop_failed == stops
+    if stops:
+        assert "v0_m_s" in ctx.stop_reason and "tick_period_s" in ctx.stop_reason and "8 mm radius" in ctx.stop_reason

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -182,3 +183,41 @@ def test_a_topic_command_on_a_bus_without_publishers_says_so_once(
         tap.close()
     err = capsys.readouterr().err
     assert err.count("topic echo: no publisher on bus ") == 1 and "a folder that does not exist yet" in err
+
+
+def test_an_empty_bus_is_told_once_after_it_settles_and_only_with_a_bus_dir(tmp_path: Path) -> None:
+    sim = bus.Manifest("sim", "ipc:///sim", 1, {"sensors/contacts": "ContactSet"}, {})
+    told = bus.UndeclaredTopics([], tmp_path, settle_s=2.0)
+    assert told.empty_bus_note([], 0.0) is None  # the wait starts
+    assert told.empty_bus_note([sim], 1.0) is None  # a publisher came: the wait is over
+    assert told.empty_bus_note([], 1.5) is None
+    assert told.empty_bus_note([], 3.0) is None
+    note = told.empty_bus_note([], 3.5)
+    assert note is not None and note.startswith(f"no publisher on bus {tmp_path}; waiting for a graph launched")
+    assert told.empty_bus_note([], 10.0) is None  # once
+    assert bus.UndeclaredTopics([], settle_s=0.0).empty_bus_note([], 5.0) is None  # no bus dir: no note
+
+
+def test_the_recorder_and_the_viewer_say_when_their_bus_has_no_publisher(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """An outside walkthrough: only `palpate topic` said so; `record` and `view` on a wrong --bus waited silently."""
+    from palpate.record.recorder import Recorder
+    from palpate.viewer.sources import BusSource
+
+    nowhere = tmp_path / "nowhere"
+    recorder = Recorder(tmp_path / "run.mcap", bus_dir=nowhere)
+    recorder.undeclared.settle_s = 0.0
+    source = BusSource(nowhere)
+    source.undeclared.settle_s = 0.0
+    try:
+        with caplog.at_level(logging.WARNING):
+            for _ in range(3):
+                recorder.discover()
+                source.discover()
+    finally:
+        source.close()
+        recorder.writer.close()
+        recorder.tap.close()
+    assert caplog.text.count(f"no publisher on bus {nowhere}, a folder that does not exist yet") == 1
+    assert capsys.readouterr().err.count(f"palpate view: no publisher on bus {nowhere}") == 1

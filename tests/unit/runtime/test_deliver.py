@@ -207,3 +207,28 @@ def test_an_int_beyond_64_bits_is_an_output_error_in_process() -> None:
     with pytest.raises(OutputError, match=r"published an invalid Clock on port 'out': .*signed 64-bit range"):
         ctx.publish("out", Clock(stamp_ns=1 << 64, tick=0, period_ns=1, lockstep=True))
     assert not sent and ctx.counters["output_errors"] == 1
+
+
+def test_a_failed_stop_after_rejected_inputs_names_their_count_and_the_first() -> None:
+    ctx, node = context(), Keeper()
+    deliver(ctx, node, "pose", "sensors/effector_pose", pose([0.0, 0.0, 0.0, 0.0]))
+    deliver(ctx, node, "other", "x", pose([1.0, 0.0, 0.0, 0.0]))
+    ctx.request_stop("found no surface", failed=True)
+    assert (
+        ctx.failure
+        == ctx.stop_requested
+        == (
+            "found no surface (2 input message(s) rejected before this; the first: topic sensors/effector_pose, "
+            "field Pose.quaternion_wxyz: not a unit quaternion)"
+        )
+    )
+
+
+def test_a_stop_without_rejected_inputs_or_not_failed_keeps_its_reason() -> None:
+    ctx = context()
+    ctx.request_stop("found no surface", failed=True)
+    assert ctx.failure == "found no surface"
+    ctx, node = context(), Keeper()
+    deliver(ctx, node, "other", "x", pose([1.0, 0.0, 0.0, 0.0]))
+    ctx.request_stop("budget reached")
+    assert ctx.stop_requested == "budget reached"
