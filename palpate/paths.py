@@ -54,3 +54,16 @@ def read_start(path: str | Path, size: int) -> bytes:
     takes tells a file too large without reading it to the end: /dev/zero would fill the memory)."""
     with Path(path).open("rb") as stream:
         return stream.read(size)
+
+
+def output_path_problem(path: Path, example: str) -> str:
+    """Why a file could not be written at `path` (its folder is made as needed), '' when it could;
+    `example`: a file name to suggest when `path` is a folder."""
+    if path.is_dir():
+        return f"{path} is a directory; give a file name, such as {path / example}"
+    existing = next(p for p in (path.parent, *path.parent.parents) if p.exists())
+    if not existing.is_dir():
+        return f"{path}: {existing} is not a folder"
+    if not os.access(existing, os.W_OK | os.X_OK):
+        return f"{path}: the folder {existing} is not writable"
+    return ""

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from palpate.config import Validated
+from palpate.config import KeyPath, Validated
 from palpate.errors import InputError
 from palpate.geometry.rotations import quat_to_matrix
 from palpate.inputs import coordinates, per_vertex, triangle_mesh, unit_quaternion
@@ -25,6 +25,8 @@ from palpate.jsonio import dumps as json_dumps
 from palpate.jsonio import write as write_json
 from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.explore_eval.core import FINISHED_PREFIX, EvalConfig, ExplorationEvaluator, RunControl
+from palpate.nodes.explore_eval.plot import plot_formats
+from palpate.paths import output_path_problem
 from palpate.runtime.spec import Context, NodeSpec, Port
 
 
@@ -126,11 +128,23 @@ class ExploreEvalNode:
         stopped_by = self.ctx.run_stopped_by
         if self.result["finished"] == "clock" and stopped_by and not stopped_by.startswith(FINISHED_PREFIX):
             self.result.update(finished="stopped", stop_reason=stopped_by)  # another node ended the run
+        if self.config.report:  # first: a file that cannot be written must not take the result with it
+            print(_headline(self.result), flush=True)
+            brief = {k: v for k, v in self.result.items() if k not in ("touches", "shape")}  # results_path has all
+            print("explore_result: " + json_dumps(brief), flush=True)
+        try:
+            self._write_files()
+        except (OSError, ValueError) as exc:  # a full disk, a folder removed during the run
+            self.ctx.log.error("explore_eval: could not write the run's files: %s", exc)
+
+    def _write_files(self) -> None:
+        """The whole result as JSON (results_path) and the plot (plot_path), where set."""
         if self.config.results_path:
             write_json(self.config.results_path, self.result, indent=1)
         if self.config.plot_path:
             from palpate.nodes.explore_eval.plot import plot_run
 
+            assert self.evaluator is not None
             contacts = np.array([t["position_m"] for t in self.result["touches"]]).reshape(-1, 3)
             title = f"{self.name}: {len(contacts)} contacts, coverage {100 * self.result['coverage']:.0f} %"
             plot_run(
@@ -140,10 +154,6 @@ class ExploreEvalNode:
                 contacts,
                 title,
             )
-        if self.config.report:
-            print(_headline(self.result), flush=True)
-            brief = {k: v for k, v in self.result.items() if k not in ("touches", "shape")}  # results_path has all
-            print("explore_result: " + json_dumps(brief), flush=True)
 
 
 def _headline(result: dict[str, Any]) -> str:
@@ -155,6 +165,23 @@ def _headline(result: dict[str, Any]) -> str:
         f"{result.get('object')}: {result['contacts']} contacts, coverage {100 * result['coverage']:.1f} %, "
         f"travel {travel_cm:.1f} cm, finished: {result['finished']}{why}"
     )
+
+
+def _checks(config: ExploreEvalNodeConfig) -> dict[KeyPath, str]:
+    """Output paths the node could not write at the end of the run (it writes them only then)."""
+    problems: dict[KeyPath, str] = {}
+    for key, name in (("results_path", config.results_path), ("plot_path", config.plot_path)):
+        example = "run.json" if key == "results_path" else "run.png"
+        if name and (problem := output_path_problem(Path(name), example)):
+            problems[(key,)] = problem
+    if config.plot_path and not problems.get(("plot_path",)):
+        suffix = Path(config.plot_path).suffix.lower().lstrip(".")
+        formats = plot_formats()
+        if suffix not in formats:
+            problems[("plot_path",)] = (
+                f"{config.plot_path}: the plot's format comes from its suffix, one of {', '.join(sorted(formats))}"
+            )
+    return problems
 
 
 SPEC = NodeSpec(
@@ -169,4 +196,5 @@ SPEC = NodeSpec(
     },
     outputs={"request": Port(SurfaceRequest)},
     doc="Scores an exploration run against the true mesh (evaluator: reads truth/ topics).",
+    checks=_checks,
 )

@@ -7,6 +7,13 @@ from pathlib import Path
 import numpy as np
 
 
+def plot_formats() -> set[str]:
+    """The file suffixes (without the dot) a plot can be saved as."""
+    from matplotlib.figure import Figure
+
+    return set(Figure().canvas.get_supported_filetypes())
+
+
 def plot_run(
     path: Path,
     true_mesh: tuple[np.ndarray, np.ndarray],

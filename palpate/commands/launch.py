@@ -26,7 +26,7 @@ from palpate.launch.loader import (
     with_external,
 )
 from palpate.launch.supervisor import Supervisor
-from palpate.paths import LAUNCH_DIR, REPO_ROOT, why_not
+from palpate.paths import LAUNCH_DIR, REPO_ROOT, output_path_problem, why_not
 from palpate.runtime import bus
 
 
@@ -46,8 +46,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--replay-nodes",
         type=_names,
+        action="extend",
         metavar="A,B",
-        help="with --replay: the nodes the log stands in for (default: the clock source)",
+        help="with --replay: the nodes the log stands in for (default: the clock source); repeatable",
     )
     p.add_argument(
         "--set",
@@ -59,8 +60,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument(
         "--external",
         type=_names,
+        action="extend",
         metavar="A,B",
-        help="start these nodes not here but from a driver (as `external: true` in the launch file would)",
+        help="start these nodes not here but from a driver (as `external: true` in the launch file would); repeatable",
     )
     p.add_argument("--bus", type=path_arg, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
     p.add_argument(
@@ -138,11 +140,12 @@ def _refuse_set_over_arguments(path: Path, arguments: dict[str, Any], params: di
 
 
 def _from_the_command_line(exc: LaunchError, path: Path, overrides: list[str]) -> LaunchError:
-    """`exc`, saying which `name:=value` of the command line the line of `path` it names substitutes, if any."""
+    """`exc`, saying which `name:=value` of the command line the line it names substitutes, if any: a line
+    of `path`, or of a file it includes (where an argument of the same name is most often passed on)."""
     file, _, line = str(exc).partition(": ")[0].rpartition(":")
-    if not line.isdigit() or not file or Path(file).resolve() != path.resolve():
+    if not line.isdigit() or not file or not overrides or not Path(file).is_file():
         return exc
-    lines = path.read_text(errors="replace").splitlines()
+    lines = Path(file).read_text(errors="replace").splitlines()
     text = lines[int(line) - 1] if int(line) <= len(lines) else ""  # (an empty file's error names line 1)
     used = [item for item in overrides if f"${{{item.partition(':=')[0]}}}" in text]
     return LaunchError(f"{exc} (from the command line: {', '.join(used)})") if used else exc
@@ -166,6 +169,8 @@ def run_launch(args: argparse.Namespace) -> int:
         print(json.dumps(json.loads(specs[args.spec].to_json()), indent=1, sort_keys=True))
         return 0
     if args.dry_run:
+        if args.record is not None:
+            check_record_path(args.record, overwrite=args.force, create=False)
         print(describe(graph))  # a reader that stops early (| head) is no error: palpate.cli says so
         return 0
     return run_graph(graph, record=args.record, overwrite=args.force)
@@ -179,19 +184,27 @@ def recorder_curve_keys(graph: Graph) -> dict[str, str]:
     return bus.derived_curve_keys("palpate recorder", [n.curve["secret"] for n in graph.nodes if n.curve.get("secret")])
 
 
-def check_record_path(path: Path, *, overwrite: bool) -> None:
+def check_record_path(path: Path, *, overwrite: bool, create: bool = True) -> None:
     """Refuse a `--record` path the recorder could not write, or an existing log without `overwrite`;
-    creates its folder, as the recorder would."""
-    if path.is_dir():
-        raise LaunchError(f"--record {path} is a directory; give a file name, such as {path / 'run.mcap'}")
+    creates its folder, as the recorder would (`create`; --dry-run only checks where it would be made),
+    and tries to create the file itself (then removes it again)."""
+    if problem := output_path_problem(path, "run.mcap"):
+        raise LaunchError(f"--record {problem}")
     if path.exists() and not overwrite:
         raise LaunchError(f"--record {path} exists; pass --force to replace it, or choose another file")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise LaunchError(f"--record {path}: cannot create its folder: {exc}") from exc
-    if not os.access(path.parent, os.W_OK | os.X_OK):
-        raise LaunchError(f"--record {path}: the folder {path.parent} is not writable")
+    if create:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise LaunchError(f"--record {path}: cannot create its folder: {exc}") from exc
+    if path.parent.is_dir():
+        try:  # access() says yes to root in /proc, and to any user on some file systems that refuse files
+            os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+        except FileExistsError:
+            return
+        except OSError as exc:
+            raise LaunchError(f"--record {path}: cannot create the file: {exc.strerror}") from exc
+        path.unlink()
 
 
 def launch_about(graph: Graph) -> dict[str, str]:

@@ -21,11 +21,26 @@ from palpate.paths import read_start
 
 class _Loader(yaml.SafeLoader):
     """YAML 1.1 as PyYAML reads it, plus the floats of YAML 1.2 without a dot or an exponent sign (`1e3`,
-    `1.0e400`), which 1.1 reads as strings."""
+    `1.0e400`), which 1.1 reads as strings, and without 1.1's octal and base-60 numbers (`010` is 8 and
+    `1:30` is 90 there): those are text, which a numeric parameter refuses by name."""
 
 
+_INT_TAG, _FLOAT_TAG = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
 _Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*(\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789")
+    _FLOAT_TAG, re.compile(r"^[-+]?[0-9][0-9_]*(\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789")
+)
+for _first, _resolvers in _Loader.yaml_implicit_resolvers.items():  # (a copy of SafeLoader's, made above)
+    _resolvers[:] = [(tag, rx) for tag, rx in _resolvers if tag not in (_INT_TAG, _FLOAT_TAG) or ":" not in rx.pattern]
+_Loader.add_implicit_resolver(  # 1.1's ints without the octal (0 then digits) and base-60 forms
+    _INT_TAG, re.compile(r"^(?:[-+]?0b[0-1_]+|[-+]?(?:0|[1-9][0-9_]*)|[-+]?0x[0-9a-fA-F_]+)$"), list("-+0123456789")
+)
+_Loader.add_implicit_resolver(  # 1.1's floats without the base-60 form
+    _FLOAT_TAG,
+    re.compile(
+        r"^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+][0-9]+)?|\.[0-9][0-9_]*(?:[eE][-+][0-9]+)?"
+        r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"
+    ),
+    list("-+0123456789."),
 )
 _CONSTRUCTOR = yaml.constructor.SafeConstructor()
 #: What PyYAML's constructors raise for a tagged value they cannot build (`!!bool maybe`, `!!timestamp x`,
@@ -237,16 +252,19 @@ def _merged(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
 
 def with_external(launch: LaunchFile, names: Sequence[str]) -> LaunchFile:
     """`launch` with the nodes `names` marked ``external: true`` (``palpate launch --external``): wired and
-    waited for, but started by a driver, not the launcher."""
+    waited for, but started (and restarted) by a driver, not the launcher."""
     known = list(_named_nodes(launch))
     unknown = sorted(set(names) - set(known))
     if unknown:
         raise LaunchError(f"--external: no node {unknown} in {_display(launch.path)}; its nodes: {sorted(known)}")
-    nodes = [
-        replace(entry, fields={**entry.fields, "external": True}) if entry.fields["name"] in names else entry
-        for entry in launch.nodes
-    ]
+    nodes = [_external(entry) if entry.fields["name"] in names else entry for entry in launch.nodes]
     return replace(launch, nodes=nodes)
+
+
+def _external(entry: NodeEntry) -> NodeEntry:
+    """`entry` marked external; its driver, not the launcher, restarts it (its respawn settings go)."""
+    kept = {k: v for k, v in entry.fields.items() if k not in ("respawn", "max_restarts")}
+    return replace(entry, fields={**kept, "external": True})
 
 
 def load_launch(path: str | Path, overrides: Mapping[str, Any] | None = None) -> LaunchFile:
@@ -388,7 +406,9 @@ def _included_nodes(
         if "file" not in items:
             raise LaunchError(f"{name}:{include.start_mark.line + 1}: include needs a 'file'")
         site = f"{name}:{items['file'][1].start_mark.line + 1}"
-        given = str(_plain(items["file"][1], name, args))
+        given = _plain(items["file"][1], name, args)
+        if not isinstance(given, str) or not given.strip():
+            raise LaunchError(f"{site}: include 'file' must name a launch file, got {given!r}")
         try:
             target = (path.parent / given).resolve()
             is_file = target.is_file()
@@ -398,7 +418,8 @@ def _included_nodes(
             chain = " -> ".join(_display(p) for p in (*stack, path, target))
             raise LaunchError(f"{site}: include cycle: {chain}")
         if not is_file:
-            raise LaunchError(f"{site}: included launch file {_display(target)} does not exist")
+            what = "is a folder, not a launch file" if target.is_dir() else "does not exist"
+            raise LaunchError(f"{site}: included launch file {_display(target)} {what}")
         include_args, include_sites = _include_args(items, name, args)
         nodes.extend(_load(target, include_args, (*stack, path), include_sites).nodes)
     return nodes

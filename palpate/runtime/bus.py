@@ -72,7 +72,10 @@ def default_bus_dir() -> Path:
 
 
 def usable_dir(path: Path) -> Path:
-    """`path`, which is a directory or can be made one; else BusError naming the file in the way."""
+    """`path` made absolute (the ipc endpoints in its manifests and an external node's spec must hold
+    from any working directory), a directory or one that can be made; else BusError naming the file in
+    the way."""
+    path = path.absolute()
     existing = next(p for p in (path, *path.parents) if p.exists())
     if not existing.is_dir():
         what = f"bus directory {path}" + (f": {existing}" if existing != path else "")

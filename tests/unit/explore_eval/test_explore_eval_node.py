@@ -145,3 +145,34 @@ def test_a_launched_run_ends_with_a_line_for_a_reader_before_its_json() -> None:
     assert _headline(stopped).endswith(
         "0 contacts, coverage 80.3 %, travel 0.0 cm, finished: stopped (controller: no surface)"
     )
+
+
+def test_output_paths_it_could_not_write_are_named_before_the_run(tmp_path: Path) -> None:
+    """An outside walkthrough: `results:=DIR` and `plot:=x.weird` passed --dry-run and failed after the
+    whole run with a traceback (the files are written only at its end)."""
+    from palpate.nodes.explore_eval.node import SPEC
+
+    assert SPEC.checks is not None
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    fine = ExploreEvalNodeConfig(results_path=str(tmp_path / "new" / "r.json"), plot_path=str(tmp_path / "p.svg"))
+    assert SPEC.checks(fine) == {}
+    problems = SPEC.checks(ExploreEvalNodeConfig(results_path=str(tmp_path), plot_path="out/x.weird"))
+    assert problems[("results_path",)] == f"{tmp_path} is a directory; give a file name, such as {tmp_path}/run.json"
+    assert problems[("plot_path",)].startswith("out/x.weird: the plot's format comes from its suffix, one of ")
+    problems = SPEC.checks(ExploreEvalNodeConfig(plot_path=str(blocker / "p.png")))
+    assert problems == {("plot_path",): f"{blocker}/p.png: {blocker} is not a folder"}
+
+
+def test_a_result_file_it_cannot_write_is_logged_and_the_result_still_printed(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    node = ExploreEvalNode(ExploreEvalNodeConfig(results_path=str(blocker / "r.json")), ctx)
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    node.on_truth_object(truth(np.asarray(box.vertices), np.asarray(box.faces)))
+    node.close()
+    assert "explore_result: {" in capsys.readouterr().out
+    assert "explore_eval: could not write the run's files: " in caplog.text

@@ -413,16 +413,18 @@ nodes:
   - name: driver
     type: contact_stats
     external: true
+  - name: sink
+    type: contact_stats
     respawn: true
     max_restarts: 7
 """
     )
     graph = load(path, tmp_path)
-    cube, stats, driver = (graph.by_name[n] for n in ("cube", "stats", "driver"))
+    cube, stats, driver, sink = (graph.by_name[n] for n in ("cube", "stats", "driver", "sink"))
     assert cube.endpoint == "tcp://127.0.0.1:47123"
     assert stats.endpoint == f"ipc://{tmp_path}/stats.pub"
     assert (stats.respawn, stats.max_restarts, stats.sigterm_timeout_s) == (True, 3, 0.5)
-    assert (driver.external, driver.max_restarts) == (True, 7)
+    assert (driver.external, driver.respawn, sink.respawn, sink.max_restarts) == (True, False, True, 7)
     assert (cube.respawn, cube.max_restarts, cube.sigterm_timeout_s) == (False, 0, 5.0)
     assert graph.mode == "realtime"
     assert all(s.mode == "realtime" for s in graph.process_specs())
@@ -607,6 +609,43 @@ def test_launch_record_refuses_a_folder_or_an_existing_log(tmp_path: Path, capsy
     assert main(["launch", demo, "--bus", str(tmp_path), "--record", str(existing)]) == 2
     assert f"--record {existing} exists; pass --force" in capsys.readouterr().err
     assert existing.read_bytes() == b"precious"
+
+
+def test_a_dry_run_checks_the_record_path_as_the_launch_does(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An outside walkthrough: `--dry-run --record EXISTING` said yes, and the launch then refused it."""
+    demo = str(REPO_ROOT / "launch" / "demo_minimal.yaml")
+    existing = tmp_path / "run.mcap"
+    existing.write_bytes(b"precious")
+    assert main(["launch", demo, "--bus", str(tmp_path), "--dry-run", "--record", str(existing)]) == 2
+    assert f"--record {existing} exists; pass --force" in capsys.readouterr().err
+    assert main(["launch", demo, "--bus", str(tmp_path), "--dry-run", "--record", str(existing), "--force"]) == 0
+    inside_a_file = existing / "x.mcap"
+    assert main(["launch", demo, "--bus", str(tmp_path), "--dry-run", "--record", str(inside_a_file)]) == 2
+    assert f"--record {inside_a_file}: {existing} is not a folder" in capsys.readouterr().err
+    later = tmp_path / "new" / "folder" / "run.mcap"
+    assert main(["launch", demo, "--bus", str(tmp_path), "--dry-run", "--record", str(later)]) == 0
+    assert not (tmp_path / "new").exists() and existing.read_bytes() == b"precious"  # a dry run makes nothing
+
+
+def test_a_repeated_external_option_adds_to_the_first(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """An outside walkthrough: `--external sim --external noise` ran palpate's own sim (the second replaced
+    the first), and the driver for the simulator waited for a spec that never came."""
+    probe = str(REPO_ROOT / "launch" / "probe.yaml")
+    assert main(["launch", probe, "--bus", str(tmp_path), "--dry-run", "--external", "sim", "--external", "noise"]) == 0
+    out = capsys.readouterr().out
+    assert "0. sim (sim)" in out and re.search(r"sim \(sim\) \S+ \[clock, external\]", out)
+    assert re.search(r"noise \(noise\) \S+ \[external\]", out)
+
+
+def test_a_relative_bus_directory_is_made_absolute(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """An outside walkthrough: `--bus relbus` wrote ipc://relbus/... into an external node's spec, which a
+    driver started in another folder could not reach."""
+    monkeypatch.chdir(tmp_path)
+    graph = load(REPO_ROOT / "launch" / "probe.yaml", Path("relbus"))
+    assert graph.bus_dir == tmp_path / "relbus"
+    assert all(spec.endpoint.startswith(f"ipc://{tmp_path}/relbus/") for spec in graph.process_specs())
 
 
 def test_a_character_yaml_does_not_allow_is_named_with_file_and_line(tmp_path: Path) -> None:
@@ -1052,3 +1091,69 @@ def test_an_error_that_echoes_a_huge_value_prints_its_start_and_end(
 def test_a_launch_file_that_never_ends_is_refused_unread() -> None:
     with pytest.raises(LaunchError, match=r"/dev/zero: larger than 16 MiB: not a launch file"):
         load_launch("/dev/zero")  # read to its end: MemoryError, or the kernel's OOM killer
+
+
+GRAPH_OF_TWO = (
+    "mode: realtime\nnodes:\n  - name: cube\n    type: cube_contacts\n{cube}  - name: stats\n    type: contact_stats\n"
+)
+
+
+@pytest.mark.parametrize(
+    ("cube", "expected"),
+    [
+        ("    external: true\n    respawn: true\n", "node 'cube' is external: its driver starts it, and restarts it"),
+        ("    max_restarts: 2\n", "node 'cube': max_restarts counts respawns; it needs 'respawn: true'"),
+    ],
+)
+def test_restart_settings_that_would_do_nothing_are_refused_at_their_line(
+    cube: str, expected: str, tmp_path: Path
+) -> None:
+    """An outside walkthrough: both were accepted (`[external, respawn]` in --dry-run) and did nothing."""
+    path = tmp_path / "g.yaml"
+    path.write_text(GRAPH_OF_TWO.format(cube=cube))
+    with pytest.raises(LaunchError, match=f"^{re.escape(str(path))}:[56]: {re.escape(expected)}"):
+        load(path, tmp_path)
+
+
+def test_external_on_the_command_line_leaves_restarts_to_the_driver(tmp_path: Path) -> None:
+    path = tmp_path / "g.yaml"
+    path.write_text(GRAPH_OF_TWO.format(cube="    respawn: true\n"))
+    graph = resolve(with_external(load_launch(path), ["cube"]), bus_dir=tmp_path)
+    cube = next(n for n in graph.nodes if n.name == "cube")
+    assert cube.external and not cube.respawn
+
+
+@pytest.mark.parametrize(("text", "expected"), [("010", "'010'"), ("1:30", "'1:30'"), ("1:30.5", "'1:30.5'")])
+def test_yaml_1_1_octal_and_base_60_numbers_are_text_a_number_refuses(text: str, expected: str, tmp_path: Path) -> None:
+    """An outside walkthrough: `duration_s: 1:30` ran 90 s and `seed:=010` seed 8 (YAML 1.1's base 60 and octal)."""
+    assert parse_cli_args([f"x:={text}"]) == {"x": text}
+    with pytest.raises(
+        LaunchError, match=f"params.duration_s: expected a finite number > 0, got {re.escape(expected)}"
+    ):
+        load(REPO_ROOT / "launch" / "probe.yaml", tmp_path, [f"duration_s:={text}"])
+    assert parse_cli_args(["a:=10", "b:=0x10", "c:=1_000", "d:=0", "e:=1e3", "f:=010.5"]) == {
+        "a": 10,
+        "b": 16,
+        "c": 1000,
+        "d": 0,
+        "e": 1000.0,
+        "f": 10.5,
+    }
+
+
+@pytest.mark.parametrize(
+    ("file", "expected"),
+    [("", "include 'file' must name a launch file, got None"), (".", "is a folder, not a launch file")],
+)
+def test_an_include_without_a_file_name_says_so(file: str, expected: str, tmp_path: Path) -> None:
+    path = tmp_path / "a.yaml"
+    path.write_text(f"include:\n  - file: {file}\n")
+    with pytest.raises(LaunchError, match=f"^{re.escape(str(path))}:2: .*{re.escape(expected)}"):
+        load_launch(path)
+
+
+def test_a_bad_command_line_value_passed_on_by_an_include_is_named(capsys: pytest.CaptureFixture[str]) -> None:
+    """An outside walkthrough: the '(from the command line: ...)' note was only for errors in the top file."""
+    assert main(["launch", "--dry-run", "launch/demo.yaml", "strategy:=bogus"]) == 2
+    err = capsys.readouterr().err
+    assert "launch/explore.yaml:" in err and "got 'bogus' (from the command line: strategy:=bogus)" in err
