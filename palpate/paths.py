@@ -67,3 +67,9 @@ def output_path_problem(path: Path, example: str) -> str:
     if not os.access(existing, os.W_OK | os.X_OK):
         return f"{path}: the folder {existing} is not writable"
     return ""
+
+
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether `a` and `b` name one file: the same path once resolved (symlinks too), or hard links."""
+    a, b = Path(a), Path(b)
+    return a.resolve() == b.resolve() or (a.exists() and b.exists() and os.path.samefile(a, b))

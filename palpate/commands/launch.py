@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 from palpate import jsonio
@@ -26,7 +27,7 @@ from palpate.launch.loader import (
     with_external,
 )
 from palpate.launch.supervisor import Supervisor
-from palpate.paths import LAUNCH_DIR, REPO_ROOT, output_path_problem, why_not
+from palpate.paths import LAUNCH_DIR, REPO_ROOT, output_path_problem, same_file, why_not
 from palpate.runtime import bus
 
 
@@ -88,7 +89,28 @@ def _names(text: str) -> list[str]:
     return names
 
 
-def load_graph(
+def load_graph(*args: Any, **kwargs: Any) -> Graph:
+    """`_load_graph(...)`, with a Ctrl-C while it runs raised after it: the node types it imports pull in
+    trimesh, whose optional imports catch BaseException and would swallow the KeyboardInterrupt (the
+    launch then ran the whole graph)."""
+    interrupted = False
+
+    def note(signum: int, frame: FrameType | None) -> None:
+        nonlocal interrupted
+        interrupted = True
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, note)
+    try:
+        graph = _load_graph(*args, **kwargs)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if interrupted:
+        raise KeyboardInterrupt
+    return graph
+
+
+def _load_graph(
     path: Path,
     overrides: list[str],
     bus_dir: Path | None,
@@ -154,6 +176,8 @@ def _from_the_command_line(exc: LaunchError, path: Path, overrides: list[str]) -
 def run_launch(args: argparse.Namespace) -> int:
     if args.replay_nodes and args.replay is None:
         raise LaunchError("--replay-nodes needs --replay LOG.mcap")
+    if args.record is not None and args.replay is not None and same_file(args.record, args.replay):
+        raise LaunchError(f"--record {args.record} is the log --replay reads (--force or not); record to another file")
     graph = load_graph(args.file, args.args, args.bus, args.replay, args.replay_nodes, args.external, args.set)
     if args.spec is not None:
         recorder_keys = recorder_curve_keys(graph) if args.record else {}

@@ -40,7 +40,7 @@ from palpate.errors import MalformedMessageError, MessageError, RecordError
 from palpate.messages import codec, topics
 from palpate.messages.base import REGISTRY
 from palpate.messages.schemas import Clock, LockstepAck
-from palpate.paths import why_not
+from palpate.paths import same_file, why_not
 
 MESSAGE_ENCODING = "msgpack"
 SCHEMA_ENCODING = "jsonschema"
@@ -670,7 +670,7 @@ def output_file(src: str | Path, dst: str | Path, command: str, overwrite: bool 
     Refuses a `dst` that is `src` (under any name) and a `src` it cannot open, before creating anything."""
     src, dst = Path(src), Path(dst)
     try:
-        if src.resolve() == dst.resolve() or (src.exists() and dst.exists() and os.path.samefile(src, dst)):
+        if same_file(src, dst):
             raise RecordError(f"{command} would overwrite its input {src}; choose another output with -o")
         if dst.is_dir():
             raise RecordError(f"{dst} is a directory; give -o a file name")
@@ -685,6 +685,8 @@ def output_file(src: str | Path, dst: str | Path, command: str, overwrite: bool 
     try:
         yield partial
         partial.replace(dst)
+    except OSError as exc:  # a full disk, a file size limit
+        raise RecordError(f"{command}: cannot write {dst}: {why_not(exc)}; wrote nothing, {src} is untouched") from None
     finally:
         partial.unlink(missing_ok=True)
 

@@ -440,9 +440,10 @@ class Recorder:
 
     def run(self) -> int:
         """Record until SIGINT/SIGTERM (or, with until_stop, the end of the run); returns an exit code."""
-        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
         started = time.monotonic()
         last_flush = last_discovery = last_iteration = started
+        failure: OSError | None = None  # the file could not be written (a full disk, a file size limit)
         try:
             for endpoint in self.static:
                 self._connect(endpoint, _endpoint_name(endpoint))
@@ -476,11 +477,21 @@ class Recorder:
                 self._drain(conn, limit=1 << 30)
             self._write(self.sorter.ready(), lockstep=self.sorter.mode == "lockstep")
             self._write(self.sorter.finish(), lockstep=False)
+        except OSError as exc:
+            failure = exc
         finally:
-            self.writer.close()
+            try:
+                self.writer.close()
+            except OSError as exc:
+                failure = failure or exc
             self.tap.close()
             for s, handler in previous.items():
                 signal.signal(s, handler)
+        if failure is not None:
+            raise RecordError(
+                f"cannot write log {self.output}: {why_not(failure)}; what it holds up to there: "
+                f"palpate bag recover {self.output}"
+            )
         skipped = f"; {self.rejected} malformed frames skipped" if self.rejected else ""
         if self.first_message is None:
             log.info(
@@ -536,7 +547,13 @@ class Recorder:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The recorder's options (shared by `palpate record` and `python -m palpate.record.recorder`)."""
-    p.add_argument("topics", nargs="*", metavar="TOPIC", help="topics to record (default: every topic)")
+    p.add_argument(
+        "topics",
+        nargs="*",
+        metavar="TOPIC",
+        help=f"topics to record (default: every topic); {', '.join(INTERNAL_TOPICS)} come too: a replay and "
+        "bag info --check need the ticks",
+    )
     p.add_argument("-o", "--output", type=path_arg, required=True, metavar="FILE.mcap", help="log file to write")
     p.add_argument("--bus", type=path_arg, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
     p.add_argument("--connect", nargs="+", default=[], metavar="EP", help="publisher endpoints (default: manifests)")

@@ -31,10 +31,12 @@ VIEWER_FLUSH_TIMEOUT_S = 10.0
 class RerunLogger:
     """A `rerun_log.Logger` that logs into a rerun RecordingStream."""
 
-    def __init__(self, recording: Any, rr: ModuleType, *, flush_timeout_s: float = 1e9):
+    def __init__(self, recording: Any, rr: ModuleType, *, flush_timeout_s: float = 1e9, save: Path | None = None):
+        """`save`: the file the recording streams into (None: a spawned viewer)."""
         self.recording = recording
         self.rr = rr
         self.flush_timeout_s = flush_timeout_s
+        self.save = save
         self.calls = 0
         self._time_ns: int | None = None  # time of the next timed log call
         self._time_set_ns: int | None = None  # time the recording's cursor is at
@@ -57,11 +59,14 @@ class RerunLogger:
     def close(self) -> None:
         """Flush everything logged and close the file or viewer connection.
 
-        Raises ViewerError when a viewer does not take the data within `flush_timeout_s`.
+        Raises ViewerError when the file cannot be written or a viewer does not take the data within
+        `flush_timeout_s`.
         """
         try:
             self.recording.flush(timeout_sec=self.flush_timeout_s)
         except RuntimeError as exc:  # rerun-sdk 0.41 raises RuntimeError("Flush timed out ...")
+            if self.save is not None:  # its file-writer thread stopped: a full disk, a file size limit
+                raise ViewerError(f"cannot write the recording {str(self.save)!r}: {exc}") from exc
             raise ViewerError(
                 f"the rerun viewer did not take the data within {self.flush_timeout_s:.0f} s ({exc}); "
                 "if no window opened, write a file with --save FILE.rrd"
@@ -151,4 +156,4 @@ def open_recording(*, save: Path | None = None) -> RerunLogger:
         except (OSError, RuntimeError) as exc:
             raise ViewerError(f"cannot start the rerun viewer ({exc}); write a file with --save FILE.rrd") from exc
     recording.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # MuJoCo's world is z-up
-    return RerunLogger(recording, rr, flush_timeout_s=1e9 if save is not None else VIEWER_FLUSH_TIMEOUT_S)
+    return RerunLogger(recording, rr, flush_timeout_s=1e9 if save is not None else VIEWER_FLUSH_TIMEOUT_S, save=save)

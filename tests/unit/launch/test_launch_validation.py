@@ -1157,3 +1157,48 @@ def test_a_bad_command_line_value_passed_on_by_an_include_is_named(capsys: pytes
     assert main(["launch", "--dry-run", "launch/demo.yaml", "strategy:=bogus"]) == 2
     err = capsys.readouterr().err
     assert "launch/explore.yaml:" in err and "got 'bogus' (from the command line: strategy:=bogus)" in err
+
+
+def test_record_to_the_log_being_replayed_is_refused_under_any_name(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An outside walkthrough: `--replay same.mcap --record same.mcap --force` emptied the log it replayed."""
+    demo = str(REPO_ROOT / "launch" / "demo_minimal.yaml")
+    log = tmp_path / "run.mcap"
+    log.write_bytes(b"precious")
+    (tmp_path / "hard.mcap").hardlink_to(log)
+    (tmp_path / "soft.mcap").symlink_to(log)
+    for name in ("run.mcap", "hard.mcap", "soft.mcap"):
+        args = ["launch", demo, "--bus", str(tmp_path), "--replay", str(log), "--record", str(tmp_path / name)]
+        assert main([*args, "--force"]) == 2
+        assert "is the log --replay reads" in capsys.readouterr().err
+    assert log.read_bytes() == b"precious"
+
+
+def test_a_ctrl_c_that_a_library_swallows_while_the_graph_loads_still_ends_the_launch(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """An outside walkthrough: Ctrl-C while trimesh was imported (its optional imports catch BaseException)
+    was lost, and the launch ran the whole graph and exited 0."""
+    import signal
+
+    from palpate.commands import launch
+
+    original = launch._load_graph
+
+    def load_swallowing(*args: Any, **kwargs: Any) -> Any:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(1000):  # the handler runs between two bytecodes of this loop
+                pass
+        except BaseException:
+            pass
+        return original(*args, **kwargs)
+
+    def must_not_run(*args: Any, **kwargs: Any) -> int:
+        raise AssertionError("the graph started after Ctrl-C")
+
+    monkeypatch.setattr(launch, "_load_graph", load_swallowing)
+    monkeypatch.setattr(launch, "run_graph", must_not_run)
+    assert main(["launch", "launch/probe.yaml"]) == 130
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

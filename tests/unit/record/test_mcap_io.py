@@ -127,6 +127,34 @@ def test_a_failed_filter_or_recovery_leaves_no_output(tmp_path: Path) -> None:
     assert out.read_bytes() == b"keep"
 
 
+def test_a_log_that_cannot_be_written_is_named_and_leaves_nothing(tmp_path: Path) -> None:
+    """An outside walkthrough: a full disk gave three chained tracebacks in bag filter, recover and export."""
+    import errno
+
+    src, out = tmp_path / "run.mcap", tmp_path / "out.mcap"
+    write_log(src, canonical_log(3))
+    expected = f"^filter: cannot write {out}: No space left on device; wrote nothing"
+    with pytest.raises(RecordError, match=expected), mcap_io.output_file(src, out, "filter") as partial:
+        partial.write_bytes(b"half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap"]
+
+
+def test_the_recorder_names_a_log_it_cannot_write(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import errno
+
+    from palpate.record.recorder import Recorder
+
+    recorder = Recorder(tmp_path / "run.mcap", bus_dir=tmp_path / "bus")
+
+    def full(*args: object, **kwargs: object) -> None:
+        raise OSError(errno.EFBIG, "File too large")
+
+    monkeypatch.setattr(recorder, "_write", full)
+    with pytest.raises(RecordError, match=r"cannot write log .*run\.mcap: File too large; .* palpate bag recover"):
+        recorder.run()
+
+
 def test_bag_recover_replaces_an_existing_output_only_with_force(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -214,3 +214,37 @@ def test_a_message_the_viewer_cannot_draw_is_skipped_and_counted(
     assert "1 messages with values it cannot draw skipped, last: surface/mesh at 5000000 ns: variance_vertices:" in (
         captured.err
     )
+
+
+class _StoppedStream:
+    """A rerun RecordingStream whose flush fails as rerun-sdk's does when its writer thread stopped."""
+
+    disconnected = False
+
+    def flush(self, timeout_sec: float) -> None:
+        raise RuntimeError("File-writer thread shut down prematurely")
+
+    def disconnect(self) -> None:
+        self.disconnected = True
+
+
+@pytest.mark.parametrize(
+    ("save", "expected"),
+    [
+        (Path("x.rrd"), "cannot write the recording 'x.rrd': File-writer"),
+        (None, "the rerun viewer did not take the data within 10 s"),
+    ],
+)
+def test_a_failed_flush_is_a_write_error_when_saving_and_a_timeout_with_a_viewer(
+    save: Path | None, expected: str
+) -> None:
+    """An outside walkthrough: a full disk under --save said the viewer did not take the data within
+    1000000000 s, and suggested --save."""
+    from palpate.errors import ViewerError
+    from palpate.viewer.sink import RerunLogger
+
+    stream = _StoppedStream()
+    logger = RerunLogger(stream, None, flush_timeout_s=10.0, save=save)  # type: ignore[arg-type]
+    with pytest.raises(ViewerError, match=expected):
+        logger.close()
+    assert stream.disconnected
