@@ -609,6 +609,8 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
         )
         mesh.invert()
     bodies = int(mesh.body_count)
+    if bodies > 1 and mesh.is_watertight:
+        _orient_bodies(mesh, path)
     if bodies > 1:
         warnings.warn(
             f"{path}: the mesh holds {bodies} separate bodies (unconnected surfaces); a fingertip explores "
@@ -627,6 +629,45 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
             MeshWarning,
             stacklevel=3,
         )
+
+
+def _orient_bodies(mesh: trimesh.Trimesh, path: Path) -> None:
+    """Turn outward, with a warning, each closed body of `mesh` whose faces are wound inward (negative
+    volume), unless it lies inside another body: a cavity's faces rightly point into it. The whole mesh's
+    volume misses one inverted body among others (its normals then point into the object)."""
+    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
+    triangles = mesh.triangles
+    signed = np.einsum("ij,ij->i", triangles[:, 0], np.cross(triangles[:, 1], triangles[:, 2])) / 6.0
+    volumes = np.bincount(labels, weights=signed)
+    inward = np.flatnonzero(volumes < 0.0)
+    if len(inward) == 0:
+        return
+    outward = [triangles[labels == b] for b in np.flatnonzero(volumes > 0.0)]
+    flip = [b for b in inward if not any(_winding_number(t, triangles[labels == b][0, 0]) > 0.5 for t in outward)]
+    if not flip:
+        return
+    faces = np.array(mesh.faces)
+    turned = np.isin(labels, flip)
+    faces[turned] = faces[turned][:, ::-1]
+    mesh.faces = faces
+    warnings.warn(
+        f"{path}: {len(flip)} of the mesh's {len(volumes)} bodies are wound inward (negative volume, not inside "
+        "another body); turned them outward so that their normals point out of the object. Re-export with "
+        "outward normals to silence this warning.",
+        MeshWarning,
+        stacklevel=4,
+    )
+
+
+def _winding_number(triangles: np.ndarray, point: np.ndarray) -> float:
+    """How many times the closed, outward-wound surface of `triangles` (F, 3, 3) winds around `point`:
+    1 inside, 0 outside (the solid angles of its triangles seen from the point, over 4 pi)."""
+    a, b, c = (triangles[:, i] - point for i in range(3))
+    la, lb, lc = (np.linalg.norm(v, axis=1) for v in (a, b, c))
+    det = np.einsum("ij,ij->i", a, np.cross(b, c))
+    den = la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", b, c) * la
+    den += np.einsum("ij,ij->i", c, a) * lb
+    return float(np.arctan2(det, den).sum() / (2.0 * np.pi))
 
 
 def _rewind(mesh: trimesh.Trimesh, path: Path) -> None:

@@ -32,6 +32,7 @@ import math
 import os
 import signal
 import sys
+import tempfile
 import time
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -42,11 +43,15 @@ from typing import IO, Any
 from palpate import jsonio
 from palpate.argtypes import non_negative_int
 from palpate.errors import ClusterError, ConfigError
+from palpate.paths import why_not
 
 #: Environment variable naming the scheduler of an existing Dask cluster (tcp://HOST:PORT).
 SCHEDULER_ENV = "PALPATE_SCHEDULER"
 #: Longest time between two redraws of the progress bar, seconds.
 REFRESH_S = 2.0
+#: After this long (seconds) with no worker on the cluster the evaluation says that its runs wait for one
+#: (all of an external cluster's workers died, or their batch jobs ended).
+NO_WORKER_NOTE_S = 10.0
 #: Dask event topic on which a running task says how far it is (``report_progress``).
 PROGRESS_TOPIC = "palpate-run-progress"
 #: The field of a runs.jsonl line that holds its run key.
@@ -260,10 +265,16 @@ class RunLog:
 
 
 def output_folder(path: Path) -> Path:
-    """``--out``, made if missing; ConfigError when it is a file (it was a FileExistsError traceback)."""
+    """``--out``, made if missing; ConfigError, before any run, when it is a file, lies below one, or
+    cannot be written (a read-only folder failed after the first run, with a traceback)."""
     if path.exists() and not path.is_dir():
         raise ConfigError(f"--out {str(path)!r} is a file; give a folder for the runs, tables and plots")
-    path.mkdir(parents=True, exist_ok=True)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"--out {str(path)!r}: cannot write there ({why_not(exc)}); give another folder") from None
     return path
 
 
@@ -424,7 +435,36 @@ def _scheduler_state(keys: Sequence[str], retries: int, dask_scheduler: Any = No
         if extra:
             attempts[key] = extra
     # tasks a worker holds include those queued behind the one it executes
-    return {"running": min(running, threads), "attempts": attempts}
+    return {"running": min(running, threads), "attempts": attempts, "workers": len(dask_scheduler.workers)}
+
+
+class WorkerWatch:
+    """Says once per outage that the cluster has had no worker for NO_WORKER_NOTE_S (the runs then wait
+    in silence), and again when one is back."""
+
+    def __init__(self, scheduler: str) -> None:
+        self.scheduler = scheduler
+        self.since: float | None = None  # when the cluster was last seen without a worker
+        self.told = False
+
+    def note(self, workers: int, now_s: float) -> str:
+        """What to say, given the cluster's worker count at monotonic time ``now_s`` ('' for nothing)."""
+        if workers:
+            back = self.told
+            self.since, self.told = None, False
+            return f"a Dask worker is back ({workers} now); the runs go on" if back else ""
+        if self.since is None:
+            self.since = now_s
+        if self.told or now_s - self.since < NO_WORKER_NOTE_S:
+            return ""
+        self.told = True
+        start = "the local cluster restarts them"
+        if self.scheduler:
+            start = f"start one with `dask worker {self.scheduler}`"
+        return (
+            f"no Dask worker on the cluster for {now_s - self.since:.0f} s: the runs wait for one ({start}; "
+            "Ctrl-C keeps the finished runs for --resume)"
+        )
 
 
 @contextlib.contextmanager
@@ -491,6 +531,7 @@ def run_tasks(
             }
             attempts: dict[str, int] = {}
             shown: tuple[Any, ...] = ()
+            watch = WorkerWatch(config.scheduler or "")
 
             def note(event: tuple[float, Any]) -> None:
                 msg = event[1]
@@ -504,6 +545,8 @@ def run_tasks(
                 batch = queue.next_batch(block=False)
                 state = client.run_on_scheduler(_scheduler_state, [t.key for t in pending.values()], config.retries)
                 attempts.update(state["attempts"])
+                if said := watch.note(state["workers"], time.monotonic()):
+                    tqdm.write(said, file=sys.stderr)
                 for future in batch:
                     task = pending.pop(future)
                     if future.status in ("lost", "pending"):

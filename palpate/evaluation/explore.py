@@ -293,8 +293,13 @@ def episodes(
     controller = load(ControllerConfig, overrides_under(params.items(), "controller.controller."), "controller params")
     out = []
     frozen = tuple(sorted(params.items()))
+    refused = []  # every bad mesh at once (one per attempt was a slow way to find them)
     for case in cases:
-        vertices, faces = case.true_mesh()
+        try:
+            vertices, faces = case.true_mesh()
+        except MeshError as exc:
+            refused.append(str(exc))
+            continue
         area = float(triangle_areas(vertices, faces).sum())
         bound = config.covering_bound(area)
         _note_size(case.name, area, bound, config)
@@ -315,6 +320,10 @@ def episodes(
                         params=frozen,
                     )
                 )
+    if len(refused) == 1:
+        raise MeshError(refused[0])
+    if refused:
+        raise MeshError(f"{len(refused)} meshes refused:\n  " + "\n  ".join(refused))
     return out
 
 

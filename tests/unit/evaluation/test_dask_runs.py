@@ -230,6 +230,8 @@ def test_a_malformed_scheduler_address_or_an_out_that_is_a_file_is_refused_by_na
     with pytest.raises(ConfigError, match="is a file; give a folder"):
         output_folder(tmp_path / "file")
     assert output_folder(tmp_path / "a" / "b").is_dir()
+    with pytest.raises(ConfigError, match="file/sub': cannot write there \\(Not a directory\\); give another folder"):
+        output_folder(tmp_path / "file" / "sub")  # (an outside walkthrough: a NotADirectoryError traceback)
 
 
 def test_a_scheduler_without_workers_is_said_at_once_and_then_given_up(capsys: pytest.CaptureFixture[str]) -> None:
@@ -274,3 +276,20 @@ def test_the_local_clusters_workers_get_one_blas_thread_unless_the_environment_s
     with dask_runs.connect(ClusterConfig(local_workers=1)) as client:
         (workers,) = client.run(_blas_threads).values()
     assert workers == {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "3"}
+
+
+def test_a_cluster_without_workers_is_said_once_per_outage() -> None:
+    """An outside walkthrough: with every worker of an external cluster killed, the bar ticked for minutes
+    without a word."""
+    from palpate.evaluation.dask_runs import NO_WORKER_NOTE_S, WorkerWatch
+
+    watch = WorkerWatch("tcp://127.0.0.1:8786")
+    assert watch.note(2, 0.0) == ""
+    assert watch.note(0, 1.0) == ""  # the outage starts
+    assert watch.note(0, 1.0 + NO_WORKER_NOTE_S - 0.1) == ""
+    said = watch.note(0, 1.0 + NO_WORKER_NOTE_S)
+    assert said.startswith("no Dask worker on the cluster for 10 s") and "dask worker tcp://127.0.0.1:8786" in said
+    assert watch.note(0, 100.0) == ""  # once
+    assert watch.note(1, 101.0) == "a Dask worker is back (1 now); the runs go on"
+    assert watch.note(1, 102.0) == ""
+    assert watch.note(0, 103.0) == "" and watch.note(0, 103.0 + NO_WORKER_NOTE_S).startswith("no Dask worker")

@@ -578,3 +578,22 @@ def test_from_runs_names_what_it_leaves_aside_and_writes_no_runs_file(
     assert f"note: {out / 'runs.jsonl'} is not {given}" in err
     _note_from_runs(argparse.Namespace(**{**vars(args), "runs": None, "set": []}), tmp_path)  # no runs.jsonl there
     assert capsys.readouterr().err == ""
+
+
+def test_every_refused_mesh_is_named_at_once(tmp_path: Path) -> None:
+    """An outside walkthrough: a folder of three bad meshes named one per attempt."""
+    from palpate.errors import MeshError
+
+    flat = tmp_path / "flat.stl"
+    trimesh.Trimesh([[0, 0, 0], [0.05, 0, 0], [0, 0.05, 0]], [[0, 1, 2]]).export(flat)
+    empty = tmp_path / "empty.stl"
+    empty.write_text("solid nothing\nendsolid nothing\n")
+    cases = [
+        ObjectCase(name="flat", mesh=str(flat)),
+        ObjectCase(name="cube", kind="cube"),
+        ObjectCase(name="empty", mesh=str(empty)),
+    ]
+    with pytest.raises(MeshError, match=r"^2 meshes refused:\n  .*flat\.stl: .*\n  .*empty\.stl: "):
+        episodes(cases, 1, ["igef"])
+    with pytest.raises(MeshError, match=r"^[^\n]*flat\.stl: "):  # one alone as before
+        episodes(cases[:2], 1, ["igef"])
