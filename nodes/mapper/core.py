@@ -41,6 +41,10 @@ from palpate.nodes.mapper.observation import capsule_grid, capsule_lattice, obse
 FloatArray = NDArray[np.float64]
 
 
+#: Fewest cells across the region's smallest side a map may have (one cell was a resolution in millimetres).
+MIN_CELLS_PER_SIDE = 2
+
+
 @dataclass(frozen=True, kw_only=True)
 class MapperConfig(Validated):
     """Mapper parameters; the defaults are the paper's (000_*.txt) where it gives one.
@@ -83,6 +87,13 @@ class MapperConfig(Validated):
     def __post_init__(self) -> None:
         super().__post_init__()
         GridSpec.from_bounds(self.region_min_m, self.region_max_m, self.resolution_m)  # validates
+        side_m = min(hi - lo for lo, hi in zip(self.region_min_m, self.region_max_m, strict=True))
+        if side_m / self.resolution_m < MIN_CELLS_PER_SIDE:  # a map of one cell: a resolution in millimetres?
+            raise ConfigError(
+                f"resolution_m {self.resolution_m:g} leaves fewer than {MIN_CELLS_PER_SIDE} cells across the region's "
+                f"smallest side ({side_m:g} m): a map of nothing; give a finer resolution, in metres (2 mm is 0.002)",
+                ("resolution_m",),
+            )
         if self.chunk_edge & (self.chunk_edge - 1):
             raise ConfigError(f"chunk_edge must be a power of two, got {self.chunk_edge!r}", ("chunk_edge",))
         if not self.l_min < 0.0:

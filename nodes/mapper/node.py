@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from palpate.config import PositiveFloat, Validated
+from palpate.config import NonNegativeFloat, PositiveFloat, Validated
 from palpate.description import load_hand
 from palpate.errors import PalpateError
 from palpate.messages import topics
@@ -38,6 +38,10 @@ class MapperNodeConfig(Validated):
     publish_period_s: PositiveFloat = 1.0
     #: Map kind label of the published best map ('known' or 'dead_reckoning' when mode is known).
     label: str = ""
+    #: Contacts join the update of the joint reading stamped within this of theirs (0: the same stamp, as
+    #: a lockstep graph stamps a tick's messages; a driver whose joint and tactile streams are stamped
+    #: apart sets, for example, half its joint reading period).
+    stamp_tolerance_s: NonNegativeFloat = 0.0
 
 
 #: Contacts that all lie outside the mapped region before the mapper says so (a region that misses the object).
@@ -51,10 +55,20 @@ class MapperNode:
         self.config, self.ctx = config, ctx
         self.chain = KinematicChain.from_description(load_hand(), config.mount)
         self.core = Mapper(config.mapper, self.chain, ctx.rng)
-        self.session = MapperSession(self.core, config.publish_period_s, config.label)
+        self.session = MapperSession(self.core, config.publish_period_s, config.label, config.stamp_tolerance_s)
         self._warned: set[str] = set()  # the one-time warnings given
         self._last_tick_ns: int | None = None  # the last update's stamp, and the last maps'
         self._last_maps_ns: int | None = None
+        if self.core.free_volume.n_points == 0:
+            spacing, margin = config.mapper.free_lattice()
+            self._warn_once(
+                "no free volume",
+                "mapper: the finger's free volume holds no lattice point (spacing %g m, margin %g m, cells of %g m): "
+                "the maps learn from contacts only, nothing is cleared; set the mapper's free_spacing_m finer",
+                spacing,
+                margin,
+                config.mapper.resolution_m,
+            )
 
     def on_joint_states(self, message: JointState) -> None:
         self.session.joint_reading(message.names, message.positions_rad, message.stamp_ns)
@@ -78,6 +92,18 @@ class MapperNode:
         if step is None:
             return
         self._last_tick_ns = stamp_ns
+        if self.session.contacts_unmatched:
+            self.ctx.counters["contacts_unmatched"] = self.session.contacts_unmatched
+            contacts_ns, reading_ns = self.session.last_unmatched or (0, 0)
+            self._warn_once(
+                "stamps",
+                "mapper: contacts stamped %d ns apart from the joint reading (contacts at %d, joints at %d) are left "
+                "out of the maps (counter contacts_unmatched): stamp a tick's joint and contact messages alike, or "
+                "set the mapper's stamp_tolerance_s",
+                contacts_ns - reading_ns,
+                contacts_ns,
+                reading_ns,
+            )
         c = self.core.counters
         self.ctx.metrics.update(updates=c.updates, n_eff=self.core.n_eff)
         self.ctx.counters.update(contacts_outside=c.contacts_outside, free_points_outside=c.free_points_outside)

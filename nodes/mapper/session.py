@@ -64,8 +64,13 @@ class MapperTick:
 class MapperSession:
     """Feeds the Mapper from decoded messages and decides when the maps go out."""
 
-    def __init__(self, mapper: Mapper, publish_period_s: float, label: str = "") -> None:
+    def __init__(
+        self, mapper: Mapper, publish_period_s: float, label: str = "", stamp_tolerance_s: float = 0.0
+    ) -> None:
+        """`stamp_tolerance_s`: contacts stamped at most this far from the joint reading's stamp join its
+        update (0: the same stamp, as a lockstep graph stamps a tick's messages)."""
         self.mapper = mapper
+        self.stamp_tolerance_ns = round(stamp_tolerance_s * 1e9)
         self.chain = mapper.chain
         self.publish_period_ns = round(publish_period_s * 1e9)
         #: Map kind of the published best map: the configured label, or 'known' / 'best' by mode.
@@ -76,6 +81,10 @@ class MapperSession:
         #: Contact points received, and those on links the chain does not have (another finger's).
         self.contacts_received = 0
         self.contacts_off_chain = 0
+        #: Contact points on the chain left out because no joint reading had their stamp, and the last
+        #: such pair of stamps (contacts', reading's).
+        self.contacts_unmatched = 0
+        self.last_unmatched: tuple[int, int] | None = None
 
     def joint_reading(self, names: Sequence[str], positions_rad: ArrayLike, stamp_ns: int) -> JointReading:
         """Keep a reading (joint names and angles in the message's order) for the next tick; returns
@@ -116,7 +125,11 @@ class MapperSession:
         self._reading = None
         if reading is None:
             return None
-        if contacts is None or contacts.stamp_ns != reading.stamp_ns:
+        self._contacts = None  # a contact set joins one update at most
+        if contacts is None or abs(contacts.stamp_ns - reading.stamp_ns) > self.stamp_tolerance_ns:
+            if contacts is not None and len(contacts.links):
+                self.contacts_unmatched += len(contacts.links)
+                self.last_unmatched = (contacts.stamp_ns, reading.stamp_ns)
             contacts = ChainContacts.none(reading.stamp_ns)
         resamples_before = self.mapper.counters.resamples
         self.mapper.update(reading.q_rad, contacts.links, contacts.local_m)

@@ -169,10 +169,14 @@ class ExplorationMotion:
         self.q_rest = np.clip(np.zeros(len(self.joint_names)), self.kin.limits[:, 0], self.kin.limits[:, 1])
         self.touches = self.find_touches(self.config.candidate_samples, rng)
         if len(self.touches.q_touch) == 0:
+            size_mm = 1e3 * float(np.max(self._box[1] - self._box[0]))
+            offset = [float(v) for v in scene.finger_mcp_offset_m]
             raise ConfigError(
-                f"the {scene.effector}'s fingertip cannot reach the object {self.object.name!r} from this "
-                "placement: move the effector base (finger_mcp_offset_m or base_position_m) closer to the "
-                "object, or turn scripted_motion off",
+                f"the {scene.effector}'s fingertip cannot reach the object {self.object.name!r} ({size_mm:.3g} mm "
+                f"across) from this placement: move the effector base (finger_mcp_offset_m or base_position_m) "
+                f"closer to the object, or turn scripted_motion off. The finger's base sits finger_mcp_offset_m = "
+                f"{offset} m from the object's -x face, y centre and top; a small object needs a smaller offset "
+                "(its y puts the finger beside it), e.g. --set 'sim.scene.finger_mcp_offset_m=[0,0.01,0.05]'",
                 ("scene",),
             )
         self._times: list[float] = [0.0]

@@ -92,7 +92,7 @@ def free_margin_m(resolution_m: float) -> float | None:
 #: (SlamEvalConfig.own_arguments; a test checks that the keys agree) instead of with --arg.
 OWN_ARGUMENT_HINTS = {
     "seed": "each run's seed (--seeds N runs seeds 0 to N-1)",
-    "duration_s": "the last snapshot time",
+    "duration_s": "the last snapshot time (--snapshots-s)",
     "sigma_deg": "--sigma-deg",
     "particles": "--particles",
     "resolution_m": "--resolution-mm",
@@ -545,6 +545,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resolution-mm", type=float, default=2.0, help="grid resolution, mm")
     parser.add_argument("--sigma-deg", type=float, default=1.5, help="joint noise standard deviation, degrees")
     parser.add_argument(
+        "--snapshots-s",
+        type=_snapshot_times,
+        default=SlamEvalConfig.snapshot_s,
+        metavar="T1,T2",
+        help="simulated exploration times at which the maps are scored; the last is each run's length "
+        "(default 10,100, the paper's)",
+    )
+    parser.add_argument(
         "--arg",
         action="append",
         default=[],
@@ -553,6 +561,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     add_cluster_arguments(parser)
     parser.set_defaults(func=main)
+
+
+def _snapshot_times(text: str) -> tuple[float, ...]:
+    """``--snapshots-s``: comma-separated positive times, seconds, in increasing order."""
+    try:
+        times = tuple(float(t) for t in text.split(",") if t.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a list of seconds such as 10,100") from None
+    if not times or not all(math.isfinite(t) and t > 0 for t in times) or list(times) != sorted(set(times)):
+        raise argparse.ArgumentTypeError(f"{text!r}: give increasing positive seconds, such as 10,100")
+    return times
 
 
 def main(args: argparse.Namespace) -> int:
@@ -566,6 +585,7 @@ def main(args: argparse.Namespace) -> int:
         n_particles=args.particles,
         resolution_m=args.resolution_mm * 1e-3,
         sigma_deg=args.sigma_deg,
+        snapshot_s=args.snapshots_s,
         launch_args=parse_cli_args(args.arg, separator="=", option="--arg"),
     )
     check_launch(config)
@@ -622,10 +642,14 @@ def main(args: argparse.Namespace) -> int:
 
 def check_launch(config: SlamEvalConfig, launch_path: Path = SLAM_LAUNCH) -> None:
     """The launch file with the first seed's arguments, resolved here before any worker starts: an unknown
-    or bad --arg fails once, naming it, instead of in every run (LaunchError); and ConfigError for cells
-    so coarse that a map has fewer than MIN_CELLS_ACROSS across its region (nothing to score)."""
+    or bad --arg fails once, naming it, instead of in every run (LaunchError); and ConfigError for a
+    mapper that would not fit in memory, or cells so coarse that a map has fewer than MIN_CELLS_ACROSS
+    across its region (nothing to score)."""
+    from palpate.description import load_hand
     from palpate.launch.graph import resolve
     from palpate.launch.loader import load_launch
+    from palpate.nodes.mapper.core import check_fits
+    from palpate.nodes.mapper.kinematics import KinematicChain
     from palpate.nodes.mapper.node import MapperNodeConfig
 
     graph = resolve(load_launch(launch_path, config.arguments(config.seeds[0])))
@@ -633,6 +657,7 @@ def check_launch(config: SlamEvalConfig, launch_path: Path = SLAM_LAUNCH) -> Non
         if not isinstance(node.config, MapperNodeConfig):
             continue
         mapper = node.config.mapper
+        check_fits(mapper, KinematicChain.from_description(load_hand(), node.config.mount))  # as sweep slam does
         extent_m = min(hi - lo for lo, hi in zip(mapper.region_min_m, mapper.region_max_m, strict=True))
         if extent_m / mapper.resolution_m < MIN_CELLS_ACROSS:
             raise ConfigError(

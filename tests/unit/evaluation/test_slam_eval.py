@@ -159,9 +159,15 @@ def test_an_unknown_launch_argument_is_refused_before_any_run() -> None:
         check_launch(SlamEvalConfig(launch_args={"object": "mesh"}))
     check_launch(SlamEvalConfig(launch_args={"free_reward": True}))
     # an outside walkthrough: 50 mm cells (one or two across the 90 mm region) ran, scoring nothing
-    with pytest.raises(ConfigError, match=r"^--resolution-mm 50: cells of that size leave fewer than 4 across"):
+    with pytest.raises(ConfigError, match=r"^--resolution-mm 30: cells of that size leave fewer than 4 across"):
+        check_launch(SlamEvalConfig(resolution_m=0.03))
+    with pytest.raises(LaunchError, match=r"resolution_m 0\.05 leaves fewer than 2 cells across"):  # the mapper's own
         check_launch(SlamEvalConfig(resolution_m=0.05))
     check_launch(SlamEvalConfig(resolution_m=0.0225))
+    # an outside walkthrough: 1e8 particles started the cluster, failed in a worker, was retried, and
+    # was then offered --resume
+    with pytest.raises(ConfigError, match=r"^n_particles = 100000000 maps need .* GiB"):
+        check_launch(SlamEvalConfig(n_particles=100_000_000))
 
 
 def test_box_truth_from_the_vertices_of_a_box_and_not_of_anything_else() -> None:
@@ -253,3 +259,16 @@ def test_launch_args_are_yaml_values() -> None:
     }
     with pytest.raises(LaunchError, match="must look like name=value"):
         parse_cli_args(["free_reward"], separator="=")
+
+
+def test_snapshot_times_set_the_runs_length_from_the_command_line() -> None:
+    """An outside walkthrough: every evaluation ran 100 s a seed, with no option to shorten it."""
+    import argparse
+
+    from palpate.evaluation.slam import _snapshot_times
+
+    assert _snapshot_times("1,2.5") == (1.0, 2.5)
+    assert SlamEvalConfig(snapshot_s=_snapshot_times("5")).duration_s == 5.0
+    for bad in ("", "x", "5,2", "0,1", "1,1", "nan"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            _snapshot_times(bad)

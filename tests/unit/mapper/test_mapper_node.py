@@ -166,3 +166,31 @@ def test_a_contact_outside_the_region_among_others_inside_is_said_once() -> None
     assert node.ctx.counters["contacts_outside"] == 5  # the others lie in the region
     outside = [m for m in said if "outside the mapped region" in m]
     assert len(outside) == 1 and outside[0].startswith("mapper: a contact lies outside the mapped region")
+
+
+def test_contacts_stamped_apart_from_the_readings_are_counted_and_said_once(caplog: pytest.LogCaptureFixture) -> None:
+    node, _ = mapper("map_known.yaml")
+    joints, tip = list(node.chain.joint_names), node.chain.link_names[-1]
+    with caplog.at_level(logging.WARNING):
+        for tick in range(1, 4):
+            node.on_joint_states(reading(joints, np.zeros(4), tick * 10_000_000))
+            node.on_contacts(contacts([tip], np.array([[0.0, 0.0, 0.01]]), tick * 10_000_000 + 1))
+            node.on_tick(tick * 10_000_000)
+    assert node.ctx.counters["contacts_unmatched"] == 3
+    assert caplog.text.count("contacts stamped 1 ns apart from the joint reading") == 1
+
+
+def test_a_free_volume_without_points_and_a_one_cell_map_are_said() -> None:
+    """An outside walkthrough: 8 mm cells cleared nothing without a word, and resolution_m:=2 (millimetres
+    meant) mapped one 2 m cell."""
+    from palpate.errors import ConfigError
+    from palpate.nodes.mapper.core import MapperConfig
+
+    region = {"region_min_m": (-0.045, -0.045, -0.045), "region_max_m": (0.045, 0.045, 0.045)}
+    with pytest.raises(ConfigError, match=r"resolution_m 2 leaves fewer than 2 cells across .*2 mm is 0\.002"):
+        MapperConfig(**region, resolution_m=2.0)
+    ctx = NodeContext("mapper", 1, lambda topic, message: None, {})
+    node = MapperNode(MapperNodeConfig(mapper=MapperConfig(**region, resolution_m=0.008)), ctx)
+    assert node.core.free_volume.n_points == 0 and "no free volume" in node._warned
+    node = MapperNode(MapperNodeConfig(mapper=MapperConfig(**region, resolution_m=0.002)), ctx)
+    assert "no free volume" not in node._warned

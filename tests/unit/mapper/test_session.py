@@ -110,6 +110,29 @@ def test_contacts_join_the_reading_of_the_same_stamp_only(chain: KinematicChain)
     assert links2.shape == (0,) and local2.shape == (0, 3)
 
 
+def test_contacts_stamped_apart_from_every_reading_are_counted_once_and_a_tolerance_joins_them(
+    chain: KinematicChain,
+) -> None:
+    """An outside walkthrough: contacts stamped 1 ns from the joint reading were dropped without a count (a
+    driver's joint and tactile streams are stamped apart)."""
+    session, mapper = _session(chain)
+    contact = (["index_distal", "index_distal"], np.array([[0.0, 0.0, 0.01], [0.0, 0.001, 0.01]]))
+    for tick in range(1, 4):
+        session.joint_reading(chain.joint_names, np.zeros(4), tick * 10 * MS)
+        session.contacts(*contact, tick * 10 * MS + 1)
+        session.tick(tick * 10 * MS)
+    session.joint_reading(chain.joint_names, np.zeros(4), 40 * MS)
+    session.tick(40 * MS)  # no new contacts: the last set is not counted again
+    assert session.contacts_unmatched == 6 and session.last_unmatched == (30 * MS + 1, 30 * MS)
+    assert all(len(links) == 0 for _, links, _ in mapper.calls)
+    mapper = FakeMapper(chain, MapperConfig(**REGION))  # type: ignore[arg-type]
+    tolerant = MapperSession(cast(Mapper, mapper), 1.0, stamp_tolerance_s=0.002)
+    tolerant.joint_reading(chain.joint_names, np.zeros(4), 10 * MS)
+    tolerant.contacts(*contact, 11 * MS)
+    tolerant.tick(10 * MS)
+    assert tolerant.contacts_unmatched == 0 and len(mapper.calls[0][1]) == 2
+
+
 def test_a_tick_without_a_new_reading_does_nothing(chain: KinematicChain) -> None:
     session, mapper = _session(chain)
     assert session.tick(0) is None
