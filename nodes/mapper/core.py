@@ -169,6 +169,10 @@ class MapperCounters:
     contacts: int = 0
     free_points_outside: int = 0
     contacts_outside: int = 0
+    #: Contacts outside the region where the reading itself puts them (contacts_outside counts every
+    #: particle's placement: under large joint noise some particles place a contact well inside the
+    #: region outside it).
+    contacts_outside_measured: int = 0
     resamples: int = 0
     update_seconds_total: float = 0.0
     last_update_ms: float = math.nan
@@ -202,6 +206,7 @@ class Mapper:
         )
         self.free_volume = capsule_lattice(chain, spacing, margin)
         self._free_h = self.free_volume.homogeneous()
+        self._no_free_h = tuple(np.zeros((4, 0), dtype=np.float32) for _ in self._free_h)
         self.counters = MapperCounters()
         self._q = np.zeros(chain.n_joints)
         self._filter: FastSlam | None = None
@@ -245,9 +250,9 @@ class Mapper:
             raise EstimationError(f"joint reading is not finite: {q.tolist()}; update rejected")
         if len(links) != len(local):
             raise EstimationError(f"{len(links)} contact links but {len(local)} contact positions")
-        if len(links) and (
-            not np.issubdtype(links.dtype, np.integer) or links.min() < 0 or links.max() >= self.chain.n_links
-        ):
+        if len(links) and not np.issubdtype(links.dtype, np.integer):
+            raise EstimationError(f"contact links must be link indices (integers), got dtype {links.dtype}")
+        if len(links) and (links.min() < 0 or links.max() >= self.chain.n_links):
             raise EstimationError(f"contact links {links.tolist()} outside 0..{self.chain.n_links - 1}")
         if not np.all(np.isfinite(local)):
             raise EstimationError("contact positions are not finite; update rejected")
@@ -257,10 +262,15 @@ class Mapper:
             free, occ = observation_keys(self.grids, rots, pos, self._free_h, links, local)
             self.grids.observe(free, occ, l_free=self.config.l_free, l_occ=self.config.l_occ, count=False)
             out_f, out_c = free.n_outside, occ.n_outside
+            c.contacts_outside_measured += out_c
         else:
             stats = self._filter.update(q, links, local)
             out_f, out_c = stats.free_points_outside, stats.contacts_outside
             c.resamples += int(stats.resampled)
+            if len(links):
+                rots, pos = self.chain.forward(q[None, :])
+                _, occ = observation_keys(self.grids, rots, pos, self._no_free_h, links, local)
+                c.contacts_outside_measured += occ.n_outside
         self._q = q
         c.updates += 1
         c.contacts += len(links)

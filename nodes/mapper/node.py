@@ -117,7 +117,9 @@ class MapperNode:
                 c.contacts,
                 *region,
             )
-        elif 0 < c.contacts_outside < maps * c.contacts and "all outside" not in self._warned:  # some inside
+        # some outside where the readings put them (a particle's placement alone is no sign: under large
+        # joint noise particles put contacts well inside the region out of it)
+        elif 0 < c.contacts_outside_measured < c.contacts and "all outside" not in self._warned:
             self._warn_once(
                 "outside",
                 "mapper: a contact lies outside the mapped region (region_min_m %s, region_max_m %s), and the maps "

@@ -585,12 +585,15 @@ def run_tasks(
     except KeyboardInterrupt:
         bar.close()
         finished = sum(1 for t in tasks if t.key in log.rows)  # a resumed file may hold another command's runs
-        kept = (
-            f"{finished} of its {len(tasks)} run(s) are finished in {log.path}; the same command with --resume "
-            "goes on from them"
-            if log.started and finished
-            else f"no run of it finished; {log.path} is as it was"
-        )
+        if log.started and finished:
+            kept = (
+                f"{finished} of its {len(tasks)} run(s) are finished in {log.path}; the same command with --resume "
+                "goes on from them"
+            )
+        elif log.path.exists():
+            kept = f"no run of it finished; {log.path} is as it was"
+        else:  # (it said the file was as it was)
+            kept = "no run of it finished; nothing was written"
         print(f"\ninterrupted: {kept}", file=sys.stderr)
         for line in lost_in_flight(latest, outcome, todo):
             print(line, file=sys.stderr)

@@ -117,6 +117,23 @@ def test_points_outside_the_region_are_ignored_and_counted(scene: tuple[Kinemati
     assert m.n_eff == 1.0
 
 
+def test_contacts_outside_where_the_reading_puts_them_are_counted_apart_from_the_particles(
+    scene: tuple[KinematicChain, TappingRecord],
+) -> None:
+    """An outside walkthrough: at 5 deg of joint noise the mapper said a contact lay outside the region, while
+    every true contact lay 16 mm inside it: only particles had placed some there."""
+    chain, rec = scene
+    m = Mapper(MapperConfig(**REGION, sigma_deg=30.0), chain, np.random.default_rng(2))  # type: ignore[arg-type]
+    for t in range(len(rec.q_true)):
+        m.update(rec.q_true[t], rec.contact_links[t], rec.contact_local_m[t])
+    c = m.counters
+    assert c.contacts_outside > 0 and c.contacts_outside_measured == 0
+    m.update(rec.q_true[0], np.array([0]), np.array([[0.0, 0.5, 0.0]]))  # this one lies outside as read
+    assert m.counters.contacts_outside_measured == 1
+    with pytest.raises(EstimationError, match=r"contact links must be link indices \(integers\), got dtype float64"):
+        m.update(rec.q_true[0], np.array([2.0]), np.zeros((1, 3)))
+
+
 def test_known_mode_outputs_are_the_one_map(scene: tuple[KinematicChain, TappingRecord]) -> None:
     chain, rec = scene
     m = Mapper(MapperConfig(**REGION, mode="known"), chain, np.random.default_rng(3))  # type: ignore[arg-type]
