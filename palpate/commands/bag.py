@@ -173,6 +173,8 @@ def run_recover(args: argparse.Namespace) -> int:
     output = args.output or args.file.with_name(args.file.stem + ".recovered.mcap")
     report = mcap_io.recover(args.file, output, overwrite=args.force)
     state = f"input truncated ({report.reason})" if report.truncated else "input was complete"
+    if report.trailing:
+        state += f"; left out the {report.trailing} bytes after the log's end (appended to it)"
     if report.damaged_chunks:
         state += (
             f"; skipped {report.damaged_chunks} damaged chunk(s), whose messages are lost ({report.damage}): "

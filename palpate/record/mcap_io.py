@@ -304,7 +304,7 @@ def _open(path: str | Path) -> IO[bytes]:
         raise RecordError(f"cannot open log {str(path)!r}: {exc.strerror}") from exc
 
 
-def _check_complete(stream: IO[bytes], path: str | Path) -> None:
+def check_complete(stream: IO[bytes], path: str | Path) -> None:
     """RecordError naming what is wrong unless `stream` starts and ends with MCAP's magic bytes."""
     try:
         head = stream.read(len(MCAP_MAGIC))
@@ -317,11 +317,58 @@ def _check_complete(stream: IO[bytes], path: str | Path) -> None:
         raise RecordError(f"{path} is not an MCAP log (it does not start with MCAP's magic bytes)")
     stream.seek(max(0, size - len(MCAP_MAGIC)))
     if size < 2 * len(MCAP_MAGIC) + FOOTER_BYTES or stream.read() != MCAP_MAGIC:
+        if (extra := _bytes_after_end(stream, size)) is not None:
+            raise RecordError(
+                f"{path} holds {extra} bytes after the end of its log (appended to?); "
+                f"`palpate bag recover {path}` writes the log without them"
+            )
         raise RecordError(
             f"{path} ends before the log's footer: its recorder was killed or is still writing it; "
             f"`palpate bag recover {path}` writes what it holds into a complete log"
         )
+    _check_summary(stream, size, path)
     stream.seek(0)
+
+
+#: How far from its end a file is searched for the end of a log that something was appended to.
+APPENDED_SEARCH_BYTES = 1 << 16
+#: MCAP's footer record opcode.
+FOOTER_OPCODE = 0x02
+
+
+def _bytes_after_end(stream: IO[bytes], size: int) -> int | None:
+    """How many bytes follow a footer and end magic within the file's last APPENDED_SEARCH_BYTES (None: none)."""
+    start = max(0, size - APPENDED_SEARCH_BYTES)
+    stream.seek(start)
+    tail = stream.read()
+    at = tail.rfind(MCAP_MAGIC)
+    while at >= FOOTER_BYTES:
+        if tail[at - FOOTER_BYTES] == FOOTER_OPCODE and start + at > len(MCAP_MAGIC):
+            return size - (start + at + len(MCAP_MAGIC))
+        at = tail.rfind(MCAP_MAGIC, 0, at)
+    return None
+
+
+def _check_summary(stream: IO[bytes], size: int, path: str | Path) -> None:
+    """RecordError when the footer's summary CRC does not match the summary: a damaged channel or schema
+    record there, or a log with another appended (the footer then belongs to the second, its summary
+    offset to the first)."""
+    footer_at = size - len(MCAP_MAGIC) - FOOTER_BYTES
+    stream.seek(footer_at)
+    footer = stream.read(FOOTER_BYTES)
+    opcode, _, summary_start, _, crc = struct.unpack("<BQQQI", footer)
+    if opcode != FOOTER_OPCODE or summary_start == 0 or crc == 0:
+        return  # not a footer (the reader names it), or a log without a summary or its CRC
+    damaged = (
+        f"{path}: its summary does not match the CRC its footer holds (damaged, or another log appended to it); "
+        f"`palpate bag recover {path}` rewrites what its chunks hold"
+    )
+    if summary_start > footer_at:
+        raise RecordError(damaged)
+    stream.seek(summary_start)
+    covered = stream.read(footer_at - summary_start) + footer[: FOOTER_BYTES - 4]
+    if zlib.crc32(covered) != crc:
+        raise RecordError(damaged)
 
 
 def _unreadable(path: str | Path, exc: BaseException) -> RecordError:
@@ -337,9 +384,9 @@ def _unreadable(path: str | Path, exc: BaseException) -> RecordError:
 @contextmanager
 def _reader(path: str | Path, *, validate_crcs: bool = False) -> Iterator[McapReader]:
     """A reader of the finished log at `path`: RecordError naming what is wrong for a file that is not
-    one (``_check_complete``) or that turns out damaged while it is read (``_unreadable``)."""
+    one (``check_complete``) or that turns out damaged while it is read (``_unreadable``)."""
     with _open(path) as stream:
-        _check_complete(stream, path)
+        check_complete(stream, path)
         try:
             yield make_reader(stream, validate_crcs=validate_crcs)
         except READ_ERRORS as exc:
@@ -508,6 +555,8 @@ class RecoverReport:
     complete: bool = False
     #: Messages skipped because the channel they were recorded on was defined in a damaged chunk only.
     orphaned: int = 0
+    #: Bytes after the log's end (its footer and magic) that were left out: something appended to it.
+    trailing: int = 0
 
 
 def _why(exc: BaseException) -> str:
@@ -550,6 +599,7 @@ def iter_records_tolerant(
                     yield item
             if isinstance(record, Footer):
                 report.complete = True
+                report.trailing = max(0, os.fstat(stream.fileno()).st_size - stream.tell() - len(MCAP_MAGIC))
                 return
 
 

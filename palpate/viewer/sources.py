@@ -24,11 +24,11 @@ from types import FrameType
 
 from mcap.reader import make_reader
 
-from palpate.errors import MessageError, PalpateError, ViewerError
+from palpate.errors import MessageError, PalpateError, RecordError, ViewerError
 from palpate.messages import codec
 from palpate.messages.base import Message
 from palpate.messages.schemas import RunControl
-from palpate.record.mcap_io import READ_ERRORS, topic_types
+from palpate.record.mcap_io import READ_ERRORS, check_complete, topic_types
 from palpate.runtime import bus
 from palpate.viewer.rerun_log import SHOWN_TYPE_NAMES
 
@@ -75,6 +75,10 @@ class LogSource:
 
     def __iter__(self) -> Iterator[tuple[str, Message]]:
         with self.path.open("rb") as stream:
+            try:
+                check_complete(stream, self.path)  # a cut or damaged log named as bag names it
+            except RecordError as exc:
+                raise ViewerError(f"{exc}, and view the result") from exc
             try:
                 reader = make_reader(stream, validate_crcs=True)
                 records = reader.iter_messages(

@@ -349,15 +349,24 @@ def test_a_summary_that_loses_or_repeats_a_chunk_or_its_offset_is_refused_by_nam
     indexes = [(s, e) for op, s, e in _top_records(data) if op == 0x08]  # the summary's chunk indexes
     s, e = indexes[2]
     damaged = tmp_path / "damaged.mcap"
+
+    def without_crc(content: bytes) -> bytes:
+        """The log with its footer's summary CRC zeroed ("not computed"), so the reader's own checks speak."""
+        end = len(content) - len(mcap_io.MCAP_MAGIC)
+        return content[: end - 4] + bytes(4) + content[end:]
+
     for content in (data[:s] + data[e:], data[:e] + data[s:e] + data[e:]):  # a chunk index lost, repeated
         damaged.write_bytes(content)
+        with pytest.raises(RecordError, match=r"damaged\.mcap: its summary does not match the CRC its footer holds"):
+            list(mcap_io.read_messages(damaged))
+        damaged.write_bytes(without_crc(content))
         with pytest.raises(RecordError, match=r"damaged\.mcap: its summary counts \d+ messages, its chunks hold"):
             list(mcap_io.read_messages(damaged))  # not one message fewer or more without a word
         with pytest.raises(RecordError, match=r"damaged\.mcap: its summary counts \d+ messages of the topics"):
             list(mcap_io.read_messages(damaged, [topics.CLOCK, topics.CONTACTS, topics.LOCKSTEP_ACK]))
     offset = bytearray(data)
     offset[s + 9 + 8 + 8 + 7] ^= 0x80  # the chunk index's chunk start offset, beyond any file
-    damaged.write_bytes(bytes(offset))
+    damaged.write_bytes(without_crc(bytes(offset)))
     with pytest.raises(RecordError, match=r"damaged\.mcap: cannot read the MCAP log"):  # not OSError
         list(mcap_io.read_messages(damaged))
     assert len(list(mcap_io.read_messages(full))) == len(canonical_log(4))
@@ -418,3 +427,25 @@ def test_bag_info_check_names_the_ticks_a_log_lacks(tmp_path: Path, capsys: pyte
     write_log(whole, canonical_log(6))
     assert main(["bag", "info", str(whole), "--check"]) == 0
     assert "missing" not in capsys.readouterr().out
+
+
+def test_a_damaged_summary_or_bytes_after_the_end_are_named(tmp_path: Path) -> None:
+    """An outside walkthrough: a changed byte in the summary's channel record and a log concatenated with
+    itself passed `bag info --check` (half the file unread); `echo x >> LOG` was called a killed recorder."""
+    log = tmp_path / "run.mcap"
+    write_log(log, canonical_log(3))
+    data = log.read_bytes()
+    twice, appended, flipped = tmp_path / "twice.mcap", tmp_path / "appended.mcap", tmp_path / "flipped.mcap"
+    twice.write_bytes(data + data)
+    appended.write_bytes(data + b"garbage\n")
+    at = data.rindex(b"sensors/contacts")  # the topic's name in the summary's channel record
+    flipped.write_bytes(data[:at] + b"sensors/cpntacts" + data[at + 16 :])
+    for path in (twice, flipped):
+        with pytest.raises(RecordError, match=r"its summary does not match the CRC its footer holds"):
+            list(mcap_io.read_messages(path))
+    with pytest.raises(RecordError, match=r"appended\.mcap holds 8 bytes after the end of its log \(appended to\?\)"):
+        list(mcap_io.read_messages(appended))
+    assert len(list(mcap_io.read_messages(log))) > 0
+    for path, trailing in ((appended, 8), (twice, len(data)), (log, 0)):
+        report = mcap_io.recover(path, tmp_path / f"{path.stem}.recovered.mcap")
+        assert report.complete and report.trailing == trailing
