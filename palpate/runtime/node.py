@@ -76,6 +76,11 @@ _UNDECODABLE = (ValueError, TypeError, KeyError, IndexError, OverflowError, Recu
 _LOG_FIRST_ERRORS = 10
 
 log = logging.getLogger("palpate.node")
+#: A lockstep follower that has waited this long (wall seconds) for its next tick says once what it waits
+#: for (an external clock source's driver that hangs left every node waiting without a word); the
+#: environment variable WAIT_NOTE_ENV overrides it.
+FOLLOWER_WAIT_NOTE_S = 30.0
+WAIT_NOTE_ENV = "PALPATE_WAIT_NOTE_S"
 #: A clock source logs how far the run has got every this many seconds of wall time (progress of long
 #: graphs); the environment variable PROGRESS_ENV overrides it.
 PROGRESS_PERIOD_S = 30.0
@@ -627,12 +632,22 @@ class NodeRunner:
     def _run_follower(self) -> None:
         tick = 0
         timer = self.timer
+        waiting_since, told = time.monotonic(), False  # since the last tick ran; whether the wait was said
+        note_s = float(os.environ.get(WAIT_NOTE_ENV) or FOLLOWER_WAIT_NOTE_S)
         while not self.interrupted:
             if self.lockstep:
                 due = self._due_tick(tick)
                 if due is None:
                     if self.stopping and not self.clock_ticks:
                         break
+                    if not told and time.monotonic() - waiting_since >= note_s:
+                        told = True
+                        log.warning(
+                            "node %s: no tick for %.0f s: waiting for %s",
+                            self.process.name,
+                            time.monotonic() - waiting_since,
+                            self._awaited(tick),
+                        )
                     clock_name = self.process.clock_name  # "" in a spec made without a launcher: no clock to lose
                     if not self._receive(100) and not self.stopping and clock_name and self._gone([clock_name]):
                         # nothing more will come: close in order, as a failed run (the launch exits 1)
@@ -642,6 +657,7 @@ class NodeRunner:
                         break
                     continue
                 tick = due
+                waiting_since, told = time.monotonic(), False
                 if timer is not None:
                     timer.tick = tick
                     timer.mark(tick, "ready")
@@ -670,6 +686,16 @@ class NodeRunner:
                     self._after_tick()
                 if self.stopping:
                     break
+
+    def _awaited(self, tick: int) -> str:
+        """What a lockstep follower waits for to run `tick`: the clock source's Clock, or acknowledgements."""
+        if not self.clock_ticks:
+            clock = self.process.clock_name or "the clock source"
+            return f"tick {tick} from the clock source {clock} (is its process or driver still running?)"
+        due = self.clock_ticks[0].tick
+        late = [n for n in self.process.forward_upstream if self.acks.get(n, -2) < due]
+        late += [n for n in self.process.backward_upstream if self.acks.get(n, -2) < due - 1]
+        return f"the acknowledgements of tick {due} from {', '.join(sorted(set(late)))}"
 
     def _due_tick(self, tick: int) -> int | None:
         """The tick to run now (lockstep): the oldest Clock's, which is `tick` (Clocks come in turn from 0:

@@ -96,3 +96,35 @@ def test_a_node_that_publishes_runcontrol_fail_makes_the_run_fail(tmp_path: Path
     # node that hears only the clock learns the run failed)
     assert re.search(r"\[launch\] node '\w+' \([\w.:]+\) ended the run as a failure; the launch exits 1", out), out
     assert "ERROR node stats ended the run as a failure: run_failer: sensor lost after 5 ticks" in out, out
+
+
+def test_a_hung_external_clock_source_is_named_by_its_followers(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An outside walkthrough: a clock-source driver that hung left the graph waiting for ever without a line."""
+    monkeypatch.setenv("PALPATE_PROGRESS_S", "0.2")
+    monkeypatch.setenv("PALPATE_WAIT_NOTE_S", "1.0")
+    bus_dir, log, driver_log = tmp_path / "bus", tmp_path / "launch.log", tmp_path / "cube.log"
+    with launched(graph(tmp_path, "cube"), bus_dir, log) as proc:
+        spec = external_spec_path(bus_dir, "cube")
+        wait_for(spec.exists, 60, "the spec of cube", log)
+        with driver_log.open("wb") as out:
+            driver = subprocess.Popen(
+                [sys.executable, "-m", "palpate.runtime.node", str(spec)],
+                env=child_env(bus_dir),
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
+        try:
+            wait_for(lambda: "INFO t = " in text(driver_log), 60, "the run to be under way", log)
+            os.kill(driver.pid, signal.SIGSTOP)  # hung: alive, subscribed, silent
+            wait_for(lambda: "no tick for" in text(log), 30, "the follower to say it waits", log)
+            assert re.search(
+                r"node stats: no tick for \d+ s: waiting for tick \d+ from the clock source cube", text(log)
+            )
+        finally:
+            os.kill(driver.pid, signal.SIGCONT)
+            kill_session(driver)
+            proc.send_signal(signal.SIGINT)
+            proc.wait(timeout=30)
