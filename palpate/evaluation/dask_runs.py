@@ -49,6 +49,9 @@ from palpate.paths import why_not
 SCHEDULER_ENV = "PALPATE_SCHEDULER"
 #: Longest time between two redraws of the progress bar, seconds.
 REFRESH_S = 2.0
+#: The scheduler is asked for its tasks' state (running, retried, workers) at most this often (seconds)
+#: while no run finishes: each ask is an INFO line in an external scheduler's log.
+STATE_PERIOD_S = 5.0
 #: After this long (seconds) with no worker on the cluster the evaluation says that its runs wait for one
 #: (all of an external cluster's workers died, or their batch jobs ended).
 NO_WORKER_NOTE_S = 10.0
@@ -541,9 +544,14 @@ def run_tasks(
 
             client.subscribe_topic(PROGRESS_TOPIC, note)
             queue = as_completed(list(pending), loop=client.loop)
+            state: dict[str, Any] = {}
+            asked_at = -math.inf
             while not queue.is_empty():
                 batch = queue.next_batch(block=False)
-                state = client.run_on_scheduler(_scheduler_state, [t.key for t in pending.values()], config.retries)
+                if batch or time.monotonic() - asked_at >= STATE_PERIOD_S:  # each ask is a line in its log
+                    keys = [t.key for t in pending.values()]
+                    state = client.run_on_scheduler(_scheduler_state, keys, config.retries)
+                    asked_at = time.monotonic()
                 attempts.update(state["attempts"])
                 if said := watch.note(state["workers"], time.monotonic()):
                     tqdm.write(said, file=sys.stderr)

@@ -543,7 +543,12 @@ class NodeRunner:
                 missing = self.counter.missing(expected)
                 hello = topics.HELLO_PREFIX
                 absent = ", ".join(sorted(t.removeprefix(hello) for t in missing if t.startswith(hello)))
-                hint = f"; not connected: {absent} (an external node's driver not started?)" if absent else ""
+                hint = (
+                    f"; not connected: {absent} (an external node's driver not started, or not subscribed to "
+                    f"{hello}<its name> as docs/runtime.md asks?)"
+                    if absent
+                    else ""
+                )
                 raise TimeoutError(f"subscribers never connected within {self.start_timeout_s:.0f} s: {missing}{hint}")
             self._receive(50)
         if self.lockstep:
@@ -552,11 +557,12 @@ class NodeRunner:
     def _wait_for_acks(self, nodes: list[str], tick: int) -> None:
         deadline = time.monotonic() + self.ack_timeout_s
         while not self.interrupted and any(self.acks.get(n, -2) < tick for n in nodes):
+            what = f"tick {tick}" if tick >= 0 else "the start (tick -1: every node ready)"
             if time.monotonic() > deadline:
                 late = holding_up(self.acks, tick, self.process, nodes)
-                raise TimeoutError(f"no acknowledgement of tick {tick} from {late} in {self.ack_timeout_s:.0f} s")
+                raise TimeoutError(f"no acknowledgement of {what} from {late} in {self.ack_timeout_s:.0f} s")
             if not self._receive(100) and (gone := self._gone(self.process.lockstep_nodes)):
-                raise PeerLostError(f"no acknowledgement of tick {tick}: {_left(gone)}")
+                raise PeerLostError(f"no acknowledgement of {what}: {_left(gone)}")
 
     def _gone(self, peers: list[str]) -> list[str]:
         """Those of `peers` (each subscribed hello/<peer> here at start-up) whose subscription has been gone
