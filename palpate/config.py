@@ -41,6 +41,7 @@ import difflib
 import functools
 import math
 import numbers
+import re
 import types
 import typing
 from collections.abc import Mapping, Sequence
@@ -149,12 +150,38 @@ def load(cls: type[T], data: Any, where: str = "", path: KeyPath = ()) -> T:
         raise ConfigError(f"{_loc(where, path)}: {exc}", path) from exc
 
 
+class YamlLoader(yaml.SafeLoader):
+    """The YAML of palpate's files (launch files, `name:=value`, hand.yaml): YAML 1.1 as PyYAML reads it,
+    plus the floats of YAML 1.2 without a dot or an exponent sign (`1e3`, `1.0e400`), which 1.1 reads as
+    strings, and without 1.1's octal and base-60 numbers (`010` is 8 and `1:30` is 90 there): those are
+    text, which a numeric parameter refuses by name."""
+
+
+_INT_TAG, _FLOAT_TAG = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
+YamlLoader.add_implicit_resolver(
+    _FLOAT_TAG, re.compile(r"^[-+]?[0-9][0-9_]*(\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789")
+)
+for _first, _resolvers in YamlLoader.yaml_implicit_resolvers.items():  # (a copy of SafeLoader's, made above)
+    _resolvers[:] = [(tag, rx) for tag, rx in _resolvers if tag not in (_INT_TAG, _FLOAT_TAG) or ":" not in rx.pattern]
+YamlLoader.add_implicit_resolver(  # 1.1's ints without the octal (0 then digits) and base-60 forms
+    _INT_TAG, re.compile(r"^(?:[-+]?0b[0-1_]+|[-+]?(?:0|[1-9][0-9_]*)|[-+]?0x[0-9a-fA-F_]+)$"), list("-+0123456789")
+)
+YamlLoader.add_implicit_resolver(  # 1.1's floats without the base-60 form
+    _FLOAT_TAG,
+    re.compile(
+        r"^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+][0-9]+)?|\.[0-9][0-9_]*(?:[eE][-+][0-9]+)?"
+        r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"
+    ),
+    list("-+0123456789."),
+)
+
+
 def load_yaml(cls: type[T], text: str, source: str, where: str = "") -> T:
     """Build ``cls`` from the YAML document ``text`` read from ``source`` (a file name, for messages).
 
     A ConfigError reads ``source:line: where.key.path: ...``, with the line of the offending key.
     """
-    loader = yaml.SafeLoader(text)
+    loader = YamlLoader(text)
     try:
         node = loader.get_single_node()
         data = None if node is None else loader.construct_document(node)

@@ -134,7 +134,7 @@ class ExploreEvalNode:
             print("explore_result: " + json_dumps(brief), flush=True)
         try:
             self._write_files()
-        except (OSError, ValueError) as exc:  # a full disk, a folder removed during the run
+        except OSError as exc:  # a full disk, a folder removed during the run
             self.ctx.log.error("explore_eval: could not write the run's files: %s", exc)
 
     def _write_files(self) -> None:
@@ -177,7 +177,7 @@ def _checks(config: ExploreEvalNodeConfig) -> dict[KeyPath, str]:
     if config.plot_path and not problems.get(("plot_path",)):
         suffix = Path(config.plot_path).suffix.lower().lstrip(".")
         formats = plot_formats()
-        if suffix not in formats:
+        if suffix and suffix not in formats:  # (none: a PNG)
             problems[("plot_path",)] = (
                 f"{config.plot_path}: the plot's format comes from its suffix, one of {', '.join(sorted(formats))}"
             )

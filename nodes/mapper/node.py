@@ -106,10 +106,15 @@ class MapperNode:
             )
         c = self.core.counters
         self.ctx.metrics.update(updates=c.updates, n_eff=self.core.n_eff)
-        self.ctx.counters.update(contacts_outside=c.contacts_outside, free_points_outside=c.free_points_outside)
+        self.ctx.counters.update(
+            contacts_outside=c.contacts_outside,
+            contacts_outside_measured=c.contacts_outside_measured,
+            free_points_outside=c.free_points_outside,
+        )
         region = (self.config.mapper.region_min_m, self.config.mapper.region_max_m)
-        maps = self.core.grids.n_maps  # each particle places every contact
-        if c.contacts >= WARN_OUTSIDE_AFTER and c.contacts_outside == maps * c.contacts:
+        # where the readings put the contacts (a particle's placement alone is no sign: under large joint
+        # noise particles put contacts well inside the region out of it, and some outside it back in)
+        if c.contacts >= WARN_OUTSIDE_AFTER and c.contacts_outside_measured == c.contacts:
             self._warn_once(
                 "all outside",
                 "mapper: the first %d contacts all lie outside the mapped region (region_min_m %s, region_max_m %s); "
@@ -117,13 +122,12 @@ class MapperNode:
                 c.contacts,
                 *region,
             )
-        # some outside where the readings put them (a particle's placement alone is no sign: under large
-        # joint noise particles put contacts well inside the region out of it)
         elif 0 < c.contacts_outside_measured < c.contacts and "all outside" not in self._warned:
             self._warn_once(
                 "outside",
                 "mapper: a contact lies outside the mapped region (region_min_m %s, region_max_m %s), and the maps "
-                "leave it out (counter contacts_outside, per particle map): widen the region to hold the object",
+                "leave it out (counters contacts_outside_measured, and contacts_outside per particle map): widen the "
+                "region to hold the object",
                 *region,
             )
         self.ctx.timings["ms_per_update"] = c.mean_update_ms

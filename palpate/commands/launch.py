@@ -169,7 +169,13 @@ def _from_the_command_line(exc: LaunchError, path: Path, overrides: list[str]) -
         return exc
     lines = Path(file).read_text(errors="replace").splitlines()
     text = lines[int(line) - 1] if int(line) <= len(lines) else ""  # (an empty file's error names line 1)
-    used = [item for item in overrides if f"${{{item.partition(':=')[0]}}}" in text]
+    included = Path(file).resolve() != path.resolve()
+    top = path.read_text(errors="replace") if included else ""  # an include passes the argument on as ${name}
+    used = [
+        item
+        for item in overrides
+        if (name := f"${{{item.partition(':=')[0]}}}") in text and (not included or name in top)
+    ]
     return LaunchError(f"{exc} (from the command line: {', '.join(used)})") if used else exc
 
 
@@ -210,25 +216,27 @@ def recorder_curve_keys(graph: Graph) -> dict[str, str]:
 
 def check_record_path(path: Path, *, overwrite: bool, create: bool = True) -> None:
     """Refuse a `--record` path the recorder could not write, or an existing log without `overwrite`;
-    creates its folder, as the recorder would (`create`; --dry-run only checks where it would be made),
-    and tries to create the file itself (then removes it again)."""
+    with `create`, makes its folder, as the recorder would, and tries to create the file itself (then
+    removes it again); without (--dry-run), makes nothing."""
     if problem := output_path_problem(path, "run.mcap"):
         raise LaunchError(f"--record {problem}")
     if path.exists() and not overwrite:
         raise LaunchError(f"--record {path} exists; pass --force to replace it, or choose another file")
-    if create:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise LaunchError(f"--record {path}: cannot create its folder: {exc}") from exc
-    if path.parent.is_dir():
-        try:  # access() says yes to root in /proc, and to any user on some file systems that refuse files
-            os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
-        except FileExistsError:
-            return
-        except OSError as exc:
-            raise LaunchError(f"--record {path}: cannot create the file: {exc.strerror}") from exc
-        path.unlink()
+    if path.exists() and not os.access(path, os.W_OK):
+        raise LaunchError(f"--record {path} exists and cannot be replaced (not writable)")
+    if not create:  # --dry-run: nothing made on disk
+        return
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise LaunchError(f"--record {path}: cannot create its folder: {exc}") from exc
+    try:  # access() says yes to root in /proc, and to any user on some file systems that refuse files
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+    except FileExistsError:
+        return
+    except OSError as exc:
+        raise LaunchError(f"--record {path}: cannot create the file: {exc.strerror}") from exc
+    path.unlink()
 
 
 def launch_about(graph: Graph) -> dict[str, str]:

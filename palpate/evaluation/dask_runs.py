@@ -553,7 +553,7 @@ def run_tasks(
                     state = client.run_on_scheduler(_scheduler_state, keys, config.retries)
                     asked_at = time.monotonic()
                 attempts.update(state["attempts"])
-                if said := watch.note(state["workers"], time.monotonic()):
+                if said := watch.note(state.get("workers", 1), time.monotonic()):  # (an older palpate there)
                     tqdm.write(said, file=sys.stderr)
                 for future in batch:
                     task = pending.pop(future)

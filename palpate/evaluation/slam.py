@@ -571,6 +571,8 @@ def _snapshot_times(text: str) -> tuple[float, ...]:
         raise argparse.ArgumentTypeError(f"{text!r} is not a list of seconds such as 10,100") from None
     if not times or not all(math.isfinite(t) and t > 0 for t in times) or list(times) != sorted(set(times)):
         raise argparse.ArgumentTypeError(f"{text!r}: give increasing positive seconds, such as 10,100")
+    if any(abs(t * 100 - round(t * 100)) > 1e-6 for t in times):  # maps go out at ticks only
+        raise argparse.ArgumentTypeError(f"{text!r}: give multiples of the 10 ms tick, such as 0.5,2")
     return times
 
 

@@ -520,11 +520,6 @@ def _check_wiring(graph: Graph) -> None:
                 f"{node.entry.at('respawn')}: node {node.name!r} is external: its driver starts it, and restarts it, "
                 "not palpate launch; remove respawn (or external)"
             )
-        if "max_restarts" in node.entry.fields and not node.respawn:
-            raise LaunchError(
-                f"{node.entry.at('max_restarts')}: node {node.name!r}: max_restarts counts respawns; it needs "
-                "'respawn: true'"
-            )
     if graph.mode == "lockstep":
         for node in graph.nodes:
             if node.respawn:

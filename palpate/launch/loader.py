@@ -13,35 +13,11 @@ from typing import Any
 
 import yaml
 
-from palpate.config import KeyPath, key_lines, line_at
+from palpate.config import KeyPath, YamlLoader, key_lines, line_at
 from palpate.errors import ConfigError, LaunchError, PalpateError
 from palpate.launch.placement import PLACEMENTS
 from palpate.paths import read_start
 
-
-class _Loader(yaml.SafeLoader):
-    """YAML 1.1 as PyYAML reads it, plus the floats of YAML 1.2 without a dot or an exponent sign (`1e3`,
-    `1.0e400`), which 1.1 reads as strings, and without 1.1's octal and base-60 numbers (`010` is 8 and
-    `1:30` is 90 there): those are text, which a numeric parameter refuses by name."""
-
-
-_INT_TAG, _FLOAT_TAG = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
-_Loader.add_implicit_resolver(
-    _FLOAT_TAG, re.compile(r"^[-+]?[0-9][0-9_]*(\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789")
-)
-for _first, _resolvers in _Loader.yaml_implicit_resolvers.items():  # (a copy of SafeLoader's, made above)
-    _resolvers[:] = [(tag, rx) for tag, rx in _resolvers if tag not in (_INT_TAG, _FLOAT_TAG) or ":" not in rx.pattern]
-_Loader.add_implicit_resolver(  # 1.1's ints without the octal (0 then digits) and base-60 forms
-    _INT_TAG, re.compile(r"^(?:[-+]?0b[0-1_]+|[-+]?(?:0|[1-9][0-9_]*)|[-+]?0x[0-9a-fA-F_]+)$"), list("-+0123456789")
-)
-_Loader.add_implicit_resolver(  # 1.1's floats without the base-60 form
-    _FLOAT_TAG,
-    re.compile(
-        r"^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+][0-9]+)?|\.[0-9][0-9_]*(?:[eE][-+][0-9]+)?"
-        r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"
-    ),
-    list("-+0123456789."),
-)
 _CONSTRUCTOR = yaml.constructor.SafeConstructor()
 #: What PyYAML's constructors raise for a tagged value they cannot build (`!!bool maybe`, `!!timestamp x`,
 #: `!!int` with no value: an IndexError).
@@ -134,7 +110,7 @@ def parse_cli_args(items: Sequence[str], separator: str = ":=", option: str = ""
             raise LaunchError(f"{what} is given twice on the command line ({given[name]!r} and {item!r}); give it once")
         given[name] = item
         try:
-            out[name] = yaml.load(value, Loader=_Loader) if value else ""
+            out[name] = yaml.load(value, Loader=YamlLoader) if value else ""
         except RecursionError:
             raise LaunchError(
                 f"launch argument {item[:80]!r} from the command line: nested too deeply to read (lists or "
@@ -320,7 +296,7 @@ def _compose(path: Path, name: str) -> yaml.Node | None:
             f"{name}:{line}: not UTF-8 text (byte {data[exc.start]:#04x}); save the file as UTF-8"
         ) from None
     try:
-        return yaml.compose(text, Loader=_Loader)
+        return yaml.compose(text, Loader=YamlLoader)
     except yaml.MarkedYAMLError as exc:
         mark, context = exc.problem_mark, exc.context_mark
         around = f" ({exc.context} at line {context.line + 1})" if exc.context and context else ""

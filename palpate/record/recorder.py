@@ -27,6 +27,7 @@ SIGINT and SIGTERM write what is queued and finish the file.
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
 import signal
 import sys
@@ -262,6 +263,10 @@ class _Connection:
     connected: bool = False
 
 
+#: What a write to a log can fail with (full disk or quota, file size limit, I/O error, read-only).
+WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS}
+
+
 def _endpoint_name(endpoint: str) -> str:
     """A stable name for a publisher endpoint: the node name of an ipc socket file, else the address."""
     if endpoint.startswith("ipc://"):
@@ -478,6 +483,8 @@ class Recorder:
             self._write(self.sorter.ready(), lockstep=self.sorter.mode == "lockstep")
             self._write(self.sorter.finish(), lockstep=False)
         except OSError as exc:
+            if exc.errno not in WRITE_ERRNOS:
+                raise
             failure = exc
         finally:
             try:

@@ -71,11 +71,18 @@ def default_bus_dir() -> Path:
     return path
 
 
+#: A relative bus directory is made absolute when a socket of a node name this long still fits there.
+ROOM_FOR_NAME = 32
+
+
 def usable_dir(path: Path) -> Path:
-    """`path` made absolute (the ipc endpoints in its manifests and an external node's spec must hold
-    from any working directory), a directory or one that can be made; else BusError naming the file in
-    the way."""
-    path = path.absolute()
+    """`path`, a directory or one that can be made (else BusError naming the file in the way), made
+    absolute, so that the ipc endpoints in its manifests and an external node's spec hold from any
+    working directory; left relative when the absolute path leaves no room for a socket's name (a short
+    relative --bus is the way round the OS's 107-byte limit)."""
+    absolute = path.absolute()
+    if len(os.fsencode(absolute)) + 1 + ROOM_FOR_NAME + len(".pub") <= zmq.IPC_PATH_MAX_LEN:
+        path = absolute
     existing = next(p for p in (path, *path.parents) if p.exists())
     if not existing.is_dir():
         what = f"bus directory {path}" + (f": {existing}" if existing != path else "")

@@ -25,6 +25,7 @@ the latest message of a burst is kept.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import signal
 import sys
@@ -159,8 +160,13 @@ class NodeContext:
                 "which promises it never does: remove may_trail from the spec"
             )
         rejected = self.counters["input_errors"]
-        if failed and rejected:  # the likelier cause of a failure, which the reason itself may not know
-            reason += f" ({rejected} input message(s) rejected before this; the first: {self._first_rejection})"
+        if failed and rejected and not self.failure:  # the likelier cause, which the reason may not know
+            self.log.error(
+                "node %s: the failure below follows %d rejected input message(s); the first: %s",
+                self.name,
+                rejected,
+                self._first_rejection,
+            )
         self.stop_requested = reason
         if failed and not self.failure:
             self.failure = reason
@@ -543,9 +549,11 @@ class NodeRunner:
                 missing = self.counter.missing(expected)
                 hello = topics.HELLO_PREFIX
                 absent = ", ".join(sorted(t.removeprefix(hello) for t in missing if t.startswith(hello)))
+                names = [t.removeprefix(hello) for t in missing if t.startswith(hello)]
+                hello_of = f"{hello}{names[0]}" if len(names) == 1 else f"{hello}<its name>"
                 hint = (
                     f"; not connected: {absent} (an external node's driver not started, or not subscribed to "
-                    f"{hello}<its name> as docs/runtime.md asks?)"
+                    f"{hello_of}?)"
                     if absent
                     else ""
                 )
@@ -584,7 +592,7 @@ class NodeRunner:
         if self.lockstep:
             self._wait_for_acks(self.process.lockstep_nodes, -1)
         start = time.monotonic()
-        progress_s = float(os.environ.get(PROGRESS_ENV) or PROGRESS_PERIOD_S)
+        progress_s = _seconds_from_env(PROGRESS_ENV, PROGRESS_PERIOD_S)
         next_report = start + progress_s
         tick = 0
         timer = self.timer
@@ -639,14 +647,14 @@ class NodeRunner:
         tick = 0
         timer = self.timer
         waiting_since, told = time.monotonic(), False  # since the last tick ran; whether the wait was said
-        note_s = float(os.environ.get(WAIT_NOTE_ENV) or FOLLOWER_WAIT_NOTE_S)
+        note_s = _seconds_from_env(WAIT_NOTE_ENV, FOLLOWER_WAIT_NOTE_S)
         while not self.interrupted:
             if self.lockstep:
                 due = self._due_tick(tick)
                 if due is None:
                     if self.stopping and not self.clock_ticks:
                         break
-                    if not told and time.monotonic() - waiting_since >= note_s:
+                    if tick > 0 and not told and time.monotonic() - waiting_since >= note_s:  # (not a slow start)
                         told = True
                         log.warning(
                             "node %s: no tick for %.0f s: waiting for %s",
@@ -697,7 +705,10 @@ class NodeRunner:
         """What a lockstep follower waits for to run `tick`: the clock source's Clock, or acknowledgements."""
         if not self.clock_ticks:
             clock = self.process.clock_name or "the clock source"
-            return f"tick {tick} from the clock source {clock} (is its process or driver still running?)"
+            return (
+                f"tick {tick} from the clock source {clock} (its process or driver hung, or a node it waits for is "
+                "slow)"
+            )
         due = self.clock_ticks[0].tick
         late = [n for n in self.process.forward_upstream if self.acks.get(n, -2) < due]
         late += [n for n in self.process.backward_upstream if self.acks.get(n, -2) < due - 1]
@@ -745,6 +756,22 @@ def holding_up(
         )
 
     return [n for n in late if ready(n)] or late
+
+
+def _seconds_from_env(name: str, default: float) -> float:
+    """Seconds from environment variable `name`, else `default` (also, with a warning, for a value that is
+    not a positive number: every node read it and failed)."""
+    text = os.environ.get(name)
+    if not text:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not value > 0:
+        log.warning("$%s=%r is not a positive number of seconds; using %g", name, text, default)
+        return default
+    return value
 
 
 def _left(peers: list[str]) -> str:

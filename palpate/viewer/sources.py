@@ -78,7 +78,8 @@ class LogSource:
             try:
                 check_complete(stream, self.path)  # a cut or damaged log named as bag names it
             except RecordError as exc:
-                raise ViewerError(f"{exc}, and view the result") from exc
+                then = ", and view the result" if "bag recover" in str(exc) else ""
+                raise ViewerError(f"{exc}{then}") from exc
             try:
                 reader = make_reader(stream, validate_crcs=True)
                 records = reader.iter_messages(

@@ -269,6 +269,7 @@ def test_snapshot_times_set_the_runs_length_from_the_command_line() -> None:
 
     assert _snapshot_times("1,2.5") == (1.0, 2.5)
     assert SlamEvalConfig(snapshot_s=_snapshot_times("5")).duration_s == 5.0
-    for bad in ("", "x", "5,2", "0,1", "1,1", "nan"):
+    assert _snapshot_times("0.01,0.5") == (0.01, 0.5)
+    for bad in ("", "x", "5,2", "0,1", "1,1", "nan", "0.125", "0.001"):  # (the last two failed in every run)
         with pytest.raises(argparse.ArgumentTypeError):
             _snapshot_times(bad)

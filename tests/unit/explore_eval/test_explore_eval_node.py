@@ -157,6 +157,7 @@ def test_output_paths_it_could_not_write_are_named_before_the_run(tmp_path: Path
     blocker.write_text("")
     fine = ExploreEvalNodeConfig(results_path=str(tmp_path / "new" / "r.json"), plot_path=str(tmp_path / "p.svg"))
     assert SPEC.checks(fine) == {}
+    assert SPEC.checks(ExploreEvalNodeConfig(plot_path=str(tmp_path / "run"))) == {}  # no suffix: a PNG
     problems = SPEC.checks(ExploreEvalNodeConfig(results_path=str(tmp_path), plot_path="out/x.weird"))
     assert problems[("results_path",)] == f"{tmp_path} is a directory; give a file name, such as {tmp_path}/run.json"
     assert problems[("plot_path",)].startswith("out/x.weird: the plot's format comes from its suffix, one of ")

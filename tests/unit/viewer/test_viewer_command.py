@@ -73,8 +73,13 @@ def test_view_damaged_log_says_recover(capsys: pytest.CaptureFixture[str], log_f
     damaged = tmp_path / "damaged.mcap"
     damaged.write_bytes(log_file.read_bytes()[: log_file.stat().st_size // 2])
     assert cli.main(["view", "--log", str(damaged), "--save", str(tmp_path / "out.rrd")]) == 2
-    assert "palpate bag recover" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "damaged.mcap ends before the log's footer" in err and "palpate bag recover" in err  # as bag says
+    assert err.rstrip().endswith("and view the result")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged.mcap", "run.mcap"]  # no half recording
+    damaged.write_bytes(b"not a log")
+    assert cli.main(["view", "--log", str(damaged), "--save", str(tmp_path / "out.rrd")]) == 2
+    assert capsys.readouterr().err.rstrip().endswith("(it does not start with MCAP's magic bytes)")
 
 
 def test_save_replaces_a_file_only_with_force(
