@@ -281,11 +281,15 @@ def _value(hint: Any, value: Any, where: str, path: KeyPath, *, convert: bool, m
         fitting = [o for o in options if _shape(o) == _shape(type(value))]
         if len(options) == 1 or len(fitting) == 1:  # one candidate: its own error says most
             return _value((fitting or options)[0], value, where, path, convert=convert, meta=meta)
+        errors = []
         for option in options:
             try:
                 return _value(option, value, where, path, convert=convert, meta=meta)
-            except ConfigError:
-                continue
+            except ConfigError as exc:
+                errors.append((option, exc))
+        for option, exc in errors:  # a number out of range: the number's own error says most
+            if _split(option)[0] in (int, float) and isinstance(value, numbers.Real) and not isinstance(value, bool):
+                raise exc
         raise fail(_type_name(base))
     if origin is typing.Literal:
         if any(type(value) is type(arg) and value == arg for arg in args):  # True is not the literal 1
@@ -378,4 +382,10 @@ def _loc(where: str, path: KeyPath) -> str:
 
 def _type_name(hint: Any) -> str:
     base, _ = _split(hint)
+    origin, args = typing.get_origin(base), typing.get_args(base)
+    if origin in (typing.Union, types.UnionType):  # "a number, 'auto' or null", not "Union"
+        names = [_type_name(a) for a in args if a is not type(None)] + (["null"] if type(None) in args else [])
+        return ", ".join(names[:-1]) + f" or {names[-1]}" if len(names) > 1 else names[0]
+    if origin is typing.Literal:
+        return " or ".join(repr(a) for a in args)
     return getattr(base, "__name__", None) or str(base).replace("typing.", "")

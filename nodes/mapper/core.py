@@ -41,6 +41,19 @@ from palpate.nodes.mapper.observation import capsule_grid, capsule_lattice, obse
 FloatArray = NDArray[np.float64]
 
 
+#: Free margins measured on the Rubik's cube scene's grid (region from -45 mm, cube faces 0.5 mm inside
+#: their cells), by cell edge, millimetres: the least depth at which the free update clears no cube cell
+#: at the true pose, and at 1 mm cells also none the finger's press reaches (docs/slam.md, item 2).
+MEASURED_FREE_MARGIN_MM = {1.0: 1.5, 2.0: 0.5, 4.0: 2.5}
+
+
+def measured_free_margin_m(resolution_m: float) -> float | None:
+    """The measured free margin for cells of ``resolution_m`` (MEASURED_FREE_MARGIN_MM), metres; None for
+    a cell size not measured."""
+    margin = MEASURED_FREE_MARGIN_MM.get(round(resolution_m * 1e3, 9))
+    return None if margin is None else margin * 1e-3
+
+
 #: Fewest cells across the region's smallest side a map may have (one cell was a resolution in millimetres).
 MIN_CELLS_PER_SIDE = 2
 
@@ -62,7 +75,8 @@ class MapperConfig(Validated):
       cells only penalise overlap with occupied cells, which maps the Rubik's cube scene better;
       see fastslam.observation_log_likelihood and docs/slam.md).
     free_spacing_m, free_margin_m: lattice spacing and depth of the finger's free-volume samples
-      (None: the grid resolution; see observation.py).
+      (None: the grid resolution; see observation.py); free_margin_m "auto": the margin measured for
+      the resolution (MEASURED_FREE_MARGIN_MM), else the resolution.
     chunk_edge: cells per chunk edge of the sparse storage (a power of two).
     """
 
@@ -81,7 +95,7 @@ class MapperConfig(Validated):
     free_weight: NonNegativeFloat = 1.0
     free_reward: bool = True
     free_spacing_m: Annotated[float | None, Positive] = None
-    free_margin_m: Annotated[float | None, NonNegative] = None
+    free_margin_m: Annotated[float | Literal["auto"] | None, NonNegative] = None
     chunk_edge: PositiveInt = 8
 
     def __post_init__(self) -> None:
@@ -106,8 +120,14 @@ class MapperConfig(Validated):
         res = self.resolution_m
         return (
             self.free_spacing_m if self.free_spacing_m is not None else res,
-            self.free_margin_m if self.free_margin_m is not None else res,
+            self._free_margin(),
         )
+
+    def _free_margin(self) -> float:
+        if self.free_margin_m == "auto":
+            measured = measured_free_margin_m(self.resolution_m)
+            return self.resolution_m if measured is None else measured
+        return self.resolution_m if self.free_margin_m is None else self.free_margin_m
 
 
 #: Bytes a particle's update takes per free-volume point (its cell keys and scores, a few arrays of it).

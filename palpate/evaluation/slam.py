@@ -67,25 +67,18 @@ METHODS = ("known", "fastslam", "dead_reckoning")
 MAP_TOPICS = {"map/known": "known", "map/fastslam": "fastslam", "map/dead_reckoning": "dead_reckoning"}
 MAPPER_NODES = {"known": "mapper_known", "fastslam": "mapper_fastslam", "dead_reckoning": "mapper_dead_reckoning"}
 DEFAULT_OUT = Path("out") / "slam"
-#: Free margin per resolution: the depth below the finger's surface from which its volume counts as
-#: free. It must be at least the distance from a face of the cube to the outer face of the cells
-#: that hold it, or the free update clears cube cells at the true pose: on this grid (region from
-#: -45 mm, cube faces at +-28.5 mm) that is 0.5 mm at 1 and 2 mm cells and 2.5 mm at 4 mm (docs/slam.md).
-#: Other resolutions take the mapper's default (one cell). At 1 mm cells the finger's press into
-#: the surface matters too: with 0.5 mm (1.0 mm) the known-pose map scored rmse 0.178 (0.079), with
-#: 1.5 mm 0.015 (palpate sweep slam --quick --resolutions-mm 1).
-FREE_MARGIN_MM = {1.0: 1.5, 2.0: 0.5, 4.0: 2.5}
-
-
 #: A map needs at least this many cells across its region to have a surface to score.
 MIN_CELLS_ACROSS = 4
 
 
 def free_margin_m(resolution_m: float) -> float | None:
-    """The measured free margin for cells of ``resolution_m`` on this grid (FREE_MARGIN_MM), metres;
-    None (the mapper's one cell) for a resolution not measured."""
-    margin = FREE_MARGIN_MM.get(round(resolution_m * 1e3, 9))
-    return None if margin is None else margin * 1e-3
+    """The free margin measured on this grid for cells of ``resolution_m``, metres (the mapper's
+    MEASURED_FREE_MARGIN_MM: the cube's faces lie 0.5 mm inside their cells at 1 and 2 mm, 2.5 mm at
+    4 mm, and at 1 mm the finger's press needs 1.5 mm; docs/slam.md); None (the mapper's one cell) for a
+    resolution not measured."""
+    from palpate.nodes.mapper.core import measured_free_margin_m
+
+    return measured_free_margin_m(resolution_m)
 
 
 #: How to set each launch argument of slam_eval.yaml that the evaluation sets itself

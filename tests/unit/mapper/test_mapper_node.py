@@ -194,3 +194,19 @@ def test_a_free_volume_without_points_and_a_one_cell_map_are_said() -> None:
     assert node.core.free_volume.n_points == 0 and "no free volume" in node._warned
     node = MapperNode(MapperNodeConfig(mapper=MapperConfig(**region, resolution_m=0.002)), ctx)
     assert "no free volume" not in node._warned
+
+
+@pytest.mark.parametrize(
+    ("resolution_m", "margin_m"), [(0.002, 0.0005), (0.004, 0.0025), (0.001, 0.0015), (0.003, 0.003)]
+)
+@pytest.mark.parametrize("file", ["map_known.yaml", "fastslam.yaml"])
+def test_the_slam_launch_files_take_the_free_margin_measured_for_their_cells(
+    file: str, resolution_m: float, margin_m: float
+) -> None:
+    """Two outside walkthroughs: `resolution_m:=0.004` kept the 2 mm cells' 0.5 mm margin, and the known-pose
+    map scored rmse 0.209 instead of 0.018."""
+    graph = resolve(load_launch(LAUNCH_DIR / file, {"resolution_m": resolution_m}))
+    process = next(p for p in graph.process_specs() if p.type == "mapper")
+    config: Any = load(MapperNodeConfig, process.params)
+    assert config.mapper.free_margin_m == "auto"
+    assert config.mapper.free_lattice() == pytest.approx((resolution_m, margin_m))
