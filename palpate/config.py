@@ -287,9 +287,9 @@ def _value(hint: Any, value: Any, where: str, path: KeyPath, *, convert: bool, m
                 return _value(option, value, where, path, convert=convert, meta=meta)
             except ConfigError as exc:
                 errors.append((option, exc))
-        for option, exc in errors:  # a number out of range: the number's own error says most
+        for option, error in errors:  # a number out of range: the number's own error says most
             if _split(option)[0] in (int, float) and isinstance(value, numbers.Real) and not isinstance(value, bool):
-                raise exc
+                raise error
         raise fail(_type_name(base))
     if origin is typing.Literal:
         if any(type(value) is type(arg) and value == arg for arg in args):  # True is not the literal 1
