@@ -97,10 +97,12 @@ class MapperNode:
             contacts_ns, reading_ns = self.session.last_unmatched or (0, 0)
             self._warn_once(
                 "stamps",
-                "mapper: contacts stamped %d ns apart from the joint reading (contacts at %d, joints at %d) are left "
-                "out of the maps (counter contacts_unmatched): stamp a tick's joint and contact messages alike, or "
-                "set the mapper's stamp_tolerance_s",
-                contacts_ns - reading_ns,
+                "mapper: contacts found no joint reading stamped within stamp_tolerance_s (%g s) of theirs (contacts "
+                "at %d ns, the next reading at %d ns) and are left out of the maps (counter contacts_unmatched): "
+                "in real time a mapper slower than the tick skips readings (see its ms_per_update); a driver "
+                "stamps a tick's joint and contact messages alike, or the mapper's stamp_tolerance_s allows the "
+                "difference",
+                self.config.stamp_tolerance_s,
                 contacts_ns,
                 reading_ns,
             )

@@ -61,6 +61,10 @@ class MapperTick:
     publish_maps: bool
 
 
+#: Contact sets kept for a reading of their stamp that has not come yet (a tick's worth or two in real time).
+MAX_PENDING_CONTACTS = 64
+
+
 class MapperSession:
     """Feeds the Mapper from decoded messages and decides when the maps go out."""
 
@@ -77,7 +81,9 @@ class MapperSession:
         self.label = label or ("known" if mapper.config.mode == "known" else "best")
         self.next_publish_ns = 0
         self._reading: JointReading | None = None
-        self._contacts: ChainContacts | None = None
+        #: Contact sets not yet paired with a reading, oldest first: in real time a noisy reading comes a
+        #: hop (a tick) after the contacts of its stamp.
+        self._pending: list[ChainContacts] = []
         #: Contact points received, and those on links the chain does not have (another finger's).
         self.contacts_received = 0
         self.contacts_off_chain = 0
@@ -115,25 +121,44 @@ class MapperSession:
             links=index[on_chain].astype(np.int64),
             local_m=coordinates(local_positions_m, "local_positions_m").reshape(-1, 3)[on_chain],
         )
-        self._contacts = contacts
+        self._pending.append(contacts)
+        if len(self._pending) > MAX_PENDING_CONTACTS:  # no reading of their stamp came
+            self._unmatched(self._pending.pop(0), stamp_ns)
         return contacts
 
     def tick(self, stamp_ns: int) -> MapperTick | None:
         """One update with the reading received since the last tick (None: there was none) and the
         contacts of the reading's stamp."""
-        reading, contacts = self._reading, self._contacts
+        reading = self._reading
         self._reading = None
         if reading is None:
             return None
-        self._contacts = None  # a contact set joins one update at most
-        if contacts is None or abs(contacts.stamp_ns - reading.stamp_ns) > self.stamp_tolerance_ns:
-            if contacts is not None and len(contacts.links):
-                self.contacts_unmatched += len(contacts.links)
-                self.last_unmatched = (contacts.stamp_ns, reading.stamp_ns)
-            contacts = ChainContacts.none(reading.stamp_ns)
+        contacts = self._paired(reading.stamp_ns)
         resamples_before = self.mapper.counters.resamples
         self.mapper.update(reading.q_rad, contacts.links, contacts.local_m)
         publish_maps = stamp_ns >= self.next_publish_ns
         if publish_maps:
             self.next_publish_ns = stamp_ns + self.publish_period_ns
         return MapperTick(resampled=self.mapper.counters.resamples > resamples_before, publish_maps=publish_maps)
+
+    def _paired(self, reading_ns: int) -> ChainContacts:
+        """The pending contact set stamped nearest `reading_ns` within the tolerance (none: no contacts);
+        sets stamped earlier, which no later reading can take, are dropped as unmatched."""
+        tolerance = self.stamp_tolerance_ns
+        near = [c for c in self._pending if abs(c.stamp_ns - reading_ns) <= tolerance]
+        chosen = min(near, key=lambda c: abs(c.stamp_ns - reading_ns)) if near else None
+        kept = []
+        for c in self._pending:
+            if c is chosen:
+                continue
+            if c.stamp_ns <= reading_ns:
+                self._unmatched(c, reading_ns)
+            else:
+                kept.append(c)  # a later reading's
+        self._pending = kept
+        return chosen if chosen is not None else ChainContacts.none(reading_ns)
+
+    def _unmatched(self, contacts: ChainContacts, reading_ns: int) -> None:
+        if len(contacts.links):
+            self.contacts_unmatched += len(contacts.links)
+            self.last_unmatched = (contacts.stamp_ns, reading_ns)

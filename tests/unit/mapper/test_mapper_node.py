@@ -176,8 +176,8 @@ def test_contacts_stamped_apart_from_the_readings_are_counted_and_said_once(capl
             node.on_joint_states(reading(joints, np.zeros(4), tick * 10_000_000))
             node.on_contacts(contacts([tip], np.array([[0.0, 0.0, 0.01]]), tick * 10_000_000 + 1))
             node.on_tick(tick * 10_000_000)
-    assert node.ctx.counters["contacts_unmatched"] == 3
-    assert caplog.text.count("contacts stamped 1 ns apart from the joint reading") == 1
+    assert node.ctx.counters["contacts_unmatched"] == 2  # the third may still meet a reading of its stamp
+    assert caplog.text.count("mapper: contacts found no joint reading stamped within stamp_tolerance_s (0 s)") == 1
 
 
 def test_a_free_volume_without_points_and_a_one_cell_map_are_said() -> None:

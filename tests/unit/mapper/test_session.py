@@ -123,8 +123,16 @@ def test_contacts_stamped_apart_from_every_reading_are_counted_once_and_a_tolera
         session.tick(tick * 10 * MS)
     session.joint_reading(chain.joint_names, np.zeros(4), 40 * MS)
     session.tick(40 * MS)  # no new contacts: the last set is not counted again
-    assert session.contacts_unmatched == 6 and session.last_unmatched == (30 * MS + 1, 30 * MS)
+    assert session.contacts_unmatched == 6 and session.last_unmatched == (30 * MS + 1, 40 * MS)
     assert all(len(links) == 0 for _, links, _ in mapper.calls)
+    # real time: the noisy reading of a stamp comes a tick after its contacts (a hop through the noise node)
+    late, mapper = _session(chain)
+    for tick in range(1, 4):
+        late.contacts(*contact, tick * 10 * MS)
+        if tick > 1:
+            late.joint_reading(chain.joint_names, np.zeros(4), (tick - 1) * 10 * MS)
+        late.tick(tick * 10 * MS)
+    assert late.contacts_unmatched == 0 and [len(links) for _, links, _ in mapper.calls] == [2, 2]
     mapper = FakeMapper(chain, MapperConfig(**REGION))  # type: ignore[arg-type]
     tolerant = MapperSession(cast(Mapper, mapper), 1.0, stamp_tolerance_s=0.002)
     tolerant.joint_reading(chain.joint_names, np.zeros(4), 10 * MS)
