@@ -483,6 +483,24 @@ def _difference(here: Any, there: Any) -> str:
     return f"{here!r} here, {there!r} there"
 
 
+#: Message types that move something: a graph whose commands no node reads moves nothing (an exploration
+#: graph whose sim holds a scripted hand instead of the probe ran to its end, exit 0).
+_COMMAND_TYPES = {"CartesianVelocityCommand", "JointCommand"}
+
+
+def _readers_of(graph: Graph, type_name: str) -> str:
+    """' (node X reads that type on port P, as topic T)' for the nodes that read `type_name` elsewhere."""
+    found = [
+        f"node {n.name!r} reads {type_name} on {topic!r}"
+        for n in graph.nodes
+        for port, topic in n.subscribes.items()
+        if type_name == n.spec.inputs[port].message.TYPE
+    ]
+    if found:
+        return f" ({'; '.join(found)})"
+    return f" (no node of the graph reads {type_name}: a sim whose effector follows a scripted motion takes none)"
+
+
 def _check_wiring(graph: Graph) -> None:
     types = graph.topic_types()
     for node in graph.nodes:
@@ -506,6 +524,17 @@ def _check_wiring(graph: Graph) -> None:
                 raise LaunchError(
                     f"{where}: type mismatch on {topic!r}: {pubs} publishes {types[topic]}, "
                     f"but node {node.name!r} port {port!r} expects {wanted}"
+                )
+    read = {topic for node in graph.nodes for topic in node.subscribes.values()}
+    for node in graph.nodes:
+        for port, topic in node.publishes.items():
+            if node.spec.outputs[port].message.TYPE in _COMMAND_TYPES and topic not in read:
+                readers = _readers_of(graph, node.spec.outputs[port].message.TYPE)
+                raise LaunchError(
+                    f"{node.entry.remap_lines.get(port, node.where)}: node {node.name!r} commands on {topic!r} "
+                    f"(port {port!r}), which no node reads{readers}: its commands would move nothing; read "
+                    "them (an effector that takes commands, such as the sim's probe), remap, or mark the "
+                    "reader 'external: true'"
                 )
     for topic in types:
         publishers = graph.publishers(topic)

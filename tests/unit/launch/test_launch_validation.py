@@ -1197,3 +1197,14 @@ def test_a_ctrl_c_that_a_library_swallows_while_the_graph_loads_still_ends_the_l
     monkeypatch.setattr(launch, "run_graph", must_not_run)
     assert main(["launch", "launch/probe.yaml"]) == 130
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_commands_that_no_node_reads_are_refused(tmp_path: Path) -> None:
+    """An outside walkthrough: launch/explore.yaml with `effector: hand` ran to its end (exit 0) while the
+    planner and controller steered nothing: the scripted hand reads no velocity commands."""
+    text = (REPO_ROOT / "launch" / "explore.yaml").read_text()
+    path = tmp_path / "explore_hand.yaml"
+    path.write_text(re.sub(r"\n\s*probe:.*", "", text.replace("effector: probe", "effector: hand")))
+    with pytest.raises(LaunchError, match=r"node 'controller' commands on 'commands/velocity' .*which no node reads"):
+        load(path, tmp_path)
+    load(REPO_ROOT / "launch" / "explore.yaml", tmp_path)  # the probe reads them
