@@ -147,6 +147,10 @@ def _dls(J: np.ndarray, x: np.ndarray, damping: float = 1e-3) -> np.ndarray:
     return np.asarray(J.T @ np.linalg.solve(J @ J.T + damping**2 * np.eye(J.shape[0]), x))
 
 
+#: Below this size (mm) the default placement's sideways offset puts the finger beside an object.
+SMALL_OBJECT_MM = 40.0
+
+
 class ExplorationMotion:
     """Joint targets over time that make the fingertip tap and slide over the object's faces."""
 
@@ -171,12 +175,18 @@ class ExplorationMotion:
         if len(self.touches.q_touch) == 0:
             size_mm = 1e3 * float(np.max(self._box[1] - self._box[0]))
             offset = [float(v) for v in scene.finger_mcp_offset_m]
+            hint = (
+                "a small object needs a smaller offset (its y puts the finger beside it), e.g. --set "
+                "'sim.scene.finger_mcp_offset_m=[0,0.01,0.05]'"
+                if size_mm < SMALL_OBJECT_MM
+                else "on a large object the finger reaches only near that edge: move the base over the object "
+                "(a larger x) or nearer its top (a smaller z)"
+            )
             raise ConfigError(
-                f"the {scene.effector}'s fingertip cannot reach the object {self.object.name!r} ({size_mm:.3g} mm "
+                f"the {scene.effector}'s fingertip cannot reach the object {self.object.name!r} ({size_mm:.4g} mm "
                 f"across) from this placement: move the effector base (finger_mcp_offset_m or base_position_m) "
                 f"closer to the object, or turn scripted_motion off. The finger's base sits finger_mcp_offset_m = "
-                f"{offset} m from the object's -x face, y centre and top; a small object needs a smaller offset "
-                "(its y puts the finger beside it), e.g. --set 'sim.scene.finger_mcp_offset_m=[0,0.01,0.05]'",
+                f"{offset} m from the object's -x face, y centre and top; {hint}",
                 ("scene",),
             )
         self._times: list[float] = [0.0]

@@ -192,16 +192,26 @@ def _files(config: SimNodeConfig) -> dict[KeyPath, str]:
 
 
 def _checks(config: SimNodeConfig) -> dict[KeyPath, str]:
-    """What is wrong with the object's mesh file (absurd scale, degenerate, unreadable), read as the node will."""
+    """What is wrong with the object's mesh file (absurd scale, degenerate, unreadable), read as the node will,
+    and, for a finger or hand that taps by script, whether its fingertip reaches the object at all (the
+    node found out only when it started)."""
     spec = config.scene.object
-    if spec.kind != "mesh" or not spec.path:
-        return {}
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", MeshWarning)  # the node says them when it starts
-            read_mesh_file(resolve_mesh_path(spec.path), spec.scale)
-    except MeshError as exc:
-        return {("scene", "object", "path"): str(exc)}
+    if spec.kind == "mesh" and spec.path:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", MeshWarning)  # the node says them when it starts
+                read_mesh_file(resolve_mesh_path(spec.path), spec.scale)
+        except MeshError as exc:
+            return {("scene", "object", "path"): str(exc)}
+    if config.scene.effector != "probe" and config.scripted_motion:
+        from palpate.nodes.sim.motion import ExplorationMotion
+
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", MeshWarning)
+                ExplorationMotion(config.scene, np.random.default_rng(0))
+        except ConfigError as exc:
+            return {("scene",): str(exc)}
     return {}
 
 

@@ -1208,3 +1208,24 @@ def test_commands_that_no_node_reads_are_refused(tmp_path: Path) -> None:
     with pytest.raises(LaunchError, match=r"node 'controller' commands on 'commands/velocity' .*which no node reads"):
         load(path, tmp_path)
     load(REPO_ROOT / "launch" / "explore.yaml", tmp_path)  # the probe reads them
+
+
+def test_a_dry_run_refuses_an_object_the_scripted_finger_cannot_reach(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An outside walkthrough: --dry-run passed a 3 mm cube under the finger, and the run's sim then
+    failed at its start."""
+    args = ["launch", "--dry-run", "launch/map_known.yaml", "--bus", str(tmp_path)]
+    small = ["--set", "sim.scene.object={kind: cube, size_m: 0.003}"]
+    mount = ["--set", "mapper.mount.base_position_m=[-0.06962,0.035,0.0515]"]  # where the sim puts the finger
+    assert main([*args, *small, *mount]) == 2
+    err = capsys.readouterr().err
+    assert "map_known.yaml:17: node 'sim' (params.scene): the finger's fingertip cannot reach the object" in err
+    assert "(3 mm across)" in err and "finger_mcp_offset_m=[0,0.01,0.05]" in err
+    offset = [
+        "--set",
+        "sim.scene.finger_mcp_offset_m=[0,0.01,0.05]",
+        "--set",
+        "mapper.mount.base_position_m=[-0.06962,0.01,0.0515]",
+    ]
+    assert main([*args, *small, *offset]) == 0, capsys.readouterr().err

@@ -573,3 +573,14 @@ def test_the_command_line_prints_a_mesh_warning_as_one_line(capsys: pytest.Captu
         warnings.warn(UserWarning("another library's"), stacklevel=1)
     assert capsys.readouterr().err == "palpate eval: warning: x.stl: the mesh holds 2 separate bodies\n"
     assert shown_as_before == ["another library's"]  # the others as Python shows them
+
+
+@pytest.mark.parametrize("size_m", [(0.001, 0.0004), (0.004, 0.0015)])
+def test_a_small_torus_keeps_every_face(size_m: tuple[float, float]) -> None:
+    """An outside walkthrough: trimesh merged the vertices of small tori: one of 1 mm major radius had no
+    face (a traceback at launch), one 11 mm across had 13,056 of its 16,384 (holes in the evaluators' truth)."""
+    from palpate.nodes.sim.objects import TORUS_MAJOR_SECTIONS, TORUS_MINOR_SECTIONS, primitive_mesh
+
+    mesh = primitive_mesh("torus", size_m)
+    assert len(mesh.faces) == 2 * TORUS_MAJOR_SECTIONS * TORUS_MINOR_SECTIONS and mesh.is_watertight
+    assert mesh.extents == pytest.approx([2 * sum(size_m), 2 * sum(size_m), 2 * size_m[1]], rel=0.01)
