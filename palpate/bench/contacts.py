@@ -423,10 +423,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_scale_argument(parser)
     parser.add_argument(
         "--touches",
-        type=bounded_positive_int(MAX_TOUCHES),
-        help=f"probe touches per object (default {TOUCHES}, --quick {QUICK_TOUCHES})",
+        type=_touches,
+        help=f"probe touches per object, at least 2: half of them are free probes (default {TOUCHES}, "
+        f"--quick {QUICK_TOUCHES})",
     )
     parser.add_argument("--seed", type=non_negative_int, default=0, help="seed of the sampled touches and free probes")
+
+
+def _touches(text: str) -> int:
+    """--touches: 2 to MAX_TOUCHES (one touch left no free probe, and the reference query failed)."""
+    value = bounded_positive_int(MAX_TOUCHES)(text)
+    if value < 2:
+        raise argparse.ArgumentTypeError(f"{text!r}: give at least 2 (half of the touches are free probes)")
+    return value
 
 
 def object_paths(objects: Path | None, ycb: Path | None = None) -> list[Path]:

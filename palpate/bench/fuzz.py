@@ -51,7 +51,7 @@ import numpy as np
 from palpate import jsonio
 from palpate.argtypes import non_negative_int, positive_int
 from palpate.config import load
-from palpate.errors import MessageError, OutputError
+from palpate.errors import ConfigError, MessageError, OutputError
 from palpate.messages import codec
 from palpate.messages.base import REGISTRY, FieldSpec, Message
 from palpate.text_table import Column, fixed_width_table
@@ -664,6 +664,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     frames = args.frames or (QUICK_FRAMES if args.quick else FRAMES)
     wanted: list[str] = list(getattr(args, "node", []) or [])
+    labels = [t.label for t in targets()]
+    if unmatched := [w for w in wanted if not any(w in label for label in labels)]:  # a typo fuzzed nothing, green
+        raise ConfigError(f"--node {', '.join(map(repr, unmatched))}: no node's label contains it; labels: {labels}")
     print(f"palpate bench fuzz: {frames} frames per input topic of every node, seed {args.seed}", flush=True)
     start = time.perf_counter()
     reports = run(frames, args.seed, (lambda t: any(w in t.label for w in wanted)) if wanted else None)

@@ -353,10 +353,13 @@ def main(args: argparse.Namespace) -> int:
             f"--contacts {min(contacts)} with --repeats {repeats}: the last {repeats} contacts are timed, "
             f"so every N must exceed it; give N >= {repeats + 1}"
         )
-    notes = []
+    notes, skipped = [], []
     if "ycb" in shapes and (ycb_dir() is None or not (ycb_dir() / f"{YCB_OBJECT}.stl").is_file()):  # type: ignore[operator]
         shapes.remove("ycb")
+        skipped.append("ycb")
         notes.append(f"YCB {YCB_OBJECT} skipped: set PALPATE_YCB_DIR to the YCB mesh folder")
+    if not shapes:  # nothing left to measure: no pass
+        raise BenchmarkError(f"--shapes: nothing to measure; {'; '.join(notes)}")
     exact_max = EXACT_MAX if not args.quick else min(EXACT_MAX, 200)
     blas = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
     load_start = os.getloadavg()[0]
@@ -388,6 +391,7 @@ def main(args: argparse.Namespace) -> int:
             "rows": rows,
             "pass": passed,
             "missed": {k: v for k, v in verdicts.items() if v},
+            "skipped": skipped,  # shapes asked for and not measured (their goals are not judged)
             "repeats": repeats,
             "seed": seed,
             "quick": bool(args.quick),

@@ -529,7 +529,9 @@ def breakdown_text(row: Mapping[str, Any]) -> str:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `palpate bench sim` beyond the shared --quick and --json."""
     parser.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES), help="scenes to run")
-    parser.add_argument("--duration", type=positive_float, help="simulated seconds per scene and tier")
+    parser.add_argument(
+        "--duration", type=_duration, help=f"simulated seconds per scene and tier (at most {MAX_DURATION_S:g})"
+    )
     parser.add_argument("--rounds", type=positive_int, help="alternating in-process/graph rounds; the best counts")
     parser.add_argument(
         "--placement",
@@ -537,6 +539,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="CPU placement of the launched graphs (default: each launch file's own: loop for the probe, os for "
         "finger and hand)",
     )
+
+
+#: Longest --duration (simulated seconds): a day; 1e12 overflowed the subprocess's timeout.
+MAX_DURATION_S = 86_400.0
+
+
+def _duration(text: str) -> float:
+    value = positive_float(text)
+    if value > MAX_DURATION_S:
+        raise argparse.ArgumentTypeError(f"{text!r} is more than {MAX_DURATION_S:g} s")
+    return value
 
 
 def main(args: argparse.Namespace) -> int:
