@@ -548,8 +548,8 @@ class NodeRunner:
             if time.monotonic() > deadline:
                 missing = self.counter.missing(expected)
                 hello = topics.HELLO_PREFIX
-                absent = ", ".join(sorted(t.removeprefix(hello) for t in missing if t.startswith(hello)))
-                names = [t.removeprefix(hello) for t in missing if t.startswith(hello)]
+                names = sorted(t.removeprefix(hello) for t in missing if t.startswith(hello))
+                absent = ", ".join(names)
                 hello_of = f"{hello}{names[0]}" if len(names) == 1 else f"{hello}<its name>"
                 hint = (
                     f"; not connected: {absent} (an external node's driver not started, or not subscribed to "
@@ -564,8 +564,8 @@ class NodeRunner:
 
     def _wait_for_acks(self, nodes: list[str], tick: int) -> None:
         deadline = time.monotonic() + self.ack_timeout_s
+        what = f"tick {tick}" if tick >= 0 else "the start (tick -1: every node ready)"
         while not self.interrupted and any(self.acks.get(n, -2) < tick for n in nodes):
-            what = f"tick {tick}" if tick >= 0 else "the start (tick -1: every node ready)"
             if time.monotonic() > deadline:
                 late = holding_up(self.acks, tick, self.process, nodes)
                 raise TimeoutError(f"no acknowledgement of {what} from {late} in {self.ack_timeout_s:.0f} s")
