@@ -357,7 +357,10 @@ def _settings(
         raise LaunchError(f"{name}:{line}: placement must be 'os' or 'loop', got {placement!r}")
     if placement == "loop" and mode != "lockstep":
         line = top["placement"][1].start_mark.line + 1
-        raise LaunchError(f"{name}:{line}: placement 'loop' needs mode lockstep (mode is {mode})")
+        raise LaunchError(
+            f"{name}:{line}: placement 'loop' needs mode lockstep (mode is {mode}); give placement: os (the OS "
+            "places the processes)"
+        )
     seed = value("seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise LaunchError(

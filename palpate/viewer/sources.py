@@ -14,6 +14,7 @@ for a node the graph waits for. It stops at the graph's RunControl "stop".
 
 from __future__ import annotations
 
+import difflib
 import signal
 import sys
 import time
@@ -64,14 +65,19 @@ class LogSource:
             raise ViewerError(f"no log file {str(self.path)!r}")
 
     def missing_topics(self) -> list[str]:
-        """The asked-for topics the log holds no channel of (none when it cannot be read: iterating names that)."""
+        """The asked-for topics the log holds no channel of, each with the closest it holds ("surface/msh
+        (did you mean 'surface/mesh'?)"); none when it cannot be read: iterating names that."""
         if not self.wanted:
             return []
         try:
-            held = set(topic_types(self.path))
+            held = sorted(topic_types(self.path))
         except (PalpateError, *READ_ERRORS):
             return []
-        return sorted(self.wanted - held)
+        out = []
+        for topic in sorted(self.wanted - set(held)):
+            close = difflib.get_close_matches(topic, held, n=1)
+            out.append(f"{topic} (did you mean {close[0]!r}?)" if close else topic)
+        return out
 
     def __iter__(self) -> Iterator[tuple[str, Message]]:
         with self.path.open("rb") as stream:

@@ -184,7 +184,7 @@ def test_topics_filter(capsys: pytest.CaptureFixture[str], log_file: Path, tmp_p
         cli.main(["view", "--log", str(log_file), "--save", str(typo), "--topics", "surface/mesh", "surface/msh"]) == 0
     )
     captured = capsys.readouterr()
-    assert f"{log_file} has no topic surface/msh" in captured.err  # a typo shows nothing: it is named
+    assert f"{log_file} has no topic surface/msh (did you mean 'surface/mesh'?)" in captured.err  # named
     assert "1 of 1 messages shown" in captured.out
 
 
