@@ -326,7 +326,15 @@ def _arguments(
 ) -> dict[str, Any]:
     """The declared arguments with `overrides` applied; an override the file does not declare is an
     error at the include that set it (`sites`) or at the file's `args`."""
-    declared = _plain(top["args"][1], name, {}) if "args" in top else {}
+    try:
+        declared = _plain(top["args"][1], name, {}) if "args" in top else {}
+    except LaunchError as exc:  # `args: {a: "${b}"}`: "unknown argument ${b}; declared: []" said too little
+        if "unknown argument ${" not in str(exc):
+            raise
+        where = str(exc).partition(": unknown argument")[0]
+        raise LaunchError(
+            f"{where}: an argument's default cannot use another argument (${{...}}); give a value"
+        ) from None
     if not isinstance(declared, dict):
         raise LaunchError(f"{name}:{top['args'][1].start_mark.line + 1}: 'args' must be a mapping name: default")
     unknown_args = [k for k in overrides if k not in declared]

@@ -1229,3 +1229,11 @@ def test_a_dry_run_refuses_an_object_the_scripted_finger_cannot_reach(
         "mapper.mount.base_position_m=[-0.06962,0.01,0.0515]",
     ]
     assert main([*args, *small, *offset]) == 0, capsys.readouterr().err
+
+
+def test_an_argument_default_that_uses_another_argument_says_so(tmp_path: Path) -> None:
+    """An outside walkthrough: `args: {a: "${b}", b: 1}` said "unknown argument ${b}; declared: []"."""
+    path = tmp_path / "args.yaml"
+    path.write_text('args: {a: "${b}", b: 1}\nnodes: []\n')
+    with pytest.raises(LaunchError, match=r"args\.yaml:1: an argument's default cannot use another argument"):
+        load_launch(path)
