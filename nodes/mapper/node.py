@@ -98,13 +98,13 @@ class MapperNode:
             self._warn_once(
                 "stamps",
                 "mapper: contacts found no joint reading stamped within stamp_tolerance_s (%g s) of theirs (contacts "
-                "at %d ns, the next reading at %d ns) and are left out of the maps (counter contacts_unmatched): "
+                "at %d ns, the next reading at %s) and are left out of the maps (counter contacts_unmatched): "
                 "in real time a mapper slower than the tick skips readings (see its ms_per_update); a driver "
                 "stamps a tick's joint and contact messages alike, or the mapper's stamp_tolerance_s allows the "
                 "difference",
                 self.config.stamp_tolerance_s,
                 contacts_ns,
-                reading_ns,
+                f"{reading_ns} ns" if reading_ns >= 0 else "none yet",
             )
         c = self.core.counters
         self.ctx.metrics.update(updates=c.updates, n_eff=self.core.n_eff)

@@ -122,8 +122,8 @@ class MapperSession:
             local_m=coordinates(local_positions_m, "local_positions_m").reshape(-1, 3)[on_chain],
         )
         self._pending.append(contacts)
-        if len(self._pending) > MAX_PENDING_CONTACTS:  # no reading of their stamp came
-            self._unmatched(self._pending.pop(0), stamp_ns)
+        if len(self._pending) > MAX_PENDING_CONTACTS:  # no reading of their stamp came (none came at all)
+            self._unmatched(self._pending.pop(0), -1)
         return contacts
 
     def tick(self, stamp_ns: int) -> MapperTick | None:

@@ -191,6 +191,10 @@ def _files(config: SimNodeConfig) -> dict[KeyPath, str]:
     return {("scene", "object", "path"): str(resolve_mesh_path(spec.path))}
 
 
+#: Draws of touch candidates the launch-time reach check tries before it calls an object unreachable.
+REACH_CHECK_DRAWS = 3
+
+
 def _checks(config: SimNodeConfig) -> dict[KeyPath, str]:
     """What is wrong with the object's mesh file (absurd scale, degenerate, unreadable), read as the node will,
     and, for a finger or hand that taps by script, whether its fingertip reaches the object at all (the
@@ -206,12 +210,16 @@ def _checks(config: SimNodeConfig) -> dict[KeyPath, str]:
     if config.scene.effector != "probe" and config.scripted_motion:
         from palpate.nodes.sim.motion import ExplorationMotion
 
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", MeshWarning)
-                ExplorationMotion(config.scene, np.random.default_rng(0))
-        except ConfigError as exc:
-            return {("scene",): str(exc)}
+        problem = ""
+        for seed in range(REACH_CHECK_DRAWS):  # one draw may miss what the run's own seed finds (at the edge)
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", MeshWarning)
+                    ExplorationMotion(config.scene, np.random.default_rng(seed))
+                return {}
+            except ConfigError as exc:
+                problem = str(exc)
+        return {("scene",): problem}
     return {}
 
 

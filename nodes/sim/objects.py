@@ -377,10 +377,10 @@ def load_object(spec: ObjectSpec) -> ObjectModel:
 def primitive_mesh(kind: str, size_m: Sequence[float]) -> trimesh.Trimesh:
     """Triangle mesh (object frame, metres) of a generated primitive. trimesh merges the vertices of a small
     one (a torus of 1 mm major radius came out without a face, one 11 mm across with holes): such a mesh
-    is made at a size of 1 m and scaled down, which keeps every face."""
+    is made with its smallest dimension at 1 m and scaled down, which keeps every face."""
     mesh = _primitive_mesh(kind, size_m)
     if kind in ("sphere", "cylinder", "torus") and (len(mesh.faces) == 0 or not mesh.is_watertight):
-        unit = max(size_m[: 2 if kind != "sphere" else 1])
+        unit = min(size_m[: 2 if kind != "sphere" else 1])  # the smallest dimension at 1 m
         mesh = _primitive_mesh(kind, [v / unit for v in size_m])
         mesh.vertices *= unit
     return mesh

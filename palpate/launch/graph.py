@@ -486,6 +486,8 @@ def _difference(here: Any, there: Any) -> str:
 #: Message types that move something: a graph whose commands no node reads moves nothing (an exploration
 #: graph whose sim holds a scripted hand instead of the probe ran to its end, exit 0).
 _COMMAND_TYPES = {"CartesianVelocityCommand", "JointCommand"}
+#: The node type `palpate launch --replay` puts in the place of the nodes a log stands in for.
+REPLAY_TYPE = "replay"
 
 
 def _readers_of(graph: Graph, type_name: str) -> str:
@@ -526,9 +528,10 @@ def _check_wiring(graph: Graph) -> None:
                     f"but node {node.name!r} port {port!r} expects {wanted}"
                 )
     read = {topic for node in graph.nodes for topic in node.subscribes.values()}
+    replayed = any(node.type == REPLAY_TYPE for node in graph.nodes)  # the log stands in for their reader
     for node in graph.nodes:
         for port, topic in node.publishes.items():
-            if node.spec.outputs[port].message.TYPE in _COMMAND_TYPES and topic not in read:
+            if node.spec.outputs[port].message.TYPE in _COMMAND_TYPES and topic not in read and not replayed:
                 readers = _readers_of(graph, node.spec.outputs[port].message.TYPE)
                 raise LaunchError(
                     f"{node.entry.remap_lines.get(port, node.where)}: node {node.name!r} commands on {topic!r} "

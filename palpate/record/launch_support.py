@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from palpate.errors import LaunchError
-from palpate.launch.graph import Graph, GraphNode, resolve
+from palpate.launch.graph import REPLAY_TYPE, Graph, GraphNode, resolve
 from palpate.launch.loader import LaunchFile, NodeEntry, Where, load_launch
 from palpate.record.mcap_io import launch_info, launch_values
 from palpate.record.replay_node import log_topics
@@ -71,7 +71,7 @@ def replace_publishers_with_log(
     entry = NodeEntry(
         fields={
             "name": name,
-            "type": "replay",
+            "type": REPLAY_TYPE,
             "params": {
                 "path": str(log_path),
                 "topics": replayed,

@@ -295,3 +295,14 @@ def test_a_recorded_run_that_fails_before_its_first_tick_ends_at_once(tmp_path: 
     assert done.returncode == 1 and "lies inside the object" in done.stdout + done.stderr
     assert time.monotonic() - began < 29  # it waited 30 s for the recorder before (the graph's start counts here)
     assert summarize(log).topics.get(topics.LOCKSTEP_ACK, 0) >= 1  # complete, with the start-up acknowledgements
+
+
+def test_a_closed_loop_graph_replays_its_sim(tmp_path: Path) -> None:
+    """A review: the check that refuses commands no node reads refused `launch explore.yaml --replay LOG`,
+    whose replay node stands in for the probe that read them (docs/runtime.md re-runs the planner so)."""
+    explore = REPO_ROOT / "launch" / "explore.yaml"
+    log = launch_recorded(tmp_path, "explore", "object:=sphere", "duration_s:=0.3", launch_file=explore)
+    bus = tmp_path / "bus-replay"
+    done = palpate(bus, "launch", str(explore), "object:=sphere", "duration_s:=0.3", "--replay", str(log), "--dry-run")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "replay" in done.stdout
