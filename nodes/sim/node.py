@@ -27,7 +27,7 @@ from palpate.messages.schemas import (
     ObjectTruth,
     Pose,
 )
-from palpate.nodes.sim.objects import ObjectSpec, read_mesh_file, resolve_mesh_path
+from palpate.nodes.sim.objects import ObjectSpec, load_object, resolve_mesh_path
 from palpate.nodes.sim.scene import SceneConfig, effector_mount
 from palpate.nodes.sim.session import SimSession, SimTick
 from palpate.runtime.spec import Context, NodeSpec, Port
@@ -198,29 +198,29 @@ REACH_CHECK_DRAWS = 3
 def _checks(config: SimNodeConfig) -> dict[KeyPath, str]:
     """What is wrong with the object's mesh file (absurd scale, degenerate, unreadable), read as the node will,
     and, for a finger or hand that taps by script, whether its fingertip reaches the object at all (the
-    node found out only when it started)."""
+    node found out only when it started). The object is read once for both."""
     spec = config.scene.object
-    if spec.kind == "mesh" and spec.path:
+    scripted = config.scene.effector != "probe" and config.scripted_motion
+    if not scripted and not (spec.kind == "mesh" and spec.path):
+        return {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", MeshWarning)  # the node says them when it starts
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", MeshWarning)  # the node says them when it starts
-                read_mesh_file(resolve_mesh_path(spec.path), spec.scale)
+            obj = load_object(spec)
         except MeshError as exc:
-            return {("scene", "object", "path"): str(exc)}
-    if config.scene.effector != "probe" and config.scripted_motion:
+            return {("scene", "object", "path") if spec.kind == "mesh" else ("scene", "object"): str(exc)}
+        if not scripted:
+            return {}
         from palpate.nodes.sim.motion import ExplorationMotion
 
         problem = ""
         for seed in range(REACH_CHECK_DRAWS):  # one draw may miss what the run's own seed finds (at the edge)
             try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", MeshWarning)
-                    ExplorationMotion(config.scene, np.random.default_rng(seed))
+                ExplorationMotion(config.scene, np.random.default_rng(seed), obj=obj)
                 return {}
             except ConfigError as exc:
                 problem = str(exc)
-        return {("scene",): problem}
-    return {}
+    return {("scene",): problem}
 
 
 def _facts(config: SimNodeConfig) -> dict[str, tuple[Any, tuple[str, ...]]]:
