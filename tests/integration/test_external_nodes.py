@@ -36,6 +36,21 @@ nodes:
     return path
 
 
+def start_driver(bus_dir: Path, name: str, driver_log: Path, log: Path) -> subprocess.Popen[bytes]:
+    """Once the launcher has written the spec of external node `name`, start palpate's own node process
+    from it (the "driver"), in its own session, its output in `driver_log`."""
+    spec = external_spec_path(bus_dir, name)
+    wait_for(spec.exists, 60, f"the spec of {name}", log)
+    with driver_log.open("wb") as out:
+        return subprocess.Popen(
+            [sys.executable, "-m", "palpate.runtime.node", str(spec)],
+            env=child_env(bus_dir),
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+
+
 def kill_external_mid_run(tmp_path: Path, name: str, monkeypatch: pytest.MonkeyPatch) -> tuple[int, str]:
     """Launch the graph with `name` external, start it from its spec, SIGKILL it once the run is under way
     (the clock source has logged its progress: every node is past its start-up): the launch's exit code
@@ -44,16 +59,7 @@ def kill_external_mid_run(tmp_path: Path, name: str, monkeypatch: pytest.MonkeyP
     bus_dir, log = tmp_path / "bus", tmp_path / "launch.log"
     driver_log = tmp_path / f"{name}.log"
     with launched(graph(tmp_path, name), bus_dir, log) as proc:
-        spec = external_spec_path(bus_dir, name)
-        wait_for(spec.exists, 60, f"the spec of {name}", log)
-        with driver_log.open("wb") as out:
-            driver = subprocess.Popen(
-                [sys.executable, "-m", "palpate.runtime.node", str(spec)],
-                env=child_env(bus_dir),
-                stdout=out,
-                stderr=subprocess.STDOUT,
-                start_new_session=True,
-            )
+        driver = start_driver(bus_dir, name, driver_log, log)
         try:
             wait_for(lambda: "INFO t = " in text(log) + text(driver_log), 60, "the run to be under way", log)
             os.kill(driver.pid, signal.SIGKILL)
@@ -106,16 +112,7 @@ def test_a_hung_external_clock_source_is_named_by_its_followers(
     monkeypatch.setenv("PALPATE_WAIT_NOTE_S", "1.0")
     bus_dir, log, driver_log = tmp_path / "bus", tmp_path / "launch.log", tmp_path / "cube.log"
     with launched(graph(tmp_path, "cube"), bus_dir, log) as proc:
-        spec = external_spec_path(bus_dir, "cube")
-        wait_for(spec.exists, 60, "the spec of cube", log)
-        with driver_log.open("wb") as out:
-            driver = subprocess.Popen(
-                [sys.executable, "-m", "palpate.runtime.node", str(spec)],
-                env=child_env(bus_dir),
-                stdout=out,
-                stderr=subprocess.STDOUT,
-                start_new_session=True,
-            )
+        driver = start_driver(bus_dir, "cube", driver_log, log)
         try:
             wait_for(lambda: "INFO t = " in text(driver_log), 60, "the run to be under way", log)
             os.kill(driver.pid, signal.SIGSTOP)  # hung: alive, subscribed, silent
