@@ -141,8 +141,9 @@ def run_info(args: argparse.Namespace) -> int:
                 f"`palpate bag recover {args.file}` rewrites what it holds"
             )
         gaps = tick_gaps(ticks)
+    missing = sum(last - first + 1 for first, last in gaps)
     if args.json:
-        extra = {"ticks_missing": sum(last - first + 1 for first, last in gaps)} if args.check else {}
+        extra = {"ticks_missing": missing} if args.check else {}
         print(jsonio.dumps({**summary.as_json(), **extra, "launch": mcap_io.launch_values(launch)}))
     else:
         print(describe(summary, args.file))
@@ -153,7 +154,6 @@ def run_info(args: argparse.Namespace) -> int:
             spans = ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in gaps[:10]) + (
                 ", ..." if len(gaps) > 10 else ""
             )
-            missing = sum(b - a + 1 for a, b in gaps)
             print(
                 f"  clock: {counted(missing, 'tick')} missing ({spans}): a recovered log lacks its damaged "
                 "chunks, a recording started late its start; a replay of it differs from the run from there"
