@@ -288,9 +288,10 @@ def _value(hint: Any, value: Any, where: str, path: KeyPath, *, convert: bool, m
             except ConfigError as exc:
                 errors.append((option, exc))
         for option, error in errors:  # a number out of range: the number's own error says most
-            if _split(option)[0] in (int, float) and isinstance(value, numbers.Real) and not isinstance(value, bool):
+            kind = {int: numbers.Integral, float: numbers.Real}.get(_split(option)[0])
+            if kind is not None and isinstance(value, kind) and not isinstance(value, bool):
                 raise error
-        raise fail(_type_name(base))
+        raise fail(_type_name(base, values=True))
     if origin is typing.Literal:
         if any(type(value) is type(arg) and value == arg for arg in args):  # True is not the literal 1
             return value
@@ -380,12 +381,20 @@ def _loc(where: str, path: KeyPath) -> str:
     return where + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in path)
 
 
-def _type_name(hint: Any) -> str:
+_VALUE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false"}
+
+
+def _type_name(hint: Any, *, values: bool = False) -> str:
+    """The type's name ("float, 'auto' or null"), or with ``values`` what its values look like, for an
+    error about a value ("a number, 'auto' or null")."""
     base, _ = _split(hint)
     origin, args = typing.get_origin(base), typing.get_args(base)
     if origin in (typing.Union, types.UnionType):  # "a number, 'auto' or null", not "Union"
-        names = [_type_name(a) for a in args if a is not type(None)] + (["null"] if type(None) in args else [])
+        names = [_type_name(a, values=values) for a in args if a is not type(None)]
+        names += ["null"] if type(None) in args else []
         return ", ".join(names[:-1]) + f" or {names[-1]}" if len(names) > 1 else names[0]
+    if values and base in _VALUE_NAMES:
+        return _VALUE_NAMES[base]
     if origin is typing.Literal:
         return " or ".join(repr(a) for a in args)
     return getattr(base, "__name__", None) or str(base).replace("typing.", "")

@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 from palpate import jsonio
 from palpate.argtypes import path_arg
 from palpate.config import NonEmpty, NonNegativeFloat, PositiveFloat, PositiveInt, Validated
-from palpate.errors import ConfigError
+from palpate.errors import ConfigError, PalpateError
 from palpate.evaluation.dask_runs import (
     ClusterConfig,
     Outcome,
@@ -475,8 +475,18 @@ def plot_maps(path: Path, maps: Mapping[str, Any], truth: BoxTruth, surface_m: F
 def run_seed_on_worker(seed: int, config: SlamEvalConfig, keep_maps: bool) -> dict[str, Any]:
     """On a Dask worker: one seed as a runs.jsonl row. Non-finite figures (an empty map's distances
     are inf) are spelled out (dask_runs.spell_non_finite; aggregate's float() reads them back); the maps of
-    ``keep_maps`` travel back in ``_maps``, ``_truth`` and ``_surface`` (not written)."""
-    result = run_seed(seed, config, keep_maps=keep_maps)
+    ``keep_maps`` travel back in ``_maps``, ``_truth`` and ``_surface`` (not written). palpate's own error
+    (or running out of memory) is the row's ``error``: the seed would fail the same way on a retry."""
+    try:
+        result = run_seed(seed, config, keep_maps=keep_maps)
+    except MemoryError as exc:
+        return {
+            "seed": seed,
+            "error": f"MemoryError: the run ran out of memory ({exc or 'no detail'}); fewer --particles, a coarser "
+            "--resolution-mm, or fewer --workers give each run more",
+        }
+    except PalpateError as exc:
+        return {"seed": seed, "error": f"{type(exc).__name__}: {exc}"}
     row: dict[str, Any] = {
         "seed": seed,
         "rows": [spell_non_finite(r) for r in result["rows"]],
@@ -508,6 +518,9 @@ def run_seeds(
     outcome = run_tasks(tasks, log, cluster)
     results = []
     for r in outcome.ordered(tasks):
+        if "error" in r:
+            results.append(r)
+            continue
         results.append(
             {
                 **r,
@@ -594,9 +607,14 @@ def main(args: argparse.Namespace) -> int:
     )
     output_folder(args.out)
     with RunLog(args.out / "runs.jsonl", resume=args.resume) as log:
-        results, outcome = run_seeds(config, log, cluster, plot_seed=config.seeds[0])
+        finished, outcome = run_seeds(config, log, cluster, plot_seed=config.seeds[0])
     report_failures(outcome)
+    errors = [r for r in finished if "error" in r]
+    for r in errors:
+        print(f"run failed: seed {r['seed']}: {r['error']}", file=sys.stderr)
+    results = [r for r in finished if "error" not in r]
     if not results:
+        print(outcome.summary(), file=sys.stderr)
         return 1
     rows = [row for r in results for row in r["rows"]]
     timing = [r["timing"] for r in results]
@@ -618,7 +636,8 @@ def main(args: argparse.Namespace) -> int:
             f"K={config.n_particles}, {args.resolution_mm:g} mm cells, sigma {config.sigma_deg:g} deg)",
         )
     else:
-        print(f"{png} not redrawn: seed {config.seeds[0]} was resumed from runs.jsonl", file=sys.stderr)
+        why = "failed" if plotted["seed"] != config.seeds[0] else "was resumed from runs.jsonl"
+        print(f"{png} not redrawn: seed {config.seeds[0]} {why}", file=sys.stderr)
     jsonio.write(args.out / "slam_summary.json", {"summary": summary, "timing": timing, **out}, indent=1)
     print(format_table(summary))
     print()
@@ -632,7 +651,7 @@ def main(args: argparse.Namespace) -> int:
     print(f"wrote {', '.join(map(str, written))} ({out['total_wall_s']:.0f} s)")
     if args.json:
         print(jsonio.dumps(out))
-    return 1 if outcome.failed else 0
+    return 1 if outcome.failed or errors else 0
 
 
 def check_launch(config: SlamEvalConfig, launch_path: Path = SLAM_LAUNCH) -> None:

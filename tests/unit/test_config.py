@@ -510,7 +510,8 @@ class Edges(Validated):
         ({"point_m": [1, 2, 3, 4]}, "where.point_m: expected 3 items, got [1, 2, 3, 4]"),
         ({"level": 1.0}, "where.level: expected one of [1, 2], got 1.0"),
         ({"level": True}, "where.level: expected one of [1, 2], got True"),
-        ({"either": None}, "where.either: expected int or str, got None"),
+        ({"either": None}, "where.either: expected an integer or a string, got None"),
+        ({"either": 1.5}, "where.either: expected an integer or a string, got 1.5"),  # (said "an integer")
     ],
 )
 def test_edges_of_the_declared_types_are_refused(params: dict[str, Any], message: str) -> None:

@@ -273,3 +273,33 @@ def test_snapshot_times_set_the_runs_length_from_the_command_line() -> None:
     for bad in ("", "x", "5,2", "0,1", "1,1", "nan", "0.125", "0.001"):  # (the last two failed in every run)
         with pytest.raises(argparse.ArgumentTypeError):
             _snapshot_times(bad)
+
+
+def test_a_seed_that_fails_with_palpates_own_error_is_a_row_not_a_retried_task(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Session 42's note: a deterministic error in a worker was retried twice (a seed runs for
+    minutes) and left no row. It is the seed's row now, named, and the command fails."""
+    import argparse
+
+    from palpate.evaluation import slam
+    from palpate.evaluation.dask_runs import Outcome
+
+    def fails(seed: int, config: SlamEvalConfig, keep_maps: bool = False) -> dict[str, object]:
+        raise ConfigError("the mapper's region holds no contact")
+
+    monkeypatch.setattr(slam, "run_seed", fails)
+    assert slam.run_seed_on_worker(3, SlamEvalConfig(), False) == {
+        "seed": 3,
+        "error": "ConfigError: the mapper's region holds no contact",
+    }
+
+    def ran(config: SlamEvalConfig, log: object, cluster: object, plot_seed: int | None = None) -> tuple:
+        return [{"seed": 0, "error": "ConfigError: the mapper's region holds no contact"}], Outcome()
+
+    monkeypatch.setattr(slam, "run_seeds", ran)
+    parser = argparse.ArgumentParser()
+    slam.configure(parser)
+    args = parser.parse_args(["--seeds", "1", "--out", str(tmp_path / "out")])
+    assert slam.main(args) == 1
+    assert "run failed: seed 0: ConfigError: the mapper's region holds no contact" in capsys.readouterr().err
