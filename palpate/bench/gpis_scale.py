@@ -33,6 +33,7 @@ import dataclasses
 import json
 import os
 import resource
+import signal
 import subprocess
 import sys
 import time
@@ -223,9 +224,19 @@ def _row_in_subprocess(shape: str, n: int, estimator: str, repeats: int, seed: i
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     if done.returncode != 0:
-        raise BenchmarkError(f"bench gpis row ({shape}, {n} contacts, {estimator}) failed:\n{done.stderr[-2000:]}")
+        raise BenchmarkError(f"{estimator} GP, {n} contacts: {_why_failed(done)}")
     out: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
     return out
+
+
+def _why_failed(done: subprocess.CompletedProcess[str]) -> str:
+    """A failed row's process in one line: its error's last line, or the signal that killed it."""
+    if done.returncode < 0:
+        name = signal.Signals(-done.returncode).name
+        hint = " (the kernel's out-of-memory killer sends SIGKILL)" if name == "SIGKILL" else ""
+        return f"its process was killed by {name}{hint}"
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    return lines[-1].strip() if lines else f"its process exited {done.returncode} without a word"
 
 
 def run_rows(
@@ -238,26 +249,35 @@ def run_rows(
     estimator: str = "auto",
 ) -> list[dict[str, Any]]:
     """One row per (shape, n): the estimator (default: the node's "auto"), and the exact reference
-    where n <= exact_max."""
+    where n <= exact_max. A row whose process fails (out of memory, say) holds its ``error``."""
     rows = []
     for shape in shapes:
         for n in contacts:
             print(f"  {shape}, {n} contacts ...", file=sys.stderr, flush=True)
-            default = _row_in_subprocess(shape, n, estimator, repeats, seed)
-            row = {k: v for k, v in default.items() if k not in ("vertices_m", "field")}
-            if n <= exact_max:
-                exact = _row_in_subprocess(shape, n, "exact", repeats, seed)
-                for key in ("igef_ms", "gpv_ms", "peak_mb", "surface_err_mm_p95", "surface_err_mm_mean"):
-                    row[f"exact_{key}"] = exact[key]
-                if default["ran"] == "exact":
-                    row["approx_vs_exact_mm_p95"] = 0.0
-                else:
-                    default_at = _field_in_subprocess(shape, n, repeats, seed, exact["vertices_m"], estimator)
-                    f_e = np.asarray(exact["field"]["f"])
-                    g_e = np.asarray(exact["field"]["grad_norm"])
-                    row["approx_vs_exact_mm_p95"] = float(np.percentile(1e3 * np.abs(default_at - f_e) / g_e, 95))
-            rows.append(row)
+            try:
+                rows.append(_row(shape, n, repeats, seed, exact_max, estimator))
+            except BenchmarkError as exc:
+                print(f"  {shape}, {n} contacts failed: {exc}", file=sys.stderr, flush=True)
+                rows.append({"shape": shape, "contacts": n, "ran": estimator, "error": str(exc)})
     return rows
+
+
+def _row(shape: str, n: int, repeats: int, seed: int, exact_max: int, estimator: str) -> dict[str, Any]:
+    """The row of ``shape`` at ``n`` contacts (BenchmarkError when a process of it fails)."""
+    default = _row_in_subprocess(shape, n, estimator, repeats, seed)
+    row = {k: v for k, v in default.items() if k not in ("vertices_m", "field")}
+    if n <= exact_max:
+        exact = _row_in_subprocess(shape, n, "exact", repeats, seed)
+        for key in ("igef_ms", "gpv_ms", "peak_mb", "surface_err_mm_p95", "surface_err_mm_mean"):
+            row[f"exact_{key}"] = exact[key]
+        if default["ran"] == "exact":
+            row["approx_vs_exact_mm_p95"] = 0.0
+        else:
+            default_at = _field_in_subprocess(shape, n, repeats, seed, exact["vertices_m"], estimator)
+            f_e = np.asarray(exact["field"]["f"])
+            g_e = np.asarray(exact["field"]["grad_norm"])
+            row["approx_vs_exact_mm_p95"] = float(np.percentile(1e3 * np.abs(default_at - f_e) / g_e, 95))
+    return row
 
 
 def default_field_at(
@@ -292,7 +312,7 @@ def _field_in_subprocess(
         check=False,
     )
     if done.returncode != 0:
-        raise BenchmarkError(f"bench gpis field ({shape}, {n} contacts) failed:\n{done.stderr[-2000:]}")
+        raise BenchmarkError(f"{estimator} GP's field, {n} contacts: {_why_failed(done)}")
     return np.asarray(json.loads(done.stdout.strip().splitlines()[-1]))
 
 
@@ -301,6 +321,8 @@ def _field_in_subprocess(
 
 def check_row(row: Mapping[str, Any]) -> list[str]:
     """The goals a row misses (empty: all met, or none set for its number of contacts)."""
+    if "error" in row:
+        return [row["error"]]
     missed = []
     goal = GOALS.get(int(row["contacts"]))
     if goal is not None:
@@ -337,7 +359,10 @@ def table(rows: Sequence[Mapping[str, Any]]) -> str:
         Column("exact GP-V", 11, exact("gpv_ms"), ".1f"),
         Column("exact MB", 9, exact("peak_mb"), ".0f"),
     ]
-    return fixed_width_table(columns, rows)
+    nan = float("nan")  # a failed row's cells (its error is printed with the goals)
+    shown = [{**r, "ran": "error"} if "error" in r else r for r in rows]
+    blank = {c.value: nan for c in columns if isinstance(c.value, str)}
+    return fixed_width_table(columns, [{**blank, **r} for r in shown])
 
 
 def main(args: argparse.Namespace) -> int:

@@ -99,3 +99,36 @@ def test_scaling_goals_name_what_a_row_misses() -> None:
         "peak 2000 > 1024 MB",
         "vs exact 0.300 > 0.2 mm",
     ]
+
+
+def test_a_row_whose_process_fails_is_named_in_the_table_the_goals_and_the_json(
+    monkeypatch: pytest.MonkeyPatch, capsys: Any
+) -> None:
+    """Session 42's walkthrough: a row that ran out of memory ended the benchmark with the child's
+    traceback and no JSON. The row holds its error (the process's last line, or the signal that
+    killed it), the other rows are measured, and the benchmark fails with its JSON."""
+    import subprocess
+
+    from palpate.bench import gpis_scale
+
+    def fake(shape: str, n: int, estimator: str, repeats: int, seed: int) -> dict[str, Any]:
+        if n == 30:
+            code = -9 if estimator == "auto" else 1
+            done = subprocess.CompletedProcess([], code, "", "Traceback ...\nMemoryError: Unable to allocate 30 GiB\n")
+            raise BenchmarkError(f"{estimator} GP, {n} contacts: {gpis_scale._why_failed(done)}")
+        return gpis_scale.measure_row(shape, n, estimator, repeats, seed)
+
+    monkeypatch.setattr(gpis_scale, "_row_in_subprocess", fake)
+    args = argparse.Namespace(
+        quick=True, json=True, contacts=[12, 30], resolutions=None, repeats=2, seed=1, shapes=None
+    )
+    assert bench_gpis.main(args) == 1
+    out = capsys.readouterr().out.strip().splitlines()
+    last = json.loads(out[-1])
+    assert not last["pass"] and [r["contacts"] for r in last["rows"]] == [12, 30]
+    failed = "auto GP, 30 contacts: its process was killed by SIGKILL (the kernel's out-of-memory killer sends SIGKILL)"
+    assert last["rows"][1]["error"] == failed and last["missed"] == {"ellipsoid 30": [failed]}
+    assert any(line.split()[:3] == ["ellipsoid", "30", "error"] for line in out)
+    assert "goal ellipsoid 30: MISSED (" + failed + ")" in out
+    done = subprocess.CompletedProcess([], 1, "", "Traceback ...\nMemoryError: Unable to allocate 30 GiB\n")
+    assert gpis_scale._why_failed(done) == "MemoryError: Unable to allocate 30 GiB"
