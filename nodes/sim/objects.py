@@ -24,7 +24,7 @@ import math
 import os
 import tempfile
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
@@ -665,42 +665,60 @@ def _orient_bodies(mesh: trimesh.Trimesh, path: Path) -> None:
     volume), unless it bounds a cavity: a point of it inside the object's material (the other bodies'
     winding numbers summed, a cavity's counting -1) is a cavity's wall, whose faces rightly point into it.
     The whole mesh's volume misses one inverted body among others (its normals then point into the object)."""
-    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
-    triangles = mesh.triangles
-    signed = np.einsum("ij,ij->i", triangles[:, 0], np.cross(triangles[:, 1], triangles[:, 2])) / 6.0
-    volumes = np.bincount(labels, weights=signed)
-    if not np.any(volumes < 0.0):
-        return
-    order = np.argsort(labels, kind="stable")
-    bodies = np.split(triangles[order], np.cumsum(np.bincount(labels))[:-1])
-    boxes = [(b.reshape(-1, 3).min(axis=0), b.reshape(-1, 3).max(axis=0)) for b in bodies]
-
-    def in_material(point: np.ndarray, own: int) -> bool:
-        winding = sum(
-            _winding_number(bodies[b], point)
-            for b in range(len(bodies))
-            if b != own and np.all(point >= boxes[b][0]) and np.all(point <= boxes[b][1])
-        )
-        return winding > 0.5
-
-    flip = []
-    for b in np.flatnonzero(volumes < 0.0):
-        probes = bodies[b][:: max(1, len(bodies[b]) // 3), 0][:3]  # three vertices: a majority, not one
-        if sum(in_material(p, int(b)) for p in probes) * 2 < len(probes):
-            flip.append(int(b))
+    bodies = _Bodies(mesh)
+    flip = [
+        int(b) for b in np.flatnonzero(bodies.volumes < 0.0) if not bodies.majority_inside(int(b), lambda w: w > 0.5)
+    ]
     if not flip:
         return
-    faces = np.array(mesh.faces)
-    turned = np.isin(labels, flip)
-    faces[turned] = faces[turned][:, ::-1]
-    mesh.faces = faces
+    bodies.invert(flip)
     warnings.warn(
-        f"{path}: {len(flip)} of the mesh's {len(volumes)} bodies are wound inward (negative volume, not the wall "
-        "of a cavity); turned them outward so that their normals point out of the object. Re-export with "
+        f"{path}: {len(flip)} of the mesh's {len(bodies.volumes)} bodies are wound inward (negative volume, not the "
+        "wall of a cavity); turned them outward so that their normals point out of the object. Re-export with "
         "outward normals to silence this warning.",
         MeshWarning,
         stacklevel=4,
     )
+
+
+class _Bodies:
+    """The closed bodies (connected components) of a mesh, for telling solids from cavities."""
+
+    def __init__(self, mesh: trimesh.Trimesh) -> None:
+        self.mesh = mesh
+        self.labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
+        triangles = mesh.triangles
+        signed = np.einsum("ij,ij->i", triangles[:, 0], np.cross(triangles[:, 1], triangles[:, 2])) / 6.0
+        self.volumes = np.bincount(self.labels, weights=signed)
+        order = np.argsort(self.labels, kind="stable")
+        self.triangles = np.split(triangles[order], np.cumsum(np.bincount(self.labels))[:-1])
+        self.boxes = [(b.reshape(-1, 3).min(axis=0), b.reshape(-1, 3).max(axis=0)) for b in self.triangles]
+
+    def majority_inside(self, own: int, inside: Callable[[float], bool]) -> bool:
+        """Whether most of three vertices of body ``own`` have ``inside`` of the other bodies' winding
+        numbers summed there (a majority, not one vertex: bodies may overlap)."""
+        probes = self.triangles[own][:: max(1, len(self.triangles[own]) // 3), 0][:3]
+        return sum(inside(self._winding_of_others(p, own)) for p in probes) * 2 > len(probes)
+
+    def enclosed(self, own: int) -> bool:
+        """Whether another body's bounding box holds the whole of body ``own``'s (a body that overlaps
+        another in part is no cavity)."""
+        low, high = self.boxes[own]
+        return any(np.all(box[0] <= low) and np.all(high <= box[1]) for b, box in enumerate(self.boxes) if b != own)
+
+    def _winding_of_others(self, point: np.ndarray, own: int) -> float:
+        return sum(
+            _winding_number(self.triangles[b], point)
+            for b in range(len(self.triangles))
+            if b != own and np.all(point >= self.boxes[b][0]) and np.all(point <= self.boxes[b][1])
+        )
+
+    def invert(self, which: Sequence[int]) -> None:
+        """Reverse the winding of the bodies ``which``."""
+        faces = np.array(self.mesh.faces)
+        turned = np.isin(self.labels, which)
+        faces[turned] = faces[turned][:, ::-1]
+        self.mesh.faces = faces
 
 
 def _winding_number(triangles: np.ndarray, point: np.ndarray) -> float:
@@ -715,18 +733,28 @@ def _winding_number(triangles: np.ndarray, point: np.ndarray) -> float:
 
 
 def _rewind(mesh: trimesh.Trimesh, path: Path) -> None:
-    """Wind a closed mesh's faces consistently and outward, body by body, with a warning; MeshError when
-    no consistent winding exists (a non-orientable surface)."""
+    """Wind a closed mesh's faces consistently and outward, body by body (a body inside an odd number of
+    others is a cavity: its faces point into it), with a warning; MeshError when no consistent winding
+    exists (a non-orientable surface)."""
     trimesh.repair.fix_normals(mesh, multibody=True)
     if not mesh.is_winding_consistent:
         raise MeshError(
             f"{path}: faces are wound inconsistently and no consistent winding exists (a non-orientable "
             "surface); export the object's closed, orientable surface"
         )
+    if mesh.body_count > 1:  # every body points outward now: one inside an odd number of others is a cavity
+        bodies = _Bodies(mesh)
+        bodies.invert(
+            [
+                b
+                for b in range(len(bodies.volumes))
+                if bodies.enclosed(b) and bodies.majority_inside(b, lambda w: round(w) % 2 == 1)
+            ]
+        )
     warnings.warn(
         f"{path}: faces are wound inconsistently (some clockwise, some counter-clockwise seen from outside); "
-        "re-wound each body's faces consistently and outward, so that normals, volume and inside/outside "
-        "tests hold. Re-export the mesh with consistent winding to silence this warning.",
+        "re-wound each body's faces consistently and outward (a cavity's into the cavity), so that normals, "
+        "volume and inside/outside tests hold. Re-export the mesh with consistent winding to silence this warning.",
         MeshWarning,
         stacklevel=4,
     )

@@ -507,6 +507,27 @@ def test_inconsistently_wound_faces_are_rewound_with_a_warning(tmp_path: Path) -
         mesh = load_object(_mesh_spec(path)).mesh
     assert ["wound inconsistently" in str(w.message) for w in record] == [True, False]  # then: 2 bodies
     assert [part.volume for part in mesh.split(only_watertight=True)] == pytest.approx([sphere.volume] * 2, rel=1e-6)
+    # a hollow ball whose outer faces are mixed: re-winding keeps the cavity a cavity (it turned its faces
+    # outward, a solid ball inside the hollow one; session 42's review), and leaves a ball in it solid
+    cavity = trimesh.creation.icosphere(subdivisions=2, radius=0.015)
+    cavity.invert()
+    ball = trimesh.creation.icosphere(subdivisions=1, radius=0.005)
+    hollow = trimesh.util.concatenate([sphere, cavity, ball])
+    faces = hollow.faces.copy()
+    faces[: len(sphere.faces) : 2] = faces[: len(sphere.faces) : 2, ::-1]
+    trimesh.Trimesh(hollow.vertices, faces, process=False).export(path)
+    with pytest.warns(MeshWarning, match=r"mixed\.stl: faces are wound inconsistently"):
+        mesh = load_object(_mesh_spec(path)).mesh
+    volumes = sorted(part.volume for part in mesh.split(only_watertight=True))
+    assert volumes == pytest.approx([cavity.volume, ball.volume, sphere.volume], rel=1e-6)
+    # two balls that overlap in part, one of them mixed: both stay solid (the one is no cavity)
+    overlapping = trimesh.util.concatenate([sphere, sphere.copy().apply_translation([0.02, 0.0, 0.0])])
+    faces = overlapping.faces.copy()
+    faces[::2] = faces[::2, ::-1]
+    trimesh.Trimesh(overlapping.vertices, faces, process=False).export(path)
+    with pytest.warns(MeshWarning, match=r"mixed\.stl: faces are wound inconsistently"):
+        mesh = load_object(_mesh_spec(path)).mesh
+    assert [part.volume > 0 for part in mesh.split(only_watertight=True)] == [True, True]
 
 
 def test_a_mesh_over_mujocos_stl_limit_gives_mujoco_its_convex_hull(monkeypatch: pytest.MonkeyPatch) -> None:
