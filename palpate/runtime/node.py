@@ -68,6 +68,8 @@ STATUS_EVERY_TICKS = 100
 #: process died or closed its sockets): no lockstep node can rejoin, so the run ends naming it. The grace
 #: lets a clean stop arrive first (the stop and the unsubscription come over different connections).
 PEER_GRACE_S = 2.0
+#: In real time, how often a node looks whether a node that reads from it has left or come back (seconds).
+PEER_CHECK_S = 0.5
 #: The stop's reason when the clock source's step() ended the run (its simulated duration ran out).
 CLOCK_FINISHED = "clock source finished"
 _INTERNAL = (topics.CLOCK, topics.LOCKSTEP_ACK, STOP_TOPIC)
@@ -293,6 +295,11 @@ class NodeRunner:
         self.fail_asked = False  # a RunControl "fail" came: a clock source ends the run with "fail" too
         self.interrupted = False
         self._absent_since: dict[str, float] = {}  # peer -> when its hello/<peer> subscription was first seen gone
+        #: real time: the nodes that read from this one, those said to have left, and when they were looked at
+        hello = topics.HELLO_PREFIX
+        self._readers = sorted(t.removeprefix(hello) for t in process.expected_subscribers if t.startswith(hello))
+        self._said_gone: set[str] = set()
+        self._readers_checked_at = -math.inf
         _install_signal_handlers(self)  # before the manifest: a signal from now on ends the run cleanly
         manifest = bus.Manifest(
             node=process.name,
@@ -584,6 +591,29 @@ class NodeRunner:
                 gone.append(peer)
         return gone
 
+    def _note_readers(self) -> None:
+        """Real time: say once that a node reading from this one has left (its hello/<peer> subscription
+        gone for PEER_GRACE_S: a driver that died), and that it is back when it reconnects. Nothing waits
+        for it, so without this line a dead driver went unnoticed."""
+        now = time.monotonic()
+        if self.lockstep or now - self._readers_checked_at < PEER_CHECK_S:
+            return
+        self._readers_checked_at = now
+        gone = set(self._gone(self._readers))
+        for peer in sorted(gone - self._said_gone):
+            log.warning(
+                "node %s: %r disconnected (subscription %s gone for %.0f s: its process died or closed its sockets); "
+                "the real-time graph runs on without it, and takes it back when it reconnects",
+                self.process.name,
+                peer,
+                hello_topic(peer),
+                PEER_GRACE_S,
+            )
+        for peer in sorted(p for p in self._said_gone if self.counter.counts.get(hello_topic(p), 0) > 0):
+            log.info("node %s: %r reconnected", self.process.name, peer)
+            self._said_gone.discard(peer)
+        self._said_gone |= gone
+
     def _run_clock_source(self) -> None:
         step = cast(ClockSource, self.node).step  # spec.clock_source says so
         period_ns = int(getattr(self.node, "period_ns", 0))
@@ -629,6 +659,7 @@ class NodeRunner:
                     self._receive(int(left * 1000) + 1)
                 self._receive(0)
                 self.dispatch(latest_only=True)
+                self._note_readers()
             if tick % STATUS_EVERY_TICKS == 0:
                 self.publish_status("running")
             if self.stopping or self.ctx.stop_requested:
@@ -693,6 +724,7 @@ class NodeRunner:
             else:
                 self._receive(100)
                 self.dispatch(latest_only=True)
+                self._note_readers()
                 while self.clock_ticks:
                     clock = self.clock_ticks.popleft()
                     self.ctx.stamp_ns, self.ctx.tick = clock.stamp_ns, clock.tick

@@ -19,11 +19,11 @@ from tests.integration.launch_helpers import child_env, kill_session, launched, 
 RUN_FAILER = "tests.integration.fake_nodes:RUN_FAILER"
 
 
-def graph(tmp_path: Path, external: str, extra: str = "") -> Path:
-    """A lockstep cube that would run for 1000 s (100k ticks) and a consumer, `external` marked so."""
+def graph(tmp_path: Path, external: str, extra: str = "", mode: str = "lockstep") -> Path:
+    """A cube that would run for 1000 s (100k ticks) and a consumer, `external` marked so."""
     path = tmp_path / "graph.yaml"
     path.write_text(f"""
-mode: lockstep
+mode: {mode}
 nodes:
   - name: cube
     type: cube_contacts
@@ -125,3 +125,27 @@ def test_a_hung_external_clock_source_is_named_by_its_followers(
             kill_session(driver)
             proc.send_signal(signal.SIGINT)
             proc.wait(timeout=30)
+
+
+def test_a_real_time_driver_that_dies_is_named_and_its_return_too(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Session 42's walkthrough: in real time nothing waits for a driver, so one that died went unnoticed."""
+    monkeypatch.setenv("PALPATE_PROGRESS_S", "0.2")
+    bus_dir, log, driver_log = tmp_path / "bus", tmp_path / "launch.log", tmp_path / "stats.log"
+    with launched(graph(tmp_path, "stats", mode="realtime"), bus_dir, log) as proc:
+        driver = start_driver(bus_dir, "stats", driver_log, log)
+        try:
+            wait_for(lambda: "INFO t = " in text(log), 60, "the run to be under way", log)
+            os.kill(driver.pid, signal.SIGKILL)
+            driver.wait(timeout=10)
+            gone = "node cube: 'stats' disconnected (subscription hello/stats gone for 2 s: its process died"
+            wait_for(lambda: gone in text(log), 30, "the clock source to name the dead driver", log)
+            driver = start_driver(bus_dir, "stats", driver_log, log)  # a restarted driver reconnects
+            wait_for(lambda: "node cube: 'stats' reconnected" in text(log), 30, "the driver's return", log)
+            assert proc.poll() is None, text(log)  # the real-time graph ran on
+        finally:
+            kill_session(driver)
+            proc.send_signal(signal.SIGINT)
+            proc.wait(timeout=30)
+    assert text(log).count("'stats' disconnected") == 1, text(log)
