@@ -407,7 +407,54 @@ def _read_header(view: memoryview) -> tuple[Any, int]:
         except MessageError:
             raise
         except Exception as exc:  # msgpack raises several unrelated exception types on garbage
-            raise MalformedMessageError(f"payload is not msgpack: {exc}") from exc
+            raise MalformedMessageError(header_error(exc, view)) from exc
+
+
+def header_error(exc: Exception, view: memoryview) -> str:
+    """Why msgpack (raising ``exc``) could not read the header of payload ``view``, in words: it says nothing
+    of a nesting too deep, and its own words make valid msgpack that is no message's "not msgpack"."""
+    if isinstance(exc, msgpack.StackError):
+        return "payload's header nests deeper than msgpack reads (no message nests that deep)"
+    if isinstance(exc, UnicodeDecodeError):
+        where = _bad_text_path(view)
+        return f"a string in the header{' at ' + where if where else ''} is not UTF-8 ({exc.reason})"
+    if isinstance(exc, ValueError) and "for map key" in str(exc):
+        kind = str(exc).split(" is not")[0]
+        return f"a map in the header has a key that is not a string ({kind}): a message's keys are strings"
+    return f"payload is not msgpack: {exc or type(exc).__name__}"
+
+
+def _bad_text_path(view: memoryview) -> str:
+    """Where the first string that is not UTF-8 lies in the header ("fields.frame_id"), or ""."""
+    try:  # bytes that are not UTF-8 come back as lone surrogates, which do not encode
+        top = msgpack.unpackb(view, raw=False, strict_map_key=False, unicode_errors="surrogateescape")
+    except Exception:
+        return ""
+
+    def bad(text: object) -> bool:
+        return isinstance(text, str) and not text.isascii() and not _encodes(text)
+
+    def find(value: Any, path: str) -> str:
+        items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+        for key, item in items:
+            where = f"{path}[{key}]" if isinstance(value, list) else f"{path}.{key!s}".lstrip(".")
+            if bad(key):
+                return f"{path or 'the top'} (a key)"
+            if bad(item):
+                return where
+            if found := find(item, where):
+                return found
+        return ""
+
+    return find(top[0], "") if isinstance(top, list) and top else ""
+
+
+def _encodes(text: str) -> bool:
+    try:
+        text.encode()
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def _build(cls: type[Message], fields: Mapping[str, Any], blob: memoryview) -> Message:

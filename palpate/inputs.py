@@ -42,6 +42,10 @@ MAX_RATE = 1e3
 UNIT_TOLERANCE = 1e-2
 #: Largest contact force accepted, newtons.
 MAX_FORCE_N = 1e6
+#: Largest path length (m) and accumulated rotation (deg) accepted since a run's start: far beyond any run
+#: (a thousand kilometres), far below garbage (1e308, which summed to an infinite travel).
+MAX_PATH_M = 1e6
+MAX_TURN_DEG = 1e9
 
 
 def coordinates(

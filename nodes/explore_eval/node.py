@@ -20,7 +20,7 @@ import numpy as np
 from palpate.config import KeyPath, Validated
 from palpate.errors import InputError
 from palpate.geometry.rotations import quat_to_matrix
-from palpate.inputs import coordinates, per_vertex, triangle_mesh, unit_quaternion
+from palpate.inputs import MAX_PATH_M, MAX_TURN_DEG, bounded, coordinates, per_vertex, triangle_mesh, unit_quaternion
 from palpate.jsonio import dumps as json_dumps
 from palpate.jsonio import write as write_json
 from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
@@ -74,12 +74,14 @@ class ExploreEvalNode:
             raise InputError("index", f"touch {message.index} came before the object's truth; it is not scored")
         position = coordinates(message.position_m, "position_m")
         predicted = coordinates(message.predicted_contact_m, "predicted_contact_m", allow_nan=True)
+        travelled = float(bounded(message.travelled_m, "travelled_m", MAX_PATH_M, "m", lower=0.0))
+        rotation = float(bounded(message.rotation_deg, "rotation_deg", MAX_TURN_DEG, "deg", lower=0.0))
         asks = self.run.touch(
             self.ctx.stamp_ns,
             np.array(position),
             np.array(predicted),
-            message.travelled_m,
-            message.rotation_deg,
+            travelled,
+            rotation,
             None if self.fingertip_quaternion is None else quat_to_matrix(self.fingertip_quaternion)[:, 2],
             message.missed,
             np.array(coordinates(message.normal, "normal")),

@@ -96,7 +96,7 @@ def peek(payload: bytes | memoryview) -> PayloadInfo:
         try:
             envelope = msgpack.unpackb(view, raw=False)
         except (ValueError, TypeError, msgpack.UnpackException) as exc:
-            raise MalformedMessageError(f"payload is not msgpack: {exc or type(exc).__name__}") from exc
+            raise MalformedMessageError(codec.header_error(exc, view)) from exc
         if not isinstance(envelope, list) or len(envelope) != 2:
             raise MalformedMessageError("payload is not a 2-item msgpack array [header, blob]")
         return _info(envelope[0])
@@ -116,7 +116,7 @@ def peek(payload: bytes | memoryview) -> PayloadInfo:
         except MessageError:
             raise
         except (ValueError, TypeError, msgpack.UnpackException) as exc:
-            raise MalformedMessageError(f"payload is not msgpack: {exc or type(exc).__name__}") from exc
+            raise MalformedMessageError(codec.header_error(exc, view)) from exc
     return _info(header)
 
 

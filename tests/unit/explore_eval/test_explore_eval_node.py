@@ -128,6 +128,18 @@ def test_a_repeated_truth_keeps_the_records_and_another_object_is_refused() -> N
     with pytest.raises(InputError, match=r"^name: a second object 'ball' during the run on 'box'"):
         node.on_truth_object(truth(V * 0.5, F, name="ball"))
     assert node.evaluator is first
+    # an outside fuzzer: one touch with a path of 1e308 m summed to an infinite travel and ended the run
+    # as "travel budget" (a clean exit, travel inf cm); such a touch is refused and nothing is recorded
+    from dataclasses import replace
+
+    for field, value, message in [
+        ("travelled_m", 1e308, r"^travelled_m: value 1e\+308 m is outside \[0, 1e\+06\] m"),
+        ("travelled_m", -1.0, r"^travelled_m: value -1 m is outside"),
+        ("rotation_deg", 1e300, r"^rotation_deg: value 1e\+300 deg is outside \[0, 1e\+09\] deg"),
+    ]:
+        with pytest.raises(InputError, match=message):
+            node.on_touches(replace(touch, **{field: value}))
+    assert first.tracker.contacts == 1 and len(first.touches) == 1
 
 
 def test_a_launched_run_ends_with_a_line_for_a_reader_before_its_json() -> None:

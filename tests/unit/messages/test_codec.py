@@ -255,6 +255,27 @@ def test_every_truncation_of_a_payload_is_rejected() -> None:
         codec.decode(payload + b"\0")
 
 
+def test_a_header_msgpack_cannot_read_is_named_in_words() -> None:
+    """An outside fuzzer: a deep nesting said "payload is not msgpack: " (nothing more), a map key that is
+    no string called valid msgpack "not msgpack", and text that is not UTF-8 did not name its field."""
+    from palpate.record.mcap_io import peek
+
+    deep = b"\x92" + b"\x91" * 3000 + b"\x01\xc4\x00"
+    int_key = msgpack.packb([{1: 2}, b""], use_bin_type=True)
+    valid = msgpack.packb([{"type": "Clock", "fields": {"frame_id": "\u00ff"}}, b""], use_bin_type=True)
+    bad_text = valid.replace("\u00ff".encode(), b"\xff\xfe")
+    cases = [
+        (deep, "payload's header nests deeper than msgpack reads (no message nests that deep)"),
+        (int_key, "a map in the header has a key that is not a string (int): a message's keys are strings"),
+        (bad_text, "a string in the header at fields.frame_id is not UTF-8 (invalid start byte)"),
+    ]
+    for payload, message in cases:
+        for read in (codec.decode, peek):  # the recorder's look at a payload says the same
+            with pytest.raises(MalformedMessageError) as info:
+                read(payload)
+            assert str(info.value) == message
+
+
 def test_header_that_is_not_an_envelope() -> None:
     with pytest.raises(MalformedMessageError, match="header must be a map"):
         codec.decode(msgpack.packb([{"type": "Clock"}, b""], use_bin_type=True))
