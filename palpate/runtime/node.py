@@ -435,13 +435,23 @@ class NodeRunner:
         tick = self.last_clock + 1 if publisher == self.process.clock_name else self.acks.get(publisher, -1) + 1
         return tick + 1 if publisher in self.backward else tick
 
-    def _note_unused_inputs(self) -> None:
-        """At the end of the run, a warning for each input topic of which every message was refused:
-        the node ran without it (its first refusals are logged above with their reasons). In real time a
-        state message that a newer one replaced was never read, so it counts apart."""
-        for topic in sorted(self.input_types):
+    def _note_refused_inputs(self) -> None:
+        """At the end of the run, a warning for each topic with refused messages: how many (its first
+        refusals are logged above with their reasons), and for an input topic of which every message was
+        refused, that the node ran without it. In real time a state message that a newer one replaced was
+        never read, so it counts apart."""
+        for topic in sorted({*self._bad_by_topic, *self._refused_by_topic}):
             undecoded, refused = self._bad_by_topic.get(topic, 0), self._refused_by_topic.get(topic, 0)
-            if topic not in self._used_topics and undecoded + refused:
+            if topic in self._used_topics or topic not in self.input_types:
+                log.warning(
+                    "node %s refused %d message(s) on %s in this run (%d did not decode, %d were unusable)",
+                    self.process.name,
+                    undecoded + refused,
+                    topic,
+                    undecoded,
+                    refused,
+                )
+            else:
                 superseded = self._superseded_by_topic.get(topic, 0)
                 log.warning(
                     "node %s used no message on %s: %s%d were refused (%d did not decode, %d were unusable)%s",
@@ -511,7 +521,7 @@ class NodeRunner:
             if self.lockstep and self.ctx.timings:
                 timings = ", ".join(f"{k} {v:.4g}" for k, v in sorted(self.ctx.timings.items()))
                 log.info("node %s wall-clock timings: %s", self.process.name, timings)
-            self._note_unused_inputs()
+            self._note_refused_inputs()
             if self.ctx.failure:
                 log.error("node %s ended the run as a failure: %s", self.process.name, self.ctx.failure)
                 self.publish_status("error", self.ctx.failure)

@@ -491,13 +491,45 @@ def test_unused_input_warning_counts_apart_what_a_real_time_node_never_read(
             runner.buffer.append((-1, 0, i, "sensors/contacts", b"not msgpack"))
         runner.dispatch(latest_only=True)
         with caplog.at_level("WARNING"):
-            runner._note_unused_inputs()
+            runner._note_refused_inputs()
     finally:
         runner._close_sockets(linger_ms=0)
     assert runner.ctx.counters["decode_errors"] == 1
     assert caplog.messages[-1] == (
         "node reader used no message on sensors/contacts: 1 were refused (1 did not decode, 0 were unusable), "
         "2 more were replaced by newer ones unread"
+    )
+
+
+def test_a_node_says_at_the_end_how_many_messages_of_a_topic_it_refused(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """An outside fuzzer: the counts of refused messages showed only in NodeStatus; the first ten are
+    logged, and the run's output now ends with how many there were on each topic."""
+    from palpate.runtime.node import NodeRunner
+    from palpate.runtime.spec import Port
+    from tests.unit.node_messages import no_contacts
+
+    class Reader(Idle):
+        def on_contacts(self, message: ContactSet) -> None:
+            pass
+
+    process = dataclasses.replace(bare_process(tmp_path, "reader"), subscribes={"contacts": "sensors/contacts"})
+    spec = NodeSpec(
+        name="reader", config=NoParams, factory=lambda c, ctx: Reader(), inputs={"contacts": Port(ContactSet)}
+    )
+    runner = NodeRunner(spec, process)
+    try:
+        for i in range(12):
+            runner.buffer.append((-1, 0, i, "sensors/contacts", b"not msgpack"))
+        runner.buffer.append((-1, 0, 12, "sensors/contacts", codec.encode(no_contacts())))
+        runner.dispatch()
+        with caplog.at_level("WARNING"):
+            runner._note_refused_inputs()
+    finally:
+        runner._close_sockets(linger_ms=0)
+    assert caplog.messages[-1] == (
+        "node reader refused 12 message(s) on sensors/contacts in this run (12 did not decode, 0 were unusable)"
     )
 
 
