@@ -295,6 +295,8 @@ class NodeRunner:
         self.fail_asked = False  # a RunControl "fail" came: a clock source ends the run with "fail" too
         self.interrupted = False
         self._absent_since: dict[str, float] = {}  # peer -> when its hello/<peer> subscription was first seen gone
+        self._refused_acks: dict[str, str] = {}  # node -> why its first refused acknowledgement was refused
+        self._restarted: dict[str, int] = {}  # lockstep: node -> its last tick before it said it was ready again
         #: real time: the nodes that read from this one, those said to have left, and when they were looked at
         hello = topics.HELLO_PREFIX
         self._readers = sorted(t.removeprefix(hello) for t in process.expected_subscribers if t.startswith(hello))
@@ -399,12 +401,15 @@ class NodeRunner:
             if ack is not None and self.lockstep and ack.tick > self.last_clock + 1 + self._ack_lead:
                 # no node acknowledges a tick the clock source has not sent; believed, it would file every
                 # later message of that node under a tick that never comes
-                self._bad_input(
-                    topic,
-                    f"LockstepAck of tick {ack.tick} from {ack.node!r} is ahead of the clock (last tick "
-                    f"{self.last_clock})",
+                reason = (
+                    f"LockstepAck of tick {ack.tick} from {ack.node!r} is ahead of the clock "
+                    f"(last tick {self.last_clock})"
                 )
+                self._refused_acks.setdefault(ack.node, reason)
+                self._bad_input(topic, reason)
             elif ack is not None:
+                if ack.tick == -1 and self.acks.get(ack.node, -2) >= 0:  # ready again, after ticks: it restarted
+                    self._restarted.setdefault(ack.node, self.acks[ack.node])
                 self.acks[ack.node] = max(ack.tick, self.acks.get(ack.node, -2))
         elif topic == STOP_TOPIC:
             control = self._decode(topic, payload, RunControl)
@@ -583,9 +588,20 @@ class NodeRunner:
         deadline = time.monotonic() + self.ack_timeout_s
         what = f"tick {tick}" if tick >= 0 else "the start (tick -1: every node ready)"
         while not self.interrupted and any(self.acks.get(n, -2) < tick for n in nodes):
+            if restarted := [n for n in nodes if n in self._restarted and self.acks.get(n, -2) < tick]:
+                raise PeerLostError(
+                    f"no acknowledgement of {what}: {', '.join(map(repr, restarted))} started again after tick "
+                    f"{self._restarted[restarted[0]]} (it acknowledged the start anew); a lockstep node cannot rejoin "
+                    "a run: start a new launch"
+                )
             if time.monotonic() > deadline:
                 late = holding_up(self.acks, tick, self.process, nodes)
-                raise TimeoutError(f"no acknowledgement of {what} from {late} in {self.ack_timeout_s:.0f} s")
+                refused = "".join(
+                    f"; {n} sent an acknowledgement that was refused: {self._refused_acks[n]}"
+                    for n in late
+                    if n in self._refused_acks
+                )
+                raise TimeoutError(f"no acknowledgement of {what} from {late} in {self.ack_timeout_s:.0f} s{refused}")
             if not self._receive(100) and (gone := self._gone(self.process.lockstep_nodes)):
                 raise PeerLostError(f"no acknowledgement of {what}: {_left(gone)}")
 

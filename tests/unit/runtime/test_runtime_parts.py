@@ -17,8 +17,8 @@ from palpate.config import Validated
 from palpate.errors import BusError, ConfigError, EstimationError, LaunchError
 from palpate.launch.node_types import NODE_TYPES, load_node_type
 from palpate.launch.supervisor import external_spec_path, write_external_spec
-from palpate.messages import codec
-from palpate.messages.schemas import ContactSet, TouchEvent
+from palpate.messages import codec, topics
+from palpate.messages.schemas import ContactSet, LockstepAck, TouchEvent
 from palpate.runtime import bus
 from palpate.runtime.node import _latest_state_messages
 from palpate.runtime.spec import NodeProcessSpec, NodeSpec
@@ -672,3 +672,47 @@ def test_in_process_the_first_stop_and_the_first_failure_by_rank_end_the_run(tmp
     assert graph.members[0].ctx.run_stopped_by == "one stops"
     clock = _talkers(tmp_path, wiring, clock={"stop_at": 1})
     assert clock.run() == 1 and clock.stop_reason == "clock stops"  # the clock source's own stop counts too
+
+
+def test_the_clock_source_names_a_restarted_node_and_a_refused_acknowledgement_at_once(tmp_path: Path) -> None:
+    """An outside driver in C: a driver restarted mid-run acknowledged the start (tick -1) again and the
+    run waited 120 s, ending with "no acknowledgement of tick 50"; an acknowledgement that was refused
+    was not mentioned when the wait ran out."""
+    import zmq
+
+    from palpate.runtime.node import NodeRunner, PeerLostError
+
+    process = dataclasses.replace(
+        bare_process(tmp_path, "clock"), mode="lockstep", clock_source=True, lockstep_nodes=["noise", "stats"]
+    )
+    runner = NodeRunner(NodeSpec(name="clock", config=NoParams, factory=lambda c, ctx: Idle()), process)
+
+    def ack(node: str, tick: int) -> None:
+        runner._on_frames(
+            [
+                zmq.Frame(topics.LOCKSTEP_ACK.encode()),
+                zmq.Frame(codec.encode(LockstepAck(stamp_ns=0, node=node, tick=tick))),
+            ]
+        )
+
+    try:
+        runner.last_clock = 50
+        for node in ("noise", "stats"):
+            ack(node, 49)
+        ack("noise", -1)  # its driver, started again, says it is ready
+        with pytest.raises(PeerLostError) as info:
+            runner._wait_for_acks(["noise", "stats"], 50)
+        assert str(info.value) == (
+            "no acknowledgement of tick 50: 'noise' started again after tick 49 (it acknowledged the start anew); "
+            "a lockstep node cannot rejoin a run: start a new launch"
+        )
+        ack("stats", 1000)  # refused: ahead of the clock
+        runner.ack_timeout_s = 0.2
+        with pytest.raises(TimeoutError) as timeout:
+            runner._wait_for_acks(["stats"], 50)
+        assert str(timeout.value) == (
+            "no acknowledgement of tick 50 from ['stats'] in 0 s; stats sent an acknowledgement that was refused: "
+            "LockstepAck of tick 1000 from 'stats' is ahead of the clock (last tick 50)"
+        )
+    finally:
+        runner._close_sockets(linger_ms=0)
