@@ -31,6 +31,7 @@ test: $(STAMP) lint typecheck
 
 docs: $(STAMP)
 	$(BIN)/palpate docs messages -o docs/messages.md
+	$(BIN)/palpate docs nodes -o docs/nodes.md
 
 lock:
 	$(BIN)/python -m pip freeze --exclude-editable | grep -v '^palpate' > requirements.lock

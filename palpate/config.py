@@ -398,3 +398,109 @@ def _type_name(hint: Any, *, values: bool = False) -> str:
     if origin is typing.Literal:
         return " or ".join(repr(a) for a in args)
     return getattr(base, "__name__", None) or str(base).replace("typing.", "")
+
+
+# --- reference ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FieldDoc:
+    """One key of a config for a reference page: its dotted path, type and constraint, default and the
+    ``#:`` comment above it in the source ("" when it has none)."""
+
+    key: str
+    type: str
+    default: Any
+    doc: str
+
+
+def describe(cls: type, prefix: str = "", defaults: Any = None) -> list[FieldDoc]:
+    """Every key of the config dataclass ``cls`` (nested configs' keys dotted, ``gp.R_m``), in field order;
+    ``defaults``: an instance whose values are the defaults (a nested section's default)."""
+    out = []
+    docs = _field_docs(cls)
+    for f in dataclasses.fields(cls):
+        if not f.init:
+            continue
+        hint = _fields(cls)[f.name].hint
+        base, meta = _split(hint)
+        required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+        if defaults is not None:
+            default, required = getattr(defaults, f.name), False
+        elif f.default_factory is not dataclasses.MISSING:
+            default = f.default_factory()
+        else:
+            default = None if required else f.default
+        if dataclasses.is_dataclass(base) and isinstance(base, type):
+            out += describe(base, f"{prefix}{f.name}.", default)
+            continue
+        options = [a for a in typing.get_args(base) if a is not type(None)]
+        if len(options) == 1 and dataclasses.is_dataclass(options[0]):  # an optional section: itself, then its keys
+            out.append(FieldDoc(prefix + f.name, "mapping or null", default, docs.get(f.name, "")))
+            out += describe(options[0], f"{prefix}{f.name}.", default)  # type: ignore[arg-type]
+            continue
+        constraint = " ".join(str(m) for m in meta if isinstance(m, Range))
+        choices = next((list(m.choices) for m in meta if isinstance(m, OneOf)), None)
+        text = (
+            _type_text(base) + (f" ({constraint})" if constraint else "") + (f", one of {choices}" if choices else "")
+        )
+        out.append(FieldDoc(prefix + f.name, text, dataclasses.MISSING if required else default, docs.get(f.name, "")))
+    return out
+
+
+def _type_text(hint: Any) -> str:
+    """A field's type as a reference page writes it: "list of float", "mapping of str to float"."""
+    base, _ = _split(hint)
+    origin, args = typing.get_origin(base), typing.get_args(base)
+    if origin in (typing.Union, types.UnionType):
+        names = [_type_text(a) for a in args if a is not type(None)] + (["null"] if type(None) in args else [])
+        return " or ".join(names)
+    if origin is tuple and args and args[-1] is not Ellipsis:
+        return "[" + ", ".join(_type_text(a) for a in args) + "]"
+    if origin in (tuple, list, Sequence) and args:
+        return f"list of {_type_text(args[0])}"
+    if origin in (dict, Mapping) and args:
+        return f"mapping of {_type_text(args[0])} to {_type_text(args[1])}"
+    return _type_name(base)
+
+
+def _field_docs(cls: type) -> dict[str, str]:
+    """field name -> its description, over the dataclasses ``cls`` is made of: the ``#:`` comment lines
+    right above the field, or an entry ``name: text`` (``a, b: text``) of the class's docstring."""
+    import inspect
+
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if not dataclasses.is_dataclass(klass):
+            continue
+        docs.update(_docstring_entries(inspect.getdoc(klass) or ""))
+        try:
+            lines = inspect.getsource(klass).splitlines()
+        except (OSError, TypeError):  # no source (a class made at run time)
+            continue
+        comment: list[str] = []
+        for line in lines:
+            text = line.strip()
+            if text.startswith("#:"):
+                comment.append(text[2:].strip())
+                continue
+            if comment and (match := re.match(r"(\w+)\s*:", text)):
+                docs[match.group(1)] = " ".join(comment)
+            comment = []
+    return docs
+
+
+def _docstring_entries(doc: str) -> dict[str, str]:
+    """The ``name: text`` entries of a docstring (continued on more indented lines)."""
+    entries: dict[str, list[str]] = {}
+    current: list[str] | None = None
+    for line in doc.splitlines():
+        if match := re.match(r"(\w+(?:, \w+)*): (\S.*)", line):
+            current = [match.group(2)]
+            for name in match.group(1).split(", "):
+                entries[name] = current
+        elif current is not None and line.startswith(" ") and line.strip():
+            current.append(line.strip())
+        else:
+            current = None
+    return {name: " ".join(text) for name, text in entries.items()}

@@ -25,8 +25,13 @@ class JointNoiseConfig(Validated):
     """Joint-angle noise. ``per_joint_sigma_deg`` overrides ``sigma_deg`` for the joints it names;
     ``bias_deg`` is one constant for every joint or a mapping joint name -> bias (others 0)."""
 
+    #: Standard deviation of the Gaussian noise added to every joint angle of every reading, independently
+    #: (q + bias + sigma z, z ~ N(0, 1)); 0 passes the angles through bit for bit.
     sigma_deg: NonNegativeFloat = 1.5
+    #: Joint name -> its own standard deviation (the others keep sigma_deg); a name the readings lack is
+    #: refused at the first reading.
     per_joint_sigma_deg: Mapping[str, NonNegativeFloat] = field(default_factory=dict)
+    #: A constant offset of every joint angle, or joint name -> its offset (others 0).
     bias_deg: float | Mapping[str, float] = 0.0
 
 
@@ -92,7 +97,11 @@ class JointStreamNoise:
 class ContactNoiseConfig(Validated):
     """Contact-sensor noise: position sigma per axis (m), normal direction sigma per tangent axis (deg)."""
 
+    #: Standard deviation of the Gaussian noise added to each coordinate of each contact position.
     position_sigma_m: NonNegativeFloat = 0.0
+    #: Each contact normal is turned by a Gaussian step of this standard deviation per tangent axis (the
+    #: step z ~ N(0, sigma^2 I) projected onto the normal's tangent plane; the normal turns by its length,
+    #: towards it) and stays a unit vector.
     normal_sigma_deg: NonNegativeFloat = 0.0
 
 

@@ -2,8 +2,9 @@
 
 Joint angles get Gaussian noise (sigma 1.5 deg by default, per-joint override, optional constant
 bias); for the probe, contact positions and normals may get noise too. Seeded from the launch file;
-sigma 0 passes values through bit for bit. A hardware driver that publishes these topics replaces
-sim + noise.
+sigma 0 passes values through bit for bit. One message out per message in, with the same stamp; joint
+velocities, contact forces, links and local positions pass unchanged. A hardware driver that publishes
+these topics replaces sim + noise.
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""`palpate docs messages`: render the message schemas into docs/messages.md.
+"""`palpate docs messages` and `palpate docs nodes`: render the message schemas into docs/messages.md
+(the node reference is palpate.commands.node_reference).
 
 The reference is generated from `palpate.messages` alone (FieldSpec metadata, TYPE, VERSION, TOPIC,
 STATE), so it cannot drift from the code; a test compares the committed file with a fresh rendering.
@@ -44,22 +45,37 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     m.add_argument("-o", "--output", type=path_arg, help="write to this file instead of standard output")
     m.add_argument("--check", action="store_true", help="exit 1 if OUTPUT differs from a fresh rendering")
     m.set_defaults(func=run_messages)
+    n = what.add_parser("nodes", help="the node reference (docs/nodes.md): ports and parameters of every node type")
+    n.add_argument("-o", "--output", type=path_arg, help="write to this file instead of standard output")
+    n.add_argument("--check", action="store_true", help="exit 1 if OUTPUT differs from a fresh rendering")
+    n.set_defaults(func=run_nodes)
 
 
 def run_messages(args: argparse.Namespace) -> int:
-    text = render_messages()
+    return _write_or_check(args, "messages", render_messages(), f"{len(documented_types())} message types")
+
+
+def run_nodes(args: argparse.Namespace) -> int:
+    from palpate.commands.node_reference import render_nodes
+    from palpate.launch.node_types import NODE_TYPES
+
+    return _write_or_check(args, "nodes", render_nodes(), f"{len(NODE_TYPES)} node types")
+
+
+def _write_or_check(args: argparse.Namespace, what: str, text: str, count: str) -> int:
+    """Write ``text`` to ``args.output`` (or standard output), or with ``args.check`` compare them."""
     if args.check:
         if args.output is None:
-            print("palpate docs messages: --check needs -o FILE", file=sys.stderr)
+            print(f"palpate docs {what}: --check needs -o FILE", file=sys.stderr)
             return 2
         expected = text.encode()
         try:  # no more than the rendering and a byte: -o /dev/zero is out of date, not the end of the memory
             current = read_start(args.output, len(expected) + 1) if args.output.exists() else b""
         except (OSError, RecursionError) as exc:
-            print(f"palpate docs messages: cannot read {args.output}: {why_not(exc)}", file=sys.stderr)
+            print(f"palpate docs {what}: cannot read {args.output}: {why_not(exc)}", file=sys.stderr)
             return 2
         if current != expected:
-            print(f"{args.output} is out of date: run `make docs` (palpate docs messages -o {args.output})")
+            print(f"{args.output} is out of date: run `make docs` (palpate docs {what} -o {args.output})")
             return 1
         return 0
     if args.output is None:
@@ -69,9 +85,9 @@ def run_messages(args: argparse.Namespace) -> int:
             args.output.parent.mkdir(parents=True, exist_ok=True)
             args.output.write_bytes(text.encode())
         except (OSError, RecursionError) as exc:  # (RecursionError: mkdir of a path of 1,000s of parts)
-            print(f"palpate docs messages: cannot write {args.output}: {why_not(exc)}", file=sys.stderr)
+            print(f"palpate docs {what}: cannot write {args.output}: {why_not(exc)}", file=sys.stderr)
             return 2
-        print(f"wrote {args.output} ({len(documented_types())} message types)")
+        print(f"wrote {args.output} ({count})")
     return 0
 
 

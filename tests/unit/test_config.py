@@ -7,6 +7,7 @@ import dataclasses
 import math
 import types
 import typing
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -532,3 +533,37 @@ def test_a_yaml_document_error_names_the_line_of_the_key() -> None:
         load_yaml(Config, text, "config.yaml", "config")
     assert str(info.value) == "config.yaml:4: config.inner.radius_m: expected a finite number > 0, got -1"
     assert info.value.path == ("inner", "radius_m")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Part(Validated):
+    """A part.
+
+    size_m, depth_m: how large
+        it is.
+    """
+
+    size_m: PositiveFloat
+    depth_m: NonNegativeFloat = 0.0
+    #: Its name.
+    name: str = "x"
+
+
+@dataclass(frozen=True, kw_only=True)
+class Whole(Validated):
+    part: Part = field(default_factory=lambda: Part(size_m=2.0))
+    spare: Part | None = None
+    gains: Mapping[str, float] = field(default_factory=dict)
+
+
+def test_describe_lists_every_key_with_type_default_and_description() -> None:
+    """For the node reference (docs/nodes.md): nested keys dotted, defaults of a nested section from the
+    section's default, descriptions from `#:` comments and from `name: text` entries of the docstring."""
+    from palpate.config import describe
+
+    rows = {d.key: (d.type, d.default, d.doc) for d in describe(Whole)}
+    assert rows["part.size_m"] == ("float (> 0)", 2.0, "how large it is.")
+    assert rows["part.name"] == ("str", "x", "Its name.")
+    assert rows["spare"] == ("mapping or null", None, "")
+    assert rows["spare.size_m"][1] is dataclasses.MISSING  # required where a spare is given
+    assert rows["gains"] == ("mapping of str to float", {}, "")
