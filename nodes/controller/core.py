@@ -66,7 +66,11 @@ class TouchConfig(Validated):
     #: the fingertip loses the surface (an edge) it finishes along the Eq. 15 curve (see
     #: MIN_SLIDE_CURVE_M).
     slide_press_m_s: NonNegativeFloat = 0.01
+    #: A slide ends with a touch once the placed contact point is within this of the target in the tangent
+    #: plane, or has moved this much further from it than its closest, metres.
     slide_arrive_m: PositiveFloat = 0.001
+    #: A slide also ends once the fingertip has moved twice its start's distance from the target plus this,
+    #: metres, or after as long as that takes at v0.
     slide_slack_m: NonNegativeFloat = 0.01
     #: The normal a slide steers by: the new contact's with this weight, the slide's earlier ones with the
     #: rest (n <- normalise((1 - w) n + w n_new)). 1 (default): the latest normal. With noisy normals a

@@ -15,9 +15,13 @@ from palpate.runtime.spec import Context, NodeSpec, Port
 
 @dataclass(frozen=True, kw_only=True)
 class CubeContactsConfig(Validated):
+    #: Edge of the cube, centred at the origin and axis-aligned, metres.
     edge_m: PositiveFloat = 0.05
+    #: Contacts drawn uniformly on the cube's faces each tick (0: empty contact sets).
     contacts_per_tick: Annotated[int, Range(ge=0)] = 4
+    #: Simulated time between two ticks, seconds.
     period_s: PositiveFloat = 0.01
+    #: The run ends after this much simulated time (duration_s / period_s ticks, rounded).
     duration_s: NonNegativeFloat = 1.0
 
 
@@ -56,6 +60,7 @@ class CubeContacts:
 
 @dataclass(frozen=True, kw_only=True)
 class ContactStatsConfig(Validated):
+    #: Print a summary line (contact sets, contacts, their bounding box, decode errors) when the run ends.
     report: bool = True
 
 
@@ -85,6 +90,7 @@ class ContactStats:
 
 @dataclass(frozen=True, kw_only=True)
 class BboxEstimatorConfig(Validated):
+    #: The ``region`` the published SurfaceMesh states.
     region: str = "global"
 
 

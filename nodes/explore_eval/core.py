@@ -36,9 +36,15 @@ FINISHED_PREFIX = "exploration finished"
 class EvalConfig(Validated):
     """Goal, milestones and budgets of a run."""
 
+    #: The run ends as complete once this fraction of the true surface is explored (paper: 80 %).
     coverage_goal: Annotated[float, Range(gt=0.0, le=1.0)] = 0.8
+    #: Coverage fractions at which the run's figures (contacts, travel, surface RMSE) are recorded; one not
+    #: reached is recorded at the end as not reached.
     milestones: tuple[Annotated[float, Range(gt=0.0, le=1.0)], ...] = (0.5, 0.8)
+    #: A point of the true surface counts as explored once a contact lies within this distance, metres.
     radius_m: PositiveFloat = 0.006
+    #: Points drawn uniformly by area on the true surface to measure coverage (standard error about
+    #: sqrt(p (1 - p) / samples)).
     coverage_samples: PositiveInt = 20000
     #: Budgets: a run that has not reached the coverage goal after this many contacts or this much
     #: travel ends as incomplete. Chosen for time (issue 5: the 180-run YCB evaluation within 2 hours on 2
@@ -47,12 +53,14 @@ class EvalConfig(Validated):
     #: IGEF needs 1.5-2.5 times the bound (its hops overlap), and GP-V covered only 48-77 % of the large
     #: YCB cups within 15 m.
     max_contacts: PositiveInt = 800
+    #: The travel budget: fingertip path, metres (see max_contacts).
     max_travel_m: PositiveFloat = 20.0
     #: Budgets that fit the object: at least this many contacts, and this much travel, per contact of
     #: the object's covering bound (``covering_bound_contacts`` at the goal), so that a large object (a
     #: coffee can's bound is about 530 contacts) is not cut off by budgets sized for the others
     #: (IGEF needs 1.5-2.5 times the bound). 0 keeps the fixed budgets above.
     contacts_per_bound: NonNegativeFloat = 2.5
+    #: Travel budget per contact of the covering bound, metres (as contacts_per_bound; 0 keeps max_travel_m).
     travel_per_bound_m: NonNegativeFloat = 0.05
     #: Simulated time without a touch after which the run ends as stalled (the fingertip stuck against
     #: the object without a touch event, or a planner error), seconds; counted from the first touch (a
@@ -67,6 +75,7 @@ class EvalConfig(Validated):
     #: (its last milestones keep no RMSE) instead of running on until the clock, seconds. Lockstep runs
     #: get it the next tick; 30 s leaves a real-time GPIS node time for a large object's mesh.
     surface_wait_s: PositiveFloat = 30.0
+    #: Points drawn uniformly by area on each surface, true and estimated, for the surface RMSE.
     rmse_samples: PositiveInt = 20000
     #: The headline surface RMSE is taken over the part of the estimate whose GP standard deviation is
     #: at most this, metres: the surface the estimate claims to know (see ``Milestone``).
@@ -79,6 +88,7 @@ class EvalConfig(Validated):
     #: whole-object meshes (seconds each there) do not outweigh the run. Every 10 contacts for any
     #: object with a bound up to 600 (all 30 shared YCB objects). 0: always shape_every_contacts.
     shape_checkpoints_per_bound: NonNegativeFloat = 60.0
+    #: Points drawn uniformly by area on each surface, true and estimated, for the whole-shape scores.
     shape_samples: PositiveInt = 5000
 
     def covering_bound(self, area_m2: float) -> float:

@@ -35,7 +35,10 @@ class ExploreEvalNodeConfig(Validated):
     """Evaluation settings and where to write the results."""
 
     eval: EvalConfig = field(default_factory=EvalConfig)
+    #: Write the whole result (every touch, milestone and shape score) to this JSON file; "": none.
     results_path: str = ""
+    #: Draw the true mesh, the last estimate and the contacts to this image file, its format from the suffix
+    #: (none: PNG); "": no plot.
     plot_path: str = ""
     #: Print the one-line JSON result when the run ends.
     report: bool = True

@@ -109,12 +109,18 @@ class GPISConfig(Validated):
     gradient_noise: NonNegativeFloat = 0.1
     jitter: NonNegativeFloat = 1e-10
     prior: Annotated[str, OneOf(PRIORS)] = "sphere"
+    #: Radius r0 of the sphere prior, metres; with no prior_centre_m the sphere touches the first contact.
     prior_radius_m: PositiveFloat = 0.02
+    #: Slope of the sphere prior's mean, prior_scale (|x - c| - r0) (1: the signed distance to the sphere).
     prior_scale: PositiveFloat = 1.0
     estimator: Annotated[str, OneOf(ESTIMATORS)] = "auto"
+    #: Estimator "auto": the exact GP while it holds at most this many contacts; a touch that would take it
+    #: past them switches to the local estimator.
     auto_local_above_contacts: Annotated[int, Positive] = 1500
+    #: Voxel edge of the local estimator, metres: one exact GP (expert) per voxel with contacts.
     local_cell_m: PositiveFloat = 0.008
     local_blend_m: PositiveFloat = 0.0015
+    #: An expert also holds the contacts up to local_blend_m + this outside its voxel on each axis, metres.
     local_margin_m: NonNegativeFloat = 0.003
     local_far_cell_m: PositiveFloat = 0.02
     local_far_max_contacts: Annotated[int, Range(ge=8)] = 1000  # 8 octants about the origin: fewer never fit

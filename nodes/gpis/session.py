@@ -62,7 +62,11 @@ class GPISNodeConfig(Validated):
     #: rates by the variance, else "none" (a node started without a launcher takes "candidates"). The
     #: whole-object mesh carries it at every vertex when its request asks for it.
     vertex_variance: Literal["auto", "candidates", "all", "none"] = "candidates"
+    #: vertex_variance "candidates": one vertex per voxel of this edge carries the variance, metres; a launch
+    #: whose planner rates by the variance refuses a step other than the planner's candidate_step_m.
     variance_step_m: PositiveFloat = 0.005
+    #: vertex_variance "candidates": only vertices within this distance of the touch carry it, metres (the
+    #: planner's gpv_radius_m).
     variance_radius_m: PositiveFloat = 0.06
     #: An object larger than the thin-plate kernel's R_m allows (gp.R_m, 0.5 m: about 0.4 m across):
     #: rebuild the GP with R_m doubled (``reach.holding``; counter ``kernel_grown``, status metric

@@ -82,8 +82,12 @@ class MapperConfig(Validated):
 
     region_min_m: tuple[float, float, float]
     region_max_m: tuple[float, float, float]
+    #: Edge of a grid cell, metres.
     resolution_m: PositiveFloat = 0.002
+    #: "known": one map updated at the joint angles read (the true ones: known-pose mapping; noisy ones:
+    #: dead reckoning); "fastslam": n_particles finger-pose hypotheses, each with its own map.
     mode: Literal["known", "fastslam"] = "fastslam"
+    #: K, the number of FastSLAM particles (mode fastslam only).
     n_particles: PositiveInt = 100
     sigma_deg: NonNegativeFloat = 1.5
     resample_threshold: Annotated[float, Fraction] = 0.5

@@ -82,11 +82,16 @@ class FingerMount(Validated):
     ``finger_mount``): where the simulator places its finger in front of its default object.
     """
 
+    #: The simulator's effector the chain belongs to: "finger" (base: the metacarpal's proximal end) or
+    #: "hand" (base: the palm).
     effector: Literal["finger", "hand"] = "finger"
+    #: The digit the chain models, the one that taps: a long finger (with effector hand also the thumb).
     finger: Annotated[str, OneOf(tuple(d.name for d in _HAND.digits))] = _HAND.finger_mount.finger
+    #: Multiplies every length and radius of the hand description, as the simulator's scene ``scale``.
     scale: PositiveFloat = 1.0
     #: The base (metacarpal base or palm) in the world, metres.
     base_position_m: tuple[float, float, float] = _HAND.finger_mount.base_position_m
+    #: The base's orientation in the world (w, x, y, z), as the simulator's ``base_quaternion_wxyz``.
     base_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:

@@ -15,13 +15,23 @@ Strategy = Literal["igef", "gpv", "random", "area", "tour"]
 class PlannerConfig(Validated):
     """Planner parameters; defaults are the paper's YCB settings (Section 2.4 and 2.6)."""
 
+    #: How candidates are rated: "igef" (the product Psi1..Psi4, Algorithm 2), "gpv" (the GP variance),
+    #: "random" (uniform), or, not in the paper, "area" and "tour" (new explored area per metre of travel).
     strategy: Strategy = "igef"
-    sigma1_m: PositiveFloat = 0.02  # sigma_1 of Eq. 7
-    mu3_m: NonNegativeFloat = 0.02  # mu_3 of Eq. 10
-    sigma3_m: PositiveFloat = 0.02  # sigma_3 of Eq. 10
-    sigma_alpha: PositiveFloat = 1.0  # sigma_alpha of Eq. 11
+    #: sigma_1 of Eq. 7, metres: Psi1 = 1 - exp(-d^2 / sigma_1^2), d the candidate's distance to the nearest
+    #: contact (IGEF).
+    sigma1_m: PositiveFloat = 0.02
+    #: mu_3 of Eq. 10, metres: Psi3 = sum over contacts c of exp(-(|s - c| - mu_3)^2 / sigma_3^2) (IGEF).
+    mu3_m: NonNegativeFloat = 0.02
+    #: sigma_3 of Eq. 10, metres (IGEF).
+    sigma3_m: PositiveFloat = 0.02
+    #: sigma_alpha of Eq. 11: Psi4 = exp(-2 sin^2(alpha/2) / sigma_alpha^2), alpha the rotation the fingertip
+    #: needs to face the target (IGEF, area and tour); smaller makes rotation costlier.
+    sigma_alpha: PositiveFloat = 1.0
     #: Candidate sampling on the estimated surface: step 0.5 cm, up to 5 cm from the last contact.
     candidate_step_m: PositiveFloat = 0.005
+    #: How far from the last contact candidates are sampled, metres, for igef, random and area (gpv takes
+    #: gpv_radius_m, tour tour_radius_m).
     candidate_radius_m: PositiveFloat = 0.05
     #: GP-V's maximum target distance from the last contact (Section 2.6: 6 cm).
     gpv_radius_m: PositiveFloat = 0.06
@@ -54,6 +64,8 @@ class PlannerConfig(Validated):
     #: 500 touches 9.5 mm away on 13 spots (measured on YCB 065-i: coverage stuck at 26 %; with 5 mm it
     #: reached 80 % in 387 contacts). 0 disables it.
     unreached_radius_m: NonNegativeFloat = 0.006
+    #: A touch that lands further than this from its target's predicted contact marks the target unreached,
+    #: metres (see unreached_radius_m).
     unreached_miss_m: NonNegativeFloat = 0.005
     #: Fingertip radius, metres (the controller's tip_radius_m): the curves guide the fingertip centre.
     tip_radius_m: NonNegativeFloat = 0.008
@@ -61,6 +73,8 @@ class PlannerConfig(Validated):
     #: (the evaluation's 6 mm), and the fixed cost of a touch in metres of travel, which makes a touch
     #: that explores more worth a longer path.
     area_radius_m: PositiveFloat = 0.006
+    #: L0, the area strategy's fixed cost of a touch, metres of travel added to each candidate's path
+    #: length (score = gain Psi4 / (Len + L0)).
     area_touch_cost_m: NonNegativeFloat = 0.02
     #: Extra weight of an unexplored patch per explored fraction of its surroundings (2 rho): holes and
     #: the rim of the explored region first, so that no patch is left for a long trip back.
@@ -73,7 +87,9 @@ class PlannerConfig(Validated):
     #: last contact (GP-V's 6 cm, where the GPIS node gives the variance); a tour through at most
     #: ``tour_sites`` of the ``tour_pool`` best candidates is planned and its first site touched.
     tour_radius_m: PositiveFloat = 0.06
+    #: Most sites a planned tour visits (the planner touches the first, then plans again after the touch).
     tour_sites: PositiveInt = 4
+    #: The tour's sites are picked among this many candidates of largest G(s) / (Len(r -> s) + L0).
     tour_pool: PositiveInt = 32
     #: Fixed cost of a touch on the tour, metres of travel (as area_touch_cost_m).
     tour_touch_cost_m: NonNegativeFloat = 0.02
@@ -83,7 +99,9 @@ class PlannerConfig(Validated):
     #: touches spread to where the GP extrapolates most. On the 30 shared objects gamma 3 and D 3 cm
     #: give a better whole estimate than gamma 1 and D 2 cm for the same travel (docs/exploration.md).
     tour_hole_weight: NonNegativeFloat = 2.0
+    #: gamma of tour_hole_weight's patch weight: the extra weight of a patch D or more from every contact.
     tour_far_weight: NonNegativeFloat = 3.0
+    #: D of tour_hole_weight's patch weight, metres: the distance from every contact at which gamma saturates.
     tour_far_m: PositiveFloat = 0.03
     #: Weight kappa of the GP variance in the patch weight, w(q) (1 + kappa var(q) / max var): the GP's
     #: own doubt, where its estimate bulges away from the contacts. 0 (default): the GPIS node computes
@@ -99,7 +117,9 @@ class PlannerConfig(Validated):
     #: 90: the least whole-estimate error for the same travel on the 30 shared objects
     #: (docs/exploration.md, "Slides").
     slide_max_m: NonNegativeFloat = 0.0
+    #: slide_max_m for the tour strategy alone, metres (the tour slides within the larger of the two).
     tour_slide_max_m: NonNegativeFloat = 0.06
+    #: A slide also needs the target's normal within this angle of the last contact's measured normal, degrees.
     slide_max_angle_deg: Annotated[float, Range(ge=0.0, le=90.0)] = 60.0
     #: Not in the paper: how far past its target the fingertip may go without a contact before Algorithm
     #: 1's recovery (Delta_m, sent as ``TouchTarget.miss_distance_m``), metres, at most
@@ -110,6 +130,7 @@ class PlannerConfig(Validated):
     #: with a false floor) goes on to the true surface behind it, where 1 cm ends in the recovery and a
     #: touch where the fingertip left (docs/exploration.md, "A longer reach past a missed target").
     miss_distance_m: Annotated[float, Range(ge=0.0, le=MAX_MISS_DISTANCE_M)] = 0.0
+    #: miss_distance_m for the tour strategy, metres; 0: the tour sends miss_distance_m.
     tour_miss_distance_m: Annotated[float, Range(ge=0.0, le=MAX_MISS_DISTANCE_M)] = 0.03
 
     @property

@@ -63,11 +63,16 @@ class DigitConfig(Validated):
     and gains default to the description's.
     """
 
+    #: Multiplies every bone length and the segment radius of the hand description (1: the mean adult hand).
     scale: PositiveFloat = 1.0
     # Human active ranges (AAOS 1965; DIP limited to 80 deg as in issue 3, AAOS gives 90).
+    #: [lower, upper] MCP flexion of each long finger, degrees: the joint's limits and its actuator's target range.
     mcp_flex_range_deg: tuple[float, float] = _range("index", "mcp_flex")
+    #: [lower, upper] MCP abduction of each long finger, degrees (positive towards the thumb).
     mcp_abd_range_deg: tuple[float, float] = _range("index", "mcp_abd")
+    #: [lower, upper] PIP flexion of each long finger, degrees.
     pip_range_deg: tuple[float, float] = _range("index", "pip")
+    #: [lower, upper] DIP flexion of each long finger, degrees.
     dip_range_deg: tuple[float, float] = _range("index", "dip")
     #: Position actuator stiffness (torque per rad of target error).
     kp_nm_per_rad: NonNegativeFloat = HAND.actuation.kp_nm_per_rad
@@ -116,16 +121,21 @@ class HandConfig(DigitConfig):
     """
 
     # AAOS: CMC flexion 15 / extension 20, palmar abduction 70, MCP flexion 50, IP flexion 80.
+    #: [lower, upper] thumb CMC flexion, degrees (negative: extension).
     thumb_cmc_flex_range_deg: tuple[float, float] = _range("thumb", "cmc_flex")
+    #: [lower, upper] thumb CMC palmar abduction, degrees.
     thumb_cmc_abd_range_deg: tuple[float, float] = _range("thumb", "cmc_abd")
     #: Axial rotation (pronation positive) of the first metacarpal: a model choice covering opposition.
     thumb_cmc_rot_range_deg: tuple[float, float] = _range("thumb", "cmc_rot")
+    #: [lower, upper] thumb MCP flexion, degrees.
     thumb_mcp_range_deg: tuple[float, float] = _range("thumb", "mcp")
+    #: [lower, upper] thumb IP flexion, degrees.
     thumb_ip_range_deg: tuple[float, float] = _range("thumb", "ip")
     #: Which fingertip ``effector_pose`` reports.
     pose_finger: Annotated[str, OneOf((*LONG_FINGERS, "thumb"))] = "index"
     #: Palm pose in the world; None lets the scene place the hand so the object is in reach.
     base_position_m: tuple[float, float, float] | None = None
+    #: Palm orientation in the world (w, x, y, z); identity: fingers along world +x, palm facing -z.
     base_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
 
     def thumb_lengths_m(self) -> tuple[float, float, float]:
@@ -152,6 +162,7 @@ class FingerConfig(DigitConfig):
     #: Metacarpal base in the world; None lets the scene place it so the object is in reach (on the
     #: default object, that is the description's finger mount).
     base_position_m: tuple[float, float, float] | None = None
+    #: Metacarpal base orientation in the world (w, x, y, z); identity: finger along world +x, its back facing +z.
     base_quaternion_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
 
 
@@ -171,10 +182,13 @@ class ProbeConfig(Validated):
     start_position_m: tuple[float, float, float] | None = None
     #: Start orientation; the default (180 deg about x) makes the fingertip face world -z.
     start_quaternion_wxyz: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 0.0)
+    #: Gap between the probe and the top of the object's bounding box at the start when start_position_m
+    #: is null, metres.
     start_clearance_m: NonNegativeFloat = 0.03
     #: Gain of the velocity controller against a rigid surface: reported normal force is this
     #: gain times the commanded speed into the surface (what a velocity-controlled arm would push).
     force_gain_n_s_per_m: NonNegativeFloat = 50.0
+    #: Density of the probe sphere, which sets its mass in the model (its velocity is imposed every step).
     density_kg_m3: PositiveFloat = 1100.0
 
     def __post_init__(self) -> None:

@@ -102,11 +102,19 @@ class ObjectSpec(Validated):
     and a single number is a one-value ``size_m``.
     """
 
+    #: A generated primitive, the 57 mm Rubik's cube, or a mesh read from ``path``.
     kind: Annotated[str, OneOf(KINDS)]
+    #: The primitive's dimensions, metres: cube [edge], box [x, y, z], sphere [radius], cylinder [radius,
+    #: height], torus [major, minor radius]; empty: the kind's default size (rubiks_cube and mesh take none).
     size_m: Annotated[tuple[PositiveFloat, ...], BlankIsDefault, ScalarIsTuple] = ()
+    #: Kind mesh only: the mesh file (STL, OBJ, PLY, OFF or GLB, relative to the current directory), or
+    #: ``ycb:<id>`` for a YCB object (e.g. ``ycb:011_banana``).
     path: Annotated[str | None, BlankIsDefault] = None
+    #: Kind mesh only: multiplies the file's coordinates to give metres (0.001 for a file in millimetres).
     scale: Annotated[PositiveFloat, BlankIsDefault] = 1.0
+    #: Where the object's origin goes in the world, metres (primitives: their centre; meshes: their file's origin).
     position_m: Annotated[tuple[float, float, float], BlankIsDefault] = (0.0, 0.0, 0.0)
+    #: The object's orientation in the world (w, x, y, z); normalised, its norm must be within 1e-3 of 1.
     quaternion_wxyz: Annotated[tuple[float, float, float, float], BlankIsDefault] = (1.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:

@@ -58,11 +58,16 @@ class SceneConfig(Validated):
     other two are None.
     """
 
+    #: The effector the scene builds: the 21-DoF hand, one finger of it, or the spherical fingertip probe.
     effector: Annotated[str, OneOf(EFFECTORS)] = "finger"
     object: ObjectSpec = field(default_factory=_default_object)
+    #: The hand's options; only with ``effector: hand`` (null: its defaults).
     hand: HandConfig | None = None
+    #: The single finger's options; only with ``effector: finger`` (null: its defaults).
     finger: FingerConfig | None = None
+    #: The probe's options; only with ``effector: probe`` (null: its defaults).
     probe: ProbeConfig | None = None
+    #: MuJoCo physics time step, seconds; the sim node's tick_period_s must be a whole multiple of it.
     timestep_s: PositiveFloat = 0.002
     #: Off by default (see the module docstring).
     gravity_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -72,6 +77,8 @@ class SceneConfig(Validated):
     contact_tolerance_m: NonNegativeFloat = 2e-4
     #: Penalty contact of hand/finger on non-convex objects (exact-mesh path), see core.Simulation.
     mesh_contact_stiffness_n_per_m: NonNegativeFloat = 10000.0
+    #: Damping b of that penalty contact's force k (r - d) - b v_n (k the stiffness above): newtons per m/s
+    #: of a capsule sphere's velocity along the surface normal.
     mesh_contact_damping_n_s_per_m: NonNegativeFloat = 10.0
 
     def __post_init__(self) -> None:

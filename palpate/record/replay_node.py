@@ -34,8 +34,12 @@ RUNTIME_TOPICS = frozenset(topics.RUNTIME_TOPICS)
 
 @dataclass(frozen=True, kw_only=True)
 class ReplayConfig(Validated):
+    #: The MCAP log to replay.
     path: str
+    #: The recorded topics to replay, each an output port of that name; empty: every data topic of the log.
     topics: tuple[str, ...] = ()
+    #: Topic -> the rank its publisher had in the recorded graph: a tick's messages go out sorted by it
+    #: (others rank 0). ``palpate launch --replay`` fills it in.
     order: dict[str, int] = field(default_factory=dict)
 
 
