@@ -661,8 +661,9 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
         warnings.warn(
             f"{path}: mesh is not watertight ({_edge_defects(mesh)}): inside/outside tests and signed "
             "distance (contact penetration sign, occupancy ground truth) and volume-based metrics are "
-            "unreliable on it; contact points and normals are still exact. Close the holes (e.g. "
-            "trimesh.repair.fill_holes or MeshLab) for reliable results.",
+            "unreliable on it. The probe takes its surface as a two-sided sheet (it passes through the "
+            "holes and touches either side); a hand's or finger's contacts near a hole are unreliable. "
+            "Close the holes (e.g. trimesh.repair.fill_holes or MeshLab) for reliable results.",
             MeshWarning,
             stacklevel=3,
         )

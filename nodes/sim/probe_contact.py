@@ -8,6 +8,12 @@ against the surface, ``force_gain * max(0, -v_cmd . n)``. A probe in the hole of
 cup touches nothing and reports nothing. Far from the object (by a 1-Lipschitz bound on the signed
 distance) steps are batched into one ``mj_step`` call without queries. With ``compiled_steps`` the
 loop runs in ``probe_kernels.probe_steps`` (the same bits).
+
+A mesh that is not closed (an open cup, a scan with holes) has no inside: the sign of a distance
+across its openings is a guess (an open cup's opening reads as solid, and the probe was pushed
+sideways onto the rim). Its surface is a two-sided sheet: the distance is unsigned, the contact
+normal points from the surface to the probe's centre, and the probe passes through the openings and
+touches either side (``two_sided``; the steps run in Python).
 """
 
 from __future__ import annotations
@@ -48,8 +54,11 @@ class ProbeContact:
         self._contact_rotation = np.zeros(9)  # the same, for a contact's local position
         #: The exact query, warm-started from the last answer.
         self.warm_query = WarmClosest(sensor)
-        #: Run the probe's steps in compiled code (probe_kernels) when MuJoCo's library is found.
-        self.compiled_steps = probe_kernels.mujoco_functions() is not None
+        #: The mesh is not closed: its surface is a two-sided sheet (the module's docstring).
+        self.two_sided = not sensor.mesh.is_watertight
+        #: Run the probe's steps in compiled code (probe_kernels) when MuJoCo's library is found (they
+        #: take the signed distance of a closed mesh).
+        self.compiled_steps = probe_kernels.mujoco_functions() is not None and not self.two_sided
         self._kernel_patch: penalty_kernels.WarmPatches | None = None  # the warm query's state in compiled steps
         if self.compiled_steps:
             self._setup_kernels()
@@ -217,6 +226,8 @@ class ProbeContact:
         if bound > self.radius_m + self._tolerance_m:
             return None
         found, dist, face = self._warm_query(p)  # the exact query, warm-started from the last answer
+        if self.two_sided:  # a sheet has no inside: the normal below points to the centre's side
+            dist = abs(dist)
         point = np.array(found)
         # Contact normal of a sphere: from the surface point to the centre (equals the surface normal
         # on faces, and is the true contact normal on edges and vertices); inside, the mesh normal.

@@ -8,6 +8,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+import trimesh
 
 from palpate.config import load
 from palpate.errors import ConfigError, SimulationDivergedError
@@ -109,6 +110,37 @@ def test_probe_inside_an_open_cup_touches_nothing(ycb: Path) -> None:
     for _ in range(10):
         sim.step(10)
         assert len(sim.contacts()) == 0
+
+
+def test_probe_goes_into_an_open_tray_and_touches_its_floor(tmp_path: Path) -> None:
+    """An outside walkthrough: on a box without its top the probe's first touch was the rim, 5 cm to the
+    side, with a horizontal normal (the opening read as solid). An open surface is a two-sided sheet."""
+    from palpate.errors import MeshWarning
+
+    box = trimesh.creation.box(extents=[0.1, 0.1, 0.04])
+    box.update_faces(box.face_normals[:, 2] < 0.9)  # no top
+    box.remove_unreferenced_vertices()
+    path = tmp_path / "tray.stl"
+    box.export(path)
+    with pytest.warns(MeshWarning, match="two-sided sheet"):
+        sim = _probe(ObjectSpec(kind="mesh", path=str(path)), (0.01, 0.0, 0.05))
+    sim.set_velocity(np.array([0.0, 0.0, -0.05]), np.zeros(3))
+    for _ in range(100):  # 0.4 cm a tick: down through the opening, then onto the floor
+        sim.step(40)
+        if len(sim.contacts()):
+            break
+    c = sim.contacts()
+    _check_contract(c)
+    assert len(c) == 1 and _angle_deg(c.normals[0], np.array([0.0, 0.0, 1.0])) < 1.0  # the floor, seen from above
+    np.testing.assert_allclose(c.positions_m[0], (0.01, 0.0, -0.02), atol=1e-6)
+    np.testing.assert_allclose(sim.effector_pose()[0], (0.01, 0.0, -0.012), atol=1e-5)
+    with pytest.warns(MeshWarning):
+        sim = _probe(ObjectSpec(kind="mesh", path=str(path)), (0.0, 0.01, 0.0))  # inside, at mid-height
+    sim.set_velocity(np.array([0.05, 0.0, 0.0]), np.zeros(3))  # to a wall, from inside
+    sim.step(1000)
+    c = sim.contacts()
+    assert len(c) == 1 and _angle_deg(c.normals[0], np.array([-1.0, 0.0, 0.0])) < 1.0  # the wall's inner side
+    np.testing.assert_allclose(sim.effector_pose()[0], (0.05 - 0.008, 0.01, 0.0), atol=1e-5)
 
 
 def test_probe_pressed_onto_a_cube_face_reports_one_contact_with_its_normal() -> None:
