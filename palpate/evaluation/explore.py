@@ -10,7 +10,9 @@ c the centre of the object's bounding box, R_b the radius of the smallest ball a
 object, d the drawn direction. The initial target (Algorithm 1 line 2, "known from the operator") is
 the first hit of the ray start -> c on the true mesh, pushed ``inside_m`` further along the ray; a
 ray that misses (through a hole: the torus, a cup seen from above) is drawn again. The probe starts
-facing along the ray (fingertip axis = -d), as an operator would point it.
+facing along the ray (fingertip axis = -d), as an operator would point it. Where no ray through c meets
+the object (separate bodies around an empty centre: a dumbbell), the rays aim at points drawn on its
+surface instead.
 
 Every run builds the graph of ``launch/explore.yaml`` with the episode as launch arguments and runs
 it with :class:`palpate.runtime.inprocess.InProcessGraph` (exactly the lockstep semantics of the
@@ -185,7 +187,8 @@ def _resolved(path: Path) -> str:
 @dataclass(frozen=True)
 class Approach:
     """Where a run starts: probe start (3,) m, initial target (3,) m inside the object, the unit
-    direction d (3,) from the object centre to the start, and how many directions were drawn."""
+    direction d (3,) from the target to the start (the probe faces along -d), and how many directions
+    were drawn."""
 
     start_m: FloatArray
     target_m: FloatArray
@@ -204,22 +207,27 @@ def approach(
 ) -> Approach:
     """The seeded start and initial target of run ``run`` on a mesh (see the module docstring)."""
     from palpate.geometry.mesh_query import MeshScene  # imported here: it loads Open3D
+    from palpate.metrics.exploration import sample_surface
 
     V = np.asarray(vertices, dtype=np.float64)
     scene = MeshScene(V, faces)  # shifted to the bounding-box centre
     centre = scene.origin_m
     radius = float(np.linalg.norm(V - centre, axis=1).max())
     rng = np.random.default_rng(run)
-    for draw in range(1, max_draws + 1):
+    for draw in range(1, 2 * max_draws + 1):
         d = rng.standard_normal(3)
         d /= np.linalg.norm(d)
         d[2] = abs(d[2])  # upper hemisphere
         start_local = d * (radius + clearance_m)
-        t = float(scene.ray_hit_distance(start_local, -d)[0])
+        ray = -d
+        if draw > max_draws:  # no ray through the centre met it: aim at a point of its surface
+            aim = sample_surface((V - centre, faces), 1, rng)[0]
+            ray = (aim - start_local) / np.linalg.norm(aim - start_local)
+        t = float(scene.ray_hit_distance(start_local, ray)[0])
         if math.isfinite(t):
-            target = start_local - d * (t + inside_m)
-            return Approach(start_local + centre, target + centre, d, draw)
-    raise MeshError(f"no ray from the upper hemisphere towards the centre {centre} hits the mesh in {max_draws} draws")
+            target = start_local + ray * (t + inside_m)
+            return Approach(start_local + centre, target + centre, -ray, draw)
+    raise MeshError(f"no ray from the upper hemisphere meets the mesh in {2 * max_draws} draws (has it any face?)")
 
 
 def probe_quaternion(direction: FloatArray) -> tuple[float, float, float, float]:
@@ -304,8 +312,12 @@ def episodes(
         bound = config.covering_bound(area)
         _note_size(case.name, area, bound, config)
         clock_s = max(duration_s, CLOCK_PER_TRAVEL_BUDGET * config.travel_budget_m(bound) / controller.v0_m_s)
-        for run in range(runs):
-            a = approach(vertices, faces, run)
+        try:
+            starts = [approach(vertices, faces, run) for run in range(runs)]
+        except MeshError as exc:
+            refused.append(f"{case.mesh or case.name}: {exc}")
+            continue
+        for run, a in enumerate(starts):
             q = probe_quaternion(a.direction)
             for strategy in strategies:
                 out.append(

@@ -67,6 +67,23 @@ def test_rays_through_the_torus_hole_are_drawn_again() -> None:
         assert sensor.closest(approach(V, F, run).target_m[None]).distance_m[0] < 0.0
 
 
+def test_separate_bodies_around_an_empty_centre_get_rays_aimed_at_their_surface() -> None:
+    """An outside walkthrough: two boxes 0.8 m apart (a dumbbell) stopped the whole evaluation with "no
+    ray ... towards the centre hits the mesh", naming no file."""
+    boxes = [trimesh.creation.box((0.04, 0.04, 0.04)).apply_translation([x, 0.0, 0.0]) for x in (-0.4, 0.4)]
+    dumbbell = trimesh.util.concatenate(boxes)
+    V, F = np.asarray(dumbbell.vertices), np.asarray(dumbbell.faces)
+    sensor = ExactContactSensor(dumbbell)
+    for run in range(3):
+        a = approach(V, F, run, max_draws=16)
+        assert a.draws > 16  # none through the centre
+        hit = a.target_m + 0.003 * a.direction  # the target: 3 mm past the ray's hit, inside
+        assert DistanceField(dumbbell).distance(hit[None])[0] == pytest.approx(0.0, abs=1e-6)
+        assert sensor.closest(a.target_m[None]).distance_m[0] < 0.0
+        ray = (a.target_m - a.start_m) / np.linalg.norm(a.target_m - a.start_m)
+        np.testing.assert_allclose(ray, -a.direction, atol=1e-9)  # the probe faces along its ray
+
+
 def test_probe_faces_the_object() -> None:
     d = np.array([0.3, -0.2, 0.9])
     d /= np.linalg.norm(d)
