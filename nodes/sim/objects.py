@@ -522,6 +522,10 @@ def read_mesh_file(path: Path, scale: float = 1.0) -> trimesh.Trimesh:
     return mesh
 
 
+#: More faces than this at one vertex make a fan (a regular mesh has about six).
+FAN_FACES = 12
+
+
 def _check_rings(mesh: trimesh.Trimesh, path: Path) -> None:
     """MeshError, naming the file, for a mesh whose contact sensor's face rings would not fit
     (``mesh_query.face_rings``: faces x 3 x the most faces at one vertex): said before a run starts."""
@@ -529,10 +533,16 @@ def _check_rings(mesh: trimesh.Trimesh, path: Path) -> None:
     most = int(np.bincount(faces.ravel()).max(initial=0))
     entries = len(faces) * 3 * most
     if entries > MAX_RING_ENTRIES:
+        if most > FAN_FACES:
+            raise MeshError(
+                f"{path}: {len(faces):,} faces with a vertex shared by {most} of them (a fan, as CAD tools export "
+                f"round caps): the contact sensor's face rings would hold {entries:,} entries, at most "
+                f"{MAX_RING_ENTRIES:,}; remesh it (split the fan, or fewer faces)"
+            )
         raise MeshError(
-            f"{path}: {len(faces)} faces with a vertex shared by {most} of them (a fan, as CAD tools export "
-            f"round caps): the contact sensor's face rings would hold {entries:,} entries, at most "
-            f"{MAX_RING_ENTRIES:,}; remesh it (split the fan, or fewer faces)"
+            f"{path}: {len(faces):,} faces are too many for the contact sensor: with up to {most} faces at a vertex "
+            f"it takes at most {MAX_RING_ENTRIES // (3 * most):,}; simplify the mesh (MeshLab's quadric edge "
+            "collapse, or trimesh's simplify_quadric_decimation) to fewer faces"
         )
 
 
@@ -630,11 +640,13 @@ def _check_geometry(mesh: trimesh.Trimesh, path: Path, scale: float) -> None:
     if mesh.is_watertight and not mesh.is_winding_consistent:
         _rewind(mesh, path)
     volume = float(mesh.volume) if mesh.is_watertight else 0.0
+    # bodies wound both ways cancel in the volume (half of a grid of cubes inverted): their sizes count
+    solid = float(np.abs(_Bodies(mesh).volumes).sum()) if mesh.is_watertight and mesh.body_count > 1 else volume
     # across its principal axes (a tilted plane too), with room for a float32 file's rounding
     flat = _thickness(mesh.vertices) <= 1e-6 * size
-    if flat or (mesh.is_watertight and abs(volume) <= 1e-6 * float(np.prod(extents))):
+    if flat or (mesh.is_watertight and abs(solid) <= 1e-6 * float(np.prod(extents))):
         raise MeshError(
-            f"{path}: degenerate mesh: zero volume (bounding box {_mm(extents)} mm, volume {volume:.3g} m^3); "
+            f"{path}: degenerate mesh: zero volume (bounding box {_mm(extents)} mm, volume {solid:.3g} m^3); "
             "the surface is flat or collapsed, export the object's closed 3-D surface"
         )
     if mesh.is_watertight and volume < 0:
@@ -701,7 +713,8 @@ class _Bodies:
         self.volumes = np.bincount(self.labels, weights=signed)
         order = np.argsort(self.labels, kind="stable")
         self.triangles = np.split(triangles[order], np.cumsum(np.bincount(self.labels))[:-1])
-        self.boxes = [(b.reshape(-1, 3).min(axis=0), b.reshape(-1, 3).max(axis=0)) for b in self.triangles]
+        self.lows = np.array([b.reshape(-1, 3).min(axis=0) for b in self.triangles])  # bounding boxes (B, 3)
+        self.highs = np.array([b.reshape(-1, 3).max(axis=0) for b in self.triangles])
 
     def majority_inside(self, own: int, inside: Callable[[float], bool]) -> bool:
         """Whether most of three vertices of body ``own`` have ``inside`` of the other bodies' winding
@@ -712,15 +725,12 @@ class _Bodies:
     def enclosed(self, own: int) -> bool:
         """Whether another body's bounding box holds the whole of body ``own``'s (a body that overlaps
         another in part is no cavity)."""
-        low, high = self.boxes[own]
-        return any(np.all(box[0] <= low) and np.all(high <= box[1]) for b, box in enumerate(self.boxes) if b != own)
+        holds = np.all(self.lows <= self.lows[own], axis=1) & np.all(self.highs[own] <= self.highs, axis=1)
+        return int(holds.sum()) > 1  # its own, and another's
 
     def _winding_of_others(self, point: np.ndarray, own: int) -> float:
-        return sum(
-            _winding_number(self.triangles[b], point)
-            for b in range(len(self.triangles))
-            if b != own and np.all(point >= self.boxes[b][0]) and np.all(point <= self.boxes[b][1])
-        )
+        near = np.flatnonzero(np.all(self.lows <= point, axis=1) & np.all(point <= self.highs, axis=1))
+        return sum(_winding_number(self.triangles[b], point) for b in near.tolist() if b != own)
 
     def invert(self, which: Sequence[int]) -> None:
         """Reverse the winding of the bodies ``which``."""
