@@ -68,6 +68,8 @@ FloatArray = NDArray[np.float64]
 EXPLORE_LAUNCH = LAUNCH_DIR / "explore.yaml"
 #: Other 3-D formats: an --objects folder's files of these are named as skipped (others, a README, quietly).
 OTHER_3D_SUFFIXES = (".3ds", ".3mf", ".blend", ".dae", ".dxf", ".fbx", ".igs", ".step", ".stp", ".xyz")
+#: Archives and compressed files that may hold meshes; said when skipped.
+ARCHIVE_SUFFIXES = (".zip", ".gz", ".bz2", ".xz", ".7z", ".tar", ".tgz", ".zst")
 #: Strategies compared by default (the paper's Table 2).
 DEFAULT_STRATEGIES = ("igef", "gpv")
 DEFAULT_RUNS = 3  # start positions per object
@@ -152,6 +154,13 @@ def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
         print(
             f"--objects {str(folder)!r}: skipped {len(skipped)} file(s) of formats palpate does not read: "
             f"{', '.join(skipped)}; convert them to one of {', '.join(MESH_SUFFIXES)}",
+            file=sys.stderr,
+        )
+    archives = sorted(p.name for p in entries if p.suffix.lower() in ARCHIVE_SUFFIXES)
+    if archives:
+        print(
+            f"--objects {str(folder)!r}: skipped {len(archives)} archive(s) or compressed file(s): "
+            f"{', '.join(archives)}; an evaluation reads mesh files ({', '.join(MESH_SUFFIXES)}): unpack them",
             file=sys.stderr,
         )
     below = _subfolders_with_meshes(entries)

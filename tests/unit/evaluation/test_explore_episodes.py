@@ -213,9 +213,11 @@ def test_files_of_other_3d_formats_in_the_folder_are_named_as_skipped(
     trimesh.creation.box(extents=(0.05, 0.05, 0.05)).export(tmp_path / "box.stl")
     (tmp_path / "scan.xyz").write_text("0 0 0\n")
     (tmp_path / "README.md").write_text("meshes\n")
+    (tmp_path / "cup.stl.gz").write_bytes(b"\x1f\x8b")  # and an archive (an outside walkthrough: not a word)
     assert [c.name for c in objects_in(tmp_path)] == ["box"]
     err = capsys.readouterr().err
     assert "skipped 1 file(s) of formats palpate does not read: scan.xyz" in err and "README" not in err
+    assert "skipped 1 archive(s) or compressed file(s): cup.stl.gz; an evaluation reads mesh files" in err
 
 
 def test_gltf_files_are_taken_and_subfolders_with_meshes_are_named(
