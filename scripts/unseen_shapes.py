@@ -13,6 +13,7 @@ thick) with a concave corner.
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -48,10 +49,9 @@ def shapes() -> dict[str, trimesh.Trimesh]:
 
 
 def main(argv: list[str]) -> int:
-    if len(argv) != 1:
-        print("usage: python scripts/unseen_shapes.py OUT_DIR", file=sys.stderr)
-        return 64
-    out = Path(argv[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("out", type=Path, metavar="OUT_DIR", help="folder to write the eight STL files into")
+    out = parser.parse_args(argv).out
     out.mkdir(parents=True, exist_ok=True)
     for name, mesh in shapes().items():
         if not mesh.is_watertight:

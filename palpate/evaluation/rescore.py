@@ -302,7 +302,9 @@ def main(args: argparse.Namespace) -> int:
     text = f"{len(outcome.rows)} runs of {args.runs} rebuilt at {percent} % with {settings}.\n\n"
     text += table(summary, percent) + "\n"
     (args.out / "tables.md").write_text(text)
-    print(f"{text}\nwrote {args.out}: rescored.jsonl, tables.md ({time.perf_counter() - start:.0f} s)")
+    print(text)
+    print(outcome.summary())
+    print(f"wrote {args.out}: rescored.jsonl, tables.md ({time.perf_counter() - start:.0f} s)")
     if args.json:
         print(jsonio.dumps({"milestone": args.milestone, "set": sets, **summary}))
     return 1 if outcome.failed or any("error" in r for r in rows) else 0
