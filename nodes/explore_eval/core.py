@@ -505,3 +505,40 @@ def _mean_defined(values: list[float]) -> float:
     """The mean of the values that are not NaN (an angle at a zero-length normal), NaN without any."""
     defined = [v for v in values if not math.isnan(v)]
     return float(np.mean(defined)) if defined else math.nan
+
+
+#: Below this covering bound (contacts) coverage is reached by a touch or two.
+FEW_TOUCHES = 3.0
+#: ... or so large that a run to the goal takes more touches than this (about 4x the covering bound of the
+#: largest YCB object, the master chef can's 531), hours of simulated exploration.
+MANY_TOUCHES = 2000.0
+
+
+def size_note(name: str, area_m2: float, bound: float, config: EvalConfig, caps: str) -> str:
+    """What to know of an object (area m^2, covering bound in contacts) so small that a touch or two may
+    reach the coverage goal (its run then ends early, and only its shape scores, F-score and Chamfer,
+    tell how well it was learnt), or so large that its run takes hours (with the budgets it gets and,
+    in ``caps``, how to cap them and to give the mesh's unit), or whose contact budget ends every run
+    short of the goal; "" for any other object."""
+    goal, radius_m = config.coverage_goal, config.radius_m
+    if bound < FEW_TOUCHES:
+        return (
+            f"{name} has {area_m2 * 1e4:.3g} cm^2 of surface: {bound:.2g} touches of {radius_m * 1e3:g} mm "
+            f"cover {goal:.0%} of it at best, so its run may end within a few touches (more on a thin or long "
+            "object, where a touch covers less); its F-score and Chamfer distance tell how well it was learnt"
+        )
+    if bound <= MANY_TOUCHES:
+        return ""
+    contacts, travel_m = config.contact_budget(bound), config.travel_budget_m(bound)
+    unit = caps.rsplit("; ", 1)[-1]
+    if contacts < bound:  # the budget ends every run first: no hours, and no goal
+        return (
+            f"{name} has {area_m2:.3g} m^2 of surface: {bound:,.0f} touches of {radius_m * 1e3:g} mm cover "
+            f"{goal:.0%} of it at best, more than its budget of {contacts:,.0f} contacts, so its runs end at "
+            f"the budget short of that coverage ({unit} if the mesh is not in metres)"
+        )
+    return (
+        f"{name} has {area_m2:.3g} m^2 of surface: {bound:,.0f} touches of {radius_m * 1e3:g} mm cover "
+        f"{goal:.0%} of it, so its runs may take hours; their budgets are {contacts:,.0f} contacts and "
+        f"{travel_m:,.0f} m of travel ({caps} if the mesh is not in metres)"
+    )

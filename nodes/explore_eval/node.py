@@ -24,7 +24,13 @@ from palpate.inputs import MAX_PATH_M, MAX_TURN_DEG, bounded, coordinates, per_v
 from palpate.jsonio import dumps as json_dumps
 from palpate.jsonio import write as write_json
 from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
-from palpate.nodes.explore_eval.core import FINISHED_PREFIX, EvalConfig, ExplorationEvaluator, RunControl
+from palpate.nodes.explore_eval.core import (
+    FINISHED_PREFIX,
+    EvalConfig,
+    ExplorationEvaluator,
+    RunControl,
+    size_note,
+)
 from palpate.nodes.explore_eval.plot import plot_formats
 from palpate.paths import output_path_problem
 from palpate.runtime.spec import Context, NodeSpec, Port
@@ -42,6 +48,10 @@ class ExploreEvalNodeConfig(Validated):
     plot_path: str = ""
     #: Print the one-line JSON result when the run ends.
     report: bool = True
+
+
+#: How a launch caps a large object's runs and gives its mesh's unit (``size_note``).
+LAUNCH_CAPS = "cap them with the eval node's max_contacts and max_travel_m, or the launch's duration_s; give scale:="
 
 
 class ExploreEvalNode:
@@ -67,6 +77,9 @@ class ExploreEvalNode:
         self.name = message.name
         self.evaluator = ExplorationEvaluator(np.array(vertices), np.array(faces), self.config.eval)
         self.run = RunControl(self.evaluator)
+        bound = self.evaluator.covering_bound
+        if note := size_note(message.name, self.evaluator.area_m2, bound, self.config.eval, LAUNCH_CAPS):
+            self.ctx.log.warning("explore_eval: %s", note)
 
     def on_pose(self, message: Pose) -> None:
         coordinates(message.position_m, "position_m")  # checked as every pose; only the axis is used, at touches

@@ -355,44 +355,13 @@ PROGRESS_EVERY_S = 10.0
 CLOCK_PER_TRAVEL_BUDGET = 2.0
 
 
-#: Below this covering bound (contacts) coverage is reached by a touch or two.
-FEW_TOUCHES = 3.0
-#: ... or so large that a run to the goal takes more touches than this (about 4x the covering bound of the
-#: largest YCB object, the master chef can's 531), hours of simulated exploration.
-MANY_TOUCHES = 2000.0
-
-
 def _note_size(name: str, area: float, bound: float, config: EvalConfig) -> None:
-    """Say on stderr when an object (area m^2, covering bound in contacts) is so small that a touch or
-    two may reach the evaluator's coverage goal: its run then ends early, and only its shape scores
-    (F-score, Chamfer) tell how well it was learnt; or so large that its run takes hours, with the
-    budgets it gets and how to cap them (or, under a contact budget too small for the goal, that its
-    runs end there)."""
-    goal, radius_m = config.coverage_goal, config.radius_m
-    if bound < FEW_TOUCHES:
-        print(
-            f"note: {name} has {area * 1e4:.3g} cm^2 of surface: {bound:.2g} touches of {radius_m * 1e3:g} mm "
-            f"cover {goal:.0%} of it at best, so its run may end within a few touches (more on a thin or long "
-            "object, where a touch covers less); its F-score and Chamfer distance tell how well it was learnt",
-            file=sys.stderr,
-        )
-    elif bound > MANY_TOUCHES:
-        contacts, travel_m = config.contact_budget(bound), config.travel_budget_m(bound)
-        if contacts < bound:  # the budget ends every run first: no hours, and no goal
-            print(
-                f"note: {name} has {area:.3g} m^2 of surface: {bound:,.0f} touches of {radius_m * 1e3:g} mm cover "
-                f"{goal:.0%} of it at best, more than its budget of {contacts:,.0f} contacts, so its runs end at "
-                "the budget short of that coverage (give --scale if the mesh is not in metres)",
-                file=sys.stderr,
-            )
-            return
-        print(
-            f"note: {name} has {area:.3g} m^2 of surface: {bound:,.0f} touches of {radius_m * 1e3:g} mm cover "
-            f"{goal:.0%} of it, so its runs may take hours; their budgets are {contacts:,.0f} contacts and "
-            f"{travel_m:,.0f} m of travel (cap them with --max-contacts and --max-travel-m; give --scale if "
-            "the mesh is not in metres)",
-            file=sys.stderr,
-        )
+    """Say on stderr when an object is so small or so large that its runs behave unlike others
+    (``size_note``)."""
+    from palpate.nodes.explore_eval.core import size_note
+
+    if note := size_note(name, area, bound, config, "cap them with --max-contacts and --max-travel-m; give --scale"):
+        print(f"note: {note}", file=sys.stderr)
 
 
 def _triple(v: FloatArray) -> tuple[float, float, float]:

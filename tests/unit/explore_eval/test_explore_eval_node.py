@@ -189,3 +189,29 @@ def test_a_result_file_it_cannot_write_is_logged_and_the_result_still_printed(
     node.close()
     assert "explore_result: {" in capsys.readouterr().out
     assert "explore_eval: could not write the run's files: " in caplog.text
+
+
+def test_a_launched_run_on_an_object_too_small_or_too_large_says_so(caplog: pytest.LogCaptureFixture) -> None:
+    """An outside walkthrough: a launch on a 3 mm sphere ended "complete" after one touch, and one on a
+    1.5 m sphere at 0 % coverage, each without a word (eval explore said so; a launch did not)."""
+    for radius_m, said in [
+        (0.0015, "explore_eval: bead has 0.282 cm^2 of surface: 0.24 touches of 6 mm cover 80% of it at best"),
+        (
+            0.75,
+            "explore_eval: bead has 7.06 m^2 of surface: 60,388 touches of 6 mm cover 80% of it, so its runs may take",
+        ),
+    ]:
+        ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
+        node = ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx)
+        ball = trimesh.creation.icosphere(subdivisions=4, radius=radius_m)
+        caplog.clear()
+        with caplog.at_level("WARNING"):
+            node.on_truth_object(truth(np.asarray(ball.vertices), np.asarray(ball.faces), name="bead"))
+        assert len(caplog.messages) == 1 and caplog.messages[0].startswith(said), caplog.messages
+    assert "the launch's duration_s; give scale:= if the mesh is not in metres" in caplog.messages[0]
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        ball = trimesh.creation.icosphere(subdivisions=3, radius=0.03)
+        node = ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx)
+        node.on_truth_object(truth(np.asarray(ball.vertices), np.asarray(ball.faces)))
+    assert not caplog.messages  # a YCB-sized object: nothing to say
