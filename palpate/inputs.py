@@ -48,6 +48,36 @@ MAX_PATH_M = 1e6
 MAX_TURN_DEG = 1e9
 
 
+class Accumulated:
+    """Readings of a quantity accumulated since a run's start (a path length, a turned angle), in turn:
+    each is refused (InputError naming ``field``) when it lies outside [0, ``limit``], falls below the
+    last one taken, or has grown faster than ``max_rate`` units per second of the stamps since it (since
+    stamp 0 for the first: a simulated run starts there). A reading of 1000 m 10 ms into a run, or one
+    going back to 0, is no odometer's."""
+
+    def __init__(self, field: str, unit: str, limit: float, max_rate: float) -> None:
+        self.field, self.unit, self.limit, self.max_rate = field, unit, limit, max_rate
+        self.value, self.stamp_ns = 0.0, 0
+
+    def reading(self, value: float, stamp_ns: int) -> float:
+        """``value`` (float) at ``stamp_ns`` when it is a plausible next reading; it becomes the last one."""
+        x = float(bounded(value, self.field, self.limit, self.unit, lower=0.0))
+        slack = 1e-9 * max(1.0, x)
+        if x < self.value - slack:
+            raise InputError(
+                self.field, f"went back from {self.value:.6g} to {x:.6g} {self.unit}; it counts since the run's start"
+            )
+        elapsed_s = max(0, stamp_ns - self.stamp_ns) * 1e-9
+        if x - self.value > self.max_rate * elapsed_s + slack:
+            raise InputError(
+                self.field,
+                f"grew by {x - self.value:.6g} {self.unit} in {elapsed_s:.6g} s, faster than {self.max_rate:g} "
+                f"{self.unit}/s",
+            )
+        self.value, self.stamp_ns = x, stamp_ns
+        return x
+
+
 def coordinates(
     values: ArrayLike, field: str, limit_m: float = MAX_COORDINATE_M, *, allow_nan: bool = False
 ) -> FloatArray:

@@ -200,6 +200,9 @@ MIN_APPROACH_M = 1e-9
 #: Without an initial target the first approach runs along the fingertip's poking axis (its local z)
 #: for this far before it counts as finding no surface, metres.
 AXIS_APPROACH_M = 0.5
+#: A touch target farther than this from the fingertip is refused (metres): twice the largest object
+#: palpate takes (the sim's MAX_EXTENT_M), an approach of 80 s at 5 cm/s.
+MAX_TARGET_DISTANCE_M = 4.0
 
 
 def tick_step_problem(v0_m_s: float, tick_s: float, tip_radius_m: float) -> str:
@@ -312,6 +315,13 @@ class TouchLoop:
         target = coordinates(target_m, "position_m")
         normal = unit_vectors(normal, "normal")
         predicted = coordinates(predicted_contact_m, "predicted_contact_m")
+        away = float(np.linalg.norm(target - np.asarray(r, dtype=np.float64)))
+        if not away <= MAX_TARGET_DISTANCE_M:
+            raise InputError(
+                "position_m",
+                f"lies {away:.6g} m from the fingertip, beyond the {MAX_TARGET_DISTANCE_M:g} m a touch may reach "
+                "(twice the largest object palpate takes; at 1 km an approach ran for hours)",
+            )
         miss = float(miss_distance_m)
         if not (math.isfinite(miss) and 0.0 <= miss <= MAX_MISS_DISTANCE_M):
             raise InputError(

@@ -11,6 +11,7 @@ optionally writes all of it as JSON, and a PNG.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,7 +21,18 @@ import numpy as np
 from palpate.config import KeyPath, Validated
 from palpate.errors import InputError
 from palpate.geometry.rotations import quat_to_matrix
-from palpate.inputs import MAX_PATH_M, MAX_TURN_DEG, bounded, coordinates, per_vertex, triangle_mesh, unit_quaternion
+from palpate.inputs import (
+    MAX_COORDINATE_M,
+    MAX_PATH_M,
+    MAX_RATE,
+    MAX_TURN_DEG,
+    Accumulated,
+    bounded,
+    coordinates,
+    per_vertex,
+    triangle_mesh,
+    unit_quaternion,
+)
 from palpate.jsonio import dumps as json_dumps
 from palpate.jsonio import write as write_json
 from palpate.messages.schemas import ObjectTruth, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
@@ -63,6 +75,9 @@ class ExploreEvalNode:
         self.evaluator: ExplorationEvaluator | None = None
         self.run: RunControl | None = None
         self.fingertip_quaternion: np.ndarray | None = None  # the fingertip's orientation (w, x, y, z), checked
+        #: the touches' path length and rotation since the start, each checked against the last
+        self.travelled = Accumulated("travelled_m", "m", MAX_PATH_M, MAX_RATE)
+        self.turned = Accumulated("rotation_deg", "deg", MAX_TURN_DEG, math.degrees(MAX_RATE))
         self.last_estimate: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32))
         self.last_variance = np.zeros(0)
         self.result: dict[str, Any] = {}
@@ -90,8 +105,8 @@ class ExploreEvalNode:
             raise InputError("index", f"touch {message.index} came before the object's truth; it is not scored")
         position = coordinates(message.position_m, "position_m")
         predicted = coordinates(message.predicted_contact_m, "predicted_contact_m", allow_nan=True)
-        travelled = float(bounded(message.travelled_m, "travelled_m", MAX_PATH_M, "m", lower=0.0))
-        rotation = float(bounded(message.rotation_deg, "rotation_deg", MAX_TURN_DEG, "deg", lower=0.0))
+        travelled = self.travelled.reading(message.travelled_m, self.ctx.stamp_ns)
+        rotation = self.turned.reading(message.rotation_deg, self.ctx.stamp_ns)
         asks = self.run.touch(
             self.ctx.stamp_ns,
             np.array(position),
@@ -113,9 +128,8 @@ class ExploreEvalNode:
         self.last_estimate = (np.array(vertices), np.array(faces))
         # a vertex without a variance counts as unsure (infinite variance)
         count = len(message.vertices_m)
-        self.last_variance = per_vertex(
-            message.vertex_variance, message.variance_vertices, count, "variance_vertices", np.inf
-        )
+        variance = bounded(message.vertex_variance, "vertex_variance", MAX_COORDINATE_M**2, "m^2", lower=0.0)
+        self.last_variance = per_vertex(variance, message.variance_vertices, count, "variance_vertices", np.inf)
         if self.run.surface(*self.last_estimate, self.last_variance, message.num_contacts):
             self.ctx.request_stop(f"{FINISHED_PREFIX}: {self.run.evaluator.finished}")
 

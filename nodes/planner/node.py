@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from palpate.errors import PlanningError
-from palpate.inputs import coordinates, unit_quaternion
+from palpate.inputs import coordinates, unit_quaternion, unit_vectors
 from palpate.messages.schemas import Pose, SurfaceMesh, TouchEvent, TouchTarget
 from palpate.nodes.planner.config import PlannerConfig
 from palpate.nodes.planner.core import TouchPlanner
@@ -23,7 +23,10 @@ class PlannerNode:
         self.fingertip: tuple[np.ndarray, np.ndarray] | None = None  # centre (3,) m, quaternion wxyz (4,)
 
     def on_touches(self, message: TouchEvent) -> None:
-        self.core.add_touch(message.position_m, message.predicted_contact_m, message.approach_direction, message.normal)
+        # unit, as the GPIS node requires: a touch one of them takes and the other refuses would leave the
+        # planner waiting for ever for a surface that counts it
+        normal = unit_vectors(message.normal, "normal")
+        self.core.add_touch(message.position_m, message.predicted_contact_m, message.approach_direction, normal)
 
     def on_pose(self, message: Pose) -> None:
         position = coordinates(message.position_m, "position_m")

@@ -286,6 +286,7 @@ class NodeRunner:
         self._used_topics: set[str] = set()  # topics of which the node took at least one message
         self._superseded_by_topic: Counter[str] = Counter()  # real time: state messages a newer one replaced unread
         self.last_clock = -1  # the last Clock tick received (sent, in the clock source)
+        self.last_clock_stamp_ns = -1  # and its stamp (lockstep: the next may not be earlier)
         #: How far ahead of the last Clock an upstream acknowledgement may be: one tick, and a trailing
         #: node's upstream may run TRAIL_TICKS ahead of it.
         self._ack_lead = TRAIL_TICKS if self.spec.may_trail else 0
@@ -391,9 +392,21 @@ class NodeRunner:
                     f"Clock tick {clock.tick} skips ahead of tick {self.last_clock + 1}; a lockstep clock source "
                     f"sends every tick in turn from 0 (only it, {source}, publishes on this topic)",
                 )
+            elif clock is not None and self.lockstep and clock.stamp_ns < max(0, self.last_clock_stamp_ns):
+                # simulated time does not run back (the nodes' watchdogs and schedules follow it)
+                self._bad_input(
+                    topic,
+                    f"Clock tick {clock.tick} is stamped {clock.stamp_ns} ns, before "
+                    + (
+                        "the start (0)"
+                        if clock.stamp_ns < 0
+                        else f"tick {self.last_clock}'s {self.last_clock_stamp_ns} ns"
+                    ),
+                )
             elif clock is not None:
                 self.clock_ticks.append(clock)
                 self.last_clock = max(self.last_clock, clock.tick)
+                self.last_clock_stamp_ns = clock.stamp_ns
                 if self.timer is not None:
                     self.timer.mark(clock.tick, "clock_received")
         elif topic == topics.LOCKSTEP_ACK:

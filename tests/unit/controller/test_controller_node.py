@@ -126,6 +126,7 @@ def test_bad_poses_and_targets_are_refused_and_change_nothing() -> None:
     clean, fed = ControllerNode(config, FakeCtx()), ControllerNode(config, FakeCtx())
     bad_poses = [[0.0, 0.0, 0.0, 0.0], [1e-200, 0.0, 0.0, 0.0], [1e200, 0.0, 0.0, 0.0]]
     bad_targets = [([1e300, 0.0, 0.0], [0.0, 0.0, 1.0]), ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0])]
+    bad_targets.append(([999.0, 0.0, 0.0], [0.0, 0.0, 1.0]))  # within 1 km, but a 1.2 km approach: hours
     position = np.array([0.0, 0.0, 0.05])
     for tick in range(30):
         for node in (clean, fed):

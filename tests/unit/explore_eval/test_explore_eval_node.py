@@ -215,3 +215,25 @@ def test_a_launched_run_on_an_object_too_small_or_too_large_says_so(caplog: pyte
         node = ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx)
         node.on_truth_object(truth(np.asarray(ball.vertices), np.asarray(ball.faces)))
     assert not caplog.messages  # a YCB-sized object: nothing to say
+
+
+def test_a_negative_variance_of_an_estimate_is_refused() -> None:
+    """An outside audit: a variance of -1 counted every face as confident, so the headline RMSE took the
+    whole estimate (26.6 mm) where the GP said nothing was sure."""
+    ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
+    node = ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx)
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    node.on_truth_object(truth(np.asarray(box.vertices), np.asarray(box.faces)))
+    estimate = SurfaceMesh(
+        stamp_ns=0,
+        region="global",
+        num_contacts=1,
+        vertices_m=np.asarray(box.vertices),
+        faces=np.asarray(box.faces, dtype=np.int32),
+        vertex_normals=np.asarray(box.vertex_normals),
+        variance_vertices=np.arange(len(box.vertices), dtype=np.int32),
+        vertex_variance=np.full(len(box.vertices), -1.0),
+    )
+    with pytest.raises(InputError, match=r"^vertex_variance: value -1 m\^2 is outside \[0, 1e\+06\] m\^2"):
+        node.on_surface(estimate)
+    assert len(node.last_variance) == 0

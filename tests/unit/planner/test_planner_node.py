@@ -82,6 +82,18 @@ def test_unusable_inputs_are_refused_and_the_plan_still_comes() -> None:
     assert target.position_m[2] == 0.0 and np.all(np.abs(target.position_m) <= 0.05)  # a vertex of the plane
 
 
+def test_a_touch_without_a_unit_normal_is_refused_as_the_gpis_node_refuses_it() -> None:
+    """An outside audit: the planner took a zero normal ("unknown") that the GPIS node refused, so its
+    count of contacts stayed one ahead of every surface's and it never planned again."""
+    ctx = NodeContext("planner", 0, lambda topic, message: None, {"target": "planner/target"})
+    node = PlannerNode(PlannerConfig(strategy="gpv"), ctx)
+    event = touch([0.0, 0.0, 0.0], [0.0, 0.0, -1.0])
+    object.__setattr__(event, "normal", np.zeros(3))
+    with pytest.raises(InputError, match=r"^normal: norm 0"):
+        node.on_touches(event)
+    assert node.core.contacts == []
+
+
 def test_a_contact_that_cannot_be_planned_for_ends_the_run_with_the_reason() -> None:
     """No surface near the last contact: the contact's one plan is used up, so the node does not wait
     for ever (the run would stall) but asks the graph to stop, naming why, and counts it."""

@@ -716,3 +716,30 @@ def test_the_clock_source_names_a_restarted_node_and_a_refused_acknowledgement_a
         )
     finally:
         runner._close_sockets(linger_ms=0)
+
+
+def test_a_lockstep_clock_stamped_before_the_last_or_the_start_is_refused(tmp_path: Path) -> None:
+    """An outside audit: only a Clock's tick was checked; a stamp going back turned the nodes' watchdogs
+    off, and one of -5 ns was taken."""
+    import zmq
+
+    from palpate.messages.schemas import Clock
+    from palpate.runtime.node import NodeRunner
+
+    process = dataclasses.replace(bare_process(tmp_path, "follower"), mode="lockstep")
+    runner = NodeRunner(NodeSpec(name="follower", config=NoParams, factory=lambda c, ctx: Idle()), process)
+
+    def clock(tick: int, stamp_ns: int) -> None:
+        payload = codec.encode(Clock(stamp_ns=stamp_ns, tick=tick, period_ns=10_000_000, lockstep=True))
+        runner._on_frames([zmq.Frame(topics.CLOCK.encode()), zmq.Frame(payload)])
+
+    try:
+        clock(0, -5)
+        clock(0, 0)
+        clock(1, 20_000_000)
+        clock(2, 10_000_000)  # before tick 1's
+        clock(2, 20_000_000)  # the same time again: taken (a clock source may hold its time)
+    finally:
+        runner._close_sockets(linger_ms=0)
+    assert [c.tick for c in runner.clock_ticks] == [0, 1, 2]
+    assert runner.ctx.counters["decode_errors"] == 2
