@@ -418,6 +418,11 @@ def header_error(exc: Exception, view: memoryview) -> str:
     if isinstance(exc, UnicodeDecodeError):
         where = _bad_text_path(view)
         return f"a string in the header{' at ' + where if where else ''} is not UTF-8 ({exc.reason})"
+    if isinstance(exc, msgpack.ExtraData):
+        return (
+            "payload holds more than one msgpack value (its bytes go on after the [header, blob] array ends): "
+            "a map or array in it declares fewer items than it holds"
+        )
     if isinstance(exc, ValueError) and "for map key" in str(exc):
         kind = str(exc).split(" is not")[0]
         return f"a map in the header has a key that is not a string ({kind}): a message's keys are strings"

@@ -264,6 +264,11 @@ def test_a_header_msgpack_cannot_read_is_named_in_words() -> None:
     int_key = msgpack.packb([{1: 2}, b""], use_bin_type=True)
     valid = msgpack.packb([{"type": "Clock", "fields": {"frame_id": "\u00ff"}}, b""], use_bin_type=True)
     bad_text = valid.replace("\u00ff".encode(), b"\xff\xfe")
+    miscounted = codec.encode(Clock(stamp_ns=0, tick=0, period_ns=1, lockstep=True))
+    miscounted = miscounted[:1] + b"\x82" + miscounted[2:]  # the header declares 2 of its 3 entries
+    with pytest.raises(MalformedMessageError) as info:  # an outside driver's NodeStatus: "not msgpack"
+        peek(miscounted)
+    assert str(info.value).startswith("payload holds more than one msgpack value"), str(info.value)
     cases = [
         (deep, "payload's header nests deeper than msgpack reads (no message nests that deep)"),
         (int_key, "a map in the header has a key that is not a string (int): a message's keys are strings"),
