@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-import json
 from collections.abc import Mapping
 from typing import Any
 
+from palpate import jsonio
 from palpate.config import FieldDoc, describe, load
 from palpate.errors import ConfigError
 from palpate.launch.node_types import NODE_TYPES, load_node_type
@@ -99,7 +99,7 @@ def _port_note(port: Port) -> str:
 def _default(f: FieldDoc) -> str:
     if f.default is dataclasses.MISSING:
         return "required"
-    return f"`{json.dumps(_plain(f.default))}`"
+    return f"`{jsonio.dumps(_plain(f.default))}`"
 
 
 def _plain(value: Any) -> Any:
