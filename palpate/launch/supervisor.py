@@ -47,6 +47,10 @@ def _die_with_parent() -> None:
         pass
 
 
+#: An external node that has written no manifest this long after the start (seconds) is named once.
+MANIFEST_NOTE_S = 10.0
+
+
 def external_spec_path(bus_dir: str | Path, name: str) -> Path:
     """Where the launcher puts the process spec of external node `name` (docs/runtime.md, "External nodes")."""
     return Path(bus_dir) / "external" / f"{name}.json"
@@ -118,6 +122,7 @@ class Supervisor:
         #: Nodes that ended the run as a failure (exit code EXIT_RUN_FAILED): the launch exits 1.
         self.run_failures: list[str] = []
         self.external_specs: list[Path] = []
+        self.started_at, self.manifests_checked = 0.0, False  # for the external nodes' manifests
         #: Processes the run needs besides its nodes (the recorder), by name; started and stopped by the caller.
         self.helpers: dict[str, subprocess.Popen[bytes]] = {}
         for spec in process_specs:
@@ -203,9 +208,27 @@ class Supervisor:
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
         self.stop_signal = signum
 
+    def _note_missing_manifests(self, now: float) -> None:
+        """Say once, MANIFEST_NOTE_S after the start, which external nodes have written no manifest: a driver
+        not started yet, or one that writes none (then the recorder and `palpate topic` cannot find its
+        topics, and a recorded launch waits for it)."""
+        if self.manifests_checked or now - self.started_at < MANIFEST_NOTE_S:
+            return
+        self.manifests_checked = True
+        for path in self.external_specs:
+            manifest = bus.Manifest.path(self.graph.bus_dir, path.stem)
+            if not manifest.exists():
+                self._say(
+                    f"external node {path.stem!r} has written no manifest {manifest} after {MANIFEST_NOTE_S:g} s: its "
+                    "driver has not started, or writes none (docs/runtime.md, External nodes, 3. Manifest); the "
+                    "recorder and palpate topic find a node's topics there"
+                )
+
     def _supervise(self) -> int:
         clock = self.graph.clock_source
+        self.started_at = time.monotonic()
         while True:
+            self._note_missing_manifests(time.monotonic())
             if self.stop_signal:
                 self._say(f"received {signal.Signals(self.stop_signal).name}: stopping every node")
                 return 128 + self.stop_signal

@@ -151,9 +151,14 @@ class Manifest:
     #: (the recorder) needs it, and any client key pair, to connect.
     curve_public: str = ""
 
+    @staticmethod
+    def path(bus_dir: str | Path, node: str) -> Path:
+        """Where node ``node`` writes its manifest on the bus ``bus_dir``."""
+        return Path(bus_dir) / f"{node}.json"
+
     def write(self, bus_dir: str | Path) -> Path:
         Path(bus_dir).mkdir(parents=True, exist_ok=True)  # a graph of TCP nodes only has no ipc socket there
-        path = Path(bus_dir) / f"{self.node}.json"
+        path = Manifest.path(bus_dir, self.node)
         tmp = path.with_suffix(".json.tmp")
         tmp.write_text(json.dumps(asdict(self), sort_keys=True))
         tmp.replace(path)

@@ -27,3 +27,29 @@ def test_shutdown_removes_its_run_directory_even_when_cleaning_up_a_node_fails(
     with pytest.raises(PermissionError):
         supervisor.shutdown()
     assert not supervisor.run_dir.exists()
+
+
+def test_an_external_node_without_a_manifest_is_named_once_after_a_while(tmp_path: Path) -> None:
+    """An outside driver in C that wrote no manifest: a recorded launch then waited, and the log blamed the
+    driver's acknowledgements; the launch names the missing file."""
+    import io
+
+    from palpate.launch.loader import with_external
+
+    launch = with_external(load_launch(REPO_ROOT / "launch" / "demo_minimal.yaml"), ["stats"])
+    graph = resolve(launch, bus_dir=tmp_path)
+    out = io.StringIO()
+    supervisor = Supervisor(graph, graph.process_specs(), out=out)
+    try:
+        supervisor.started_at = 100.0
+        supervisor._note_missing_manifests(105.0)  # too early to say
+        assert out.getvalue() == ""
+        supervisor._note_missing_manifests(111.0)
+        supervisor._note_missing_manifests(120.0)  # once
+        assert out.getvalue() == (
+            f"[launch] external node 'stats' has written no manifest {tmp_path / 'stats.json'} after 10 s: its driver "
+            "has not started, or writes none (docs/runtime.md, External nodes, 3. Manifest); the recorder and "
+            "palpate topic find a node's topics there\n"
+        )
+    finally:
+        supervisor.shutdown()
