@@ -163,6 +163,7 @@ def run_info(args: argparse.Namespace) -> int:
                 f"  recorded by palpate launch {launch.get('launch_file', '?')}, seed {launch.get('seed', '?')}, "
                 f"arguments {launch.get('args', '{}')}"
                 + (f", parameters set {launch['params']}" if "params" in launch else "")
+                + (f", nodes played by drivers: {launch['external']}" if "external" in launch else "")
             )
     return 0
 

@@ -240,7 +240,8 @@ def check_record_path(path: Path, *, overwrite: bool, create: bool = True) -> No
 
 
 def launch_about(graph: Graph) -> dict[str, str]:
-    """What a log records about the launch that made it: its file, resolved arguments and seed."""
+    """What a log records about the launch that made it: its file, resolved arguments and seed, and the
+    nodes that drivers played (``external``)."""
     source = graph.source
     path = source.path.resolve()
     shown = path.relative_to(REPO_ROOT) if path.is_relative_to(REPO_ROOT) else path  # the same in every clone
@@ -251,6 +252,8 @@ def launch_about(graph: Graph) -> dict[str, str]:
     }
     if source.overrides:  # --set
         about["params"] = jsonio.dumps(source.overrides, sort_keys=True, default=str)
+    if external := sorted(node.name for node in graph.nodes if node.external):  # played by drivers, not palpate
+        about["external"] = ",".join(external)
     return about
 
 

@@ -856,6 +856,9 @@ def test_set_overrides_a_node_parameter_and_the_log_keeps_it(
     about = launch_about(graph)
     assert json.loads(about["params"]) == {"gpis.gp.kernel": "gaussian", "noise.position_sigma_m": 0.001}
     assert "params" not in launch_about(load_graph(explore, [], tmp_path))  # nothing set, nothing said
+    # an outside driver's log did not say that a driver played a node
+    assert launch_about(load_graph(explore, [], tmp_path, external=["noise"]))["external"] == "noise"
+    assert "external" not in about
     assert main(["launch", str(explore), "--set", "gpis.gp.kernl=gaussian", "--dry-run", "--bus", str(tmp_path)]) == 2
     assert "unknown key 'kernl'" in (err := capsys.readouterr().err) and "(with --set gpis.gp.kernl=gaussian)" in err
     # a mapping merges into the file's (mode and the region stay); an error names only the --set of its node
