@@ -639,6 +639,10 @@ class NodeRunner:
             return
         self._readers_checked_at = now
         gone = set(self._gone(self._readers))
+        if gone - self._said_gone:
+            self._receive(0)  # a stop already here (the readers left at the run's end) is no driver lost
+            if self.stopping:
+                return
         for peer in sorted(gone - self._said_gone):
             log.warning(
                 "node %s: %r disconnected (subscription %s gone for %.0f s: its process died or closed its sockets); "
