@@ -420,8 +420,8 @@ def header_error(exc: Exception, view: memoryview) -> str:
         return f"a string in the header{' at ' + where if where else ''} is not UTF-8 ({exc.reason})"
     if isinstance(exc, msgpack.ExtraData):
         return (
-            "payload holds more than one msgpack value (its bytes go on after the [header, blob] array ends): "
-            "a map or array in it declares fewer items than it holds"
+            f"payload goes on for {len(exc.extra)} bytes after its [header, blob] array ends: bytes appended to it, "
+            "or a map or array in it that declares fewer items than it holds"
         )
     if isinstance(exc, ValueError) and "for map key" in str(exc):
         kind = str(exc).split(" is not")[0]

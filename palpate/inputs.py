@@ -49,33 +49,33 @@ MAX_TURN_DEG = 1e9
 
 
 class Accumulated:
-    """Readings of a quantity accumulated since a run's start (a path length, a turned angle), in turn:
-    each is refused (InputError naming ``field``) when it lies outside [0, ``limit``], falls below the
-    last one taken, or has grown faster than ``max_rate`` units per second of the stamps since it (since
-    stamp 0 for the first: a simulated run starts there). A reading of 1000 m 10 ms into a run, or one
-    going back to 0, is no odometer's."""
+    """Readings of a quantity its sender accumulates since its start (a path length, a turned angle), in
+    turn, each with its own stamp. A reading is refused (InputError naming ``field``) when it lies outside
+    [0, ``limit``] or has grown faster than ``max_rate`` units per second of the stamps since the last one
+    taken (since stamp 0 for the first: a simulated run starts there): a path of 1000 m 10 ms into a run
+    is no odometer's. One that falls below the last starts a new segment (a restarted sender counts from
+    0 again), so what :meth:`reading` returns, the total, never falls."""
 
     def __init__(self, field: str, unit: str, limit: float, max_rate: float) -> None:
         self.field, self.unit, self.limit, self.max_rate = field, unit, limit, max_rate
-        self.value, self.stamp_ns = 0.0, 0
+        self.last, self.offset, self.stamp_ns = 0.0, 0.0, 0
 
     def reading(self, value: float, stamp_ns: int) -> float:
-        """``value`` (float) at ``stamp_ns`` when it is a plausible next reading; it becomes the last one."""
+        """The total after ``value`` (float) read at ``stamp_ns``, when it is a plausible next reading."""
         x = float(bounded(value, self.field, self.limit, self.unit, lower=0.0))
-        slack = 1e-9 * max(1.0, x)
-        if x < self.value - slack:
-            raise InputError(
-                self.field, f"went back from {self.value:.6g} to {x:.6g} {self.unit}; it counts since the run's start"
-            )
+        restarted = x < self.last - 1e-9 * max(1.0, self.last)
+        grown = x if restarted else x - self.last
         elapsed_s = max(0, stamp_ns - self.stamp_ns) * 1e-9
-        if x - self.value > self.max_rate * elapsed_s + slack:
+        if grown > self.max_rate * elapsed_s + 1e-9 * max(1.0, x):
             raise InputError(
                 self.field,
-                f"grew by {x - self.value:.6g} {self.unit} in {elapsed_s:.6g} s, faster than {self.max_rate:g} "
+                f"grew by {grown:.6g} {self.unit} in {elapsed_s:.6g} s of its stamps, faster than {self.max_rate:g} "
                 f"{self.unit}/s",
             )
-        self.value, self.stamp_ns = x, stamp_ns
-        return x
+        if restarted:
+            self.offset += self.last
+        self.last, self.stamp_ns = x, stamp_ns
+        return self.offset + x
 
 
 def coordinates(

@@ -58,7 +58,8 @@ class ExploreEvalNodeConfig(Validated):
     #: Draw the true mesh, the last estimate and the contacts to this image file, its format from the suffix
     #: (none: PNG); "": no plot.
     plot_path: str = ""
-    #: Print the one-line JSON result when the run ends.
+    #: Print the one-line JSON result when the run ends, and say at its start when the object is so small
+    #: or so large that its run behaves unlike others (an evaluation's runs do not: it says both itself).
     report: bool = True
 
 
@@ -93,7 +94,8 @@ class ExploreEvalNode:
         self.evaluator = ExplorationEvaluator(np.array(vertices), np.array(faces), self.config.eval)
         self.run = RunControl(self.evaluator)
         bound = self.evaluator.covering_bound
-        if note := size_note(message.name, self.evaluator.area_m2, bound, self.config.eval, LAUNCH_CAPS):
+        note = size_note(message.name, self.evaluator.area_m2, bound, self.config.eval, LAUNCH_CAPS)
+        if note and self.config.report:
             self.ctx.log.warning("explore_eval: %s", note)
 
     def on_pose(self, message: Pose) -> None:
@@ -105,8 +107,8 @@ class ExploreEvalNode:
             raise InputError("index", f"touch {message.index} came before the object's truth; it is not scored")
         position = coordinates(message.position_m, "position_m")
         predicted = coordinates(message.predicted_contact_m, "predicted_contact_m", allow_nan=True)
-        travelled = self.travelled.reading(message.travelled_m, self.ctx.stamp_ns)
-        rotation = self.turned.reading(message.rotation_deg, self.ctx.stamp_ns)
+        travelled = self.travelled.reading(message.travelled_m, message.stamp_ns)
+        rotation = self.turned.reading(message.rotation_deg, message.stamp_ns)
         asks = self.run.touch(
             self.ctx.stamp_ns,
             np.array(position),

@@ -548,10 +548,12 @@ class NodeRunner:
             return 0
         except (TimeoutError, PeerLostError) as exc:
             log.error("node %s: %s", self.process.name, exc)
+            self._note_refused_inputs()  # (what it refused may be why)
             self.publish_status("error", str(exc))
             return 3
         except PalpateError as exc:
             log.error("node %s stopped: %s", self.process.name, exc)
+            self._note_refused_inputs()
             self.publish_status("error", str(exc))
             return 2
         finally:

@@ -202,7 +202,7 @@ def test_a_launched_run_on_an_object_too_small_or_too_large_says_so(caplog: pyte
         ),
     ]:
         ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
-        node = ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx)
+        node = ExploreEvalNode(ExploreEvalNodeConfig(), ctx)
         ball = trimesh.creation.icosphere(subdivisions=4, radius=radius_m)
         caplog.clear()
         with caplog.at_level("WARNING"):
@@ -212,9 +212,15 @@ def test_a_launched_run_on_an_object_too_small_or_too_large_says_so(caplog: pyte
     caplog.clear()
     with caplog.at_level("WARNING"):
         ball = trimesh.creation.icosphere(subdivisions=3, radius=0.03)
-        node = ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx)
+        node = ExploreEvalNode(ExploreEvalNodeConfig(), ctx)
         node.on_truth_object(truth(np.asarray(ball.vertices), np.asarray(ball.faces)))
     assert not caplog.messages  # a YCB-sized object: nothing to say
+    caplog.clear()
+    with caplog.at_level("WARNING"):  # an evaluation's run (it says so itself, once per object)
+        ball = trimesh.creation.icosphere(subdivisions=4, radius=0.0015)
+        node = ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx)
+        node.on_truth_object(truth(np.asarray(ball.vertices), np.asarray(ball.faces)))
+    assert not caplog.messages
 
 
 def test_a_negative_variance_of_an_estimate_is_refused() -> None:

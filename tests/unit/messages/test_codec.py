@@ -266,9 +266,14 @@ def test_a_header_msgpack_cannot_read_is_named_in_words() -> None:
     bad_text = valid.replace("\u00ff".encode(), b"\xff\xfe")
     miscounted = codec.encode(Clock(stamp_ns=0, tick=0, period_ns=1, lockstep=True))
     miscounted = miscounted[:1] + b"\x82" + miscounted[2:]  # the header declares 2 of its 3 entries
-    with pytest.raises(MalformedMessageError) as info:  # an outside driver's NodeStatus: "not msgpack"
-        peek(miscounted)
-    assert str(info.value).startswith("payload holds more than one msgpack value"), str(info.value)
+    appended = codec.encode(Clock(stamp_ns=0, tick=0, period_ns=1, lockstep=True)) + b"\n"
+    for payload, extra in ((miscounted, 40), (appended, 1)):  # an outside driver's NodeStatus: "not msgpack"
+        with pytest.raises(MalformedMessageError) as info:
+            peek(payload)
+        assert str(info.value) == (
+            f"payload goes on for {extra} bytes after its [header, blob] array ends: bytes appended to it, or a "
+            "map or array in it that declares fewer items than it holds"
+        )
     cases = [
         (deep, "payload's header nests deeper than msgpack reads (no message nests that deep)"),
         (int_key, "a map in the header has a key that is not a string (int): a message's keys are strings"),

@@ -5,8 +5,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import signal
 import stat
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +24,15 @@ from palpate.messages.schemas import ContactSet, LockstepAck, TouchEvent
 from palpate.runtime import bus
 from palpate.runtime.node import _latest_state_messages
 from palpate.runtime.spec import NodeProcessSpec, NodeSpec
+
+
+@pytest.fixture(autouse=True)
+def _signal_handlers_kept() -> Iterator[None]:
+    """A NodeRunner installs its SIGINT and SIGTERM handlers in this process: put pytest's back after."""
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    yield
+    for s, handler in previous.items():
+        signal.signal(s, handler)
 
 
 def test_registry_resolves_builtin_and_module_attribute_types() -> None:
