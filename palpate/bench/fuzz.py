@@ -16,7 +16,8 @@ takes it: `codec.decode` of the payload (a MessageError is a decode error), then
 Frames (per input topic, `FrameGenerator`, seeded): 70 % schema-valid messages built from the
 message's schema alone: named dimensions from 0 to 50,000 entries, every float field drawn from a
 profile (plausible for its unit, zeros, constant, tiny 1e-300, huge 1e300, the largest double,
-mixtures), quaternions and normals unit or not, integer fields up to the int64 limits, strings from
+mixtures; a plausible stamp is the graph's time, as a sender stamps what it sends), quaternions and
+normals unit or not, integer fields up to the int64 limits, strings from
 the hand's joint and link names and the topics' words, shuffled, cut, duplicated, unknown or empty.
 A third of these are plausible in every field, two fifths plausible but for one extreme field. The
 other 30 % are malformed payloads: random bytes, truncated or bit-flipped payloads, another message
@@ -130,6 +131,8 @@ class FrameGenerator:
         self.specs = cls.field_specs()
         self.others = [c for c in REGISTRY.values() if c is not cls]
         self.int_hints: list[int] = []
+        #: The graph's time (ns): a plausible stamp is it, as a sender stamps what it sends (the harness sets it).
+        self.now_ns = 0
 
     # --- schema-valid messages -------------------------------------------------------------------
     def message(self, int_hints: Sequence[int] = ()) -> Message:
@@ -221,7 +224,7 @@ class FrameGenerator:
         if spec.kind == "int":
             if profile == "plausible":
                 if spec.unit == "ns":
-                    return int(rng.integers(0, 10**12))
+                    return self.now_ns
                 if self.int_hints and rng.random() < 0.5:
                     return int(self.int_hints[int(rng.integers(len(self.int_hints)))])
                 return int(rng.integers(0, 16 if rng.random() < 0.5 else 1000))
@@ -530,6 +533,7 @@ def fuzz_target(target: FuzzTarget, frames: int, seed: int = 0) -> TargetReport:
     harness = _Harness(target, report)
     for _ in range(frames):
         for port, topic in ports.items():
+            generators[port].now_ns = harness.ctx.stamp_ns
             payload, kind = generators[port].payload(list(harness.accepted.values()))
             counts = report.topics[topic]
             counts.frames += 1
