@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import json
 import os
 import shutil
 import signal
@@ -123,6 +124,8 @@ class Supervisor:
         self.run_failures: list[str] = []
         self.external_specs: list[Path] = []
         self.started_at, self.manifests_checked = 0.0, False  # for the external nodes' manifests
+        self.driver_pids: dict[str, int] = {}  # external node -> the pid its manifest named first
+        self.second_drivers: set[str] = set()  # external nodes said to have two drivers
         #: Processes the run needs besides its nodes (the recorder), by name; started and stopped by the caller.
         self.helpers: dict[str, subprocess.Popen[bytes]] = {}
         for spec in process_specs:
@@ -224,11 +227,32 @@ class Supervisor:
                     "recorder and palpate topic find a node's topics there"
                 )
 
+    def _note_second_drivers(self) -> None:
+        """Say once per external node when its manifest names another live process than the one it named
+        first: a second driver took its endpoint over (ipc lets it), and tools find that one from now on."""
+        for path in self.external_specs:
+            name = path.stem
+            try:
+                pid = int(json.loads(bus.Manifest.path(self.graph.bus_dir, name).read_text())["pid"])
+            except (OSError, ValueError, KeyError, TypeError):
+                continue
+            first = self.driver_pids.setdefault(name, pid)
+            if pid != first and name not in self.second_drivers and bus.alive(first) and bus.alive(pid):
+                self.second_drivers.add(name)
+                self._say(
+                    f"two drivers play external node {name!r} (pids {first} and {pid}, both alive): the second took "
+                    "its endpoint and manifest over; stop one"
+                )
+
     def _supervise(self) -> int:
         clock = self.graph.clock_source
         self.started_at = time.monotonic()
+        checked_drivers_at = 0.0
         while True:
             self._note_missing_manifests(time.monotonic())
+            if self.external_specs and time.monotonic() - checked_drivers_at >= 1.0:
+                checked_drivers_at = time.monotonic()
+                self._note_second_drivers()
             if self.stop_signal:
                 self._say(f"received {signal.Signals(self.stop_signal).name}: stopping every node")
                 return 128 + self.stop_signal

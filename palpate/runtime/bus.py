@@ -240,7 +240,7 @@ def read_manifests(bus_dir: str | Path) -> list[Manifest]:
             manifest = Manifest(**json.loads(path.read_text()))
         except (OSError, ValueError, TypeError):
             continue
-        if _alive(manifest.pid):
+        if alive(manifest.pid):
             manifests.append(manifest)
     return manifests
 
@@ -287,7 +287,8 @@ class NameClaim:
         self.files = []
 
 
-def _alive(pid: int) -> bool:
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this host."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:

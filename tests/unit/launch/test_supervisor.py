@@ -53,3 +53,32 @@ def test_an_external_node_without_a_manifest_is_named_once_after_a_while(tmp_pat
         )
     finally:
         supervisor.shutdown()
+
+
+def test_a_second_driver_of_an_external_node_is_named(tmp_path: Path) -> None:
+    """An outside driver in C, started twice: the second took the endpoint and the manifest over without a
+    word (`palpate topic hz` then counted 0 messages while the run went on)."""
+    import io
+    import os
+    import subprocess
+    import sys
+
+    from palpate.launch.loader import with_external
+
+    launch = with_external(load_launch(REPO_ROOT / "launch" / "demo_minimal.yaml"), ["stats"])
+    graph = resolve(launch, bus_dir=tmp_path)
+    out = io.StringIO()
+    supervisor = Supervisor(graph, graph.process_specs(), out=out)
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        for pid in (os.getpid(), os.getpid(), other.pid, other.pid):
+            bus.Manifest("stats", "ipc://x", pid, {}, {}).write(tmp_path)
+            supervisor._note_second_drivers()
+        assert out.getvalue() == (
+            f"[launch] two drivers play external node 'stats' (pids {os.getpid()} and {other.pid}, both alive): the "
+            "second took its endpoint and manifest over; stop one\n"
+        )
+    finally:
+        other.kill()
+        other.wait()
+        supervisor.shutdown()
