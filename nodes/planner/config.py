@@ -69,12 +69,11 @@ class PlannerConfig(Validated):
     unreached_miss_m: NonNegativeFloat = 0.005
     #: Fingertip radius, metres (the controller's tip_radius_m): the curves guide the fingertip centre.
     tip_radius_m: NonNegativeFloat = 0.008
-    #: Area strategy (not in the paper, see ``area_scores``): the radius one touch explores
-    #: (the evaluation's 6 mm), and the fixed cost of a touch in metres of travel, which makes a touch
-    #: that explores more worth a longer path.
+    #: Area and tour strategies (not in the paper, see ``area_scores``): the radius one touch explores,
+    #: metres (the evaluation's 6 mm).
     area_radius_m: PositiveFloat = 0.006
     #: L0, the area strategy's fixed cost of a touch, metres of travel added to each candidate's path
-    #: length (score = gain Psi4 / (Len + L0)).
+    #: length (score = gain Psi4 / (Len + L0)), which makes a touch that explores more worth a longer path.
     area_touch_cost_m: NonNegativeFloat = 0.02
     #: Extra weight of an unexplored patch per explored fraction of its surroundings (2 rho): holes and
     #: the rim of the explored region first, so that no patch is left for a long trip back.
