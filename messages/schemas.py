@@ -256,7 +256,9 @@ class ParticleSetSummary(Message):
 
 
 class ObjectTruth(Message):
-    """Ground truth of the object: identity, pose and mesh (published once, on a truth/ topic)."""
+    """Ground truth of the object: identity, pose and mesh (published once, at the run's first tick, on a
+    truth/ topic; the evaluator ends a run without one after 5 s). The mesh is the object's closed surface
+    in the world frame (metres), its triangles wound counter-clockwise seen from outside."""
 
     TYPE: ClassVar[str] = "ObjectTruth"
     VERSION: ClassVar[int] = 1

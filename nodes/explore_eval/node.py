@@ -63,6 +63,8 @@ class ExploreEvalNodeConfig(Validated):
     report: bool = True
 
 
+#: A run whose object truth has not come this long after its first tick (seconds of its time) fails.
+NO_TRUTH_S = 5.0
 #: How a launch caps a large object's runs and gives its mesh's unit (``size_note``).
 LAUNCH_CAPS = "cap them with the eval node's max_contacts and max_travel_m, or the launch's duration_s; give scale:="
 
@@ -76,6 +78,8 @@ class ExploreEvalNode:
         self.evaluator: ExplorationEvaluator | None = None
         self.run: RunControl | None = None
         self.fingertip_quaternion: np.ndarray | None = None  # the fingertip's orientation (w, x, y, z), checked
+        self.first_stamp_ns: int | None = None  # the first tick's stamp, while no truth has come
+        self.truthless_stop = False  # the run was ended for want of a truth
         #: the touches' path length and rotation since the start, each checked against the last
         self.travelled = Accumulated("travelled_m", "m", MAX_PATH_M, MAX_RATE)
         self.turned = Accumulated("rotation_deg", "deg", MAX_TURN_DEG, math.degrees(MAX_RATE))
@@ -97,6 +101,13 @@ class ExploreEvalNode:
         note = size_note(message.name, self.evaluator.area_m2, bound, self.config.eval, LAUNCH_CAPS)
         if note and self.config.report:
             self.ctx.log.warning("explore_eval: %s", note)
+        if open_edges := _open_edges(np.asarray(faces)):
+            self.ctx.log.warning(
+                "explore_eval: the true mesh of %r is not closed (%d edges on one triangle only): its area, coverage "
+                "and shape scores count the faces it has",
+                message.name,
+                open_edges,
+            )
 
     def on_pose(self, message: Pose) -> None:
         coordinates(message.position_m, "position_m")  # checked as every pose; only the axis is used, at touches
@@ -104,7 +115,9 @@ class ExploreEvalNode:
 
     def on_touches(self, message: TouchEvent) -> None:
         if self.run is None:
-            raise InputError("index", f"touch {message.index} came before the object's truth; it is not scored")
+            raise InputError(
+                "index", f"touch {message.index} came while no object truth (truth/object) was taken; it is not scored"
+            )
         position = coordinates(message.position_m, "position_m")
         predicted = coordinates(message.predicted_contact_m, "predicted_contact_m", allow_nan=True)
         travelled = self.travelled.reading(message.travelled_m, message.stamp_ns)
@@ -137,8 +150,18 @@ class ExploreEvalNode:
 
     def on_tick(self, stamp_ns: int) -> None:
         """Watchdogs: end a run that has made no touch for EvalConfig.max_idle_s of simulated time, or whose
-        last whole-object surface has not come within EvalConfig.surface_wait_s."""
+        last whole-object surface has not come within EvalConfig.surface_wait_s; and, as a failure, one
+        without an object truth NO_TRUTH_S after its first tick (nothing could be scored)."""
         if self.run is None:
+            self.first_stamp_ns = stamp_ns if self.first_stamp_ns is None else self.first_stamp_ns
+            if stamp_ns - self.first_stamp_ns >= NO_TRUTH_S * 1e9 and not self.truthless_stop:
+                self.truthless_stop = True
+                self.ctx.request_stop(
+                    f"explore_eval: no usable object truth on truth/object {NO_TRUTH_S:g} s into the run, so nothing "
+                    "can be scored (the simulator, or a driver that plays it, publishes it at the start; a refused "
+                    "one is logged above)",
+                    failed=True,
+                )
             return
         if self.run.tick(stamp_ns):
             self._request_surface(stamp_ns)
@@ -216,6 +239,13 @@ def _checks(config: ExploreEvalNodeConfig) -> dict[KeyPath, str]:
                 f"{config.plot_path}: the plot's format comes from its suffix, one of {', '.join(sorted(formats))}"
             )
     return problems
+
+
+def _open_edges(faces: np.ndarray) -> int:
+    """How many edges of the triangles ``faces`` (F, 3) belong to one triangle only (0: a closed surface)."""
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    return int((counts == 1).sum())
 
 
 SPEC = NodeSpec(

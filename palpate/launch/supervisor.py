@@ -314,7 +314,11 @@ class Supervisor:
             return
         self.run_failures.append(child.node.name)
         if len(self.run_failures) == 1:
-            self._say(f"node {child.node.name!r} ({child.node.type}) ended the run as a failure; the launch exits 1")
+            self._say(
+                f"node {child.node.name!r} ({child.node.type}) was the first of its nodes to end the run as a failure "
+                "(its log line above says why: another node, or an external one, may have caused it); the launch "
+                "exits 1"
+            )
 
     def _report(self, child: Child, code: int, action: str) -> None:
         for pump in child.pumps:

@@ -287,6 +287,8 @@ class NodeRunner:
         self._superseded_by_topic: Counter[str] = Counter()  # real time: state messages a newer one replaced unread
         self.last_clock = -1  # the last Clock tick received (sent, in the clock source)
         self.last_clock_stamp_ns = -1  # and its stamp (lockstep: the next may not be earlier)
+        self.refused_clock = ""  # why the last refused Clock was refused
+        self._clock_restarted_after = 0  # lockstep: the tick after which a Clock of tick 0 came again
         #: How far ahead of the last Clock an upstream acknowledgement may be: one tick, and a trailing
         #: node's upstream may run TRAIL_TICKS ahead of it.
         self._ack_lead = TRAIL_TICKS if self.spec.may_trail else 0
@@ -382,20 +384,20 @@ class NodeRunner:
         if topic == topics.CLOCK:
             clock = self._decode(topic, payload, Clock)
             if clock is not None and self.lockstep and clock.tick <= self.last_clock:
-                self._bad_input(topic, f"Clock tick {clock.tick} repeats or goes back (last {self.last_clock})")
+                if clock.tick == 0 and self.last_clock > 0:  # the clock source's process started again
+                    self._clock_restarted_after = self._clock_restarted_after or self.last_clock
+                self._refuse_clock(f"Clock tick {clock.tick} repeats or goes back (last {self.last_clock})")
             elif clock is not None and self.lockstep and clock.tick > self.last_clock + 1:
                 # the clock source starts at tick 0, waits for this node before its next tick and sends every
                 # tick in turn: a tick further on comes from another publisher on the topic
                 source = repr(self.process.clock_name) if self.process.clock_name else "the graph's clock source"
-                self._bad_input(
-                    topic,
+                self._refuse_clock(
                     f"Clock tick {clock.tick} skips ahead of tick {self.last_clock + 1}; a lockstep clock source "
                     f"sends every tick in turn from 0 (only it, {source}, publishes on this topic)",
                 )
             elif clock is not None and self.lockstep and clock.stamp_ns < max(0, self.last_clock_stamp_ns):
                 # simulated time does not run back (the nodes' watchdogs and schedules follow it)
-                self._bad_input(
-                    topic,
+                self._refuse_clock(
                     f"Clock tick {clock.tick} is stamped {clock.stamp_ns} ns, before "
                     + (
                         "the start (0)"
@@ -442,6 +444,11 @@ class NodeRunner:
             rank = self.process.topic_order.get(topic, 1 << 30)
             self.buffer.append((self._due(topic), rank, self.seq, topic, payload))
         # anything else is a prefix match of another topic: not ours.
+
+    def _refuse_clock(self, reason: str) -> None:
+        """Count and log a refused Clock, and keep the reason for the note of a wait that follows."""
+        self.refused_clock = reason
+        self._bad_input(topics.CLOCK, reason)
 
     def _due(self, topic: str) -> int:
         """The tick in which this node handles an input on `topic` that arrives now (lockstep): its
@@ -730,20 +737,20 @@ class NodeRunner:
                 if due is None:
                     if self.stopping and not self.clock_ticks:
                         break
-                    if tick > 0 and not told and time.monotonic() - waiting_since >= note_s:  # (not a slow start)
+                    waited_s = time.monotonic() - waiting_since
+                    if tick > 0 and not told and waited_s >= note_s:  # (not a slow start)
                         told = True
                         log.warning(
                             "node %s: no tick for %.0f s: waiting for %s",
                             self.process.name,
-                            time.monotonic() - waiting_since,
+                            waited_s,
                             self._awaited(tick),
                         )
                     clock_name = self.process.clock_name  # "" in a spec made without a launcher: no clock to lose
-                    if not self._receive(100) and not self.stopping and clock_name and self._gone([clock_name]):
+                    received = self._receive(100)
+                    if not self.stopping and (why := self._clock_lost(clock_name, received, tick, waited_s)):
                         # nothing more will come: close in order, as a failed run (the launch exits 1)
-                        self.ctx.failure = self.ctx.run_stopped_by = (
-                            f"the clock source {_left([self.process.clock_name])}"
-                        )
+                        self.ctx.failure = self.ctx.run_stopped_by = why
                         break
                     continue
                 tick = due
@@ -778,13 +785,29 @@ class NodeRunner:
                 if self.stopping:
                     break
 
+    def _clock_lost(self, clock_name: str, received: bool, tick: int, waited_s: float) -> str:
+        """Why a lockstep follower waiting for `tick` will get no more ticks ("" while it may): the clock
+        source left, started again (a Clock of tick 0 after others), or sent nothing for ack_timeout_s."""
+        if clock_name and not received and self._gone([clock_name]):
+            return f"the clock source {_left([clock_name])}"
+        if self._clock_restarted_after:
+            return (
+                f"the clock source {clock_name or 'of the graph'} started again after tick "
+                f"{self._clock_restarted_after} (a Clock of tick 0 came); a lockstep run cannot go on with it: start a "
+                "new launch"
+            )
+        if tick > 0 and waited_s > self.ack_timeout_s:  # as the clock source gives up on an acknowledgement
+            return f"no tick for {self.ack_timeout_s:.0f} s: waited for {self._awaited(tick)}"
+        return ""
+
     def _awaited(self, tick: int) -> str:
         """What a lockstep follower waits for to run `tick`: the clock source's Clock, or acknowledgements."""
         if not self.clock_ticks:
             clock = self.process.clock_name or "the clock source"
+            refused = f"; this node refused its last Clock: {self.refused_clock}" if self.refused_clock else ""
             return (
                 f"tick {tick} from the clock source {clock} (its process or driver hung, or a node it waits for is "
-                "slow)"
+                f"slow{refused})"
             )
         due = self.clock_ticks[0].tick
         late = [n for n in self.process.forward_upstream if self.acks.get(n, -2) < due]

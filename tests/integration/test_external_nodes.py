@@ -75,7 +75,7 @@ def test_a_dead_external_clock_source_ends_the_run_naming_it(tmp_path: Path, mon
     # the follower closes in order (its summary), as a failed run
     assert "ERROR node stats ended the run as a failure: the clock source 'cube' disconnected without a stop" in out
     assert "[stats] summary:" in out, out
-    assert "[launch] node 'stats' (contact_stats) ended the run as a failure; the launch exits 1" in out, out
+    assert "[launch] node 'stats' (contact_stats) was the first of its nodes to end the run as a failure" in out, out
 
 
 def test_a_dead_external_follower_is_named_at_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -100,7 +100,9 @@ def test_a_node_that_publishes_runcontrol_fail_makes_the_run_fail(tmp_path: Path
     assert f"ERROR node cube ended the run as a failure: {reason}" in out, out
     # every node ends as a failure, the first to exit is named (the clock source passes the "fail" on: a
     # node that hears only the clock learns the run failed)
-    assert re.search(r"\[launch\] node '\w+' \([\w.:]+\) ended the run as a failure; the launch exits 1", out), out
+    assert re.search(
+        r"\[launch\] node '\w+' \([\w.:]+\) was the first of its nodes to end the run as a failure", out
+    ), out
     assert "ERROR node stats ended the run as a failure: run_failer: sensor lost after 5 ticks" in out, out
 
 

@@ -116,7 +116,7 @@ def test_a_repeated_truth_keeps_the_records_and_another_object_is_refused() -> N
         travelled_m=0.0,
         rotation_deg=0.0,
     )
-    with pytest.raises(InputError, match=r"^index: touch 0 came before the object's truth"):
+    with pytest.raises(InputError, match=r"^index: touch 0 came while no object truth \(truth/object\) was taken"):
         node.on_touches(touch)
     node.on_truth_object(truth(V, F))
     first = node.evaluator
@@ -243,3 +243,31 @@ def test_a_negative_variance_of_an_estimate_is_refused() -> None:
     with pytest.raises(InputError, match=r"^vertex_variance: value -1 m\^2 is outside \[0, 1e\+06\] m\^2"):
         node.on_surface(estimate)
     assert len(node.last_variance) == 0
+
+
+def test_a_run_without_an_object_truth_fails_after_a_while_naming_it() -> None:
+    """An outside clock-source driver in C that sent no truth (or one the evaluator refused): every touch was
+    refused as coming "before the object's truth", the run went on to its end, printed no result and the
+    launch exited 0."""
+    ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
+    node = ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx)
+    start = 1_764_000_000 * 10**9  # a hardware clock's epoch stamps: the wait counts from the first tick
+    for tick in range(501):
+        node.on_tick(start + tick * 10_000_000)
+        if tick < 500:
+            assert not ctx.stop_requested, tick
+    assert ctx.stop_requested.startswith("explore_eval: no usable object truth on truth/object 5 s into the run")
+    assert ctx.failure == ctx.stop_requested  # a failure: the launch exits 1
+
+
+def test_a_true_mesh_that_is_not_closed_is_said(caplog: pytest.LogCaptureFixture) -> None:
+    """An outside clock-source driver: a sphere truth with a quarter of its faces missing was taken without
+    a word (area 0.015 instead of 0.020 m^2, the run "complete")."""
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.04)
+    V, F = np.asarray(ball.vertices), np.asarray(ball.faces)
+    for faces, said in ((F, False), (F[: 3 * len(F) // 4], True)):
+        ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
+        caplog.clear()
+        with caplog.at_level("WARNING"):
+            ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx).on_truth_object(truth(V, faces, name="ball"))
+        assert any("the true mesh of 'ball' is not closed" in m for m in caplog.messages) == said

@@ -754,3 +754,43 @@ def test_a_lockstep_clock_stamped_before_the_last_or_the_start_is_refused(tmp_pa
         runner._close_sockets(linger_ms=0)
     assert [c.tick for c in runner.clock_ticks] == [0, 1, 2]
     assert runner.ctx.counters["decode_errors"] == 2
+
+
+def test_a_follower_names_a_restarted_clock_source_a_refused_clock_and_gives_up_after_the_timeout(
+    tmp_path: Path,
+) -> None:
+    """An outside clock-source driver in C: one restarted within the 2 s grace left the graph saying "hung"
+    for 120 s and more; a refused Clock (a skipped tick) was not named in the wait's note; a hung one was
+    waited for until Ctrl-C."""
+    import zmq
+
+    from palpate.messages.schemas import Clock
+    from palpate.runtime.node import NodeRunner
+
+    process = dataclasses.replace(bare_process(tmp_path, "follower"), mode="lockstep", clock_name="sim")
+    runner = NodeRunner(NodeSpec(name="follower", config=NoParams, factory=lambda c, ctx: Idle()), process)
+
+    def clock(tick: int) -> None:
+        payload = codec.encode(Clock(stamp_ns=tick * 10_000_000, tick=tick, period_ns=10_000_000, lockstep=True))
+        runner._on_frames([zmq.Frame(topics.CLOCK.encode()), zmq.Frame(payload)])
+
+    runner.counter.counts["hello/sim"] = 1  # the clock source is connected
+    try:
+        for tick in range(4):
+            clock(tick)
+        runner.clock_ticks.clear()  # ticks 0..3 ran
+        clock(5)  # refused: skips ahead
+        assert runner._clock_lost("sim", True, 4, 1.0) == ""
+        assert runner._awaited(4).endswith(
+            "slow; this node refused its last Clock: Clock tick 5 skips ahead of tick 4; a lockstep clock source "
+            "sends every tick in turn from 0 (only it, 'sim', publishes on this topic))"
+        )
+        runner.ack_timeout_s = 60.0
+        assert runner._clock_lost("sim", True, 4, 61.0).startswith("no tick for 60 s: waited for tick 4 from")
+        clock(0)  # its process started again
+        assert runner._clock_lost("sim", True, 4, 1.0) == (
+            "the clock source sim started again after tick 3 (a Clock of tick 0 came); a lockstep run cannot go on "
+            "with it: start a new launch"
+        )
+    finally:
+        runner._close_sockets(linger_ms=0)
