@@ -236,8 +236,12 @@ class Supervisor:
                 pid = int(json.loads(bus.Manifest.path(self.graph.bus_dir, name).read_text())["pid"])
             except (OSError, ValueError, KeyError, TypeError):
                 continue
-            first = self.driver_pids.setdefault(name, pid)
-            if pid != first and name not in self.second_drivers and bus.alive(first) and bus.alive(pid):
+            first = self.driver_pids.get(name)
+            if first is None or not bus.alive(first):  # the live driver (not a dead one's leftover manifest)
+                if bus.alive(pid):
+                    self.driver_pids[name] = pid
+                continue
+            if pid != first and name not in self.second_drivers and bus.alive(pid):
                 self.second_drivers.add(name)
                 self._say(
                     f"two drivers play external node {name!r} (pids {first} and {pid}, both alive): the second took "

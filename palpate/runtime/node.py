@@ -287,7 +287,8 @@ class NodeRunner:
         self._superseded_by_topic: Counter[str] = Counter()  # real time: state messages a newer one replaced unread
         self.last_clock = -1  # the last Clock tick received (sent, in the clock source)
         self.last_clock_stamp_ns = -1  # and its stamp (lockstep: the next may not be earlier)
-        self.refused_clock = ""  # why the last refused Clock was refused
+        self.refused_clock = ""  # why the last Clock was refused, while no later one was taken
+        self.moved_at = time.monotonic()  # when a Clock or an acknowledgement last came: the graph moved
         self._clock_restarted_after = 0  # lockstep: the tick after which a Clock of tick 0 came again
         #: How far ahead of the last Clock an upstream acknowledgement may be: one tick, and a trailing
         #: node's upstream may run TRAIL_TICKS ahead of it.
@@ -409,6 +410,8 @@ class NodeRunner:
                 self.clock_ticks.append(clock)
                 self.last_clock = max(self.last_clock, clock.tick)
                 self.last_clock_stamp_ns = clock.stamp_ns
+                self.refused_clock = ""
+                self.moved_at = time.monotonic()
                 if self.timer is not None:
                     self.timer.mark(clock.tick, "clock_received")
         elif topic == topics.LOCKSTEP_ACK:
@@ -426,6 +429,7 @@ class NodeRunner:
                 if ack.tick == -1 and self.acks.get(ack.node, -2) >= 0:  # ready again, after ticks: it restarted
                     self._restarted.setdefault(ack.node, self.acks[ack.node])
                 self.acks[ack.node] = max(ack.tick, self.acks.get(ack.node, -2))
+                self.moved_at = time.monotonic()
         elif topic == STOP_TOPIC:
             control = self._decode(topic, payload, RunControl)
             if control is not None and control.command not in (STOP, FAIL):
@@ -748,9 +752,15 @@ class NodeRunner:
                         )
                     clock_name = self.process.clock_name  # "" in a spec made without a launcher: no clock to lose
                     received = self._receive(100)
-                    if not self.stopping and (why := self._clock_lost(clock_name, received, tick, waited_s)):
-                        # nothing more will come: close in order, as a failed run (the launch exits 1)
+                    still_s = time.monotonic() - max(waiting_since, self.moved_at)
+                    if not self.stopping and (why := self._clock_lost(clock_name, received, tick, still_s)):
+                        # nothing more will come: close in order, as a failed run (the launch exits 1), and say so
+                        # to the graph (a clock source still there then ends the run as a failure too)
                         self.ctx.failure = self.ctx.run_stopped_by = why
+                        reason = f"{self.process.name}: {why}"
+                        self._send_internal(
+                            STOP_TOPIC, RunControl(stamp_ns=self.ctx.stamp_ns, command=FAIL, reason=reason)
+                        )
                         break
                     continue
                 tick = due
@@ -785,9 +795,11 @@ class NodeRunner:
                 if self.stopping:
                     break
 
-    def _clock_lost(self, clock_name: str, received: bool, tick: int, waited_s: float) -> str:
+    def _clock_lost(self, clock_name: str, received: bool, tick: int, still_s: float) -> str:
         """Why a lockstep follower waiting for `tick` will get no more ticks ("" while it may): the clock
-        source left, started again (a Clock of tick 0 after others), or sent nothing for ack_timeout_s."""
+        source left, started again (a Clock of tick 0 after others), or nothing moved in the graph (no Clock,
+        no acknowledgement) for ``still_s`` > twice ack_timeout_s: the clock source gives up on a slow node
+        after ack_timeout_s, so only a hung one stays still that long."""
         if clock_name and not received and self._gone([clock_name]):
             return f"the clock source {_left([clock_name])}"
         if self._clock_restarted_after:
@@ -796,8 +808,11 @@ class NodeRunner:
                 f"{self._clock_restarted_after} (a Clock of tick 0 came); a lockstep run cannot go on with it: start a "
                 "new launch"
             )
-        if tick > 0 and waited_s > self.ack_timeout_s:  # as the clock source gives up on an acknowledgement
-            return f"no tick for {self.ack_timeout_s:.0f} s: waited for {self._awaited(tick)}"
+        if tick > 0 and still_s > 2 * self.ack_timeout_s:
+            awaited = self._awaited(tick)
+            return (
+                f"nothing moved in the graph for {still_s:.0f} s (no Clock, no acknowledgement): waited for {awaited}"
+            )
         return ""
 
     def _awaited(self, tick: int) -> str:

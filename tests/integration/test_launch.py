@@ -78,7 +78,10 @@ def test_a_node_that_stops_the_run_as_a_failure_makes_the_launch_exit_1(tmp_path
     out = run_until_quitter(tmp_path, 5, failed=True)
     assert re.search(r"\[cube\] INFO run stopped at t = 0\.0[45]0 s: quitter: done after 5 ticks", out), out
     assert "ERROR node quitter ended the run as a failure: quitter: done after 5 ticks" in out, out
-    assert "[launch] node 'quitter' (tests.integration.fake_nodes:QUITTER) ended the run as a failure" in out, out
+    assert (
+        "[launch] node 'quitter' (tests.integration.fake_nodes:QUITTER) was the first of its nodes to end the run as a"
+        in out
+    ), out
     assert "died" not in out, out
     assert node_pids(tmp_path / "bus") == {}  # every node closed
 
@@ -101,7 +104,10 @@ nodes:
         assert proc.wait(timeout=60) == 1, text(log)
     out = text(log)
     assert "ERROR node clock ended the run as a failure: failing clock: gave up after 5 ticks" in out, out
-    assert "[launch] node 'clock' (tests.integration.fake_nodes:FAILING_CLOCK) ended the run as a failure" in out
+    assert (
+        "[launch] node 'clock' (tests.integration.fake_nodes:FAILING_CLOCK) was the first of its nodes to end the run"
+        in out
+    )
     assert "died" not in out, out
     assert node_pids(tmp_path / "bus") == {}
 
