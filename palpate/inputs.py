@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -48,20 +49,30 @@ MAX_PATH_M = 1e6
 MAX_TURN_DEG = 1e9
 
 
+class Reading(NamedTuple):
+    """An accepted reading of an :class:`Accumulated` quantity: the total, and the state it leaves."""
+
+    total: float
+    last: float
+    offset: float
+    stamp_ns: int
+
+
 class Accumulated:
     """Readings of a quantity its sender accumulates since its start (a path length, a turned angle), in
     turn, each with its own stamp. A reading is refused (InputError naming ``field``) when it lies outside
     [0, ``limit``] or has grown faster than ``max_rate`` units per second of the stamps since the last one
     taken (since stamp 0 for the first: a simulated run starts there): a path of 1000 m 10 ms into a run
     is no odometer's. One that falls below the last starts a new segment (a restarted sender counts from
-    0 again), so what :meth:`reading` returns, the total, never falls."""
+    0 again), so the total never falls. :meth:`judge` leaves the state as it is (a message may still be
+    refused for another field), :meth:`take` keeps a judged reading, :meth:`reading` does both."""
 
     def __init__(self, field: str, unit: str, limit: float, max_rate: float) -> None:
         self.field, self.unit, self.limit, self.max_rate = field, unit, limit, max_rate
         self.last, self.offset, self.stamp_ns = 0.0, 0.0, 0
 
-    def reading(self, value: float, stamp_ns: int) -> float:
-        """The total after ``value`` (float) read at ``stamp_ns``, when it is a plausible next reading."""
+    def judge(self, value: float, stamp_ns: int) -> Reading:
+        """``value`` (float) read at ``stamp_ns`` as the next reading, when it is a plausible one."""
         x = float(bounded(value, self.field, self.limit, self.unit, lower=0.0))
         restarted = x < self.last - 1e-9 * max(1.0, self.last)
         grown = x if restarted else x - self.last
@@ -72,10 +83,18 @@ class Accumulated:
                 f"grew by {grown:.6g} {self.unit} in {elapsed_s:.6g} s of its stamps, faster than {self.max_rate:g} "
                 f"{self.unit}/s",
             )
-        if restarted:
-            self.offset += self.last
-        self.last, self.stamp_ns = x, stamp_ns
-        return self.offset + x
+        offset = self.offset + self.last if restarted else self.offset
+        return Reading(offset + x, x, offset, stamp_ns)
+
+    def take(self, reading: Reading) -> None:
+        """Keep ``reading`` (from :meth:`judge`) as the last one."""
+        self.last, self.offset, self.stamp_ns = reading.last, reading.offset, reading.stamp_ns
+
+    def reading(self, value: float, stamp_ns: int) -> float:
+        """:meth:`judge`, then :meth:`take`: the total after ``value``."""
+        judged = self.judge(value, stamp_ns)
+        self.take(judged)
+        return judged.total
 
 
 def coordinates(

@@ -120,18 +120,21 @@ class ExploreEvalNode:
             )
         position = coordinates(message.position_m, "position_m")
         predicted = coordinates(message.predicted_contact_m, "predicted_contact_m", allow_nan=True)
-        travelled = self.travelled.reading(message.travelled_m, message.stamp_ns)
-        rotation = self.turned.reading(message.rotation_deg, message.stamp_ns)
+        normal = np.array(coordinates(message.normal, "normal"))
+        travelled = self.travelled.judge(message.travelled_m, message.stamp_ns)
+        turned = self.turned.judge(message.rotation_deg, message.stamp_ns)
         asks = self.run.touch(
             self.ctx.stamp_ns,
             np.array(position),
             np.array(predicted),
-            travelled,
-            rotation,
+            travelled.total,
+            turned.total,
             None if self.fingertip_quaternion is None else quat_to_matrix(self.fingertip_quaternion)[:, 2],
             message.missed,
-            np.array(coordinates(message.normal, "normal")),
+            normal,
         )
+        self.travelled.take(travelled)  # a touch refused for any field leaves both as they were
+        self.turned.take(turned)
         self.ctx.metrics["coverage"] = self.run.evaluator.tracker.coverage
         if asks:
             self._request_surface(self.ctx.stamp_ns)

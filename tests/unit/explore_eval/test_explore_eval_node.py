@@ -140,6 +140,11 @@ def test_a_repeated_truth_keeps_the_records_and_another_object_is_refused() -> N
         with pytest.raises(InputError, match=message):
             node.on_touches(replace(touch, **{field: value}))
     assert first.tracker.contacts == 1 and len(first.touches) == 1
+    # a touch refused for another field leaves the odometers as they were (a review)
+    later = replace(touch, stamp_ns=10**9, travelled_m=0.5, rotation_deg=1e300)
+    with pytest.raises(InputError, match=r"^rotation_deg"):
+        node.on_touches(later)
+    assert node.travelled.last == 0.0 and node.travelled.stamp_ns == 0
 
 
 def test_a_launched_run_ends_with_a_line_for_a_reader_before_its_json() -> None:
