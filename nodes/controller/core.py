@@ -101,6 +101,9 @@ def _distance(a: FloatArray, b: FloatArray) -> float:
 #: metres: a fifth of the way it moves at v0 = 5 cm/s in 0.1 s. Wedged in a gap it jumps between the
 #: two surfaces that hold it, by 0.13-0.26 mm a tick (measured on the YCB large clamp).
 HELD_M = 1e-3
+#: A fingertip driven at v0 that touches nothing and stays within HELD_M this long is blocked, seconds:
+#: at the default v0 of 5 cm/s it would have moved 25 cm.
+BLOCKED_S = 5.0
 
 
 class TouchArming:
@@ -279,6 +282,8 @@ class TouchLoop:
         self.in_contact = False  # the last tick had a contact
         self.last_normal = np.zeros(3)  # measured normal of the last touch
         self.slides = 0  # slides started
+        self.still: tuple[int, FloatArray] | None = None  # since when, and where, it has not moved while driven
+        self.blocked = ""  # why the fingertip counts as blocked (the run then fails)
 
     @property
     def touches(self) -> int:
@@ -375,7 +380,25 @@ class TouchLoop:
             linear, angular = np.zeros(3), np.zeros(3)
         else:
             linear, angular = self.controller.command(r, R)
-        return ControlStep(linear, angular, touch, failed=self.controller.state is ControllerState.FAILED)
+            self._watch_motion(stamp_ns, r, linear, len(forces_n) > 0)
+        failed = self.controller.state is ControllerState.FAILED or bool(self.blocked)
+        return ControlStep(linear, angular, touch, failed=failed)
+
+    def _watch_motion(self, stamp_ns: int, r: FloatArray, linear: FloatArray, contact: bool) -> None:
+        """Call the fingertip blocked (``blocked``) when, driven at v0 and touching nothing, it has stayed
+        within HELD_M of one point for BLOCKED_S: something holds it that its contacts do not report (a
+        sensor that fails, or contacts every one of which was refused)."""
+        v0 = self.controller.config.v0_m_s
+        if contact or not self.controller.moving or float(np.linalg.norm(linear)) < 0.5 * v0:
+            self.still = None
+        elif self.still is None or _distance(r, self.still[1]) > HELD_M:
+            self.still = (stamp_ns, np.array(r))
+        elif stamp_ns - self.still[0] >= BLOCKED_S * 1e9 and not self.blocked:
+            self.blocked = (
+                f"controller: the fingertip has not moved for {BLOCKED_S:g} s while driven at {v0:g} m/s and touching "
+                "nothing: something holds it that its contacts do not report (a sensor that fails, or contacts that "
+                "were refused: see above)"
+            )
 
     def _slide_step(
         self,

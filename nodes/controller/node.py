@@ -126,7 +126,8 @@ class ControllerNode:
         if step.touch is not None:
             self._publish_touch(step.touch)
         if step.failed:
-            self.ctx.request_stop(self._failure() if self.core.touches else self._no_first_touch(), failed=True)
+            reason = self.core.blocked or (self._failure() if self.core.touches else self._no_first_touch())
+            self.ctx.request_stop(reason, failed=True)
         self.ctx.publish(
             "velocity",
             CartesianVelocityCommand(stamp_ns=stamp_ns, linear_m_s=step.linear_m_s, angular_rad_s=step.angular_rad_s),

@@ -335,3 +335,25 @@ def test_a_pose_at_the_initial_target_or_the_origin_waits_instead_of_starting(
     step = loop.step(TICK_NS, np.array([0.0, 0.0, 0.02]), R_DOWN, *NONE)
     assert loop.started
     np.testing.assert_allclose(step.linear_m_s / np.linalg.norm(step.linear_m_s), [0.0, 0.0, -1.0])
+
+
+def test_a_fingertip_driven_that_does_not_move_and_touches_nothing_is_blocked() -> None:
+    """An outside clock-source driver whose contacts were all refused (sent in millimetres): its fingertip
+    stood against the object, the controller pushed until the launch's duration (600 s) and the run ended
+    with exit 0. Blocked for BLOCKED_S, the run fails, naming why."""
+    from palpate.nodes.controller.core import BLOCKED_S
+
+    loop = TouchLoop(TouchConfig(), ControllerConfig(), initial_target_m=np.zeros(3))
+    start = np.array([0.0, 0.0, 0.05])
+    moving = start.copy()
+    for tick in range(600):  # moving as driven: never blocked
+        step = loop.step(tick * TICK_NS, moving, R_DOWN, *NONE)
+        moving = moving + DT_S * step.linear_m_s
+        if not step.linear_m_s.any():
+            break
+    assert not loop.blocked
+    loop = TouchLoop(TouchConfig(), ControllerConfig(), initial_target_m=np.zeros(3))
+    ticks = round(BLOCKED_S / DT_S)
+    steps = [loop.step(tick * TICK_NS, start, R_DOWN, *NONE) for tick in range(ticks + 1)]  # held where it is
+    assert not any(step.failed for step in steps[:-1]) and steps[-1].failed
+    assert loop.blocked.startswith("controller: the fingertip has not moved for 5 s while driven at 0.05 m/s")
