@@ -20,6 +20,7 @@ import numpy as np
 
 from palpate.config import KeyPath, Validated
 from palpate.errors import InputError
+from palpate.geometry.mesh_query import edge_uses
 from palpate.geometry.rotations import quat_to_matrix
 from palpate.inputs import (
     MAX_COORDINATE_M,
@@ -101,7 +102,7 @@ class ExploreEvalNode:
         note = size_note(message.name, self.evaluator.area_m2, bound, self.config.eval, LAUNCH_CAPS)
         if note and self.config.report:
             self.ctx.log.warning("explore_eval: %s", note)
-        if open_edges := _open_edges(np.asarray(faces)):
+        if open_edges := int((edge_uses(np.asarray(faces)) == 1).sum()):
             self.ctx.log.warning(
                 "explore_eval: the true mesh of %r is not closed (%d edges on one triangle only): its area, coverage "
                 "and shape scores count the faces it has",
@@ -242,13 +243,6 @@ def _checks(config: ExploreEvalNodeConfig) -> dict[KeyPath, str]:
                 f"{config.plot_path}: the plot's format comes from its suffix, one of {', '.join(sorted(formats))}"
             )
     return problems
-
-
-def _open_edges(faces: np.ndarray) -> int:
-    """How many edges of the triangles ``faces`` (F, 3) belong to one triangle only (0: a closed surface)."""
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
-    return int((counts == 1).sum())
 
 
 SPEC = NodeSpec(

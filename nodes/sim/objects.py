@@ -34,7 +34,7 @@ import trimesh
 
 from palpate.config import BlankIsDefault, OneOf, PositiveFloat, ScalarIsTuple, Validated
 from palpate.errors import ConfigError, MeshError, MeshWarning
-from palpate.geometry.mesh_query import MAX_RING_ENTRIES
+from palpate.geometry.mesh_query import MAX_RING_ENTRIES, edge_uses
 from palpate.geometry.rotations import quat_to_matrix
 from palpate.inputs import MAX_COORDINATE_M
 from palpate.paths import YCB_DIR_ENV, cache_dir, ycb_dir
@@ -781,7 +781,7 @@ def _rewind(mesh: trimesh.Trimesh, path: Path) -> None:
 
 def _edge_defects(mesh: trimesh.Trimesh) -> str:
     """Why a mesh is not watertight: its open edges (on one triangle) and the edges on more than two."""
-    _, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    counts = edge_uses(mesh.faces)
     return f"{int((counts == 1).sum())} open edges, {int((counts > 2).sum())} edges on more than two triangles"
 
 

@@ -111,6 +111,14 @@ def closest_region(d1: float, d2: float, d3: float, d4: float, d5: float, d6: fl
     return int(region), float(wb), float(wc)
 
 
+def edge_uses(faces: np.ndarray) -> NDArray[np.int64]:
+    """How many of the triangles ``faces`` (F, 3) hold each of their distinct edges (a closed surface: 2 each;
+    1: an open edge; more: a non-manifold one)."""
+    edges = np.sort(np.asarray(faces)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    return np.asarray(counts, dtype=np.int64)
+
+
 def pseudo_normals(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
     """Angle-weighted pseudo-normals per face corner (F, 3, 3) and per face edge (F, 3, 3).
 
