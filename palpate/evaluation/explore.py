@@ -149,20 +149,20 @@ def objects_in(folder: Path, scale: float = 1.0) -> list[ObjectCase]:
         )
     entries = list(folder.iterdir())
     files = sorted(p for p in entries if p.suffix.lower() in MESH_SUFFIXES)
-    skipped = sorted(p.name for p in entries if p.suffix.lower() in OTHER_3D_SUFFIXES)
-    if skipped:
-        print(
-            f"--objects {str(folder)!r}: skipped {len(skipped)} file(s) of formats palpate does not read: "
-            f"{', '.join(skipped)}; convert them to one of {', '.join(MESH_SUFFIXES)}",
-            file=sys.stderr,
-        )
-    archives = sorted(p.name for p in entries if p.suffix.lower() in ARCHIVE_SUFFIXES)
-    if archives:
-        print(
-            f"--objects {str(folder)!r}: skipped {len(archives)} archive(s) or compressed file(s): "
-            f"{', '.join(archives)}; an evaluation reads mesh files ({', '.join(MESH_SUFFIXES)}): unpack them",
-            file=sys.stderr,
-        )
+    meshes = ", ".join(MESH_SUFFIXES)
+    for suffixes, kind, advice in (
+        (OTHER_3D_SUFFIXES, "file(s) of formats palpate does not read", f"convert them to one of {meshes}"),
+        (
+            ARCHIVE_SUFFIXES,
+            "archive(s) or compressed file(s)",
+            f"an evaluation reads mesh files ({meshes}): unpack them",
+        ),
+    ):
+        if skipped := sorted(p.name for p in entries if p.suffix.lower() in suffixes):
+            print(
+                f"--objects {str(folder)!r}: skipped {len(skipped)} {kind}: {', '.join(skipped)}; {advice}",
+                file=sys.stderr,
+            )
     below = _subfolders_with_meshes(entries)
     if below and files:
         print(
