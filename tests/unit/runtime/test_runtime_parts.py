@@ -20,6 +20,7 @@ from palpate.errors import BusError, ConfigError, EstimationError, LaunchError
 from palpate.launch.node_types import NODE_TYPES, load_node_type
 from palpate.launch.supervisor import external_spec_path, write_external_spec
 from palpate.messages import codec, topics
+from palpate.messages.base import Message
 from palpate.messages.schemas import ContactSet, LockstepAck, TouchEvent
 from palpate.runtime import bus
 from palpate.runtime.node import _latest_state_messages
@@ -467,6 +468,31 @@ class Idle:
     """A node that does nothing."""
 
 
+class ContactsReader(Idle):
+    """A node that takes every contact set and does nothing with it."""
+
+    def on_contacts(self, message: ContactSet) -> None:
+        pass
+
+
+def runner_of(process: NodeProcessSpec, node: type[Idle] = Idle) -> Any:
+    """A NodeRunner of ``process`` (its inputs on sensors/contacts, when it subscribes any) running ``node``;
+    close its sockets after (``_close_sockets``)."""
+    from palpate.runtime.node import NodeRunner
+    from palpate.runtime.spec import Port
+
+    inputs = {"contacts": Port(ContactSet)} if process.subscribes else {}
+    spec = NodeSpec(name=process.name, config=NoParams, factory=lambda c, ctx: node(), inputs=inputs)
+    return NodeRunner(spec, process)
+
+
+def frame_to(runner: Any, topic: str, message: Message) -> None:
+    """Hand ``message`` on ``topic`` to ``runner`` as its subscriber would (the two frames off the bus)."""
+    import zmq
+
+    runner._on_frames([zmq.Frame(topic.encode()), zmq.Frame(codec.encode(message))])
+
+
 def test_a_start_up_without_a_peer_names_it_as_perhaps_an_external_node(tmp_path: Path) -> None:
     from palpate.runtime.node import NodeRunner
 
@@ -489,14 +515,8 @@ def test_unused_input_warning_counts_apart_what_a_real_time_node_never_read(
 ) -> None:
     """In real time a burst of state messages is read newest first: the two older ones are replaced
     unread, the newest is refused, and the warning says so instead of "all 1 were refused"."""
-    from palpate.runtime.node import NodeRunner
-    from palpate.runtime.spec import Port
-
     process = dataclasses.replace(bare_process(tmp_path, "reader"), subscribes={"contacts": "sensors/contacts"})
-    spec = NodeSpec(
-        name="reader", config=NoParams, factory=lambda c, ctx: Idle(), inputs={"contacts": Port(ContactSet)}
-    )
-    runner = NodeRunner(spec, process)
+    runner = runner_of(process)
     try:
         for i in range(3):
             runner.buffer.append((-1, 0, i, "sensors/contacts", b"not msgpack"))
@@ -517,19 +537,10 @@ def test_a_node_says_at_the_end_how_many_messages_of_a_topic_it_refused(
 ) -> None:
     """An outside fuzzer: the counts of refused messages showed only in NodeStatus; the first ten are
     logged, and the run's output now ends with how many there were on each topic."""
-    from palpate.runtime.node import NodeRunner
-    from palpate.runtime.spec import Port
     from tests.unit.node_messages import no_contacts
 
-    class Reader(Idle):
-        def on_contacts(self, message: ContactSet) -> None:
-            pass
-
     process = dataclasses.replace(bare_process(tmp_path, "reader"), subscribes={"contacts": "sensors/contacts"})
-    spec = NodeSpec(
-        name="reader", config=NoParams, factory=lambda c, ctx: Reader(), inputs={"contacts": Port(ContactSet)}
-    )
-    runner = NodeRunner(spec, process)
+    runner = runner_of(process, ContactsReader)
     try:
         for i in range(12):
             runner.buffer.append((-1, 0, i, "sensors/contacts", b"not msgpack"))
@@ -689,22 +700,15 @@ def test_the_clock_source_names_a_restarted_node_and_a_refused_acknowledgement_a
     """An outside driver in C: a driver restarted mid-run acknowledged the start (tick -1) again and the
     run waited 120 s, ending with "no acknowledgement of tick 50"; an acknowledgement that was refused
     was not mentioned when the wait ran out."""
-    import zmq
-
-    from palpate.runtime.node import NodeRunner, PeerLostError
+    from palpate.runtime.node import PeerLostError
 
     process = dataclasses.replace(
         bare_process(tmp_path, "clock"), mode="lockstep", clock_source=True, lockstep_nodes=["noise", "stats"]
     )
-    runner = NodeRunner(NodeSpec(name="clock", config=NoParams, factory=lambda c, ctx: Idle()), process)
+    runner = runner_of(process)
 
     def ack(node: str, tick: int) -> None:
-        runner._on_frames(
-            [
-                zmq.Frame(topics.LOCKSTEP_ACK.encode()),
-                zmq.Frame(codec.encode(LockstepAck(stamp_ns=0, node=node, tick=tick))),
-            ]
-        )
+        frame_to(runner, topics.LOCKSTEP_ACK, LockstepAck(stamp_ns=0, node=node, tick=tick))
 
     try:
         runner.last_clock = 50
@@ -732,17 +736,12 @@ def test_the_clock_source_names_a_restarted_node_and_a_refused_acknowledgement_a
 def test_a_lockstep_clock_stamped_before_the_last_or_the_start_is_refused(tmp_path: Path) -> None:
     """An outside audit: only a Clock's tick was checked; a stamp going back turned the nodes' watchdogs
     off, and one of -5 ns was taken."""
-    import zmq
-
     from palpate.messages.schemas import Clock
-    from palpate.runtime.node import NodeRunner
 
-    process = dataclasses.replace(bare_process(tmp_path, "follower"), mode="lockstep")
-    runner = NodeRunner(NodeSpec(name="follower", config=NoParams, factory=lambda c, ctx: Idle()), process)
+    runner = runner_of(dataclasses.replace(bare_process(tmp_path, "follower"), mode="lockstep"))
 
     def clock(tick: int, stamp_ns: int) -> None:
-        payload = codec.encode(Clock(stamp_ns=stamp_ns, tick=tick, period_ns=10_000_000, lockstep=True))
-        runner._on_frames([zmq.Frame(topics.CLOCK.encode()), zmq.Frame(payload)])
+        frame_to(runner, topics.CLOCK, Clock(stamp_ns=stamp_ns, tick=tick, period_ns=10_000_000, lockstep=True))
 
     try:
         clock(0, -5)
@@ -762,17 +761,14 @@ def test_a_follower_names_a_restarted_clock_source_a_refused_clock_and_gives_up_
     """An outside clock-source driver in C: one restarted within the 2 s grace left the graph saying "hung"
     for 120 s and more; a refused Clock (a skipped tick) was not named in the wait's note; a hung one was
     waited for until Ctrl-C."""
-    import zmq
-
     from palpate.messages.schemas import Clock
-    from palpate.runtime.node import NodeRunner
 
-    process = dataclasses.replace(bare_process(tmp_path, "follower"), mode="lockstep", clock_name="sim")
-    runner = NodeRunner(NodeSpec(name="follower", config=NoParams, factory=lambda c, ctx: Idle()), process)
+    runner = runner_of(dataclasses.replace(bare_process(tmp_path, "follower"), mode="lockstep", clock_name="sim"))
 
     def clock(tick: int) -> None:
-        payload = codec.encode(Clock(stamp_ns=tick * 10_000_000, tick=tick, period_ns=10_000_000, lockstep=True))
-        runner._on_frames([zmq.Frame(topics.CLOCK.encode()), zmq.Frame(payload)])
+        frame_to(
+            runner, topics.CLOCK, Clock(stamp_ns=tick * 10_000_000, tick=tick, period_ns=10_000_000, lockstep=True)
+        )
 
     runner.counter.counts["hello/sim"] = 1  # the clock source is connected
     try:
