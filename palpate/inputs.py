@@ -65,7 +65,7 @@ class Accumulated:
     taken (since stamp 0 for the first: a simulated run starts there): a path of 1000 m 10 ms into a run
     is no odometer's. One that falls below the last starts a new segment (a restarted sender counts from
     0 again), so the total never falls. :meth:`judge` leaves the state as it is (a message may still be
-    refused for another field), :meth:`take` keeps a judged reading, :meth:`reading` does both."""
+    refused for another field), :meth:`take` keeps a judged reading."""
 
     def __init__(self, field: str, unit: str, limit: float, max_rate: float) -> None:
         self.field, self.unit, self.limit, self.max_rate = field, unit, limit, max_rate
@@ -89,12 +89,6 @@ class Accumulated:
     def take(self, reading: Reading) -> None:
         """Keep ``reading`` (from :meth:`judge`) as the last one."""
         self.last, self.offset, self.stamp_ns = reading.last, reading.offset, reading.stamp_ns
-
-    def reading(self, value: float, stamp_ns: int) -> float:
-        """:meth:`judge`, then :meth:`take`: the total after ``value``."""
-        judged = self.judge(value, stamp_ns)
-        self.take(judged)
-        return judged.total
 
 
 def coordinates(

@@ -306,15 +306,21 @@ def test_an_accumulated_reading_grows_at_most_at_its_rate_and_its_total_never_fa
     touches were then all refused), and two touches handled in one real-time batch share the node's time
     (the second was refused): each reading is judged by its own stamp."""
     odometer = Accumulated("travelled_m", "m", 1e6, 1000.0)
-    assert odometer.reading(0.5, 10_000_000) == 0.5  # 0.5 m in 10 ms: within 1000 m/s
+
+    def read(value: float, stamp_ns: int) -> float:  # as the evaluator does with a touch it takes
+        judged = odometer.judge(value, stamp_ns)
+        odometer.take(judged)
+        return judged.total
+
+    assert read(0.5, 10_000_000) == 0.5  # 0.5 m in 10 ms: within 1000 m/s
     with pytest.raises(InputError, match=r"^travelled_m: grew by 1000 m in 0.01 s of its stamps, faster than 1000"):
-        odometer.reading(1000.5, 20_000_000)
+        read(1000.5, 20_000_000)
     with pytest.raises(InputError, match=r"^travelled_m: value 1e\+308 m is outside \[0, 1e\+06\] m"):
-        odometer.reading(1e308, 10**15)
-    assert odometer.reading(0.5, 10_000_000) == 0.5  # the same reading again (a touch without travel)
-    assert odometer.reading(2.5, 1_010_000_000) == 2.5  # refused readings left the last one in place
-    assert odometer.reading(0.25, 2_000_000_000) == 2.75  # the sender restarted: a new segment, the total goes on
-    assert odometer.reading(1.25, 3_000_000_000) == 3.75
-    assert odometer.reading(0.0, 3_500_000_000) == 3.75  # restarted again
+        read(1e308, 10**15)
+    assert read(0.5, 10_000_000) == 0.5  # the same reading again (a touch without travel)
+    assert read(2.5, 1_010_000_000) == 2.5  # refused readings left the last one in place
+    assert read(0.25, 2_000_000_000) == 2.75  # the sender restarted: a new segment, the total goes on
+    assert read(1.25, 3_000_000_000) == 3.75
+    assert read(0.0, 3_500_000_000) == 3.75  # restarted again
     with pytest.raises(InputError, match=r"grew by 2000 m in 1 s"):  # and judged by its rate, too
-        odometer.reading(2000.0, 4_500_000_000)
+        read(2000.0, 4_500_000_000)
