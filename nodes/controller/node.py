@@ -15,6 +15,7 @@ from palpate.geometry.bezier import bezier_length
 from palpate.geometry.rotations import matrix_to_quat
 from palpate.inputs import contact_arrays, fingertip_pose, within_reach
 from palpate.messages.schemas import CartesianVelocityCommand, ContactSet, Pose, TouchEvent, TouchTarget, Trajectory
+from palpate.nodes.controller.contact_check import ContactAgreement
 from palpate.nodes.controller.core import AXIS_APPROACH_M, Touch, TouchConfig, TouchLoop, tick_step_problem
 from palpate.nodes.controller.trajectory import ControllerConfig
 from palpate.runtime.spec import Context, NodeSpec, Port
@@ -47,6 +48,7 @@ class ControllerNode:
         self.pose: tuple[np.ndarray, np.ndarray] | None = None  # fingertip position (3,) m, orientation (3, 3)
         self.contacts = _NO_CONTACT
         self._first_stamp_ns: int | None = None  # until the tick period is known and checked
+        self.agreement = ContactAgreement(config.tip_radius_m)
 
     def on_pose(self, message: Pose) -> None:
         self.pose = fingertip_pose(message.position_m, message.quaternion_wxyz)
@@ -58,6 +60,8 @@ class ControllerNode:
         reach_m = self.config.tip_radius_m + CONTACT_REACH_M
         within_reach(positions, self.pose[0], reach_m, "positions_m", "fingertip")
         self.contacts = positions, normals, forces
+        if note := self.agreement.read(self.pose[0], positions, normals):
+            self.ctx.log.warning("controller: %s", note)
 
     def on_target(self, message: TouchTarget) -> None:
         if self.pose is None:

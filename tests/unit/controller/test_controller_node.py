@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 import numpy as np
@@ -11,6 +12,7 @@ from palpate.errors import InputError
 from palpate.messages import codec
 from palpate.messages.base import Message
 from palpate.messages.schemas import ContactSet, TouchTarget
+from palpate.nodes.controller.contact_check import JUDGED_SETS
 from palpate.nodes.controller.node import ControllerNode, ControllerNodeConfig
 from palpate.nodes.controller.trajectory import ControllerConfig
 from tests.unit.node_messages import no_contacts, pose
@@ -28,6 +30,7 @@ class FakeCtx:
         self.published: list[tuple[str, Any]] = []
         self.stop_reason = ""
         self.stop_failed = False
+        self.log = logging.getLogger("palpate.test.controller")
 
     def publish(self, port: str, message: Message) -> None:
         codec.validate(message)
@@ -197,3 +200,16 @@ def test_a_tick_that_carries_the_fingertip_past_its_radius_stops_the_run_naming_
     assert ctx.stop_failed == stops
     if stops:
         assert "v0_m_s" in ctx.stop_reason and "tick_period_s" in ctx.stop_reason and "8 mm radius" in ctx.stop_reason
+
+
+def test_inward_normals_are_logged_once_by_the_node(caplog: pytest.LogCaptureFixture) -> None:
+    ctx = FakeCtx()
+    node = ControllerNode(ControllerNodeConfig(initial_target_m=(0.0, 0.0, 0.0)), ctx)
+    node.on_pose(pose(np.array([0.0, 0.0, 0.025]), FACING_DOWN, "probe"))
+    inward = _contact_at([0.0, 0.0, 0.017])
+    inward.normals[:] = [0.0, 0.0, -1.0]  # the object lies below: its outward normal is +z
+    with caplog.at_level(logging.WARNING):
+        for _ in range(3 * JUDGED_SETS):
+            node.on_contacts(inward)
+    notes = [r.getMessage() for r in caplog.records if "point into the fingertip" in r.getMessage()]
+    assert len(notes) == 1 and notes[0].startswith("controller: in 10 of the first 10 contact sets")
