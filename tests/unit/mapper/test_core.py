@@ -224,3 +224,24 @@ def test_the_chunk_table_counts_partial_chunks(monkeypatch: pytest.MonkeyPatch) 
         core.check_memory(config, spec, 1000, 0)
     memory["SC_PHYS_PAGES"] = 36_000
     core.check_memory(config, spec, 1000, 0)  # exactly fits
+
+
+def test_a_fine_grid_keeps_its_contact_cells_with_the_default_margin(
+    scene: tuple[KinematicChain, TappingRecord],
+) -> None:
+    """An outside audit: at 0.5 mm cells and below the one-cell margin cleared the cells of the contacts
+    (the finger presses into the surface), and the map came out nearly empty without a word."""
+    from palpate.nodes.mapper.core import measured_free_margin_m
+
+    assert measured_free_margin_m(0.0005) == pytest.approx(0.0015) == measured_free_margin_m(0.0001)
+    assert measured_free_margin_m(0.002) == pytest.approx(0.0005) and measured_free_margin_m(0.003) is None
+    chain, rec = scene
+    occupied = {}
+    for margin in ("auto", None):
+        config = MapperConfig(**REGION, mode="known", resolution_m=0.0005, free_margin_m=margin)  # type: ignore[arg-type]
+        assert (margin == "auto") == (MapperConfig(**REGION).free_margin_m == margin)  # type: ignore[arg-type]
+        mapper = Mapper(config, chain, np.random.default_rng(0))
+        for t in range(len(rec.q_true)):
+            mapper.update(rec.q_true[t], rec.contact_links[t], rec.contact_local_m[t])
+        occupied[margin] = int((mapper.best_map().log_odds > 0).sum())
+    assert occupied["auto"] >= 2 * occupied[None] >= 2
