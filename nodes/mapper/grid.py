@@ -78,6 +78,8 @@ def update_log_odds(
 
 #: Most cells a grid may have: its flat cell indices are int64.
 MAX_CELLS = 2.0**62
+#: Most cells along one axis: a cell's coordinates are int32 (``LogOddsGrids.cell_keys``).
+MAX_CELLS_PER_AXIS = 2**31 - 1
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -95,8 +97,10 @@ class GridSpec:
     def __post_init__(self) -> None:
         if not (math.isfinite(self.resolution_m) and self.resolution_m > 0):
             raise ConfigError(f"resolution_m must be a positive number, got {self.resolution_m!r}")
-        if len(self.shape) != 3 or any(int(n) < 1 for n in self.shape):
-            raise ConfigError(f"shape must be 3 positive cell counts, got {self.shape!r}")
+        if len(self.shape) != 3 or not all(isinstance(n, (int, np.integer)) and n >= 1 for n in self.shape):
+            raise ConfigError(f"shape must be 3 positive integer cell counts, got {self.shape!r}")
+        if max(self.shape) > MAX_CELLS_PER_AXIS:  # a cell's coordinates are int32 (``cell_keys``)
+            raise ConfigError(f"shape {self.shape!r} has more than {MAX_CELLS_PER_AXIS:,} cells along an axis")
         if len(self.origin_m) != 3 or not all(math.isfinite(x) for x in self.origin_m):
             raise ConfigError(f"origin_m must be 3 finite numbers, got {self.origin_m!r}")
 
@@ -114,11 +118,12 @@ class GridSpec:
         with np.errstate(over="ignore"):
             cells = np.maximum(1.0, np.ceil((hi - lo) / resolution_m - 1e-9))
             total = float(np.prod(cells))
-        if not total < MAX_CELLS:  # also inf and NaN
+        if not (total < MAX_CELLS and float(cells.max()) <= MAX_CELLS_PER_AXIS):  # also inf and NaN
             raise ConfigError(
                 f"resolution_m {resolution_m!r} is too fine for the region {min_m!r} to {max_m!r}: "
-                f"{' x '.join(f'{c:.3g}' for c in cells)} cells, more than {MAX_CELLS:.3g} (flat cell indices are "
-                "64-bit); use a coarser resolution or a smaller region"
+                f"{' x '.join(f'{c:.3g}' for c in cells)} cells, more than {MAX_CELLS:.3g} or more than "
+                f"{MAX_CELLS_PER_AXIS:.3g} along an axis (flat cell indices are 64-bit, a cell's coordinates 32-bit); "
+                "use a coarser resolution or a smaller region"
             )
         n = cells.astype(int)
         return cls(

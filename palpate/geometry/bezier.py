@@ -11,6 +11,7 @@ which is C1 with the curve.
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import numpy as np
@@ -170,7 +171,14 @@ class Cubic:
         """
         if not tau_max >= tau_min:
             raise ValueError(f"closest_tau needs tau_min <= tau_max, got {tau_min} > {tau_max}")
+        if samples < 2:
+            raise ValueError(f"closest_tau needs samples >= 2 (both ends of the range), got {samples}")
         r_ = np.asarray(r, dtype=np.float64)
+        if r_.shape != (3,):
+            raise ValueError(f"closest_tau needs a point r of shape (3,), got shape {r_.shape}")
+        x, y, z = r_.tolist()
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            raise ValueError(f"closest_tau needs a finite point r, got {[x, y, z]}")
         return float(
             bezier_kernels.closest_search(
                 self.A,

@@ -171,6 +171,23 @@ def test_closest_tau_on_the_straight_continuation() -> None:
     assert Cubic(P).closest_tau(r, 0.0, 1.0) == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize(
+    ("r", "samples", "message"),
+    [
+        ([0.0, 0.0], 33, r"a point r of shape \(3,\), got shape \(2,\)"),  # it read past the array's end
+        ([[0.01, 0.0, 0.0]], 33, r"a point r of shape \(3,\), got shape \(1, 3\)"),
+        ([np.nan, 0.0, 0.0], 33, r"a finite point r, got \[nan, 0.0, 0.0\]"),  # it answered 0.0
+        ([0.0, np.inf, 0.0], 33, r"a finite point r"),
+        ([0.03, 0.0, 0.0], 1, r"samples >= 2"),  # it answered 0.0 where T(1) is the point
+    ],
+)
+def test_closest_tau_refuses_what_it_cannot_search(r: list, samples: int, message: str) -> None:
+    P = np.array([[0.0, 0, 0], [0.01, 0, 0], [0.02, 0, 0], [0.03, 0, 0]])
+    with pytest.raises(ValueError, match=message):
+        Cubic(P).closest_tau(r, samples=samples)
+    assert Cubic(P).closest_tau([0.03, 0.0, 0.0], samples=2) == pytest.approx(1.0)
+
+
 def test_cubic_agrees_with_vectorised_functions(curves: np.ndarray) -> None:
     cubic = Cubic(curves[3])
     for t in (0.0, 0.3, 0.77, 1.0):

@@ -275,3 +275,15 @@ def test_a_resolution_too_fine_for_int64_cell_indices_is_refused_by_name(resolut
     with pytest.raises(ConfigError, match=r"resolution_m .* is too fine for the region .* more than 4.61e\+18"):
         GridSpec.from_bounds((-0.045,) * 3, (0.045,) * 3, resolution_m)
     assert GridSpec.from_bounds((-0.045,) * 3, (0.045,) * 3, 1e-6).shape == (90_000,) * 3  # 7.3e14 cells: sparse
+
+
+def test_a_shape_of_non_integers_or_beyond_32_bit_coordinates_is_refused() -> None:
+    """An outside audit: shape (2.7, 3, 3) was taken (18 cells), and an axis of 3e9 cells wrote to the wrong
+    cell (its coordinates are int32)."""
+    with pytest.raises(ConfigError, match=r"shape must be 3 positive integer cell counts, got \(2.7, 3, 3\)"):
+        GridSpec(origin_m=(0.0, 0.0, 0.0), resolution_m=1.0, shape=(2.7, 3, 3))  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match=r"more than 2,147,483,647 cells along an axis"):
+        GridSpec(origin_m=(0.0, 0.0, 0.0), resolution_m=1.0, shape=(3_000_000_000, 1, 1))
+    with pytest.raises(ConfigError, match=r"3e\+09 x 1 x 1 cells, .* or more than 2.15e\+09 along an axis"):
+        GridSpec.from_bounds((0.0, 0.0, 0.0), (3e9, 1.0, 1.0), 1.0)
+    assert GridSpec(origin_m=(0.0, 0.0, 0.0), resolution_m=1.0, shape=(np.int64(2), 3, 3)).shape[0] == 2
