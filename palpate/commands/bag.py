@@ -174,6 +174,13 @@ def run_recover(args: argparse.Namespace) -> int:
     output = args.output or args.file.with_name(args.file.stem + ".recovered.mcap")
     report = mcap_io.recover(args.file, output, overwrite=args.force)
     state = f"input truncated ({report.reason})" if report.truncated else "input was complete"
+    if report.magic_cut:
+        state += "; the file ends inside the closing magic bytes, after the footer"
+    if report.data_crc_mismatch:
+        state += (
+            "; its data section did not match its CRC: a chunk's frame or a record between the chunks (such as "
+            "the launch's metadata, kept as read) is damaged; every chunk was read where the log's index puts it"
+        )
     if report.trailing:
         state += f"; left out the {report.trailing} bytes after the log's end (appended to it)"
     if report.damaged_chunks:
@@ -183,6 +190,8 @@ def run_recover(args: argparse.Namespace) -> int:
         )
     if report.orphaned:
         state += f"; {report.orphaned} message(s) on channels defined only in damaged chunks were dropped"
+    if (lost := report.lost()) is not None and (lost or report.truncated or report.damaged_chunks):
+        state += f"; {lost} of the {report.expected} messages the log's summary counts are lost"
     last = f", last stamp {report.last_log_time * 1e-9:.3f} s" if report.last_log_time is not None else ""
     print(f"recovered {report.messages} messages from {report.chunks} chunks into {output}{last}; {state}")
     return 0

@@ -106,7 +106,7 @@ def replay_note(launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] |
     """A note when the log was recorded from another launch file, or with arguments that set the replaced
     nodes' parameters otherwise (default: the clock source's), or another seed: the replayed sensor
     data and truth are then that run's, whatever this launch says."""
-    info = launch_info(log_path)
+    info = launch_info(log_path, verify=True)  # a note from altered metadata would mislead
     if not info:
         return None
     recorded = Path(info.get("launch_file", "")).name

@@ -14,6 +14,7 @@ Layout of a palpate log:
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import struct
@@ -27,11 +28,13 @@ from typing import IO, Any, NamedTuple
 
 import msgpack
 import zstandard
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
+from mcap.opcode import Opcode
 from mcap.reader import McapReader, make_reader
 from mcap.records import Channel, Chunk, Footer, Metadata, Schema
 from mcap.records import Message as McapMessage
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 from mcap.summary import Summary
 from mcap.writer import CompressionType, IndexType, Writer
 
@@ -201,6 +204,9 @@ class LogWriter:
             compression=COMPRESSIONS[compression],
             # per-message indexes cost more than they save with the recorder's small chunks
             index_types=IndexType.CHUNK | IndexType.ATTACHMENT | IndexType.METADATA,
+            # the data section's CRC (in DataEnd) covers what the chunks' CRCs do not: their frames and the
+            # records between them, such as the launch's metadata (``check_complete``)
+            enable_data_crcs=True,
         )
         self._writer.start(profile=profile, library=LIBRARY)
         self._schemas: dict[tuple[str, str, bytes], int] = {}
@@ -304,8 +310,9 @@ def _open(path: str | Path) -> IO[bytes]:
         raise RecordError(f"cannot open log {str(path)!r}: {exc.strerror}") from exc
 
 
-def check_complete(stream: IO[bytes], path: str | Path) -> None:
-    """RecordError naming what is wrong unless `stream` starts and ends with MCAP's magic bytes."""
+def check_complete(stream: IO[bytes], path: str | Path, *, data_crc: bool = False) -> None:
+    """RecordError naming what is wrong unless `stream` starts and ends with MCAP's magic bytes, its summary
+    matches its footer's CRC and (``data_crc``) its data section matches the CRC its DataEnd record holds."""
     try:
         head = stream.read(len(MCAP_MAGIC))
         size = stream.seek(0, os.SEEK_END)
@@ -327,6 +334,8 @@ def check_complete(stream: IO[bytes], path: str | Path) -> None:
             f"`palpate bag recover {path}` writes what it holds into a complete log"
         )
     _check_summary(stream, size, path)
+    if data_crc:
+        _check_data_crc(stream, size, path)
     stream.seek(0)
 
 
@@ -371,6 +380,58 @@ def _check_summary(stream: IO[bytes], size: int, path: str | Path) -> None:
         raise RecordError(damaged)
 
 
+#: MCAP's DataEnd record opcode, and its bytes (opcode, length, data section CRC).
+DATA_END_OPCODE = 0x0F
+DATA_END_BYTES = 1 + 8 + 4
+#: Files (device, inode, size, modification time) whose data section matched its CRC in this process.
+_DATA_CRC_MATCHED: set[tuple[int, int, int, int]] = set()
+
+
+def _check_data_crc(stream: IO[bytes], size: int, path: str | Path) -> None:
+    """RecordError when the data section (from the start magic to its DataEnd record) does not match the CRC
+    DataEnd holds: damage the chunks' own CRCs do not see, in a chunk's frame (its length) or in a record
+    between chunks (the launch's metadata). A log whose writer computed none (CRC 0) passes."""
+    st = os.fstat(stream.fileno())
+    key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+    if key in _DATA_CRC_MATCHED:
+        return
+    footer_at = size - len(MCAP_MAGIC) - FOOTER_BYTES
+    stream.seek(footer_at + 9)
+    (summary_start,) = struct.unpack("<Q", stream.read(8))
+    data_end_at = (summary_start or footer_at) - DATA_END_BYTES
+    if data_end_at < len(MCAP_MAGIC):
+        return  # the reader names what is wrong
+    stream.seek(data_end_at)
+    opcode, length, expected = struct.unpack("<BQI", stream.read(DATA_END_BYTES))
+    if opcode != DATA_END_OPCODE or length != 4 or expected == 0:
+        return
+    stream.seek(0)
+    crc, left = 0, data_end_at
+    while left > 0:
+        block = stream.read(min(left, 1 << 20))
+        if not block:
+            break
+        crc = zlib.crc32(block, crc)
+        left -= len(block)
+    if crc != expected:
+        raise RecordError(
+            f"{path}: its data section does not match the CRC its DataEnd record holds (a chunk, a chunk's frame "
+            f"or a record between chunks such as the launch's metadata); the file is damaged: `palpate bag recover "
+            f"{path}` keeps every intact chunk"
+        )
+    _DATA_CRC_MATCHED.add(key)
+
+
+def _data_crc_matches(path: str | Path) -> bool:
+    """Whether the data section of the log at `path` (whose end and summary are intact) matches its CRC."""
+    with _open(path) as stream:
+        try:
+            _check_data_crc(stream, os.fstat(stream.fileno()).st_size, path)
+        except RecordError:
+            return False
+    return True
+
+
 def _unreadable(path: str | Path, exc: BaseException) -> RecordError:
     what = f"{type(exc).__name__}: {exc}"
     if isinstance(exc, KeyError):
@@ -382,11 +443,11 @@ def _unreadable(path: str | Path, exc: BaseException) -> RecordError:
 
 
 @contextmanager
-def _reader(path: str | Path, *, validate_crcs: bool = False) -> Iterator[McapReader]:
+def _reader(path: str | Path, *, validate_crcs: bool = False, data_crc: bool = False) -> Iterator[McapReader]:
     """A reader of the finished log at `path`: RecordError naming what is wrong for a file that is not
     one (``check_complete``) or that turns out damaged while it is read (``_unreadable``)."""
     with _open(path) as stream:
-        check_complete(stream, path)
+        check_complete(stream, path, data_crc=data_crc)
         try:
             yield make_reader(stream, validate_crcs=validate_crcs)
         except READ_ERRORS as exc:
@@ -395,11 +456,12 @@ def _reader(path: str | Path, *, validate_crcs: bool = False) -> Iterator[McapRe
 
 def read_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[LoggedMessage]:
     """Messages of a finished log in file order (the recorder's canonical order), optionally of `topics`.
-    Every chunk's CRC is checked, and the messages read are counted against the summary's statistics:
-    a damaged log is a RecordError, never altered or missing data (a lost or repeated chunk index)."""
+    The data section's CRC and every chunk's are checked, and the messages read are counted against the
+    summary's statistics: a damaged log is a RecordError, never altered or missing data (a lost or repeated
+    chunk index, altered metadata)."""
     wanted = None if topics is None else list(topics)
     read = 0
-    with _reader(path, validate_crcs=True) as reader:
+    with _reader(path, validate_crcs=True, data_crc=True) as reader:
         for schema, channel, message in reader.iter_messages(topics=wanted, log_time_order=False):
             read += 1
             yield LoggedMessage(
@@ -486,10 +548,11 @@ def _summarize_by_scan(path: str | Path) -> LogSummary:
 LAUNCH_METADATA = "palpate.launch"
 
 
-def launch_info(path: str | Path) -> dict[str, str]:
+def launch_info(path: str | Path, *, verify: bool = False) -> dict[str, str]:
     """The launch file, arguments and seed a log was recorded from (``LAUNCH_METADATA``); {} when the log
-    does not say (recorded by ``palpate record``, or by another tool)."""
-    with _reader(path) as reader:
+    does not say (recorded by ``palpate record``, or by another tool). ``verify``: RecordError unless the
+    data section, which holds the record, matches its CRC (a full read of the file)."""
+    with _reader(path, data_crc=verify) as reader:
         for record in reader.iter_metadata():
             if record.name == LAUNCH_METADATA:
                 return dict(record.metadata)
@@ -557,6 +620,16 @@ class RecoverReport:
     orphaned: int = 0
     #: Bytes after the log's end (its footer and magic) that were left out: something appended to it.
     trailing: int = 0
+    #: Messages the log's summary counts (None: no readable summary).
+    expected: int | None = None
+    #: The data section did not match its CRC: a record between the chunks (the launch's metadata) may be altered.
+    data_crc_mismatch: bool = False
+    #: The file ends inside the log's closing magic bytes (after its footer).
+    magic_cut: bool = False
+
+    def lost(self) -> int | None:
+        """Messages the summary counts that were not recovered (None: no summary to count them)."""
+        return None if self.expected is None else max(0, self.expected - self.messages)
 
 
 def _why(exc: BaseException) -> str:
@@ -580,6 +653,10 @@ def iter_records_tolerant(
                 record = next(records)
             except StopIteration:
                 return
+            except CRCValidationError as exc:  # only DataEnd's is checked here: chunks are broken up below
+                report.data_crc_mismatch = True
+                report.damage = report.damage or _why(exc)
+                continue
             except READ_ERRORS as exc:
                 report.truncated = True
                 report.reason = _why(exc)
@@ -599,17 +676,47 @@ def iter_records_tolerant(
                     yield item
             if isinstance(record, Footer):
                 report.complete = True
-                report.trailing = max(0, os.fstat(stream.fileno()).st_size - stream.tell() - len(MCAP_MAGIC))
+                after = os.fstat(stream.fileno()).st_size - stream.tell() - len(MCAP_MAGIC)
+                report.trailing, report.magic_cut = max(0, after), after < 0
                 return
 
 
-def _summary_records(path: str | Path) -> tuple[dict[int, Schema], dict[int, Channel]]:
-    """The schemas and channels of a log's summary section; none where it has none or it is damaged."""
+def iter_indexed_records(
+    path: str | Path, summary: Summary, report: RecoverReport
+) -> Iterator[Schema | Channel | McapMessage | Metadata]:
+    """The metadata records and then the chunks' records that the (intact) `summary` indexes, each read at
+    its indexed offset and length, so that a damaged frame (a chunk's length) does not hide what follows it;
+    a chunk is used when its CRC matches. Every chunk is counted in `report` (used, or damaged)."""
+    with _open(path) as stream:
+        for meta in summary.metadata_indexes:
+            try:
+                stream.seek(meta.offset + 9)
+                yield Metadata.read(ReadDataStream(io.BytesIO(stream.read(meta.length - 9))))
+            except READ_ERRORS as exc:
+                report.damage = report.damage or f"metadata {meta.name!r}: {_why(exc)}"
+        for index in sorted(summary.chunk_indexes, key=lambda index: index.chunk_start_offset):
+            try:
+                stream.seek(index.chunk_start_offset)
+                record = stream.read(index.chunk_length)
+                if len(record) != index.chunk_length or record[0] != Opcode.CHUNK:
+                    raise RecordError(f"no chunk at offset {index.chunk_start_offset}")
+                inner = breakup_chunk(Chunk.read(ReadDataStream(io.BytesIO(record[9:]))), validate_crc=True)
+            except (RecordError, *READ_ERRORS) as exc:
+                report.damaged_chunks += 1
+                report.damage = report.damage or _why(exc)
+                continue
+            report.chunks += 1
+            yield from (item for item in inner if isinstance(item, Schema | Channel | McapMessage))
+
+
+def _damaged_log_summary(path: str | Path) -> Summary | None:
+    """The summary section of a log whose data section may be damaged; None where it has none or the
+    summary itself is damaged."""
     try:
-        summary = _summary(path)
+        with _reader(path) as reader:
+            return reader.get_summary()
     except RecordError:
-        return {}, {}
-    return (dict(summary.schemas), dict(summary.channels)) if summary is not None else ({}, {})
+        return None
 
 
 def copy_records(
@@ -665,8 +772,18 @@ def recover(src: str | Path, dst: str | Path, *, compression: str = "zstd", over
     Raises RecordError, leaving `dst` as it was, when `src` holds no complete chunk (or is not MCAP),
     or when `dst` exists and not `overwrite`."""
     report = RecoverReport()
+    summary = _damaged_log_summary(src)
+    known = (dict(summary.schemas), dict(summary.channels)) if summary is not None else ({}, {})
+    records: Iterable[Schema | Channel | McapMessage | Metadata]
+    if summary is not None and summary.chunk_indexes and summary.statistics is not None:
+        # start, end, footer and summary intact: every chunk where the index says, past any damaged frame
+        report.complete, report.expected = True, summary.statistics.message_count
+        report.data_crc_mismatch = not _data_crc_matches(src)
+        records = iter_indexed_records(src, summary, report)
+    else:
+        records = iter_records_tolerant(src, report)
     with output_file(src, dst, "recover", overwrite) as partial, LogWriter(partial, compression=compression) as out:
-        copy_records(iter_records_tolerant(src, report), out, report=report, known=_summary_records(src))
+        copy_records(records, out, report=report, known=known)
         if report.truncated and report.chunks == 0 and report.messages == 0 and "InvalidMagic" in report.reason:
             raise RecordError(f"{src} is not an MCAP file ({report.reason})")
         if report.messages == 0 and not (report.complete and report.damaged_chunks == 0):

@@ -449,3 +449,59 @@ def test_a_damaged_summary_or_bytes_after_the_end_are_named(tmp_path: Path) -> N
     for path, trailing in ((appended, 8), (twice, len(data)), (log, 0)):
         report = mcap_io.recover(path, tmp_path / f"{path.stem}.recovered.mcap")
         assert report.complete and report.trailing == trailing
+
+
+def _launch_log(path: Path, about: dict[str, str]) -> list[tuple[str, object]]:
+    """A log with the launch's metadata and one chunk per message; returns what it holds."""
+    items = canonical_log(4)
+    with mcap_io.LogWriter(path) as writer:
+        writer.metadata(mcap_io.LAUNCH_METADATA, about)
+        for seq, (topic, message) in enumerate(items):
+            payload = codec.encode(message)
+            writer.write(topic, payload, mcap_io.peek(payload), seq)
+            writer.flush()
+    return items  # type: ignore[return-value]
+
+
+def test_recover_reads_past_a_damaged_chunk_frame_by_the_logs_index(tmp_path: Path) -> None:
+    """An outside audit: one byte of a chunk's length field (or of the header's) made recover keep the first
+    chunk and drop the ten intact ones after it, without saying how many messages were lost."""
+    about = {"launch_file": "launch/probe.yaml", "args": "{}", "seed": "0"}
+    src = tmp_path / "run.mcap"
+    items = _launch_log(src, about)
+    data = src.read_bytes()
+    chunks = [start for opcode, start, _ in _top_records(data) if opcode == 0x06]
+    assert len(chunks) == len(items)
+    expected = [codec.encode(msg) for _, msg in items]  # type: ignore[arg-type]
+    for at in (chunks[1] + 3, 9):  # the second chunk's record length; the header's
+        damaged = bytearray(data)
+        damaged[at] ^= 0x5A
+        (tmp_path / "damaged.mcap").write_bytes(bytes(damaged))
+        with pytest.raises(RecordError, match=r"its data section does not match the CRC .* bag recover"):
+            list(mcap_io.read_messages(tmp_path / "damaged.mcap"))
+        report = mcap_io.recover(tmp_path / "damaged.mcap", tmp_path / "fixed.mcap")
+        assert report.data_crc_mismatch and report.lost() == 0 and report.chunks == len(items)
+        assert [m.data for m in mcap_io.read_messages(tmp_path / "fixed.mcap")] == expected
+        assert mcap_io.launch_info(tmp_path / "fixed.mcap", verify=True) == about
+    assert mcap_io.recover(src, tmp_path / "same.mcap").lost() == 0  # an intact log: nothing to say
+
+
+def test_altered_launch_metadata_is_refused_where_it_would_mislead(tmp_path: Path) -> None:
+    """An outside audit: seed 0 edited to 7 in the file passed every check, and a replay's note quoted it."""
+    src = tmp_path / "run.mcap"
+    items = _launch_log(src, {"launch_file": "launch/probe.yaml", "args": "{}", "seed": "0"})
+    data = src.read_bytes()
+    at = data.index(b"seed") + len(b"seed") + 4  # past the value's length prefix: its one character
+    assert data[at : at + 1] == b"0"
+    (tmp_path / "altered.mcap").write_bytes(data[:at] + b"7" + data[at + 1 :])
+    assert mcap_io.launch_info(tmp_path / "altered.mcap")["seed"] == "7"  # unverified: as bag info shows it
+    with pytest.raises(RecordError, match=r"such as the launch's metadata\); the file is damaged"):
+        mcap_io.launch_info(tmp_path / "altered.mcap", verify=True)
+    with pytest.raises(RecordError, match=r"its data section does not match"):
+        list(mcap_io.read_messages(tmp_path / "altered.mcap"))
+    report = mcap_io.recover(tmp_path / "altered.mcap", tmp_path / "kept.mcap")
+    assert report.data_crc_mismatch and report.lost() == 0
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[:-3])  # inside the closing magic bytes
+    report = mcap_io.recover(cut, tmp_path / "uncut.mcap")
+    assert report.magic_cut and report.complete and report.messages == len(items)
