@@ -9,6 +9,7 @@ from palpate.config import KeyPath
 from palpate.errors import InputError
 from palpate.messages.schemas import ContactSet, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
 from palpate.nodes.gpis.session import GPISNodeConfig, GPISSession
+from palpate.nodes.gpis import surface
 from palpate.nodes.gpis.surface import SurfaceMeshArrays
 from palpate.runtime.spec import Context, NodeSpec, Port
 
@@ -19,6 +20,7 @@ class GPISNode:
     def __init__(self, config: GPISNodeConfig, ctx: Context):
         self.ctx = ctx
         self.session = GPISSession(config)
+        self._coarsened_said = False
 
     def on_pose(self, message: Pose) -> None:
         self.session.pose(message.position_m)
@@ -40,15 +42,25 @@ class GPISNode:
         try:
             mesh = self.session.whole(message.variance)
         finally:
-            self._count()
+            counts = self._count()
+        if counts.get("whole_mesh_coarsened") and not self._coarsened_said:
+            self._coarsened_said = True
+            self.ctx.log.warning(
+                "gpis: the whole-object mesh at global_resolution_m = %g m would exceed %d grid nodes: made at %.3g "
+                "m (and so on, counted as whole_mesh_coarsened)",
+                self.session.config.global_resolution_m,
+                surface.MAX_GRID_NODES,
+                self.session.whole_resolution_m,
+            )
         self._publish(mesh, "global")
 
-    def _count(self) -> None:
+    def _count(self) -> dict[str, int]:
         counts = self.session.take_counts()
         for name, n in counts.items():
             self.ctx.count(name, n)
         if "kernel_grown" in counts:
             self.ctx.metrics["kernel_R_m"] = self.session.gp.config.R_m
+        return counts
 
     def on_tick(self, stamp_ns: int) -> None:
         """The surface changes only with touches."""

@@ -36,6 +36,7 @@ from palpate.nodes.gpis.surface import (
     add_touch,
     axis_nodes,
     whole_box,
+    whole_resolution,
     whole_surface,
 )
 
@@ -51,7 +52,9 @@ class GPISNodeConfig(Validated):
     local_half_extent_m: PositiveFloat = 0.06
     #: Marching-cubes cell size of the local mesh (5 mm gives candidates 2-5 mm apart).
     local_resolution_m: PositiveFloat = 0.005
-    #: Cell size of the whole-object mesh published on request.
+    #: Cell size of the whole-object mesh published on request; coarser where its grid would exceed
+    #: MAX_GRID_NODES (50 million nodes: an object over about 1 m across at 3 mm), said once and counted
+    #: as ``whole_mesh_coarsened``.
     global_resolution_m: PositiveFloat = 0.003
     #: Margin around the contacts' bounding box for the whole-object mesh.
     global_margin_m: NonNegativeFloat = 0.03
@@ -126,6 +129,8 @@ class GPISSession:
     at a touch was thinner than the grid: its mesh was made on a finer one), ``kernel_grown``,
     ``kernel_not_grown`` (the contacts did not factor with the larger range), ``free_space_points``,
     ``free_space_refused`` (the covariance would not factor with more: the mesh has those added),
+    ``whole_mesh_coarsened`` (a whole-object mesh at global_resolution_m would exceed MAX_GRID_NODES: made at
+    the coarser ``whole_resolution_m``),
     ``whole_prior_kept`` (a whole-object mesh asked for the hull prior kept the GP's own, see
     GPISNodeConfig.whole_prior).
     """
@@ -136,6 +141,7 @@ class GPISSession:
         self.gp: SurfaceEstimator = make_estimator(config.gp, prior_centre_m=config.prior_centre_m)
         self.swept = SweptSpace(config.free_space_voxel_m)
         self.fingertip_m: np.ndarray | None = None  # the fingertip centre at the last pose
+        self.whole_resolution_m = config.global_resolution_m  # the step of the last whole-object mesh
 
     def pose(self, position_m: ArrayLike) -> None:
         """The fingertip centre now (kept for ``no_contact``)."""
@@ -179,7 +185,11 @@ class GPISSession:
             try:
                 if cfg.free_space:
                     self._enforce_free_space()
-                return whole_surface(self.gp, cfg.global_margin_m, cfg.global_resolution_m, with_variance=variance)
+                step = whole_resolution(self.gp, cfg.global_margin_m, cfg.global_resolution_m)
+                self.whole_resolution_m = step
+                if step > cfg.global_resolution_m:
+                    self._counts["whole_mesh_coarsened"] += 1
+                return whole_surface(self.gp, cfg.global_margin_m, step, with_variance=variance)
             finally:
                 self.gp.drop_free_space()  # the active set is this mesh's own (see GPISNodeConfig.free_space)
 

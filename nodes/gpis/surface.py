@@ -87,6 +87,18 @@ def axis_nodes(extent_m: float, resolution_m: float) -> int:
     return count + 1 - count % 2
 
 
+def fitting_resolution(extent_m: ArrayLike, resolution_m: float, max_nodes: int | None = None) -> float:
+    """The step, at least resolution_m, of a grid over a box of extent_m (3,) with at most max_nodes nodes
+    (None: MAX_GRID_NODES): a whole-object mesh of a large object (or at a very fine step) coarsened by 2 %
+    steps until it fits."""
+    limit = MAX_GRID_NODES if max_nodes is None else max_nodes
+    extent = [float(e) for e in np.asarray(extent_m, dtype=np.float64)]
+    step = float(resolution_m)
+    while math.prod(axis_nodes(e, step) for e in extent) > limit:
+        step *= 1.02
+    return step
+
+
 def grid_axes(bounds_min: ArrayLike, bounds_max: ArrayLike, resolution_m: float) -> list[FloatArray]:
     """Per-axis node coordinates covering [bounds_min, bounds_max] with step resolution_m, centred.
 
@@ -241,11 +253,21 @@ def whole_surface(
     gp: SurfaceEstimator, margin_m: float, resolution_m: float, *, with_variance: bool = True, refine: bool = True
 ) -> SurfaceMeshArrays:
     """Surface mesh over the contacts' bounding box grown by margin_m on every side (the whole object
-    as touched so far); an empty mesh before the first contact."""
+    as touched so far), at resolution_m or the coarser step that keeps its grid within MAX_GRID_NODES
+    (``whole_resolution``); an empty mesh before the first contact."""
     if gp.n_contacts == 0:
         return SurfaceMeshArrays.empty()
     lower, upper = whole_box(gp.positions_m, margin_m)
-    return global_surface(gp, lower, upper, resolution_m, with_variance=with_variance, refine=refine)
+    step = fitting_resolution(upper - lower, resolution_m)
+    return global_surface(gp, lower, upper, step, with_variance=with_variance, refine=refine)
+
+
+def whole_resolution(gp: SurfaceEstimator, margin_m: float, resolution_m: float) -> float:
+    """The step ``whole_surface`` meshes at: resolution_m, or coarser where its grid would exceed MAX_GRID_NODES."""
+    if gp.n_contacts == 0:
+        return resolution_m
+    lower, upper = whole_box(gp.positions_m, margin_m)
+    return fitting_resolution(upper - lower, resolution_m)
 
 
 def whole_box(points_m: FloatArray, margin_m: float) -> tuple[FloatArray, FloatArray]:

@@ -243,3 +243,29 @@ def test_growth_allows_for_the_local_grid_overhanging_its_half_extent() -> None:
     session.touch([0.431, 0.0, 0.03], [1.0, 0.0, 0.0])
     assert session.gp.config.R_m == 1.0 and session.gp.n_contacts == 2
     assert session.take_counts() == {"kernel_grown": 1}
+
+
+def test_a_whole_object_mesh_whose_grid_would_be_too_large_is_made_coarser_and_said_once(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """An outside audit: global_resolution_m = 0.1 mm (as a 1.5 m object at 3 mm) had every whole-object
+    request refused, and the run ended 'complete' with every accuracy score null."""
+    from palpate.nodes.gpis import surface
+
+    assert surface.fitting_resolution([0.1, 0.1, 0.1], 0.003) == 0.003  # 35^3 nodes fit
+    step = surface.fitting_resolution([1.56, 1.56, 1.56], 0.003)  # a 1.5 m object: 521^3 nodes do not
+    assert 1.0 < step / 0.003 < 1.5 and surface.axis_nodes(1.56, step) ** 3 <= surface.MAX_GRID_NODES
+    assert surface.axis_nodes(1.56, step / 1.02) ** 3 > surface.MAX_GRID_NODES  # no coarser than needed
+    sent: list[Message] = []
+    ctx = NodeContext("gpis", 0, lambda topic, message: sent.append(message), {"surface": "surface/mesh"})
+    node = GPISNode(GPISNodeConfig(), ctx)
+    for normal in np.eye(3):
+        node.on_touches(touch(0.02 * normal, normal))
+    monkeypatch.setattr(surface, "MAX_GRID_NODES", 20**3)  # the whole object's 29^3 nodes do not fit
+    with caplog.at_level("WARNING"):
+        for _ in range(2):
+            node.on_request(SurfaceRequest(stamp_ns=0, region="global", variance=False))
+    assert isinstance(sent[-1], SurfaceMesh) and sent[-1].region == "global" and len(sent[-1].faces) > 0
+    assert node.session.whole_resolution_m > 0.003
+    said = [r.getMessage() for r in caplog.records if "whole-object mesh" in r.getMessage()]
+    assert len(said) == 1 and "global_resolution_m = 0.003 m would exceed 8000 grid nodes" in said[0]
