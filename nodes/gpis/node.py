@@ -8,8 +8,8 @@ from typing import Any
 from palpate.config import KeyPath
 from palpate.errors import InputError
 from palpate.messages.schemas import ContactSet, Pose, SurfaceMesh, SurfaceRequest, TouchEvent
-from palpate.nodes.gpis.session import GPISNodeConfig, GPISSession
 from palpate.nodes.gpis import surface
+from palpate.nodes.gpis.session import GPISNodeConfig, GPISSession
 from palpate.nodes.gpis.surface import SurfaceMeshArrays
 from palpate.runtime.spec import Context, NodeSpec, Port
 
