@@ -532,14 +532,24 @@ class TapEvents(NamedTuple):
     connections: list[str]
 
 
+#: Messages a never-drop tool (the recorder) queues per publisher. Finite, so that a publisher that waits
+#: when its queue is full (``BlockingPublisher``: ``palpate replay --fast``) is held back by the tool: with
+#: an unbounded queue on either side ZeroMQ's pipe has no limit, and a fast replay into ``palpate record``
+#: piled the whole log up in both processes (1.7 GB for a 242 MB log). A real-time publisher that does not
+#: wait drops beyond its own queue and this one (minutes of backlog at the graph's rates).
+NEVER_DROP_QUEUE = 100_000
+
+
 class PublisherTap:
     """For tools that watch a running graph (topic echo/hz, the live viewer, the recorder): one SUB
     socket per publisher, so a message's publisher is known, keyed with the publisher's CurveZMQ
     server key when it has one.
 
     Tools subscribe to every topic by default (filtering is the caller's: a subscription by name
-    would add to the subscriber counts nodes wait for at start-up). With `never_drop` the receive
-    queues are unbounded (the recorder must see every message); with `monitor` each socket reports
+    would add to the subscriber counts nodes wait for at start-up). With `never_drop` each receive
+    queue holds up to NEVER_DROP_QUEUE messages (the recorder must see every message: a lockstep
+    publisher's queue is unbounded on its side, and one that waits when full, such as ``palpate replay``,
+    waits for the tool instead of filling both processes' memory); with `monitor` each socket reports
     when its publisher connects and disconnects (`connection_changes`).
     """
 
@@ -582,7 +592,7 @@ class PublisherTap:
             keep_alive(sock)
         sock.setsockopt(zmq.LINGER, 0)
         if self.never_drop:
-            sock.setsockopt(zmq.RCVHWM, 0)
+            sock.setsockopt(zmq.RCVHWM, NEVER_DROP_QUEUE)
         for topic in topics:
             sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
         if self.monitor:  # before connecting, so that the first connection is reported

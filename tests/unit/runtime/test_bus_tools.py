@@ -221,3 +221,35 @@ def test_the_recorder_and_the_viewer_say_when_their_bus_has_no_publisher(
         recorder.tap.close()
     assert caplog.text.count(f"no publisher on bus {nowhere}, a folder that does not exist yet") == 1
     assert capsys.readouterr().err.count(f"palpate view: no publisher on bus {nowhere}") == 1
+
+
+def test_a_publisher_that_waits_when_full_is_held_back_by_a_never_drop_tap(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An outside audit: `palpate replay --fast` into `palpate record` piled the whole log up in both
+    processes (the tap's unbounded queue made ZeroMQ's pipe unbounded, so the player never waited)."""
+    payload = bytes(10_000)  # large enough that the kernel's socket buffer holds few
+
+    def fill(queue: int, name: str) -> int:
+        """Messages a player sends before it has to wait, to a tap that reads none; then all of them are read."""
+        monkeypatch.setattr(bus, "NEVER_DROP_QUEUE", queue)
+        endpoint = bus.ipc_endpoint(tmp_path, name)
+        player = bus.BlockingPublisher(endpoint, send_hwm=20, linger_ms=0, send_timeout_ms=50)
+        tap = bus.PublisherTap(never_drop=True)
+        try:
+            tap.add(endpoint, ["a"])
+            bus.wait_for_subscribers(player.sock, player.counter, {"a": 1}, TIMEOUT_S)
+            sent = 0
+            while sent < 2000 and player.send([b"a", sent.to_bytes(4, "little") + payload]):
+                sent += 1
+            received: list[list[bytes]] = []
+            _until(lambda: received.extend(tap.take(endpoint)) or len(received) >= sent, "the queued messages")
+            assert [int.from_bytes(m[1][:4], "little") for m in received] == list(range(sent))  # all, in order
+            assert player.send([b"a", b"more"])  # room again
+            return sent
+        finally:
+            player.close()
+            tap.close()
+
+    assert fill(0, "unbounded") == 2000  # the player never waits: every message piles up in the queues
+    assert 70 <= fill(50, "bounded") < 500  # 20 + 50 queued (and what the kernel's buffer holds): it waits
