@@ -35,6 +35,13 @@ from palpate.geometry.rotations import dot3
 FloatArray = NDArray[np.float64]
 
 
+#: Fastest turn a command asks for, rad/s. The feedforward rate grows as one over the curve's length:
+#: a curve of a few micrometres (a target at the last contact) asked for 3,500 rad/s, which the
+#: simulator refuses (1000), and the fingertip stood still. Normal runs turn at most about 11 rad/s,
+#: a slide at most pi / MIN_SLIDE_TURN_S = 157 rad/s.
+MAX_ANGULAR_RAD_S = 200.0
+
+
 @dataclass(frozen=True, kw_only=True)
 class ControllerConfig(Validated):
     """Parameters of the trajectory controller. The paper gives no values for v0 or Delta_m."""
@@ -386,6 +393,9 @@ class TrajectoryController:
             speed = math.sqrt(dot3(tangent, tangent))
             if speed > 1e-12:
                 angular = angular + self._R0_w01 * (cfg.v0_m_s / speed)  # d/dt T_R
+        rate = float(np.linalg.norm(angular))
+        if rate > MAX_ANGULAR_RAD_S:  # a curve of a few micrometres turning the fingertip round
+            angular = angular * (MAX_ANGULAR_RAD_S / rate)
         return linear, angular
 
     # --- internals -------------------------------------------------------------------------------

@@ -114,6 +114,13 @@ class GPISNodeConfig(Validated):
     def __post_init__(self) -> None:
         super().__post_init__()
         half, step = self.local_half_extent_m, self.local_resolution_m
+        if step > half / 2.0:  # fewer than 4 cells across the box: no surface a planner can use
+            raise ConfigError(
+                f"local_resolution_m = {step!r} leaves fewer than 4 cells across the local box (2 x "
+                f"local_half_extent_m = {2.0 * half!r} m), too coarse to mesh a surface there; give at most "
+                f"{half / 2.0:g} m (the default is 0.005 m)",
+                ("local_resolution_m",),
+            )
         if 2.0 * half / step > MAX_GRID_NODES or axis_nodes(2.0 * half, step) ** 3 > MAX_GRID_NODES:
             raise ConfigError(
                 f"local_resolution_m = {step!r} over a local_half_extent_m = {half!r} box makes a "

@@ -292,3 +292,22 @@ def test_the_recovery_turns_the_fingertip_to_poke_along_the_target_normal() -> N
     assert ctrl.direction @ t_n > 0.9  # arriving along +t_n
     angle = np.degrees(np.arccos(np.clip(run.R[:, 2] @ t_n, -1, 1)))
     assert angle < 10.0
+
+
+def test_a_curve_of_micrometres_asks_for_no_turn_faster_than_the_cap() -> None:
+    """An outside audit: a target at the last contact (a local mesh of 3 nodes across) gave a curve of a few
+    micrometres whose feedforward turn rate, 3,500 rad/s, the simulator refused (over 1000) for ever."""
+    from palpate.nodes.controller.trajectory import MAX_ANGULAR_RAD_S
+
+    ctrl = TrajectoryController()
+    facing_up = np.array([0.0, 0.0, -1.0])  # a target whose normal turns the fingertip round
+    ctrl.start(np.zeros(3), V_DOWN, R_DOWN, np.array([2e-6, 0.0, 0.0]), facing_up)
+    rates = []
+    r, R = np.zeros(3), R_DOWN
+    for _ in range(20):
+        v, w = ctrl.command(r, R)
+        rates.append(float(np.linalg.norm(w)))
+        r, R = r + v * DT_S, rotations.exp_so3(w * DT_S) @ R
+    assert max(rates) == pytest.approx(MAX_ANGULAR_RAD_S) and MAX_ANGULAR_RAD_S < 1000.0  # the sim's limit
+    ctrl.start(np.zeros(3), V_DOWN, R_DOWN, np.array([0.03, 0.0, 0.0]), facing_up)  # 3 cm: far below the cap
+    assert float(np.linalg.norm(ctrl.command(np.zeros(3), R_DOWN)[1])) < 20.0

@@ -134,6 +134,10 @@ def test_a_local_resolution_no_touch_could_mesh_is_a_config_error() -> None:
         with pytest.raises(ConfigError, match=r"local_resolution_m = .* makes a local grid of more than"):
             load(GPISNodeConfig, {"local_resolution_m": step})
     assert load(GPISNodeConfig, {"local_resolution_m": 0.0004}).local_resolution_m == 0.0004  # 301^3 nodes
+    # too coarse: a 0.2 m step over the 0.12 m box left the planner targets at the contact, and the run stalled
+    with pytest.raises(ConfigError, match=r"local_resolution_m = 0.2 leaves fewer than 4 cells .* at most 0.03 m"):
+        load(GPISNodeConfig, {"local_resolution_m": 0.2})
+    assert load(GPISNodeConfig, {"local_resolution_m": 0.03}).local_resolution_m == 0.03
 
 
 def test_touch_reach_covers_the_local_grid_and_the_whole_object_box_with_the_touch() -> None:
