@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -616,3 +617,24 @@ def test_every_refused_mesh_is_named_at_once(tmp_path: Path) -> None:
         episodes(cases, 1, ["igef"])
     with pytest.raises(MeshError, match=r"^[^\n]*flat\.stl: "):  # one alone as before
         episodes(cases[:2], 1, ["igef"])
+
+
+def test_a_worker_warms_up_once_untimed_before_its_first_run(monkeypatch: pytest.MonkeyPatch) -> None:
+    """An outside audit: the first runs of a worker carried its imports and numba's kernels (a sweep's rows
+    run first showed twice the CPU seconds of the others)."""
+    from palpate.evaluation import explore
+
+    ran: list[tuple[float, str, bool]] = []
+
+    def fake_run(episode: explore.Episode, **kwargs: object) -> dict[str, object]:
+        ran.append((episode.duration_s, episode.results_path, "progress" in kwargs))
+        return {"coverage": 0.0}
+
+    monkeypatch.setattr(explore, "run_episode", fake_run)
+    monkeypatch.setattr(explore, "_warmed_up", False)
+    [episode] = episodes([ObjectCase(name="cube", kind="cube")], 1, ["igef"])
+    episode = replace(episode, results_path="/tmp/results.json")
+    for _ in range(2):
+        explore.run_episode_on_worker(episode, False)
+    timed = (episode.duration_s, "/tmp/results.json", True)
+    assert ran == [(explore.WARM_UP_S, "", False), timed, timed]
