@@ -430,6 +430,11 @@ def main(args: argparse.Namespace) -> int:
     check_settings(Ks, resolutions)
     print(f"palpate sweep slam: recording {duration:g} s of exploration (seed {args.seed})", file=sys.stderr)
     stream = record_stream(args.seed, duration, 1.5)
+    if len(stream.contact_world_m) == 0:  # every map empty: rows of NaN
+        raise ConfigError(
+            f"the finger made no contact in the {duration:g} s recorded (seed {args.seed}): every map would be "
+            "empty and every score undefined; give a longer --duration-s (the default is 20 s, --quick 5 s)"
+        )
     skip = QUICK_SKIP if args.quick else frozenset()
     memory_too = not args.no_memory
     spec = {"duration_s": duration, "seed": args.seed, "Ks": Ks, "memory": memory_too}

@@ -303,3 +303,16 @@ def test_a_seed_that_fails_with_palpates_own_error_is_a_row_not_a_retried_task(
     args = parser.parse_args(["--seeds", "1", "--out", str(tmp_path / "out")])
     assert slam.main(args) == 1
     assert "run failed: seed 0: ConfigError: the mapper's region holds no contact" in capsys.readouterr().err
+
+
+def test_a_sweep_whose_recording_holds_no_contact_is_refused_by_its_duration(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An outside audit: `sweep slam --duration-s 0.3` printed rows of NaN and inf and wrote them as normal."""
+    from palpate.cli import main
+
+    args = ["sweep", "slam", "--particles", "1", "--resolutions-mm", "2", "--duration-s", "0.3", "--no-memory"]
+    assert main([*args, "--workers", "1", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "the finger made no contact in the 0.3 s recorded (seed 0)" in err and "--duration-s" in err
+    assert not (tmp_path / "out" / "slam_sweep.json").exists()
