@@ -74,6 +74,29 @@ def test_igef_terms_match_the_slow_reference(scale: float) -> None:
     np.testing.assert_allclose(fast[:, 1], slow[:, 1], rtol=1e-4)
 
 
+def test_igef_contact_terms_read_only_the_contacts_in_reach_above_the_threshold(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """An outside audit: Psi3's dense distances made each plan cost O(contacts) (45-205 ms at 10,000). Above
+    NEAR_CONTACTS_ABOVE only contacts within reach count: the same Psi1 and Psi3 to 1e-12, whether the far
+    contacts are many, or every contact is far (a candidate's Psi1 from all of them)."""
+    from palpate.nodes.planner import scores
+
+    rng = np.random.default_rng(RNG_SEED)
+    S = rng.normal(scale=0.02, size=(40, 3))
+    near = rng.normal(scale=0.03, size=(30, 3))
+    far = rng.uniform(-1.0, 1.0, size=(500, 3)) + np.array([3.0, 0.0, 0.0])  # 2-4 m off: beyond all reach
+    cfgs = [PlannerConfig(), PlannerConfig(sigma1_m=5.0)]  # Psi1 from far contacts matters with a wide sigma1
+    for C in (np.vstack([near, far]), far):
+        dense = [scores.contact_terms(S, C, cfg) for cfg in cfgs]
+        monkeypatch.setattr(scores, "NEAR_CONTACTS_ABOVE", 10)
+        for cfg, (psi1, psi3) in zip(cfgs, dense, strict=True):
+            fast1, fast3 = scores.contact_terms(S, C, cfg)
+            np.testing.assert_allclose(fast1, psi1, rtol=1e-12)
+            np.testing.assert_allclose(fast3, psi3, rtol=1e-12, atol=1e-300)
+        monkeypatch.setattr(scores, "NEAR_CONTACTS_ABOVE", 2000)
+
+
 def test_psi2_uses_the_executed_eq15_curve_by_default() -> None:
     s = np.array([[0.02, 0.01, 0.0]])
     n = np.array([[0.0, 0.0, 1.0]])
