@@ -58,7 +58,7 @@ BATCH_PERIOD_S = 0.01
 FLUSH_PERIOD_S = 1.0
 #: Without any tick marker for this long, the recorder stops waiting for one and writes as messages come.
 NO_CLOCK_TIMEOUT_S = 2.0
-#: A publisher that sends no tick marker for this long while ticks wait for it is not a lockstep node.
+#: A publisher that sends no tick marker for this long after the clock started is not a lockstep node.
 NO_MARKER_TIMEOUT_S = 5.0
 
 
@@ -523,9 +523,13 @@ class Recorder:
         return 0
 
     def _check_unmarked(self, now: float) -> None:
+        """Stop waiting for a publisher that has sent no marker NO_MARKER_TIMEOUT_S after the clock started: the
+        clock source starts only once every lockstep node has acknowledged the start, so before that a slow
+        node (or the clock source itself, loading its model under load) was taken for a tool."""
         if self.sorter.mode != "lockstep":
             return
-        unmarked = self.sorter.unmarked() if self.sorter.oldest_tick() is not None else []
+        started = self.sorter.clock_tick >= 0 and self.sorter.oldest_tick() is not None
+        unmarked = self.sorter.unmarked() if started else []
         for key in list(self.unmarked_since):
             if key not in unmarked:
                 del self.unmarked_since[key]

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from palpate.messages import codec, topics
 from palpate.messages.base import Message
@@ -195,3 +198,30 @@ def test_publishers_without_markers_hold_nothing_back_and_go_along_in_arrival_or
     _add(sorter, "clock", topics.CLOCK, _clock(1))
     (tick0,) = sorter.ready()
     assert [e.payload for e in tick0[1:]] == [codec.encode(m) for _, m in arrivals]
+
+
+def test_the_recorder_waits_for_markers_only_once_the_clock_has_started(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Two outside walkthroughs: under load the clock source took over 5 s to start after the other nodes
+    acknowledged the start, and the recorder said it 'sends no lockstep acknowledgements'. Before the clock
+    starts no tick can be written, so nothing waits; after it, a publisher without a marker is no lockstep node."""
+    from palpate.record import recorder as recorder_module
+
+    rec = recorder_module.Recorder(tmp_path / "run.mcap", bus_dir=tmp_path / "bus")
+    try:
+        for source in ("sim", "noise", "tool"):
+            rec.sorter.expect(source)
+        _add(rec.sorter, "noise", topics.LOCKSTEP_ACK, _ack("noise", -1))
+        with caplog.at_level("INFO"):
+            rec._check_unmarked(0.0)
+            rec._check_unmarked(100.0)  # long after, but the clock has not started: the sim may be loading
+            assert "sends no lockstep" not in caplog.text and rec.sorter.sources["sim"].expected
+            _add(rec.sorter, "sim", topics.CLOCK, _clock(0))
+            rec._check_unmarked(101.0)
+            rec._check_unmarked(101.0 + recorder_module.NO_MARKER_TIMEOUT_S + 1.0)
+        assert "tool sends no lockstep acknowledgements" in caplog.text and "sim sends" not in caplog.text
+        assert not rec.sorter.sources["tool"].expected and rec.sorter.sources["noise"].expected
+    finally:
+        rec.writer.close()
+        rec.tap.close()
