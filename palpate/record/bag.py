@@ -20,6 +20,7 @@ from pathlib import Path
 from types import FrameType
 
 from palpate.errors import BusError, RecordError
+from palpate.messages.base import REGISTRY
 from palpate.record import mcap_io
 from palpate.runtime import bus
 
@@ -80,6 +81,7 @@ class Player:
         self.types = {t: ty for t, ty in summary.types.items() if not options.topics or t in options.topics}
         if not self.types:
             raise RecordError(f"{path} holds no messages to replay")
+        _check_speaks_palpate(path, self.types)
         offset_ns = options.start_s * 1e9
         if not math.isfinite(offset_ns) or summary.start_ns + round(offset_ns) > summary.end_ns:
             span_s = (summary.end_ns - summary.start_ns) * 1e-9
@@ -188,6 +190,27 @@ class Player:
 
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
         self.interrupted = True
+
+
+def _check_speaks_palpate(path: Path, types: dict[str, str]) -> None:
+    """RecordError unless every topic to replay is in palpate's msgpack, in this build's version of its type:
+    the nodes on the bus would refuse every other message (``launch --replay`` refuses such a log too)."""
+    encodings = mcap_io.topic_encodings(path)
+    foreign = sorted(t for t in types if encodings.get(t, mcap_io.MESSAGE_ENCODING) != mcap_io.MESSAGE_ENCODING)
+    if foreign:
+        raise RecordError(
+            f"{path}: topic {foreign[0]!r} is encoded as {encodings[foreign[0]]!r}, not {mcap_io.MESSAGE_ENCODING}: "
+            "palpate's bus carries palpate's messages only (--topics to replay the others)"
+        )
+    versions = mcap_io.topic_versions(path)
+    for topic, type_name in types.items():
+        cls = REGISTRY.get(type_name)
+        if cls is not None and versions.get(topic, cls.VERSION) != cls.VERSION:
+            raise RecordError(
+                f"{path}: topic {topic!r} carries {type_name} version {versions[topic]}; this build speaks "
+                f"{type_name} version {cls.VERSION} only, and the graph's nodes would refuse every message "
+                "(--topics to replay the others)"
+            )
 
 
 def _pid() -> int:

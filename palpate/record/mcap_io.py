@@ -577,6 +577,12 @@ def topic_types(path: str | Path) -> dict[str, str]:
     return summarize(path).types
 
 
+def topic_encodings(path: str | Path) -> dict[str, str]:
+    """Topic -> the message encoding its channel records (palpate writes MESSAGE_ENCODING)."""
+    summary = _summary(path)
+    return {} if summary is None else {c.topic: c.message_encoding for c in summary.channels.values()}
+
+
 def topic_versions(path: str | Path) -> dict[str, int]:
     """Topic -> the message version its channel's schema records (``x-palpate-version``), where one does."""
     summary = _summary(path)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import msgpack
 import pytest
+from mcap.writer import Writer as McapWriter
 
 from palpate.errors import LaunchError
 from palpate.launch.graph import resolve
@@ -128,6 +129,29 @@ def test_a_log_of_another_message_version_is_refused_before_the_run(tmp_path: Pa
     _write_versioned(path, schema=99, payload=99)
     with pytest.raises(LaunchError, match=f"'{topics.CONTACTS}' carries ContactSet version 99; this build speaks "):
         ports_from_config(ReplayConfig(path=str(path)))
+
+
+def test_the_bus_player_refuses_another_version_or_encoding_as_launch_replay_does(tmp_path: Path) -> None:
+    """An outside audit: `palpate replay` put a log of a newer ContactSet, and one in JSON, on the bus with
+    exit 0, where every node would refuse each message."""
+    from palpate.errors import RecordError
+    from palpate.record.bag import Player, PlayOptions
+
+    path = tmp_path / "v99.mcap"
+    _write_versioned(path, schema=99, payload=99)
+    with pytest.raises(RecordError, match=f"'{topics.CONTACTS}' carries ContactSet version 99; this build speaks "):
+        Player(path, tmp_path / "bus", PlayOptions())
+    assert Player(path, tmp_path / "bus", PlayOptions(topics=[topics.CLOCK])).types == {topics.CLOCK: "Clock"}
+    foreign = tmp_path / "json.mcap"
+    with foreign.open("wb") as stream:
+        writer = McapWriter(stream)
+        writer.start()
+        schema = writer.register_schema(name="Clock", encoding="jsonschema", data=b"{}")
+        channel = writer.register_channel(topic=topics.CLOCK, message_encoding="json", schema_id=schema)
+        writer.add_message(channel_id=channel, log_time=0, data=b'{"tick": 0}', publish_time=0)
+        writer.finish()
+    with pytest.raises(RecordError, match=r"topic 'clock' is encoded as 'json', not msgpack"):
+        Player(foreign, tmp_path / "bus", PlayOptions())
 
 
 def test_ticks_a_recovered_log_lacks_are_counted_and_logged(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
