@@ -176,7 +176,18 @@ def covering_bound_contacts(area_m2: float, fraction: float = 0.8, radius_m: flo
     This is the fewest discs for covering ALL of a flat surface, scaled by ``fraction``. For a partial
     coverage it is not a strict lower bound: up to 90.7 % of a plane can be covered by disjoint discs,
     so ``packing_bound_contacts`` is the strict one (a real exploration needs more than either)."""
+    _check_bound_args(area_m2, fraction, radius_m)
     return float(COVERING_DENSITY * fraction * area_m2 / (np.pi * radius_m**2))
+
+
+def _check_bound_args(area_m2: float, fraction: float, radius_m: float) -> None:
+    """ValueError unless the area is >= 0, the fraction in [0, 1] and the radius > 0 (all finite)."""
+    if not (np.isfinite(area_m2) and area_m2 >= 0.0):
+        raise ValueError(f"area_m2 must be finite and >= 0, got {area_m2!r}")
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"fraction must lie in [0, 1], got {fraction!r}")
+    if not (np.isfinite(radius_m) and radius_m > 0.0):
+        raise ValueError(f"radius_m must be finite and > 0, got {radius_m!r}")
 
 
 def packing_bound_contacts(area_m2: float, fraction: float = 0.8, radius_m: float = 0.006) -> float:
@@ -184,6 +195,7 @@ def packing_bound_contacts(area_m2: float, fraction: float = 0.8, radius_m: floa
     fraction * A / (pi r^2), since one contact explores at most pi r^2 of a surface that is flat or
     convexly curved at the scale r (exactly pi r^2 on a sphere). Thin walls (both sides within r),
     concave corners and gaps can beat it."""
+    _check_bound_args(area_m2, fraction, radius_m)
     return float(fraction * area_m2 / (np.pi * radius_m**2))
 
 

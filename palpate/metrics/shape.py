@@ -87,7 +87,7 @@ class ShapeScorer:
     ) -> None:
         if samples < 1:
             raise ValueError(f"samples must be >= 1, got {samples!r}")
-        taus = tuple(float(t) for t in thresholds_m)
+        taus = tuple(float(t) for t in np.atleast_1d(np.asarray(thresholds_m, dtype=np.float64)))  # one, or many
         if not taus or not all(np.isfinite(t) and t > 0.0 for t in taus):
             raise ValueError(f"thresholds_m must be finite and > 0, got {thresholds_m!r}")
         self.samples = int(samples)

@@ -249,3 +249,15 @@ def test_the_angle_to_a_zero_vector_is_undefined() -> None:
         [[0.0, 0.0, -1.0], [0.0, 0.0, 0.0], [0.0, 0.0, -1.0]], [[0, 0, 1], [0, 0, 1], [0, 0, 0]]
     )
     assert angles[0] == 0.0 and np.isnan(angles[1:]).all()
+
+
+def test_the_contact_bounds_refuse_a_negative_area_and_a_radius_of_zero() -> None:
+    """An outside audit: covering_bound_contacts(-1) was -8553 contacts, and radius 0 infinity with a warning."""
+    for bound in (covering_bound_contacts, packing_bound_contacts):
+        assert bound(0.0) == 0.0
+        with pytest.raises(ValueError, match=r"area_m2 must be finite and >= 0, got -1"):
+            bound(-1.0)
+        with pytest.raises(ValueError, match=r"radius_m must be finite and > 0, got 0"):
+            bound(0.01, radius_m=0.0)
+        with pytest.raises(ValueError, match=r"fraction must lie in \[0, 1\], got 1.5"):
+            bound(0.01, fraction=1.5)

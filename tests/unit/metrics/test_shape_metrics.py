@@ -82,6 +82,8 @@ def test_bad_thresholds_are_refused() -> None:
         ShapeScorer(sphere(), thresholds_m=(0.001, float("nan")))
     with pytest.raises(KeyError, match="no F-score"):
         shape_scores(sphere(), sphere(), samples=100).fscore_at(0.003)
+    # one threshold given as a number (an outside audit: "'float' object is not iterable")
+    assert ShapeScorer(sphere(), samples=100, thresholds_m=0.002).thresholds_m == (0.002,)  # type: ignore[arg-type]
 
 
 def test_a_point_exactly_at_the_threshold_counts_on_both_sides() -> None:
