@@ -41,6 +41,7 @@ from palpate.evaluation.dask_runs import (
     output_folder,
     read_non_finite,
     report_failures,
+    report_progress,
     run_key,
     run_tasks,
 )
@@ -248,7 +249,8 @@ def sweep(
             if (float(res_mm), int(K)) not in skip
         ]
         scorer: Scorer | None = None
-        for method, K, cfg, q in runs:
+        for done, (method, K, cfg, q) in enumerate(runs):
+            report_progress(f"{method} K={K} ({done + 1} of {len(runs)})")  # the bar moves per resolution only
             t0 = time.perf_counter()
             mapper, ms, cpu_ms, peak = run_mapper(cfg, chain, q, links, local, seed + 1, measure_memory)
             m = mapper.best_map()
