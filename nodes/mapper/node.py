@@ -48,6 +48,14 @@ class MapperNodeConfig(Validated):
 WARN_OUTSIDE_AFTER = 10
 
 
+#: Free-volume point updates per reading (points a pose x maps) beyond which the mapper warns that its updates
+#: are slow: the paper's K = 100 at 2 mm makes about 2.7e5 (7.8 ms a reading, NS_PER_POINT_UPDATE each);
+#: K = 100,000 at 2 mm (2.7e8) advanced a lockstep graph 0.27 s of simulated time in 5 minutes, unnamed.
+COSTLY_POINT_UPDATES = 10_000_000
+#: Nanoseconds per free-volume point and map of a FastSLAM update at 2 mm (7.8 ms / 2.7e5; docs/slam.md).
+NS_PER_POINT_UPDATE = 29.0
+
+
 class MapperNode:
     """Thin wrapper around MapperSession (and its Mapper)."""
 
@@ -59,6 +67,22 @@ class MapperNode:
         self._warned: set[str] = set()  # the one-time warnings given
         self._last_tick_ns: int | None = None  # the last update's stamp, and the last maps'
         self._last_maps_ns: int | None = None
+        mapper_config = config.mapper
+        n_maps = 1 if mapper_config.mode == "known" else mapper_config.n_particles
+        if (point_updates := self.core.free_volume.n_points * n_maps) > COSTLY_POINT_UPDATES:
+            self._warn_once(
+                "costly updates",
+                "mapper: each reading updates %d free-volume points in each of %d maps (%.3g in all; resolution_m "
+                "%g m): about %.2g s a reading at the %g ns each that K = 100 at 2 mm takes, more with finer cells, "
+                "and a lockstep graph waits for each; fewer particles, a coarser resolution_m or a larger "
+                "free_spacing_m make it cheaper",
+                self.core.free_volume.n_points,
+                n_maps,
+                point_updates,
+                mapper_config.resolution_m,
+                point_updates * NS_PER_POINT_UPDATE * 1e-9,
+                NS_PER_POINT_UPDATE,
+            )
         if self.core.free_volume.n_points == 0:
             spacing, margin = config.mapper.free_lattice()
             self._warn_once(
