@@ -157,12 +157,17 @@ class Node:
                     t: n - self.subscribers.get(t, 0) for t, n in expected.items() if self.subscribers.get(t, 0) < n
                 }
                 raise TimeoutError(f"subscribers never connected: {missing}")
-            self.backlog.extend(self.receive(50))
+            self.backlog.extend(self._arrived(50))  # kept for receive: a peer's tick -1 may come meanwhile
 
     def receive(self, timeout_ms: int) -> list[tuple[str, bytes]]:
         """(topic, payload) of every frame waiting, after at most timeout_ms; counts subscriptions too."""
         frames, self.backlog = self.backlog, []
-        events = dict(self.poller.poll(0 if frames else timeout_ms))
+        return frames + self._arrived(0 if frames else timeout_ms)
+
+    def _arrived(self, timeout_ms: int) -> list[tuple[str, bytes]]:
+        """The frames that arrive within timeout_ms (none kept from before); counts subscriptions too."""
+        frames: list[tuple[str, bytes]] = []
+        events = dict(self.poller.poll(timeout_ms))
         if self.pub in events:
             while self.pub.poll(0):
                 frame = self.pub.recv()  # b"\x01topic" subscribe, b"\x00topic" unsubscribe
