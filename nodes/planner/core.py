@@ -304,14 +304,30 @@ class Plan:
     selection: Selection
 
 
+def _check_reaches(vertices_m: FloatArray, last_m: FloatArray, radius_m: float, num_contacts: int) -> None:
+    """PlanningError naming what the local surface (v, 3) lacks when none of its vertices lies within radius_m
+    of the last contact (3,): an empty mesh, or one made elsewhere or in other units (a driver's)."""
+    if len(vertices_m) == 0:
+        raise PlanningError(f"the local surface of {num_contacts} contacts holds no vertex: nothing to plan on")
+    nearest = float(np.sqrt(np.min(np.sum((vertices_m - last_m) ** 2, axis=1))))
+    if nearest > radius_m:
+        raise PlanningError(
+            f"no vertex of the local surface of {num_contacts} contacts lies within {radius_m} m of the last contact "
+            f"{last_m.tolist()}: the nearest is {nearest:.3g} m away (a mesh made around another point, or in units "
+            "other than metres)"
+        )
+
+
 class TouchPlanner:
     """Algorithm 1 lines 11-18 with the rules not in the paper that PlannerConfig describes.
 
     Owns the contacts so far, the approach direction v_n of the last one and the targets whose touch
     landed elsewhere (unreached). ``plan`` runs once per contact, on the local surface that includes it.
     Events the node reports as counters (``take_counts``): ``no_admissible_candidate`` (every candidate
-    was inadmissible, so the paper's choice among all of them was made) and ``no_clear_curve`` (no
-    candidate curve keeps clear of the estimate, so the paper's choice was kept).
+    was inadmissible, so the paper's choice among all of them was made), ``no_clear_curve`` (no
+    candidate curve keeps clear of the estimate, so the paper's choice was kept) and
+    ``surface_not_matching`` (a local surface of another number of contacts than the touches so far,
+    ``unmatched``: not planned on).
     """
 
     def __init__(self, config: PlannerConfig | None = None) -> None:
@@ -323,6 +339,8 @@ class TouchPlanner:
         self.unreached: list[FloatArray] = []  # targets whose touch landed elsewhere
         self.planned_for = 0  # number of contacts the last plan was made for
         self.counts: Counter[str] = Counter()
+        #: (num_contacts, touches) of the last local surface made of other contacts than the touches so far
+        self.unmatched: tuple[int, int] | None = None
 
     def add_touch(
         self,
@@ -377,7 +395,13 @@ class TouchPlanner:
         poking axis) now. Raises PlanningError
         when planning is due and there is no fingertip pose, or no candidate near the last contact.
         """
-        if region != "local" or num_contacts != len(self.contacts) or self.planned_for == len(self.contacts):
+        if region not in ("local", "global"):
+            raise InputError("region", f"{region!r} is no region of a surface: 'local' (a touch's) or 'global'")
+        if region != "local" or self.planned_for == len(self.contacts):
+            return None
+        if num_contacts != len(self.contacts):  # a surface of other contacts: this touch's is still to come
+            self.counts["surface_not_matching"] += 1
+            self.unmatched = (num_contacts, len(self.contacts))
             return None
         # a surface the planner cannot use is refused before anything changes (InputError)
         V, normals, sites, Q = _surface(vertices_m, vertex_normals, vertex_variance, variance_vertices)
@@ -389,6 +413,7 @@ class TouchPlanner:
         fingertip_m, quaternion_wxyz = fingertip
         axis = quat_to_matrix(quaternion_wxyz)[:, 2]
         cfg = self.config
+        _check_reaches(V, self.contacts[-1], cfg.radius_m, num_contacts)
         candidates = self._candidates(V, normals, sites, Q)
         surface = CurveSurface(V, normals, fingertip_m)
         centres = candidates.points_m + cfg.tip_radius_m * candidates.normals  # fingertip centre at each target

@@ -21,6 +21,7 @@ class PlannerNode:
         self.ctx = ctx
         self.core = TouchPlanner(config)
         self.fingertip: tuple[np.ndarray, np.ndarray] | None = None  # centre (3,) m, quaternion wxyz (4,)
+        self._unmatched_said = False
 
     def on_touches(self, message: TouchEvent) -> None:
         # unit, as the GPIS node requires: a touch one of them takes and the other refuses would leave the
@@ -52,6 +53,16 @@ class PlannerNode:
             self.ctx.request_stop(f"planner: {exc}", failed=True)
             return
         if plan is None:
+            if self.core.unmatched is not None and not self._unmatched_said:
+                self._unmatched_said = True
+                made_of, touches = self.core.unmatched
+                self.ctx.log.warning(
+                    "planner: a local surface of %d contacts (SurfaceMesh.num_contacts) came after %d touch(es): "
+                    "it plans on the local surface made of every touch so far, one per touch (counted as "
+                    "surface_not_matching)",
+                    made_of,
+                    touches,
+                )
             return
         choice = plan.selection
         self.ctx.publish(

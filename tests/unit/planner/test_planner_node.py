@@ -104,8 +104,8 @@ def test_a_contact_that_cannot_be_planned_for_ends_the_run_with_the_reason() -> 
     node.on_pose(pose([0.0, 1.0, 0.0, 0.0]))
     node.on_surface(plane(1e-6))
     assert not sent and ctx.counters["planning_failed"] == 1
-    assert ctx.stop_requested.startswith("planner: no candidate target within")
-    assert "the estimated surface's mesh has no vertex there" in ctx.stop_requested  # what is wrong
+    assert ctx.stop_requested.startswith("planner: no vertex of the local surface of 1 contacts lies within 0.05 m")
+    assert "the nearest is 1.34 m away" in ctx.stop_requested  # what is wrong: the plane's corner (1 - 0.05) * sqrt 2
     assert ctx.failure == ctx.stop_requested  # a failure: palpate launch exits 1
 
 
@@ -139,3 +139,34 @@ def test_the_target_says_how_far_past_it_the_fingertip_may_go(config: PlannerCon
     node.on_surface(plane(1e-6))
     [target] = sent
     assert isinstance(target, TouchTarget) and target.miss_distance_m == miss_m
+
+
+def test_a_surface_of_no_known_region_is_refused_and_one_of_other_contacts_is_said(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """An outside driver author: a gpis driver's meshes of region 'regoin', or one contact off, were skipped
+    without a word and the run ended 'stalled' with exit 0."""
+    from dataclasses import replace
+
+    sent: list[Message] = []
+    ctx = NodeContext("planner", 0, lambda topic, message: sent.append(message), {"target": "planner/target"})
+    node = PlannerNode(PlannerConfig(strategy="gpv"), ctx)
+    node.on_touches(touch([0.0, 0.0, 0.0], [0.0, 0.0, -1.0]))
+    node.on_pose(pose([0.0, 1.0, 0.0, 0.0]))
+    with pytest.raises(InputError, match=r"^region: 'regoin' is no region of a surface: 'local' .* or 'global'"):
+        node.on_surface(replace(plane(1e-6), region="regoin"))
+    with caplog.at_level("WARNING"):
+        for _ in range(2):
+            node.on_surface(replace(plane(1e-6), num_contacts=2))
+    assert not sent and node.core.take_counts() == {"surface_not_matching": 2}
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1 and "a local surface of 2 contacts (SurfaceMesh.num_contacts) came after 1 touch" in said[0]
+    node.on_surface(plane(1e-6))  # the touch's own surface: planned on
+    assert len(sent) == 1
+    node.on_touches(touch([0.0, 0.0, 0.0], [0.0, 0.0, -1.0]))
+    empty = np.zeros((0, 3))
+    no_vertex = replace(
+        plane(1e-6), num_contacts=2, vertices_m=empty, vertex_normals=empty, faces=np.zeros((0, 3), np.int32)
+    )
+    node.on_surface(replace(no_vertex, variance_vertices=np.zeros(0, np.int32), vertex_variance=np.zeros(0)))
+    assert ctx.stop_requested == "planner: the local surface of 2 contacts holds no vertex: nothing to plan on"
