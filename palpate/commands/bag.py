@@ -164,6 +164,11 @@ def run_info(args: argparse.Namespace) -> int:
                 f"arguments {launch.get('args', '{}')}"
                 + (f", parameters set {launch['params']}" if "params" in launch else "")
                 + (f", nodes played by drivers: {launch['external']}" if "external" in launch else "")
+                + (
+                    f" ({mcap_io.UNVERIFIED_KEY}: {launch[mcap_io.UNVERIFIED_KEY]})"
+                    if mcap_io.UNVERIFIED_KEY in launch
+                    else ""
+                )
             )
     return 0
 
@@ -176,10 +181,12 @@ def run_recover(args: argparse.Namespace) -> int:
     state = f"input truncated ({report.reason})" if report.truncated else "input was complete"
     if report.magic_cut:
         state += "; the file ends inside the closing magic bytes, after the footer"
-    if report.data_crc_mismatch:
+    if report.indexed and (report.data_crc_mismatch or report.damaged_chunks):
+        state += "; every chunk was read where the log's index puts it"
+    if report.data_crc_mismatch and not report.damaged_chunks:
         state += (
-            "; its data section did not match its CRC: a chunk's frame or a record between the chunks (such as "
-            "the launch's metadata, kept as read) is damaged; every chunk was read where the log's index puts it"
+            "; its data section did not match its CRC although every chunk did: a chunk's frame or a record "
+            "between the chunks is damaged, maybe the launch's metadata (kept as read, marked unverified)"
         )
     if report.trailing:
         state += f"; left out the {report.trailing} bytes after the log's end (appended to it)"

@@ -33,6 +33,7 @@ import os
 import signal
 import sys
 import tempfile
+import threading
 import time
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -197,6 +198,22 @@ def _unused(path: Path) -> Path:
     return candidate
 
 
+@contextlib.contextmanager
+def _interrupts_held() -> Iterator[None]:
+    """SIGINT and SIGTERM held back until the block ends (in the main thread; elsewhere nothing is held): a
+    Ctrl-C or a scheduler's SIGTERM between writing a run and counting it said 'no run of it finished' of a
+    file that held one."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = {signal.SIGINT, signal.SIGTERM}
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
 class RunLog:
     """``runs.jsonl``: one finished run a line, appended as it finishes, each key at most once.
 
@@ -247,13 +264,14 @@ class RunLog:
                 self.path.replace(_unused(self.path.with_name(self.path.name + ".previous")))
             self._file = self.path.open("a")
         text = jsonio.dumps({KEY_FIELD: key, **{k: v for k, v in row.items() if not k.startswith("_")}})
-        self._file.write(text + "\n")
-        self._file.flush()
-        os.fsync(self._file.fileno())
         stored: Row = json.loads(text)
         del stored[KEY_FIELD]
         stored.update((k, v) for k, v in row.items() if k.startswith("_"))
-        self.rows[key] = stored
+        with _interrupts_held():  # written and counted, or neither: Ctrl-C's note counts the rows
+            self._file.write(text + "\n")
+            self._file.flush()
+            os.fsync(self._file.fileno())
+            self.rows[key] = stored
         return stored
 
     def close(self) -> None:

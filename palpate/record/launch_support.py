@@ -17,7 +17,7 @@ from typing import Any
 from palpate.errors import LaunchError
 from palpate.launch.graph import REPLAY_TYPE, Graph, GraphNode, resolve
 from palpate.launch.loader import LaunchFile, NodeEntry, Where, load_launch
-from palpate.record.mcap_io import launch_info, launch_values
+from palpate.record.mcap_io import UNVERIFIED_KEY, launch_info, launch_values
 from palpate.record.replay_node import log_topics
 
 REPLAY_NODE_NAME = "replay"
@@ -109,6 +109,8 @@ def replay_note(launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] |
     info = launch_info(log_path, verify=True)  # a note from altered metadata would mislead
     if not info:
         return None
+    if UNVERIFIED_KEY in info:
+        return f"note: {log_path} says it was recorded from {info.get('launch_file', '?')}, but {info[UNVERIFIED_KEY]}"
     recorded = Path(info.get("launch_file", "")).name
     if recorded and recorded != launch.path.name:
         return (

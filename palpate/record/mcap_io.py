@@ -34,7 +34,7 @@ from mcap.opcode import Opcode
 from mcap.reader import McapReader, make_reader
 from mcap.records import Channel, Chunk, Footer, Metadata, Schema
 from mcap.records import Message as McapMessage
-from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.summary import Summary
 from mcap.writer import CompressionType, IndexType, Writer
 
@@ -380,8 +380,7 @@ def _check_summary(stream: IO[bytes], size: int, path: str | Path) -> None:
         raise RecordError(damaged)
 
 
-#: MCAP's DataEnd record opcode, and its bytes (opcode, length, data section CRC).
-DATA_END_OPCODE = 0x0F
+#: Bytes of MCAP's DataEnd record (opcode, length, data section CRC).
 DATA_END_BYTES = 1 + 8 + 4
 #: Files (device, inode, size, modification time) whose data section matched its CRC in this process.
 _DATA_CRC_MATCHED: set[tuple[int, int, int, int]] = set()
@@ -396,14 +395,20 @@ def _check_data_crc(stream: IO[bytes], size: int, path: str | Path) -> None:
     if key in _DATA_CRC_MATCHED:
         return
     footer_at = size - len(MCAP_MAGIC) - FOOTER_BYTES
-    stream.seek(footer_at + 9)
-    (summary_start,) = struct.unpack("<Q", stream.read(8))
+    stream.seek(footer_at)
+    footer = stream.read(1 + 8 + 8)
+    if len(footer) != 17 or footer[0] != FOOTER_OPCODE:
+        return  # not a footer: the reader names what is wrong
+    (summary_start,) = struct.unpack("<Q", footer[9:])
     data_end_at = (summary_start or footer_at) - DATA_END_BYTES
-    if data_end_at < len(MCAP_MAGIC):
-        return  # the reader names what is wrong
+    if not len(MCAP_MAGIC) <= data_end_at <= footer_at - DATA_END_BYTES:
+        return  # a summary offset outside the file: the reader names it
     stream.seek(data_end_at)
-    opcode, length, expected = struct.unpack("<BQI", stream.read(DATA_END_BYTES))
-    if opcode != DATA_END_OPCODE or length != 4 or expected == 0:
+    data_end = stream.read(DATA_END_BYTES)
+    if len(data_end) != DATA_END_BYTES:
+        return
+    opcode, length, expected = struct.unpack("<BQI", data_end)
+    if opcode != Opcode.DATA_END or length != 4 or expected == 0:
         return
     stream.seek(0)
     crc, left = 0, data_end_at
@@ -632,6 +637,8 @@ class RecoverReport:
     data_crc_mismatch: bool = False
     #: The file ends inside the log's closing magic bytes (after its footer).
     magic_cut: bool = False
+    #: Every chunk was read where the log's (intact) summary indexes it, not by scanning the file.
+    indexed: bool = False
 
     def lost(self) -> int | None:
         """Messages the summary counts that were not recovered (None: no summary to count them)."""
@@ -653,16 +660,14 @@ def iter_records_tolerant(
     says why.
     """
     with _open(path) as stream:
-        records = StreamReader(stream, emit_chunks=True, validate_crcs=True).records
+        # chunks are checked one by one below; the data section's CRC would end the records at DataEnd, before
+        # the footer (a damaged chunk breaks it too): recover checks it on its own
+        records = StreamReader(stream, emit_chunks=True, validate_crcs=False).records
         while True:
             try:
                 record = next(records)
             except StopIteration:
                 return
-            except CRCValidationError as exc:  # only DataEnd's is checked here: chunks are broken up below
-                report.data_crc_mismatch = True
-                report.damage = report.damage or _why(exc)
-                continue
             except READ_ERRORS as exc:
                 report.truncated = True
                 report.reason = _why(exc)
@@ -687,17 +692,26 @@ def iter_records_tolerant(
                 return
 
 
+#: The key recover adds to each metadata record of a log whose data section did not match its CRC.
+UNVERIFIED_KEY = "unverified"
+
+
 def iter_indexed_records(
     path: str | Path, summary: Summary, report: RecoverReport
 ) -> Iterator[Schema | Channel | McapMessage | Metadata]:
     """The metadata records and then the chunks' records that the (intact) `summary` indexes, each read at
     its indexed offset and length, so that a damaged frame (a chunk's length) does not hide what follows it;
-    a chunk is used when its CRC matches. Every chunk is counted in `report` (used, or damaged)."""
+    a chunk is used when its CRC matches. Every chunk is counted in `report` (used, or damaged). Where
+    `report.data_crc_mismatch`, each metadata record says so (UNVERIFIED_KEY): no CRC covered it."""
     with _open(path) as stream:
         for meta in summary.metadata_indexes:
             try:
                 stream.seek(meta.offset + 9)
-                yield Metadata.read(ReadDataStream(io.BytesIO(stream.read(meta.length - 9))))
+                record = Metadata.read(ReadDataStream(io.BytesIO(stream.read(meta.length - 9))))
+                if report.data_crc_mismatch:
+                    note = "recovered from a log whose data section did not match its CRC: it may be altered"
+                    record = Metadata(name=record.name, metadata={**record.metadata, UNVERIFIED_KEY: note})
+                yield record
             except READ_ERRORS as exc:
                 report.damage = report.damage or f"metadata {meta.name!r}: {_why(exc)}"
         for index in sorted(summary.chunk_indexes, key=lambda index: index.chunk_start_offset):
@@ -719,8 +733,7 @@ def _damaged_log_summary(path: str | Path) -> Summary | None:
     """The summary section of a log whose data section may be damaged; None where it has none or the
     summary itself is damaged."""
     try:
-        with _reader(path) as reader:
-            return reader.get_summary()
+        return _summary(path)
     except RecordError:
         return None
 
@@ -783,7 +796,7 @@ def recover(src: str | Path, dst: str | Path, *, compression: str = "zstd", over
     records: Iterable[Schema | Channel | McapMessage | Metadata]
     if summary is not None and summary.chunk_indexes and summary.statistics is not None:
         # start, end, footer and summary intact: every chunk where the index says, past any damaged frame
-        report.complete, report.expected = True, summary.statistics.message_count
+        report.complete, report.expected, report.indexed = True, summary.statistics.message_count, True
         report.data_crc_mismatch = not _data_crc_matches(src)
         records = iter_indexed_records(src, summary, report)
     else:

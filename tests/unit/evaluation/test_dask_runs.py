@@ -293,3 +293,27 @@ def test_a_cluster_without_workers_is_said_once_per_outage() -> None:
     assert watch.note(1, 101.0) == "a Dask worker is back (1 now); the runs go on"
     assert watch.note(1, 102.0) == ""
     assert watch.note(0, 103.0) == "" and watch.note(0, 103.0 + NO_WORKER_NOTE_S).startswith("no Dask worker")
+
+
+def test_a_run_interrupted_while_it_is_written_is_written_and_counted(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A SIGTERM between writing a run and counting it made the note say 'no run of it finished' of a file
+    that held one (the Ctrl-C test's flake under load)."""
+    import os
+    import signal
+
+    from palpate.evaluation import dask_runs
+
+    log = dask_runs.RunLog(tmp_path / "runs.jsonl", resume=False)
+    real_fsync = os.fsync
+
+    def fsync_then_ctrl_c(fd: int) -> None:
+        real_fsync(fd)
+        os.kill(os.getpid(), signal.SIGINT)  # lands while the row is written
+
+    monkeypatch.setattr(dask_runs.os, "fsync", fsync_then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        log.append("run-1", {"coverage": 0.5})
+    log.close()
+    assert "run-1" in log.rows and '"run_key": "run-1"' in (tmp_path / "runs.jsonl").read_text()

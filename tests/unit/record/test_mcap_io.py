@@ -482,7 +482,8 @@ def test_recover_reads_past_a_damaged_chunk_frame_by_the_logs_index(tmp_path: Pa
         report = mcap_io.recover(tmp_path / "damaged.mcap", tmp_path / "fixed.mcap")
         assert report.data_crc_mismatch and report.lost() == 0 and report.chunks == len(items)
         assert [m.data for m in mcap_io.read_messages(tmp_path / "fixed.mcap")] == expected
-        assert mcap_io.launch_info(tmp_path / "fixed.mcap", verify=True) == about
+        recovered = mcap_io.launch_info(tmp_path / "fixed.mcap", verify=True)
+        assert recovered == {**about, mcap_io.UNVERIFIED_KEY: recovered[mcap_io.UNVERIFIED_KEY]}  # no CRC covered it
     assert mcap_io.recover(src, tmp_path / "same.mcap").lost() == 0  # an intact log: nothing to say
 
 
@@ -500,8 +501,39 @@ def test_altered_launch_metadata_is_refused_where_it_would_mislead(tmp_path: Pat
     with pytest.raises(RecordError, match=r"its data section does not match"):
         list(mcap_io.read_messages(tmp_path / "altered.mcap"))
     report = mcap_io.recover(tmp_path / "altered.mcap", tmp_path / "kept.mcap")
-    assert report.data_crc_mismatch and report.lost() == 0
+    assert report.data_crc_mismatch and report.lost() == 0 and report.indexed
+    kept = mcap_io.launch_info(tmp_path / "kept.mcap", verify=True)  # a valid log now, its metadata marked
+    assert kept["seed"] == "7" and "may be altered" in kept[mcap_io.UNVERIFIED_KEY]
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[:-3])  # inside the closing magic bytes
     report = mcap_io.recover(cut, tmp_path / "uncut.mcap")
     assert report.magic_cut and report.complete and report.messages == len(items)
+
+
+def test_recover_of_a_damaged_chunk_beside_appended_bytes_still_reads_to_the_footer(tmp_path: Path) -> None:
+    """The review: the data section's CRC, checked while scanning, ended the scan at DataEnd, so a log with a
+    damaged chunk and bytes appended lost its footer and the note on the appended bytes."""
+    items = canonical_log(6)
+    full = tmp_path / "full.mcap"
+    sizes = write_log(full, items, flush_each=True)
+    data = bytearray(full.read_bytes())
+    data[sizes[3] + CHUNK_DATA_OFFSET + 2] ^= 0x10  # message 4's chunk
+    (tmp_path / "damaged.mcap").write_bytes(bytes(data) + bytes(16))  # and 16 bytes appended: no summary read
+    report = mcap_io.recover(tmp_path / "damaged.mcap", tmp_path / "fixed.mcap")
+    assert not report.indexed and report.complete and report.trailing == 16 and report.damaged_chunks == 1
+    assert report.messages + report.orphaned == len(items) - 1  # orphaned: on a channel the damaged chunk defined
+
+
+def test_a_damaged_footer_is_named_not_a_traceback(tmp_path: Path) -> None:
+    """The review: the data section's check read the summary's offset from a damaged footer and sought past
+    the file's end (OSError) where the reader had named the damage."""
+    src = tmp_path / "run.mcap"
+    _launch_log(src, {"launch_file": "launch/probe.yaml", "args": "{}", "seed": "0"})
+    data = bytearray(src.read_bytes())
+    footer_at = len(data) - len(mcap_io.MCAP_MAGIC) - mcap_io.FOOTER_BYTES
+    data[footer_at] = 0x22  # no footer's opcode
+    data[footer_at + 9 + 7] = 0x7F  # a summary offset far beyond the file
+    (tmp_path / "footer.mcap").write_bytes(bytes(data))
+    for read in (mcap_io.read_messages, lambda path: mcap_io.launch_info(path, verify=True)):
+        with pytest.raises(RecordError, match=r"footer\.mcap: cannot read the MCAP log .* bag recover"):
+            list(read(tmp_path / "footer.mcap"))
