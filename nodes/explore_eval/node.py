@@ -67,7 +67,11 @@ class ExploreEvalNodeConfig(Validated):
 #: A run whose object truth has not come this long after its first tick (seconds of its time) fails.
 NO_TRUTH_S = 5.0
 #: How a launch caps a large object's runs and gives its mesh's unit (``size_note``).
-LAUNCH_CAPS = "cap them with the eval node's max_contacts and max_travel_m, or the launch's duration_s; give scale:="
+LAUNCH_CAPS = (
+    "cap them with the eval node's max_contacts and max_travel_m, with contacts_per_bound and travel_per_bound_m "
+    "0 (--set eval.eval.contacts_per_bound=0 ...; a run ended by the launch's duration_s has no end-of-run "
+    "scores); give scale:="
+)
 
 
 class ExploreEvalNode:
@@ -189,6 +193,16 @@ class ExploreEvalNode:
         stopped_by = self.ctx.run_stopped_by
         if self.result["finished"] == "clock" and stopped_by and not stopped_by.startswith(FINISHED_PREFIX):
             self.result.update(finished="stopped", stop_reason=stopped_by)  # another node ended the run
+        if self.result["finished"] == "clock" and self.config.report:
+            shape = self.result.get("shape") or []
+            last = f"those after contact {shape[-1]['contacts']}" if shape else "none"
+            self.ctx.log.warning(
+                "explore_eval: the run ended on the simulated clock (the launch's duration_s) after %d contacts, "
+                "before any end-of-run score: its last shape scores are %s, and milestones not reached have no "
+                "figures (the budgets, max_contacts and max_travel_m, end a run with them)",
+                self.result.get("contacts", 0),
+                last,
+            )
         if self.config.report:  # first: a file that cannot be written must not take the result with it
             print(_headline(self.result), flush=True)
             brief = {k: v for k, v in self.result.items() if k not in ("touches", "shape")}  # results_path has all

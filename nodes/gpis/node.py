@@ -21,6 +21,7 @@ class GPISNode:
         self.ctx = ctx
         self.session = GPISSession(config)
         self._coarsened_said = False
+        self._options_said: set[str] = set()  # whole-mesh options the estimator dropped, said once each
 
     def on_pose(self, message: Pose) -> None:
         self.session.pose(message.position_m)
@@ -43,6 +44,22 @@ class GPISNode:
             mesh = self.session.whole(message.variance)
         finally:
             counts = self._count()
+        gp = self.session.gp
+        dropped = (
+            ("whole_prior: hull", "whole_prior_kept", gp.supports_replaced_prior),
+            ("free_space", "free_space_not_applied", gp.supports_free_space),
+        )
+        for option, key, supported in dropped:
+            if counts.get(key) and not supported and option not in self._options_said:
+                self._options_said.add(option)
+                self.ctx.log.warning(
+                    "gpis: %s is not applied to this whole-object mesh: the estimator is now the local experts "
+                    "(past gp.auto_local_above_contacts = %d contacts), which take only their own prior and no "
+                    "free space (counted as %s)",
+                    option,
+                    self.session.config.gp.auto_local_above_contacts,
+                    key,
+                )
         if counts.get("whole_mesh_coarsened") and not self._coarsened_said:
             self._coarsened_said = True
             self.ctx.log.warning(

@@ -139,7 +139,8 @@ class GPISSession:
     ``whole_mesh_coarsened`` (a whole-object mesh at global_resolution_m would exceed MAX_GRID_NODES: made at
     the coarser ``whole_resolution_m``),
     ``whole_prior_kept`` (a whole-object mesh asked for the hull prior kept the GP's own, see
-    GPISNodeConfig.whole_prior).
+    GPISNodeConfig.whole_prior), ``free_space_not_applied`` (asked for, but the estimator, the local
+    experts, takes no free space).
     """
 
     def __init__(self, config: GPISNodeConfig) -> None:
@@ -217,7 +218,10 @@ class GPISSession:
         """f >= fingertip radius at the swept centres in the whole-object box (see GPISNodeConfig)."""
         cfg = self.config
         gp = self.gp
-        if not len(self.swept) or not gp.n_contacts or not gp.supports_free_space:
+        if not gp.supports_free_space:  # the local experts take none (said once by the node)
+            self._counts["free_space_not_applied"] += 1
+            return
+        if not len(self.swept) or not gp.n_contacts:
             return
         lower, upper = whole_box(gp.positions_m, cfg.global_margin_m)
         centres = self.swept.points_m()

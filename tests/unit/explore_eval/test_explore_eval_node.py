@@ -100,6 +100,23 @@ def test_a_run_another_node_ended_is_reported_stopped_with_its_reason(stopped_by
     assert node.result.get("stop_reason") == (stopped_by if finished == "stopped" else None)
 
 
+def test_a_run_ended_by_the_clock_says_it_has_no_end_of_run_scores(
+    caplog: pytest.LogCaptureFixture, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An outside walkthrough: a run shortened with duration_s (as the size note advised) ended with every
+    milestone score null and an empty shape series, without a word."""
+    ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
+    node = ExploreEvalNode(ExploreEvalNodeConfig(report=True), ctx)
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    node.on_truth_object(truth(np.asarray(box.vertices), np.asarray(box.faces)))
+    with caplog.at_level("WARNING"):
+        node.close()
+    capsys.readouterr()  # the headline and result lines
+    assert node.result["finished"] == "clock"
+    [said] = [r.getMessage() for r in caplog.records if "ended on the simulated clock" in r.getMessage()]
+    assert "after 0 contacts, before any end-of-run score: its last shape scores are none" in said
+
+
 def test_a_repeated_truth_keeps_the_records_and_another_object_is_refused() -> None:
     ctx = NodeContext("eval", 0, lambda topic, message: None, {"request": "surface/request"})
     node = ExploreEvalNode(ExploreEvalNodeConfig(report=False), ctx)
@@ -213,7 +230,10 @@ def test_a_launched_run_on_an_object_too_small_or_too_large_says_so(caplog: pyte
         with caplog.at_level("WARNING"):
             node.on_truth_object(truth(np.asarray(ball.vertices), np.asarray(ball.faces), name="bead"))
         assert len(caplog.messages) == 1 and caplog.messages[0].startswith(said), caplog.messages
-    assert "the launch's duration_s; give scale:= if the mesh is not in metres" in caplog.messages[0]
+    assert (
+        "contacts_per_bound=0 ...; a run ended by the launch's duration_s has no end-of-run scores); give scale:= if"
+        in (caplog.messages[0])
+    )
     caplog.clear()
     with caplog.at_level("WARNING"):
         ball = trimesh.creation.icosphere(subdivisions=3, radius=0.03)

@@ -273,3 +273,22 @@ def test_a_whole_object_mesh_whose_grid_would_be_too_large_is_made_coarser_and_s
     assert node.session.whole_resolution_m > 0.003
     said = [r.getMessage() for r in caplog.records if "whole-object mesh" in r.getMessage()]
     assert len(said) == 1 and "global_resolution_m = 0.003 m would exceed 8000 grid nodes" in said[0]
+
+
+def test_whole_mesh_options_the_local_experts_drop_are_said_once(caplog: pytest.LogCaptureFixture) -> None:
+    """An outside walkthrough: free_space and whole_prior hull stopped applying past 1500 contacts (the local
+    experts) and the figures were those of a run without them, without a word."""
+    sent: list[Message] = []
+    ctx = NodeContext("gpis", 0, lambda topic, message: sent.append(message), {"surface": "surface/mesh"})
+    config = load(GPISNodeConfig, {"free_space": True, "whole_prior": "hull", "gp": {"estimator": "local"}})
+    node = GPISNode(config, ctx)
+    rng = np.random.default_rng(0)
+    for normal in rng.normal(size=(8, 3)):
+        normal /= np.linalg.norm(normal)
+        node.on_touches(touch(0.02 * normal, normal))
+    with caplog.at_level("WARNING"):
+        for _ in range(2):
+            node.on_request(SurfaceRequest(stamp_ns=0, region="global", variance=False))
+    said = [r.getMessage() for r in caplog.records if "is not applied" in r.getMessage()]
+    assert len(said) == 2 and "whole_prior: hull" in said[0] and "free_space is not applied" in said[1]
+    assert isinstance(sent[-1], SurfaceMesh) and sent[-1].region == "global"
