@@ -87,13 +87,26 @@ def test_igef_contact_terms_read_only_the_contacts_in_reach_above_the_threshold(
     near = rng.normal(scale=0.03, size=(30, 3))
     far = rng.uniform(-1.0, 1.0, size=(500, 3)) + np.array([3.0, 0.0, 0.0])  # 2-4 m off: beyond all reach
     cfgs = [PlannerConfig(), PlannerConfig(sigma1_m=5.0)]  # Psi1 from far contacts matters with a wide sigma1
+    read: list[int] = []  # contacts in each distance matrix
+    real_cdist = scores.cdist
+
+    def counting_cdist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        read.append(len(b))
+        return real_cdist(a, b)
+
+    monkeypatch.setattr(scores, "cdist", counting_cdist)
     for C in (np.vstack([near, far]), far):
         dense = [scores.contact_terms(S, C, cfg) for cfg in cfgs]
+        assert read == [len(C), len(C)]
+        read.clear()
         monkeypatch.setattr(scores, "NEAR_CONTACTS_ABOVE", 10)
         for cfg, (psi1, psi3) in zip(cfgs, dense, strict=True):
             fast1, fast3 = scores.contact_terms(S, C, cfg)
             np.testing.assert_allclose(fast1, psi1, rtol=1e-12)
             np.testing.assert_allclose(fast3, psi3, rtol=1e-12, atol=1e-300)
+        # only the contacts in reach: the 30 near ones; with none in reach, one, then all for Psi1 alone
+        assert read == ([len(near)] * 2 if len(C) > len(far) else [1, len(far)] * 2), read
+        read.clear()
         monkeypatch.setattr(scores, "NEAR_CONTACTS_ABOVE", 2000)
 
 
