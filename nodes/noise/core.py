@@ -12,12 +12,22 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Annotated
 
 import numpy as np
 
-from palpate.config import NonNegativeFloat, Validated
+from palpate.config import NonNegativeFloat, Range, Validated
 from palpate.errors import InputError
 from palpate.inputs import MAX_COORDINATE_M, UNIT_TOLERANCE, coordinates, unique_names, unit_vectors
+
+#: Largest joint-noise standard deviation, degrees: a quarter turn. Beyond it the noise means nothing of a
+#: sensor, and the mappers refuse readings past a full turn (1000 deg refused nearly every reading, and
+#: `eval slam` then blamed its snapshot times).
+MAX_JOINT_SIGMA_DEG = 90.0
+#: Largest contact-position noise standard deviation, metres: the controller refuses contacts 0.1 m beyond
+#: the fingertip's surface (2 sigma), so a larger one ends runs at "a unit other than metres?".
+MAX_POSITION_SIGMA_M = 0.05
+JointSigmaDeg = Annotated[float, Range(ge=0.0, le=MAX_JOINT_SIGMA_DEG)]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -27,10 +37,10 @@ class JointNoiseConfig(Validated):
 
     #: Standard deviation of the Gaussian noise added to every joint angle of every reading, independently
     #: (q + bias + sigma z, z ~ N(0, 1)); 0 passes the angles through bit for bit.
-    sigma_deg: NonNegativeFloat = 1.5
+    sigma_deg: JointSigmaDeg = 1.5
     #: Joint name -> its own standard deviation (the others keep sigma_deg); a name the readings lack is
     #: refused at the first reading.
-    per_joint_sigma_deg: Mapping[str, NonNegativeFloat] = field(default_factory=dict)
+    per_joint_sigma_deg: Mapping[str, JointSigmaDeg] = field(default_factory=dict)
     #: A constant offset of every joint angle, or joint name -> its offset (others 0).
     bias_deg: float | Mapping[str, float] = 0.0
 
@@ -98,7 +108,7 @@ class ContactNoiseConfig(Validated):
     """Contact-sensor noise: position sigma per axis (m), normal direction sigma per tangent axis (deg)."""
 
     #: Standard deviation of the Gaussian noise added to each coordinate of each contact position.
-    position_sigma_m: NonNegativeFloat = 0.0
+    position_sigma_m: Annotated[float, Range(ge=0.0, le=MAX_POSITION_SIGMA_M)] = 0.0
     #: Each contact normal is turned by a Gaussian step of this standard deviation per tangent axis (the
     #: step z ~ N(0, sigma^2 I) projected onto the normal's tangent plane; the normal turns by its length,
     #: towards it) and stays a unit vector.

@@ -33,7 +33,7 @@ def test_every_node_type_its_ports_and_parameters_are_documented() -> None:
         assert not missing, (name, missing)
     expected = {
         "noise": [
-            "| `sigma_deg` | float (>= 0) | `1.5` |",
+            "| `sigma_deg` | float (>= 0 and <= 90) | `1.5` |",
             "| `per_joint_sigma_deg` | mapping of str to float | `{}` |",
             "| `joint_states` | [JointState](messages.md#jointstate) | `sensors/joint_states` |",
         ],

@@ -108,8 +108,13 @@ def test_same_seed_same_stream() -> None:
 
 
 def test_config_errors_name_the_key_and_value() -> None:
-    with pytest.raises(ConfigError, match=r"JointNoiseConfig.sigma_deg: expected a finite number >= 0, got -1.0"):
+    with pytest.raises(ConfigError, match=r"JointNoiseConfig.sigma_deg: expected a finite number >= 0 and <= 90"):
         JointNoiseConfig(sigma_deg=-1.0)
+    # an outside walkthrough: 1000 deg (and 1 m of contact noise) were taken, and the runs failed elsewhere
+    with pytest.raises(ConfigError, match=r"sigma_deg: expected a finite number >= 0 and <= 90, got 1000"):
+        JointNoiseConfig(sigma_deg=1000.0)
+    with pytest.raises(ConfigError, match=r"position_sigma_m: expected a finite number >= 0 and <= 0.05, got 1.0"):
+        ContactNoiseConfig(position_sigma_m=1.0)
     with pytest.raises(ConfigError, match=r"<launch>.sigma: unknown key 'sigma'; known keys: bias_deg, per_joint"):
         load(JointNoiseConfig, {"sigma": 1.0}, "<launch>")
     with pytest.raises(InputError, match=r"names: lacks joint\(s\) \['thumb'\] that the noise node's per_joint_sigma"):

@@ -69,7 +69,7 @@ def test_ports_follow_the_parameters() -> None:
 
 
 def test_bad_parameters_are_config_errors() -> None:
-    with pytest.raises(ConfigError, match=r"NoiseNodeConfig.sigma_deg: expected a finite number >= 0, got -1.0"):
+    with pytest.raises(ConfigError, match=r"NoiseNodeConfig.sigma_deg: expected a finite number >= 0 and <= 90"):
         NoiseNodeConfig(sigma_deg=-1.0)
     with pytest.raises(ConfigError, match=r"normal_sigma_deg"):
         NoiseNodeConfig(normal_sigma_deg=math.inf)
