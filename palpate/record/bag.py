@@ -20,7 +20,6 @@ from pathlib import Path
 from types import FrameType
 
 from palpate.errors import BusError, RecordError
-from palpate.messages.base import REGISTRY
 from palpate.record import mcap_io
 from palpate.runtime import bus
 
@@ -202,15 +201,10 @@ def _check_speaks_palpate(path: Path, types: dict[str, str]) -> None:
             f"{path}: topic {foreign[0]!r} is encoded as {encodings[foreign[0]]!r}, not {mcap_io.MESSAGE_ENCODING}: "
             "palpate's bus carries palpate's messages only (--topics to replay the others)"
         )
-    versions = mcap_io.topic_versions(path)
-    for topic, type_name in types.items():
-        cls = REGISTRY.get(type_name)
-        if cls is not None and versions.get(topic, cls.VERSION) != cls.VERSION:
-            raise RecordError(
-                f"{path}: topic {topic!r} carries {type_name} version {versions[topic]}; this build speaks "
-                f"{type_name} version {cls.VERSION} only, and the graph's nodes would refuse every message "
-                "(--topics to replay the others)"
-            )
+    if problem := mcap_io.version_problem(path, types):
+        raise RecordError(
+            f"{path}: {problem}, and the graph's nodes would refuse every message (--topics to replay the others)"
+        )
 
 
 def _pid() -> int:

@@ -605,6 +605,21 @@ def topic_versions(path: str | Path) -> dict[str, int]:
     return versions
 
 
+def version_problem(path: str | Path, topic_types: Mapping[str, str]) -> str:
+    """Of ``topic_types`` (topic -> type name), the first topic recorded in another version of its type than
+    this build's, in words ("topic 'x' carries T version 2; this build speaks T version 1 only"); "" when
+    there is none (a type this build does not know is not judged)."""
+    versions = topic_versions(path)
+    for topic, type_name in topic_types.items():
+        cls = REGISTRY.get(type_name)
+        if cls is not None and versions.get(topic, cls.VERSION) != cls.VERSION:
+            return (
+                f"topic {topic!r} carries {type_name} version {versions[topic]}; this build speaks {type_name} "
+                f"version {cls.VERSION} only"
+            )
+    return ""
+
+
 def _summary(path: str | Path) -> Summary | None:
     with _reader(path) as reader:
         return reader.get_summary()

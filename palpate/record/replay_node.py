@@ -63,17 +63,13 @@ def ports_from_config(config: ReplayConfig) -> tuple[Mapping[str, Port], Mapping
         raise LaunchError("node type 'replay' needs a 'path' parameter naming an MCAP log")
     outputs = {}
     replayed = log_topics(path, list(config.topics))
-    versions = mcap_io.topic_versions(path)
     for topic, type_name in replayed.items():
         cls = REGISTRY.get(type_name)
         if cls is None:
             raise LaunchError(f"replay log {path}: topic {topic!r} carries {type_name!r}, unknown to this build")
-        if versions.get(topic, cls.VERSION) != cls.VERSION:
-            raise LaunchError(
-                f"replay log {path}: topic {topic!r} carries {type_name} version {versions[topic]}; "
-                f"this build speaks {type_name} version {cls.VERSION} only"
-            )
         outputs[topic] = Port(cls, topic=topic, doc=f"recorded {topic}")
+    if problem := mcap_io.version_problem(path, replayed):
+        raise LaunchError(f"replay log {path}: {problem}")
     return {}, outputs
 
 
