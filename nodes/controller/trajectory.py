@@ -393,7 +393,7 @@ class TrajectoryController:
             speed = math.sqrt(dot3(tangent, tangent))
             if speed > 1e-12:
                 angular = angular + self._R0_w01 * (cfg.v0_m_s / speed)  # d/dt T_R
-        rate = float(np.linalg.norm(angular))
+        rate = math.sqrt(float(angular @ angular))  # per tick: numpy's norm costs four times as much
         if rate > MAX_ANGULAR_RAD_S:  # a curve of a few micrometres turning the fingertip round
             angular = angular * (MAX_ANGULAR_RAD_S / rate)
         return linear, angular

@@ -253,17 +253,16 @@ def whole_surface(
     gp: SurfaceEstimator, margin_m: float, resolution_m: float, *, with_variance: bool = True, refine: bool = True
 ) -> SurfaceMeshArrays:
     """Surface mesh over the contacts' bounding box grown by margin_m on every side (the whole object
-    as touched so far), at resolution_m or the coarser step that keeps its grid within MAX_GRID_NODES
-    (``whole_resolution``); an empty mesh before the first contact."""
+    as touched so far); an empty mesh before the first contact. ``whole_resolution`` gives the step whose
+    grid fits MAX_GRID_NODES."""
     if gp.n_contacts == 0:
         return SurfaceMeshArrays.empty()
     lower, upper = whole_box(gp.positions_m, margin_m)
-    step = fitting_resolution(upper - lower, resolution_m)
-    return global_surface(gp, lower, upper, step, with_variance=with_variance, refine=refine)
+    return global_surface(gp, lower, upper, resolution_m, with_variance=with_variance, refine=refine)
 
 
 def whole_resolution(gp: SurfaceEstimator, margin_m: float, resolution_m: float) -> float:
-    """The step ``whole_surface`` meshes at: resolution_m, or coarser where its grid would exceed MAX_GRID_NODES."""
+    """The step for ``whole_surface``: resolution_m, or coarser where its grid would exceed MAX_GRID_NODES."""
     if gp.n_contacts == 0:
         return resolution_m
     lower, upper = whole_box(gp.positions_m, margin_m)

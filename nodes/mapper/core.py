@@ -124,6 +124,11 @@ class MapperConfig(Validated):
         if not self.l_max > 0.0:
             raise ConfigError(f"l_max must be > 0 (a clamp above the prior), got {self.l_max!r}", ("l_max",))
 
+    @property
+    def n_maps(self) -> int:
+        """Maps the mapper keeps: one in known mode, one per particle in fastslam mode."""
+        return 1 if self.mode == "known" else self.n_particles
+
     def free_lattice(self) -> tuple[float, float]:
         """Spacing and margin of the finger's free-volume lattice, metres (each the resolution when None)."""
         res = self.resolution_m
@@ -159,7 +164,7 @@ def check_fits(config: MapperConfig, chain: KinematicChain) -> None:
     """``check_memory`` for a mapper of this config and chain, without building it (a sweep checks every
     setting before it records anything)."""
     spec = GridSpec.from_bounds(config.region_min_m, config.region_max_m, config.resolution_m)
-    n_maps = 1 if config.mode == "known" else config.n_particles
+    n_maps = config.n_maps
     check_memory(config, spec, n_maps, lattice_points(chain, *config.free_lattice()))
 
 
@@ -228,7 +233,7 @@ class Mapper:
         self.chain = chain
         check_fits(config, chain)  # before anything is allocated
         self.spec = GridSpec.from_bounds(config.region_min_m, config.region_max_m, config.resolution_m)
-        n_maps = 1 if config.mode == "known" else config.n_particles
+        n_maps = config.n_maps
         spacing, margin = config.free_lattice()
         self.grids = LogOddsGrids(
             self.spec, n_maps, chunk_edge=config.chunk_edge, l_min=config.l_min, l_max=config.l_max

@@ -68,7 +68,7 @@ class MapperNode:
         self._last_tick_ns: int | None = None  # the last update's stamp, and the last maps'
         self._last_maps_ns: int | None = None
         mapper_config = config.mapper
-        n_maps = 1 if mapper_config.mode == "known" else mapper_config.n_particles
+        n_maps = mapper_config.n_maps
         if (point_updates := self.core.free_volume.n_points * n_maps) > COSTLY_POINT_UPDATES:
             self._warn_once(
                 "costly updates",

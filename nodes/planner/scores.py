@@ -83,8 +83,8 @@ def contact_terms(
     of the candidates' bounding sphere count: Psi3 loses terms below exp(-36) each, and a candidate whose
     nearest contact is not among them (farther than the reach) takes its Psi1 from all contacts."""
     near = contacts_m
+    reach = config.mu3_m + PSI3_REACH_SIGMAS * config.sigma3_m
     if len(contacts_m) > NEAR_CONTACTS_ABOVE:
-        reach = config.mu3_m + PSI3_REACH_SIGMAS * config.sigma3_m
         centre = 0.5 * (candidates_m.min(axis=0) + candidates_m.max(axis=0))
         radius = float(np.sqrt(np.max(np.sum((candidates_m - centre) ** 2, axis=1))))
         near = contacts_m[np.sum((contacts_m - centre) ** 2, axis=1) <= (reach + radius) ** 2]
@@ -92,7 +92,7 @@ def contact_terms(
             near = contacts_m[:1]
     d = cdist(candidates_m, near)  # |s_p - c_p|, (m, n)
     nearest = d.min(axis=1)
-    if len(near) < len(contacts_m) and np.any(beyond := nearest > config.mu3_m + PSI3_REACH_SIGMAS * config.sigma3_m):
+    if len(near) < len(contacts_m) and np.any(beyond := nearest > reach):
         nearest[beyond] = cdist(candidates_m[beyond], contacts_m).min(axis=1)
     # Eq. 7, Alg. 2 line 2: Psi1(s) = min_c 1 - exp(-|s_p - c_p|^2 / sigma1^2) (monotone in |s - c|)
     psi1 = 1.0 - np.exp(-(nearest**2) / config.sigma1_m**2)
