@@ -189,8 +189,10 @@ class ExplorationMotion:
                 f"{offset} m from the object's -x face, y centre and top; {hint}",
                 ("scene",),
             )
+        # Waypoints from the kept history's start on (``targets`` drops those older than HISTORY_S).
         self._times: list[float] = [0.0]
         self._points: list[np.ndarray] = [self.q_rest.copy()]
+        self._latest_s = 0.0
 
     # --- touch configurations ----------------------------------------------------------------------
     def _clear(self, qs: np.ndarray, allow_tip: bool) -> np.ndarray:
@@ -299,6 +301,18 @@ class ExplorationMotion:
         return TouchSet(q_touch=qs, q_hover=hover, q_press=press, points_m=points, normals=normals)
 
     # --- strokes -----------------------------------------------------------------------------------
+    #: Simulated seconds of past waypoints ``targets`` keeps behind the latest time asked.
+    HISTORY_S = 60.0
+    #: ``_forget_before`` trims once this many waypoints are forgettable (amortised: no per-tick copy).
+    _TRIM_AT = 1024
+
+    def _forget_before(self, time_s: float) -> None:
+        """Drop the waypoints of segments that end before ``time_s``, in batches of at least _TRIM_AT."""
+        k = bisect.bisect_right(self._times, time_s) - 1  # the segment holding time_s starts at k
+        if k >= self._TRIM_AT:
+            del self._times[:k]
+            del self._points[:k]
+
     def _add(self, q: np.ndarray, duration_s: float) -> None:
         self._times.append(self._times[-1] + max(duration_s, 1e-3))
         self._points.append(q.copy())
@@ -372,11 +386,22 @@ class ExplorationMotion:
         self._add(self.q_rest, 0.1)
 
     def targets(self, time_s: float) -> np.ndarray:
-        """Joint targets (J,) in radians at simulated time ``time_s`` (full joint vector)."""
+        """Joint targets (J,) in radians at simulated time ``time_s`` (full joint vector).
+
+        Any time from HISTORY_S before the latest one asked on may be asked (a long run keeps a bounded
+        number of waypoints)."""
         if not math.isfinite(time_s) or time_s < 0:
             raise ValueError(f"time_s must be finite and >= 0, got {time_s!r}")
+        if time_s < self._times[0]:
+            raise ValueError(
+                f"time_s {time_s!r} is more than {self.HISTORY_S:g} s before the latest time asked "
+                f"({self._latest_s!r} s): the motion keeps only that much of its past"
+            )
         while self._times[-1] <= time_s:
             self._next_stroke()
+        if time_s > self._latest_s:
+            self._latest_s = time_s
+            self._forget_before(time_s - self.HISTORY_S)
         k = bisect.bisect_right(self._times, time_s) - 1  # np.searchsorted(side="right") without the array
         t0, t1 = self._times[k], self._times[k + 1]
         s = (time_s - t0) / (t1 - t0)

@@ -85,3 +85,23 @@ def test_an_object_out_of_the_fingertips_reach_is_a_config_error_naming_it() -> 
     far = SceneConfig(effector="finger", object=ObjectSpec(kind="sphere", size_m=(0.01,), position_m=(0.4, 0.4, 0.4)))
     with pytest.raises(ConfigError, match=r"finger's fingertip cannot reach the object 'sphere'.*scripted_motion off"):
         ExplorationMotion(far, np.random.default_rng(0), MotionConfig(candidate_samples=50))
+
+
+def test_a_long_run_keeps_a_bounded_history_with_the_same_targets(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Waypoints older than HISTORY_S behind the latest time are dropped (memory flat over hours)."""
+    times = np.arange(0.0, 40.0, 0.02)
+    whole = ExplorationMotion(SceneConfig(effector="finger"), np.random.default_rng(4), FAST)
+    expected = np.array([whole.targets(float(t)) for t in times])
+    monkeypatch.setattr(ExplorationMotion, "HISTORY_S", 5.0)
+    monkeypatch.setattr(ExplorationMotion, "_TRIM_AT", 16)
+    motion = ExplorationMotion(SceneConfig(effector="finger"), np.random.default_rng(4), FAST)
+    got, kept = [], []
+    for t in times:
+        got.append(motion.targets(float(t)))
+        kept.append(len(motion._times))
+    np.testing.assert_array_equal(np.array(got), expected)
+    assert max(kept) < len(whole._times) / 4  # 40 s asked, at most about 5 s kept
+    assert 30.0 < motion._times[0] <= times[-1] - 5.0
+    np.testing.assert_array_equal(motion.targets(35.5), whole.targets(35.5))
+    with pytest.raises(ValueError, match="more than 5 s before the latest time asked"):
+        motion.targets(20.0)
