@@ -458,7 +458,9 @@ class ExplorationEvaluator:
         return SurfaceScores(whole=whole, confident=self._rmse(vertices_m, sure), confident_fraction=fraction)
 
     def _rmse(self, vertices_m: np.ndarray, faces: np.ndarray) -> SurfaceRmse:
-        if len(faces) == 0:
+        """NaN for an estimate without surface (no faces, or all of zero area: the shape scores call it
+        infinitely far, ``shape``); otherwise ``surface_rmse``'s figures."""
+        if len(faces) == 0 or not triangle_areas(vertices_m, np.asarray(faces, dtype=np.int64)).sum() > 0:
             nan = math.nan
             return SurfaceRmse(estimate_to_truth_m=nan, truth_to_estimate_m=nan, symmetric_m=nan)
         if self._rmse_scorer is None:  # the true mesh's samples and distance field, once per run

@@ -203,19 +203,44 @@ def approach_curve(
 ) -> FloatArray:
     """Eq. 15: bezier(r, r - v_n beta, t_p + t_n beta, t_p) with beta = scale |r - t_p|, r = c_p.
 
-    Retracts along -v_n (v_n: the unit velocity just before the last contact) and reaches the target
-    against its outward normal t_n. Broadcasts: (..., 3) inputs -> (..., 4, 3). ``scale`` = 1/3 is
-    Eq. 15; 1 is the literal reading of Algorithm 2 line 4 (see the planner). ``min_chord_m`` floors
-    |r - t_p| in beta so that a target at the start point still gives a (small) retract-and-return
-    loop instead of a curve collapsed to a point.
+    Retracts along -v_n (v_n: the unit velocity just before the last contact, or zero for no
+    retraction) and reaches the target against its outward unit normal t_n; directions of another
+    length are refused (ValueError), not normalised. Broadcasts: (..., 3) inputs -> (..., 4, 3).
+    ``scale`` = 1/3 is Eq. 15; 1 is the literal reading of Algorithm 2 line 4 (see the planner).
+    ``min_chord_m`` floors |r - t_p| in beta so that a target at the start point still gives a
+    (small) retract-and-return loop instead of a curve collapsed to a point.
     """
     r = np.asarray(c_p, dtype=np.float64)
     t = np.asarray(t_p, dtype=np.float64)
+    v = _directions("v_n", v_n, allow_zero=True)
+    n = _directions("t_n", t_n, allow_zero=False)
     beta = scale * np.maximum(np.linalg.norm(r - t, axis=-1, keepdims=True), min_chord_m)
     r, t = np.broadcast_arrays(r, t)
-    p1 = r - np.asarray(v_n, dtype=np.float64) * beta
-    p2 = t + np.asarray(t_n, dtype=np.float64) * beta
+    p1 = r - v * beta
+    p2 = t + n * beta
     return np.stack(np.broadcast_arrays(r, p1, p2, t), axis=-2)
+
+
+#: How far from 1 a direction's length may be (float32 normals carry about 1e-7).
+UNIT_TOLERANCE = 1e-4
+
+
+def _directions(name: str, value: ArrayLike, *, allow_zero: bool) -> FloatArray:
+    """``value`` as float64 (..., 3), checked to hold unit vectors (or zeros with ``allow_zero``)."""
+    d = np.asarray(value, dtype=np.float64)
+    if d.shape[-1:] != (3,):
+        raise ValueError(f"{name} needs 3-vectors (..., 3), got shape {d.shape}")
+    squared = np.einsum("...i,...i->...", d, d)
+    bad = np.abs(squared - 1.0) > 2.0 * UNIT_TOLERANCE
+    if allow_zero:
+        bad &= squared != 0.0
+    if np.any(bad):  # NaN compares False: a NaN direction is named too, below
+        length = float(np.sqrt(np.ravel(squared)[np.flatnonzero(np.ravel(bad))[0]]))
+        unit = "unit vectors (or zero)" if allow_zero else "unit vectors"
+        raise ValueError(f"{name} needs {unit}, got one of length {length:.6g}")
+    if not np.all(np.isfinite(squared)):
+        raise ValueError(f"{name} needs finite vectors, got NaN or inf")
+    return d
 
 
 def recovery_curve(

@@ -184,3 +184,19 @@ def test_a_touch_records_its_measured_normal_and_none_without_one() -> None:
     touches = ev.summary()["touches"]
     assert touches[0]["normal"] == [0.0, 0.6, 0.8]
     assert touches[1]["normal"] is None
+
+
+@pytest.mark.parametrize("estimate", ["no faces", "zero area"])
+def test_an_estimate_without_surface_scores_as_nothing_at_checkpoints_and_milestones(estimate: str) -> None:
+    """A collapsed estimate (every triangle of zero area) raised at a milestone where an empty one
+    scored NaN, and the shape checkpoints scored both as infinitely far."""
+    V, F = _cube(0.05)
+    ev = ExplorationEvaluator(V, F, EvalConfig(coverage_samples=1000, shape_samples=500))
+    ev.add_touch(np.array([0.025, 0.0, 0.0]), np.full(3, np.nan), 0.0, 0.0, np.array([-1.0, 0.0, 0.0]))
+    faces = np.zeros((0, 3), dtype=np.int64) if estimate == "no faces" else np.array([[0, 1, 2]])
+    vertices = np.zeros((3, 3))
+    shape = ev.shape(vertices, faces)
+    assert shape.chamfer_mm == np.inf and shape.fscore_2mm == 0.0
+    scores = ev.rmse(vertices, faces, np.zeros(3))
+    assert np.isnan(scores.whole.symmetric_m) and np.isnan(scores.confident.symmetric_m)
+    assert np.isnan(scores.confident_fraction)

@@ -226,6 +226,8 @@ def test_recovery_curve_is_eq17() -> None:
     # bit for bit the written-out Eq. 17 on random inputs (it is computed as Eq. 15 with signs reversed)
     rng = np.random.default_rng(11)
     r, v_n, t_p, t_n = rng.normal(size=(4, 50, 3))
+    v_n /= np.linalg.norm(v_n, axis=-1, keepdims=True)
+    t_n /= np.linalg.norm(t_n, axis=-1, keepdims=True)
     beta = (1.0 / 3.0) * np.maximum(np.linalg.norm(r - t_p, axis=-1, keepdims=True), 0.01)
     expected = np.stack([r, r + v_n * beta, t_p - t_n * beta, t_p], axis=-2)
     assert np.array_equal(recovery_curve(r, v_n, t_p, t_n, min_chord_m=0.01), expected)
@@ -235,6 +237,7 @@ def test_curves_broadcast_over_candidates() -> None:
     rng = np.random.default_rng(3)
     targets = rng.normal(scale=0.03, size=(7, 3))
     normals = rng.normal(size=(7, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     P = approach_curve(np.zeros(3), np.array([0, 0, -1.0]), targets, normals)
     assert P.shape == (7, 4, 3)
     for i in range(7):
@@ -263,3 +266,26 @@ def test_scalar_point_and_derivative_give_the_bits_of_numpy() -> None:
                 slope = A[1] + tau * (2.0 * A[2] + 3.0 * tau * A[3])
             assert cubic.point_xyz(tau) == point.tolist()
             assert cubic.derivative_xyz(tau) == slope.tolist()
+
+
+@pytest.mark.parametrize(
+    ("v_n", "t_n", "message"),
+    [
+        ([0.0, 0.0, -2.0], [0.0, 0.0, 1.0], "v_n needs unit vectors \\(or zero\\), got one of length 2"),
+        ([0.0, 0.0, -1.0], [0.0, 0.0, 0.0], "t_n needs unit vectors, got one of length 0"),
+        ([0.0, 0.0, -1.0], [0.0, 0.5, 0.5], "t_n needs unit vectors, got one of length 0.707107"),
+        ([np.nan, 0.0, 0.0], [0.0, 0.0, 1.0], "v_n needs finite vectors"),
+        ([0.0, 0.0, -1.0], [0.0, 1.0], "t_n needs 3-vectors"),
+    ],
+)
+def test_approach_curve_refuses_directions_that_are_not_unit(v_n: list[float], t_n: list[float], message: str) -> None:
+    """A scaled direction moved the control points by its length without a word (now named)."""
+    with pytest.raises(ValueError, match=message):
+        approach_curve(np.zeros(3), v_n, np.ones(3), t_n)
+
+
+def test_approach_curve_takes_zero_retraction_and_float32_normals() -> None:
+    n = np.array([0.6, 0.0, 0.8], dtype=np.float32)  # |n| = 1 only to float32's precision
+    P = approach_curve(np.zeros(3), np.zeros(3), np.ones(3), n)
+    np.testing.assert_array_equal(P[1], np.zeros(3))
+    np.testing.assert_allclose(P[2], 1.0 + n.astype(np.float64) * np.sqrt(3.0) / 3.0)
