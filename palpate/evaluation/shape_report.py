@@ -8,7 +8,9 @@ Input: the rows of :func:`palpate.evaluation.explore.run_episode`, each with its
   PAIRED runs (every strategy got there from the same start), per object first, then over objects;
 - the F-score@2 mm and the Chamfer distance at fixed budgets (50, 100, 200 contacts; 1, 2, 5 m of
   travel): the last estimate within the budget (a run that ended earlier counts with its final
-  estimate), averaged per object, then over objects.
+  estimate), averaged per object, then over the objects with an estimate by then (``objects_at_...``
+  counts them; a large object's first checkpoint may lie beyond a small budget, for one strategy's
+  travel and not another's, and the table says so where a row's strategies average different counts).
 
 The series is sampled every ``EvalConfig.shape_interval`` contacts (10; more on an object whose
 covering bound exceeds 600 contacts), so "travel to F >= 0.9" is that of the first sampled estimate
@@ -56,7 +58,8 @@ def shape_summary(results: Sequence[Row], strategies: Sequence[str]) -> dict[str
     """Per strategy the figures of the module docstring; keys: ``travel_to_f2_cm``,
     ``contacts_to_f2``, ``runs_reaching_f2``, ``runs_with_shape`` (runs scored at least once),
     ``paired_runs_f2``, ``fscore_2mm_at_<n>_contacts``, ``chamfer_mm_at_<n>_contacts``,
-    ``fscore_2mm_at_<x>m``, ``chamfer_mm_at_<x>m``."""
+    ``fscore_2mm_at_<x>m``, ``chamfer_mm_at_<x>m``, and ``objects_at_<n>_contacts``,
+    ``objects_at_<x>m`` (the objects those budget figures average)."""
     ok = [r for r in results if "error" not in r and r.get("shape")]
     by_start: dict[tuple[str, int], dict[str, Row]] = {}
     for r in ok:
@@ -93,6 +96,7 @@ def shape_summary(results: Sequence[Row], strategies: Sequence[str]) -> dict[str
                     chamfer.setdefault(r["object"], []).append(float(point["chamfer_mm"]))
             stats[f"fscore_2mm_at_{label}"] = _per_object_mean(fscore)
             stats[f"chamfer_mm_at_{label}"] = _per_object_mean(chamfer)
+            stats[f"objects_at_{label}"] = len(fscore)
         out[s] = stats
     return out
 
@@ -101,28 +105,39 @@ def shape_table(summary: Mapping[str, Mapping[str, float | int]]) -> str:
     """Markdown table of :func:`shape_summary`: one column per strategy."""
     strategies = list(summary)
     rows = [
-        ("Travel to F-score@2 mm >= 0.9 (paired)", "travel_to_f2_cm", "cm", 1),
-        ("Contacts to F-score@2 mm >= 0.9 (paired)", "contacts_to_f2", "", 1),
-        ("Runs reaching F-score@2 mm >= 0.9", "runs_reaching_f2", "", 0),
+        ("Travel to F-score@2 mm >= 0.9 (paired)", "travel_to_f2_cm", "cm", 1, ""),
+        ("Contacts to F-score@2 mm >= 0.9 (paired)", "contacts_to_f2", "", 1, ""),
+        ("Runs reaching F-score@2 mm >= 0.9", "runs_reaching_f2", "", 0, ""),
     ]
     for n in CONTACT_BUDGETS:
-        rows.append((f"F-score@2 mm after {n} contacts", f"fscore_2mm_at_{n}_contacts", "", 3))
-        rows.append((f"Chamfer after {n} contacts", f"chamfer_mm_at_{n}_contacts", "mm", 2))
+        rows.append((f"F-score@2 mm after {n} contacts", f"fscore_2mm_at_{n}_contacts", "", 3, f"{n}_contacts"))
+        rows.append((f"Chamfer after {n} contacts", f"chamfer_mm_at_{n}_contacts", "mm", 2, f"{n}_contacts"))
     for x in TRAVEL_BUDGETS_M:
-        rows.append((f"F-score@2 mm after {x:g} m of travel", f"fscore_2mm_at_{x:g}m", "", 3))
-        rows.append((f"Chamfer after {x:g} m of travel", f"chamfer_mm_at_{x:g}m", "mm", 2))
+        rows.append((f"F-score@2 mm after {x:g} m of travel", f"fscore_2mm_at_{x:g}m", "", 3, f"{x:g}m"))
+        rows.append((f"Chamfer after {x:g} m of travel", f"chamfer_mm_at_{x:g}m", "mm", 2, f"{x:g}m"))
     lines = ["| Figure | " + " | ".join(s.upper() for s in strategies) + " |", "|---|" + "---:|" * len(strategies)]
-    for label, key, unit, digits in rows:
+    uneven = False
+    for label, key, unit, digits, budget in rows:
+        counts = [int(summary[s].get(f"objects_at_{budget}", 0)) for s in strategies] if budget else []
+        show_counts = len(set(counts)) > 1
+        uneven |= show_counts
         cells = []
-        for s in strategies:
+        for i, s in enumerate(strategies):
             v = float(summary[s][key])
-            cells.append("-" if not math.isfinite(v) else f"{v:.{digits}f}{' ' + unit if unit else ''}")
+            cell = "-" if not math.isfinite(v) else f"{v:.{digits}f}{' ' + unit if unit else ''}"
+            cells.append(f"{cell} [{counts[i]}]" if show_counts else cell)
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     paired = next(iter(summary.values()))["paired_runs_f2"] if summary else 0
     lines.append("")
     lines.append(
         f"Paired runs for the effort to F-score@2 mm >= 0.9: {paired}. Budget figures: the last estimate within "
-        "the budget, per object, then over objects."
+        "the budget, per object, then over the objects with an estimate by then"
+        + (
+            "; [n]: the number of objects a cell averages, where a row's strategies average different ones "
+            "(an object whose first estimate lies beyond the budget is left out)."
+            if uneven
+            else "."
+        )
     )
     return "\n".join(lines)
 

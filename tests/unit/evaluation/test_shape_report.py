@@ -77,3 +77,23 @@ def test_the_plot_is_written(tmp_path: Path) -> None:
     results = [run("a", 0, "igef", [point(10, 10.0, 0.3), point(20, 30.0, 0.95)])]
     plot_fscore_vs_travel(tmp_path / "f.png", results, "a")
     assert (tmp_path / "f.png").stat().st_size > 1000
+
+
+def test_budget_cells_say_how_many_objects_they_average_where_strategies_differ() -> None:
+    """A large object whose first estimate lies beyond 1 m of one strategy's travel left that column's
+    mean over fewer objects without a word."""
+    results = [
+        run("small", 0, "igef", [point(10, 50.0, 0.95)]),
+        run("small", 0, "area", [point(10, 60.0, 0.9)]),
+        run("large", 0, "igef", [point(40, 90.0, 0.3)]),
+        run("large", 0, "area", [point(40, 150.0, 0.4)]),  # its first estimate lies beyond 1 m
+    ]
+    summary = shape_summary(results, ["igef", "area"])
+    assert summary["igef"]["objects_at_1m"] == 2 and summary["area"]["objects_at_1m"] == 1
+    assert summary["igef"]["objects_at_50_contacts"] == summary["area"]["objects_at_50_contacts"] == 2
+    table = shape_table(summary)
+    assert "| F-score@2 mm after 1 m of travel | 0.625 [2] | 0.900 [1] |" in table
+    assert "| F-score@2 mm after 50 contacts | 0.625 | 0.650 |" in table
+    assert "[n]: the number of objects a cell averages" in table
+    even = shape_table(shape_summary(results[:2], ["igef", "area"]))
+    assert "[" not in even and "over the objects with an estimate by then." in even
