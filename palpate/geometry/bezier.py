@@ -230,16 +230,16 @@ def _directions(name: str, value: ArrayLike, *, allow_zero: bool) -> FloatArray:
     d = np.asarray(value, dtype=np.float64)
     if d.shape[-1:] != (3,):
         raise ValueError(f"{name} needs 3-vectors (..., 3), got shape {d.shape}")
-    squared = np.einsum("...i,...i->...", d, d)
-    bad = np.abs(squared - 1.0) > 2.0 * UNIT_TOLERANCE
+    squared = (d * d).sum(axis=-1)
+    ok = np.abs(squared - 1.0) <= 2.0 * UNIT_TOLERANCE  # False for NaN
     if allow_zero:
-        bad &= squared != 0.0
-    if np.any(bad):  # NaN compares False: a NaN direction is named too, below
-        length = float(np.sqrt(np.ravel(squared)[np.flatnonzero(np.ravel(bad))[0]]))
+        ok |= squared == 0.0
+    if not ok.all():
+        first = float(np.ravel(squared)[np.flatnonzero(~np.ravel(ok))[0]])
+        if not math.isfinite(first):
+            raise ValueError(f"{name} needs finite vectors, got NaN or inf")
         unit = "unit vectors (or zero)" if allow_zero else "unit vectors"
-        raise ValueError(f"{name} needs {unit}, got one of length {length:.6g}")
-    if not np.all(np.isfinite(squared)):
-        raise ValueError(f"{name} needs finite vectors, got NaN or inf")
+        raise ValueError(f"{name} needs {unit}, got one of length {math.sqrt(first):.6g}")
     return d
 
 
