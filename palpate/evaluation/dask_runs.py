@@ -200,18 +200,27 @@ def _unused(path: Path) -> Path:
 
 @contextlib.contextmanager
 def _interrupts_held() -> Iterator[None]:
-    """SIGINT and SIGTERM held back until the block ends (in the main thread; elsewhere nothing is held): a
-    Ctrl-C or a scheduler's SIGTERM between writing a run and counting it said 'no run of it finished' of a
-    file that held one."""
+    """SIGINT and SIGTERM held back until the block ends, then raised again (in the main thread; elsewhere
+    nothing is held): a Ctrl-C or a scheduler's SIGTERM between writing a run and counting it said 'no run
+    of it finished' of a file that held one. Python-level handlers, not a blocked signal mask: another
+    thread (the Dask client's) takes a signal the main thread blocks, and Python raises it in the main
+    thread all the same."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    held = {signal.SIGINT, signal.SIGTERM}
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    pending: list[int] = []
+
+    def hold(signum: int, frame: object) -> None:
+        pending.append(signum)
+
+    previous = {signum: signal.signal(signum, hold) for signum in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        for signum in dict.fromkeys(pending):
+            signal.raise_signal(signum)  # through the handler the block had replaced
 
 
 class RunLog:
