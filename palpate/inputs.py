@@ -78,10 +78,16 @@ class Accumulated:
         grown = x if restarted else x - self.last
         elapsed_s = max(0, stamp_ns - self.stamp_ns) * 1e-9
         if grown > self.max_rate * elapsed_s + 1e-9 * max(1.0, x):
+            went_back = (
+                f" (its stamp is {(self.stamp_ns - stamp_ns) * 1e-9:.6g} s before the last reading's: a clock source "
+                "that started again from 0? it continues its stamps)"
+                if stamp_ns < self.stamp_ns
+                else ""
+            )
             raise InputError(
                 self.field,
                 f"grew by {grown:.6g} {self.unit} in {elapsed_s:.6g} s of its stamps, faster than {self.max_rate:g} "
-                f"{self.unit}/s",
+                f"{self.unit}/s{went_back}",
             )
         offset = self.offset + self.last if restarted else self.offset
         return Reading(offset + x, x, offset, stamp_ns)

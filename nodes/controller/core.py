@@ -104,6 +104,10 @@ HELD_M = 1e-3
 #: A fingertip driven at v0 that touches nothing and stays within HELD_M this long is blocked, seconds:
 #: at the default v0 of 5 cm/s it would have moved 25 cm.
 BLOCKED_S = 5.0
+#: Steps further apart than this (seconds of their stamps), or stamped earlier than the one before, start
+#: the blocked watch again: no pose came between them (a real-time driver that paused, a clock set
+#: forward), so nothing says the fingertip was held.
+WATCH_GAP_S = 0.5
 
 
 class TouchArming:
@@ -283,6 +287,7 @@ class TouchLoop:
         self.last_normal = np.zeros(3)  # measured normal of the last touch
         self.slides = 0  # slides started
         self.still: tuple[int, FloatArray] | None = None  # since when, and where, it has not moved while driven
+        self.watched_ns: int | None = None  # the stamp of the last step the blocked watch saw
         self.blocked = ""  # why the fingertip counts as blocked (the run then fails)
 
     @property
@@ -386,12 +391,14 @@ class TouchLoop:
 
     def _watch_motion(self, stamp_ns: int, r: FloatArray, linear: FloatArray, contact: bool) -> None:
         """Call the fingertip blocked (``blocked``) when, driven at v0 and touching nothing, it has stayed
-        within HELD_M of one point for BLOCKED_S: something holds it that its contacts do not report (a
-        sensor that fails, or contacts every one of which was refused)."""
+        within HELD_M of one point for BLOCKED_S, over steps at most WATCH_GAP_S apart: something holds it
+        that its contacts do not report (a sensor that fails, or contacts every one of which was refused)."""
         v0 = self.controller.config.v0_m_s
+        before, self.watched_ns = self.watched_ns, stamp_ns
+        gap = before is None or not 0 <= stamp_ns - before <= WATCH_GAP_S * 1e9
         if contact or not self.controller.moving or float(np.linalg.norm(linear)) < 0.5 * v0:
             self.still = None
-        elif self.still is None or _distance(r, self.still[1]) > HELD_M:
+        elif gap or self.still is None or _distance(r, self.still[1]) > HELD_M:
             self.still = (stamp_ns, np.array(r))
         elif stamp_ns - self.still[0] >= BLOCKED_S * 1e9 and not self.blocked:
             self.blocked = (

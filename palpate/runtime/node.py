@@ -84,6 +84,10 @@ log = logging.getLogger("palpate.node")
 #: environment variable WAIT_NOTE_ENV overrides it.
 FOLLOWER_WAIT_NOTE_S = 30.0
 WAIT_NOTE_ENV = "PALPATE_WAIT_NOTE_S"
+#: In real time, a Clock stamped this much later than the one before is a jump (its stamps are the
+#: hardware's time: a driver that paused, or a clock that was set forward), counted and said once.
+REALTIME_CLOCK_JUMP_NS = 1_000_000_000
+
 #: A clock source logs how far the run has got every this many seconds of wall time (progress of long
 #: graphs); the environment variable PROGRESS_ENV overrides it.
 PROGRESS_PERIOD_S = 30.0
@@ -287,6 +291,7 @@ class NodeRunner:
         self._superseded_by_topic: Counter[str] = Counter()  # real time: state messages a newer one replaced unread
         self.last_clock = -1  # the last Clock tick received (sent, in the clock source)
         self.last_clock_stamp_ns = -1  # and its stamp (lockstep: the next may not be earlier)
+        self._realtime_last_tick: int | None = None  # real time: the tick of the Clock before
         self.refused_clock = ""  # why the last Clock was refused, while no later one was taken
         self.moved_at = time.monotonic()  # when a Clock or an acknowledgement last came: the graph moved
         self._clock_restarted_after = 0  # lockstep: the tick after which a Clock of tick 0 came again
@@ -407,6 +412,8 @@ class NodeRunner:
                     ),
                 )
             elif clock is not None:
+                if not self.lockstep:
+                    self._note_realtime_clock(clock)
                 self.clock_ticks.append(clock)
                 self.last_clock = max(self.last_clock, clock.tick)
                 self.last_clock_stamp_ns = clock.stamp_ns
@@ -448,6 +455,40 @@ class NodeRunner:
             rank = self.process.topic_order.get(topic, 1 << 30)
             self.buffer.append((self._due(topic), rank, self.seq, topic, payload))
         # anything else is a prefix match of another topic: not ours.
+
+    def _note_realtime_clock(self, clock: Clock) -> None:
+        """In real time a Clock is the hardware's time and is taken as it comes; one whose stamp goes back,
+        repeats a tick, or jumps more than REALTIME_CLOCK_JUMP_NS ahead is counted (``clock_went_back``,
+        ``clock_tick_repeated``, ``clock_jumped``) and said once per kind: the nodes' watchdogs and
+        odometers follow these stamps, and a lockstep replay of the log refuses such a Clock."""
+        last_ns, last_tick = self.last_clock_stamp_ns, self._realtime_last_tick
+        self._realtime_last_tick = clock.tick
+        if last_tick is None:
+            return
+        if clock.stamp_ns < last_ns:
+            kind = "clock_went_back"
+            text = f"stamped {(last_ns - clock.stamp_ns) / 1e9:.6g} s before the one before"
+        elif clock.tick <= last_tick:
+            kind, text = "clock_tick_repeated", f"repeats or goes back from tick {last_tick}"
+        elif clock.stamp_ns - last_ns > REALTIME_CLOCK_JUMP_NS:
+            kind = "clock_jumped"
+            ahead_s = (clock.stamp_ns - last_ns) / 1e9
+            text = f"stamped {ahead_s:.6g} s after the one before (a pause, or a clock set forward)"
+        else:
+            return
+        self.ctx.count(kind)
+        if self.ctx.counters[kind] == 1:
+            source = repr(self.process.clock_name) if self.process.clock_name else "the clock source"
+            log.warning(
+                "node %s: Clock tick %d (from tick %d) is %s; taken as it comes in real time (counted as %s): a "
+                "restarted %s continues its stamps and ticks from where it stopped",
+                self.process.name,
+                clock.tick,
+                last_tick,
+                text,
+                kind,
+                source,
+            )
 
     def _refuse_clock(self, reason: str) -> None:
         """Count and log a refused Clock, and keep the reason for the note of a wait that follows."""
@@ -787,6 +828,7 @@ class NodeRunner:
                 self._receive(100)
                 self.dispatch(latest_only=True)
                 self._note_readers()
+                told = told or self._said_no_clock(time.monotonic() - waiting_since, note_s)
                 while self.clock_ticks:
                     clock = self.clock_ticks.popleft()
                     self.ctx.stamp_ns, self.ctx.tick = clock.stamp_ns, clock.tick
@@ -794,6 +836,20 @@ class NodeRunner:
                     self._after_tick()
                 if self.stopping:
                     break
+
+    def _said_no_clock(self, waited_s: float, note_s: float) -> bool:
+        """In real time: say (True) that inputs arrive but no Clock has come once ``waited_s`` >= ``note_s``
+        (a clock-source driver that sends no Clock left the graph doing nothing without a word)."""
+        if self.last_clock >= 0 or not self.ctx.counters["messages_in"] or waited_s < note_s:
+            return False
+        log.warning(
+            "node %s: inputs arrive but no Clock came in %.0f s: in real time a node acts on each Clock of the "
+            "clock source (a driver that plays it publishes Clock on topic %s)",
+            self.process.name,
+            waited_s,
+            topics.CLOCK,
+        )
+        return True
 
     def _clock_lost(self, clock_name: str, received: bool, tick: int, still_s: float) -> str:
         """Why a lockstep follower waiting for `tick` will get no more ticks ("" while it may): the clock

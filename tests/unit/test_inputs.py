@@ -324,3 +324,6 @@ def test_an_accumulated_reading_grows_at_most_at_its_rate_and_its_total_never_fa
     assert read(0.0, 3_500_000_000) == 3.75  # restarted again
     with pytest.raises(InputError, match=r"grew by 2000 m in 1 s"):  # and judged by its rate, too
         read(2000.0, 4_500_000_000)
+    # an outside walkthrough: a real-time clock source that restarted (stamps from 0) was blamed as "in 0 s"
+    with pytest.raises(InputError, match=r"grew by 0.5 m in 0 s of its stamps, .* \(its stamp is 3.49 s before"):
+        read(0.5, 10_000_000)

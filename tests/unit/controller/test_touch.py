@@ -357,3 +357,21 @@ def test_a_fingertip_driven_that_does_not_move_and_touches_nothing_is_blocked() 
     steps = [loop.step(tick * TICK_NS, start, R_DOWN, *NONE) for tick in range(ticks + 1)]  # held where it is
     assert not any(step.failed for step in steps[:-1]) and steps[-1].failed
     assert loop.blocked.startswith("controller: the fingertip has not moved for 5 s while driven at 0.05 m/s")
+
+
+@pytest.mark.parametrize("fault", ["pause", "jump", "back"])
+def test_a_fingertip_that_got_no_pose_for_a_while_is_not_called_blocked(fault: str) -> None:
+    """An outside real-time driver that paused 6 s (or whose stamps jumped 6 s) failed the run with 'has not
+    moved for 5 s ... something holds it': one step 6 s after the other said nothing of a held fingertip."""
+    from palpate.nodes.controller.core import BLOCKED_S
+
+    loop = TouchLoop(TouchConfig(), ControllerConfig(), initial_target_m=np.zeros(3))
+    start = np.array([0.0, 0.0, 0.05])
+    loop.step(0, start, R_DOWN, *NONE)
+    after = {"pause": 6e9, "jump": 3600e9, "back": -6e9}[fault]
+    steps = [loop.step(int(after) + k * TICK_NS, start, R_DOWN, *NONE) for k in range(10)]
+    assert not loop.blocked and not any(step.failed for step in steps)
+    # held for BLOCKED_S from there on, step by step, it still counts as blocked
+    ticks = round(BLOCKED_S / DT_S)
+    steps = [loop.step(int(after) + (10 + k) * TICK_NS, start, R_DOWN, *NONE) for k in range(ticks + 1)]
+    assert steps[-1].failed and loop.blocked

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import os
 import signal
 import stat
@@ -753,6 +754,65 @@ def test_a_lockstep_clock_stamped_before_the_last_or_the_start_is_refused(tmp_pa
         runner._close_sockets(linger_ms=0)
     assert [c.tick for c in runner.clock_ticks] == [0, 1, 2]
     assert runner.ctx.counters["decode_errors"] == 2
+
+
+def test_a_real_time_clock_that_goes_back_repeats_or_jumps_is_taken_counted_and_said_once(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """An outside walkthrough: a real-time driver's restart (stamps and ticks from 0 again) and a 6 s pause
+    passed without a word, and the controller then blamed the contact sensor, the evaluator the odometer."""
+    from palpate.messages.schemas import Clock
+
+    runner = runner_of(dataclasses.replace(bare_process(tmp_path, "follower"), mode="realtime", clock_name="rig"))
+
+    def clock(tick: int, stamp_ns: int) -> None:
+        frame_to(runner, topics.CLOCK, Clock(stamp_ns=stamp_ns, tick=tick, period_ns=10_000_000, lockstep=False))
+
+    try:
+        with caplog.at_level(logging.WARNING):
+            clock(0, 0)
+            clock(1, 10_000_000)
+            clock(2, 6_010_000_000)  # a 6 s pause
+            clock(3, 6_020_000_000)
+            clock(0, 0)  # the driver started again from 0
+            clock(1, 10_000_000)
+            clock(1, 20_000_000)  # a tick repeated
+            clock(9, 7_000_000_000)  # another jump: counted, not said again
+    finally:
+        runner._close_sockets(linger_ms=0)
+    assert [c.tick for c in runner.clock_ticks] == [0, 1, 2, 3, 0, 1, 1, 9]  # real time takes them all
+    counters = runner.ctx.counters
+    assert (counters["clock_jumped"], counters["clock_went_back"], counters["clock_tick_repeated"]) == (2, 1, 1)
+    said = [r.getMessage() for r in caplog.records if "taken as it comes in real time" in r.getMessage()]
+    assert len(said) == 3
+    assert "Clock tick 2 (from tick 1) is stamped 6 s after the one before" in said[0]
+    assert "stamped 6.02 s before the one before" in said[1] and "a restarted 'rig' continues" in said[1]
+    assert counters["decode_errors"] == 0
+
+
+def test_a_real_time_follower_says_when_inputs_come_but_no_clock(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """An outside real-time driver that sent poses and contacts but no Clock: the graph did nothing for 45 s,
+    said nothing, and the launch exited 0."""
+    from palpate.messages.schemas import Clock
+
+    runner = runner_of(dataclasses.replace(bare_process(tmp_path, "follower"), mode="realtime"))
+    try:
+        with caplog.at_level(logging.WARNING):
+            assert not runner._said_no_clock(60.0, 30.0)  # nothing arrived yet: a slow start
+            runner.ctx.counters["messages_in"] = 5
+            assert not runner._said_no_clock(29.0, 30.0)
+            assert runner._said_no_clock(31.0, 30.0)
+            frame_to(runner, topics.CLOCK, Clock(stamp_ns=0, tick=0, period_ns=10_000_000, lockstep=False))
+            assert not runner._said_no_clock(90.0, 30.0)  # a Clock came
+    finally:
+        runner._close_sockets(linger_ms=0)
+    said = [r.getMessage() for r in caplog.records]
+    assert said == [
+        "node follower: inputs arrive but no Clock came in 31 s: in real time a node acts on each Clock of the "
+        "clock source (a driver that plays it publishes Clock on topic clock)"
+    ]
 
 
 def test_a_follower_names_a_restarted_clock_source_a_refused_clock_and_gives_up_after_the_timeout(
