@@ -151,6 +151,15 @@ class InProcessGraph:
                 _add(timing, "step", start)
             if stamp is None:
                 break
+            if stamp < (self.clock.ctx.stamp_ns if ticks else 0):  # as the process runtime refuses it
+                self.clock.ctx.request_stop(
+                    f"{self.clock.process.name}: the clock's stamp at tick {ticks} is {stamp} ns, before "
+                    + (f"tick {ticks - 1}'s {self.clock.ctx.stamp_ns} ns" if ticks else "the start (0)")
+                    + ": a lockstep clock runs forward",
+                    failed=True,
+                )
+                self._collect_stop(self.clock)
+                break
             for member in self.members:
                 member.ctx.stamp_ns, member.ctx.tick = stamp, ticks
                 member.last_sent = (None, None)

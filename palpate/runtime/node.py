@@ -731,6 +731,16 @@ class NodeRunner:
             stamp = step()
             if stamp is None:
                 break
+            if self.lockstep and stamp < (self.ctx.stamp_ns if tick else 0):
+                # every follower would refuse the Clock and wait for it until the acknowledgement timeout
+                self.ctx.request_stop(
+                    f"{self.process.name}: the clock's stamp at tick {tick} is {stamp} ns, before "
+                    + (f"tick {tick - 1}'s {self.ctx.stamp_ns} ns" if tick else "the start (0)")
+                    + ": a lockstep clock runs forward (a log recorded in real time whose clock went back replays "
+                    "with mode:=realtime)",
+                    failed=True,
+                )
+                break
             self._last_sent = (None, b"")
             if timer is not None:
                 timer.mark(tick, "stepped")

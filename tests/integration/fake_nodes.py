@@ -148,6 +148,7 @@ class TickCheck:
 @dataclass(frozen=True, kw_only=True)
 class FailingClockConfig:
     after_ticks: int = 5
+    back_at_tick: int = 0
 
 
 class FailingClock:
@@ -162,6 +163,8 @@ class FailingClock:
         self.tick += 1
         if self.tick == self.config.after_ticks:
             self.ctx.request_stop(f"failing clock: gave up after {self.tick} ticks", failed=True)
+        if self.tick == self.config.back_at_tick:  # a clock that goes back (a log recorded so, replayed)
+            return 0
         return self.tick * self.period_ns
 
     def on_tick(self, stamp_ns: int) -> None:

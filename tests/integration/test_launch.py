@@ -112,6 +112,33 @@ nodes:
     assert node_pids(tmp_path / "bus") == {}
 
 
+def test_a_lockstep_clock_that_goes_back_ends_the_run_naming_it_at_once(tmp_path: Path) -> None:
+    """An outside walkthrough: a log recorded in real time whose clock went back, replayed in lockstep,
+    had every follower refuse the Clock and the launch end 120 s later blaming the followers."""
+    graph = write(
+        tmp_path,
+        f"""
+mode: lockstep
+nodes:
+  - name: clock
+    type: {FAILING_CLOCK}
+    params: {{after_ticks: 100000, back_at_tick: 4}}
+  - name: quitter
+    type: {QUITTER}
+    params: {{after_ticks: 1000}}
+""",
+    )
+    log = tmp_path / "launch.log"
+    with launched(graph, tmp_path / "bus", log) as proc:
+        assert proc.wait(timeout=60) == 1, text(log)
+    out = text(log)
+    assert (
+        "ERROR node clock ended the run as a failure: clock: the clock's stamp at tick 3 is 0 ns, before tick 2's "
+        "30000000 ns: a lockstep clock runs forward" in out
+    ), out
+    assert "no acknowledgement" not in out and "rejected message" not in out, out
+
+
 def test_trailing_nodes_handle_each_input_in_its_own_tick(tmp_path: Path) -> None:
     """Nodes that feed nothing back to the clock source and say may_trail run behind it (the echo sleeps
     every tick), and still handle every input in the tick it was published in, directly from the clock

@@ -233,6 +233,27 @@ def test_in_process_graph_keeps_the_stop_reason_and_whether_it_was_a_failure(tmp
     assert graph.failure == (graph.stop_reason if failed else "")
 
 
+def test_in_process_graph_ends_as_a_failure_when_the_clock_goes_back(tmp_path: Path) -> None:
+    """As the process runtime: a lockstep clock runs forward (a log's clock that went back, replayed)."""
+    from palpate.launch.graph import resolve
+    from palpate.launch.loader import load_launch
+    from palpate.runtime.inprocess import InProcessGraph
+
+    launch = tmp_path / "back.yaml"
+    launch.write_text(
+        "nodes:\n  - name: clock\n    type: tests.integration.fake_nodes:FAILING_CLOCK\n"
+        "    params: {after_ticks: 1000, back_at_tick: 4}\n"
+        "  - name: quitter\n    type: tests.integration.fake_nodes:QUITTER\n    params: {after_ticks: 1000}\n"
+    )
+    graph = InProcessGraph(resolve(load_launch(launch), bus_dir=tmp_path / "bus").in_process_members())
+    assert graph.run(max_ticks=50) == 3
+    assert (
+        graph.failure
+        == graph.stop_reason
+        == ("clock: the clock's stamp at tick 3 is 0 ns, before tick 2's 30000000 ns: a lockstep clock runs forward")
+    )
+
+
 def test_in_process_graph_refuses_nodes_out_of_rank_order(tmp_path: Path) -> None:
     from palpate.launch.graph import resolve
     from palpate.launch.loader import load_launch
