@@ -39,7 +39,7 @@ class EvalConfig(Validated):
     #: The run ends as complete once this fraction of the true surface is explored (paper: 80 %).
     coverage_goal: Annotated[float, Range(gt=0.0, le=1.0)] = 0.8
     #: Coverage fractions at which the run's figures (contacts, travel, surface RMSE) are recorded; one not
-    #: reached is recorded at the end as not reached.
+    #: reached is recorded at the end as not reached. The coverage goal is always one (``recorded``).
     milestones: tuple[Annotated[float, Range(gt=0.0, le=1.0)], ...] = (0.5, 0.8)
     #: A point of the true surface counts as explored once a contact lies within this distance, metres.
     radius_m: PositiveFloat = 0.006
@@ -90,6 +90,12 @@ class EvalConfig(Validated):
     shape_checkpoints_per_bound: NonNegativeFloat = 60.0
     #: Points drawn uniformly by area on each surface, true and estimated, for the whole-shape scores.
     shape_samples: PositiveInt = 5000
+
+    @property
+    def recorded(self) -> tuple[float, ...]:
+        """The milestones and the coverage goal, in order: a goal that is no milestone was reached without
+        its figures and the run said complete: false beside finished: goal."""
+        return tuple(sorted({*self.milestones, self.coverage_goal}))
 
     def covering_bound(self, area_m2: float) -> float:
         """The fewest discs of radius_m that cover coverage_goal of a surface of area_m2 (contacts)."""
@@ -383,7 +389,7 @@ class ExplorationEvaluator:
         self._touches_without_gain = 0 if gained else self._touches_without_gain + 1
         self.touches.append(record)
         reached = []
-        for fraction in self.config.milestones:
+        for fraction in self.config.recorded:
             if fraction not in self.milestones and record.coverage >= fraction:
                 self.milestones[fraction] = self._milestone(fraction, reached=True)
                 reached.append(fraction)
@@ -399,7 +405,7 @@ class ExplorationEvaluator:
 
     def close_incomplete(self) -> None:
         """Record the end of a run that stopped before a milestone, with what it reached."""
-        for fraction in self.config.milestones:
+        for fraction in self.config.recorded:
             if fraction not in self.milestones:
                 self.milestones[fraction] = self._milestone(fraction, reached=False)
 
@@ -480,7 +486,7 @@ class ExplorationEvaluator:
             "covering_bound_contacts": self.covering_bound,
             "contact_budget": self.contact_budget,
             "travel_budget_m": self.travel_budget_m,
-            "milestones": {f"{int(100 * f)}": asdict(m) for f, m in sorted(self.milestones.items())},
+            "milestones": {f"{round(100 * f, 6):g}": asdict(m) for f, m in sorted(self.milestones.items())},
             "shape": [asdict(p) for p in self.shape_series],
             "touches": [asdict(t) for t in self.touches],
         }

@@ -144,6 +144,21 @@ def test_a_touch_that_brings_coverage_exactly_to_the_goal_reaches_it_and_complet
     assert ev.finished == "goal" and ev.summary()["complete"]
 
 
+def test_a_goal_that_is_no_milestone_is_recorded_as_one_and_completes_the_run() -> None:
+    """An outside walkthrough: --set eval.eval.coverage_goal=0.1 ended runs 'finished: goal' and
+    'complete: false' (complete looked the goal up among the milestones)."""
+    V, F = _cube(0.05)
+    side, down = np.array([0.025, 0.0, 0.0]), np.array([-1.0, 0.0, 0.0])
+    ev = ExplorationEvaluator(V, F, EvalConfig(coverage_samples=1000, coverage_goal=0.005))
+    assert ev.config.recorded == (0.005, 0.5, 0.8)
+    assert ev.add_touch(side, np.full(3, np.nan), 0.0, 0.0, down) == [0.005]
+    ev.close_incomplete()
+    summary = ev.summary()
+    assert ev.finished == "goal" and summary["complete"]
+    assert summary["milestones"]["0.5"]["reached"] and not summary["milestones"]["50"]["reached"]
+    assert list(summary["milestones"]) == ["0.5", "50", "80"]  # percent; "0" had hidden a goal below 1 %
+
+
 def test_a_touch_whose_travel_equals_the_travel_budget_ends_the_run() -> None:
     config = EvalConfig(coverage_samples=1000, max_travel_m=0.5, travel_per_bound_m=0.0)
     ev = ExplorationEvaluator(*_cube(0.05), config)
