@@ -124,6 +124,7 @@ class Supervisor:
         self.run_failures: list[str] = []
         self.external_specs: list[Path] = []
         self.started_at, self.manifests_checked = 0.0, False  # for the external nodes' manifests
+        self.manifests_seen: set[str] = set()  # external nodes whose manifest has been there
         self.driver_pids: dict[str, int] = {}  # external node -> the pid its manifest named first
         self.second_drivers: set[str] = set()  # external nodes said to have two drivers
         #: Processes the run needs besides its nodes (the recorder), by name; started and stopped by the caller.
@@ -215,12 +216,17 @@ class Supervisor:
         """Say once, MANIFEST_NOTE_S after the start, which external nodes have written no manifest: a driver
         not started yet, or one that writes none (then the recorder and `palpate topic` cannot find its
         topics, and a recorded launch waits for it)."""
-        if self.manifests_checked or now - self.started_at < MANIFEST_NOTE_S:
+        if self.manifests_checked:
+            return
+        for path in self.external_specs:  # a driver of a short run may have come and gone by the note's time
+            if path.stem not in self.manifests_seen and bus.Manifest.path(self.graph.bus_dir, path.stem).exists():
+                self.manifests_seen.add(path.stem)
+        if now - self.started_at < MANIFEST_NOTE_S:
             return
         self.manifests_checked = True
         for path in self.external_specs:
             manifest = bus.Manifest.path(self.graph.bus_dir, path.stem)
-            if not manifest.exists():
+            if path.stem not in self.manifests_seen:
                 self._say(
                     f"external node {path.stem!r} has written no manifest {manifest} after {MANIFEST_NOTE_S:g} s: its "
                     "driver has not started, or writes none (docs/runtime.md, External nodes, 3. Manifest); the "

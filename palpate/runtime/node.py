@@ -286,6 +286,7 @@ class NodeRunner:
         self.acks: dict[str, int] = {}
         self.clock_ticks: deque[Clock] = deque()
         self._bad_by_topic: dict[str, int] = {}  # payloads rejected per topic (their log lines are throttled)
+        self._undecoded_acks = 0  # acknowledgements that did not decode: no node of theirs to name
         self._refused_by_topic: dict[str, int] = {}  # messages the node's handler refused, per topic
         self._used_topics: set[str] = set()  # topics of which the node took at least one message
         self._superseded_by_topic: Counter[str] = Counter()  # real time: state messages a newer one replaced unread
@@ -423,6 +424,7 @@ class NodeRunner:
                     self.timer.mark(clock.tick, "clock_received")
         elif topic == topics.LOCKSTEP_ACK:
             ack = self._decode(topic, payload, LockstepAck)
+            self._undecoded_acks += ack is None
             if ack is not None and self.lockstep and ack.tick > self.last_clock + 1 + self._ack_lead:
                 # no node acknowledges a tick the clock source has not sent; believed, it would file every
                 # later message of that node under a tick that never comes
@@ -668,6 +670,8 @@ class NodeRunner:
                     for n in late
                     if n in self._refused_acks
                 )
+                if self._undecoded_acks:  # perhaps the late node's, but none of them can be named
+                    refused += f"; {self._undecoded_acks} acknowledgement(s) did not decode (logged above)"
                 raise TimeoutError(f"no acknowledgement of {what} from {late} in {self.ack_timeout_s:.0f} s{refused}")
             if not self._receive(100) and (gone := self._gone(self.process.lockstep_nodes)):
                 raise PeerLostError(f"no acknowledgement of {what}: {_left(gone)}")

@@ -55,6 +55,29 @@ def test_an_external_node_without_a_manifest_is_named_once_after_a_while(tmp_pat
         supervisor.shutdown()
 
 
+def test_a_manifest_that_came_and_went_before_the_note_is_not_called_missing(tmp_path: Path) -> None:
+    """An outside walkthrough: a driver of a short run wrote its manifest, removed it at its clean exit, and
+    the launch then said it had written none."""
+    import io
+
+    from palpate.launch.loader import with_external
+
+    launch = with_external(load_launch(REPO_ROOT / "launch" / "demo_minimal.yaml"), ["stats"])
+    graph = resolve(launch, bus_dir=tmp_path)
+    out = io.StringIO()
+    supervisor = Supervisor(graph, graph.process_specs(), out=out)
+    try:
+        supervisor.started_at = 100.0
+        manifest = tmp_path / "stats.json"
+        manifest.write_text("{}")
+        supervisor._note_missing_manifests(103.0)
+        manifest.unlink()  # the driver's clean exit
+        supervisor._note_missing_manifests(111.0)
+        assert out.getvalue() == ""
+    finally:
+        supervisor.shutdown()
+
+
 def test_a_second_driver_of_an_external_node_is_named(tmp_path: Path) -> None:
     """An outside driver in C, started twice: the second took the endpoint and the manifest over without a
     word (`palpate topic hz` then counted 0 messages while the run went on)."""

@@ -751,6 +751,18 @@ def test_the_clock_source_names_a_restarted_node_and_a_refused_acknowledgement_a
             "no acknowledgement of tick 50 from ['stats'] in 0 s; stats sent an acknowledgement that was refused: "
             "LockstepAck of tick 1000 from 'stats' is ahead of the clock (last tick 50)"
         )
+        # an outside driver's acknowledgement without its node field: the timeout said nothing of it
+        import msgpack
+        import zmq
+
+        header, buffer = msgpack.unpackb(codec.encode(LockstepAck(stamp_ns=0, node="noise", tick=50)))
+        del header["fields"]["node"]
+        runner._on_frames([zmq.Frame(topics.LOCKSTEP_ACK.encode()), zmq.Frame(msgpack.packb([header, buffer]))])
+        with pytest.raises(TimeoutError) as timeout:
+            runner._wait_for_acks(["late"], 50)
+        assert str(timeout.value) == (
+            "no acknowledgement of tick 50 from ['late'] in 0 s; 1 acknowledgement(s) did not decode (logged above)"
+        )
     finally:
         runner._close_sockets(linger_ms=0)
 
