@@ -111,18 +111,19 @@ def replay_note(launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] |
         return None
     if UNVERIFIED_KEY in info:
         return f"note: {log_path} says it was recorded from {info.get('launch_file', '?')}, but {info[UNVERIFIED_KEY]}"
+    graph = resolve(launch, bus_dir=Path("/nonexistent-bus-dir"))
+    if nodes is None:
+        nodes = [graph.clock_source.name] if graph.clock_source is not None else []
+    drivers = _drivers_rerun(info, graph, nodes)
     recorded = Path(info.get("launch_file", "")).name
     if recorded and recorded != launch.path.name:
         return (
             f"note: {log_path} was recorded from {info['launch_file']}, not {launch.path.name}: the replayed "
-            "sensor data, object and clock are that run's"
+            "sensor data, object and clock are that run's" + (f"; {drivers}" if drivers else "")
         )
     values = launch_values(info)
     then: dict[str, Any] = values["args"] if isinstance(values.get("args"), dict) else {}
     params_then: dict[str, Any] = values["params"] if isinstance(values.get("params"), dict) else {}
-    graph = resolve(launch, bus_dir=Path("/nonexistent-bus-dir"))
-    if nodes is None:
-        nodes = [graph.clock_source.name] if graph.clock_source is not None else []
     changes = _params_changed(launch.path, then, {k: v for k, v in launch.args.items() if k in then and then[k] != v})
 
     def listed(names: Sequence[str]) -> str:
@@ -160,7 +161,24 @@ def replay_note(launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] |
             f"{'; '.join(steered)}: nodes whose outputs steered the recorded motion (of {', '.join(steering)}); "
             "the replay does not follow them, so what they decide now need not match the motion in the log"
         )
+    if drivers:
+        notes.append(drivers)
     return "note: " + "; ".join(notes) if notes else None
+
+
+def _drivers_rerun(info: dict[str, str], graph: Graph, replaced: Sequence[str]) -> str:
+    """What to say of nodes a driver played in the recorded run that palpate's own node plays in this
+    replay ("" when none): their outputs need not be the recorded ones."""
+    then = [name for name in info.get("external", "").split(",") if name]
+    rerun = [n for n in then if n in graph.by_name and n not in replaced and not graph.by_name[n].external]
+    if not rerun:
+        return ""
+    names = ",".join(rerun)
+    return (
+        f"{', '.join(rerun)} played by a driver in the recorded run, palpate's own node here, so its outputs need "
+        f"not be the recorded ones (--replay-nodes {names} replays them as recorded; --external {names} with the "
+        "driver started again re-runs it)"
+    )
 
 
 def _params_changed(path: Path, args: dict[str, Any], changes: dict[str, Any]) -> dict[str, set[str] | None]:

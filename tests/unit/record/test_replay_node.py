@@ -214,6 +214,14 @@ def test_a_replay_notes_a_log_of_another_launch_file_or_other_arguments(tmp_path
     assert f"(here {value!r})" in (replay_note(launch, changed) or "")
     reseeded = log_of("reseeded.mcap", {**same, "seed": "7"})
     assert "was recorded with seed 7 (here 0)" in (replay_note(launch, reseeded) or "")
+    # an outside walkthrough: a node a driver played was re-run by palpate's own without a word
+    driven = log_of("driven.mcap", {**same, "external": "estimator"})
+    assert replay_note(launch, driven) == (
+        "note: estimator played by a driver in the recorded run, palpate's own node here, so its outputs need not "
+        "be the recorded ones (--replay-nodes estimator replays them as recorded; --external estimator with the "
+        "driver started again re-runs it)"
+    )
+    assert replay_note(launch, driven, ["cube", "estimator"]) is None  # replayed as recorded
 
 
 def test_a_replayed_node_that_reads_a_node_which_re_runs_is_refused(tmp_path: Path) -> None:
