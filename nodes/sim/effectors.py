@@ -177,8 +177,9 @@ class ProbeConfig(Validated):
 
     #: The hand's fingertip radius by default.
     radius_m: PositiveFloat = TIP_RADIUS_M
-    #: Start of the probe centre; None starts it ``start_clearance_m`` above the object, where a
-    #: descent meets it (``scene.descent_xy``).
+    #: Start of the probe centre; None starts it above the object's bounding-box centre in x and y (or,
+    #: where nothing lies under that, as under a torus's hole, the nearest point with the object under
+    #: the probe: ``scene.descent_xy``), with a gap of ``start_clearance_m`` between the probe and the top.
     start_position_m: tuple[float, float, float] | None = None
     #: Start orientation; the default (180 deg about x) makes the fingertip face world -z.
     start_quaternion_wxyz: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 0.0)

@@ -105,7 +105,8 @@ class ObjectSpec(Validated):
     #: A generated primitive, the 57 mm Rubik's cube, or a mesh read from ``path``.
     kind: Annotated[str, OneOf(KINDS)]
     #: The primitive's dimensions, metres: cube [edge], box [x, y, z], sphere [radius], cylinder [radius,
-    #: height], torus [major, minor radius]; empty: the kind's default size (rubiks_cube and mesh take none).
+    #: height], torus [major, minor radius]; empty: the kind's default size (cube 0.05, box 0.06 x 0.04 x
+    #: 0.03, sphere 0.03, cylinder 0.03 x 0.08, torus 0.04 x 0.015; rubiks_cube and mesh take none).
     size_m: Annotated[tuple[PositiveFloat, ...], BlankIsDefault, ScalarIsTuple] = ()
     #: Kind mesh only: the mesh file (STL, OBJ, PLY, OFF or GLB, relative to the current directory), or
     #: ``ycb:<id>`` for a YCB object (e.g. ``ycb:011_banana``).
