@@ -302,3 +302,13 @@ def test_a_target_exactly_at_the_slide_reach_is_reached_by_a_slide() -> None:
     np.testing.assert_array_equal(at_reach, target)  # the same choice (the reach decides only the slide)
     assert slides  # a target at the reach lies within it (<=)
     assert plan(float(np.nextafter(reach, 0.0)))[1] is False  # a hair less: it lifts
+
+
+@pytest.mark.parametrize("strategy", ["igef", "gpv", "tour"])
+def test_an_approach_direction_within_the_messages_tolerance_plans(strategy: str) -> None:
+    """approach_curve refuses directions that are not unit vectors; one the planner takes from a touch
+    (norm within palpate.inputs.UNIT_TOLERANCE, a driver's float32 arithmetic) still plans."""
+    V, N = plane()
+    planner = TouchPlanner(PlannerConfig(strategy=strategy))
+    planner.add_touch(np.zeros(3), np.full(3, np.nan), [0.0, 0.0, -1.008])
+    assert planner.plan("local", 1, V, N, np.ones(len(V)), over(np.zeros(3)), np.random.default_rng(0)) is not None
