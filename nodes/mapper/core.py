@@ -80,8 +80,10 @@ class MapperConfig(Validated):
       see fastslam.observation_log_likelihood and docs/slam.md).
     free_spacing_m, free_margin_m: lattice spacing and depth of the finger's free-volume samples
       (None: the grid resolution; see observation.py); free_margin_m "auto" (the default): the margin
-      measured for the resolution (MEASURED_FREE_MARGIN_MM; 1.5 mm for cells finer than 1 mm), else the
-      resolution.
+      measured for the resolution on the Rubik's cube scene's grid (MEASURED_FREE_MARGIN_MM; 1.5 mm for
+      cells finer than 1 mm), else the resolution; "cell": a point clears its cell only when the whole
+      cell lies in the finger (observation.whole_cells), whatever the grid's alignment with the object:
+      for another object or region (the measured margins hold for that grid only).
     chunk_edge: cells per chunk edge of the sparse storage (a power of two).
     """
 
@@ -104,7 +106,7 @@ class MapperConfig(Validated):
     free_weight: NonNegativeFloat = 1.0
     free_reward: bool = True
     free_spacing_m: Annotated[float | None, Positive] = None
-    free_margin_m: Annotated[float | Literal["auto"] | None, NonNegative] = "auto"
+    free_margin_m: Annotated[float | Literal["auto", "cell"] | None, NonNegative] = "auto"
     chunk_edge: PositiveInt = 8
 
     def __post_init__(self) -> None:
@@ -137,7 +139,15 @@ class MapperConfig(Validated):
             self._free_margin(),
         )
 
+    @property
+    def whole_cells(self) -> bool:
+        """Whether a free-volume point clears its cell only when the whole cell lies in the finger
+        (``free_margin_m: cell``)."""
+        return self.free_margin_m == "cell"
+
     def _free_margin(self) -> float:
+        if self.free_margin_m == "cell":  # no point shallower than half a cell diagonal clears its cell
+            return 0.5 * math.sqrt(3.0) * self.resolution_m
         if self.free_margin_m == "auto":
             measured = measured_free_margin_m(self.resolution_m)
             return self.resolution_m if measured is None else measured
@@ -240,6 +250,7 @@ class Mapper:
         )
         self.free_volume = capsule_lattice(chain, spacing, margin)
         self._free_h = self.free_volume.homogeneous()
+        self._free_depth = self.free_volume.depth_cells(config.resolution_m) if config.whole_cells else ()
         self._no_free_h = tuple(np.zeros((4, 0), dtype=np.float32) for _ in self._free_h)
         self.counters = MapperCounters()
         self._q = np.zeros(chain.n_joints)
@@ -257,6 +268,7 @@ class Mapper:
                 free_reward=config.free_reward,
                 l_occ=config.l_occ,
                 l_free=config.l_free,
+                free_depth_cells=self._free_depth,
             )
 
     def update(self, q_rad: FloatArray, contact_links: NDArray[np.integer], contact_local_m: FloatArray) -> None:
@@ -293,7 +305,7 @@ class Mapper:
         c = self.counters
         if self._filter is None:
             rots, pos = self.chain.forward(q[None, :])
-            free, occ = observation_keys(self.grids, rots, pos, self._free_h, links, local)
+            free, occ = observation_keys(self.grids, rots, pos, self._free_h, links, local, self._free_depth)
             self.grids.observe(free, occ, l_free=self.config.l_free, l_occ=self.config.l_occ, count=False)
             out_f, out_c = free.n_outside, occ.n_outside
             c.contacts_outside_measured += out_c

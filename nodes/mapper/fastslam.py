@@ -148,6 +148,7 @@ class FastSlam:
         free_reward: bool = True,
         l_occ: float = L_OCC,
         l_free: float = L_FREE,
+        free_depth_cells: tuple[NDArray[np.float32], ...] = (),
     ) -> None:
         if not (sigma_rad >= 0 and math.isfinite(sigma_rad)):
             raise ConfigError(f"sigma must be finite and >= 0, got {sigma_rad!r} rad")
@@ -159,6 +160,7 @@ class FastSlam:
         self.grids = grids
         self.free_volume = free_volume
         self._free_h = free_volume.homogeneous()
+        self._free_depth = free_depth_cells  # given: a free point clears only a cell wholly in the finger
         self.sigma_rad = float(sigma_rad)
         self.rng = rng
         self.resample_threshold = float(resample_threshold)
@@ -187,7 +189,9 @@ class FastSlam:
         q = np.asarray(q_noisy, dtype=np.float64)[None, :] + self.sigma_rad * self.rng.standard_normal((K, J))
         # 2. forward kinematics and cells, all particles at once
         rots, pos = self.chain.forward(q)
-        free, occ = observation_keys(self.grids, rots, pos, self._free_h, contact_links, contact_local_m)
+        free, occ = observation_keys(
+            self.grids, rots, pos, self._free_h, contact_links, contact_local_m, self._free_depth
+        )
         # 4. (before 3 uses the priors) each particle updates its own map at its own pose
         observed = self.grids.observe(free, occ, l_free=self.l_free, l_occ=self.l_occ, count=True)
         # 3. w^[k] = p(z | q^[k], m_{t-1}^[k]), accumulated in log space, normalised by log-sum-exp

@@ -30,13 +30,19 @@ FloatArray = NDArray[np.floating]
 
 @dataclass(frozen=True)
 class FreeVolume:
-    """Points filling the finger, fixed in its links: per link l, local_m[l] (P_l, 3) in metres."""
+    """Points filling the finger, fixed in its links: per link l, local_m[l] (P_l, 3) in metres, and
+    depth_m[l] (P_l,), each point's distance to its capsule's surface (empty tuple: not kept)."""
 
     local_m: tuple[NDArray[np.float64], ...]
+    depth_m: tuple[NDArray[np.float64], ...] = ()
 
     @property
     def n_points(self) -> int:
         return int(sum(len(p) for p in self.local_m))
+
+    def depth_cells(self, resolution_m: float) -> tuple[NDArray[np.float32], ...]:
+        """Per link, the points' depths in cells of ``resolution_m`` (float32), for ``whole_cells``."""
+        return tuple((d / resolution_m).astype(np.float32) for d in self.depth_m)
 
     def homogeneous(self) -> tuple[NDArray[np.float32], ...]:
         """Per link, the points as homogeneous columns (4, P_l) float32."""
@@ -60,6 +66,7 @@ def capsule_lattice(chain: KinematicChain, spacing_m: float, margin_m: float) ->
     radius, points on its axis lie in the cells it touches and would clear the contacts' cells.
     """
     per_link: list[list[NDArray[np.float64]]] = [[] for _ in range(chain.n_links)]
+    depth_of: list[list[NDArray[np.float64]]] = [[] for _ in range(chain.n_links)]
     for cap in chain.capsule_list:
         a, b = cap.a_local_m, cap.b_local_m
         length = float(np.linalg.norm(b - a))
@@ -77,9 +84,25 @@ def capsule_lattice(chain: KinematicChain, spacing_m: float, margin_m: float) ->
         local = np.stack([gu.ravel(), gv.ravel(), gw.ravel()], axis=1)  # capsule frame
         along = np.clip(local[:, 2], 0.0, length)
         dist = np.hypot(np.hypot(local[:, 0], local[:, 1]), local[:, 2] - along)
-        local = local[dist <= r]
+        inside = dist <= r
+        local = local[inside]
         per_link[cap.link].append(a + local[:, :1] * x + local[:, 1:2] * y + local[:, 2:3] * z)
-    return FreeVolume(local_m=tuple(np.concatenate(p) if p else np.zeros((0, 3)) for p in per_link))
+        depth_of[cap.link].append(cap.radius_m - dist[inside])
+    return FreeVolume(
+        local_m=tuple(np.concatenate(p) if p else np.zeros((0, 3)) for p in per_link),
+        depth_m=tuple(np.concatenate(d) if d else np.zeros(0) for d in depth_of),
+    )
+
+
+def whole_cells(f: NDArray[np.float32], depth_cells: NDArray[np.float32]) -> NDArray[np.bool_]:
+    """Which points lie so deep in the finger that their whole cell does: (K, P) bool for cell
+    coordinates f (K, 3, P) of points whose depths are ``depth_cells`` (P,), in cells. A cell lies
+    inside the ball of a point's depth when its farthest corner does: whatever the grid's alignment
+    with the object, a free update by these points clears no cell that holds surface."""
+    frac = f - np.floor(f)
+    np.maximum(frac, 1.0 - frac, out=frac)  # per axis, the distance to the cell's farther face
+    np.square(frac, out=frac)
+    return np.asarray(frac.sum(axis=1) <= np.square(depth_cells))
 
 
 def cell_affine(grids: LogOddsGrids, rots: FloatArray, pos: FloatArray) -> NDArray[np.float32]:
@@ -99,10 +122,14 @@ def observation_keys(
     free_h: tuple[NDArray[np.float32], ...],
     contact_links: NDArray[np.integer],
     contact_local_m: FloatArray,
+    free_depth_cells: tuple[NDArray[np.float32], ...] = (),
 ) -> tuple[CellKeys, CellKeys]:
     """Cells of one observation for K link poses rots (K, L, 3, 3), pos (K, L, 3); map k = pose k.
 
     free_h: the free volume per link as homogeneous columns (FreeVolume.homogeneous()).
+    free_depth_cells: per link, the points' depths in cells; given, a point clears its cell only when
+    the whole cell lies in the finger (``whole_cells``), else it is an invalid entry (not counted as
+    outside the region).
     Returns (free cells (K, P), contact cells (K, n)); points outside the region are marked invalid.
     """
     K = rots.shape[0]
@@ -123,9 +150,15 @@ def observation_keys(
     local = np.asarray(contact_local_m, dtype=np.float64).reshape(-1, 3)
     local_h = np.concatenate([local, np.ones((len(local), 1))], axis=1).astype(np.float32)
     fc = np.matmul(m[:, links], local_h[None, :, :, None])[..., 0]  # (K, n, 3)
+    shallow = 0
+    if free_depth_cells and f.shape[2]:
+        depth = np.concatenate([d for d, k in zip(free_depth_cells, keep, strict=True) if k])
+        part = ~whole_cells(f, depth)
+        shallow = int(np.count_nonzero(part))
+        f[np.broadcast_to(part[:, None, :], f.shape)] = np.nan  # an invalid entry: changes no map
     free = grids.cell_keys(f)
-    if culled:
-        free = replace(free, n_outside=free.n_outside + K * culled)
+    if culled or shallow:
+        free = replace(free, n_outside=free.n_outside + K * culled - shallow)
     return free, grids.cell_keys(np.ascontiguousarray(fc.transpose(0, 2, 1)))
 
 

@@ -217,10 +217,10 @@ def _interrupts_held() -> Iterator[None]:
     try:
         yield
     finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-        for signum in dict.fromkeys(pending):
-            signal.raise_signal(signum)  # through the handler the block had replaced
+        for held, handler in previous.items():
+            signal.signal(held, handler)
+        for arrived in dict.fromkeys(pending):
+            signal.raise_signal(arrived)  # through the handler the block had replaced
 
 
 class RunLog:
