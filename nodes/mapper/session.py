@@ -103,7 +103,7 @@ class MapperSession:
             raise InputError(
                 "positions_rad",
                 f"joint {self.chain.joint_names[i]!r} reads {q_rad[i]:.6g} rad, more than a full turn: degrees "
-                "sent as radians?",
+                "sent as radians? (or joint noise of tens of degrees: the noise node's sigma_deg)",
             )
         reading = JointReading(stamp_ns=stamp_ns, q_rad=q_rad)
         self._reading = reading

@@ -657,21 +657,31 @@ def main(args: argparse.Namespace) -> int:
 def check_launch(config: SlamEvalConfig, launch_path: Path = SLAM_LAUNCH) -> None:
     """The launch file with the first seed's arguments, resolved here before any worker starts: an unknown
     or bad --arg fails once, naming it, instead of in every run (LaunchError); and ConfigError for a
-    mapper that would not fit in memory, or cells so coarse that a map has fewer than MIN_CELLS_ACROSS
-    across its region (nothing to score)."""
+    mapper that would not fit in memory, cells so coarse that a map has fewer than MIN_CELLS_ACROSS
+    across its region, or that the finger's free volume holds no point (nothing to score)."""
     from palpate.description import load_hand
     from palpate.launch.graph import resolve
     from palpate.launch.loader import load_launch
     from palpate.nodes.mapper.core import check_fits
     from palpate.nodes.mapper.kinematics import KinematicChain
     from palpate.nodes.mapper.node import MapperNodeConfig
+    from palpate.nodes.mapper.observation import capsule_lattice
 
     graph = resolve(load_launch(launch_path, config.arguments(config.seeds[0])))
     for node in graph.nodes:
         if not isinstance(node.config, MapperNodeConfig):
             continue
         mapper = node.config.mapper
-        check_fits(mapper, KinematicChain.from_description(load_hand(), node.config.mount))  # as sweep slam does
+        chain = KinematicChain.from_description(load_hand(), node.config.mount)
+        check_fits(mapper, chain)  # as sweep slam does
+        spacing, margin = mapper.free_lattice()
+        if capsule_lattice(chain, spacing, margin).n_points == 0:  # every map scores rmse 0: nothing to compare
+            raise ConfigError(
+                f"--resolution-mm {mapper.resolution_m * 1e3:g}: the finger holds no free-volume point at cells of "
+                f"that size (lattice spacing {spacing * 1e3:g} mm, {margin * 1e3:g} mm deep), so the maps learn "
+                "from contacts only and every map's rmse is 0 (its observed cells are contact cells); give finer "
+                "cells, or --arg free_spacing_m / free_margin_m"
+            )
         extent_m = min(hi - lo for lo, hi in zip(mapper.region_min_m, mapper.region_max_m, strict=True))
         if extent_m / mapper.resolution_m < MIN_CELLS_ACROSS:
             raise ConfigError(

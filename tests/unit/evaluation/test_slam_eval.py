@@ -163,7 +163,10 @@ def test_an_unknown_launch_argument_is_refused_before_any_run() -> None:
         check_launch(SlamEvalConfig(resolution_m=0.03))
     with pytest.raises(LaunchError, match=r"resolution_m 0\.05 leaves fewer than 2 cells across"):  # the mapper's own
         check_launch(SlamEvalConfig(resolution_m=0.05))
-    check_launch(SlamEvalConfig(resolution_m=0.0225))
+    # an outside walkthrough: at 10 mm the finger holds no free-volume point and every map scored rmse 0
+    with pytest.raises(ConfigError, match=r"^--resolution-mm 10: the finger holds no free-volume point"):
+        check_launch(SlamEvalConfig(resolution_m=0.01))
+    check_launch(SlamEvalConfig(resolution_m=0.006))
     # an outside walkthrough: 1e8 particles started the cluster, failed in a worker, was retried, and
     # was then offered --resume
     with pytest.raises(ConfigError, match=r"^n_particles = 100000000 maps need .* GiB"):
