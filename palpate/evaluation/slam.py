@@ -674,6 +674,13 @@ def check_launch(config: SlamEvalConfig, launch_path: Path = SLAM_LAUNCH) -> Non
         mapper = node.config.mapper
         chain = KinematicChain.from_description(load_hand(), node.config.mount)
         check_fits(mapper, chain)  # as sweep slam does
+        extent_m = min(hi - lo for lo, hi in zip(mapper.region_min_m, mapper.region_max_m, strict=True))
+        if extent_m / mapper.resolution_m < MIN_CELLS_ACROSS:
+            raise ConfigError(
+                f"--resolution-mm {mapper.resolution_m * 1e3:g}: cells of that size leave fewer than "
+                f"{MIN_CELLS_ACROSS} across the {extent_m * 1e3:g} mm region the maps cover; their maps cannot "
+                f"be scored (give at most {extent_m * 1e3 / MIN_CELLS_ACROSS:g} mm)"
+            )
         spacing, margin = mapper.free_lattice()
         if capsule_lattice(chain, spacing, margin).n_points == 0:  # every map scores rmse 0: nothing to compare
             raise ConfigError(
@@ -681,13 +688,6 @@ def check_launch(config: SlamEvalConfig, launch_path: Path = SLAM_LAUNCH) -> Non
                 f"that size (lattice spacing {spacing * 1e3:g} mm, {margin * 1e3:g} mm deep), so the maps learn "
                 "from contacts only and every map's rmse is 0 (its observed cells are contact cells); give finer "
                 "cells, or --arg free_spacing_m / free_margin_m"
-            )
-        extent_m = min(hi - lo for lo, hi in zip(mapper.region_min_m, mapper.region_max_m, strict=True))
-        if extent_m / mapper.resolution_m < MIN_CELLS_ACROSS:
-            raise ConfigError(
-                f"--resolution-mm {mapper.resolution_m * 1e3:g}: cells of that size leave fewer than "
-                f"{MIN_CELLS_ACROSS} across the {extent_m * 1e3:g} mm region the maps cover; their maps cannot "
-                f"be scored (give at most {extent_m * 1e3 / MIN_CELLS_ACROSS:g} mm)"
             )
 
 
