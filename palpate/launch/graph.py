@@ -410,6 +410,35 @@ def _check_facts(graph: Graph) -> None:
                 )
 
 
+def stated_facts(graph: Graph, names: Iterable[str]) -> dict[str, tuple[str, Any]]:
+    """The facts the nodes ``names`` of ``graph`` state (NodeSpec.facts), by the name they are compared
+    under: fact -> (the node's name, the value)."""
+    wanted = set(names)
+    return {
+        _fact_name(node, fact): (node.name, value)
+        for node in graph.nodes
+        if node.name in wanted
+        for fact, (value, _) in _facts_of(node).items()
+    }
+
+
+def check_facts_against(graph: Graph, stated: Mapping[str, tuple[str, Any]], source: str) -> None:
+    """LaunchError when a node of ``graph`` states one of the facts ``stated`` (``stated_facts`` of another
+    graph, which ``source`` names) with another value, naming both and the ``--set`` that agrees."""
+    for node in graph.nodes:
+        for fact, (value, path) in _facts_of(node).items():
+            name = _fact_name(node, fact)
+            if name not in stated or stated[name][1] == value:
+                continue
+            other, wanted = stated[name]
+            hint = _same_by_set(node, fact, path, value, wanted)
+            key = ".".join(["params", *map(str, path)])
+            raise LaunchError(
+                f"{node.entry.param_at(path)}: node {node.name!r} ({key}) and node {other!r} of {source} disagree on "
+                f"{name}: {_difference(value, wanted)}; make them the same" + (f", e.g. {hint}" if hint else "")
+            )
+
+
 def _same_by_set(node: GraphNode, fact: str, path: KeyPath, value: Any, wanted: Any) -> str:
     """The ``--set`` arguments that make `node` state `wanted` for `fact` instead of `value`, tried: the
     fact's differing keys set as keys of the params at `path` (a mapper's mount), then the node's config

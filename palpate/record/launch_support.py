@@ -14,9 +14,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from palpate.errors import LaunchError
-from palpate.launch.graph import REPLAY_TYPE, Graph, GraphNode, resolve
-from palpate.launch.loader import LaunchFile, NodeEntry, Where, load_launch
+from palpate.errors import LaunchError, PalpateError
+from palpate.launch.graph import REPLAY_TYPE, Graph, GraphNode, check_facts_against, resolve, stated_facts
+from palpate.launch.loader import LaunchFile, NodeEntry, Where, apply_params, load_launch
+from palpate.paths import REPO_ROOT
 from palpate.record.mcap_io import UNVERIFIED_KEY, launch_info, launch_values
 from palpate.record.replay_node import log_topics
 
@@ -57,6 +58,7 @@ def replace_publishers_with_log(
             "node takes over the clock"
         )
     _check_open_loop(graph, replaced)
+    _check_recorded_facts(graph, replaced, log_path)
     replayed = sorted({t for node in replaced for t in node.publishes.values()})
     for topic in replayed:
         if recorded[topic] != graph.topic_types()[topic]:
@@ -83,6 +85,33 @@ def replace_publishers_with_log(
     gone = {n.name for n in replaced}
     kept = [e for e in launch.nodes if e.fields["name"] not in gone]
     return dataclasses.replace(launch, nodes=[entry, *kept])
+
+
+def _check_recorded_facts(graph: Graph, replaced: Sequence[GraphNode], log_path: Path) -> None:
+    """LaunchError when a node that re-runs states a fact (NodeSpec.facts: where the hand is mounted) other
+    than the replaced nodes stated in the recorded run, read from the launch file, arguments and ``--set``
+    the log names (when that file is still where it was recorded from): a mapper mounted for another
+    scene maps the replayed contacts, given in the hand's frames, in the wrong place. Nothing to compare
+    with (no launch metadata, a moved or changed file) passes; ``replay_note`` says what differs."""
+    info = launch_info(log_path, verify=True)
+    named = info.get("launch_file", "") if info and UNVERIFIED_KEY not in info else ""
+    # a launch file of the repository's own is stored relative to it; another as given
+    found = [p for p in (REPO_ROOT / named, Path(named)) if named and p.is_file()]
+    if not found:
+        return
+    recorded_path = found[0]
+    values = launch_values(info)
+    args = values["args"] if isinstance(values.get("args"), dict) else {}
+    params = values["params"] if isinstance(values.get("params"), dict) else {}
+    try:
+        then = load_launch(recorded_path, args)
+        apply_params(then, params.items())
+        recorded_graph = resolve(then, bus_dir=Path("/nonexistent-bus-dir"))
+    except PalpateError:
+        return
+    stated = stated_facts(recorded_graph, [node.name for node in replaced])
+    live = dataclasses.replace(graph, nodes=[n for n in graph.nodes if n not in replaced])
+    check_facts_against(live, stated, f"the recorded run ({recorded_path}, --replay {log_path.name})")
 
 
 def _check_open_loop(graph: Graph, replaced: Sequence[GraphNode]) -> None:

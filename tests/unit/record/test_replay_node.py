@@ -293,3 +293,32 @@ def test_a_step_publishes_by_the_recorded_publishers_rank_with_the_start_ups_mes
     assert node.step() == 0
     expected = [(topics.SURFACE_MESH, startup), est[2], cube[0]]
     assert ctx.sent == [(t, codec.encode(m)) for t, m in expected]
+
+
+def test_a_replay_into_a_graph_whose_mapper_is_mounted_for_another_scene_is_refused(tmp_path: Path) -> None:
+    """An outside walkthrough: a cube log replayed into a sphere's launch file (its mapper mounted for the
+    sphere) mapped the recorded contacts 1.5 mm off without a word; the check of the mount compared the
+    mapper with the sphere's sim, which the replay replaces."""
+    from palpate.launch.loader import apply_params
+    from palpate.record.mcap_io import LAUNCH_METADATA, LogWriter, schema_bytes
+
+    stock = REPO_ROOT / "launch" / "map_known.yaml"
+    cube = load_launch(stock)
+    log = tmp_path / "cube.mcap"
+    with LogWriter(log) as writer:
+        about = {"launch_file": "launch/map_known.yaml", "args": json.dumps(cube.args), "seed": "0"}  # as recorded
+        writer.metadata(LAUNCH_METADATA, about)
+        for topic, type_name in resolve(cube, bus_dir=tmp_path).topic_types().items():
+            writer.channel(topic, type_name, schema_bytes(type_name, 1))
+    sphere = load_launch(stock)
+    apply_params(
+        sphere, [("sim.scene.object.kind", "sphere"), ("mapper.mount.base_position_m", [-0.09812, 0.035, 0.08])]
+    )
+    with pytest.raises(LaunchError) as refused:
+        replace_publishers_with_log(sphere, log)
+    assert "node 'mapper' (params.mount) and node 'sim' of the recorded run (" in str(refused.value)
+    assert "disagree on hand_mount: base_position_m [-0.09812, 0.035, 0.08] here, [-0.09662, 0.035, 0.0785]" in str(
+        refused.value
+    )
+    assert "--set 'mapper.mount.base_position_m=[-0.09662,0.035,0.0785]'" in str(refused.value)
+    replace_publishers_with_log(cube, log)  # the recorded scene's mount: replayed
