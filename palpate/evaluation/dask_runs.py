@@ -223,6 +223,31 @@ def _interrupts_held() -> Iterator[None]:
             signal.raise_signal(arrived)  # through the handler the block had replaced
 
 
+def _lock_for(path: Path) -> IO[str]:
+    """An exclusive lock on ``path`` (its ``.lock`` file beside it, holding this process's pid), held while
+    the returned file is open; ConfigError naming the holder when another evaluation has it (two clients
+    resuming one folder wrote every run twice)."""
+    import fcntl
+
+    lock_path = path.with_name(path.name + ".lock")
+    handle = lock_path.open("a+")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.seek(0)
+        holder = handle.read().strip() or "?"
+        handle.close()
+        raise ConfigError(
+            f"{path} is being written by another evaluation (pid {holder}, {lock_path}); wait for it to end, or give "
+            "this one another --out"
+        ) from None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(str(os.getpid()))
+    handle.flush()
+    return handle
+
+
 class RunLog:
     """``runs.jsonl``: one finished run a line, appended as it finishes, each key at most once.
 
@@ -236,15 +261,17 @@ class RunLog:
         self.path = Path(path)
         self.rows: dict[str, Row] = {}
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._lock = _lock_for(self.path)
         if resume and self.path.exists():
             lines = self.path.read_text().splitlines()
             kept = []
             for number, row in read_rows(self.path, hint="remove the line or run without --resume"):
                 if KEY_FIELD not in row:
                     raise ConfigError(f"{self.path}:{number} has no {KEY_FIELD!r}; run without --resume")
-                if "error" not in row:  # a run that ended with an error runs again
+                key = str(row.pop(KEY_FIELD))
+                if "error" not in row and key not in self.rows:  # an error runs again; a repeated run is kept once
                     kept.append(lines[number - 1])
-                    self.rows[str(row.pop(KEY_FIELD))] = row
+                    self.rows[key] = row
             if len(kept) < sum(1 for text in lines if text.strip()):  # no cut line, no error rows
                 partial = self.path.with_name(self.path.name + ".partial")
                 partial.write_text("".join(f"{text}\n" for text in kept))
@@ -286,6 +313,9 @@ class RunLog:
     def close(self) -> None:
         if self._file is not None:
             self._file.close()
+        if not self._lock.closed:
+            Path(self._lock.name).unlink(missing_ok=True)  # before its lock goes: no other holder to miss it
+            self._lock.close()
 
     def __enter__(self) -> RunLog:
         return self
@@ -619,24 +649,35 @@ def run_tasks(
                     time.sleep(config.poll_s)
     except KeyboardInterrupt:
         bar.close()
-        finished = sum(1 for t in tasks if t.key in log.rows)  # a resumed file may hold another command's runs
-        if log.started and finished:
-            kept = (
-                f"{finished} of its {len(tasks)} run(s) are finished in {log.path}; the same command with --resume "
-                "goes on from them"
-            )
-        elif log.path.exists():
-            kept = f"no run of it finished; {log.path} is as it was"
-        else:  # (it said the file was as it was)
-            kept = "no run of it finished; nothing was written"
-        print(f"\ninterrupted: {kept}", file=sys.stderr)
+        print(f"\ninterrupted: {_kept(tasks, log)}", file=sys.stderr)
         for line in lost_in_flight(latest, outcome, todo):
             print(line, file=sys.stderr)
         raise
+    except OSError as exc:  # the scheduler went away mid-run (CommClosedError is one): the finished runs stay
+        bar.close()
+        for line in lost_in_flight(latest, outcome, todo):
+            print(line, file=sys.stderr)
+        raise ClusterError(
+            f"lost the Dask scheduler {config.scheduler or '(local cluster)'} ({type(exc).__name__}: {exc}); "
+            f"{_kept(tasks, log)} (start the cluster again first)"
+        ) from exc
     finally:
         bar.close()
     outcome.wall_s = time.perf_counter() - start
     return outcome
+
+
+def _kept(tasks: Sequence[RunTask], log: RunLog) -> str:
+    """What an evaluation that stops early keeps, and how to go on."""
+    finished = sum(1 for t in tasks if t.key in log.rows)  # a resumed file may hold another command's runs
+    if log.started and finished:
+        return (
+            f"{finished} of its {len(tasks)} run(s) are finished in {log.path}; the same command with --resume "
+            "goes on from them"
+        )
+    if log.path.exists():
+        return f"no run of it finished; {log.path} is as it was"
+    return "no run of it finished; nothing was written"  # (it said the file was as it was)
 
 
 def lost_in_flight(latest: Mapping[str, str], outcome: Outcome, tasks: Sequence[RunTask]) -> list[str]:

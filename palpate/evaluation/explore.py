@@ -549,7 +549,8 @@ def run_episode_on_worker(episode: Episode, profile: bool, *mesh: SharedFile) ->
         return error_row(
             episode,
             f"MemoryError: the run ran out of memory ({exc or 'no detail'}); cap it with --max-contacts "
-            "(--set eval.eval.max_contacts=N in a sweep), or give each worker more memory (fewer --workers)",
+            "(--set eval.eval.max_contacts=N --set eval.eval.contacts_per_bound=0 in a sweep: the budget is the "
+            "larger of the two), or give each worker more memory (fewer --workers)",
         )
     except PalpateError as exc:
         message = str(exc).replace(episode.case.mesh, original) if mesh else str(exc)  # the user's file

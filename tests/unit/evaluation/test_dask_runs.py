@@ -332,3 +332,60 @@ def test_a_run_interrupted_while_it_is_written_is_written_and_counted(
     log.close()
     assert "run-1" in log.rows and '"run_key": "run-1"' in (tmp_path / "runs.jsonl").read_text()
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_second_evaluation_into_the_same_folder_is_refused_while_the_first_writes(tmp_path: Path) -> None:
+    """An outside walkthrough: two clients resuming one --out wrote every run twice, and --from-runs then
+    refused the file as holding 'runs of other settings'."""
+    import os
+
+    first = RunLog(tmp_path / "runs.jsonl", resume=True)
+    with pytest.raises(ConfigError, match=rf"runs\.jsonl is being written by another evaluation \(pid {os.getpid()}"):
+        RunLog(tmp_path / "runs.jsonl", resume=True)
+    first.append("a", {"coverage": 0.5})
+    first.close()
+    assert not (tmp_path / "runs.jsonl.lock").exists()
+    with RunLog(tmp_path / "runs.jsonl", resume=True) as again:
+        assert list(again.rows) == ["a"]
+
+
+def test_resume_keeps_one_of_a_runs_repeated_lines(tmp_path: Path) -> None:
+    path = tmp_path / "runs.jsonl"
+    line = json.dumps({"run_key": "a", "coverage": 0.5})
+    path.write_text(f"{line}\n{json.dumps({'run_key': 'b', 'coverage': 0.7})}\n{line}\n")  # two files cat together
+    with RunLog(path, resume=True) as log:
+        assert list(log.rows) == ["a", "b"]
+    assert path.read_text().splitlines() == [line, json.dumps({"run_key": "b", "coverage": 0.7})]
+
+
+def test_a_scheduler_lost_mid_run_says_what_is_kept_and_how_to_go_on(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An outside walkthrough: a scheduler killed mid-evaluation ended the client with a 60-line traceback
+    of CommClosedError and nothing of the finished runs or --resume."""
+    import contextlib
+
+    from distributed.comm.core import CommClosedError
+
+    class Gone:
+        def scheduler_info(self) -> dict[str, object]:
+            return {"workers": {"w": {}}}
+
+        def submit(self, *args: object, **kwargs: object) -> None:
+            raise CommClosedError("ConnectionPool closing.")
+
+    @contextlib.contextmanager
+    def connect(config: ClusterConfig):  # type: ignore[no-untyped-def]
+        yield Gone()
+
+    monkeypatch.setattr(dask_runs, "connect", connect)
+    with RunLog(tmp_path / "runs.jsonl", resume=True) as log:
+        log.append("done", {"coverage": 0.5})
+        tasks = [RunTask(key="done", function=dict), RunTask(key="next", function=dict)]
+        with pytest.raises(ClusterError) as lost:
+            dask_runs.run_tasks(tasks, log, ClusterConfig(scheduler="tcp://head:8786", progress=False))
+    assert str(lost.value) == (
+        "lost the Dask scheduler tcp://head:8786 (CommClosedError: ConnectionPool closing.); 1 of its 2 run(s) are "
+        f"finished in {tmp_path / 'runs.jsonl'}; the same command with --resume goes on from them (start the cluster "
+        "again first)"
+    )
