@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import hashlib
 import json
 import logging
@@ -44,7 +45,7 @@ from typing import IO, Any
 from palpate import jsonio
 from palpate.argtypes import non_negative_int
 from palpate.errors import ClusterError, ConfigError
-from palpate.paths import why_not
+from palpate.paths import CACHE_DIR_ENV, cache_dir, why_not
 
 #: Environment variable naming the scheduler of an existing Dask cluster (tcp://HOST:PORT).
 SCHEDULER_ENV = "PALPATE_SCHEDULER"
@@ -583,9 +584,17 @@ def run_tasks(
             where = describe(config) + (f"; dashboard {link}" if link else "")
             print(f"{len(todo)} run(s) on {where}", file=sys.stderr)
             shared = _share_files(client, todo)
+            digest = code_digest()
             pending = {
                 client.submit(
-                    t.function, *t.args, *(shared[p] for p in t.files), key=t.key, retries=config.retries, pure=False
+                    run_checked,
+                    digest,
+                    t.function,
+                    *t.args,
+                    *(shared[p] for p in t.files),
+                    key=t.key,
+                    retries=config.retries,
+                    pure=False,
                 ): t
                 for t in todo
             }
@@ -643,7 +652,7 @@ def run_tasks(
                 if status != shown:
                     shown = status
                     bar.set_postfix_str("done {}, running {}, failed {}, retried {}{}".format(*status))
-                elif time.time() - bar.last_print_t > REFRESH_S:
+                elif not bar.disable and time.time() - bar.last_print_t > REFRESH_S:
                     bar.refresh()  # the elapsed time moves while long runs are in flight
                 if not batch:
                     time.sleep(config.poll_s)
@@ -678,6 +687,76 @@ def _kept(tasks: Sequence[RunTask], log: RunLog) -> str:
     if log.path.exists():
         return f"no run of it finished; {log.path} is as it was"
     return "no run of it finished; nothing was written"  # (it said the file was as it was)
+
+
+class WorkerUnfitError(RuntimeError):
+    """A worker that cannot run palpate's runs as the client would (other code, a missing package, no cache
+    directory): a failure of the worker, not the run's own error, so Dask tries the run elsewhere and no
+    error row is written."""
+
+
+@functools.lru_cache(maxsize=1)
+def code_digest() -> str:
+    """SHA-256 of the code a run depends on: palpate's packages' Python files and launch files (a worker on
+    another commit, or with an edit, gave other results under the same run keys without a word)."""
+    import palpate
+    import palpate.launch_files
+    import palpate.messages
+    import palpate.nodes
+
+    digest = hashlib.sha256()
+    for package in (palpate, palpate.nodes, palpate.messages, palpate.launch_files):
+        for root in map(Path, package.__path__):
+            files = (p for p in root.rglob("*") if p.suffix in (".py", ".yaml") and "__pycache__" not in p.parts)
+            for path in sorted(files):
+                digest.update(f"{package.__name__}/{path.relative_to(root).as_posix()}\0".encode())
+                digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+@functools.lru_cache(maxsize=1)
+def _unfit_because() -> str:
+    """Why this process cannot run palpate's runs ("" when it can): a node module that does not import (a
+    package missing from the worker's environment), or a cache directory it cannot make."""
+    import importlib
+    import pkgutil
+
+    import palpate.nodes
+
+    for module in pkgutil.iter_modules(palpate.nodes.__path__):
+        try:
+            importlib.import_module(f"palpate.nodes.{module.name}.node")
+        except ImportError as exc:
+            return f"cannot import palpate.nodes.{module.name}.node ({exc})"
+    try:
+        cache_dir()
+    except OSError as exc:
+        return f"cannot make its cache directory ({type(exc).__name__}: {exc}; ${CACHE_DIR_ENV})"
+    return ""
+
+
+def run_checked(digest: str, function: Callable[..., Row], *args: Any) -> Row:
+    """``function(*args)`` on a worker that runs the client's code (``digest``, ``code_digest``) and can run
+    palpate; WorkerUnfitError naming the worker otherwise (a worker without mujoco failed 11 of 12 runs in
+    milliseconds, each written as the run's own error, none naming it)."""
+    why = (
+        ""
+        if code_digest() == digest
+        else (
+            f"runs other palpate code than the client (source digest {code_digest()[:12]}, the client's "
+            f"{digest[:12]}): give it a checkout at the client's commit (`make setup`)"
+        )
+    )
+    why = why or _unfit_because()
+    if why:
+        try:
+            from distributed import get_worker
+
+            name = get_worker().address
+        except (ImportError, ValueError):
+            name = f"pid {os.getpid()}"
+        raise WorkerUnfitError(f"the Dask worker {name} {why}")
+    return function(*args)
 
 
 def lost_in_flight(latest: Mapping[str, str], outcome: Outcome, tasks: Sequence[RunTask]) -> list[str]:

@@ -389,3 +389,26 @@ def test_a_scheduler_lost_mid_run_says_what_is_kept_and_how_to_go_on(
         f"finished in {tmp_path / 'runs.jsonl'}; the same command with --resume goes on from them (start the cluster "
         "again first)"
     )
+
+
+def test_a_worker_with_other_code_or_without_a_cache_directory_is_named_not_its_runs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An outside walkthrough: a worker on another commit gave other results under the same run keys without
+    a word, and one that could not run palpate failed most runs as their own errors, naming no worker."""
+    import os
+
+    assert dask_runs.run_checked(dask_runs.code_digest(), dict, [("a", 1)]) == {"a": 1}
+    with pytest.raises(
+        dask_runs.WorkerUnfitError, match=rf"^the Dask worker pid {os.getpid()} runs other palpate code"
+    ):
+        dask_runs.run_checked("0" * 64, dict)
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    monkeypatch.setenv("PALPATE_CACHE_DIR", str(blocked / "cache"))
+    dask_runs._unfit_because.cache_clear()
+    try:
+        with pytest.raises(dask_runs.WorkerUnfitError, match=r"cannot make its cache directory \(NotADirectoryError"):
+            dask_runs.run_checked(dask_runs.code_digest(), dict)
+    finally:
+        dask_runs._unfit_because.cache_clear()
