@@ -911,6 +911,9 @@ def main(args: argparse.Namespace) -> int:
         results = [r for r in rows if r is not None]
         report_failures(outcome)
     elapsed = time.perf_counter() - start
+    if not results:  # an earlier evaluation's tables and plots in the folder stay as they match its runs.jsonl
+        print(f"no run finished: nothing written to {out}", file=sys.stderr)
+        return 1
     report.write_csv(out / "runs.csv", results)
     baseline, method = ("gpv", "igef") if {"gpv", "igef"} <= set(strategies) else (strategies[0], strategies[-1])
     others = [s for s in strategies if s not in (baseline, method)]

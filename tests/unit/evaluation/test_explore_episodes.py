@@ -638,3 +638,33 @@ def test_a_worker_warms_up_once_untimed_before_its_first_run(monkeypatch: pytest
         explore.run_episode_on_worker(episode, False)
     timed = (episode.duration_s, "/tmp/results.json", True)
     assert ran == [(explore.WARM_UP_S, "", False), timed, timed]
+
+
+def test_an_evaluation_in_which_no_run_finished_leaves_the_folder_as_it_was(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An outside walkthrough: every run lost to killed workers replaced an earlier evaluation's tables and
+    runs.csv with empty ones, beside its runs.jsonl and plots, and said it wrote runs.jsonl and plots."""
+    import argparse
+
+    from palpate.evaluation import explore
+    from palpate.evaluation.dask_runs import Outcome
+
+    trimesh.creation.box(extents=(0.05, 0.05, 0.05)).export(tmp_path / "box.stl")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "tables.md").write_text("the earlier evaluation's tables")
+
+    def all_lost(items, log, config, profile=False):  # type: ignore[no-untyped-def]
+        return [None] * len(items), Outcome(failed={"k": "box igef run 0: KilledWorker"})
+
+    monkeypatch.setattr(explore, "run_episodes", all_lost)
+    parser = argparse.ArgumentParser()
+    explore.configure(parser)
+    args = parser.parse_args(
+        ["--objects", str(tmp_path / "box.stl"), "--runs", "1", "--out", str(out), "--workers", "1"]
+    )
+    assert explore.main(args) == 1
+    assert (out / "tables.md").read_text() == "the earlier evaluation's tables" and not (out / "runs.csv").exists()
+    captured = capsys.readouterr()
+    assert f"no run finished: nothing written to {out}" in captured.err and "wrote" not in captured.out
