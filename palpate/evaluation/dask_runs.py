@@ -437,6 +437,11 @@ def connect(config: ClusterConfig) -> Iterator[Any]:
                 f"({exc}); start one with `dask scheduler` (docs/benchmarks.md) or leave out --scheduler and "
                 f"${SCHEDULER_ENV} to run on a local cluster"
             ) from exc
+        except (MemoryError, ValueError) as exc:  # another protocol's bytes read as Dask's frame lengths
+            raise ClusterError(
+                f"what answers at {config.scheduler} is no Dask scheduler ({type(exc).__name__}: {exc}); give the "
+                "address `dask scheduler` prints as 'Scheduler at' (its dashboard's port is another)"
+            ) from exc
         try:
             if not client.scheduler_info().get("workers"):
                 print(

@@ -412,3 +412,20 @@ def test_a_worker_with_other_code_or_without_a_cache_directory_is_named_not_its_
             dask_runs.run_checked(dask_runs.code_digest(), dict)
     finally:
         dask_runs._unfit_because.cache_clear()
+
+
+@pytest.mark.parametrize("answer", [MemoryError("Unable to allocate 3.07 EiB"), ValueError("bad frame")])
+def test_an_address_where_no_dask_scheduler_answers_is_named(
+    monkeypatch: pytest.MonkeyPatch, answer: Exception
+) -> None:
+    """An outside walkthrough: another protocol's bytes at --scheduler (a dashboard's port) ended in a
+    traceback of numpy's MemoryError (its first bytes read as a frame length)."""
+    import distributed
+
+    def foreign(*args: object, **kwargs: object) -> None:
+        raise answer
+
+    monkeypatch.setattr(distributed, "Client", foreign)
+    with pytest.raises(ClusterError, match=r"^what answers at tcp://head:8787 is no Dask scheduler"):
+        with dask_runs.connect(ClusterConfig(scheduler="tcp://head:8787")):
+            pass
