@@ -426,6 +426,6 @@ def test_an_address_where_no_dask_scheduler_answers_is_named(
         raise answer
 
     monkeypatch.setattr(distributed, "Client", foreign)
-    with pytest.raises(ClusterError, match=r"^what answers at tcp://head:8787 is no Dask scheduler"):
-        with dask_runs.connect(ClusterConfig(scheduler="tcp://head:8787")):
-            pass
+    refused = pytest.raises(ClusterError, match=r"^what answers at tcp://head:8787 is no Dask scheduler")
+    with refused, dask_runs.connect(ClusterConfig(scheduler="tcp://head:8787")):
+        pass
