@@ -17,7 +17,6 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from palpate import inputs
 from palpate.geometry import bezier_kernels
 
 FloatArray = NDArray[np.float64]
@@ -222,9 +221,10 @@ def approach_curve(
     return np.stack(np.broadcast_arrays(r, p1, p2, t), axis=-2)
 
 
-#: How far from 1 a direction's length may be: the messages' tolerance (palpate.inputs), which nodes pass
-#: on as they take it (a driver's approach direction of norm 1.005 reaches the planner's curves).
-UNIT_TOLERANCE = inputs.UNIT_TOLERANCE
+#: How far from 1 a direction's length may be: the messages' tolerance (palpate.inputs.UNIT_TOLERANCE, the
+#: same value; the geometry layer imports no input checks), which nodes pass on as they take it (a driver's
+#: approach direction of norm 1.005 reaches the planner's curves).
+UNIT_TOLERANCE = 1e-2
 
 
 def _directions(name: str, value: ArrayLike, *, allow_zero: bool) -> FloatArray:

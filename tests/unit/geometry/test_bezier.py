@@ -289,3 +289,10 @@ def test_approach_curve_takes_zero_retraction_and_float32_normals() -> None:
     P = approach_curve(np.zeros(3), np.zeros(3), np.ones(3), n)
     np.testing.assert_array_equal(P[1], np.zeros(3))
     np.testing.assert_allclose(P[2], 1.0 + n.astype(np.float64) * np.sqrt(3.0) / 3.0)
+
+
+def test_the_curves_take_directions_within_the_messages_unit_tolerance() -> None:
+    from palpate import inputs
+    from palpate.geometry import bezier
+
+    assert bezier.UNIT_TOLERANCE == inputs.UNIT_TOLERANCE
