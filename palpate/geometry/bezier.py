@@ -225,6 +225,8 @@ def approach_curve(
 #: same value; the geometry layer imports no input checks), which nodes pass on as they take it (a driver's
 #: approach direction of norm 1.005 reaches the planner's curves).
 UNIT_TOLERANCE = 1e-2
+#: Squared lengths within UNIT_TOLERANCE of 1, a hair wider (a length the messages take passes here).
+_UNIT_SQUARED = ((1.0 - UNIT_TOLERANCE - 1e-12) ** 2, (1.0 + UNIT_TOLERANCE + 1e-12) ** 2)
 
 
 def _directions(name: str, value: ArrayLike, *, allow_zero: bool) -> FloatArray:
@@ -233,7 +235,7 @@ def _directions(name: str, value: ArrayLike, *, allow_zero: bool) -> FloatArray:
     if d.shape[-1:] != (3,):
         raise ValueError(f"{name} needs 3-vectors (..., 3), got shape {d.shape}")
     squared = (d * d).sum(axis=-1)
-    ok = np.abs(squared - 1.0) <= 2.0 * UNIT_TOLERANCE  # False for NaN
+    ok = (_UNIT_SQUARED[0] <= squared) & (squared <= _UNIT_SQUARED[1])  # False for NaN
     if allow_zero:
         ok |= squared == 0.0
     if not ok.all():

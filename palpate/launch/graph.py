@@ -227,8 +227,11 @@ def _clashes(a: str, b: str) -> bool:
     return port_a == port_b and (host_a == host_b or (port_a != "" and "*" in (host_a, host_b)))
 
 
-def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
-    """Validate `launch` and resolve its graph, or raise LaunchError naming file, line and key."""
+def resolve(launch: LaunchFile, *, bus_dir: Path | None = None, facts: bool = True) -> Graph:
+    """Validate `launch` and resolve its graph, or raise LaunchError naming file, line and key.
+
+    ``facts=False`` leaves out the check that nodes stating one fact agree (``check_facts``): a replay
+    compares the nodes that re-run with the recorded ones instead of those it replaces."""
     bus_dir = bus.usable_dir(bus_dir) if bus_dir else bus.default_bus_dir()
     names: dict[str, Where] = {}
     endpoints: dict[str, GraphNode] = {}
@@ -249,7 +252,8 @@ def resolve(launch: LaunchFile, *, bus_dir: Path | None = None) -> Graph:
     graph = Graph(source=launch, nodes=nodes, bus_dir=bus_dir, mode=launch.mode, seed=launch.seed)
     _check_wiring(graph)
     _settle(graph)
-    _check_facts(graph)
+    if facts:
+        check_facts(graph)
     _check_files(graph)
     _check_curve(graph)
     _rank(graph)
@@ -385,7 +389,7 @@ def _settle(graph: Graph) -> None:
         node.params, node.config = params, _check_params(node.entry, node.spec, params)
 
 
-def _check_facts(graph: Graph) -> None:
+def check_facts(graph: Graph) -> None:
     """Nodes that state the same fact about the world (NodeSpec.facts) state the same value."""
     stating = [n for n in graph.nodes if n.spec.facts is not None]
     if len(stating) < 2:

@@ -15,7 +15,15 @@ from pathlib import Path
 from typing import Any
 
 from palpate.errors import LaunchError, PalpateError
-from palpate.launch.graph import REPLAY_TYPE, Graph, GraphNode, check_facts_against, resolve, stated_facts
+from palpate.launch.graph import (
+    REPLAY_TYPE,
+    Graph,
+    GraphNode,
+    check_facts,
+    check_facts_against,
+    resolve,
+    stated_facts,
+)
 from palpate.launch.loader import LaunchFile, NodeEntry, Where, apply_params, load_launch
 from palpate.paths import REPO_ROOT
 from palpate.record.mcap_io import UNVERIFIED_KEY, launch_info, launch_values
@@ -32,7 +40,7 @@ def replace_publishers_with_log(
     recorded = log_topics(log_path)
     # Resolving validates the original graph and gives the topics after remaps and namespaces, and
     # the ranks the recorded subscribers dispatched by. The bus directory only names endpoints here.
-    graph = resolve(launch, bus_dir=Path("/nonexistent-bus-dir"))
+    graph = resolve(launch, bus_dir=Path("/nonexistent-bus-dir"), facts=False)  # (the replaced nodes' are the log's)
     clock = graph.clock_source
     if nodes is None:
         if clock is None:
@@ -91,27 +99,30 @@ def _check_recorded_facts(graph: Graph, replaced: Sequence[GraphNode], log_path:
     """LaunchError when a node that re-runs states a fact (NodeSpec.facts: where the hand is mounted) other
     than the replaced nodes stated in the recorded run, read from the launch file, arguments and ``--set``
     the log names (when that file is still where it was recorded from): a mapper mounted for another
-    scene maps the replayed contacts, given in the hand's frames, in the wrong place. Nothing to compare
-    with (no launch metadata, a moved or changed file) passes; ``replay_note`` says what differs."""
+    scene maps the replayed contacts, given in the hand's frames, in the wrong place. With nothing to
+    compare with (no launch metadata, a moved or changed file) the nodes of ``graph`` must agree among
+    themselves, as in a launch."""
     info = launch_info(log_path, verify=True)
     named = info.get("launch_file", "") if info and UNVERIFIED_KEY not in info else ""
     # a launch file of the repository's own is stored relative to it; another as given
     found = [p for p in (REPO_ROOT / named, Path(named)) if named and p.is_file()]
-    if not found:
-        return
-    recorded_path = found[0]
-    values = launch_values(info)
-    args = values["args"] if isinstance(values.get("args"), dict) else {}
-    params = values["params"] if isinstance(values.get("params"), dict) else {}
-    try:
-        then = load_launch(recorded_path, args)
-        apply_params(then, params.items())
-        recorded_graph = resolve(then, bus_dir=Path("/nonexistent-bus-dir"))
-    except PalpateError:
+    recorded_graph = None
+    if found:
+        values = launch_values(info)
+        args = values["args"] if isinstance(values.get("args"), dict) else {}
+        params = values["params"] if isinstance(values.get("params"), dict) else {}
+        try:
+            then = load_launch(found[0], args)
+            apply_params(then, params.items())
+            recorded_graph = resolve(then, bus_dir=Path("/nonexistent-bus-dir"))
+        except PalpateError:
+            pass
+    if recorded_graph is None:  # nothing recorded to compare with: the nodes of this file, as a launch would
+        check_facts(graph)
         return
     stated = stated_facts(recorded_graph, [node.name for node in replaced])
     live = dataclasses.replace(graph, nodes=[n for n in graph.nodes if n not in replaced])
-    check_facts_against(live, stated, f"the recorded run ({recorded_path}, --replay {log_path.name})")
+    check_facts_against(live, stated, f"the recorded run ({found[0]}, --replay {log_path.name})")
 
 
 def _check_open_loop(graph: Graph, replaced: Sequence[GraphNode]) -> None:
@@ -140,7 +151,7 @@ def replay_note(launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] |
         return None
     if UNVERIFIED_KEY in info:
         return f"note: {log_path} says it was recorded from {info.get('launch_file', '?')}, but {info[UNVERIFIED_KEY]}"
-    graph = resolve(launch, bus_dir=Path("/nonexistent-bus-dir"))
+    graph = resolve(launch, bus_dir=Path("/nonexistent-bus-dir"), facts=False)  # replace_publishers_with_log's
     if nodes is None:
         nodes = [graph.clock_source.name] if graph.clock_source is not None else []
     drivers = _drivers_rerun(info, graph, nodes)

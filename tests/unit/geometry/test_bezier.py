@@ -291,8 +291,16 @@ def test_approach_curve_takes_zero_retraction_and_float32_normals() -> None:
     np.testing.assert_allclose(P[2], 1.0 + n.astype(np.float64) * np.sqrt(3.0) / 3.0)
 
 
-def test_the_curves_take_directions_within_the_messages_unit_tolerance() -> None:
+def test_the_curves_take_every_direction_the_messages_take() -> None:
+    """A review: lengths up to sqrt(1.02) passed where the messages take up to 1.01, so a touch's approach
+    direction of length 1.00998 ended the planner node."""
     from palpate import inputs
     from palpate.geometry import bezier
 
-    assert bezier.UNIT_TOLERANCE == inputs.UNIT_TOLERANCE
+    tol = inputs.UNIT_TOLERANCE
+    for length in (1.0 + 0.9999 * tol, 1.0 - 0.9999 * tol, 1.00998):
+        v = inputs.unit_or_zero([0.0, 0.0, -length], "v")  # taken by a node's input check
+        approach_curve(np.zeros(3), v, np.ones(3), [0.0, 0.0, length])
+    with pytest.raises(ValueError, match=r"got one of length 1\.0101"):
+        approach_curve(np.zeros(3), [0.0, 0.0, -1.0101], np.ones(3), [0.0, 0.0, 1.0])
+    assert tol == bezier.UNIT_TOLERANCE

@@ -300,6 +300,7 @@ def test_a_replay_into_a_graph_whose_mapper_is_mounted_for_another_scene_is_refu
     sphere) mapped the recorded contacts 1.5 mm off without a word; the check of the mount compared the
     mapper with the sphere's sim, which the replay replaces."""
     from palpate.launch.loader import apply_params
+    from palpate.record.launch_support import replay_note
     from palpate.record.mcap_io import LAUNCH_METADATA, LogWriter, schema_bytes
 
     stock = REPO_ROOT / "launch" / "map_known.yaml"
@@ -322,3 +323,14 @@ def test_a_replay_into_a_graph_whose_mapper_is_mounted_for_another_scene_is_refu
     )
     assert "--set 'mapper.mount.base_position_m=[-0.09662,0.035,0.0785]'" in str(refused.value)
     replace_publishers_with_log(cube, log)  # the recorded scene's mount: replayed
+    # the hint taken: the sphere's own sim, which the replay replaces, no longer has a say (a review: it did)
+    apply_params(sphere, [("mapper.mount.base_position_m", [-0.09662, 0.035, 0.0785])])
+    replay_note(sphere, log)
+    replace_publishers_with_log(sphere, log)
+    # a log that names no launch file: the nodes of the file must agree among themselves, as in a launch
+    bare = tmp_path / "bare.mcap"
+    with LogWriter(bare) as writer:
+        for topic, type_name in resolve(cube, bus_dir=tmp_path).topic_types().items():
+            writer.channel(topic, type_name, schema_bytes(type_name, 1))
+    with pytest.raises(LaunchError, match=r"node 'mapper' \(params.mount\) and node 'sim' \(params.scene"):
+        replace_publishers_with_log(sphere, bare)
