@@ -32,6 +32,11 @@ from palpate.metrics.shape import ShapeScorer
 FINISHED_PREFIX = "exploration finished"
 
 
+def milestone_key(fraction: float) -> str:
+    """A milestone's key in a run's summary: its percent, "50" for 0.5, "0.5" for 0.005."""
+    return f"{round(100 * fraction, 6):g}"
+
+
 @dataclass(frozen=True, kw_only=True)
 class EvalConfig(Validated):
     """Goal, milestones and budgets of a run."""
@@ -486,7 +491,7 @@ class ExplorationEvaluator:
             "covering_bound_contacts": self.covering_bound,
             "contact_budget": self.contact_budget,
             "travel_budget_m": self.travel_budget_m,
-            "milestones": {f"{round(100 * f, 6):g}": asdict(m) for f, m in sorted(self.milestones.items())},
+            "milestones": {milestone_key(f): asdict(m) for f, m in sorted(self.milestones.items())},
             "shape": [asdict(p) for p in self.shape_series],
             "touches": [asdict(t) for t in self.touches],
         }

@@ -176,8 +176,9 @@ class CellKeys:
     """Cells of K poses in the dense (K, P) layout used by ``observe``: row k belongs to map k.
 
     key (K, P): map * (n_chunks + 1) + chunk id; offset (K, P): cell within the chunk; valid (K, P)
-    bool (None: all valid); n_outside: number of invalid entries (points outside the region), which
-    point at a per-grid scratch chunk and change no map.
+    bool (None: all valid); n_outside: number of points outside the region (invalid entries, which
+    point at a per-grid scratch chunk and change no map; ``observation_keys`` makes other points invalid
+    too, and leaves them out of this count).
     """
 
     key: NDArray[np.integer]

@@ -50,14 +50,14 @@ WARN_OUTSIDE_AFTER = 10
 
 #: Free-volume point updates per reading (points a pose x maps) beyond which the mapper warns that its updates
 #: are slow: the paper's K = 100 at 2 mm makes about 2.4e5 (7.8 ms a reading, NS_PER_POINT_UPDATE each);
-#: 2e6 is about 60 ms, six times the 10 ms between the simulator's readings. K = 100,000 at 2 mm (2.7e8)
+#: 2e6 is about 66 ms, over six times the 10 ms between the simulator's readings. K = 100,000 at 2 mm (2.4e8)
 #: advanced a lockstep graph 0.27 s of simulated time in 5 minutes, unnamed; K = 3000 at 2 mm (7e6, 0.3-0.9 s
 #: a reading measured) ran at a hundredth of real time below the former line of 1e7.
 COSTLY_POINT_UPDATES = 2_000_000
 #: The simulator's joint readings come every this many seconds of simulated time (its 10 ms tick).
 READING_PERIOD_S = 0.01
-#: Nanoseconds per free-volume point and map of a FastSLAM update at 2 mm (7.8 ms / 2.7e5; docs/slam.md).
-NS_PER_POINT_UPDATE = 29.0
+#: Nanoseconds per free-volume point and map of a FastSLAM update at 2 mm (7.8 ms / 2.4e5; docs/slam.md).
+NS_PER_POINT_UPDATE = 33.0
 
 
 class MapperNode:

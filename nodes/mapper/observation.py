@@ -154,7 +154,8 @@ def observation_keys(
     if free_depth_cells and f.shape[2]:
         depth = np.concatenate([d for d, k in zip(free_depth_cells, keep, strict=True) if k])
         part = ~whole_cells(f, depth)
-        shallow = int(np.count_nonzero(part))
+        inside = np.all((f >= 0) & (f < np.asarray(grids.spec.shape, dtype=f.dtype)[None, :, None]), axis=1)
+        shallow = int(np.count_nonzero(part & inside))  # the others count as outside the region, as before
         f[np.broadcast_to(part[:, None, :], f.shape)] = np.nan  # an invalid entry: changes no map
     free = grids.cell_keys(f)
     if culled or shallow:

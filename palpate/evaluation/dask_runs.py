@@ -219,7 +219,7 @@ def _interrupts_held() -> Iterator[None]:
         yield
     finally:
         for held, handler in previous.items():
-            signal.signal(held, handler)
+            signal.signal(held, signal.SIG_DFL if handler is None else handler)  # None: not set from Python
         for arrived in dict.fromkeys(pending):
             signal.raise_signal(arrived)  # through the handler the block had replaced
 
@@ -230,11 +230,11 @@ def _lock_for(path: Path) -> IO[str]:
     resuming one folder wrote every run twice)."""
     import fcntl
 
-    lock_path = path.with_name(path.name + ".lock")
+    lock_path = path.with_name(path.name + ".lock")  # kept: unlinked, a newcomer could lock another inode
     handle = lock_path.open("a+")
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
+    except BlockingIOError:
         handle.seek(0)
         holder = handle.read().strip() or "?"
         handle.close()
@@ -263,6 +263,14 @@ class RunLog:
         self.rows: dict[str, Row] = {}
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._lock = _lock_for(self.path)
+        try:
+            self._read(resume)
+        except BaseException:
+            self._lock.close()
+            raise
+
+    def _read(self, resume: bool) -> None:
+        """The runs of a resumed file (``rows``), and the file opened for appending."""
         if resume and self.path.exists():
             lines = self.path.read_text().splitlines()
             kept = []
@@ -314,9 +322,7 @@ class RunLog:
     def close(self) -> None:
         if self._file is not None:
             self._file.close()
-        if not self._lock.closed:
-            Path(self._lock.name).unlink(missing_ok=True)  # before its lock goes: no other holder to miss it
-            self._lock.close()
+        self._lock.close()  # releases the lock; the file stays (``_lock_for``)
 
     def __enter__(self) -> RunLog:
         return self
@@ -560,6 +566,7 @@ def run_tasks(
     dying) is reported in ``Outcome.failed`` and left out of ``log``, so that --resume runs it again.
     """
     from distributed import as_completed
+    from distributed.comm.core import CommClosedError
     from tqdm import tqdm
 
     keys = [t.key for t in tasks]
@@ -667,7 +674,7 @@ def run_tasks(
         for line in lost_in_flight(latest, outcome, todo):
             print(line, file=sys.stderr)
         raise
-    except OSError as exc:  # the scheduler went away mid-run (CommClosedError is one): the finished runs stay
+    except (CommClosedError, ConnectionError) as exc:  # the scheduler went away mid-run: the finished runs stay
         bar.close()
         for line in lost_in_flight(latest, outcome, todo):
             print(line, file=sys.stderr)
@@ -696,8 +703,8 @@ def _kept(tasks: Sequence[RunTask], log: RunLog) -> str:
 
 class WorkerUnfitError(RuntimeError):
     """A worker that cannot run palpate's runs as the client would (other code, a missing package, no cache
-    directory): a failure of the worker, not the run's own error, so Dask tries the run elsewhere and no
-    error row is written."""
+    directory): a failure of the worker, not the run's own error, so no error row is written: Dask retries
+    the run (perhaps on the same worker) and, its retries spent, reports it failed, naming the worker."""
 
 
 @functools.lru_cache(maxsize=1)
@@ -712,7 +719,11 @@ def code_digest() -> str:
     digest = hashlib.sha256()
     for package in (palpate, palpate.nodes, palpate.messages, palpate.launch_files):
         for root in map(Path, package.__path__):
-            files = (p for p in root.rglob("*") if p.suffix in (".py", ".yaml") and "__pycache__" not in p.parts)
+            files = (
+                p
+                for p in root.rglob("*")
+                if p.suffix in (".py", ".yaml") and "__pycache__" not in p.parts and p.is_file()
+            )
             for path in sorted(files):
                 digest.update(f"{package.__name__}/{path.relative_to(root).as_posix()}\0".encode())
                 digest.update(path.read_bytes())

@@ -256,7 +256,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     """Arguments of `palpate eval rescore` (registered by palpate.commands.evaluate)."""
     parser.add_argument("runs", type=path_arg, metavar="RUNS.jsonl", help="the runs.jsonl of a palpate eval explore")
     add_objects_arguments(parser)
-    parser.add_argument("--milestone", type=int, default=80, help="coverage milestone, percent (default 80)")
+    parser.add_argument("--milestone", type=float, default=80, help="coverage milestone, percent (default 80)")
     parser.add_argument(
         "--set",
         action="append",
@@ -279,7 +279,9 @@ def main(args: argparse.Namespace) -> int:
             f"--set {others[0]}: a rescore rebuilds the GPIS estimate only; other nodes' settings change the "
             "path, which needs a new evaluation"
         )
-    percent = str(args.milestone)
+    from palpate.nodes.explore_eval.core import milestone_key
+
+    percent = milestone_key(args.milestone / 100)
     runs = runs_from(args.runs, given_as="RUNS.jsonl")
     strategies = list(dict.fromkeys(r["strategy"] for r in runs))
     cases = {c.name: c for c in select_cases(args.objects, scale=args.scale)}
@@ -306,5 +308,6 @@ def main(args: argparse.Namespace) -> int:
     print(outcome.summary())
     print(f"wrote {args.out}: rescored.jsonl, tables.md ({time.perf_counter() - start:.0f} s)")
     if args.json:
-        print(jsonio.dumps({"milestone": args.milestone, "set": sets, **summary}))
+        milestone = int(args.milestone) if float(args.milestone).is_integer() else args.milestone
+        print(jsonio.dumps({"milestone": milestone, "set": sets, **summary}))
     return 1 if outcome.failed or any("error" in r for r in rows) else 0

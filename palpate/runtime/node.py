@@ -852,8 +852,11 @@ class NodeRunner:
                     break
 
     def _said_no_clock(self, waited_s: float, note_s: float) -> bool:
-        """In real time: say (True) that inputs arrive but no Clock has come once ``waited_s`` >= ``note_s``
-        (a clock-source driver that sends no Clock left the graph doing nothing without a word)."""
+        """In real time, in a graph with a clock source: say (True) that inputs arrive but no Clock has come
+        once ``waited_s`` >= ``note_s`` (a clock-source driver that sends no Clock left the graph doing
+        nothing without a word)."""
+        if not self.process.clock_name:  # a real-time graph may have no clock source: nothing to wait for
+            return False
         if self.last_clock >= 0 or not self.ctx.counters["messages_in"] or waited_s < note_s:
             return False
         log.warning(

@@ -344,9 +344,13 @@ def test_a_second_evaluation_into_the_same_folder_is_refused_while_the_first_wri
         RunLog(tmp_path / "runs.jsonl", resume=True)
     first.append("a", {"coverage": 0.5})
     first.close()
-    assert not (tmp_path / "runs.jsonl.lock").exists()
     with RunLog(tmp_path / "runs.jsonl", resume=True) as again:
         assert list(again.rows) == ["a"]
+    # a refused --resume (a broken line) lets the lock go
+    (tmp_path / "runs.jsonl").write_text('{"run_key": "a"}\nnot json\n{"run_key": "b"}\n')
+    with pytest.raises(ConfigError):
+        RunLog(tmp_path / "runs.jsonl", resume=True)
+    RunLog(tmp_path / "runs.jsonl", resume=False).close()
 
 
 def test_resume_keeps_one_of_a_runs_repeated_lines(tmp_path: Path) -> None:

@@ -285,3 +285,20 @@ def test_free_margin_cell_clears_no_contact_cell_wherever_the_grid_lies(
             assert (grid.log_odds < 0).sum() > 10 * len(flat) or margin == "auto"  # it still maps free space
     assert all(freed["cell", shift] == 0 for shift in (0.0, 0.5e-3, 1.0e-3, 1.5e-3)), freed
     assert max(freed["auto", shift] for shift in (0.0, 0.5e-3, 1.0e-3, 1.5e-3)) > 0, freed
+
+
+def test_free_margin_cell_counts_as_outside_only_the_points_outside_the_region() -> None:
+    """A review: points both outside the region and too shallow were taken off the outside count."""
+    from palpate.nodes.mapper.grid import GridSpec, LogOddsGrids
+    from palpate.nodes.mapper.observation import observation_keys
+
+    grids = LogOddsGrids(GridSpec(origin_m=(0.0, 0.0, 0.0), resolution_m=0.001, shape=(8, 8, 8)), 1)
+    points = np.array([[0.0035, 0.0035, 0.0035], [0.0035, 0.0035, 0.02], [-0.01, 0.0035, 0.0035]])  # in, out, out
+    free_h = (np.vstack([points.T, np.ones((1, 3))]).astype(np.float32),)
+    shallow = (np.full(3, 0.1, dtype=np.float32),)  # a tenth of a cell deep: no whole cell
+    rots, pos = np.eye(3)[None, None], np.zeros((1, 1, 3))
+    links, local = np.zeros(0, dtype=np.intp), np.zeros((0, 3))
+    free, _ = observation_keys(grids, rots, pos, free_h, links, local, shallow)
+    assert free.n_outside == 2 and free.valid is not None and not free.valid.any()
+    free, _ = observation_keys(grids, rots, pos, free_h, links, local)  # no depths: every point in the region clears
+    assert free.n_outside == 2 and free.valid is not None and free.valid.tolist() == [[True, False, False]]

@@ -830,8 +830,11 @@ def test_a_real_time_follower_says_when_inputs_come_but_no_clock(
     said nothing, and the launch exited 0."""
     from palpate.messages.schemas import Clock
 
-    runner = runner_of(dataclasses.replace(bare_process(tmp_path, "follower"), mode="realtime"))
+    runner = runner_of(dataclasses.replace(bare_process(tmp_path, "follower"), mode="realtime", clock_name="rig"))
+    clockless = runner_of(dataclasses.replace(bare_process(tmp_path, "other"), mode="realtime"))
     try:
+        clockless.ctx.counters["messages_in"] = 5
+        assert not clockless._said_no_clock(60.0, 30.0)  # a real-time graph without a clock source
         with caplog.at_level(logging.WARNING):
             assert not runner._said_no_clock(60.0, 30.0)  # nothing arrived yet: a slow start
             runner.ctx.counters["messages_in"] = 5
@@ -841,6 +844,7 @@ def test_a_real_time_follower_says_when_inputs_come_but_no_clock(
             assert not runner._said_no_clock(90.0, 30.0)  # a Clock came
     finally:
         runner._close_sockets(linger_ms=0)
+        clockless._close_sockets(linger_ms=0)
     said = [r.getMessage() for r in caplog.records]
     assert said == [
         "node follower: inputs arrive but no Clock came in 31 s: in real time a node acts on each Clock of the "
