@@ -558,12 +558,17 @@ def run_tasks(
     tasks: Sequence[RunTask],
     log: RunLog,
     config: ClusterConfig,
+    foreign_rows: str = (
+        "which --from-runs then refuses where two hold the same run: give each setting an --out of its own"
+    ),
 ) -> Outcome:
     """Run every task whose key is not in ``log`` on the cluster of ``config``, writing each finished
     row to ``log`` as it finishes; one progress bar (done, running, failed, retried) over all tasks.
 
     Tasks must have distinct keys. A task that still fails after its retries (or whose workers keep
     dying) is reported in ``Outcome.failed`` and left out of ``log``, so that --resume runs it again.
+    ``foreign_rows`` ends the note on rows of ``log`` that are no task's ("" for a command whose file
+    holds rows of several settings by design, a sweep's).
     """
     from distributed import as_completed
     from distributed.comm.core import CommClosedError
@@ -580,8 +585,8 @@ def run_tasks(
         runs = "1 run" if foreign == 1 else f"{foreign} runs"
         print(
             f"note: {runs} in {log.path} {'is' if foreign == 1 else 'are'} no run of this "
-            "command (other settings, objects or strategies); kept, while its own runs join the file, "
-            "which --from-runs then refuses where two hold the same run: give each setting an --out of its own",
+            f"command (other settings, objects or strategies); kept, while its own runs join the file"
+            + (f", {foreign_rows}" if foreign_rows else ""),
             file=sys.stderr,
         )
     todo = [t for t in tasks if t.key not in log.rows]

@@ -571,14 +571,19 @@ def error_row(episode: Episode, error: str) -> dict[str, Any]:
 
 
 def run_episodes(
-    items: Sequence[Episode], log: RunLog, cluster: ClusterConfig, prefix: str = "explore", profile: bool = False
+    items: Sequence[Episode],
+    log: RunLog,
+    cluster: ClusterConfig,
+    prefix: str = "explore",
+    profile: bool = False,
+    **run_options: Any,
 ) -> tuple[list[dict[str, Any] | None], Outcome]:
     """Run the episodes not yet in ``log`` on Dask (big objects first, for the load balance). The rows
     come back in the order of ``items``, None for a run that failed for good (not in ``log``);
-    ``profile``: as :func:`run_episode`."""
+    ``profile``: as :func:`run_episode`; ``run_options``: :func:`run_tasks`' (``foreign_rows``)."""
     tasks = [episode_task(ep, prefix, profile) for ep in items]
     order = sorted(range(len(items)), key=lambda i: -_size_key(items[i]))
-    outcome = run_tasks([tasks[i] for i in order], log, cluster)
+    outcome = run_tasks([tasks[i] for i in order], log, cluster, **run_options)
     return [outcome.rows.get(t.key) for t in tasks], outcome
 
 

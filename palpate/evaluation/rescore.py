@@ -295,7 +295,7 @@ def main(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     output_folder(args.out)
     with RunLog(args.out / "rescored.jsonl", resume=args.resume) as log:
-        outcome = run_tasks(tasks, log, cluster_config(args))
+        outcome = run_tasks(tasks, log, cluster_config(args), foreign_rows="")
     report_failures(outcome)
     rows = outcome.ordered(tasks)
     report_errors([r for r in rows if "error" in r])

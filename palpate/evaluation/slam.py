@@ -515,7 +515,7 @@ def run_seeds(
         )
         for seed in config.seeds
     ]
-    outcome = run_tasks(tasks, log, cluster)
+    outcome = run_tasks(tasks, log, cluster, foreign_rows="")
     results = []
     for r in outcome.ordered(tasks):
         if "error" in r:

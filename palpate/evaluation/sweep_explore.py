@@ -241,7 +241,8 @@ def main(args: argparse.Namespace) -> int:
     output_folder(out)
     start = time.perf_counter()
     with RunLog(out / "runs.jsonl", resume=args.resume) as log:
-        results, outcome = run_episodes([ep for _, ep in pairs], log, cluster_config(args), prefix="sweep-explore")
+        chosen = [ep for _, ep in pairs]  # its file holds every setting's rows by design: no advice on others
+        results, outcome = run_episodes(chosen, log, cluster_config(args), prefix="sweep-explore", foreign_rows="")
     report_failures(outcome)
     report_stopped([row for row in results if row is not None])
     errors = [row for row in results if row is not None and "error" in row]

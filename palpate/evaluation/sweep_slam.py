@@ -451,7 +451,7 @@ def main(args: argparse.Namespace) -> int:
     ]
     output_folder(args.out)
     with RunLog(args.out / "runs.jsonl", resume=args.resume) as log:
-        outcome = run_tasks(tasks, log, config_from_args(args))
+        outcome = run_tasks(tasks, log, config_from_args(args), foreign_rows="")
     report_failures(outcome)
     rows = [read_non_finite(row) for done in outcome.ordered(tasks) for row in done["rows"]]
     png = args.out / "slam_sweep.png"

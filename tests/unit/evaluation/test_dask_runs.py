@@ -433,3 +433,18 @@ def test_an_address_where_no_dask_scheduler_answers_is_named(
     refused = pytest.raises(ClusterError, match=r"^what answers at tcp://head:8787 is no Dask scheduler")
     with refused, dask_runs.connect(ClusterConfig(scheduler="tcp://head:8787")):
         pass
+
+
+@pytest.mark.parametrize("advice", [None, ""])
+def test_rows_of_other_settings_get_advice_only_where_the_command_has_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], advice: str | None
+) -> None:
+    """An outside walkthrough: eval slam, sweep slam and rescore have no --from-runs, and a sweep's file holds
+    every setting's rows by design, yet each was told to give each setting an --out of its own."""
+    with RunLog(tmp_path / "runs.jsonl", resume=True) as log:
+        log.append("mine", {"x": 1})
+        log.append("other", {"x": 2})
+        options = {} if advice is None else {"foreign_rows": advice}
+        dask_runs.run_tasks([RunTask(key="mine", function=dict)], log, ClusterConfig(progress=False), **options)
+    note = capsys.readouterr().err.strip()
+    assert note.startswith("note: 1 run in ") and ("--from-runs" in note) == (advice is None)
