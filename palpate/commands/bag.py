@@ -126,15 +126,20 @@ def run_info(args: argparse.Namespace) -> int:
     summary = mcap_io.summarize(args.file)
     launch = mcap_io.launch_info(args.file)
     gaps: list[tuple[int, int]] = []
+    back: list[int] = []  # ticks of Clocks stamped before the Clock before them
     if args.check:
-        read, ticks = 0, []
+        read, ticks, last_ns = 0, [], -1
         for message in mcap_io.read_messages(args.file):  # RecordError at a damaged chunk
             read += 1
             if message.topic == topics.CLOCK:
                 try:
-                    ticks.append(codec.decode(message.data, Clock).tick)
+                    clock = codec.decode(message.data, Clock)
                 except MessageError:  # a recorded Clock this build cannot read counts no tick
                     continue
+                ticks.append(clock.tick)
+                if clock.stamp_ns < last_ns:
+                    back.append(clock.tick)
+                last_ns = clock.stamp_ns
         if read != summary.messages:
             raise RecordError(
                 f"{args.file}: its summary counts {summary.messages} messages, its chunks hold {read}; "
@@ -143,7 +148,7 @@ def run_info(args: argparse.Namespace) -> int:
         gaps = tick_gaps(ticks)
     missing = sum(last - first + 1 for first, last in gaps)
     if args.json:
-        extra = {"ticks_missing": missing} if args.check else {}
+        extra = {"ticks_missing": missing, "clock_stamps_back": len(back)} if args.check else {}
         print(jsonio.dumps({**summary.as_json(), **extra, "launch": mcap_io.launch_values(launch)}))
     else:
         print(describe(summary, args.file))
@@ -157,6 +162,12 @@ def run_info(args: argparse.Namespace) -> int:
             print(
                 f"  clock: {counted(missing, 'tick')} missing ({spans}): a recovered log lacks its damaged "
                 "chunks, a recording started late its start; a replay of it differs from the run from there"
+            )
+        if back:
+            print(
+                f"  clock: {counted(len(back), 'Clock')} stamped before the one before (the first at tick {back[0]}): "
+                "a real-time clock that went back (a restarted driver); a lockstep replay stops there, "
+                "mode:=realtime replays it"
             )
         if launch:
             print(

@@ -537,3 +537,28 @@ def test_a_damaged_footer_is_named_not_a_traceback(tmp_path: Path) -> None:
     for read in (mcap_io.read_messages, lambda path: mcap_io.launch_info(path, verify=True)):
         with pytest.raises(RecordError, match=r"footer\.mcap: cannot read the MCAP log .* bag recover"):
             list(read(tmp_path / "footer.mcap"))
+
+
+def test_bag_info_check_names_clocks_stamped_before_the_one_before(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An outside walkthrough: a real-time driver's clock that went back was recorded, passed `bag info
+    --check` as fine, and its lockstep replay then stalled."""
+    import dataclasses
+
+    from palpate.messages.schemas import Clock
+
+    items = [
+        (t, dataclasses.replace(m, stamp_ns=0) if isinstance(m, Clock) and m.tick == 4 else m)
+        for t, m in canonical_log(6)
+    ]
+    path = tmp_path / "went_back.mcap"
+    write_log(path, items)
+    assert main(["bag", "info", str(path), "--check"]) == 0
+    assert "  clock: 1 Clock stamped before the one before (the first at tick 4)" in capsys.readouterr().out
+    assert main(["bag", "info", str(path), "--check", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["clock_stamps_back"] == 1
+    whole = tmp_path / "whole.mcap"
+    write_log(whole, canonical_log(6))
+    assert main(["bag", "info", str(whole), "--check", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["clock_stamps_back"] == 0
