@@ -602,19 +602,16 @@ def run_tasks(
             print(f"{len(todo)} run(s) on {where}", file=sys.stderr)
             shared = _share_files(client, todo)
             digest = code_digest()
-            pending = {
-                client.submit(
-                    run_checked,
-                    digest,
-                    t.function,
-                    *t.args,
-                    *(shared[p] for p in t.files),
-                    key=t.key,
-                    retries=config.retries,
-                    pure=False,
-                ): t
-                for t in todo
-            }
+
+            def submit(t: RunTask, key: str, **where: Any) -> Any:
+                args = (*t.args, *(shared[p] for p in t.files))
+                return client.submit(
+                    run_checked, digest, t.function, *args, key=key, retries=config.retries, pure=False, **where
+                )
+
+            pending = {submit(t, t.key): t for t in todo}
+            unfit: set[str] = set()  # workers that cannot run palpate's runs (WorkerUnfitError)
+            moved: dict[str, int] = {}  # run key -> times given to other workers
             attempts: dict[str, int] = {}
             shown: tuple[Any, ...] = ()
             watch = WorkerWatch(config.scheduler or "")
@@ -632,7 +629,7 @@ def run_tasks(
             while not queue.is_empty():
                 batch = queue.next_batch(block=False)
                 if batch or time.monotonic() - asked_at >= STATE_PERIOD_S:  # each ask is a line in its log
-                    keys = [t.key for t in pending.values()]
+                    keys = [str(f.key) for f in pending]
                     state = client.run_on_scheduler(_scheduler_state, keys, config.retries)
                     asked_at = time.monotonic()
                 attempts.update(state["attempts"])
@@ -654,6 +651,13 @@ def run_tasks(
                         outcome.failed[task.key] = f"{task.label or task.key}: cancelled by the scheduler"
                     else:
                         exc = future.exception()
+                        if spare := _spare_workers(client, unfit, exc):  # the run elsewhere: no fault of its own
+                            moved[task.key] = moved.get(task.key, 0) + 1
+                            retry = submit(task, f"{task.key}-moved-{moved[task.key]}", workers=spare)
+                            pending[retry] = task
+                            queue.add(retry)
+                            future.release()
+                            continue
                         outcome.failed[task.key] = f"{task.label or task.key}: {type(exc).__name__}: {exc}"
                     future.release()
                     bar.update(1)
@@ -693,6 +697,22 @@ def run_tasks(
     return outcome
 
 
+def _spare_workers(client: Any, unfit: set[str], exc: BaseException | None) -> list[str]:
+    """After a run failed on a worker that cannot run palpate's runs (WorkerUnfitError): that worker joins
+    ``unfit`` (said once) and the workers of the cluster that are not, to give the run to; [] after any
+    other error, or when no other worker is left."""
+    if not isinstance(exc, WorkerUnfitError):
+        return []
+    workers = [str(w) for w in client.scheduler_info().get("workers", {}) if w not in unfit and w != exc.worker]
+    if exc.worker not in unfit:
+        unfit.add(exc.worker)
+        from tqdm import tqdm
+
+        where = "its runs go to the other workers" if workers else "no other worker is left"
+        tqdm.write(f"{exc}; {where}", file=sys.stderr)
+    return workers
+
+
 def _kept(tasks: Sequence[RunTask], log: RunLog) -> str:
     """What an evaluation that stops early keeps, and how to go on."""
     finished = sum(1 for t in tasks if t.key in log.rows)  # a resumed file may hold another command's runs
@@ -708,8 +728,15 @@ def _kept(tasks: Sequence[RunTask], log: RunLog) -> str:
 
 class WorkerUnfitError(RuntimeError):
     """A worker that cannot run palpate's runs as the client would (other code, a missing package, no cache
-    directory): a failure of the worker, not the run's own error, so no error row is written: Dask retries
-    the run (perhaps on the same worker) and, its retries spent, reports it failed, naming the worker."""
+    directory): a failure of the worker, not the run's own error, so no error row is written; ``run_tasks``
+    gives the run to the other workers, and reports it failed, naming the worker, when none is left."""
+
+    def __init__(self, message: str, worker: str) -> None:
+        super().__init__(message, worker)  # both in args: the exception crosses from the worker pickled
+        self.message, self.worker = message, worker
+
+    def __str__(self) -> str:
+        return self.message
 
 
 @functools.lru_cache(maxsize=1)
@@ -776,7 +803,7 @@ def run_checked(digest: str, function: Callable[..., Row], *args: Any) -> Row:
             name = get_worker().address
         except (ImportError, ValueError):
             name = f"pid {os.getpid()}"
-        raise WorkerUnfitError(f"the Dask worker {name} {why}")
+        raise WorkerUnfitError(f"the Dask worker {name} {why}", name)
     return function(*args)
 
 
