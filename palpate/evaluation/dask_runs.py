@@ -651,9 +651,13 @@ def run_tasks(
                         outcome.failed[task.key] = f"{task.label or task.key}: cancelled by the scheduler"
                     else:
                         exc = future.exception()
-                        if spare := _spare_workers(client, unfit, exc):  # the run elsewhere: no fault of its own
+                        spare = _spare_workers(client, unfit, exc)
+                        if spare and moved.get(task.key, 0) < MAX_MOVES:  # the run elsewhere: no fault of its own
                             moved[task.key] = moved.get(task.key, 0) + 1
-                            retry = submit(task, f"{task.key}-moved-{moved[task.key]}", workers=spare)
+                            # loose: should those workers all leave, any (a newcomer) may take it
+                            retry = submit(
+                                task, f"{task.key}-moved-{moved[task.key]}", workers=spare, allow_other_workers=True
+                            )
                             pending[retry] = task
                             queue.add(retry)
                             future.release()
@@ -695,6 +699,10 @@ def run_tasks(
         bar.close()
     outcome.wall_s = time.perf_counter() - start
     return outcome
+
+
+#: Most times one run is given to other workers after failing on unfit ones (``run_tasks``).
+MAX_MOVES = 10
 
 
 def _spare_workers(client: Any, unfit: set[str], exc: BaseException | None) -> list[str]:
