@@ -29,7 +29,7 @@ from typing import Any, cast
 from palpate.config import load
 from palpate.messages import codec
 from palpate.messages.base import Message
-from palpate.runtime.node import NodeContext, deliver_to
+from palpate.runtime.node import NodeContext, clock_went_back, deliver_to
 from palpate.runtime.spec import ClockSource, NodeLike, NodeProcessSpec, NodeSpec
 
 #: Called for every message published: (tick, node name, topic, message).
@@ -151,13 +151,8 @@ class InProcessGraph:
                 _add(timing, "step", start)
             if stamp is None:
                 break
-            if stamp < (self.clock.ctx.stamp_ns if ticks else 0):  # as the process runtime refuses it
-                self.clock.ctx.request_stop(
-                    f"{self.clock.process.name}: the clock's stamp at tick {ticks} is {stamp} ns, before "
-                    + (f"tick {ticks - 1}'s {self.clock.ctx.stamp_ns} ns" if ticks else "the start (0)")
-                    + ": a lockstep clock runs forward",
-                    failed=True,
-                )
+            if why := clock_went_back(self.clock.process.name, ticks, stamp, self.clock.ctx.stamp_ns):
+                self.clock.ctx.request_stop(why, failed=True)  # as the process runtime does
                 self._collect_stop(self.clock)
                 break
             for member in self.members:

@@ -735,15 +735,8 @@ class NodeRunner:
             stamp = step()
             if stamp is None:
                 break
-            if self.lockstep and stamp < (self.ctx.stamp_ns if tick else 0):
-                # every follower would refuse the Clock and wait for it until the acknowledgement timeout
-                self.ctx.request_stop(
-                    f"{self.process.name}: the clock's stamp at tick {tick} is {stamp} ns, before "
-                    + (f"tick {tick - 1}'s {self.ctx.stamp_ns} ns" if tick else "the start (0)")
-                    + ": a lockstep clock runs forward (a log recorded in real time whose clock went back replays "
-                    "with mode:=realtime)",
-                    failed=True,
-                )
+            if self.lockstep and (why := clock_went_back(self.process.name, tick, stamp, self.ctx.stamp_ns)):
+                self.ctx.request_stop(why, failed=True)  # every follower would refuse it, and wait in vain
                 break
             self._last_sent = (None, b"")
             if timer is not None:
@@ -923,6 +916,18 @@ class NodeRunner:
             self.ctx.stop_requested = ""
         if self.ctx.tick % STATUS_EVERY_TICKS == 0:
             self.publish_status("running")
+
+
+def clock_went_back(name: str, tick: int, stamp_ns: int, last_ns: int) -> str:
+    """Why a lockstep clock source ``name`` cannot publish ``stamp_ns`` at ``tick`` after ``last_ns`` at the
+    tick before ("" when it can): a lockstep clock runs forward from 0."""
+    if stamp_ns >= (last_ns if tick else 0):
+        return ""
+    before = f"tick {tick - 1}'s {last_ns} ns" if tick else "the start (0)"
+    return (
+        f"{name}: the clock's stamp at tick {tick} is {stamp_ns} ns, before {before}: a lockstep clock runs forward "
+        "(a log recorded in real time whose clock went back replays with mode:=realtime)"
+    )
 
 
 def holding_up(

@@ -250,7 +250,10 @@ def test_in_process_graph_ends_as_a_failure_when_the_clock_goes_back(tmp_path: P
     assert (
         graph.failure
         == graph.stop_reason
-        == ("clock: the clock's stamp at tick 3 is 0 ns, before tick 2's 30000000 ns: a lockstep clock runs forward")
+        == (
+            "clock: the clock's stamp at tick 3 is 0 ns, before tick 2's 30000000 ns: a lockstep clock runs forward "
+            "(a log recorded in real time whose clock went back replays with mode:=realtime)"
+        )
     )
 
 
