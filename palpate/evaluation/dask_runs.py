@@ -167,6 +167,8 @@ class Outcome:
     failed: dict[str, str] = field(default_factory=dict)
     workers: int = 0
     wall_s: float = 0.0
+    #: The file the runs are kept in (its name is said in ``summary``).
+    log_name: str = "runs.jsonl"
 
     def ordered(self, tasks: Sequence[RunTask]) -> list[Row]:
         """The finished rows in the order of ``tasks`` (failed runs left out)."""
@@ -180,12 +182,15 @@ class Outcome:
 
     def summary(self) -> str:
         errors = sum(1 for row in self.rows.values() if "error" in row)
+        cluster = (  # when every run came from the file, no cluster was started
+            f", {self.workers} Dask worker(s), {self.runs_per_hour_per_worker():.0f} runs/hour/worker"
+            if self.workers
+            else ""
+        )
         return (
-            f"{len(self.rows)} runs done ({self.resumed} from runs.jsonl"
+            f"{len(self.rows)} runs done ({self.resumed} from {self.log_name}"
             + (f"; {errors} ended with an error, which --resume runs again" if errors else "")
-            + f"), {len(self.failed)} failed, "
-            f"{self.retried} retried, {self.workers} Dask worker(s), "
-            f"{self.runs_per_hour_per_worker():.0f} runs/hour/worker"
+            + f"), {len(self.failed)} failed, {self.retried} retried{cluster}"
         )
 
 
@@ -578,7 +583,7 @@ def run_tasks(
     if len(set(keys)) != len(keys):
         raise ConfigError("two runs share a run key; every run needs its own (object, strategy, run, settings)")
     start = time.perf_counter()
-    outcome = Outcome(rows={t.key: log.rows[t.key] for t in tasks if t.key in log.rows})
+    outcome = Outcome(rows={t.key: log.rows[t.key] for t in tasks if t.key in log.rows}, log_name=log.path.name)
     outcome.resumed = len(outcome.rows)
     foreign = len(log.rows) - outcome.resumed
     if foreign:  # rows of other settings (a --set changed), objects or strategies: kept, not this command's

@@ -487,3 +487,12 @@ def test_the_runs_of_a_worker_that_cannot_run_them_go_to_the_others(
     assert outcome.ordered(tasks) == [{"x": i} for i in range(8)] and not outcome.failed
     err = capsys.readouterr().err
     assert err.count(f"the Dask worker {bad[0]} cannot import mujoco; its runs go to the other workers") == 1
+
+
+def test_the_summary_names_the_runs_file_and_leaves_out_a_cluster_it_did_not_start() -> None:
+    """An outside walkthrough: `eval rescore` said 'from runs.jsonl' of its rescored.jsonl, and a command
+    whose runs all came from the file said '0 Dask worker(s), 0 runs/hour/worker'."""
+    resumed = dask_runs.Outcome(rows={"a": {}}, resumed=1, log_name="rescored.jsonl")
+    assert resumed.summary() == "1 runs done (1 from rescored.jsonl), 0 failed, 0 retried"
+    ran = dask_runs.Outcome(rows={"a": {}, "b": {}}, resumed=1, workers=2, wall_s=1800.0)
+    assert ran.summary() == "2 runs done (1 from runs.jsonl), 0 failed, 0 retried, 2 Dask worker(s), 1 runs/hour/worker"
