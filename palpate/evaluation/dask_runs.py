@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from palpate import jsonio
+from palpate import jsonio, locks
 from palpate.argtypes import non_negative_int
 from palpate.errors import ClusterError, ConfigError
 from palpate.paths import CACHE_DIR_ENV, cache_dir, why_not
@@ -230,28 +230,17 @@ def _interrupts_held() -> Iterator[None]:
 
 
 def _lock_for(path: Path) -> IO[str]:
-    """An exclusive lock on ``path`` (its ``.lock`` file beside it, holding this process's pid), held while
-    the returned file is open; ConfigError naming the holder when another evaluation has it (two clients
-    resuming one folder wrote every run twice)."""
-    import fcntl
-
-    lock_path = path.with_name(path.name + ".lock")  # kept: unlinked, a newcomer could lock another inode
-    handle = lock_path.open("a+")
+    """An exclusive lock on ``path`` (its ``.lock`` file beside it, ``palpate.locks``), held while the returned
+    file is open; ConfigError naming the holder when another evaluation has it (two clients resuming one
+    folder wrote every run twice)."""
+    lock_path = path.with_name(path.name + ".lock")
     try:
-        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        handle.seek(0)
-        holder = handle.read().strip() or "?"
-        handle.close()
+        return locks.hold(lock_path)
+    except locks.LockHeldError as held:
         raise ConfigError(
-            f"{path} is being written by another evaluation (pid {holder}, {lock_path}); wait for it to end, or give "
-            "this one another --out"
+            f"{path} is being written by another evaluation (pid {held.holder}, {lock_path}); wait for it to end, "
+            "or give this one another --out"
         ) from None
-    handle.seek(0)
-    handle.truncate()
-    handle.write(str(os.getpid()))
-    handle.flush()
-    return handle
 
 
 class RunLog:
@@ -327,7 +316,7 @@ class RunLog:
     def close(self) -> None:
         if self._file is not None:
             self._file.close()
-        self._lock.close()  # releases the lock; the file stays (``_lock_for``)
+        self._lock.close()  # releases the lock; the file stays (``palpate.locks``)
 
     def __enter__(self) -> RunLog:
         return self

@@ -39,6 +39,7 @@ from zmq.auth.thread import ThreadAuthenticator
 from zmq.utils import z85
 from zmq.utils.monitor import recv_monitor_message
 
+from palpate import locks
 from palpate.errors import BusError
 from palpate.messages import topics as topic_names
 from palpate.paths import read_start
@@ -252,30 +253,19 @@ class NameClaim:
     ends, however it ends; ``release`` drops them earlier."""
 
     def __init__(self, bus_dir: str | Path, names: Iterable[str]) -> None:
-        import fcntl  # POSIX only; the viewer, which imports this module, also runs elsewhere
-
         self.files: list[Any] = []
         folder = Path(bus_dir)
         folder.mkdir(parents=True, exist_ok=True)
         try:
             for name in sorted(set(names)):
-                handle = open(folder / f"{name}.lock", "a+")  # noqa: SIM115 (held until release)
                 try:
-                    fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                except BlockingIOError:
-                    handle.seek(0)
-                    holder = handle.read().strip() or "?"
-                    handle.close()
+                    self.files.append(locks.hold(folder / f"{name}.lock"))
+                except locks.LockHeldError as held:
                     raise BusError(
                         f"node name {name!r} is in use on the bus directory {folder} by another running graph "
-                        f"(process {holder}); stop that graph, or give this one its own bus directory with "
+                        f"(process {held.holder}); stop that graph, or give this one its own bus directory with "
                         "--bus DIR (palpate topic, record and the viewer then take --bus DIR too)"
                     ) from None
-                handle.seek(0)
-                handle.truncate()
-                handle.write(str(os.getpid()))
-                handle.flush()
-                self.files.append(handle)
         except BaseException:
             self.release()
             raise

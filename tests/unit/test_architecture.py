@@ -26,6 +26,7 @@ PACKAGE_DIRS: dict[Path, str] = {REPO_ROOT / src: pkg for pkg, src in PYPROJECT[
 LIBRARY = (
     "palpate.errors",
     "palpate.paths",
+    "palpate.locks",  # exclusive claims between processes (lock files)
     "palpate.text_table",
     "palpate.config",
     "palpate.geometry",
