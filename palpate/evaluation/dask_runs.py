@@ -766,18 +766,18 @@ def code_digest() -> str:
 
 @functools.lru_cache(maxsize=1)
 def _unfit_because() -> str:
-    """Why this process cannot run palpate's runs ("" when it can): a node module that does not import (a
-    package missing from the worker's environment), or a cache directory it cannot make."""
+    """Why this process cannot run palpate's runs ("" when it can): a module of a built-in node type
+    (``NODE_TYPES``) that does not import (a package missing from the worker's environment), or a cache
+    directory it cannot make."""
     import importlib
-    import pkgutil
 
-    import palpate.nodes
+    from palpate.launch.node_types import NODE_TYPES
 
-    for module in pkgutil.iter_modules(palpate.nodes.__path__):
+    for module in dict.fromkeys(reference.partition(":")[0] for reference in NODE_TYPES.values()):
         try:
-            importlib.import_module(f"palpate.nodes.{module.name}.node")
+            importlib.import_module(module)
         except ImportError as exc:
-            return f"cannot import palpate.nodes.{module.name}.node ({exc})"
+            return f"cannot import {module} ({exc})"
     try:
         cache_dir()
     except OSError as exc:
