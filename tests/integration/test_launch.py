@@ -86,7 +86,9 @@ def test_a_node_that_stops_the_run_as_a_failure_makes_the_launch_exit_1(tmp_path
     assert node_pids(tmp_path / "bus") == {}  # every node closed
 
 
-def test_a_clock_source_that_ends_the_run_as_a_failure_lets_the_others_close_and_exits_1(tmp_path: Path) -> None:
+def failing_clock_run(tmp_path: Path, clock_params: str = "{}") -> str:
+    """Launch a FAILING_CLOCK (with ``clock_params``) beside a quitter that waits 1000 ticks; the output of a
+    launch that must exit 1 within 60 s."""
     graph = write(
         tmp_path,
         f"""
@@ -94,6 +96,7 @@ mode: lockstep
 nodes:
   - name: clock
     type: {FAILING_CLOCK}
+    params: {clock_params}
   - name: quitter
     type: {QUITTER}
     params: {{after_ticks: 1000}}
@@ -102,7 +105,11 @@ nodes:
     log = tmp_path / "launch.log"
     with launched(graph, tmp_path / "bus", log) as proc:
         assert proc.wait(timeout=60) == 1, text(log)
-    out = text(log)
+    return text(log)
+
+
+def test_a_clock_source_that_ends_the_run_as_a_failure_lets_the_others_close_and_exits_1(tmp_path: Path) -> None:
+    out = failing_clock_run(tmp_path)
     assert "ERROR node clock ended the run as a failure: failing clock: gave up after 5 ticks" in out, out
     assert (
         "[launch] node 'clock' (tests.integration.fake_nodes:FAILING_CLOCK) was the first of its nodes to end the run"
@@ -115,23 +122,7 @@ nodes:
 def test_a_lockstep_clock_that_goes_back_ends_the_run_naming_it_at_once(tmp_path: Path) -> None:
     """An outside walkthrough: a log recorded in real time whose clock went back, replayed in lockstep,
     had every follower refuse the Clock and the launch end 120 s later blaming the followers."""
-    graph = write(
-        tmp_path,
-        f"""
-mode: lockstep
-nodes:
-  - name: clock
-    type: {FAILING_CLOCK}
-    params: {{after_ticks: 100000, back_at_tick: 4}}
-  - name: quitter
-    type: {QUITTER}
-    params: {{after_ticks: 1000}}
-""",
-    )
-    log = tmp_path / "launch.log"
-    with launched(graph, tmp_path / "bus", log) as proc:
-        assert proc.wait(timeout=60) == 1, text(log)
-    out = text(log)
+    out = failing_clock_run(tmp_path, "{after_ticks: 100000, back_at_tick: 4}")
     assert (
         "ERROR node clock ended the run as a failure: clock: the clock's stamp at tick 3 is 0 ns, before tick 2's "
         "30000000 ns: a lockstep clock runs forward" in out

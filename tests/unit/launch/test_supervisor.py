@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import pytest
@@ -29,17 +30,21 @@ def test_shutdown_removes_its_run_directory_even_when_cleaning_up_a_node_fails(
     assert not supervisor.run_dir.exists()
 
 
-def test_an_external_node_without_a_manifest_is_named_once_after_a_while(tmp_path: Path) -> None:
-    """An outside driver in C that wrote no manifest: a recorded launch then waited, and the log blamed the
-    driver's acknowledgements; the launch names the missing file."""
-    import io
-
+def external_stats(tmp_path: Path) -> tuple[Supervisor, io.StringIO]:
+    """A supervisor of demo_minimal.yaml with its node 'stats' external (a driver's), on the bus directory
+    ``tmp_path``, and what it says."""
     from palpate.launch.loader import with_external
 
     launch = with_external(load_launch(REPO_ROOT / "launch" / "demo_minimal.yaml"), ["stats"])
     graph = resolve(launch, bus_dir=tmp_path)
     out = io.StringIO()
-    supervisor = Supervisor(graph, graph.process_specs(), out=out)
+    return Supervisor(graph, graph.process_specs(), out=out), out
+
+
+def test_an_external_node_without_a_manifest_is_named_once_after_a_while(tmp_path: Path) -> None:
+    """An outside driver in C that wrote no manifest: a recorded launch then waited, and the log blamed the
+    driver's acknowledgements; the launch names the missing file."""
+    supervisor, out = external_stats(tmp_path)
     try:
         supervisor.started_at = 100.0
         supervisor._note_missing_manifests(105.0)  # too early to say
@@ -58,14 +63,7 @@ def test_an_external_node_without_a_manifest_is_named_once_after_a_while(tmp_pat
 def test_a_manifest_that_came_and_went_before_the_note_is_not_called_missing(tmp_path: Path) -> None:
     """An outside walkthrough: a driver of a short run wrote its manifest, removed it at its clean exit, and
     the launch then said it had written none."""
-    import io
-
-    from palpate.launch.loader import with_external
-
-    launch = with_external(load_launch(REPO_ROOT / "launch" / "demo_minimal.yaml"), ["stats"])
-    graph = resolve(launch, bus_dir=tmp_path)
-    out = io.StringIO()
-    supervisor = Supervisor(graph, graph.process_specs(), out=out)
+    supervisor, out = external_stats(tmp_path)
     try:
         supervisor.started_at = 100.0
         manifest = tmp_path / "stats.json"
@@ -81,17 +79,11 @@ def test_a_manifest_that_came_and_went_before_the_note_is_not_called_missing(tmp
 def test_a_second_driver_of_an_external_node_is_named(tmp_path: Path) -> None:
     """An outside driver in C, started twice: the second took the endpoint and the manifest over without a
     word (`palpate topic hz` then counted 0 messages while the run went on)."""
-    import io
     import os
     import subprocess
     import sys
 
-    from palpate.launch.loader import with_external
-
-    launch = with_external(load_launch(REPO_ROOT / "launch" / "demo_minimal.yaml"), ["stats"])
-    graph = resolve(launch, bus_dir=tmp_path)
-    out = io.StringIO()
-    supervisor = Supervisor(graph, graph.process_specs(), out=out)
+    supervisor, out = external_stats(tmp_path)
     other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     gone = subprocess.Popen([sys.executable, "-c", "pass"])
     gone.wait()  # a driver that died left its manifest (a review: it masked the second driver)
