@@ -32,6 +32,7 @@ import logging
 import math
 import os
 import signal
+import socket
 import sys
 import tempfile
 import threading
@@ -420,6 +421,74 @@ def describe(config: ClusterConfig) -> str:
 MALLOC_TRIM_KEY = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
 
 
+def check_scheduler(address: str, timeout_s: float) -> None:
+    """Ask what listens at ``address`` who it is (Dask's ``identity`` call), within ``timeout_s``.
+
+    Raises ClusterError naming what answers unless it is a Dask scheduler: ``Client()`` waited for ever
+    on a port where something else listens (an HTTP server, a dashboard) and then spent 40 s in its own
+    ``__del__``, and took a worker's address for a scheduler's.
+    """
+    import asyncio
+
+    from distributed.comm import connect as open_comm
+    from distributed.security import Security
+
+    reached = False
+
+    async def identity() -> object:
+        nonlocal reached
+        comm = await open_comm(address, timeout=timeout_s, **Security().get_connection_args("client"))
+        reached = True
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    try:
+        # Dask's connect retries for timeout_s and then says why; the margin lets it have its say
+        reply = asyncio.run(asyncio.wait_for(identity(), timeout_s + min(timeout_s, 5.0)))
+    except (OSError, TimeoutError) as exc:
+        if not (reached or _listening(address)):
+            raise _unreachable(address, timeout_s, exc) from exc
+        said = "no answer" if isinstance(exc, TimeoutError) else f"{type(exc).__name__}: {exc}"
+        raise _no_scheduler(address, f"{said} to Dask's identity call within {timeout_s:g} s") from exc
+    except (MemoryError, ValueError, TypeError) as exc:  # another protocol's bytes read as Dask's frames
+        raise _no_scheduler(address, f"{type(exc).__name__}: {exc}") from exc
+    kind = reply.get("type") if isinstance(reply, dict) else None
+    if kind in ("Worker", "Nanny"):
+        raise ClusterError(f"what answers at {address} is a Dask {kind.lower()}, not the scheduler; {_GIVE_SCHEDULER}")
+    if kind != "Scheduler":
+        raise _no_scheduler(address, f"its identity: {str(reply)[:200]}")
+
+
+_GIVE_SCHEDULER = "give the address `dask scheduler` prints as 'Scheduler at' (its dashboard's port is another)"
+
+
+def _unreachable(address: str, timeout_s: float, exc: BaseException) -> ClusterError:
+    return ClusterError(
+        f"cannot reach the Dask scheduler at {address} within {timeout_s:g} s ({exc or 'no connection'}); start one "
+        f"with `dask scheduler` (docs/benchmarks.md) or leave out --scheduler and ${SCHEDULER_ENV} to run on a "
+        "local cluster"
+    )
+
+
+def _no_scheduler(address: str, why: str) -> ClusterError:
+    return ClusterError(f"what answers at {address} is no Dask scheduler ({why}); {_GIVE_SCHEDULER}")
+
+
+def _listening(address: str) -> bool:
+    """Whether a TCP connection to ``address`` opens (something listens there, Dask or not)."""
+    from distributed.comm import get_address_host_port
+
+    try:
+        host, port = get_address_host_port(address)
+        with socket.create_connection((host, port), timeout=2.0):
+            return True
+    except (OSError, ValueError):
+        return False
+
+
 @contextlib.contextmanager
 def connect(config: ClusterConfig) -> Iterator[Any]:
     """A dask.distributed Client: to ``config.scheduler``, or to a local cluster started (and stopped) here."""
@@ -429,19 +498,13 @@ def connect(config: ClusterConfig) -> Iterator[Any]:
     # Dask's INFO lines (scheduler and workers starting) would interleave with the progress bar
     logging.getLogger("distributed").setLevel(logging.WARNING if config.scheduler else logging.ERROR)
     if config.scheduler:
+        check_scheduler(config.scheduler, config.connect_timeout_s)
         try:
             client = Client(config.scheduler, timeout=config.connect_timeout_s, set_as_default=False)
         except (OSError, TimeoutError) as exc:
-            raise ClusterError(
-                f"cannot reach the Dask scheduler at {config.scheduler} within {config.connect_timeout_s:g} s "
-                f"({exc}); start one with `dask scheduler` (docs/benchmarks.md) or leave out --scheduler and "
-                f"${SCHEDULER_ENV} to run on a local cluster"
-            ) from exc
+            raise _unreachable(config.scheduler, config.connect_timeout_s, exc) from exc
         except (MemoryError, ValueError) as exc:  # another protocol's bytes read as Dask's frame lengths
-            raise ClusterError(
-                f"what answers at {config.scheduler} is no Dask scheduler ({type(exc).__name__}: {exc}); give the "
-                "address `dask scheduler` prints as 'Scheduler at' (its dashboard's port is another)"
-            ) from exc
+            raise _no_scheduler(config.scheduler, f"{type(exc).__name__}: {exc}") from exc
         try:
             if not client.scheduler_info().get("workers"):
                 print(

@@ -430,9 +430,70 @@ def test_an_address_where_no_dask_scheduler_answers_is_named(
         raise answer
 
     monkeypatch.setattr(distributed, "Client", foreign)
+    monkeypatch.setattr(dask_runs, "check_scheduler", lambda address, timeout_s: None)
     refused = pytest.raises(ClusterError, match=r"^what answers at tcp://head:8787 is no Dask scheduler")
     with refused, dask_runs.connect(ClusterConfig(scheduler="tcp://head:8787")):
         pass
+
+
+def test_a_port_that_takes_the_connection_and_never_answers_is_named_within_the_timeout() -> None:
+    """An outside walkthrough: at a port where an HTTP server listens, Dask's Client() waited for ever
+    (then 40 s more in its __del__ at exit)."""
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()  # the kernel completes the connection; nothing ever answers
+        address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+        silent = pytest.raises(ClusterError, match=rf"^what answers at {address} is no Dask scheduler \(no answer")
+        with silent, dask_runs.connect(ClusterConfig(scheduler=address, connect_timeout_s=0.5)):
+            pass
+
+
+class _Comm:
+    """A Dask comm that answers the identity call with ``reply`` (or raises it)."""
+
+    def __init__(self, reply: object) -> None:
+        self.reply = reply
+        self.aborted = False
+
+    async def write(self, message: object) -> None:
+        assert message == {"op": "identity", "reply": True}
+
+    async def read(self) -> object:
+        if isinstance(self.reply, Exception):
+            raise self.reply
+        return self.reply
+
+    def abort(self) -> None:
+        self.aborted = True
+
+
+@pytest.mark.parametrize(
+    ("reply", "said"),
+    [
+        ({"type": "Worker", "id": "Worker-1"}, "is a Dask worker, not the scheduler"),
+        ({"type": "Nanny"}, "is a Dask nanny, not the scheduler"),
+        ({"type": "Scheduler"}, None),
+        ([1, 2], r"is no Dask scheduler \(its identity: \[1, 2\]\)"),
+        (MemoryError("Unable to allocate 3.07 EiB"), r"is no Dask scheduler \(MemoryError: Unable"),
+    ],
+)
+def test_the_scheduler_check_names_what_answers(
+    monkeypatch: pytest.MonkeyPatch, reply: object, said: str | None
+) -> None:
+    import distributed.comm
+
+    comm = _Comm(reply)
+
+    async def opened(address: str, timeout: float, **kwargs: object) -> _Comm:
+        return comm
+
+    monkeypatch.setattr(distributed.comm, "connect", opened)
+    if said is None:
+        dask_runs.check_scheduler("tcp://head:8786", 1.0)
+    else:
+        with pytest.raises(ClusterError, match=rf"^what answers at tcp://head:8786 {said}.*'Scheduler at'"):
+            dask_runs.check_scheduler("tcp://head:8786", 1.0)
+    assert comm.aborted
 
 
 @pytest.mark.parametrize("advice", [None, ""])
