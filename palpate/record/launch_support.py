@@ -52,9 +52,13 @@ def replace_publishers_with_log(
     if unknown:
         raise LaunchError(f"--replay-nodes: no node {unknown} in the graph; its nodes: {sorted(graph.by_name)}")
     replaced = [graph.by_name[name] for name in dict.fromkeys(nodes)]
+    gone = {n.name for n in replaced}
+    read = {t for n in graph.nodes if n.name not in gone for t in n.subscribes.values()}
     for node in replaced:
-        missing = sorted(t for t in node.publishes.values() if t not in recorded)
-        if missing or not node.publishes:
+        # a topic no node that re-runs reads need not be in the log: a hardware driver that stood in for
+        # the sim published only what the graph's nodes read
+        missing = sorted(t for t in node.publishes.values() if t not in recorded and t in read)
+        if missing or not any(t in recorded for t in node.publishes.values()):
             what = f"lacks {missing} of" if missing else "has nothing to publish for"
             raise LaunchError(
                 f"--replay {log_path}: the log {what} node {node.name!r}, so it cannot stand in for it "
@@ -67,7 +71,7 @@ def replace_publishers_with_log(
         )
     _check_open_loop(graph, replaced)
     _check_recorded_facts(graph, replaced, log_path)
-    replayed = sorted({t for node in replaced for t in node.publishes.values()})
+    replayed = sorted({t for node in replaced for t in node.publishes.values() if t in recorded})
     for topic in replayed:
         if recorded[topic] != graph.topic_types()[topic]:
             raise LaunchError(
@@ -85,12 +89,11 @@ def replace_publishers_with_log(
             "params": {
                 "path": str(log_path),
                 "topics": replayed,
-                "order": {t: node.rank for node in replaced for t in node.publishes.values()},
+                "order": {t: node.rank for node in replaced for t in node.publishes.values() if t in recorded},
             },
         },
         where=Where(str(log_path), 0),
     )
-    gone = {n.name for n in replaced}
     kept = [e for e in launch.nodes if e.fields["name"] not in gone]
     return dataclasses.replace(launch, nodes=[entry, *kept])
 

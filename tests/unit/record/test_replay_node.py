@@ -7,6 +7,7 @@ import logging
 from pathlib import Path
 
 import msgpack
+import numpy as np
 import pytest
 from mcap.writer import Writer as McapWriter
 
@@ -16,7 +17,7 @@ from palpate.launch.loader import load_launch
 from palpate.launch.node_types import load_node_type
 from palpate.messages import codec, topics
 from palpate.messages.base import Message
-from palpate.messages.schemas import ContactSet
+from palpate.messages.schemas import ContactSet, JointState
 from palpate.paths import REPO_ROOT
 from palpate.record import mcap_io
 from palpate.record.launch_support import replace_publishers_with_log
@@ -25,6 +26,7 @@ from palpate.record.replay_node import ReplayConfig, ReplayNode, ports_from_conf
 from tests.unit.record.synthetic import PERIOD_NS, canonical_log, lockstep_streams, mesh, write_log
 
 DEMO = REPO_ROOT / "launch" / "demo_minimal.yaml"
+MAP_KNOWN = REPO_ROOT / "launch" / "map_known.yaml"
 
 
 class FakeContext:
@@ -110,6 +112,29 @@ def test_launch_replay_needs_the_topics_of_the_nodes_it_replaces(tmp_path: Path,
         replace_publishers_with_log(load_launch(DEMO), log_path, ["cube", "nope"])
     with pytest.raises(LaunchError, match="has nothing to publish for node 'stats'"):
         replace_publishers_with_log(load_launch(DEMO), log_path, ["cube", "stats"])
+
+
+def test_launch_replay_needs_only_the_topics_that_nodes_which_re_run_read(tmp_path: Path) -> None:
+    """An outside walkthrough: a data glove's driver had stood in for the sim of map_known.yaml and
+    published only what the mapper reads; its recording was refused for lacking the sim's other topics
+    (truth/object, truth/joint_states, sensors/effector_pose), which no node of the graph reads."""
+    glove = tmp_path / "glove.mcap"
+    names = ["index_mcp_abduction", "index_mcp", "index_pip", "index_dip"]
+    states = [
+        JointState(stamp_ns=t * PERIOD_NS, names=names, positions_rad=np.zeros(4), velocities_rad_s=np.zeros(4))
+        for t in range(3)
+    ]
+    sensors = [(t, m) for t, m in canonical_log(3) if t == topics.CONTACTS]
+    readings = [(topics.JOINT_STATES, s) for s in states]
+    write_log(glove, [item for pair in zip(sensors, readings, strict=True) for item in pair])
+    launch = replace_publishers_with_log(load_launch(MAP_KNOWN), glove)
+    assert [e.fields["name"] for e in launch.nodes] == ["replay", "mapper"]
+    replay = resolve(launch, bus_dir=tmp_path).by_name["replay"]
+    assert sorted(replay.publishes) == [topics.CONTACTS, topics.JOINT_STATES]
+    assert set(replay.params["order"]) == {topics.CONTACTS, topics.JOINT_STATES}
+    write_log(glove, sensors)  # without the joint readings the mapper reads, the log cannot stand in
+    with pytest.raises(LaunchError, match=rf"the log lacks \['{topics.JOINT_STATES}'\] of node 'sim'"):
+        replace_publishers_with_log(load_launch(MAP_KNOWN), glove)
 
 
 def _write_versioned(path: Path, *, schema: int, payload: int) -> None:
