@@ -111,10 +111,13 @@ class MapperNode:
         if received >= WARN_OUTSIDE_AFTER and off == received:
             self._warn_once(
                 "finger",
-                "mapper: the first %d contacts all lie on links of another finger than its %s (the scene's tapping "
-                "finger is another one; set the mapper's mount.finger to it); the maps stay empty",
+                "mapper: the first %d contacts all lie on links its %s finger does not have (%r, where its links are "
+                "%s): another finger's (the scene's tapping finger is another one; set the mapper's mount.finger to "
+                "it), or names that are no link of the hand description (docs/hand_model.md); the maps stay empty",
                 received,
                 self.config.mount.finger,
+                self.session.first_off_link,
+                ", ".join(self.core.chain.link_names),
             )
 
     def on_tick(self, stamp_ns: int) -> None:
@@ -125,13 +128,18 @@ class MapperNode:
         if self.session.contacts_unmatched:
             self.ctx.counters["contacts_unmatched"] = self.session.contacts_unmatched
             contacts_ns, reading_ns = self.session.last_unmatched or (0, 0)
+            refused = self.session.readings_refused
             self._warn_once(
                 "stamps",
                 "mapper: contacts found no joint reading stamped within stamp_tolerance_s (%g s) of theirs (contacts "
                 "at %d ns, the next reading at %s) and are left out of the maps (counter contacts_unmatched): "
-                "in real time a mapper slower than the tick skips readings (see its ms_per_update); a driver "
-                "stamps a tick's joint and contact messages alike, or the mapper's stamp_tolerance_s allows the "
-                "difference",
+                + (
+                    f"{refused} joint reading(s) were refused (said above), and their contacts with them"
+                    if refused
+                    else "in real time a mapper slower than the tick skips readings (see its ms_per_update); a "
+                    "driver stamps a tick's joint and contact messages alike, or the mapper's stamp_tolerance_s "
+                    "allows the difference"
+                ),
                 self.config.stamp_tolerance_s,
                 contacts_ns,
                 f"{reading_ns} ns" if reading_ns >= 0 else "none yet",
@@ -150,7 +158,8 @@ class MapperNode:
             self._warn_once(
                 "all outside",
                 "mapper: the first %d contacts all lie outside the mapped region (region_min_m %s, region_max_m %s); "
-                "the maps stay empty: widen the region to hold the object",
+                "the maps stay empty: widen the region to hold the object (or, from a driver, give the contacts' "
+                "local_positions_m in metres, in their link's frame)",
                 c.contacts,
                 *region,
             )

@@ -87,6 +87,10 @@ class MapperSession:
         #: Contact points received, and those on links the chain does not have (another finger's).
         self.contacts_received = 0
         self.contacts_off_chain = 0
+        #: The first link name a contact gave that the chain does not have ("" before one came).
+        self.first_off_link = ""
+        #: Joint readings refused (an angle beyond a full turn, a joint of the chain missing).
+        self.readings_refused = 0
         #: Contact points on the chain left out because no joint reading had their stamp, and the last
         #: such pair of stamps (contacts', reading's).
         self.contacts_unmatched = 0
@@ -96,14 +100,19 @@ class MapperSession:
         """Keep a reading (joint names and angles in the message's order) for the next tick; returns
         it in the chain's joint order. Raises InputError, keeping the previous reading, when a
         joint of the chain is missing."""
-        q_rad = select_named(names, positions_rad, self.chain.joint_names, "names")
+        try:
+            q_rad = select_named(names, positions_rad, self.chain.joint_names, "names")
+        except InputError:
+            self.readings_refused += 1
+            raise
         beyond = np.flatnonzero(np.abs(q_rad) > MAX_JOINT_RAD)
         if len(beyond):
             i = int(beyond[0])
+            self.readings_refused += 1
             raise InputError(
                 "positions_rad",
                 f"joint {self.chain.joint_names[i]!r} reads {q_rad[i]:.6g} rad, more than a full turn: degrees "
-                "sent as radians? (or joint noise of tens of degrees: the noise node's sigma_deg)",
+                "sent as radians? (or joint noise of tens of degrees, as a noise node with a large sigma_deg adds)",
             )
         reading = JointReading(stamp_ns=stamp_ns, q_rad=q_rad)
         self._reading = reading
@@ -116,6 +125,8 @@ class MapperSession:
         on_chain = index >= 0
         self.contacts_received += len(index)
         self.contacts_off_chain += int(np.count_nonzero(~on_chain))
+        if not self.first_off_link and not on_chain.all():
+            self.first_off_link = str(links[int(np.argmin(on_chain))])
         contacts = ChainContacts(
             stamp_ns=stamp_ns,
             links=index[on_chain].astype(np.int64),

@@ -471,7 +471,7 @@ class NodeRunner:
             kind = "clock_went_back"
             text = f"stamped {(last_ns - clock.stamp_ns) / 1e9:.6g} s before the one before"
         elif clock.tick <= last_tick:
-            kind, text = "clock_tick_repeated", f"repeats or goes back from tick {last_tick}"
+            kind, text = "clock_tick_repeated", "no later than the tick before"
         elif clock.stamp_ns - last_ns > REALTIME_CLOCK_JUMP_NS:
             kind = "clock_jumped"
             ahead_s = (clock.stamp_ns - last_ns) / 1e9

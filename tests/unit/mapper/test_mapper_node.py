@@ -102,6 +102,7 @@ def test_a_region_that_misses_every_contact_is_said_once(file: str) -> None:
     ctx.log.removeHandler(handler)
     said = [m for m in said if "outside the mapped region" in m]
     assert len(said) == 1 and "the first 10 contacts" in said[0]
+    assert "give the contacts' local_positions_m in metres" in said[0]  # contacts in millimetres lie far out
 
 
 def test_a_run_that_ends_between_two_publications_publishes_its_last_maps_at_the_end() -> None:
@@ -142,7 +143,29 @@ def test_contacts_on_another_finger_are_counted_and_said_once() -> None:
         node.ctx.log.removeHandler(handler)
     assert node.ctx.counters["contacts_off_finger"] == 12
     finger = [m for m in said if "another finger" in m]
-    assert len(finger) == 1 and "the first 10 contacts all lie on links of another finger than its index" in finger[0]
+    assert len(finger) == 1 and "the first 10 contacts all lie on links its index finger does not have" in finger[0]
+    # an outside walkthrough: a driver's name that is no link of the hand was told to set mount.finger only
+    assert "('ring_distal', where its links are index_" in finger[0] and "no link of the hand description" in finger[0]
+
+
+def test_contacts_whose_joint_readings_were_refused_are_said_so(caplog: pytest.LogCaptureFixture) -> None:
+    """An outside walkthrough: a glove sending degrees had its readings refused, and the contacts left
+    without a reading were blamed on a mapper slower than the tick, in a lockstep run."""
+    from palpate.errors import InputError
+
+    node, _ = mapper("map_known.yaml")
+    joints, tip = list(node.chain.joint_names), node.chain.link_names[-1]
+    with caplog.at_level(logging.WARNING):
+        for tick in range(1, 4):
+            with pytest.raises(InputError, match="more than a full turn: degrees sent as radians"):
+                node.on_joint_states(reading(joints, np.array([0.0, 20.0, 30.0, 10.0]), tick * 10_000_000))
+            node.on_contacts(contacts([tip], np.array([[0.0, 0.0, 0.01]]), tick * 10_000_000))
+            node.on_tick(tick * 10_000_000)
+        node.on_joint_states(reading(joints, np.radians([0.0, 20.0, 30.0, 10.0]), 40_000_000))  # in radians
+        node.on_tick(40_000_000)
+    assert node.session.readings_refused == 3 and node.ctx.counters["contacts_unmatched"] == 3
+    assert "3 joint reading(s) were refused (said above), and their contacts with them" in caplog.text
+    assert "slower than the tick" not in caplog.text
 
 
 def test_a_contact_outside_the_region_among_others_inside_is_said_once() -> None:

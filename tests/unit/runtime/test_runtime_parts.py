@@ -823,6 +823,7 @@ def test_a_real_time_clock_that_goes_back_repeats_or_jumps_is_taken_counted_and_
     assert len(said) == 3
     assert "Clock tick 2 (from tick 1) is stamped 6 s after the one before" in said[0]
     assert "stamped 6.02 s before the one before" in said[1] and "a restarted 'rig' continues" in said[1]
+    assert "Clock tick 1 (from tick 1) is no later than the tick before" in said[2]
     assert counters["decode_errors"] == 0
 
 
