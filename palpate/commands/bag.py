@@ -37,14 +37,18 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--bus", type=path_arg, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
     p.add_argument("--name", default="replay", help="publisher name on the bus (manifest and ipc socket)")
     p.add_argument(
-        "--subscribers", type=non_negative_int, default=1, metavar="N", help="wait for N subscribers first (0: no)"
+        "--subscribers",
+        type=non_negative_int,
+        default=1,
+        metavar="N",
+        help="wait for N subscribers first (default 1; 0: no)",
     )
     p.add_argument(
         "--wait-timeout",
         type=non_negative_float,
         default=30.0,
         metavar="S",
-        help="give up waiting after S s (0: never)",
+        help="give up waiting after S s (default 30; 0: never)",
     )
     p.set_defaults(func=run_replay)
 

@@ -844,22 +844,27 @@ def copy_log(
         return (included is None or topic in included) and topic not in excluded
 
     report = RecoverReport()
-    with output_file(src, dst, "filter", overwrite) as partial, LogWriter(partial, compression=compression) as out:
-        count = copy_records(iter_records_tolerant(src, report), out, keep=keep, report=report)
-        if report.truncated:
-            raise RecordError(f"{src} is truncated ({report.reason}); run `palpate bag recover {src}` first")
-        if report.damaged_chunks:
-            raise RecordError(
-                f"{src} holds {report.damaged_chunks} damaged chunk(s) ({report.damage}); run "
-                f"`palpate bag recover {src}` first"
-            )
-        if report.orphaned:
-            raise RecordError(
-                f"{src} holds {report.orphaned} message(s) on channels it never defines: the file is damaged; "
-                f"run `palpate bag recover {src}` first"
-            )
-        if count == 0:
-            raise RecordError(f"{src}: no message of the topics kept; wrote nothing (see palpate bag info {src})")
+    with output_file(src, dst, "filter", overwrite) as partial:
+        # as every reader of messages: a cut, damaged or altered log (its launch metadata too, which the copy
+        # would carry under a new CRC, as if verified) is named, and recover is the way on
+        with _open(src) as stream:
+            check_complete(stream, src, data_crc=True)
+        with LogWriter(partial, compression=compression) as out:
+            count = copy_records(iter_records_tolerant(src, report), out, keep=keep, report=report)
+            if report.truncated:
+                raise RecordError(f"{src} is damaged ({report.reason}); run `palpate bag recover {src}` first")
+            if report.damaged_chunks:
+                raise RecordError(
+                    f"{src} holds {report.damaged_chunks} damaged chunk(s) ({report.damage}); run "
+                    f"`palpate bag recover {src}` first"
+                )
+            if report.orphaned:
+                raise RecordError(
+                    f"{src} holds {report.orphaned} message(s) on channels it never defines: the file is damaged; "
+                    f"run `palpate bag recover {src}` first"
+                )
+            if count == 0:
+                raise RecordError(f"{src}: no message of the topics kept; wrote nothing (see palpate bag info {src})")
     return count
 
 

@@ -569,7 +569,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bus", type=path_arg, help=f"bus directory (default ${bus.BUS_ENV} or a per-user temp dir)")
     p.add_argument("--connect", nargs="+", default=[], metavar="EP", help="publisher endpoints (default: manifests)")
     p.add_argument("--until-stop", action="store_true", help="exit after the graph's stop and its last messages")
-    p.add_argument("--compression", choices=sorted(COMPRESSIONS), default="zstd", help="chunk compression")
+    p.add_argument(
+        "--compression", choices=sorted(COMPRESSIONS), default="zstd", help="chunk compression (default zstd)"
+    )
     p.add_argument(
         "--chunk-size", type=positive_int, default=1 << 20, metavar="BYTES", help="largest chunk (default 1 MiB)"
     )

@@ -82,7 +82,7 @@ class LogSource:
     def __iter__(self) -> Iterator[tuple[str, Message]]:
         with self.path.open("rb") as stream:
             try:
-                check_complete(stream, self.path)  # a cut or damaged log named as bag names it
+                check_complete(stream, self.path, data_crc=True)  # a cut, damaged or altered log named as bag names it
             except RecordError as exc:
                 then = ", and view the result" if "bag recover" in str(exc) else ""
                 raise ViewerError(f"{exc}{then}") from exc

@@ -500,6 +500,16 @@ def test_altered_launch_metadata_is_refused_where_it_would_mislead(tmp_path: Pat
         mcap_io.launch_info(tmp_path / "altered.mcap", verify=True)
     with pytest.raises(RecordError, match=r"its data section does not match"):
         list(mcap_io.read_messages(tmp_path / "altered.mcap"))
+    # an outside walkthrough: filter carried the altered metadata into a log with a new CRC, where it then
+    # passed as verified; and the viewer drew such a log
+    with pytest.raises(RecordError, match=r"altered\.mcap: its data section does not match .* bag recover"):
+        mcap_io.copy_log(tmp_path / "altered.mcap", tmp_path / "filtered.mcap")
+    assert not (tmp_path / "filtered.mcap").exists()
+    from palpate.errors import ViewerError
+    from palpate.viewer.sources import LogSource
+
+    with pytest.raises(ViewerError, match=r"its data section does not match .*, and view the result"):
+        list(LogSource(tmp_path / "altered.mcap"))
     report = mcap_io.recover(tmp_path / "altered.mcap", tmp_path / "kept.mcap")
     assert report.data_crc_mismatch and report.lost() == 0 and report.indexed
     kept = mcap_io.launch_info(tmp_path / "kept.mcap", verify=True)  # a valid log now, its metadata marked
