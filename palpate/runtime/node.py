@@ -511,7 +511,15 @@ class NodeRunner:
         """At the end of the run, a warning for each topic with refused messages: how many (its first
         refusals are logged above with their reasons), and for an input topic of which every message was
         refused, that the node ran without it. In real time a state message that a newer one replaced was
-        never read, so it counts apart."""
+        never read, so it counts apart; where the node used the topic, how many it skipped so is said too."""
+        for topic in sorted(set(self._superseded_by_topic) & self._used_topics):
+            log.warning(
+                "node %s skipped %d message(s) on %s in this run: newer ones replaced them before it read them "
+                "(real time: it handles the newest of a burst; counter superseded)",
+                self.process.name,
+                self._superseded_by_topic[topic],
+                topic,
+            )
         for topic in sorted({*self._bad_by_topic, *self._refused_by_topic}):
             undecoded, refused = self._bad_by_topic.get(topic, 0), self._refused_by_topic.get(topic, 0)
             if topic in self._used_topics or topic not in self.input_types:
@@ -570,6 +578,8 @@ class NodeRunner:
             kept = _latest_state_messages(batch, self.input_types)
             if len(kept) < len(batch):
                 self._superseded_by_topic.update(Counter(item[3] for item in batch) - Counter(item[3] for item in kept))
+                skipped = len(batch) - len(kept)
+                self.ctx.counters["superseded"] = self.ctx.counters.get("superseded", 0) + skipped
             batch = kept
         for _, _, _, topic, payload in batch:
             message = self._decode(topic, payload, self.input_types[topic])

@@ -557,6 +557,28 @@ def test_unused_input_warning_counts_apart_what_a_real_time_node_never_read(
     )
 
 
+def test_a_real_time_node_counts_and_says_the_state_messages_it_skipped(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """An outside walkthrough: a real-time mapper slower than a glove's readings made 914 updates for 1001
+    ticks, and nothing counted or said the readings it skipped."""
+    process = dataclasses.replace(bare_process(tmp_path, "reader"), subscribes={"contacts": "sensors/contacts"})
+    runner = runner_of(process, ContactsReader)
+    try:
+        for i in range(3):
+            runner.buffer.append((-1, 0, i, "sensors/contacts", _contacts(i)))
+        runner.dispatch(latest_only=True)
+        with caplog.at_level("WARNING"):
+            runner._note_refused_inputs()
+    finally:
+        runner._close_sockets(linger_ms=0)
+    assert runner.ctx.counters["superseded"] == 2 and runner.ctx.counters["messages_in"] == 1
+    assert caplog.messages[-1] == (
+        "node reader skipped 2 message(s) on sensors/contacts in this run: newer ones replaced them before it "
+        "read them (real time: it handles the newest of a burst; counter superseded)"
+    )
+
+
 def test_a_node_says_at_the_end_how_many_messages_of_a_topic_it_refused(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
