@@ -225,7 +225,10 @@ def _checks(config: SimNodeConfig) -> dict[KeyPath, str]:
 
 def _facts(config: SimNodeConfig) -> dict[str, tuple[Any, tuple[str, ...]]]:
     """Where the scene fixes its hand or finger: a mapper of the same graph must be mounted there."""
-    return {"hand_mount": (effector_mount(config.scene), ("scene",))}
+    scene = config.scene
+    # the mount's keys (base_position_m, finger, ...) live in the effector's own section: scene.finger, scene.hand
+    path = ("scene",) if scene.effector == "probe" else ("scene", scene.effector)
+    return {"hand_mount": (effector_mount(scene), path)}
 
 
 SPEC = NodeSpec(

@@ -404,13 +404,22 @@ def check_facts(graph: Graph) -> None:
                 continue
             other, other_fact, other_value, other_where, other_key, other_path = first[name]
             if value != other_value:
-                hint = _same_by_set(node, fact, path, value, other_value) or _same_by_set(
-                    other, other_fact, other_path, other_value, value
-                )
+                tries = [(node, fact, path, value, other_value), (other, other_fact, other_path, other_value, value)]
+                # a set on a driver's node first (its params only say what its hardware is), then on a node
+                # other than the clock source (the simulator's scene is the world the others model)
+                tries.sort(key=lambda t: 0 if t[0].external else 2 if t[0].spec.clock_source else 1)
+                hint = _same_by_set(*tries[0]) or _same_by_set(*tries[1])
+                played = [n.name for n in (node, other) if n.external]
                 raise LaunchError(
                     f"{where}: node {node.name!r} ({key}) and node {other.name!r} ({other_key}, {other_where}) "
                     f"disagree on {name}: {_difference(value, other_value)}; make them the same"
                     + (f", e.g. {hint}" if hint else "")
+                    + (
+                        f" (node {played[0]!r} is played by a driver: its params say what the hardware is, "
+                        "so give them the hardware's values)"
+                        if len(played) == 1
+                        else ""
+                    )
                 )
 
 

@@ -110,7 +110,8 @@ BAD = [
     (
         "mount_not_the_sims.yaml",
         [],
-        "node 'mapper' (params.mount) and node 'sim' (params.scene, tests/data/launch/mount_not_the_sims.yaml:7) "
+        "node 'mapper' (params.mount) and node 'sim' "
+        "(params.scene.finger, tests/data/launch/mount_not_the_sims.yaml:7) "
         "disagree on hand_mount: "
         "base_position_m [-0.09662, 0.035, 0.0785] here, [-0.09312, 0.035, 0.075] there; make them the same, "
         "e.g. --set 'mapper.mount.base_position_m=[-0.09312,0.035,0.075]'",
@@ -127,6 +128,21 @@ BAD = [
     ("mapper_not_a_mapping.yaml", [], "node 'mapper': params.mapper: expected a mapping of MapperConfig keys, got 3"),
     ("sim_scene_not_a_mapping.yaml", [], "node 'sim': params.scene: expected a mapping of SceneConfig keys, got [1]"),
 ]
+
+
+def test_a_mount_that_a_drivers_sim_states_otherwise_is_set_on_the_driver(tmp_path: Path) -> None:
+    """An outside walkthrough: a data glove's driver played the sim, and the mount check told to set the
+    mapper (mounted where the real finger is) back to the fictional sim's mount."""
+    text = (REPO_ROOT / "tests/data/launch/mount_not_the_sims.yaml").read_text()
+    path = tmp_path / "glove.yaml"
+    path.write_text(text.replace("    type: sim\n", "    type: sim\n    external: true\n", 1))
+    with pytest.raises(LaunchError) as info:
+        resolve(load_launch(path), bus_dir=tmp_path)
+    said = str(info.value)
+    assert "e.g. --set 'sim.scene.finger.base_position_m=[-0.09662,0.035,0.0785]'" in said
+    assert said.endswith(
+        "(node 'sim' is played by a driver: its params say what the hardware is, so give them the hardware's values)"
+    )
 
 
 @pytest.mark.parametrize(("name", "overrides", "expected"), BAD, ids=[b[0] + "".join(b[1]) for b in BAD])
@@ -1223,7 +1239,7 @@ def test_a_dry_run_refuses_an_object_the_scripted_finger_cannot_reach(
     mount = ["--set", "mapper.mount.base_position_m=[-0.06962,0.035,0.0515]"]  # where the sim puts the finger
     assert main([*args, *small, *mount]) == 2
     err = capsys.readouterr().err
-    assert "map_known.yaml:17: node 'sim' (params.scene): the finger's fingertip cannot reach the object" in err
+    assert "map_known.yaml:18: node 'sim' (params.scene): the finger's fingertip cannot reach the object" in err
     assert "(3 mm across)" in err and "finger_mcp_offset_m=[0,0.01,0.05]" in err
     offset = [
         "--set",
