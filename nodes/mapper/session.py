@@ -147,7 +147,8 @@ class MapperSession:
         contacts = self._paired(reading.stamp_ns)
         resamples_before = self.mapper.counters.resamples
         self.mapper.update(reading.q_rad, contacts.links, contacts.local_m)
-        publish_maps = stamp_ns >= self.next_publish_ns
+        # a clock that went back (a real-time driver restarted from 0) starts the publication period again
+        publish_maps = stamp_ns >= self.next_publish_ns or stamp_ns < self.next_publish_ns - self.publish_period_ns
         if publish_maps:
             self.next_publish_ns = stamp_ns + self.publish_period_ns
         return MapperTick(resampled=self.mapper.counters.resamples > resamples_before, publish_maps=publish_maps)

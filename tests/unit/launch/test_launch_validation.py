@@ -130,6 +130,15 @@ BAD = [
 ]
 
 
+def test_an_input_a_drivers_node_declares_and_nothing_feeds_is_not_told_to_be_external(tmp_path: Path) -> None:
+    """An outside walkthrough: a glove driver's `type: sim` node without params (a probe scene, which takes
+    velocity commands) was told to mark the hardware driver 'external: true', which it was."""
+    path = tmp_path / "glove.yaml"
+    path.write_text("nodes:\n  - name: glove\n    type: sim\n    external: true\n")
+    with pytest.raises(LaunchError, match=r"no node publishes it; its params declare an input this graph does not"):
+        resolve(load_launch(path), bus_dir=tmp_path)
+
+
 def test_a_mount_that_a_drivers_sim_states_otherwise_is_set_on_the_driver(tmp_path: Path) -> None:
     """An outside walkthrough: a data glove's driver played the sim, and the mount check told to set the
     mapper (mounted where the real finger is) back to the fictional sim's mount."""

@@ -124,6 +124,19 @@ def test_a_run_that_ends_between_two_publications_publishes_its_last_maps_at_the
     assert [m.stamp_ns for topic, m in sent if topic == "map/occupancy"][3:] == [2_500_000_000]
 
 
+def test_maps_are_published_again_after_a_real_time_clock_went_back() -> None:
+    """An outside walkthrough: a real-time glove driver restarted with stamps from 0, and the mapper
+    published no map for the rest of the run (its next publication stayed at the old clock's time)."""
+    node, sent = mapper("map_known.yaml")
+    joints = list(node.chain.joint_names)
+    stamps = [tick * 10_000_000 for tick in range(301)] + [tick * 10_000_000 for tick in range(151)]  # 0..3 s, 0..1.5 s
+    for stamp in stamps:
+        node.on_joint_states(reading(joints, np.radians([0.0, 20.0, 30.0, 10.0]), stamp))
+        node.on_tick(stamp)
+    published = [m.stamp_ns for topic, m in sent if topic == "map/occupancy"]
+    assert published == [0, 1_000_000_000, 2_000_000_000, 3_000_000_000, 0, 1_000_000_000]
+
+
 def test_contacts_on_another_finger_are_counted_and_said_once() -> None:
     """An outside walkthrough: a hand scene tapping with the index finger and a mapper of the ring finger
     mapped nothing, without a count or a word."""
