@@ -235,12 +235,23 @@ class MapperNode:
         )
 
 
+#: The ports every mapper has, whatever its mode.
+INPUTS = {"joint_states": Port(JointState), "contacts": Port(ContactSet)}
+OUTPUTS = {
+    "map": Port(
+        OccupancyGrid,
+        doc="the map (FastSLAM: its best particle's); mode fastslam adds weighted_map (map/occupancy_weighted) and "
+        "particles (map/particles, ParticleSetSummary)",
+    )
+}
+
+
 def _ports(config: MapperNodeConfig) -> tuple[dict[str, Port], dict[str, Port]]:
-    outputs = {"map": Port(OccupancyGrid)}
+    outputs = dict(OUTPUTS)
     if config.mapper.mode == "fastslam":
         outputs["weighted_map"] = Port(OccupancyGrid, topic=topics.WEIGHTED_OCCUPANCY_GRID)
         outputs["particles"] = Port(ParticleSetSummary)
-    return {"joint_states": Port(JointState), "contacts": Port(ContactSet)}, outputs
+    return dict(INPUTS), outputs
 
 
 def _facts(config: MapperNodeConfig) -> dict[str, tuple[Any, tuple[str, ...]]]:
@@ -252,6 +263,8 @@ SPEC = NodeSpec(
     name="mapper",
     config=MapperNodeConfig,
     factory=MapperNode,
+    inputs=INPUTS,
+    outputs=OUTPUTS,
     ports_from_config=_ports,
     facts=_facts,
     doc="Haptic SLAM mapper of paper 000: occupancy grid at a known pose, or FastSLAM with K particles.",
