@@ -661,6 +661,8 @@ class RecoverReport:
 
 
 def _why(exc: BaseException) -> str:
+    if isinstance(exc, struct.error):  # its class is called `error`: say what it means here
+        return f"a record shorter than its fields: cut off or damaged ({exc})"
     return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
 
 

@@ -394,6 +394,16 @@ def test_a_message_on_a_channel_the_log_never_defines_is_named(tmp_path: Path) -
     assert report.messages == 2 and report.orphaned == 1
 
 
+def test_recover_of_a_log_cut_inside_its_first_record_says_so_in_words(tmp_path: Path) -> None:
+    """An outside walkthrough: a 30-byte head of a log gave 'error: unpack requires a buffer of 4 bytes'."""
+    src = tmp_path / "run.mcap"
+    write_log(src, canonical_log(2))
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(src.read_bytes()[:30])
+    with pytest.raises(RecordError, match=r"no complete chunk to recover \(a record shorter than its fields: cut off"):
+        mcap_io.recover(cut, tmp_path / "out.mcap")
+
+
 def test_a_file_too_short_for_a_footer_is_named(tmp_path: Path) -> None:
     short = tmp_path / "short.mcap"
     for content in (mcap_io.MCAP_MAGIC * 2, mcap_io.MCAP_MAGIC + b"\x01" * 20 + mcap_io.MCAP_MAGIC):
