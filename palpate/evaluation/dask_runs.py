@@ -24,6 +24,7 @@ non-JSON results such as maps for a plot).
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import contextlib
 import functools
 import hashlib
@@ -445,9 +446,17 @@ def check_scheduler(address: str, timeout_s: float) -> None:
         finally:
             comm.abort()
 
+    def ask() -> object:  # Dask's connect retries for timeout_s and then says why; the margin lets it have its say
+        return asyncio.run(asyncio.wait_for(identity(), timeout_s + min(timeout_s, 5.0)))
+
     try:
-        # Dask's connect retries for timeout_s and then says why; the margin lets it have its say
-        reply = asyncio.run(asyncio.wait_for(identity(), timeout_s + min(timeout_s, 5.0)))
+        try:
+            asyncio.get_running_loop()
+        except RuntimeError:  # no event loop in this thread (a command): ask here
+            reply = ask()
+        else:  # called from a running loop (a notebook): asyncio.run needs a thread of its own
+            with concurrent.futures.ThreadPoolExecutor(1) as pool:
+                reply = pool.submit(ask).result()
     except (OSError, TimeoutError) as exc:
         if not (reached or _listening(address)):
             raise _unreachable(address, timeout_s, exc) from exc

@@ -4,6 +4,7 @@ options, the error for an unreachable scheduler, and run_tasks on a one-worker l
 from __future__ import annotations
 
 import argparse
+import asyncio
 import json
 import math
 import socket
@@ -490,6 +491,11 @@ def test_the_scheduler_check_names_what_answers(
     monkeypatch.setattr(distributed.comm, "connect", opened)
     if said is None:
         dask_runs.check_scheduler("tcp://head:8786", 1.0)
+
+        async def in_a_notebook() -> None:  # an event loop already runs in this thread
+            dask_runs.check_scheduler("tcp://head:8786", 1.0)
+
+        asyncio.run(in_a_notebook())
     else:
         with pytest.raises(ClusterError, match=rf"^what answers at tcp://head:8786 {said}.*'Scheduler at'"):
             dask_runs.check_scheduler("tcp://head:8786", 1.0)
