@@ -16,7 +16,8 @@ from __future__ import annotations
 import math
 import os
 import time
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Annotated, Literal
 
 import numpy as np
@@ -70,6 +71,8 @@ class MapperConfig(Validated):
     l_occ, l_free: log-odds increments log(0.9/0.1), log(0.1/0.9) (paper III).
     l_min, l_max: clamp of the log-odds, so cells can change their mind (belief 4.5e-5 .. 1-4.5e-5).
     sigma_deg: joint-noise standard deviation of the proposal (paper: 1.5 deg).
+    per_joint_sigma_deg: joint name -> its own standard deviation (the others keep sigma_deg), as the
+      noise node's; for joint sensors whose noise differs (a glove's abduction sensor, say).
     resample_threshold: resample when N_eff < threshold * K.
     likelihood_floor: smallest probability one cell may give a particle (see fastslam.py); 0.01
       mapped the synthetic tapping scene (tests/unit/mapper/synthetic.py) better than 0.05 or 0.2
@@ -97,6 +100,7 @@ class MapperConfig(Validated):
     #: K, the number of FastSLAM particles (mode fastslam only).
     n_particles: PositiveInt = 100
     sigma_deg: NonNegativeFloat = 1.5
+    per_joint_sigma_deg: Mapping[str, NonNegativeFloat] = field(default_factory=dict)
     resample_threshold: Annotated[float, Fraction] = 0.5
     l_occ: PositiveFloat = L_OCC
     l_free: Annotated[float, Range(lt=0.0)] = L_FREE
@@ -172,7 +176,14 @@ def lattice_points(chain: KinematicChain, spacing_m: float, margin_m: float) -> 
 
 def check_fits(config: MapperConfig, chain: KinematicChain) -> None:
     """``check_memory`` for a mapper of this config and chain, without building it (a sweep checks every
-    setting before it records anything)."""
+    setting before it records anything), and that ``per_joint_sigma_deg`` names joints of the chain."""
+    unknown = sorted(set(config.per_joint_sigma_deg) - set(chain.joint_names))
+    if unknown:
+        raise ConfigError(
+            f"per_joint_sigma_deg names joint(s) {unknown} that the mapper's finger lacks; its joints: "
+            f"{list(chain.joint_names)}",
+            ("per_joint_sigma_deg",),
+        )
     spec = GridSpec.from_bounds(config.region_min_m, config.region_max_m, config.resolution_m)
     n_maps = config.n_maps
     check_memory(config, spec, n_maps, lattice_points(chain, *config.free_lattice()))
@@ -260,7 +271,7 @@ class Mapper:
                 chain=chain,
                 grids=self.grids,
                 free_volume=self.free_volume,
-                sigma_rad=math.radians(config.sigma_deg),
+                sigma_rad=np.radians([config.per_joint_sigma_deg.get(n, config.sigma_deg) for n in chain.joint_names]),
                 rng=rng,
                 resample_threshold=config.resample_threshold,
                 likelihood_floor=config.likelihood_floor,

@@ -140,7 +140,7 @@ class FastSlam:
         chain: KinematicChain,
         grids: LogOddsGrids,
         free_volume: FreeVolume,
-        sigma_rad: float,
+        sigma_rad: float | FloatArray,
         rng: np.random.Generator,
         resample_threshold: float = 0.5,
         likelihood_floor: float = 0.01,
@@ -150,7 +150,8 @@ class FastSlam:
         l_free: float = L_FREE,
         free_depth_cells: tuple[NDArray[np.float32], ...] = (),
     ) -> None:
-        if not (sigma_rad >= 0 and math.isfinite(sigma_rad)):
+        sigma = np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), (chain.n_joints,))
+        if not (np.all(sigma >= 0) and np.all(np.isfinite(sigma))):
             raise ConfigError(f"sigma must be finite and >= 0, got {sigma_rad!r} rad")
         if not 0.0 <= resample_threshold <= 1.0:
             raise ConfigError(f"resample_threshold must be in [0, 1], got {resample_threshold!r}")
@@ -161,7 +162,7 @@ class FastSlam:
         self.free_volume = free_volume
         self._free_h = free_volume.homogeneous()
         self._free_depth = free_depth_cells  # given: a free point clears only a cell wholly in the finger
-        self.sigma_rad = float(sigma_rad)
+        self.sigma_rad = sigma.copy()  # per joint (J,)
         self.rng = rng
         self.resample_threshold = float(resample_threshold)
         self.likelihood_floor = float(likelihood_floor)

@@ -16,10 +16,10 @@ import numpy as np
 
 from palpate.config import NonNegativeFloat, PositiveFloat, Validated
 from palpate.description import load_hand
-from palpate.errors import PalpateError
+from palpate.errors import ConfigError, PalpateError
 from palpate.messages import topics
 from palpate.messages.schemas import ContactSet, JointState, OccupancyGrid, ParticleSetSummary
-from palpate.nodes.mapper.core import Mapper, MapperConfig
+from palpate.nodes.mapper.core import Mapper, MapperConfig, check_fits
 from palpate.nodes.mapper.grid import SparseMap
 from palpate.nodes.mapper.kinematics import FingerMount, KinematicChain
 from palpate.nodes.mapper.session import MapperSession
@@ -254,6 +254,16 @@ def _ports(config: MapperNodeConfig) -> tuple[dict[str, Port], dict[str, Port]]:
     return dict(INPUTS), outputs
 
 
+def _checks(config: MapperNodeConfig) -> dict[tuple[str | int, ...], str]:
+    """What the mapper would refuse at its start, said at launch: per_joint_sigma_deg naming joints its finger
+    lacks, a grid and particle count that do not fit in memory."""
+    try:
+        check_fits(config.mapper, KinematicChain.from_description(load_hand(), config.mount))
+    except ConfigError as exc:
+        return {("mapper", *exc.path): str(exc)}
+    return {}
+
+
 def _facts(config: MapperNodeConfig) -> dict[str, tuple[Any, tuple[str, ...]]]:
     """Where the mapper's finger is mounted: the simulator of the same graph must put it there."""
     return {"hand_mount": (config.mount.fact(), ("mount",))}
@@ -267,6 +277,7 @@ SPEC = NodeSpec(
     outputs=OUTPUTS,
     ports_from_config=_ports,
     facts=_facts,
+    checks=_checks,
     doc="Haptic SLAM mapper of paper 000: occupancy grid at a known pose, or FastSLAM with K particles.",
     may_trail=True,  # never stops a run: the clock need not wait for it when nothing in the loop reads it
 )

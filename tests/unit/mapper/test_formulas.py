@@ -10,6 +10,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from palpate.errors import ConfigError
 from palpate.nodes.mapper.fastslam import FastSlam, normalise_log_weights, observation_log_likelihood
 from palpate.nodes.mapper.grid import L_OCC, GridSpec, LogOddsGrids, Observed, SparseMap
 from palpate.nodes.mapper.kinematics import KinematicChain
@@ -93,7 +94,7 @@ def test_normalising_keeps_small_differences_next_to_a_tiny_weight() -> None:
     assert n_eff == pytest.approx(1.0 / ((1.0 - w1) ** 2 + w1**2), rel=1e-12)
 
 
-def _silent_filter(K: int, sigma_rad: float, threshold: float, seed: int) -> FastSlam:
+def _silent_filter(K: int, sigma_rad: float | np.ndarray, threshold: float, seed: int) -> FastSlam:
     """A filter whose grid lies far from the finger: no cell observed, every likelihood 0."""
     chain = _finger()
     spec = GridSpec(origin_m=(5.0, 5.0, 5.0), resolution_m=0.01, shape=(4, 4, 4))
@@ -120,6 +121,31 @@ def test_the_best_particle_survives_resampling_at_its_new_index() -> None:
     assert stats.resampled
     np.testing.assert_allclose(fs.weights, 0.1, rtol=1e-12)
     np.testing.assert_array_equal(fs.best_q(), q_proposed[1])
+
+
+def test_the_proposal_draws_each_joint_with_its_own_sigma() -> None:
+    """A glove's joint sensors differ in noise: per_joint_sigma_deg gives each joint its own proposal."""
+    K, seed = 200, 4
+    sigma = np.radians([0.0, 1.5, 3.0, 1.5])
+    fs = _silent_filter(K, sigma, 0.0, seed)
+    q_noisy = np.radians([5.0, 20.0, 10.0, 5.0])
+    fs.update(q_noisy, np.zeros(0, np.intp), np.zeros((0, 3)))
+    expected = q_noisy + sigma * np.random.default_rng(seed).standard_normal((K, 4))
+    np.testing.assert_array_equal(fs.q, expected)
+    assert np.all(fs.q[:, 0] == q_noisy[0]) and fs.q[:, 2].std() > 1.5 * fs.q[:, 1].std()
+    with pytest.raises(ConfigError, match="sigma must be finite and >= 0"):
+        _silent_filter(K, np.radians([0.0, -1.0, 1.0, 1.0]), 0.0, seed)
+
+
+def test_a_per_joint_sigma_of_a_joint_the_finger_lacks_is_refused() -> None:
+    from palpate.nodes.mapper.core import MapperConfig, check_fits
+
+    region = {"region_min_m": (-0.045, -0.045, -0.045), "region_max_m": (0.045, 0.045, 0.045)}
+    chain = _finger()
+    check_fits(MapperConfig(**region, per_joint_sigma_deg={chain.joint_names[2]: 3.0}), chain)
+    with pytest.raises(ConfigError, match=r"names joint\(s\) \['thumb_ip'\] that the mapper's finger lacks") as info:
+        check_fits(MapperConfig(**region, per_joint_sigma_deg={"thumb_ip": 3.0}), chain)
+    assert info.value.path == ("per_joint_sigma_deg",)
 
 
 def test_resampling_waits_until_the_effective_size_is_below_the_threshold() -> None:
