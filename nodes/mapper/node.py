@@ -134,8 +134,8 @@ class MapperNode:
                 "mapper: contacts found no joint reading stamped within stamp_tolerance_s (%g s) of theirs (contacts "
                 "at %d ns, the next reading at %s) and are left out of the maps (counter contacts_unmatched): "
                 + (
-                    f"{refused} joint reading(s) were refused (said above), and their contacts with them"
-                    if refused
+                    f"joint readings were refused (said above; {refused} so far), and their contacts with them"
+                    if self.session.unmatched_after_refusal
                     else "in real time a mapper slower than the tick skips readings (see its ms_per_update); a "
                     "driver stamps a tick's joint and contact messages alike, or the mapper's stamp_tolerance_s "
                     "allows the difference"

@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -89,8 +90,13 @@ class MapperSession:
         self.contacts_off_chain = 0
         #: The first link name a contact gave that the chain does not have ("" before one came).
         self.first_off_link = ""
-        #: Joint readings refused (an angle beyond a full turn, a joint of the chain missing).
+        #: Joint readings refused (an angle beyond a full turn, a joint of the chain missing), and the stamps
+        #: of the latest ones.
         self.readings_refused = 0
+        self._refused_stamps: deque[int] = deque(maxlen=MAX_PENDING_CONTACTS)
+        #: Whether the contacts that last found no reading had theirs refused.
+        self.unmatched_after_refusal = False
+        self._last_tick_ns: int | None = None
         #: Contact points on the chain left out because no joint reading had their stamp, and the last
         #: such pair of stamps (contacts', reading's).
         self.contacts_unmatched = 0
@@ -103,12 +109,12 @@ class MapperSession:
         try:
             q_rad = select_named(names, positions_rad, self.chain.joint_names, "names")
         except InputError:
-            self.readings_refused += 1
+            self._refuse(stamp_ns)
             raise
         beyond = np.flatnonzero(np.abs(q_rad) > MAX_JOINT_RAD)
         if len(beyond):
             i = int(beyond[0])
-            self.readings_refused += 1
+            self._refuse(stamp_ns)
             raise InputError(
                 "positions_rad",
                 f"joint {self.chain.joint_names[i]!r} reads {q_rad[i]:.6g} rad, more than a full turn: degrees "
@@ -117,6 +123,10 @@ class MapperSession:
         reading = JointReading(stamp_ns=stamp_ns, q_rad=q_rad)
         self._reading = reading
         return reading
+
+    def _refuse(self, stamp_ns: int) -> None:
+        self.readings_refused += 1
+        self._refused_stamps.append(stamp_ns)
 
     def contacts(self, links: Sequence[str], local_positions_m: ArrayLike, stamp_ns: int) -> ChainContacts:
         """Keep the contacts (the link of each and its position in that link's frame) that lie on the
@@ -144,11 +154,16 @@ class MapperSession:
         self._reading = None
         if reading is None:
             return None
+        went_back = self._last_tick_ns is not None and stamp_ns < self._last_tick_ns
+        self._last_tick_ns = stamp_ns
+        if went_back:  # a real-time driver restarted from 0: contacts of its former run pair with no reading now
+            for stale in [c for c in self._pending if c.stamp_ns > reading.stamp_ns]:
+                self._pending.remove(stale)
+                self._unmatched(stale, reading.stamp_ns)
         contacts = self._paired(reading.stamp_ns)
         resamples_before = self.mapper.counters.resamples
         self.mapper.update(reading.q_rad, contacts.links, contacts.local_m)
-        # a clock that went back (a real-time driver restarted from 0) starts the publication period again
-        publish_maps = stamp_ns >= self.next_publish_ns or stamp_ns < self.next_publish_ns - self.publish_period_ns
+        publish_maps = stamp_ns >= self.next_publish_ns or went_back  # the publication period starts again
         if publish_maps:
             self.next_publish_ns = stamp_ns + self.publish_period_ns
         return MapperTick(resampled=self.mapper.counters.resamples > resamples_before, publish_maps=publish_maps)
@@ -174,3 +189,5 @@ class MapperSession:
         if len(contacts.links):
             self.contacts_unmatched += len(contacts.links)
             self.last_unmatched = (contacts.stamp_ns, reading_ns)
+            tolerance = self.stamp_tolerance_ns
+            self.unmatched_after_refusal = any(abs(contacts.stamp_ns - t) <= tolerance for t in self._refused_stamps)

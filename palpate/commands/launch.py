@@ -134,7 +134,10 @@ def _load_graph(
             note = replay_note(launch, replay, replay_nodes)
             if note:
                 print(note, file=sys.stderr)
-            replayed = replace_publishers_with_log(launch, replay, replay_nodes)
+            notes: list[str] = []
+            replayed = replace_publishers_with_log(launch, replay, replay_nodes, notes)
+            for line in notes:
+                print(line, file=sys.stderr)
             kept = {entry.fields["name"] for entry in replayed.nodes}
             if gone := sorted(set(external or ()) - kept):
                 raise LaunchError(f"--external {','.join(gone)}: --replay stands in for {gone}; name other nodes")

@@ -432,9 +432,11 @@ def check_scheduler(address: str, timeout_s: float) -> None:
     import asyncio
 
     from distributed.comm import connect as open_comm
+    from distributed.comm.core import FatalCommClosedError
     from distributed.security import Security
 
     reached = False
+    limit_s = timeout_s + min(timeout_s, 5.0)  # Dask's connect retries for timeout_s and then says why
 
     async def identity() -> object:
         nonlocal reached
@@ -446,8 +448,8 @@ def check_scheduler(address: str, timeout_s: float) -> None:
         finally:
             comm.abort()
 
-    def ask() -> object:  # Dask's connect retries for timeout_s and then says why; the margin lets it have its say
-        return asyncio.run(asyncio.wait_for(identity(), timeout_s + min(timeout_s, 5.0)))
+    def ask() -> object:
+        return asyncio.run(asyncio.wait_for(identity(), limit_s))
 
     try:
         try:
@@ -457,12 +459,19 @@ def check_scheduler(address: str, timeout_s: float) -> None:
         else:  # called from a running loop (a notebook): asyncio.run needs a thread of its own
             with concurrent.futures.ThreadPoolExecutor(1) as pool:
                 reply = pool.submit(ask).result()
+    except FatalCommClosedError as exc:  # Dask's TLS handshake failed: a certificate, not the address
+        raise _insecure(address, exc) from exc
     except (OSError, TimeoutError) as exc:
         if not (reached or _listening(address)):
             raise _unreachable(address, timeout_s, exc) from exc
         said = "no answer" if isinstance(exc, TimeoutError) else f"{type(exc).__name__}: {exc}"
-        raise _no_scheduler(address, f"{said} to Dask's identity call within {timeout_s:g} s") from exc
-    except (MemoryError, ValueError, TypeError) as exc:  # another protocol's bytes read as Dask's frames
+        stage = "to Dask's identity call" if reached else "to Dask's handshake"
+        raise _no_scheduler(address, f"{said} {stage} within {limit_s:g} s") from exc
+    except (TypeError, RuntimeError) as exc:
+        if not reached:  # raised before a byte went out: Dask's security settings do not fit the address
+            raise _insecure(address, exc) from exc
+        raise _no_scheduler(address, f"{type(exc).__name__}: {exc}") from exc
+    except (MemoryError, ValueError) as exc:  # another protocol's bytes read as Dask's frames
         raise _no_scheduler(address, f"{type(exc).__name__}: {exc}") from exc
     kind = reply.get("type") if isinstance(reply, dict) else None
     if kind in ("Worker", "Nanny"):
@@ -479,6 +488,14 @@ def _unreachable(address: str, timeout_s: float, exc: BaseException) -> ClusterE
         f"cannot reach the Dask scheduler at {address} within {timeout_s:g} s ({exc or 'no connection'}); start one "
         f"with `dask scheduler` (docs/benchmarks.md) or leave out --scheduler and ${SCHEDULER_ENV} to run on a "
         "local cluster"
+    )
+
+
+def _insecure(address: str, exc: BaseException) -> ClusterError:
+    return ClusterError(
+        f"cannot connect to the Dask scheduler at {address}: Dask's security settings do not fit it "
+        f"({type(exc).__name__}: {exc}); check the TLS keys of your Dask configuration (distributed.comm.tls.*, "
+        "distributed.comm.require-encryption) and the address's scheme (tls:// or tcp://)"
     )
 
 

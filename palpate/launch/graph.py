@@ -559,13 +559,17 @@ def _check_wiring(graph: Graph) -> None:
             if topic not in types and node.spec.inputs[port].optional:
                 continue
             if topic not in types:
-                fix = (
-                    "its params declare an input this graph does not feed: give them what the hardware is (a "
-                    "driver playing the sim states its scene, whose effector decides the sim's inputs), or remap "
-                    "the port"
-                    if node.external
-                    else "add a publisher, remap the port, or mark a hardware driver 'external: true'"
-                )
+                fix = "add a publisher, remap the port, or mark a hardware driver 'external: true'"
+                if node.external:
+                    fix = (
+                        "its params declare an input this graph does not feed: give them what the hardware is"
+                        + (
+                            " (a driver playing the sim states its scene, whose effector decides the sim's inputs)"
+                            if node.type == "sim"
+                            else ""
+                        )
+                        + ", or remap the port"
+                    )
                 raise LaunchError(
                     f"{where}: node {node.name!r} subscribes to {topic!r} (port {port!r}, {wanted}) but no node "
                     f"publishes it; {fix}"

@@ -3,8 +3,9 @@
 By default the replay node stands in for the clock source (the simulator or a hardware driver: the
 sensor data) and every other node runs live, so a full recording re-runs the estimators, planners
 and controllers on recorded sensor data. ``--replay-nodes A,B`` names the nodes to replace instead
-(the clock source among them: the replay node takes over the clock); the log must hold every topic
-each of them publishes. The replay node publishes those topics tick by tick.
+(the clock source among them: the replay node takes over the clock); the log must hold every topic of
+theirs that a node which re-runs reads (their other topics, truth a hardware driver never published say,
+are left out, and said). The replay node publishes those topics tick by tick.
 """
 
 from __future__ import annotations
@@ -33,9 +34,10 @@ REPLAY_NODE_NAME = "replay"
 
 
 def replace_publishers_with_log(
-    launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] | None = None
+    launch: LaunchFile, log_path: str | Path, nodes: Sequence[str] | None = None, notes: list[str] | None = None
 ) -> LaunchFile:
-    """`launch` with the clock source (or the named `nodes`) replaced by one `replay` node of `log_path`."""
+    """`launch` with the clock source (or the named `nodes`) replaced by one `replay` node of `log_path`.
+    ``notes``, when given, gets a line naming the replaced nodes' topics the log lacks and no node reads."""
     log_path = Path(log_path).resolve()
     recorded = log_topics(log_path)
     # Resolving validates the original graph and gives the topics after remaps and namespaces, and
@@ -72,6 +74,12 @@ def replace_publishers_with_log(
     _check_open_loop(graph, replaced)
     _check_recorded_facts(graph, replaced, log_path)
     replayed = sorted({t for node in replaced for t in node.publishes.values() if t in recorded})
+    absent = sorted({t for node in replaced for t in node.publishes.values()} - set(replayed))
+    if absent and notes is not None:
+        notes.append(
+            f"note: the log holds no {absent}, which no node that re-runs reads; the replay goes without them "
+            "(a recording of it, or a viewer, lacks them too)"
+        )
     for topic in replayed:
         if recorded[topic] != graph.topic_types()[topic]:
             raise LaunchError(

@@ -502,6 +502,32 @@ def test_the_scheduler_check_names_what_answers(
     assert comm.aborted
 
 
+@pytest.mark.parametrize(
+    "refusal",
+    [
+        TypeError(
+            "TLS expects a `ssl_context` argument of type ssl.SSLContext (perhaps check your TLS configuration?)"
+        ),
+        RuntimeError("encryption required by Dask configuration, refusing communication from/to 'tcp://head:8786'"),
+    ],
+)
+def test_security_settings_that_do_not_fit_the_address_are_named_as_such(
+    monkeypatch: pytest.MonkeyPatch, refusal: Exception
+) -> None:
+    """The review: a tls:// scheduler without the client's TLS settings was called "no Dask scheduler", and
+    require-encryption with a tcp:// address ended in a traceback."""
+    import distributed.comm
+
+    async def refused(address: str, timeout: float, **kwargs: object) -> None:
+        raise refusal
+
+    monkeypatch.setattr(distributed.comm, "connect", refused)
+    with pytest.raises(
+        ClusterError, match=r"^cannot connect to the Dask scheduler at tcp://head:8786: Dask's security"
+    ):
+        dask_runs.check_scheduler("tcp://head:8786", 1.0)
+
+
 @pytest.mark.parametrize("advice", [None, ""])
 def test_rows_of_other_settings_get_advice_only_where_the_command_has_it(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], advice: str | None

@@ -137,6 +137,45 @@ def test_maps_are_published_again_after_a_real_time_clock_went_back() -> None:
     assert published == [0, 1_000_000_000, 2_000_000_000, 3_000_000_000, 0, 1_000_000_000]
 
 
+def test_contacts_of_a_driver_s_former_run_are_dropped_when_its_clock_goes_back() -> None:
+    """The review: contacts stamped 1.01 s before a driver's restart stayed pending and, at the new run's
+    1.01 s, won over that run's own contacts."""
+    node, _ = mapper("map_known.yaml")
+    joints, tip = list(node.chain.joint_names), node.chain.link_names[-1]
+    q = np.radians([0.0, 20.0, 30.0, 10.0])
+    for tick in range(101):  # 0 .. 1.0 s; then the driver sends contacts at 1.01 s and dies
+        node.on_joint_states(reading(joints, q, tick * 10_000_000))
+        node.on_tick(tick * 10_000_000)
+    node.on_contacts(contacts([tip], np.array([[0.0, 0.0, -0.008]]), 1_010_000_000))
+    node.on_joint_states(reading(joints, q, 0))  # restarted from 0
+    node.on_tick(0)
+    assert node.session.contacts_unmatched == 1 and node.session.last_unmatched == (1_010_000_000, 0)
+    for tick in range(1, 102):  # the new run's own contacts at 1.01 s take its reading of that stamp
+        stamp = tick * 10_000_000
+        node.on_joint_states(reading(joints, q, stamp))
+        if tick == 101:
+            node.on_contacts(contacts([tip], np.array([[0.0, 0.0, -0.008]]), stamp))
+        node.on_tick(stamp)
+    assert node.session.contacts_unmatched == 1 and node.core.counters.contacts == 1
+
+
+def test_contacts_stamped_apart_are_not_blamed_on_a_reading_refused_earlier(caplog: pytest.LogCaptureFixture) -> None:
+    """The review: one reading refused early made every later unmatched contact "refused"."""
+    from palpate.errors import InputError
+
+    node, _ = mapper("map_known.yaml")
+    joints, tip = list(node.chain.joint_names), node.chain.link_names[-1]
+    with pytest.raises(InputError):
+        node.on_joint_states(reading(joints, np.array([0.0, 20.0, 30.0, 10.0]), 10_000_000))  # degrees
+    with caplog.at_level(logging.WARNING):
+        for tick in range(2, 5):
+            node.on_joint_states(reading(joints, np.zeros(4), tick * 10_000_000))
+            node.on_contacts(contacts([tip], np.array([[0.0, 0.0, 0.01]]), tick * 10_000_000 + 1))
+            node.on_tick(tick * 10_000_000)
+    assert node.ctx.counters["contacts_unmatched"] == 2
+    assert "slower than the tick" in caplog.text and "were refused" not in caplog.text
+
+
 def test_contacts_on_another_finger_are_counted_and_said_once() -> None:
     """An outside walkthrough: a hand scene tapping with the index finger and a mapper of the ring finger
     mapped nothing, without a count or a word."""
@@ -177,7 +216,7 @@ def test_contacts_whose_joint_readings_were_refused_are_said_so(caplog: pytest.L
         node.on_joint_states(reading(joints, np.radians([0.0, 20.0, 30.0, 10.0]), 40_000_000))  # in radians
         node.on_tick(40_000_000)
     assert node.session.readings_refused == 3 and node.ctx.counters["contacts_unmatched"] == 3
-    assert "3 joint reading(s) were refused (said above), and their contacts with them" in caplog.text
+    assert "joint readings were refused (said above; 3 so far), and their contacts with them" in caplog.text
     assert "slower than the tick" not in caplog.text
 
 

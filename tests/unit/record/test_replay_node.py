@@ -119,7 +119,7 @@ def test_launch_replay_needs_only_the_topics_that_nodes_which_re_run_read(tmp_pa
     published only what the mapper reads; its recording was refused for lacking the sim's other topics
     (truth/object, truth/joint_states, sensors/effector_pose), which no node of the graph reads."""
     glove = tmp_path / "glove.mcap"
-    names = ["index_mcp_abduction", "index_mcp", "index_pip", "index_dip"]
+    names = ["index_mcp_abd", "index_mcp_flex", "index_pip", "index_dip"]  # the mapper's finger's
     states = [
         JointState(stamp_ns=t * PERIOD_NS, names=names, positions_rad=np.zeros(4), velocities_rad_s=np.zeros(4))
         for t in range(3)
@@ -127,8 +127,13 @@ def test_launch_replay_needs_only_the_topics_that_nodes_which_re_run_read(tmp_pa
     sensors = [(t, m) for t, m in canonical_log(3) if t == topics.CONTACTS]
     readings = [(topics.JOINT_STATES, s) for s in states]
     write_log(glove, [item for pair in zip(sensors, readings, strict=True) for item in pair])
-    launch = replace_publishers_with_log(load_launch(MAP_KNOWN), glove)
+    notes: list[str] = []
+    launch = replace_publishers_with_log(load_launch(MAP_KNOWN), glove, notes=notes)
     assert [e.fields["name"] for e in launch.nodes] == ["replay", "mapper"]
+    assert notes == [
+        "note: the log holds no ['sensors/effector_pose', 'truth/joint_states', 'truth/object'], which no node that "
+        "re-runs reads; the replay goes without them (a recording of it, or a viewer, lacks them too)"
+    ]
     replay = resolve(launch, bus_dir=tmp_path).by_name["replay"]
     assert sorted(replay.publishes) == [topics.CONTACTS, topics.JOINT_STATES]
     assert set(replay.params["order"]) == {topics.CONTACTS, topics.JOINT_STATES}
