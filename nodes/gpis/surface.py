@@ -33,10 +33,10 @@ IntArray = NDArray[np.int32]
 VarianceSites = Callable[[FloatArray], NDArray[np.integer]]
 
 #: Default local patch: +-5 cm around the latest contact (the planner samples candidates up to 5 cm,
-#: GP-V up to 6 cm along the surface, which the box corners cover).
+#: GP-V up to 6 cm in a straight line from it, which the box corners cover).
 LOCAL_HALF_EXTENT_M = 0.05
-#: Default grid step. Marching-cubes vertices then lie at most one step apart, so triangle centres
-#: (the planner's candidates) are spaced ~2-5 mm: the paper's 0.5 cm candidate step or finer.
+#: Default grid step. Marching-cubes vertices then lie at most one step apart, so the planner's
+#: candidates (vertices thinned to one per 5 mm voxel) keep the paper's 0.5 cm candidate step.
 LOCAL_RESOLUTION_M = 0.005
 #: Coarse cells with a corner |f| below REFINE_BAND x coarse step are evaluated on the fine grid.
 REFINE_BAND = 1.5
