@@ -146,7 +146,7 @@ def schema_document(type_name: str, schema_version: int) -> dict[str, Any]:
         "x-palpate-version": schema_version,
         "x-palpate-encoding": (
             "msgpack [header {type, version, fields}, blob]; an array field is {dtype, shape, offset, nbytes} "
-            "into blob (C order, 8-byte aligned); see palpate/messages/codec.py"
+            "into blob (C order, 8-byte aligned); see docs/messages.md (palpate/messages/codec.py)"
         ),
     }
     cls = REGISTRY.get(type_name)
@@ -174,6 +174,7 @@ def schema_document(type_name: str, schema_version: int) -> dict[str, Any]:
         properties[name] = prop
     doc["properties"] = properties
     doc["required"] = list(properties)
+    doc["additionalProperties"] = False  # a message holds its fields, no more and no less (docs/messages.md)
     return doc
 
 

@@ -50,6 +50,8 @@ def test_schema_describes_fields_units_and_version() -> None:
     assert doc["properties"]["positions_m"]["x-shape"] == ["n", 3]
     assert doc["properties"]["positions_m"]["x-unit"] == "m"
     assert doc["properties"]["stamp_ns"]["type"] == "integer"
+    # an outside walkthrough: the schema let a reader expect more fields than a message may hold
+    assert doc["additionalProperties"] is False and "docs/messages.md" in doc["x-palpate-encoding"]
     assert "unknown" in json.loads(mcap_io.schema_bytes("NoSuchType", 3))["description"]
 
 
