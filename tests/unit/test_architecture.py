@@ -134,6 +134,18 @@ def test_no_node_package_imports_another() -> None:
     assert not bad, "node packages share code through the library layer, not each other:\n" + "\n".join(bad)
 
 
+def test_node_cores_do_not_import_the_runtime() -> None:
+    """Pure core, thin node: only a node package's node.py speaks to the runtime (palpate.runtime.spec); its
+    core and other modules take arrays and return arrays (an outside walkthrough's strategy module imported
+    palpate.runtime.spec and no test said so)."""
+    bad = [
+        where(imp)
+        for imp in ALL_IMPORTS
+        if under(imp.module, "palpate.nodes") and under(imp.target, "palpate.runtime") and imp.path.name != "node.py"
+    ]
+    assert not bad, "only a node package's node.py imports the runtime:\n" + "\n".join(bad)
+
+
 def test_layers_point_one_way() -> None:
     bad = []
     for imp in ALL_IMPORTS:
