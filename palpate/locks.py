@@ -19,7 +19,8 @@ class LockHeldError(Exception):
 
 def hold(path: Path) -> IO[str]:
     """Lock the file ``path`` (made if missing) for this process and write its pid into it; the lock lasts
-    while the returned file is open. LockHeldError when another process holds it."""
+    while the returned file is open. LockHeldError when another process holds it; OSError when the file
+    cannot be made or written (a folder of another user, a full disk)."""
     import fcntl  # POSIX only; the viewer, which imports the bus, also runs elsewhere
 
     handle = open(path, "a+")  # noqa: SIM115 (held by the caller)
@@ -30,8 +31,12 @@ def hold(path: Path) -> IO[str]:
         holder = handle.read().strip() or "?"
         handle.close()
         raise LockHeldError(holder) from None
-    handle.seek(0)
-    handle.truncate()
-    handle.write(str(os.getpid()))
-    handle.flush()
+    try:
+        handle.seek(0)
+        handle.truncate()
+        handle.write(str(os.getpid()))
+        handle.flush()
+    except OSError:  # a full disk: the caller names it; the lock goes with the file
+        handle.close()
+        raise
     return handle

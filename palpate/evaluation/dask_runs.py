@@ -238,6 +238,10 @@ def _lock_for(path: Path) -> IO[str]:
     lock_path = path.with_name(path.name + ".lock")
     try:
         return locks.hold(lock_path)
+    except OSError as exc:
+        raise ConfigError(
+            f"cannot write {lock_path} ({why_not(exc)}); give --out a folder you can write, with room on its disk"
+        ) from exc
     except locks.LockHeldError as held:
         raise ConfigError(
             f"{path} is being written by another evaluation (pid {held.holder}, {lock_path}); wait for it to end, "
@@ -309,9 +313,15 @@ class RunLog:
         del stored[KEY_FIELD]
         stored.update((k, v) for k, v in row.items() if k.startswith("_"))
         with _interrupts_held():  # written and counted, or neither: Ctrl-C's note counts the rows
-            self._file.write(text + "\n")
-            self._file.flush()
-            os.fsync(self._file.fileno())
+            try:
+                self._file.write(text + "\n")
+                self._file.flush()
+                os.fsync(self._file.fileno())
+            except OSError as exc:  # a full disk: what is in the file stays; --resume leaves out a cut line
+                raise ClusterError(
+                    f"cannot write {self.path} ({why_not(exc)}): its {len(self.rows)} run(s) written before are "
+                    "kept; make room (or copy the folder where there is some) and run again with --resume"
+                ) from exc
             self.rows[key] = stored
         return stored
 

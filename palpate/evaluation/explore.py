@@ -548,7 +548,7 @@ def run_episode_on_worker(episode: Episode, profile: bool, *mesh: SharedFile) ->
     except MemoryError as exc:
         return error_row(
             episode,
-            f"MemoryError: the run ran out of memory ({exc or 'no detail'}); cap it with --max-contacts "
+            f"MemoryError: the run ran out of memory ({str(exc) or 'no detail'}); cap it with --max-contacts "
             "(--set eval.eval.max_contacts=N --set eval.eval.contacts_per_bound=0 in a sweep: the budget is the "
             "larger of the two), or give each worker more memory (fewer --workers)",
         )

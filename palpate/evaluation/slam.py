@@ -482,8 +482,8 @@ def run_seed_on_worker(seed: int, config: SlamEvalConfig, keep_maps: bool) -> di
     except MemoryError as exc:
         return {
             "seed": seed,
-            "error": f"MemoryError: the run ran out of memory ({exc or 'no detail'}); fewer --particles, a coarser "
-            "--resolution-mm, or fewer --workers give each run more",
+            "error": f"MemoryError: the run ran out of memory ({str(exc) or 'no detail'}); fewer --particles, a "
+            "coarser --resolution-mm, or fewer --workers give each run more",
         }
     except PalpateError as exc:
         return {"seed": seed, "error": f"{type(exc).__name__}: {exc}"}

@@ -60,7 +60,10 @@ def default_bus_dir() -> Path:
     configured = os.environ.get(BUS_ENV)
     if configured:
         path = usable_dir(Path(configured))
-        path.mkdir(parents=True, exist_ok=True)
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise BusError(unwritable(path, exc)) from exc
         return path
     runtime = os.environ.get(RUNTIME_DIR_ENV)
     if runtime and Path(runtime).is_absolute() and Path(runtime).is_dir():
@@ -89,6 +92,14 @@ def usable_dir(path: Path) -> Path:
         what = f"bus directory {path}" + (f": {existing}" if existing != path else "")
         raise BusError(f"{what} is not a directory; choose a bus directory with --bus DIR or ${BUS_ENV}")
     return path
+
+
+def unwritable(folder: Path, exc: OSError) -> str:
+    """What to tell a user whose bus directory cannot be made or written (another user's folder, a full disk)."""
+    return (
+        f"cannot write the bus directory {folder} ({exc.strerror or type(exc).__name__}); give one you can write, "
+        f"with room on its disk, with --bus DIR or ${BUS_ENV}"
+    )
 
 
 def private_dir(path: Path) -> Path:
@@ -158,11 +169,16 @@ class Manifest:
         return Path(bus_dir) / f"{node}.json"
 
     def write(self, bus_dir: str | Path) -> Path:
-        Path(bus_dir).mkdir(parents=True, exist_ok=True)  # a graph of TCP nodes only has no ipc socket there
+        """Write the manifest (BusError naming the folder when it cannot be written: a full disk)."""
         path = Manifest.path(bus_dir, self.node)
         tmp = path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(asdict(self), sort_keys=True))
-        tmp.replace(path)
+        try:
+            Path(bus_dir).mkdir(parents=True, exist_ok=True)  # a graph of TCP nodes only has no ipc socket there
+            tmp.write_text(json.dumps(asdict(self), sort_keys=True))
+            tmp.replace(path)
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            raise BusError(unwritable(Path(bus_dir), exc)) from exc
         return path
 
 
@@ -255,17 +271,22 @@ class NameClaim:
     def __init__(self, bus_dir: str | Path, names: Iterable[str]) -> None:
         self.files: list[Any] = []
         folder = Path(bus_dir)
-        folder.mkdir(parents=True, exist_ok=True)
         try:
+            folder.mkdir(parents=True, exist_ok=True)
             for name in sorted(set(names)):
                 try:
                     self.files.append(locks.hold(folder / f"{name}.lock"))
+                except OSError as exc:
+                    raise BusError(unwritable(folder, exc)) from exc
                 except locks.LockHeldError as held:
                     raise BusError(
                         f"node name {name!r} is in use on the bus directory {folder} by another running graph "
                         f"(process {held.holder}); stop that graph, or give this one its own bus directory with "
                         "--bus DIR (palpate topic, record and the viewer then take --bus DIR too)"
                     ) from None
+        except OSError as exc:  # the folder could not be made
+            self.release()
+            raise BusError(unwritable(folder, exc)) from exc
         except BaseException:
             self.release()
             raise

@@ -7,6 +7,7 @@ import argparse
 import asyncio
 import json
 import math
+import os
 import socket
 from pathlib import Path
 
@@ -526,6 +527,29 @@ def test_security_settings_that_do_not_fit_the_address_are_named_as_such(
         ClusterError, match=r"^cannot connect to the Dask scheduler at tcp://head:8786: Dask's security"
     ):
         dask_runs.check_scheduler("tcp://head:8786", 1.0)
+
+
+def test_a_full_disk_under_the_runs_file_is_named_and_keeps_the_runs_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An outside walkthrough: --out on a full disk ended in an ENOSPC traceback, at the lock file or at a
+    run's line."""
+    import errno
+
+    from palpate import locks
+
+    def full(*args: object, **kwargs: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    log = RunLog(tmp_path / "runs.jsonl", resume=True)
+    log.append("first", {"x": 1})
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(ClusterError, match=r"runs\.jsonl \(No space left on device\): its 1 run\(s\) written before"):
+        log.append("second", {"x": 2})
+    log.close()
+    monkeypatch.setattr(locks, "hold", full)
+    with pytest.raises(ConfigError, match=r"cannot write .*runs\.jsonl\.lock \(No space left on device\); give --out"):
+        RunLog(tmp_path / "runs.jsonl", resume=True)
 
 
 @pytest.mark.parametrize("advice", [None, ""])

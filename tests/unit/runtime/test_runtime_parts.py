@@ -579,6 +579,24 @@ def test_a_real_time_node_counts_and_says_the_state_messages_it_skipped(
     )
 
 
+def test_a_bus_directory_that_cannot_be_written_is_named(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """An outside walkthrough: a bus directory of another user, or on a full disk, ended the launch (and each
+    node writing its manifest) in a PermissionError or ENOSPC traceback."""
+    import errno
+
+    def full(*args: object, **kwargs: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(bus.locks, "hold", full)
+    with pytest.raises(BusError, match=r"cannot write the bus directory .* \(No space left on device\); give one"):
+        bus.NameClaim(tmp_path / "bus", ["sim"])
+    monkeypatch.setattr(Path, "write_text", full)
+    manifest = bus.Manifest(node="sim", pid=os.getpid(), publishes={}, endpoint="ipc:///x", subscribes={})
+    with pytest.raises(BusError, match=r"cannot write the bus directory .* \(No space left on device\)"):
+        manifest.write(tmp_path / "bus")
+    assert not list((tmp_path / "bus").glob("*.tmp"))
+
+
 def test_a_node_says_at_the_end_how_many_messages_of_a_topic_it_refused(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
