@@ -30,6 +30,7 @@ from types import FrameType
 from typing import IO
 
 from palpate import jsonio
+from palpate.errors import LaunchError
 from palpate.launch.graph import Graph, GraphNode
 from palpate.launch.placement import CpuPlacement
 from palpate.runtime import bus
@@ -153,13 +154,18 @@ class Supervisor:
     def _start(self, child: Child) -> None:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         place = self.placement.get(child.node.name)
-        child.proc = subprocess.Popen(
-            [sys.executable, "-m", "palpate.runtime.node", str(child.spec_path)],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            preexec_fn=_die_with_parent if place is None else lambda: _place_child(place),
-            env=env,
-        )
+        try:
+            child.proc = subprocess.Popen(
+                [sys.executable, "-m", "palpate.runtime.node", str(child.spec_path)],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                preexec_fn=_die_with_parent if place is None else lambda: _place_child(place),
+                env=env,
+            )
+        except OSError as exc:  # too many open files or processes for this user
+            raise LaunchError(
+                f"cannot start node {child.node.name!r}: {exc.strerror or exc}{bus.limit_hint(exc)}"
+            ) from exc
         if place is not None:
             self._check_placed(child, place)
         pump = threading.Thread(target=self._pump, args=(child, child.proc), daemon=True)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import difflib
+import errno
 import hashlib
 import json
 import logging
@@ -92,6 +93,15 @@ def usable_dir(path: Path) -> Path:
         what = f"bus directory {path}" + (f": {existing}" if existing != path else "")
         raise BusError(f"{what} is not a directory; choose a bus directory with --bus DIR or ${BUS_ENV}")
     return path
+
+
+def limit_hint(exc: OSError) -> str:
+    """For an error of a per-process limit, which limit to raise ('' for another error)."""
+    if exc.errno in (errno.EMFILE, errno.ENFILE):
+        return " (the limit of open files: raise it with `ulimit -n`, each node holds a few dozen)"
+    if exc.errno == errno.EAGAIN:
+        return " (the limit of processes or threads: raise it with `ulimit -u`)"
+    return ""
 
 
 def unwritable(folder: Path, exc: OSError) -> str:
@@ -251,7 +261,7 @@ def read_manifests(bus_dir: str | Path) -> list[Manifest]:
     try:
         paths = sorted(Path(bus_dir).glob("*.json"))
     except OSError as exc:
-        raise BusError(f"cannot read bus directory {bus_dir}: {exc.strerror}") from exc
+        raise BusError(f"cannot read bus directory {bus_dir}: {exc.strerror}{limit_hint(exc)}") from exc
     for path in paths:
         try:
             manifest = Manifest(**json.loads(path.read_text()))

@@ -130,6 +130,21 @@ BAD = [
 ]
 
 
+def test_a_node_that_cannot_be_started_for_a_limit_is_named_with_the_limit(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An outside walkthrough: under `ulimit -n 16` the launcher ended in Popen's OSError traceback."""
+    import errno
+
+    def no_files(*args: object, **kwargs: object) -> None:
+        raise OSError(errno.EMFILE, "Too many open files")
+
+    monkeypatch.setattr("palpate.launch.supervisor.subprocess.Popen", no_files)
+    assert main(["launch", str(REPO_ROOT / "launch/demo_minimal.yaml"), "--bus", str(tmp_path / "bus")]) == 2
+    said = capsys.readouterr().err
+    assert "cannot start node 'cube': Too many open files (the limit of open files: raise it with `ulimit -n`" in said
+
+
 def test_an_input_a_drivers_node_declares_and_nothing_feeds_is_not_told_to_be_external(tmp_path: Path) -> None:
     """An outside walkthrough: a glove driver's `type: sim` node without params (a probe scene, which takes
     velocity commands) was told to mark the hardware driver 'external: true', which it was."""
