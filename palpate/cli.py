@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import os
@@ -115,6 +116,18 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # the reader stopped early (`palpate bag info LOG --json | head`): no error
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - Python flushes stdout again at exit
         return 0
+    except OSError as exc:
+        if exc.errno not in (errno.ENOSPC, errno.EDQUOT):
+            raise
+        # a full disk (or quota) is the machine's state, not a fault: say it in a line (an evaluation's
+        # runs.jsonl keeps every run written before; --resume or --from-runs goes on from it)
+        where = f" writing {exc.filename}" if exc.filename else ""
+        print(
+            f"palpate {args.command}: the disk is full ({exc.strerror}{where}); make room and run again "
+            "(an evaluation: with --resume, or --from-runs for its tables)",
+            file=sys.stderr,
+        )
+        return 1
 
 
 if __name__ == "__main__":

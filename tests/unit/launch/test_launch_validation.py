@@ -716,6 +716,35 @@ def test_output_piped_into_a_reader_that_stops_early_ends_quietly(monkeypatch: p
     assert main(["launch", "--dry-run", "launch/explore.yaml"]) == 0
 
 
+def test_a_full_disk_ends_a_command_in_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An outside walkthrough: `eval explore --from-runs` onto a full disk ended in a matplotlib traceback
+    whose last line was ENOSPC; any other OSError still raises."""
+    import errno
+
+    class FullDisk:
+        def write(self, text: str) -> int:
+            raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "tables.md"))
+
+        def flush(self) -> None:
+            pass
+
+    monkeypatch.chdir(REPO_ROOT)
+    monkeypatch.setattr(sys, "stdout", FullDisk())
+    assert main(["launch", "--dry-run", "launch/explore.yaml"]) == 1
+    said = capsys.readouterr().err
+    assert said.startswith("palpate launch: the disk is full (No space left on device writing ") and "--resume" in said
+
+    class Denied(FullDisk):
+        def write(self, text: str) -> int:
+            raise PermissionError(errno.EACCES, "Permission denied")
+
+    monkeypatch.setattr(sys, "stdout", Denied())
+    with pytest.raises(PermissionError):
+        main(["launch", "--dry-run", "launch/explore.yaml"])
+
+
 def test_a_yaml_merge_key_is_named_at_its_line(tmp_path: Path) -> None:
     path = tmp_path / "merge.yaml"
     path.write_text(
