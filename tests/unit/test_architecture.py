@@ -51,7 +51,8 @@ ZMQ_ALLOWED = {
 }
 
 
-#: What may be imported from the root package itself: it holds only the version and the BLAS thread defaults.
+#: What may be imported from the root package itself: it holds only the version and the
+#: environment defaults (BLAS threads, numba's cache where nothing else can be written).
 ROOT_NAMES = {"palpate", "palpate.__version__"}
 #: The geometry layer is stricter than the library layer: third-party numerics and palpate.errors only.
 GEOMETRY_LIBRARIES = {"__future__", "math", "dataclasses", "functools", "typing", "numpy", "scipy", "open3d"}
@@ -152,7 +153,7 @@ def test_layers_point_one_way() -> None:
         layer = layer_of(imp.module)
         in_library = any(under(imp.module, lib) for lib in LIBRARY)
         if imp.target in ROOT_NAMES or not under(imp.target, "palpate") or (layer and under(imp.target, layer)):
-            continue  # the root package holds only the version and the BLAS thread defaults
+            continue  # the root package holds only the version and the environment defaults
         if in_library and not any(under(imp.target, lib) for lib in LIBRARY):
             bad.append(where(imp) + " (the library layer imports only the library layer)")
         elif layer and not any(under(imp.target, allowed) for allowed in ALLOWED[layer]):
