@@ -330,8 +330,10 @@ def run_graph(graph: Graph, record: Path | None = None, *, overwrite: bool = Fal
                 recorder.terminate()
                 recorder.wait()
     if recorder is not None and recorder.returncode != 0:
+        # its death was said when it stopped the launch: here only what it means for the log
+        how = "" if "recorder" in supervisor.helpers_died else f"the recorder exited with code {recorder.returncode}: "
         print(
-            f"[launch] the recorder exited with code {recorder.returncode}: {record} may lack the end of the run; "
+            f"[launch] {how}{record} may lack the end of the run; "
             f"`palpate bag recover {record}` rewrites what it holds into a complete log",
             file=sys.stderr,
         )

@@ -130,6 +130,8 @@ class Supervisor:
         self.second_drivers: set[str] = set()  # external nodes said to have two drivers
         #: Processes the run needs besides its nodes (the recorder), by name; started and stopped by the caller.
         self.helpers: dict[str, subprocess.Popen[bytes]] = {}
+        #: Those of them whose death stopped the launch (said already).
+        self.helpers_died: set[str] = set()
         for spec in process_specs:
             node = graph.by_name[spec.name]
             if node.external:  # not started here: its driver reads what the launcher would have passed it
@@ -275,6 +277,7 @@ class Supervisor:
             for name, proc in self.helpers.items():
                 if (code := proc.poll()) not in (None, 0):
                     self._say(f"the {name} died with {_how(code)}; stopping the launch")
+                    self.helpers_died.add(name)
                     return 1
             running = 0
             for child in self.children:

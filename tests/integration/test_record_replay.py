@@ -281,6 +281,7 @@ def test_a_recorder_killed_under_launch_stops_the_run_and_points_at_recover(tmp_
     out = (tmp_path / "launch.log").read_text()
     assert "the recorder died with signal SIGKILL; stopping the launch" in out, out
     assert f"palpate bag recover {log}" in out, out
+    assert "exited with code" not in out, out  # an outside walkthrough: its death was said twice
 
 
 def test_a_recorded_run_that_fails_before_its_first_tick_ends_at_once(tmp_path: Path) -> None:
