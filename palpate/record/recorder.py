@@ -44,7 +44,15 @@ from palpate.errors import MalformedMessageError, MessageError, PalpateError, Re
 from palpate.messages import codec, topics
 from palpate.messages.schemas import Clock, LockstepAck, RunControl
 from palpate.paths import why_not
-from palpate.record.mcap_io import COMPRESSIONS, INTERNAL_TOPICS, LAUNCH_METADATA, LogWriter, PayloadInfo, peek
+from palpate.record.mcap_io import (
+    COMPRESSIONS,
+    INTERNAL_TOPICS,
+    LAUNCH_METADATA,
+    MCAP_MAGIC,
+    LogWriter,
+    PayloadInfo,
+    peek,
+)
 from palpate.runtime import bus
 
 log = logging.getLogger("palpate.record")
@@ -495,6 +503,9 @@ class Recorder:
             for s, handler in previous.items():
                 signal.signal(s, handler)
         if failure is not None:
+            if _holds_no_record(self.output):  # nothing was written: a file of nothing would only block a rerun
+                Path(self.output).unlink(missing_ok=True)
+                raise RecordError(f"cannot write log {self.output}: {why_not(failure)}; nothing was recorded")
             raise RecordError(
                 f"cannot write log {self.output}: {why_not(failure)}; what it holds up to there: "
                 f"palpate bag recover {self.output}"
@@ -554,6 +565,15 @@ class Recorder:
 
 
 # --- command line --------------------------------------------------------------------------------
+
+
+def _holds_no_record(path: str | Path) -> bool:
+    """Whether the log at ``path`` is missing or too short to hold more than MCAP's magic and one record's
+    frame (nothing to recover)."""
+    try:
+        return Path(path).stat().st_size <= len(MCAP_MAGIC) + 9
+    except OSError:
+        return True
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

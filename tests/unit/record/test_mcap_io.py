@@ -157,6 +157,31 @@ def test_the_recorder_names_a_log_it_cannot_write(tmp_path: Path, monkeypatch: p
         recorder.run()
 
 
+def test_a_recorder_that_wrote_nothing_on_a_full_disk_leaves_no_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An outside walkthrough: `palpate record -o` onto a full disk left a 0-byte log, pointed at bag
+    recover (which found nothing) and blocked the run again without --force."""
+    import errno
+
+    from palpate.record.recorder import Recorder
+
+    log = tmp_path / "run.mcap"
+    recorder = Recorder(log, bus_dir=tmp_path / "bus")
+
+    def full(*args: object, **kwargs: object) -> None:
+        log.write_bytes(b"")  # what a full disk leaves of the log's header
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(recorder, "_write", full)
+    monkeypatch.setattr(recorder.writer, "close", lambda: None)
+    with pytest.raises(
+        RecordError, match=r"cannot write log .*run\.mcap: No space left on device; nothing was recorded$"
+    ):
+        recorder.run()
+    assert not log.exists()
+
+
 def test_bag_recover_replaces_an_existing_output_only_with_force(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
