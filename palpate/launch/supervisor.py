@@ -33,6 +33,7 @@ from palpate import jsonio
 from palpate.errors import LaunchError
 from palpate.launch.graph import Graph, GraphNode
 from palpate.launch.placement import CpuPlacement
+from palpate.paths import why_not
 from palpate.runtime import bus
 from palpate.runtime.spec import EXIT_RUN_FAILED, START_TIMEOUT_S, NodeProcessSpec
 
@@ -165,9 +166,7 @@ class Supervisor:
                 env=env,
             )
         except OSError as exc:  # too many open files or processes for this user
-            raise LaunchError(
-                f"cannot start node {child.node.name!r}: {exc.strerror or exc}{bus.limit_hint(exc)}"
-            ) from exc
+            raise LaunchError(f"cannot start node {child.node.name!r}: {why_not(exc)}{bus.limit_hint(exc)}") from exc
         if place is not None:
             self._check_placed(child, place)
         pump = threading.Thread(target=self._pump, args=(child, child.proc), daemon=True)

@@ -43,7 +43,7 @@ from zmq.utils.monitor import recv_monitor_message
 from palpate import locks
 from palpate.errors import BusError
 from palpate.messages import topics as topic_names
-from palpate.paths import read_start
+from palpate.paths import read_start, why_not
 
 log = logging.getLogger("palpate.bus")
 
@@ -107,7 +107,7 @@ def limit_hint(exc: OSError) -> str:
 def unwritable(folder: Path, exc: OSError) -> str:
     """What to tell a user whose bus directory cannot be made or written (another user's folder, a full disk)."""
     return (
-        f"cannot write the bus directory {folder} ({exc.strerror or type(exc).__name__}); give one you can write, "
+        f"cannot write the bus directory {folder} ({why_not(exc)}); give one you can write, "
         f"with room on its disk, with --bus DIR or ${BUS_ENV}"
     )
 
