@@ -495,9 +495,9 @@ _GIVE_SCHEDULER = "give the address `dask scheduler` prints as 'Scheduler at' (i
 
 def _unreachable(address: str, timeout_s: float, exc: BaseException) -> ClusterError:
     return ClusterError(
-        f"cannot reach the Dask scheduler at {address} within {timeout_s:g} s ({exc or 'no connection'}); start one "
-        f"with `dask scheduler` (docs/benchmarks.md) or leave out --scheduler and ${SCHEDULER_ENV} to run on a "
-        "local cluster"
+        f"cannot reach the Dask scheduler at {address} within {timeout_s:g} s ({str(exc) or 'no connection'}); "
+        f"start one with `dask scheduler` (docs/benchmarks.md) or leave out --scheduler and ${SCHEDULER_ENV} to run "
+        "on a local cluster"
     )
 
 

@@ -552,6 +552,22 @@ def test_a_full_disk_under_the_runs_file_is_named_and_keeps_the_runs_written(
         RunLog(tmp_path / "runs.jsonl", resume=True)
 
 
+def test_a_scheduler_check_that_timed_out_before_connecting_says_no_connection(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The final read: the timeout's message is empty, and "({exc or ...})" printed "()" since an exception
+    is always true."""
+    import distributed.comm
+
+    async def never(address: str, timeout: float, **kwargs: object) -> None:
+        await asyncio.sleep(10)
+
+    monkeypatch.setattr(distributed.comm, "connect", never)
+    monkeypatch.setattr(dask_runs, "_listening", lambda address: False)
+    with pytest.raises(ClusterError, match=r"within 0\.1 s \(no connection\); start one"):
+        dask_runs.check_scheduler("tcp://head:8786", 0.1)
+
+
 @pytest.mark.parametrize("advice", [None, ""])
 def test_rows_of_other_settings_get_advice_only_where_the_command_has_it(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], advice: str | None
