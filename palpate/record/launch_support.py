@@ -73,8 +73,9 @@ def replace_publishers_with_log(
         )
     _check_open_loop(graph, replaced)
     _check_recorded_facts(graph, replaced, log_path)
-    replayed = sorted({t for node in replaced for t in node.publishes.values() if t in recorded})
-    absent = sorted({t for node in replaced for t in node.publishes.values()} - set(replayed))
+    published = {t for node in replaced for t in node.publishes.values()}
+    replayed = sorted(published & set(recorded))
+    absent = sorted(published - set(recorded))
     if absent and notes is not None:
         notes.append(
             f"note: the log holds no {absent}, which no node that re-runs reads; the replay goes without them "
